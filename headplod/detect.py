@@ -1,0 +1,416 @@
+"""Marker blob detection in one IR image.
+
+Pixel convention (the whole project, conventions.md): pixel (u, v) = (0, 0) is
+the centre of the top-left pixel, u to the right, v down. Every centre this
+module returns is in full-image pixel coordinates, even when detection ran on a
+sub-region.
+
+Pipeline (Martinez et al. 2008, §4.1, with the changes that make it accurate):
+
+1. threshold: the paper used a fixed 100 DN; the default adapts to the image
+   (background median + max(k·σ, min contrast)), so dim IR still works;
+2. optional Gaussian smoothing (the paper's 9x9), off by default: on these
+   small blobs it merges neighbours and adds nothing the centroid needs;
+3. blobs are the external contours of the thresholded image (OpenCV's
+   findContours is 25x faster here than connectedComponentsWithStats);
+4. centre = intensity-weighted centroid over a window around each blob, with
+   the local background subtracted (the paper weighted raw intensities, which
+   pulls the centre toward the window's middle by the background's weight);
+5. small sharp blobs (glints: effective area flux/peak near the point-spread
+   function's) are flagged, not dropped; identification uses them only when it
+   must, and the 3D checks reject them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+# Scale from the median absolute deviation to σ for Gaussian noise.
+_MAD_TO_SIGMA = 1.4826
+
+
+@dataclass(frozen=True)
+class DetectionParams:
+    """Settings of blob detection.
+
+    Attributes
+    ----------
+    threshold_dn : float or None
+        Fixed threshold in DN (the paper: 100). None: adaptive,
+        ``background + max(k_sigma·σ, min_contrast_dn)``.
+    k_sigma : float
+        Adaptive threshold in noise standard deviations above the background.
+    min_contrast_dn : float
+        Adaptive threshold's least height above the background, DN.
+    smooth_px : int
+        Side of the Gaussian kernel applied to each blob window before
+        centroiding (the paper: 9); 0 disables it.
+    subtract_background : bool
+        Weight pixels by intensity minus the local background (default) rather
+        than by raw intensity of the thresholded pixels (the paper).
+    min_area_px : int
+        Blobs with fewer pixels above threshold are noise.
+    glint_max_area_px : int
+        Glints have at most this many pixels above threshold ...
+    glint_max_effective_area_px : float
+        ... and an effective area, flux / peak in px, at most this (a point
+        source blurred by the optics has about 2π σ_psf² ≈ 2.3 px).
+    pad_px : int
+        Margin around a blob's thresholded box for centroiding, px.
+    """
+
+    threshold_dn: float | None = None
+    k_sigma: float = 7.0
+    min_contrast_dn: float = 12.0
+    smooth_px: int = 0
+    subtract_background: bool = True
+    min_area_px: int = 2
+    glint_max_area_px: int = 6
+    glint_max_effective_area_px: float = 2.6
+    pad_px: int = 3
+
+    @classmethod
+    def paper(cls) -> "DetectionParams":
+        """Martinez et al.'s settings: fixed threshold 100, 9x9 smoothing, raw weights."""
+        return cls(threshold_dn=100.0, smooth_px=9, subtract_background=False)
+
+
+@dataclass
+class Blobs:
+    """Blobs found in one image; every array has one row per blob.
+
+    Attributes
+    ----------
+    centers_px : (n, 2) float64
+        Intensity-weighted centroids (u, v), full-image pixels.
+    area_px : (n,) int
+        Pixels above threshold.
+    peak_dn : (n,) float64
+        Highest intensity above the local background, DN.
+    flux_dn : (n,) float64
+        Sum of the centroid weights, DN·px.
+    glint : (n,) bool
+        Small and sharp: probably a specular reflection, not a marker.
+    bbox_px : (n, 4) int
+        Thresholded bounding box x, y, w, h in full-image pixels.
+    threshold_dn, background_dn, noise_dn : float
+        The threshold used, the background level and noise σ it came from.
+    """
+
+    centers_px: np.ndarray
+    area_px: np.ndarray
+    peak_dn: np.ndarray
+    flux_dn: np.ndarray
+    glint: np.ndarray
+    bbox_px: np.ndarray
+    threshold_dn: float = 0.0
+    background_dn: float = 0.0
+    noise_dn: float = 0.0
+    pixels: list = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.centers_px)
+
+    def subset(self, index) -> "Blobs":
+        """The blobs selected by ``index`` (an index array or boolean mask)."""
+        idx = np.asarray(index)
+        if idx.dtype == bool:
+            idx = np.flatnonzero(idx)
+        return Blobs(self.centers_px[idx], self.area_px[idx], self.peak_dn[idx],
+                     self.flux_dn[idx], self.glint[idx], self.bbox_px[idx],
+                     self.threshold_dn, self.background_dn, self.noise_dn,
+                     [self.pixels[i] for i in idx] if self.pixels else [])
+
+
+def estimate_background(image: np.ndarray, step: int = 16) -> tuple[float, float]:
+    """Background level and noise σ (DN) of a dark IR image.
+
+    Uses a sparse grid of pixels (every ``step``-th row and column): markers
+    cover far less than half of them, so the median is the background and the
+    median absolute deviation its noise (slow ambient gradients included).
+    """
+    sample = image[::step, ::step].ravel()
+    half = sample.size // 2
+    median = float(np.partition(sample, half)[half])
+    dev = np.abs(sample.astype(np.float32) - median)
+    mad = float(np.partition(dev, half)[half])
+    return median, max(_MAD_TO_SIGMA * mad, 0.5)
+
+
+def detect_blobs(image: np.ndarray, params: DetectionParams = DetectionParams(),
+                 roi: tuple[int, int, int, int] | None = None,
+                 background: tuple[float, float] | None = None,
+                 keep_pixels: bool = False) -> Blobs:
+    """Find bright blobs in an 8-bit IR image.
+
+    Parameters
+    ----------
+    image : (H, W) uint8
+        The whole camera image.
+    params : DetectionParams
+    roi : (x, y, w, h), optional
+        Search only this region (full-image pixels); centres stay full-image.
+    background : (level_dn, sigma_dn), optional
+        Reuse a background estimate (e.g. the previous frame's) instead of
+        measuring it again.
+    keep_pixels : bool
+        Also return, per blob, the pixel coordinates (k, 2) and weights (k,)
+        used for its centroid (for pixel-cloud uncertainty).
+    """
+    if background is None:
+        background = estimate_background(image)
+    bg, sigma = background
+    if params.threshold_dn is not None:
+        threshold = float(params.threshold_dn)
+    else:
+        threshold = bg + max(params.k_sigma * sigma, params.min_contrast_dn)
+
+    height, width = image.shape
+    if roi is None:
+        x_off, y_off, sub = 0, 0, image
+    else:
+        x_off, y_off = max(int(roi[0]), 0), max(int(roi[1]), 0)
+        x_end = min(int(roi[0] + roi[2]), width)
+        y_end = min(int(roi[1] + roi[3]), height)
+        sub = image[y_off:y_end, x_off:x_end]
+    if sub.size == 0:
+        return _empty(threshold, bg, sigma)
+
+    # THRESH_BINARY keeps pixels > thresh; floor() so "≥ threshold" holds for ints.
+    _, binary = cv2.threshold(sub, np.floor(threshold), 255, cv2.THRESH_BINARY)
+    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
+        return _empty(threshold, bg, sigma)
+    boxes = np.array([cv2.boundingRect(c) for c in contours], dtype=np.int64)
+    boxes[:, 0] += x_off
+    boxes[:, 1] += y_off
+    # A blob cut by the search region's edge (not the image's) has a biased centre.
+    sub_h, sub_w = sub.shape
+    truncated = (((boxes[:, 0] == x_off) & (x_off > 0))
+                 | ((boxes[:, 1] == y_off) & (y_off > 0))
+                 | ((boxes[:, 0] + boxes[:, 2] == x_off + sub_w) & (x_off + sub_w < width))
+                 | ((boxes[:, 1] + boxes[:, 3] == y_off + sub_h) & (y_off + sub_h < height)))
+    side = int(boxes[:, 2:].max()) + 2 * params.pad_px
+    if (side <= _FAST_WINDOW_PX and not params.smooth_px and params.subtract_background
+            and not keep_pixels and side <= min(width, height)):
+        stats = _centroids_fixed_windows(image, boxes, side, threshold, 2.0 * sigma)
+        if stats is not None:
+            centers, area, peak, flux = stats
+            return _finish(centers, area, peak, flux, boxes, truncated, params, threshold, bg, sigma, [], 2.0 * sigma)
+    centers, area, peak, flux, pixels = _centroids_per_blob(
+        image, binary, contours, boxes, (x_off, y_off), params, threshold, bg, sigma, keep_pixels)
+    noise_floor = 2.0 * sigma if params.subtract_background else 0.0
+    return _finish(centers, area, peak, flux, boxes, truncated, params, threshold, bg, sigma, pixels, noise_floor)
+
+
+# Blobs up to this window side (px) take the vectorized path: one array op per
+# statistic for all blobs instead of a Python iteration per blob.
+_FAST_WINDOW_PX = 40
+
+
+def _centroids_fixed_windows(image, boxes, side, threshold, noise_floor):
+    """Centroids of all blobs at once from equal square windows (n, side, side).
+
+    Returns None when a window would hold part of another blob (then the
+    per-blob path masks it out).
+    """
+    height, width = image.shape
+    cx = boxes[:, 0] + boxes[:, 2] // 2
+    cy = boxes[:, 1] + boxes[:, 3] // 2
+    ox = np.clip(cx - side // 2, 0, width - side)
+    oy = np.clip(cy - side // 2, 0, height - side)
+    # Another blob's box inside this window would bias the centroid.
+    inside = ((boxes[None, :, 0] < (ox + side)[:, None]) & (boxes[None, :, 0] + boxes[None, :, 2] > ox[:, None])
+              & (boxes[None, :, 1] < (oy + side)[:, None]) & (boxes[None, :, 1] + boxes[None, :, 3] > oy[:, None]))
+    if inside.sum() > len(boxes):
+        return None
+    centers, flux, peak, area, _ = _window_stats((image,), ox, oy, side, threshold, noise_floor)
+    return centers, area, peak, flux
+
+
+def _window_view(image: np.ndarray, side: int) -> np.ndarray:
+    """All side x side windows of an image as a read-only view (H−s+1, W−s+1, s, s).
+
+    ``np.ndarray`` over the image's buffer: the same view as numpy's
+    sliding_window_view at a tenth of its call overhead (it runs per frame).
+    """
+    image = np.ascontiguousarray(image)
+    h, w = image.shape
+    return np.ndarray((h - side + 1, w - side + 1, side, side), dtype=image.dtype, buffer=image,
+                      strides=(image.strides[0], image.strides[1], image.strides[0], image.strides[1]))
+
+
+def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, border=False):
+    """Background-subtracted centroid statistics of n square windows at once.
+
+    Parameters
+    ----------
+    images : sequence of (H, W) uint8
+        The images the windows lie in (one or both cameras).
+    ox, oy : (n,) int
+        Top-left corners of the windows, inside their image.
+    side : int
+        Window side, px.
+    threshold : float or (n,) array
+        Absolute threshold, DN, for the count of bright pixels.
+    noise_floor : float or (n,) array
+        Subtracted above the local background (2σ) so noise adds no weight.
+    which : (n,) int, optional
+        Image index of each window (default: all in images[0]).
+    border : bool
+        Also return the highest weight on each window's edge.
+
+    Returns
+    -------
+    centers (n, 2) px, flux (n,), peak (n,), area (n,) px above threshold,
+    border_peak (n,) or None: a blob cut by its window has a large one.
+    """
+    if which is None:
+        windows = _window_view(images[0], side)[oy, ox]
+    else:
+        windows = np.concatenate([_window_view(img, side)[oy[which == k], ox[which == k]]
+                                  for k, img in enumerate(images)])
+    windows = windows.astype(np.float32)
+    total = windows.sum(axis=(1, 2))
+    inner = windows[:, 1:-1, 1:-1].sum(axis=(1, 2))
+    level = (total - inner) / (4 * side - 4) + noise_floor       # local background + noise floor
+    weights = windows - level[:, None, None]
+    np.maximum(weights, 0, out=weights)
+    cols = weights.sum(axis=1)
+    rows = weights.sum(axis=2)
+    flux = cols.sum(axis=1, dtype=np.float64)
+    ramp = np.arange(side, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        centers = np.column_stack([ox + cols @ ramp / flux, oy + rows @ ramp / flux])
+    centers[flux <= 0] = np.nan
+    peak = weights.max(axis=(1, 2)) + noise_floor
+    area = np.count_nonzero(windows >= np.reshape(threshold, (-1, 1, 1)), axis=(1, 2))
+    border_peak = None
+    if border:
+        weights[:, 1:-1, 1:-1] = 0
+        border_peak = weights.max(axis=(1, 2)) + noise_floor
+    return centers, flux, peak, area, border_peak
+
+
+def centroids_near(images, guesses_px: np.ndarray, search_px: int, side_px: int,
+                   backgrounds, thresholds_dn):
+    """Re-measure known blobs near predicted positions, without a full detection.
+
+    Two passes of :func:`_window_stats`: a window of ``search_px`` around each
+    guess finds the blob, then a window of ``side_px`` re-centred on it gives
+    the centroid with a symmetric background. This is the tracking fast path:
+    a few array operations for all markers of both images.
+
+    Parameters
+    ----------
+    images : sequence of k (H, W) uint8
+    guesses_px : (k, n, 2)
+        Predicted centres per image, px.
+    search_px, side_px : int
+        Window sides, px.
+    backgrounds : sequence of k (level_dn, sigma_dn)
+    thresholds_dn : sequence of k float
+        A blob whose peak does not reach its image's threshold is not found.
+
+    Returns
+    -------
+    centers_px (k, n, 2), found (k, n) bool, area_px (k, n)
+    """
+    k, n = np.shape(guesses_px)[:2]
+    height, width = images[0].shape
+    which = np.repeat(np.arange(k), n)
+    sigma = np.repeat([b[1] for b in backgrounds], n)
+    noise_floor = 2.0 * sigma
+    contrast = np.repeat([t - b[0] for t, b in zip(thresholds_dn, backgrounds)], n)
+    threshold = np.repeat(np.asarray(thresholds_dn, dtype=np.float64), n)
+    centers = np.reshape(guesses_px, (k * n, 2)).astype(np.float64)
+    found = np.isfinite(centers).all(axis=1)
+    centers = np.where(found[:, None], centers, 0.0)
+    for side, final in ((search_px, False), (side_px, True)):
+        side = int(min(side, width, height))
+        ox = np.clip(np.rint(centers[:, 0]).astype(np.int64) - side // 2, 0, width - side)
+        oy = np.clip(np.rint(centers[:, 1]).astype(np.int64) - side // 2, 0, height - side)
+        new, flux, peak, area, border_peak = _window_stats(images, ox, oy, side, threshold, noise_floor,
+                                                           which if k > 1 else None, border=final)
+        found &= np.isfinite(new[:, 0]) & (peak >= contrast)
+        centers = np.where(np.isfinite(new), new, centers)
+    # The blob must lie wholly inside the final window.
+    found &= border_peak <= 0.15 * peak + noise_floor
+    return centers.reshape(k, n, 2), found.reshape(k, n), area.reshape(k, n)
+
+
+def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshold, bg, sigma, keep_pixels):
+    """Centroids one blob at a time: masks out neighbours, smooths (paper), keeps pixel clouds."""
+    height, width = image.shape
+    x_off, y_off = offset
+    pad = params.pad_px
+    x0 = np.maximum(boxes[:, 0] - pad, 0)
+    y0 = np.maximum(boxes[:, 1] - pad, 0)
+    x1 = np.minimum(boxes[:, 0] + boxes[:, 2] + pad, width)
+    y1 = np.minimum(boxes[:, 1] + boxes[:, 3] + pad, height)
+    # Windows that overlap another blob's window need that blob masked out.
+    overlaps = ((x0[:, None] < x1[None, :]) & (x0[None, :] < x1[:, None])
+                & (y0[:, None] < y1[None, :]) & (y0[None, :] < y1[:, None]))
+    np.fill_diagonal(overlaps, False)
+    crowded = overlaps.any(axis=1)
+
+    n = len(contours)
+    centers = np.full((n, 2), np.nan)
+    area = np.zeros(n, dtype=np.int64)
+    peak = np.zeros(n)
+    flux = np.zeros(n)
+    pixels = []
+    noise_floor = 2.0 * sigma if params.subtract_background else 0.0
+    for i in range(n):  # a handful of blobs; per-pixel work inside is OpenCV/numpy
+        win = image[y0[i]:y1[i], x0[i]:x1[i]].astype(np.float32)
+        if crowded[i]:
+            mask = np.zeros(win.shape, np.uint8)
+            cv2.drawContours(mask, contours, i, 1, thickness=-1, offset=(x_off - int(x0[i]), y_off - int(y0[i])))
+            mask = cv2.dilate(mask, np.ones((2 * pad + 1, 2 * pad + 1), np.uint8))
+            win *= mask
+        if params.smooth_px:
+            k = params.smooth_px | 1
+            win = cv2.GaussianBlur(win, (k, k), 0)
+        if params.subtract_background:
+            level = _border_mean(win) if not crowded[i] else bg
+            weights = win - (level + noise_floor)
+        else:
+            weights = np.where(win >= threshold, win, 0.0).astype(np.float32)
+        np.maximum(weights, 0, out=weights)
+        m = cv2.moments(weights)
+        if m["m00"] <= 0:
+            if keep_pixels:
+                pixels.append(None)
+            continue
+        centers[i] = (x0[i] + m["m10"] / m["m00"], y0[i] + m["m01"] / m["m00"])
+        flux[i] = m["m00"]
+        peak[i] = float(weights.max()) + noise_floor
+        bx, by, bw, bh = boxes[i, 0] - x_off, boxes[i, 1] - y_off, boxes[i, 2], boxes[i, 3]
+        area[i] = cv2.countNonZero(binary[by:by + bh, bx:bx + bw])
+        if keep_pixels:
+            ys, xs = np.nonzero(weights)
+            pixels.append((np.column_stack([xs + x0[i], ys + y0[i]]).astype(np.float64),
+                           weights[ys, xs].astype(np.float64)))
+    return centers, area, peak, flux, pixels
+
+
+def _finish(centers, area, peak, flux, boxes, truncated, params, threshold, bg, sigma, pixels, noise_floor):
+    effective_area = flux / np.maximum(peak - noise_floor, 1e-9)
+    glint = (area <= params.glint_max_area_px) & (effective_area <= params.glint_max_effective_area_px)
+    keep = np.isfinite(centers[:, 0]) & (area >= params.min_area_px) & ~truncated
+    return Blobs(centers, area, peak, flux, glint, boxes, threshold, bg, sigma, pixels).subset(keep)
+
+
+def _border_mean(win: np.ndarray) -> float:
+    """Mean of a window's one-pixel border: the local background under a blob."""
+    if win.shape[0] < 3 or win.shape[1] < 3:
+        return float(win.min())
+    total = win[0].sum() + win[-1].sum() + win[1:-1, 0].sum() + win[1:-1, -1].sum()
+    return float(total) / (2 * win.shape[1] + 2 * (win.shape[0] - 2))
+
+
+def _empty(threshold: float, bg: float, sigma: float) -> Blobs:
+    return Blobs(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0), np.zeros(0),
+                 np.zeros(0, bool), np.zeros((0, 4), np.int64), threshold, bg, sigma, [])

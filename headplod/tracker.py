@@ -1,0 +1,484 @@
+"""The stereo IR head tracker: two images in, a verified head pose out.
+
+Stages (each timed per frame in ``TrackResult.timings_s``):
+
+1. ``detect``: blobs in both images (:mod:`headplod.detect`). While tracking,
+   only a region around the previous frame's markers is searched and the
+   previous labels are carried over by nearest neighbour; the whole image and
+   a fresh identification are used when that fails.
+2. ``identify``: labelings P0..P4 per image (:mod:`headplod.identify`), then
+   the left/right pair that best satisfies the epipolar constraint and the
+   marker model's geometry (rigid fit with the model's true size). When no
+   pair of full labelings works, a marker hidden in one view is tried: the
+   other view's blobs are matched to the labeled view through the same checks.
+3. ``triangulate`` and ``pose``: one of the estimators of :mod:`headplod.geometry`.
+4. ``verify``: reprojection residuals in both images and the rigid-fit error;
+   a pose that fails them is not reported (``ok`` False with a reason).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from itertools import permutations
+
+import cv2
+import numpy as np
+
+from . import geometry as geo
+from .detect import Blobs, DetectionParams, centroids_near, detect_blobs, estimate_background
+from .identify import ModelRule, find_hypotheses
+
+ESTIMATORS = ("paper", "rigid", "reproj")
+MARKER_NAMES = ("P0", "P1", "P2", "P3", "P4")
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Tracker settings, each with its unit.
+
+    Attributes
+    ----------
+    estimator : {'reproj', 'rigid', 'paper'}
+        Pose estimator (see :mod:`headplod.geometry`); 'reproj' is the default
+        because it was the most accurate in ``headplod bench track`` at a cost
+        well inside the speed goal.
+    detection : DetectionParams
+    max_candidates : int
+        Blobs per image considered for identification (best ranked first).
+    epipolar_tol_px : float
+        Largest epipolar error of an accepted marker correspondence, px.
+    fit_tol_mm : float
+        Largest RMS distance of the triangulated markers from the rigidly
+        fitted model, mm.
+    reproj_tol_px : float
+        Largest reprojection residual of any marker after the pose fit, px.
+    ambiguity_deg : float
+        Two accepted identifications whose V differ by more than this make the
+        frame ambiguous: no pose is reported.
+    track : bool
+        Reuse the previous frame's marker positions (search a region around
+        them, carry the labels over).
+    track_margin_px : float
+        Margin of the tracking region around the previous markers, px.
+    hidden_marker : bool
+        Accept a pose with one marker hidden in one view.
+    compensate_offset : bool
+        When the right image is exposed at another time than the left one
+        (times.csv's t_right), move the model by the head's velocity over that
+        offset before the right camera sees it (reproj estimator).
+    keep_pixels : bool
+        Keep each marker's pixel cloud in the result (for uncertainty).
+    """
+
+    estimator: str = "reproj"
+    detection: DetectionParams = field(default_factory=DetectionParams)
+    max_candidates: int = 8
+    epipolar_tol_px: float = 2.5
+    fit_tol_mm: float = 2.0
+    reproj_tol_px: float = 2.0
+    ambiguity_deg: float = 3.0
+    track: bool = True
+    track_margin_px: float = 10.0
+    hidden_marker: bool = True
+    compensate_offset: bool = True
+    keep_pixels: bool = False
+
+    def __post_init__(self):
+        if self.estimator not in ESTIMATORS:
+            raise ValueError(f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
+
+
+@dataclass
+class TrackResult:
+    """The outcome of one stereo frame.
+
+    Attributes
+    ----------
+    ok : bool
+        A verified pose is present.
+    reason : str or None
+        Why there is no pose, for a person to act on.
+    position_mm : (3,) or None
+        P1 in the world (left camera) frame, mm.
+    axes : (3, 3) or None
+        Rows Ξ, Ψ, V in the world frame (conventions.md).
+    R_world_G : (3, 3) or None
+        Rotation from the glasses frame to the world frame.
+    centers_px : (2, 5, 2)
+        Marker centres per image (0 left, 1 right) and marker; NaN if hidden.
+    residuals_px : (2, 5)
+        Reprojection residual per image and marker after the fit; NaN if hidden.
+    epipolar_px : (5,)
+        Epipolar error of each marker correspondence, px.
+    fit_rms_mm : float
+        RMS distance of the triangulated markers from the fitted model, mm.
+    mode : {'track', 'acquire'}
+        Whether the previous frame's markers were reused.
+    timings_s : dict[str, float]
+        Seconds per stage.
+    """
+
+    ok: bool
+    reason: str | None = None
+    position_mm: np.ndarray | None = None
+    axes: np.ndarray | None = None
+    R_world_G: np.ndarray | None = None
+    centers_px: np.ndarray = field(default_factory=lambda: np.full((2, 5, 2), np.nan))
+    residuals_px: np.ndarray = field(default_factory=lambda: np.full((2, 5), np.nan))
+    epipolar_px: np.ndarray = field(default_factory=lambda: np.full(5, np.nan))
+    fit_rms_mm: float = float("nan")
+    mode: str = "acquire"
+    timings_s: dict = field(default_factory=dict)
+    blobs: tuple = (None, None)
+    marker_blob: np.ndarray | None = None
+
+    def record_extras(self) -> dict:
+        """JSON-ready diagnostics for a pose record (the contract allows more keys)."""
+        out = {"mode": self.mode, "timings_ms": {k: round(v * 1e3, 4) for k, v in self.timings_s.items()}}
+        if self.ok:
+            out["residuals_px"] = [[None if np.isnan(r) else round(float(r), 4) for r in row]
+                                   for row in self.residuals_px]
+        return out
+
+
+@dataclass
+class _Match:
+    """Marker centres of one identification: (2, 5, 2) px and visibility (2, 5)."""
+
+    centers: np.ndarray
+    visible: np.ndarray
+    blob_index: np.ndarray      # (2, 5) blob index per image, -1 if hidden
+    epipolar: np.ndarray        # (5,)
+    points: np.ndarray          # (5, 3) triangulated, NaN if hidden in a view
+    R: np.ndarray
+    t: np.ndarray
+    fit_rms: float
+
+
+class Tracker:
+    """Head tracker for one stereo rig and marker model.
+
+    Parameters
+    ----------
+    rig : headplod.io.Rig
+    model : headplod.io.MarkerModel
+    config : TrackerConfig
+    """
+
+    def __init__(self, rig, model, config: TrackerConfig = TrackerConfig()):
+        self.rig = rig
+        self.model = model
+        self.config = config
+        self.model_mm = np.asarray(model.points_mm, dtype=np.float64)
+        self.rule = ModelRule.from_model(self.model_mm)
+        self.normal_signs = geo.normal_signs(self.model_mm)
+        self.axes_G = geo.model_axes(self.model_mm)
+        self.E = geo.essential_matrix(rig.R, rig.T)
+        self.focal = (float(np.sqrt(rig.K1[0, 0] * rig.K1[1, 1])), float(np.sqrt(rig.K2[0, 0] * rig.K2[1, 1])))
+        self.cameras_mid_mm = 0.5 * (-rig.R.T @ np.reshape(rig.T, 3))
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous frames (e.g. after a seek)."""
+        self._prev_centers = None     # (2, 5, 2) last accepted centres, px
+        self._prev2_centers = None    # the ones before, for a constant-velocity prediction
+        self._prev_visible = None
+        self._prev_background = [None, None]
+        self._prev_threshold = [None, None]
+        self._prev_area = [None, None]
+        self._history = []            # [(t, R_world_G, p1)] last two accepted poses
+
+    # ------------------------------------------------------------------ public
+    def process(self, left: np.ndarray, right: np.ndarray, t: float | None = None,
+                t_right: float | None = None) -> TrackResult:
+        """Track one stereo pair.
+
+        Parameters
+        ----------
+        left, right : (H, W) uint8
+            IR images of the left and right camera, the rig's size.
+        t, t_right : float, optional
+            Mid-exposure times in seconds (t_right only if it differs).
+        """
+        timings = {}
+        start = time.perf_counter()
+        problem = self._check_images(left, right)
+        if problem:
+            return TrackResult(False, problem, timings_s={"total": time.perf_counter() - start})
+        images = (left, right)
+        match, mode, reason, blobs = None, "acquire", None, (None, None)
+        if self.config.track and self._prev_centers is not None and not self.config.keep_pixels:
+            match = self._track_fast(images)
+            timings["detect"] = time.perf_counter() - start
+            mode = "track"
+        if match is None:
+            t_det = time.perf_counter()
+            blobs = tuple(self._detect_full(img, i) for i, img in enumerate(images))
+            timings["detect"] = timings.get("detect", 0.0) + time.perf_counter() - t_det
+            t_id = time.perf_counter()
+            match, reason = self._identify(blobs)
+            timings["identify"] = timings.get("identify", 0.0) + time.perf_counter() - t_id
+            mode = "acquire"
+        if match is None:
+            self._prev_centers = self._prev2_centers = None
+            timings["total"] = time.perf_counter() - start
+            return TrackResult(False, reason, mode=mode, timings_s=timings, blobs=blobs)
+
+        t_pose = time.perf_counter()
+        R, p1, residuals = self._estimate(match, t, t_right)
+        timings["pose"] = time.perf_counter() - t_pose
+        t_ver = time.perf_counter()
+        axes = self.axes_G @ R.T if self.config.estimator != "paper" else geo.axes_from_points(match.points, self.normal_signs)
+        if self.config.estimator == "paper":
+            p1 = match.points[1]
+        result = TrackResult(True, None, p1, axes, R, match.centers, residuals, match.epipolar,
+                             match.fit_rms, mode, timings, blobs, match.blob_index)
+        worst = np.nanmax(residuals)
+        if not np.isfinite(worst) or worst > self.config.reproj_tol_px:
+            cam, marker = np.unravel_index(np.nanargmax(residuals), residuals.shape)
+            result = replace(result, ok=False, position_mm=None, axes=None, R_world_G=None,
+                             reason=f"reprojection error {worst:.2f} px of {MARKER_NAMES[marker]} in the "
+                                    f"{('left', 'right')[cam]} image exceeds {self.config.reproj_tol_px} px: "
+                                    "the identification is not trusted")
+            self._prev_centers = self._prev2_centers = None
+        else:
+            self._remember(match, t, R, p1, blobs)
+        timings["verify"] = time.perf_counter() - t_ver
+        timings["total"] = time.perf_counter() - start
+        return result
+
+    # --------------------------------------------------------------- detection
+    def _check_images(self, left, right) -> str | None:
+        width, height = self.rig.image_size
+        for name, img in (("left", left), ("right", right)):
+            if img is None:
+                return f"{name} image missing"
+            if img.dtype != np.uint8 or img.ndim != 2:
+                return f"{name} image is {img.dtype} with shape {img.shape}; expected 8-bit grayscale"
+            if img.shape != (height, width):
+                return (f"{name} image is {img.shape[1]}x{img.shape[0]} px but the rig is calibrated "
+                        f"for {width}x{height}: wrong camera mode or wrong rig.yaml")
+        return None
+
+    def _detect_full(self, image, cam) -> Blobs:
+        background = estimate_background(image)
+        self._prev_background[cam] = background
+        return detect_blobs(image, self.config.detection, background=background,
+                            keep_pixels=self.config.keep_pixels)
+
+    # ----------------------------------------------------------- identification
+    def _track_fast(self, images) -> _Match | None:
+        """Re-measure the previous frame's markers in small windows; None to re-acquire."""
+        prev = self._prev_centers
+        predicted = prev + (prev - self._prev2_centers) if self._prev2_centers is not None else prev
+        radius = np.sqrt(max(max(self._prev_area), 1.0) / np.pi)
+        side = 2 * int(np.ceil(radius)) + 2 * self.config.detection.pad_px + 1
+        search = side + 2 * int(self.config.track_margin_px)
+        centers, found, area = centroids_near(images, predicted, search, side, self._prev_background,
+                                              self._prev_threshold)
+        if not found.all():
+            return None
+        # Two windows locked onto one blob: the labels are no longer trustworthy.
+        gaps = np.linalg.norm(centers[:, :, None] - centers[:, None, :], axis=3) + 1e9 * np.eye(5)
+        if gaps.min() < radius + 1.0:
+            return None
+        self._prev_area = [float(area[0].max()), float(area[1].max())]
+        return self._match_from_centers(centers, np.ones((2, 5), bool), np.full((2, 5), -1))
+
+    def _match_from_centers(self, centers, visible, index) -> _Match | None:
+        """Triangulate labeled centres and fit the model; None if they break the checks."""
+        xn = [geo.undistort(centers[0], self.rig.K1, self.rig.D1), geo.undistort(centers[1], self.rig.K2, self.rig.D2)]
+        epi = geo.epipolar_error_px(xn[0], xn[1], self.E, *self.focal)
+        points, _ = geo.triangulate_midpoint(xn[0], xn[1], self.rig.R, self.rig.T)
+        R, t, rms = geo.kabsch(self.model_mm, points)
+        if epi.max() > self.config.epipolar_tol_px or rms > self.config.fit_tol_mm:
+            return None
+        return _Match(centers, visible, index, epi, points, R, t, float(rms))
+
+    def _candidates(self, b: Blobs) -> np.ndarray:
+        """Indices of the blobs most likely to be markers, best first."""
+        n = len(b)
+        if n == 0:
+            return np.zeros(0, np.int64)
+        clean = ~b.glint
+        typical = np.median(b.area_px[clean]) if clean.any() else np.median(b.area_px)
+        oversized = b.area_px > 6 * max(typical, 1)
+        penalty = 2 * b.glint + 1 * oversized
+        order = np.lexsort((-b.flux_dn, penalty))
+        return order[: self.config.max_candidates]
+
+    def _identify(self, blobs) -> tuple[_Match | None, str | None]:
+        cand = [self._candidates(b) for b in blobs]
+        counts = [len(c) for c in cand]
+        names = ("left", "right")
+        if min(counts) < 4 or (max(counts) < 5):
+            cam = int(np.argmin(counts))
+            return None, f"{names[cam]} image: {counts[cam]} marker blobs, 5 needed"
+        hyps = [find_hypotheses(blobs[i].centers_px[cand[i]], self.rule) if counts[i] >= 5 else None
+                for i in range(2)]
+        xn = [geo.undistort(blobs[0].centers_px[cand[0]], self.rig.K1, self.rig.D1),
+              geo.undistort(blobs[1].centers_px[cand[1]], self.rig.K2, self.rig.D2)]
+        match, reason = None, None
+        if hyps[0] is not None and hyps[1] is not None and len(hyps[0]) and len(hyps[1]):
+            match, reason = self._best_pair(hyps, xn, cand, blobs)
+        if match is None and self.config.hidden_marker:
+            alt, alt_reason = self._hidden_marker(hyps, xn, cand, blobs)
+            if alt is not None:
+                return alt, None
+            reason = reason or alt_reason
+        if match is None and reason is None:
+            missing = [names[i] for i in range(2) if hyps[i] is None or not len(hyps[i])]
+            reason = (f"{' and '.join(missing)} image: no five blobs in the markers' layout (three in a line "
+                      "and two beside)" if missing else "no consistent stereo identification")
+        return match, reason
+
+    def _best_pair(self, hyps, xn, cand, blobs) -> tuple[_Match | None, str | None]:
+        hl, hr = hyps
+        il = np.repeat(np.arange(len(hl)), len(hr))
+        ir = np.tile(np.arange(len(hr)), len(hl))
+        xl = xn[0][hl.index[il]]            # (P, 5, 2)
+        xr = xn[1][hr.index[ir]]
+        epi = geo.epipolar_error_px(xl, xr, self.E, *self.focal)      # (P, 5)
+        points, _ = geo.triangulate_midpoint(xl, xr, self.rig.R, self.rig.T)
+        R, t, rms = geo.kabsch(self.model_mm, points)
+        valid = (epi.max(axis=1) <= self.config.epipolar_tol_px) & (rms <= self.config.fit_tol_mm)
+        valid &= self._facing_cameras(R, t)
+        if not valid.any():
+            best = np.argmin(rms)
+            return None, (f"no consistent stereo identification: best candidate has rigid-fit error "
+                          f"{rms[best]:.1f} mm (tolerance {self.config.fit_tol_mm}) and epipolar error "
+                          f"{epi[best].max():.1f} px (tolerance {self.config.epipolar_tol_px})")
+        cost = (rms / self.config.fit_tol_mm + epi.max(axis=1) / self.config.epipolar_tol_px
+                + 0.05 * (hl.rank[il] + hr.rank[ir]))
+        cost = np.where(valid, cost, np.inf)
+        best = int(np.argmin(cost))
+        if self._ambiguous(R, valid, best):
+            return None, "ambiguous identification: two marker assignments fit equally well"
+        index = np.stack([cand[0][hl.index[il[best]]], cand[1][hr.index[ir[best]]]])
+        return self._make_match(blobs, index, epi[best], points[best], R[best], t[best], rms[best]), None
+
+    def _hidden_marker(self, hyps, xn, cand, blobs) -> tuple[_Match | None, str | None]:
+        """One marker hidden in one view: label the full view, match the other's blobs to it."""
+        best = None
+        for full in (0, 1):
+            other = 1 - full
+            h = hyps[full]
+            if h is None or not len(h) or len(cand[other]) < 4:
+                continue
+            m = len(cand[other])
+            # Injective maps of 4 of the 5 labels to the other view's blobs.
+            assignments = []
+            for hidden in range(5):
+                shown = [k for k in range(5) if k != hidden]
+                for perm in permutations(range(m), 4):
+                    row = np.full(5, -1)
+                    row[shown] = perm
+                    assignments.append(row)
+            assignments = np.array(assignments)                        # (A, 5)
+            hi = np.repeat(np.arange(len(h)), len(assignments))
+            ai = np.tile(np.arange(len(assignments)), len(h))
+            xf = xn[full][h.index[hi]]                                 # (P, 5, 2)
+            xo = xn[other][np.maximum(assignments[ai], 0)]
+            weights = (assignments[ai] >= 0).astype(np.float64)
+            xl, xr = (xf, xo) if full == 0 else (xo, xf)
+            epi = geo.epipolar_error_px(xl, xr, self.E, *self.focal)
+            epi = np.where(weights > 0, epi, 0.0)
+            points, _ = geo.triangulate_midpoint(xl, xr, self.rig.R, self.rig.T)
+            R, t, rms = geo.kabsch(self.model_mm, points, weights)
+            valid = ((epi.max(axis=1) <= self.config.epipolar_tol_px) & (rms <= self.config.fit_tol_mm)
+                     & self._facing_cameras(R, t))
+            if not valid.any():
+                continue
+            cost = np.where(valid, rms / self.config.fit_tol_mm + epi.max(axis=1) / self.config.epipolar_tol_px
+                            + 0.05 * h.rank[hi], np.inf)
+            k = int(np.argmin(cost))
+            if self._ambiguous(R, valid, k):
+                return None, "ambiguous identification with a marker hidden in one view"
+            if best is None or cost[k] < best[0]:
+                index = np.full((2, 5), -1)
+                index[full] = cand[full][h.index[hi[k]]]
+                shown = assignments[ai[k]] >= 0
+                index[other, shown] = cand[other][assignments[ai[k]][shown]]
+                pts = np.where(weights[k][:, None] > 0, points[k], np.nan)
+                best = (cost[k], index, epi[k], pts, R[k], t[k], rms[k])
+        if best is None:
+            return None, "no consistent identification with a marker hidden in one view"
+        return self._make_match(blobs, *best[1:]), None
+
+    def _make_match(self, blobs, index, epi, points, R, t, rms) -> _Match:
+        visible = index >= 0
+        centers = np.full((2, 5, 2), np.nan)
+        for cam in range(2):
+            centers[cam, visible[cam]] = blobs[cam].centers_px[index[cam, visible[cam]]]
+        epi = np.where(visible.all(axis=0), epi, np.nan)
+        return _Match(centers, visible, index, epi, points, R, t, float(rms))
+
+    def _facing_cameras(self, R, t) -> np.ndarray:
+        """The glasses' front (V) must face the cameras: retro-reflectors are seen only from the front."""
+        v = np.einsum("...ij,j->...i", R, self.axes_G[2])
+        to_cams = self.cameras_mid_mm - t
+        return np.einsum("...i,...i->...", v, to_cams) > 0
+
+    def _ambiguous(self, R, valid, best) -> bool:
+        v = np.einsum("...ij,j->...i", R, self.axes_G[2])
+        cos = np.clip(v[valid] @ v[best], -1, 1)
+        return bool(np.any(np.degrees(np.arccos(cos)) > self.config.ambiguity_deg))
+
+    # -------------------------------------------------------------------- pose
+    def _estimate(self, match: _Match, t, t_right):
+        """Pose (R_world_G, p1) and reprojection residuals (2, 5) with the configured estimator."""
+        est = self.config.estimator
+        if est in ("rigid", "paper"):
+            R, p1 = match.R, match.t
+            if est == "paper":
+                axes = geo.axes_from_points(match.points, self.normal_signs) if np.isfinite(match.points).all() else None
+                if axes is not None:
+                    R = (axes.T @ self.axes_G)   # rotation taking the model axes onto the measured ones
+                    p1 = match.points[1]
+            residuals = self._residuals(R, p1, match)
+            return R, p1, residuals
+        motion = self._right_motion(t, t_right) if self.config.compensate_offset else None
+        return geo.refine_reprojection(match.R, match.t, self.model_mm, match.centers[0], match.centers[1],
+                                       match.visible[0], match.visible[1], self.rig, right_motion=motion)
+
+    def _residuals(self, R, p1, match: _Match) -> np.ndarray:
+        pts = (R @ self.model_mm.T).T + p1
+        res = np.full((2, 5), np.nan)
+        pl = geo.project(pts, np.eye(3), np.zeros(3), self.rig.K1, self.rig.D1)
+        pr = geo.project(pts, self.rig.R, self.rig.T, self.rig.K2, self.rig.D2)
+        for cam, proj in ((0, pl), (1, pr)):
+            vis = match.visible[cam]
+            res[cam, vis] = np.linalg.norm(proj[vis] - match.centers[cam, vis], axis=1)
+        return res
+
+    def _right_motion(self, t, t_right):
+        """World-frame motion (rvec, tvec) of the head from t to t_right, from the last two poses."""
+        if t is None or t_right is None or t_right == t or len(self._history) < 2:
+            return None
+        (ta, Ra, pa), (tb, Rb, pb) = self._history[-2:]
+        dt = tb - ta
+        if dt <= 0 or t - tb > 3 * dt:
+            return None
+        scale = (t_right - t) / dt
+        omega = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() * scale
+        dR = cv2.Rodrigues(omega)[0]
+        # Rotation about P1 plus P1's displacement: X → dR (X − p1) + p1 + v·δt.
+        p_now = pb + (pb - pa) * ((t - tb) / dt)
+        shift = (pb - pa) * scale
+        tvec = p_now - dR @ p_now + shift
+        return omega, tvec
+
+    def _remember(self, match: _Match, t, R, p1, blobs) -> None:
+        if not match.visible.all():
+            self._prev_centers = self._prev2_centers = None    # re-identify while a marker is hidden
+        else:
+            continuing = self._prev_centers is not None
+            self._prev2_centers = self._prev_centers if continuing else None
+            self._prev_centers = match.centers
+        for cam in range(2):
+            if blobs[cam] is not None and len(blobs[cam]):
+                self._prev_threshold[cam] = blobs[cam].threshold_dn
+                shown = match.blob_index[cam][match.blob_index[cam] >= 0]
+                self._prev_area[cam] = float(np.max(blobs[cam].area_px[shown])) if len(shown) else 4.0
+        if t is not None:
+            self._history = (self._history + [(t, R, p1)])[-2:]
