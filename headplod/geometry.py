@@ -215,8 +215,10 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
 
     Returns
     -------
-    R_world_G (3, 3), p1_world_mm (3,), residuals_px (2, 5)
-        Residual norms per image and marker after refinement (NaN if hidden).
+    R_world_G (3, 3), p1_world_mm (3,), residuals_px (2, 5), JtJ (6, 6)
+        Residual norms per image and marker after refinement (NaN if hidden);
+        JᵀJ of the reprojection residuals w.r.t. (rvec, tvec) at the solution,
+        px² per (rad, mm)², for first-order covariance propagation.
     """
     rvec = cv2.Rodrigues(R_world_G)[0].ravel()
     tvec = np.array(p1_world_mm, dtype=np.float64).ravel()
@@ -253,7 +255,7 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
     norms = np.hypot(res[0::2], res[1::2])
     residuals[0, vl] = norms[:nl]
     residuals[1, vr] = norms[nl:]
-    return R_out, tvec, residuals
+    return R_out, tvec, residuals, J.T @ J
 
 
 def _residuals_and_jacobian(rvec, tvec, obj_l, obj_r, obs_l, obs_r, rig, rig_rvec, rig_tvec):
@@ -272,3 +274,39 @@ def _residuals_and_jacobian(rvec, tvec, obj_l, obj_r, obs_l, obs_r, rig, rig_rve
         blocks_r.append((pr.reshape(-1, 2) - obs_r).ravel())
         blocks_j.append(jr[:, :6] @ chain)
     return np.concatenate(blocks_r), np.concatenate(blocks_j)
+
+
+def reprojection_jacobian(R_world_G, p1_world_mm, model_mm, visible_left, visible_right, rig) -> np.ndarray:
+    """JᵀJ (6, 6) of the reprojection residuals at a pose, w.r.t. (rvec, tvec)."""
+    rvec = cv2.Rodrigues(R_world_G)[0].ravel()
+    tvec = np.asarray(p1_world_mm, dtype=np.float64).ravel()
+    obj = np.ascontiguousarray(model_mm, dtype=np.float64).reshape(-1, 1, 3)
+    vl, vr = np.asarray(visible_left, bool), np.asarray(visible_right, bool)
+    rig_rvec = cv2.Rodrigues(rig.R)[0]
+    rig_tvec = np.reshape(rig.T, (3, 1)).astype(np.float64)
+    _, J = _residuals_and_jacobian(rvec, tvec, obj[vl], obj[vr], np.zeros((vl.sum(), 2)),
+                                   np.zeros((vr.sum(), 2)), rig, rig_rvec, rig_tvec)
+    return J.T @ J
+
+
+def view_angle_covariance(R_world_G: np.ndarray, JtJ: np.ndarray, sigma_px: float,
+                          axes_G: np.ndarray) -> np.ndarray:
+    """First-order covariance of (φ, θ), deg², from the pose fit's JᵀJ.
+
+    The pose parameters (rvec, tvec) have covariance σ² (JᵀJ)⁻¹ for centroid
+    noise σ (px) in every coordinate; V = R(rvec) V_G moves with rvec, and in
+    the reported head frame (conventions.md) a small change dV is
+    (dφ, dθ) = (Ψ·dV, Ξ·dV) rad. dV/drvec is taken numerically.
+    """
+    rvec = cv2.Rodrigues(R_world_G)[0].ravel()
+    cov6 = sigma_px ** 2 * np.linalg.pinv(JtJ)
+    axes = axes_G @ R_world_G.T
+    eps = 1e-6
+    dv = np.empty((3, 3))
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = eps
+        dv[:, k] = (cv2.Rodrigues(rvec + d)[0] @ axes_G[2] - cv2.Rodrigues(rvec - d)[0] @ axes_G[2]) / (2 * eps)
+    A = np.stack([axes[1], axes[0]]) @ dv          # rows: φ (along Ψ), θ (along Ξ)
+    cov = A @ cov6[:3, :3] @ A.T * np.degrees(1.0) ** 2
+    return 0.5 * (cov + cov.T)

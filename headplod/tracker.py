@@ -68,6 +68,8 @@ class TrackerConfig:
         offset before the right camera sees it (reproj estimator).
     keep_pixels : bool
         Keep each marker's pixel cloud in the result (for uncertainty).
+    min_centroid_sigma_px : float
+        Floor of the centroid noise used for the covariance, px.
     """
 
     estimator: str = "reproj"
@@ -82,6 +84,7 @@ class TrackerConfig:
     hidden_marker: bool = True
     compensate_offset: bool = True
     keep_pixels: bool = False
+    min_centroid_sigma_px: float = 0.03
 
     def __post_init__(self):
         if self.estimator not in ESTIMATORS:
@@ -116,6 +119,8 @@ class TrackResult:
         Whether the previous frame's markers were reused.
     timings_s : dict[str, float]
         Seconds per stage.
+    cov_deg2 : (2, 2) or None
+        Covariance of (φ, θ) of V, deg² (conventions.md).
     """
 
     ok: bool
@@ -131,6 +136,7 @@ class TrackResult:
     timings_s: dict = field(default_factory=dict)
     blobs: tuple = (None, None)
     marker_blob: np.ndarray | None = None
+    cov_deg2: np.ndarray | None = None
 
     def record_extras(self) -> dict:
         """JSON-ready diagnostics for a pose record (the contract allows more keys)."""
@@ -225,18 +231,19 @@ class Tracker:
             return TrackResult(False, reason, mode=mode, timings_s=timings, blobs=blobs)
 
         t_pose = time.perf_counter()
-        R, p1, residuals = self._estimate(match, t, t_right)
+        R, p1, residuals, JtJ = self._estimate(match, t, t_right)
         timings["pose"] = time.perf_counter() - t_pose
         t_ver = time.perf_counter()
         axes = self.axes_G @ R.T if self.config.estimator != "paper" else geo.axes_from_points(match.points, self.normal_signs)
         if self.config.estimator == "paper":
             p1 = match.points[1]
         result = TrackResult(True, None, p1, axes, R, match.centers, residuals, match.epipolar,
-                             match.fit_rms, mode, timings, blobs, match.blob_index)
+                             match.fit_rms, mode, timings, blobs, match.blob_index,
+                             cov_deg2=self._covariance(R, residuals, JtJ))
         worst = np.nanmax(residuals)
         if not np.isfinite(worst) or worst > self.config.reproj_tol_px:
             cam, marker = np.unravel_index(np.nanargmax(residuals), residuals.shape)
-            result = replace(result, ok=False, position_mm=None, axes=None, R_world_G=None,
+            result = replace(result, ok=False, position_mm=None, axes=None, R_world_G=None, cov_deg2=None,
                              reason=f"reprojection error {worst:.2f} px of {MARKER_NAMES[marker]} in the "
                                     f"{('left', 'right')[cam]} image exceeds {self.config.reproj_tol_px} px: "
                                     "the identification is not trusted")
@@ -426,20 +433,33 @@ class Tracker:
 
     # -------------------------------------------------------------------- pose
     def _estimate(self, match: _Match, t, t_right):
-        """Pose (R_world_G, p1) and reprojection residuals (2, 5) with the configured estimator."""
+        """Pose (R_world_G, p1), reprojection residuals (2, 5) and JᵀJ (6, 6) with the configured estimator."""
         est = self.config.estimator
         if est in ("rigid", "paper"):
             R, p1 = match.R, match.t
-            if est == "paper":
-                axes = geo.axes_from_points(match.points, self.normal_signs) if np.isfinite(match.points).all() else None
-                if axes is not None:
-                    R = (axes.T @ self.axes_G)   # rotation taking the model axes onto the measured ones
-                    p1 = match.points[1]
+            if est == "paper" and np.isfinite(match.points).all():
+                axes = geo.axes_from_points(match.points, self.normal_signs)
+                R = axes.T @ self.axes_G     # rotation taking the model's axes onto the measured ones
+                p1 = match.points[1]
             residuals = self._residuals(R, p1, match)
-            return R, p1, residuals
+            JtJ = geo.reprojection_jacobian(R, p1, self.model_mm, match.visible[0], match.visible[1], self.rig)
+            return R, p1, residuals, JtJ
         motion = self._right_motion(t, t_right) if self.config.compensate_offset else None
         return geo.refine_reprojection(match.R, match.t, self.model_mm, match.centers[0], match.centers[1],
                                        match.visible[0], match.visible[1], self.rig, right_motion=motion)
+
+    def _covariance(self, R, residuals, JtJ) -> np.ndarray:
+        """cov of (φ, θ), deg²: first-order propagation of the centroid noise.
+
+        The centroid noise σ is estimated from the fit's own residuals,
+        σ² = Σ r² / (2 n − 6) over the n visible marker images, floored at
+        ``config.min_centroid_sigma_px`` (a perfect fit does not mean a
+        perfect pose). Issue 3 compares this with the paper's pixel clouds.
+        """
+        r = residuals[np.isfinite(residuals)]
+        dof = max(2 * len(r) - 6, 1)
+        sigma = max(float(np.sqrt(np.sum(r ** 2) / dof)), self.config.min_centroid_sigma_px)
+        return geo.view_angle_covariance(R, JtJ, sigma, self.axes_G)
 
     def _residuals(self, R, p1, match: _Match) -> np.ndarray:
         pts = (R @ self.model_mm.T).T + p1

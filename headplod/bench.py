@@ -1,0 +1,182 @@
+"""``headplod bench track``: accuracy against speed of the three pose estimators.
+
+Speed is reported as a ratio to a baseline measured in the same run and on
+the same frames: one ``cv2.threshold`` pass over both images of the pair (into
+preallocated buffers, so the baseline is the pass itself, not the allocator).
+OpenCV runs single-threaded during the benchmark so that neither side depends
+on what else the machine is doing. Times per pair are taken around
+``Tracker.process`` (everything from two images to a verified mean pose, the
+covariance included).
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from . import evaluate, io
+from .pipeline import Progress, result_record
+from .sequences import ensure_dataset
+from .tracker import ESTIMATORS, Tracker, TrackerConfig
+
+# (set name, synthetic preset, frames in full / quick runs, what the goals say about it)
+TRACK_SETS = [
+    ("static 55 cm", "static55", 60, 20),
+    ("yaw sweep", "yaw", 90, 30),
+    ("pitch sweep", "pitch", 60, 20),
+    ("roll sweep", "roll", 60, 20),
+    ("distance 40-150 cm", "distance", 90, 30),
+    ("far 120 cm", "far", 60, 20),
+    ("dim IR", "dim", 60, 20),
+    ("glints + lamp", "glints", 60, 20),
+    ("hidden marker", "occlusion", 60, 20),
+    ("extreme yaw 60 roll 35", "extreme", 40, 15),
+    ("fast motion", "fast", 60, 20),
+    ("wide-angle HD", "wide_hd", 40, 15),
+    ("custom model", "custom_model", 40, 15),
+    ("random poses", "random", 1000, 150),
+]
+
+# Goals of the tracker issue, checked on the sets named.
+GOALS = [
+    ("median V error ≤ 0.1° at 50-80 cm", ["static 55 cm", "yaw sweep", "pitch sweep", "roll sweep"], "v_err_deg_median", 0.1),
+    ("95th percentile V error ≤ 0.4° at 50-80 cm", ["static 55 cm", "yaw sweep", "pitch sweep", "roll sweep"], "v_err_deg_p95", 0.4),
+    ("median position error ≤ 0.2 mm at 50-80 cm", ["static 55 cm", "yaw sweep", "pitch sweep", "roll sweep"], "pos_err_mm_median", 0.2),
+    ("median V error ≤ 0.3° at 120 cm", ["far 120 cm"], "v_err_deg_median", 0.3),
+    ("zero wrong identifications (V off by > 5°)", [s[0] for s in TRACK_SETS], "wrong_identifications", 0),
+]
+RATIO_GOAL = 30.0
+
+
+def threshold_baseline_s(left: np.ndarray, right: np.ndarray, repeats: int = 15) -> float:
+    """Median time of one cv2.threshold pass over both images, s."""
+    out_l, out_r = np.empty_like(left), np.empty_like(right)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        cv2.threshold(left, 100, 255, cv2.THRESH_BINARY, dst=out_l)
+        cv2.threshold(right, 100, 255, cv2.THRESH_BINARY, dst=out_r)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def run_estimator(frames, dataset: io.Dataset, estimator: str) -> dict:
+    """Track preloaded frames with one estimator; accuracy, stage times and the baseline ratio."""
+    tracker = Tracker(dataset.rig, dataset.markers, TrackerConfig(estimator=estimator))
+    records, totals, baselines, stages = [], [], [], {}
+    for frame in frames:
+        if frame.error is not None:
+            tracker.reset()
+            records.append(result_record(frame, None))
+            continue
+        baselines.append(threshold_baseline_s(frame.left, frame.right))
+        result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
+        totals.append(result.timings_s["total"])
+        for stage, seconds in result.timings_s.items():
+            stages.setdefault(stage, []).append(seconds)
+        records.append(result_record(frame, result, extras=False))
+    summary = evaluate.summarize(records, dataset.truth)
+    baseline = float(np.median(baselines)) if baselines else float("nan")
+    mean_pose = float(np.mean(totals)) if totals else float("nan")
+    summary.update({
+        "mean_pose_ms": mean_pose * 1e3,
+        "median_pose_ms": float(np.median(totals)) * 1e3 if totals else float("nan"),
+        "threshold_pass_ms": baseline * 1e3,
+        "mean_pose_ratio_to_threshold": mean_pose / baseline,
+        "stage_ms": {k: float(np.mean(v)) * 1e3 for k, v in stages.items()},
+        "tracked_mode_fraction": None,
+    })
+    return summary
+
+
+def run_track_bench(json_path=None, chart_path=None, quick: bool = False, sets=None) -> int:
+    """Run every set with every estimator; print a table, check the goals, write JSON and chart."""
+    cv2.setNumThreads(1)
+    chosen = [s for s in TRACK_SETS if sets is None or s[0] in sets]
+    results = {}
+    for name, preset, n_full, n_quick in chosen:
+        folder = ensure_dataset(preset, frames=n_quick if quick else n_full)
+        dataset = io.Dataset(folder)
+        frames = list(dataset)
+        results[name] = {}
+        bar = Progress(len(ESTIMATORS), f"bench {name}")
+        for estimator in ESTIMATORS:
+            results[name][estimator] = run_estimator(frames, dataset, estimator)
+            bar.step(estimator)
+    report = _report(results)
+    print(report["text"])
+    if json_path:
+        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
+        with open(json_path, "w") as fh:
+            json.dump(report["json"], fh, indent=2)
+        print(f"results: {json_path}", file=sys.stderr)
+    if chart_path:
+        _chart(results, chart_path)
+        print(f"chart: {chart_path}", file=sys.stderr)
+    return 0
+
+
+def _report(results: dict) -> dict:
+    lines = [f"{'set':26s} {'estimator':9s} {'tracked':>8s} {'V med°':>7s} {'V p95°':>7s} {'P1 med mm':>9s} "
+             f"{'wrong':>5s} {'ms/pair':>8s} {'x thresh':>8s}"]
+    for name, by_est in results.items():
+        for est, s in by_est.items():
+            lines.append(f"{name:26s} {est:9s} {s['tracked_fraction']:8.1%} {s.get('v_err_deg_median', np.nan):7.3f} "
+                         f"{s.get('v_err_deg_p95', np.nan):7.3f} {s.get('pos_err_mm_median', np.nan):9.3f} "
+                         f"{s.get('wrong_identifications', 0):5d} {s['mean_pose_ms']:8.3f} "
+                         f"{s['mean_pose_ratio_to_threshold']:8.1f}")
+    default = TrackerConfig().estimator
+    goals = []
+    for label, sets, key, limit in GOALS:
+        values = [results[n][default].get(key) for n in sets if n in results]
+        values = [v for v in values if v is not None]
+        if not values:
+            continue
+        worst = max(values)
+        goals.append({"goal": label, "worst": worst, "limit": limit, "met": bool(worst <= limit)})
+    ratios = [by[default]["mean_pose_ratio_to_threshold"] for n, by in results.items()
+              if n in ("static 55 cm", "yaw sweep", "pitch sweep", "roll sweep")]
+    if ratios:
+        r = float(np.median(ratios))
+        goals.append({"goal": f"mean-pose time ≤ {RATIO_GOAL:.0f}x one threshold pass (640x480)",
+                      "worst": r, "limit": RATIO_GOAL, "met": bool(r <= RATIO_GOAL)})
+    lines.append("")
+    lines.append(f"goals (default estimator '{default}'):")
+    for g in goals:
+        lines.append(f"  [{'met' if g['met'] else 'NOT MET'}] {g['goal']}: {g['worst']:.3f} (limit {g['limit']})")
+    out = {"default_estimator": default, "sets": results, "goals": goals,
+           "mean_pose_ratio_to_threshold": goals[-1]["worst"] if ratios else None}
+    return {"text": "\n".join(lines), "json": out}
+
+
+def _chart(results: dict, path: str) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 6))
+    markers = {"paper": "s", "rigid": "^", "reproj": "o"}
+    colors = plt.cm.tab20(np.linspace(0, 1, max(len(results), 2)))
+    for color, (name, by_est) in zip(colors, results.items()):
+        xs = [by_est[e]["mean_pose_ratio_to_threshold"] for e in ESTIMATORS]
+        ys = [by_est[e].get("v_err_deg_median", np.nan) for e in ESTIMATORS]
+        ax.plot(xs, ys, "-", color=color, alpha=0.4)
+        for e, x, y in zip(ESTIMATORS, xs, ys):
+            ax.plot(x, y, markers[e], color=color, label=name if e == "reproj" else None)
+    for e, m in markers.items():
+        ax.plot([], [], m, color="gray", label=f"estimator: {e}")
+    ax.set_xlabel("time per stereo pair / one cv2.threshold pass over both images")
+    ax.set_ylabel("median error of V (degrees)")
+    ax.set_yscale("log")
+    ax.axvline(RATIO_GOAL, color="k", ls=":", lw=1)
+    ax.set_title("headplod tracker: accuracy against time, per estimator and set")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

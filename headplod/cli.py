@@ -1,0 +1,158 @@
+"""The ``headplod`` command.
+
+    headplod track [DATASET] [--out FILE|-] [--estimator reproj|rigid|paper] ...
+    headplod bench track [--json FILE] [--chart FILE.png] [--quick]
+    headplod synth PRESET OUT_DIR [--frames N] [--seed S]
+
+Exit status: 0 on success, 1 when the run failed (bad files), 2 on bad usage.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def _threshold_arg(text: str):
+    if text == "adaptive":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"threshold must be 'adaptive' or a number of DN, got {text!r}")
+    if not 0 < value < 255:
+        raise argparse.ArgumentTypeError(f"threshold must lie between 0 and 255 DN, got {value}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="headplod", description=__doc__.split("\n")[0] + " Stereo IR head tracking.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    track = sub.add_parser("track", help="track a stereo dataset folder (or the built-in synthetic sequence)")
+    track.add_argument("dataset", nargs="?", help="dataset folder (conventions.md); default: the built-in "
+                                                  "synthetic sequence, rendered on first use")
+    track.add_argument("--out", help="pose records, JSON Lines ('-' for standard output)")
+    track.add_argument("--estimator", choices=("reproj", "rigid", "paper"), default="reproj",
+                       help="pose estimator (default reproj, the most accurate in 'headplod bench track')")
+    track.add_argument("--threshold", type=_threshold_arg, default=None, metavar="DN|adaptive",
+                       help="blob threshold in DN (the paper: 100) or 'adaptive' (default)")
+    track.add_argument("--paper-detection", action="store_true",
+                       help="the paper's detection: threshold 100, 9x9 smoothing, raw intensity weights")
+    track.add_argument("--no-tracking", action="store_true",
+                       help="detect and identify from scratch in every frame")
+    track.add_argument("--quiet", "-q", action="store_true", help="no per-frame lines")
+
+    bench = sub.add_parser("bench", help="benchmarks: accuracy against speed")
+    bench_sub = bench.add_subparsers(dest="bench", required=True)
+    bt = bench_sub.add_parser("track", help="tracker accuracy and per-stage time on synthetic sets")
+    bt.add_argument("--json", help="write the results as JSON")
+    bt.add_argument("--chart", help="write the accuracy-against-time chart (PNG)")
+    bt.add_argument("--quick", action="store_true", help="fewer frames (a smoke run)")
+
+    synth = sub.add_parser("synth", help="render a synthetic dataset folder")
+    synth.add_argument("preset")
+    synth.add_argument("out")
+    synth.add_argument("--frames", type=int)
+    synth.add_argument("--seed", type=int, default=0)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    from . import io
+
+    try:
+        if args.command == "track":
+            return _cmd_track(args)
+        if args.command == "bench":
+            from . import bench
+            return bench.run_track_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
+        if args.command == "synth":
+            return _cmd_synth(args)
+    except io.ContractError as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("headplod: interrupted", file=sys.stderr)
+        return 130
+    return 2
+
+
+def _cmd_track(args) -> int:
+    from . import evaluate, io
+    from .detect import DetectionParams
+    from .pipeline import Progress, track_dataset
+    from .sequences import DEFAULT_SEQUENCE, ensure_dataset
+    from .tracker import MARKER_NAMES, TrackerConfig
+
+    folder = args.dataset
+    if folder is None:
+        folder = ensure_dataset(DEFAULT_SEQUENCE)
+        print(f"tracking the built-in synthetic sequence: {folder}", file=sys.stderr)
+    dataset = io.Dataset(folder)
+    for warning in dataset.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    detection = DetectionParams.paper() if args.paper_detection else DetectionParams(threshold_dn=args.threshold)
+    if args.paper_detection and args.threshold is not None:
+        detection = DetectionParams(threshold_dn=args.threshold, smooth_px=9, subtract_background=False)
+    config = TrackerConfig(estimator=args.estimator, detection=detection, track=not args.no_tracking)
+    writer = io.PoseWriter(args.out) if args.out else None
+    to_stdout = args.out == "-"
+    log = sys.stderr
+    truth = dataset.truth or {}
+    progress = Progress(len(dataset), "track") if args.quiet and not to_stdout else None
+
+    def on_record(record, result):
+        if writer is not None:
+            writer.write(record)
+        if progress is not None:
+            progress.step()
+        if args.quiet:
+            return
+        line = f"frame {record['frame']:6d} "
+        if record["ok"]:
+            p, v = record["position"], record["axes"][2]
+            line += (f"ok   P1 ({p[0]:7.1f},{p[1]:7.1f},{p[2]:7.1f}) mm  "
+                     f"V ({v[0]:+.3f},{v[1]:+.3f},{v[2]:+.3f})")
+            if record["frame"] in truth:
+                tp, ta = truth[record["frame"]]
+                verr = float(evaluate.angle_deg(np.asarray(v), ta[2]))
+                line += f"  err V {verr:6.3f}° P1 {np.linalg.norm(np.asarray(p) - tp):6.3f} mm"
+            if result is not None:
+                line += f"  {result.timings_s.get('total', 0) * 1e3:5.2f} ms [{result.mode}]"
+        else:
+            line += f"no pose: {record['reason']}"
+        print(line, file=log)
+
+    try:
+        records = track_dataset(dataset, config, on_record=on_record)
+    finally:
+        if writer is not None:
+            writer.close()
+    summary = evaluate.summarize(records, dataset.truth)
+    print(evaluate.format_summary(str(Path(folder).name), summary), file=log)
+    if args.out and args.out != "-":
+        print(f"pose records: {args.out}", file=log)
+    return 0
+
+
+def _cmd_synth(args) -> int:
+    from .sequences import _progress
+    from synthetic import dataset as synth_dataset
+    from synthetic import scenes
+
+    if args.preset not in scenes.PRESETS:
+        print(f"headplod: unknown preset {args.preset!r}; choose one of {', '.join(sorted(scenes.PRESETS))}",
+              file=sys.stderr)
+        return 2
+    scene = scenes.make_scene(args.preset, n_frames=args.frames, seed=args.seed)
+    synth_dataset.write_dataset(args.out, scene, seed=args.seed, progress=_progress(len(scene.times), args.preset))
+    print(f"wrote {len(scene.times)} stereo pairs to {args.out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
