@@ -1,0 +1,642 @@
+"""Tests of headplod.io: the contract's files (spec/conventions.md)."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from headplod.io import (
+    ContractError,
+    Dataset,
+    Frame,
+    MarkerModel,
+    PoseWriter,
+    Rig,
+    Screen,
+    default_marker_model,
+    pose_record,
+    read_markers,
+    read_poses,
+    read_rig,
+    read_screen,
+    read_times,
+    read_truth,
+    write_markers,
+    write_rig,
+    write_screen,
+    write_times,
+    write_truth,
+)
+
+SWEEP12 = Path(__file__).parent / "data" / "sweep12"
+
+
+# ---------------------------------------------------------------------------
+# helpers
+# ---------------------------------------------------------------------------
+
+
+def raw_yaml(path: Path, **entries) -> Path:
+    """Write entries with cv2.FileStorage directly, bypassing headplod's checks."""
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
+    for k, v in entries.items():
+        if isinstance(v, np.ndarray):
+            fs.write(k, np.ascontiguousarray(v, dtype=np.float64))
+        else:
+            fs.write(k, v)
+    fs.release()
+    return path
+
+
+def good_rig_entries(**changes):
+    e = dict(
+        image_width=64,
+        image_height=48,
+        K1=np.array([[60.0, 0, 32], [0, 61, 24], [0, 0, 1]]),
+        D1=np.array([[0.1, -0.05, 0.001, 0.002, 0.01]]),
+        K2=np.array([[62.0, 0, 31], [0, 63, 23], [0, 0, 1]]),
+        D2=np.array([[0.0, 0.0, 0.0, 0.0, 0.0]]),
+        R=cv2.Rodrigues(np.array([0.01, 0.15, -0.02]))[0],
+        T=np.array([[-350.0], [-4.0], [27.0]]),
+    )
+    e.update(changes)
+    return {k: v for k, v in e.items() if v is not None}
+
+
+def small_rig(**extra) -> Rig:
+    e = good_rig_entries()
+    return Rig((64, 48), e["K1"], e["D1"], e["K2"], e["D2"], e["R"], e["T"], extra=extra)
+
+
+def make_dataset(folder: Path, n: int = 6, size=(64, 48)) -> Path:
+    """A tiny valid dataset: rig 64x48, n frames of a gradient image."""
+    folder.mkdir(parents=True, exist_ok=True)
+    write_rig(folder / "rig.yaml", small_rig())
+    w, h = size
+    img = (np.arange(w * h) % 251).astype(np.uint8).reshape(h, w)
+    for side in ("left", "right"):
+        (folder / side).mkdir(exist_ok=True)
+        for i in range(n):
+            assert cv2.imwrite(str(folder / side / f"{i:06d}.png"), img)
+    return folder
+
+
+def assert_contract_error(excinfo, path: Path, *fragments: str):
+    err = excinfo.value
+    msg = str(err)
+    assert isinstance(err, ValueError)
+    assert err.path == str(path), (err.path, str(path))
+    assert path.name in msg, msg
+    for f in fragments:
+        assert f in msg, f"{f!r} not in {msg!r}"
+
+
+# ---------------------------------------------------------------------------
+# the sample dataset (made by independent code)
+# ---------------------------------------------------------------------------
+
+
+def test_sweep12_rig_equals_yaml():
+    rig = read_rig(SWEEP12 / "rig.yaml")
+    fs = cv2.FileStorage(str(SWEEP12 / "rig.yaml"), cv2.FILE_STORAGE_READ)
+    for key in ("K1", "K2", "R"):
+        np.testing.assert_array_equal(getattr(rig, key), fs.getNode(key).mat())
+    for key in ("D1", "D2"):
+        np.testing.assert_array_equal(getattr(rig, key), fs.getNode(key).mat().ravel())
+    np.testing.assert_array_equal(rig.T, fs.getNode("T").mat().ravel())
+    fs.release()
+    # values copied by hand from the file
+    assert rig.image_size == (640, 480)
+    assert rig.K1[0, 0] == 644.43411432307755
+    assert rig.K2[1, 2] == 230.68579582059849
+    assert rig.D1.shape == (5,) and rig.D1[0] == -0.093617702363023136
+    assert rig.T.shape == (3,)
+    np.testing.assert_array_equal(
+        rig.T, [-348.87800301163929, -4.3824756796778503, 27.687699482567155])
+    assert rig.extra == {}
+    assert rig.path == str(SWEEP12 / "rig.yaml")
+    assert rig.baseline_mm == pytest.approx(np.linalg.norm(rig.T))
+    # the right camera centre maps to the right camera's origin
+    np.testing.assert_allclose(rig.R @ rig.right_center_mm + rig.T, 0, atol=1e-9)
+
+
+def test_sweep12_frames():
+    ds = Dataset(SWEEP12)
+    assert len(ds) == 12
+    assert ds.indices == list(range(12))
+    assert ds.warnings == []
+    assert ds.screen is None
+    assert ds.markers == default_marker_model()
+    frames = list(ds)
+    assert [f.index for f in frames] == list(range(12))
+    for f in frames:
+        assert f.error is None and f.ok
+        assert f.left.shape == (480, 640) and f.left.dtype == np.uint8
+        assert f.right.shape == (480, 640) and f.right.dtype == np.uint8
+    # images are the files' content
+    np.testing.assert_array_equal(
+        frames[3].right, cv2.imread(str(SWEEP12 / "right" / "000003.png"), cv2.IMREAD_UNCHANGED))
+
+
+def test_sweep12_times():
+    ds = Dataset(SWEEP12)
+    assert ds.times == {i: (pytest.approx(0.1 * i), None) for i in range(12)}
+    for f in ds:
+        assert f.t == pytest.approx(0.1 * f.index, abs=1e-12)
+        assert f.t_right is None
+
+
+def test_sweep12_truth_axes():
+    truth = read_truth(SWEEP12 / "truth.csv")
+    assert sorted(truth) == list(range(12))
+    pos, axes = truth[0]
+    np.testing.assert_array_equal(pos, [128.147301, -4.763876, 634.213003])
+    np.testing.assert_array_equal(axes[2], [0.074418, 0.011800, -0.997157])
+    for frame, (pos, axes) in truth.items():
+        assert pos.shape == (3,) and axes.shape == (3, 3)
+        xi, psi, v = axes
+        np.testing.assert_allclose(axes @ axes.T, np.eye(3), atol=1e-5)
+        assert np.linalg.det(axes) == pytest.approx(1.0, abs=1e-5)
+        np.testing.assert_allclose(np.cross(v, xi), psi, atol=1e-5)
+    assert Dataset(SWEEP12).truth.keys() == truth.keys()
+
+
+def test_dataset_without_times_uses_30_fps(tmp_path):
+    ds = Dataset(make_dataset(tmp_path / "d", n=4))
+    assert ds.times is None and ds.truth is None
+    assert [f.t for f in ds] == [i / 30 for i in range(4)]
+
+
+def test_dataset_times_missing_row_is_interpolated(tmp_path):
+    folder = make_dataset(tmp_path / "d", n=4)
+    write_times(folder / "times.csv", {0: 0.0, 1: 0.1, 3: 0.3})
+    ds = Dataset(folder)
+    assert any("times.csv has no row for frames 2" in w for w in ds.warnings)
+    f2 = ds.frame(2)
+    assert f2.t == pytest.approx(0.2) and f2.ok
+    assert "interpolated" in f2.warning
+
+
+# ---------------------------------------------------------------------------
+# round trips
+# ---------------------------------------------------------------------------
+
+
+def test_rig_round_trip_keeps_values_and_extras(tmp_path):
+    rig = small_rig(camera1_serial="A1B2", camera2_serial="007", rms=0.213,
+                    n_views=31, E=np.arange(9.0).reshape(3, 3), tags=["ir", 850])
+    path = tmp_path / "rig.yaml"
+    write_rig(path, rig)
+    back = read_rig(path)
+    assert back == rig
+    assert back.extra["camera2_serial"] == "007"  # stays a string
+    assert back.extra["rms"] == 0.213 and back.extra["n_views"] == 31
+    # the layout the contract asks for: T 3x1, D 1xN, float64
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    assert fs.getNode("T").mat().shape == (3, 1)
+    assert fs.getNode("D1").mat().shape == (1, 5)
+    assert fs.getNode("K1").mat().dtype == np.float64
+    assert fs.getNode("image_width").isInt()
+    fs.release()
+
+
+def test_rig_accepts_other_orientations(tmp_path):
+    e = good_rig_entries(T=np.array([[-350.0, -4.0, 27.0]]), D1=np.array([[0.1], [-0.05], [0.0], [0.0]]))
+    rig = read_rig(raw_yaml(tmp_path / "rig.yaml", **e))
+    np.testing.assert_array_equal(rig.T, [-350.0, -4.0, 27.0])
+    np.testing.assert_array_equal(rig.D1, [0.1, -0.05, 0.0, 0.0])
+
+
+def test_markers_round_trip(tmp_path):
+    P = np.array([[70.0, 0, 0], [0, 0, 0], [-66, 0, 0], [41, -29, -7.5], [-39, -31, -8.25]])
+    model = MarkerModel(P, 4.5)
+    write_markers(tmp_path / "markers.yaml", model)
+    back = read_markers(tmp_path / "markers.yaml")
+    assert back == model
+    assert back.diameter_mm == 4.5
+    np.testing.assert_array_equal(back.points_mm, P)
+
+
+def test_markers_diameter_defaults_to_6(tmp_path):
+    path = raw_yaml(tmp_path / "markers.yaml", markers=default_marker_model().points_mm)
+    assert read_markers(path).diameter_mm == 6.0
+
+
+def screen_example() -> Screen:
+    # a 520 x 320 mm screen 40 mm below the cameras, tilted back by 10 degrees
+    c, s = math.cos(math.radians(10)), math.sin(math.radians(10))
+    tl = np.array([-260.0, 40.0, 0.0])
+    return Screen((1920, 1200), tl, tl + [520.0, 0, 0], tl + [0, 320 * c, 320 * s])
+
+
+def test_screen_round_trip(tmp_path):
+    scr = screen_example()
+    write_screen(tmp_path / "screen.yaml", scr)
+    back = read_screen(tmp_path / "screen.yaml")
+    assert back == scr
+    assert back.size_px == (1920, 1200)
+
+
+def test_truth_round_trip(tmp_path):
+    truth = read_truth(SWEEP12 / "truth.csv")
+    write_truth(tmp_path / "truth.csv", truth)
+    back = read_truth(tmp_path / "truth.csv")
+    assert back.keys() == truth.keys()
+    for k in truth:
+        np.testing.assert_array_equal(back[k][0], truth[k][0])
+        np.testing.assert_array_equal(back[k][1], truth[k][1])
+    # also from (frame, position, axes) tuples, written sorted
+    write_truth(tmp_path / "t2.csv", [(5, [1.0, 2.0, 3.0], np.eye(3)), (2, [0.5, 0, 9], np.eye(3))])
+    back2 = read_truth(tmp_path / "t2.csv")
+    assert list(back2) == [2, 5]
+    np.testing.assert_array_equal(back2[5][0], [1.0, 2.0, 3.0])
+
+
+def test_times_round_trip(tmp_path):
+    times = {0: (0.0, 0.0021), 1: (1 / 30, None), 2: (2 / 30, 2 / 30 + 0.0021)}
+    write_times(tmp_path / "times.csv", times)
+    assert (tmp_path / "times.csv").read_text().splitlines()[0] == "frame,t,t_right"
+    assert read_times(tmp_path / "times.csv") == times
+    write_times(tmp_path / "t2.csv", {3: 0.5, 1: 0.25})
+    assert (tmp_path / "t2.csv").read_text().splitlines()[0] == "frame,t"
+    assert read_times(tmp_path / "t2.csv") == {1: (0.25, None), 3: (0.5, None)}
+
+
+def pose_examples():
+    axes = cv2.Rodrigues(np.array([0.1, -0.2, 0.05]))[0]
+    return [
+        pose_record(0, 0.0, True, position=np.array([128.1, -4.7, 634.2]), axes=axes,
+                    cov=np.array([[0.5, 0.1], [0.1, 0.8]]), n_markers=np.int64(5),
+                    poi=np.array([960.5, 600.25]), timings={"detect_ms": np.float32(1.5)}),
+        pose_record(1, 1 / 30, False, reason="left image: 4 marker blobs, 5 needed"),
+        pose_record(3, 0.1, True, position=[1.0, 2.0, 3.0], axes=np.eye(3), cov=np.eye(2),
+                    reason="P3 hidden in the right view"),
+    ]
+
+
+def test_poses_round_trip(tmp_path):
+    records = pose_examples()
+    path = tmp_path / "poses.jsonl"
+    with PoseWriter(path) as out:
+        for r in records:
+            out.write(r)
+    lines = path.read_text().splitlines()
+    assert len(lines) == 3
+    assert list(json.loads(lines[0]))[:7] == ["frame", "t", "ok", "position", "axes", "cov", "reason"]
+    back = read_poses(path)
+    assert back == records
+    assert back[0]["timings"] == {"detect_ms": 1.5}
+    assert back[1]["position"] is None and back[1]["axes"] is None and back[1]["cov"] is None
+
+
+def test_pose_writer_stdout(capsys):
+    with PoseWriter("-") as out:
+        out.write(frame=7, t=0.25, ok=False, reason="no blobs")
+    line = capsys.readouterr().out
+    assert json.loads(line) == {"frame": 7, "t": 0.25, "ok": False, "position": None,
+                                "axes": None, "cov": None, "reason": "no blobs"}
+
+
+# ---------------------------------------------------------------------------
+# pose records: programming errors
+# ---------------------------------------------------------------------------
+
+
+def test_pose_record_types_are_json_native():
+    rec = pose_examples()[0]
+    assert type(rec["position"][0]) is float and type(rec["axes"][2][1]) is float
+    assert type(rec["n_markers"]) is int and rec["poi"] == [960.5, 600.25]
+    json.dumps(rec, allow_nan=False)  # does not raise
+    assert pose_record(2, 0.1, False, reason="x", residual=float("nan"))["residual"] is None
+
+
+@pytest.mark.parametrize("kwargs, fragment", [
+    (dict(position=[1.0, np.nan, 3.0], axes=np.eye(3), cov=np.eye(2)), "NaN or inf"),
+    (dict(position=[1.0, 2.0, 3.0], axes=np.diag([1.0, np.inf, 1.0]), cov=np.eye(2)), "NaN or inf"),
+    (dict(position=[1.0, 2.0, 3.0], axes=np.diag([1.0, 1.0, -1.0]), cov=np.eye(2)), "left-handed"),
+    (dict(position=[1.0, 2.0, 3.0], axes=np.eye(3) * 1.01, cov=np.eye(2)), "not orthonormal"),
+    (dict(position=[1.0, 2.0], axes=np.eye(3), cov=np.eye(2)), "shape"),
+    (dict(position=[1.0, 2.0, 3.0], axes=np.eye(3)), "cov"),
+    (dict(position=[1.0, 2.0, 3.0], axes=np.eye(3), cov=[[1.0, 0.0], [0.0, -1.0]]), "positive definite"),
+])
+def test_pose_record_rejects_bad_pose(kwargs, fragment):
+    with pytest.raises(ValueError, match=None) as e:
+        pose_record(3, 0.1, True, **kwargs)
+    assert fragment in str(e.value)
+
+
+def test_pose_record_failure_rules():
+    with pytest.raises(ValueError, match="reason"):
+        pose_record(3, 0.1, False)
+    with pytest.raises(ValueError, match="reason"):
+        pose_record(3, 0.1, False, reason="  ")
+    with pytest.raises(ValueError, match="no pose"):
+        pose_record(3, 0.1, False, position=[1, 2, 3], reason="x")
+    with pytest.raises(ValueError, match="t is"):
+        pose_record(3, float("nan"), False, reason="x")
+
+
+def test_pose_writer_needs_increasing_frames(tmp_path):
+    with PoseWriter(tmp_path / "p.jsonl") as out:
+        out.write(pose_record(2, 0.0, False, reason="x"))
+        with pytest.raises(ValueError, match="increasing frame order"):
+            out.write(pose_record(2, 0.0, False, reason="x"))
+    assert len(read_poses(tmp_path / "p.jsonl")) == 1
+
+
+def test_read_poses_bad_line_names_file_and_line(tmp_path):
+    path = tmp_path / "poses.jsonl"
+    good = json.dumps(pose_record(0, 0.0, False, reason="x"))
+    path.write_text(good + "\n" + '{"frame": 1, "t": NaN, "ok": false}\n')
+    with pytest.raises(ContractError) as e:
+        read_poses(path)
+    assert_contract_error(e, path, "line 2", "invalid JSON")
+    path.write_text(good + "\n" + '{"frame": 1, "t": 0.1, "ok": false, "reason": "x"}\n')
+    with pytest.raises(ContractError) as e:
+        read_poses(path)
+    assert_contract_error(e, path, "line 2", "missing", "position")
+    path.write_text(good + "\n" + good + "\n")
+    with pytest.raises(ContractError) as e:
+        read_poses(path)
+    assert_contract_error(e, path, "line 2", "frame 0 after frame 0")
+
+
+# ---------------------------------------------------------------------------
+# marker model and V
+# ---------------------------------------------------------------------------
+
+
+def test_default_model_view_dir_is_z():
+    m = default_marker_model()
+    np.testing.assert_allclose(m.view_dir_G, [0.0, 0.0, 1.0], atol=1e-15)
+    np.testing.assert_allclose(m.axes_G, np.eye(3), atol=1e-15)
+    assert m.diameter_mm == 6.0
+    np.testing.assert_array_equal(m.points_mm[3], [40, -30, 0])
+
+
+def test_curved_model_view_dir_by_hand():
+    # P3, P4 pushed back to z = -8: the three triangle normals, by hand, are
+    # (0,-520,1950), (0,-520,1950) and -(0,640,-2400), all along (0,-4,15).
+    P = default_marker_model().points_mm.copy()
+    P[3, 2] = P[4, 2] = -8.0
+    V = MarkerModel(P).view_dir_G
+    np.testing.assert_allclose(V, np.array([0.0, -4.0, 15.0]) / math.sqrt(241.0), atol=1e-12)
+    assert math.degrees(math.atan2(4, 15)) == pytest.approx(14.93, abs=0.01)
+    axes = MarkerModel(P).axes_G
+    np.testing.assert_allclose(axes[0], [1.0, 0, 0], atol=1e-12)  # Ξ ⊥ V keeps x
+    np.testing.assert_allclose(axes[1], np.cross(V, axes[0]), atol=1e-12)
+
+
+def test_asymmetric_model_view_dir_is_mean_of_normals():
+    # only P3 pushed back: normals (0,-4,15)/√241, (0,0,1) and (3,-4,30)/√925 (by hand)
+    P = default_marker_model().points_mm.copy()
+    P[3, 2] = -8.0
+    mean = (np.array([0, -4, 15]) / math.sqrt(241) + np.array([0, 0, 1.0])
+            + np.array([3, -4, 30]) / math.sqrt(925)) / 3
+    np.testing.assert_allclose(MarkerModel(P).view_dir_G, mean / np.linalg.norm(mean), atol=1e-12)
+
+
+# ---------------------------------------------------------------------------
+# screen
+# ---------------------------------------------------------------------------
+
+
+def test_screen_pixel_to_world_corners():
+    scr = screen_example()
+    w, h = scr.size_px
+    got = scr.pixel_to_world([[0, 0], [w, 0], [0, h], [w, h], [w / 2, h / 2]])
+    assert got.shape == (5, 3)
+    np.testing.assert_allclose(got[0], scr.top_left, atol=1e-12)
+    np.testing.assert_allclose(got[1], scr.top_right, atol=1e-12)
+    np.testing.assert_allclose(got[2], scr.bottom_left, atol=1e-12)
+    np.testing.assert_allclose(got[3], scr.top_right + scr.bottom_left - scr.top_left, atol=1e-12)
+    np.testing.assert_allclose(got[4], (scr.top_right + scr.bottom_left) / 2, atol=1e-12)
+
+
+def test_screen_intersect_ray():
+    scr = screen_example()
+    head = np.array([30.0, -20.0, 600.0])
+    target = scr.pixel_to_world([1234.5, 321.0])
+    np.testing.assert_allclose(scr.intersect_ray(head, (target - head) * 3.7), [1234.5, 321.0], atol=1e-9)
+    assert scr.intersect_ray(head, head - target) is None  # screen behind
+    assert scr.intersect_ray(head, scr.top_right - scr.top_left) is None  # parallel
+
+
+# ---------------------------------------------------------------------------
+# bad files: ContractError naming the file
+# ---------------------------------------------------------------------------
+
+
+def test_malformed_yaml(tmp_path):
+    path = tmp_path / "rig.yaml"
+    path.write_text("%YAML:1.0\nK1: [1, 2\nT: }\n")
+    with pytest.raises(ContractError) as e:
+        read_rig(path)
+    assert_contract_error(e, path, "cannot be parsed")
+
+
+def test_missing_and_empty_file(tmp_path):
+    with pytest.raises(ContractError) as e:
+        read_rig(tmp_path / "rig.yaml")
+    assert_contract_error(e, tmp_path / "rig.yaml", "not found")
+    (tmp_path / "screen.yaml").write_text("")
+    with pytest.raises(ContractError) as e:
+        read_screen(tmp_path / "screen.yaml")
+    assert_contract_error(e, tmp_path / "screen.yaml", "empty")
+
+
+def test_missing_key(tmp_path):
+    path = raw_yaml(tmp_path / "rig.yaml", **good_rig_entries(T=None))
+    with pytest.raises(ContractError) as e:
+        read_rig(path)
+    assert_contract_error(e, path, "key 'T' is missing", "image_width")
+
+
+@pytest.mark.parametrize("key, value, fragments", [
+    ("T", np.array([[1.0], [2.0]]), ["key 'T' has shape 2x1, expected 3x1 or 1x3"]),
+    ("K1", np.eye(2), ["key 'K1' has shape 2x2, expected 3x3"]),
+    ("D2", np.zeros((1, 6)), ["key 'D2' has 6 coefficients", "1xN or Nx1"]),
+    ("R", np.array([[0.1, 0.2, 0.3]]), ["key 'R' has shape 1x3", "cv2.Rodrigues"]),
+    ("K2", np.array([[62.0, 0, 31], [0, 63, 23], [0, 0, np.nan]]), ["key 'K2'", "non-finite"]),
+    ("T", np.array([[np.inf], [0.0], [0.0]]), ["key 'T'", "non-finite"]),
+    ("R", 1.01 * np.eye(3), ["key 'R' is not a rotation", "max |R Rᵀ − I| = 0.0201"]),
+    ("R", np.diag([1.0, 1.0, -1.0]), ["det(R) = -1", "reflection"]),
+    ("K1", np.array([[60.0, 0, 0], [0, 61, 0], [32, 24, 1]]), ["not upper-triangular", "transposed"]),
+    ("K1", np.array([[-60.0, 0, 32], [0, 61, 24], [0, 0, 1]]), ["fx", "positive"]),
+    ("K2", np.array([[62.0, 0, 31], [0, 63, 23], [0, 0, 2]]), ["K2[2,2] = 2, expected 1"]),
+    ("T", np.array([[-0.35], [0.0], [0.02]]), ["baseline", "metres"]),
+    ("image_width", 64.5, ["key 'image_width' is 64.5, expected a positive integer"]),
+    ("image_height", "tall", ["key 'image_height' is the string 'tall'"]),
+])
+def test_bad_rig_values(tmp_path, key, value, fragments):
+    path = raw_yaml(tmp_path / "rig.yaml", **good_rig_entries(**{key: value}))
+    with pytest.raises(ContractError) as e:
+        read_rig(path)
+    assert_contract_error(e, path, *fragments)
+
+
+def test_rig_constructor_validates():
+    e = good_rig_entries()
+    with pytest.raises(ContractError, match="Rig: field 'R' is not a rotation"):
+        Rig((64, 48), e["K1"], e["D1"], e["K2"], e["D2"], 2 * e["R"], e["T"])
+
+
+@pytest.mark.parametrize("change, fragments", [
+    (lambda P: P + [1.0, 0.0, 0.0], ["P1 (the bridge)", "expected the origin"]),
+    (lambda P: P.T, ["shape 3x5, expected 5x3", "transposed"]),
+    (lambda P: P * [-1.0, 1.0, 1.0], ["P0 has x = -65", "expected x > 0"]),
+    (lambda P: np.vstack([P[:2], [[-65, 2, 0]], P[3:]]), ["P2", "x axis"]),
+    (lambda P: np.vstack([P[:3], [[30, 0, 0]], P[4:]]), ["P3", "off the line"]),
+])
+def test_bad_markers(tmp_path, change, fragments):
+    P = change(default_marker_model().points_mm.copy())
+    path = raw_yaml(tmp_path / "markers.yaml", markers=P)
+    with pytest.raises(ContractError) as e:
+        read_markers(path)
+    assert_contract_error(e, path, *fragments)
+
+
+def test_markers_unknown_key_and_bad_diameter(tmp_path):
+    P = default_marker_model().points_mm
+    path = raw_yaml(tmp_path / "markers.yaml", markers=P, diamter=4.0)
+    with pytest.raises(ContractError) as e:
+        read_markers(path)
+    assert_contract_error(e, path, "unknown key", "diamter")
+    path = raw_yaml(tmp_path / "markers.yaml", markers=P, diameter=0.0)
+    with pytest.raises(ContractError) as e:
+        read_markers(path)
+    assert_contract_error(e, path, "diameter")
+
+
+def test_bad_screen(tmp_path):
+    scr = screen_example()
+    path = raw_yaml(tmp_path / "screen.yaml", size_px=np.array([[1920.0, 1200.5]]),
+                    top_left=scr.top_left, top_right=scr.top_right, bottom_left=scr.bottom_left)
+    with pytest.raises(ContractError) as e:
+        read_screen(path)
+    assert_contract_error(e, path, "size_px", "positive integer")
+    path = raw_yaml(tmp_path / "screen.yaml", size_px=np.array([[1920.0, 1200.0]]),
+                    top_left=scr.top_left, top_right=scr.top_right, bottom_left=2 * scr.top_right - scr.top_left)
+    with pytest.raises(ContractError) as e:
+        read_screen(path)
+    assert_contract_error(e, path, "do not span a plane")
+
+
+def test_bad_csv_files(tmp_path):
+    path = tmp_path / "times.csv"
+    path.write_text("frame,time\n0,0.0\n")
+    with pytest.raises(ContractError) as e:
+        read_times(path)
+    assert_contract_error(e, path, "header is 'frame,time'", "'frame,t'")
+    path.write_text("frame,t\n0,0.0\n1,abc\n")
+    with pytest.raises(ContractError) as e:
+        read_times(path)
+    assert_contract_error(e, path, "line 3", "'abc'")
+    path.write_text("frame,t\n0,0.0\n0,0.1\n")
+    with pytest.raises(ContractError) as e:
+        read_times(path)
+    assert_contract_error(e, path, "frame 0 appears twice")
+    truth = tmp_path / "truth.csv"
+    text = (SWEEP12 / "truth.csv").read_text().splitlines()
+    row = text[2].split(",")
+    row[4] = "0.5"  # Ξ no longer a unit vector
+    truth.write_text("\n".join([text[0], text[1], ",".join(row)]) + "\n")
+    with pytest.raises(ContractError) as e:
+        read_truth(truth)
+    assert_contract_error(e, truth, "line 3 (frame 1)", "not orthonormal")
+
+
+# ---------------------------------------------------------------------------
+# bad datasets
+# ---------------------------------------------------------------------------
+
+
+def test_missing_frame_directory(tmp_path):
+    folder = make_dataset(tmp_path / "d", n=2)
+    shutil.rmtree(folder / "right")
+    with pytest.raises(ContractError) as e:
+        Dataset(folder)
+    assert_contract_error(e, folder / "right", "'right/' is missing")
+
+
+def test_missing_rig_in_dataset(tmp_path):
+    folder = make_dataset(tmp_path / "d", n=2)
+    (folder / "rig.yaml").unlink()
+    with pytest.raises(ContractError) as e:
+        Dataset(folder)
+    assert_contract_error(e, folder / "rig.yaml", "not found")
+
+
+def test_bad_frames_do_not_stop_the_others(tmp_path):
+    folder = make_dataset(tmp_path / "d", n=8)
+    (folder / "right" / "000005.png").unlink()                                   # missing
+    data = (folder / "left" / "000002.png").read_bytes()
+    (folder / "left" / "000002.png").write_bytes(data[: len(data) // 2])         # truncated
+    cv2.imwrite(str(folder / "right" / "000003.png"), np.zeros((24, 32), np.uint8))  # wrong size
+    (folder / "left" / "000004.png").write_text("not an image")                  # not a PNG
+    cv2.imwrite(str(folder / "left" / "000006.png"), np.zeros((48, 64), np.uint16))  # 16-bit
+    cv2.imwrite(str(folder / "right" / "000007.png"), np.full((48, 64, 3), 9, np.uint8))  # colour
+    (folder / "left" / "notes.txt").write_text("hello")                          # stray file
+
+    ds = Dataset(folder)
+    assert ds.indices == list(range(8))
+    assert "left has 8 frames, right has 7: right/000005.png missing" in ds.warnings
+    assert any(w.startswith("left/notes.txt: ignored") for w in ds.warnings)
+
+    frames = {f.index: f for f in ds}  # iterating does not raise
+    assert frames[5].error == "right/000005.png: missing"
+    assert frames[2].error.startswith("left/000002.png: unreadable")
+    assert frames[3].error == "right/000003.png: 32x24, rig says 64x48"
+    assert frames[4].error.startswith("left/000004.png: unreadable (not a PNG")
+    assert frames[6].error.startswith("left/000006.png: 16-bit")
+    for i in (2, 3, 4, 5, 6):
+        assert frames[i].left is None and frames[i].right is None and not frames[i].ok
+    for i in (0, 1, 7):
+        assert frames[i].error is None
+        assert frames[i].left.shape == (48, 64) and frames[i].right.shape == (48, 64)
+        assert frames[i].left.dtype == np.uint8
+    assert frames[7].warning == "right/000007.png: 3-channel image converted to gray, expected 8-bit grayscale"
+    assert (frames[7].right == 9).all()
+    assert frames[0].warning is None
+
+
+def test_frame_lookup(tmp_path):
+    ds = Dataset(make_dataset(tmp_path / "d", n=3))
+    f = ds.frame(1)
+    assert isinstance(f, Frame) and f.index == 1 and f.t == pytest.approx(1 / 30)
+    with pytest.raises(KeyError):
+        ds.frame(3)
+
+
+def test_dataset_optional_files(tmp_path):
+    folder = make_dataset(tmp_path / "d", n=2)
+    P = default_marker_model().points_mm.copy()
+    P[3, 2] = P[4, 2] = -8.0
+    write_markers(folder / "markers.yaml", MarkerModel(P, 5.0))
+    write_screen(folder / "screen.yaml", screen_example())
+    ds = Dataset(folder)
+    assert ds.markers == MarkerModel(P, 5.0)
+    assert ds.screen == screen_example()
+    (folder / "screen.yaml").write_text("%YAML:1.0\nsize_px: [1920, 1080]\n")
+    with pytest.raises(ContractError) as e:
+        Dataset(folder)
+    assert_contract_error(e, folder / "screen.yaml", "key 'top_left' is missing")
+
+
+@settings(max_examples=60, deadline=None)
+@given(x=st.floats(-500, 2500), y=st.floats(-500, 1700),
+       head=st.tuples(st.floats(-300, 300), st.floats(-300, 300), st.floats(100, 1500)))
+def test_screen_intersect_inverts_pixel_to_world(x, y, head):
+    scr = screen_example()
+    head = np.array(head)
+    target = scr.pixel_to_world([x, y])
+    got = scr.intersect_ray(head, target - head)
+    assert got is not None
+    np.testing.assert_allclose(got, [x, y], atol=1e-6)
