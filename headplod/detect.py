@@ -294,22 +294,22 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
     return centers, flux, peak, area, border_peak
 
 
-def centroids_near(images, guesses_px: np.ndarray, search_px: int, side_px: int,
-                   backgrounds, thresholds_dn):
+def centroids_near(images, guesses_px: np.ndarray, sides_px, backgrounds, thresholds_dn):
     """Re-measure known blobs near predicted positions, without a full detection.
 
-    Two passes of :func:`_window_stats`: a window of ``search_px`` around each
-    guess finds the blob, then a window of ``side_px`` re-centred on it gives
-    the centroid with a symmetric background. This is the tracking fast path:
-    a few array operations for all markers of both images.
+    One pass of :func:`_window_stats` per window side: e.g. a large window
+    around each guess finds the blob, then a small one re-centred on it gives
+    the centroid with a symmetric background; a good prediction needs only
+    the small one. This is the tracking fast path: a few array operations for
+    all markers of both images.
 
     Parameters
     ----------
     images : sequence of k (H, W) uint8
     guesses_px : (k, n, 2)
         Predicted centres per image, px.
-    search_px, side_px : int
-        Window sides, px.
+    sides_px : sequence of int
+        Window side of each pass, px; the blob must lie wholly inside the last.
     backgrounds : sequence of k (level_dn, sigma_dn)
     thresholds_dn : sequence of k float
         A blob whose peak does not reach its image's threshold is not found.
@@ -328,7 +328,9 @@ def centroids_near(images, guesses_px: np.ndarray, search_px: int, side_px: int,
     centers = np.reshape(guesses_px, (k * n, 2)).astype(np.float64)
     found = np.isfinite(centers).all(axis=1)
     centers = np.where(found[:, None], centers, 0.0)
-    for side, final in ((search_px, False), (side_px, True)):
+    sides_px = list(sides_px)
+    for step, side in enumerate(sides_px):
+        final = step == len(sides_px) - 1
         side = int(min(side, width, height))
         ox = np.clip(np.rint(centers[:, 0]).astype(np.int64) - side // 2, 0, width - side)
         oy = np.clip(np.rint(centers[:, 1]).astype(np.int64) - side // 2, 0, height - side)

@@ -125,6 +125,8 @@ def kabsch(model_mm: np.ndarray, points_mm: np.ndarray,
         ``points ≈ R @ model + p1``; rms over the weighted markers.
     """
     pts = np.asarray(points_mm, dtype=np.float64)
+    if weights is None and pts.ndim == 2:
+        return _kabsch_single(model_mm, pts)
     if weights is None:
         weights = np.ones(pts.shape[:-1])
     w = np.asarray(weights, dtype=np.float64)
@@ -142,6 +144,21 @@ def kabsch(model_mm: np.ndarray, points_mm: np.ndarray,
     fitted = np.einsum("...ij,nj->...ni", R, model_mm) + t[..., None, :]
     sq = (np.square(fitted - pts).sum(axis=-1) * w).sum(axis=-1) / wsum[..., 0]
     return R, t, np.sqrt(sq)
+
+
+def _kabsch_single(model_mm: np.ndarray, pts: np.ndarray):
+    """:func:`kabsch` for one unweighted set (n, 3): the tracking hot path, a third of the calls."""
+    mc = model_mm.mean(axis=0)
+    pc = pts.mean(axis=0)
+    H = (model_mm - mc).T @ (pts - pc)
+    U, _, Vt = np.linalg.svd(H)
+    R = Vt.T @ U.T
+    if np.linalg.det(R) < 0:
+        Vt[2] *= -1
+        R = Vt.T @ U.T
+    t = pc - R @ mc
+    rms = np.sqrt(np.mean(np.square(model_mm @ R.T + t - pts).sum(axis=1)))
+    return R, t, rms
 
 
 def model_axes(model_mm: np.ndarray) -> np.ndarray:
@@ -294,19 +311,24 @@ def view_angle_covariance(R_world_G: np.ndarray, JtJ: np.ndarray, sigma_px: floa
     """First-order covariance of (φ, θ), deg², from the pose fit's JᵀJ.
 
     The pose parameters (rvec, tvec) have covariance σ² (JᵀJ)⁻¹ for centroid
-    noise σ (px) in every coordinate; V = R(rvec) V_G moves with rvec, and in
-    the reported head frame (conventions.md) a small change dV is
-    (dφ, dθ) = (Ψ·dV, Ξ·dV) rad. dV/drvec is taken numerically.
+    noise σ (px) in every coordinate. A change of rvec rotates the head by
+    δ = J_l(rvec) drvec (J_l the left Jacobian of SO(3)), which moves V by
+    δ × V; in the reported head frame (conventions.md) that is
+    dφ = Ψ·(δ × V) = −Ξ·δ and dθ = Ξ·(δ × V) = Ψ·δ (radians).
     """
     rvec = cv2.Rodrigues(R_world_G)[0].ravel()
-    cov6 = sigma_px ** 2 * np.linalg.pinv(JtJ)
+    cov_r = sigma_px ** 2 * np.linalg.inv(JtJ)[:3, :3]
     axes = axes_G @ R_world_G.T
-    eps = 1e-6
-    dv = np.empty((3, 3))
-    for k in range(3):
-        d = np.zeros(3)
-        d[k] = eps
-        dv[:, k] = (cv2.Rodrigues(rvec + d)[0] @ axes_G[2] - cv2.Rodrigues(rvec - d)[0] @ axes_G[2]) / (2 * eps)
-    A = np.stack([axes[1], axes[0]]) @ dv          # rows: φ (along Ψ), θ (along Ξ)
-    cov = A @ cov6[:3, :3] @ A.T * np.degrees(1.0) ** 2
+    A = np.stack([-axes[0], axes[1]]) @ _left_jacobian(rvec)
+    cov = A @ cov_r @ A.T * np.degrees(1.0) ** 2
     return 0.5 * (cov + cov.T)
+
+
+def _left_jacobian(rvec: np.ndarray) -> np.ndarray:
+    """Left Jacobian of SO(3) at rvec (3,): d(exp(rvec))·exp(rvec)⁻¹ per d rvec."""
+    angle = float(np.linalg.norm(rvec))
+    k = np.array([[0, -rvec[2], rvec[1]], [rvec[2], 0, -rvec[0]], [-rvec[1], rvec[0], 0]])
+    if angle < 1e-8:
+        return np.eye(3) + 0.5 * k
+    return (np.eye(3) + (1 - np.cos(angle)) / angle ** 2 * k
+            + (angle - np.sin(angle)) / angle ** 3 * (k @ k))

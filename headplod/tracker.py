@@ -193,6 +193,7 @@ class Tracker:
         self._prev_threshold = [None, None]
         self._prev_area = [None, None]
         self._history = []            # [(t, R_world_G, p1)] last two accepted poses
+        self._prev_pose = None
 
     # ------------------------------------------------------------------ public
     def process(self, left: np.ndarray, right: np.ndarray, t: float | None = None,
@@ -280,17 +281,28 @@ class Tracker:
         predicted = prev + (prev - self._prev2_centers) if self._prev2_centers is not None else prev
         radius = np.sqrt(max(max(self._prev_area), 1.0) / np.pi)
         side = 2 * int(np.ceil(radius)) + 2 * self.config.detection.pad_px + 1
-        search = side + 2 * int(self.config.track_margin_px)
-        centers, found, area = centroids_near(images, predicted, search, side, self._prev_background,
-                                              self._prev_threshold)
+        args = (self._prev_background, self._prev_threshold)
+        # A constant-velocity prediction is usually within a few px: one small
+        # window; otherwise search a wider one first.
+        centers, found, area = centroids_near(images, predicted, (side + 6,), *args)
         if not found.all():
-            return None
+            centers, found, area = centroids_near(images, predicted, (side + 2 * int(self.config.track_margin_px), side),
+                                                  *args)
+            if not found.all():
+                return None
         # Two windows locked onto one blob: the labels are no longer trustworthy.
         gaps = np.linalg.norm(centers[:, :, None] - centers[:, None, :], axis=3) + 1e9 * np.eye(5)
         if gaps.min() < radius + 1.0:
             return None
         self._prev_area = [float(area[0].max()), float(area[1].max())]
-        return self._match_from_centers(centers, np.ones((2, 5), bool), np.full((2, 5), -1))
+        visible, index = np.ones((2, 5), bool), np.full((2, 5), -1)
+        if self.config.estimator == "reproj":
+            # The labels are carried over, and the reprojection fit started
+            # from the last pose verifies them: no triangulation needed.
+            R, t = self._prev_pose
+            nan = np.full(5, np.nan)
+            return _Match(centers, visible, index, nan, np.full((5, 3), np.nan), R, t, float("nan"))
+        return self._match_from_centers(centers, visible, index)
 
     def _match_from_centers(self, centers, visible, index) -> _Match | None:
         """Triangulate labeled centres and fit the model; None if they break the checks."""
@@ -489,6 +501,7 @@ class Tracker:
         return omega, tvec
 
     def _remember(self, match: _Match, t, R, p1, blobs) -> None:
+        self._prev_pose = (R, p1)
         if not match.visible.all():
             self._prev_centers = self._prev2_centers = None    # re-identify while a marker is hidden
         else:
