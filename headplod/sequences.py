@@ -22,7 +22,7 @@ def cache_root() -> Path:
 
 
 def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, seed: int = 0,
-                   root: Path | None = None, quiet: bool = False) -> Path:
+                   root: Path | None = None, quiet: bool = False, **options) -> Path:
     """Path of a rendered dataset folder for a synthetic preset, rendering it if needed.
 
     Parameters
@@ -37,6 +37,8 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
         Cache folder (default :func:`cache_root`).
     quiet : bool
         No progress on standard error.
+    **options
+        Preset options (e.g. ``distance_mm`` for ``static``), part of the cache key.
     """
     from synthetic import dataset as synth_dataset
     from synthetic import scenes
@@ -44,12 +46,13 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
     if preset not in scenes.PRESETS:
         raise ValueError(f"unknown synthetic preset {preset!r}; choose one of {', '.join(sorted(scenes.PRESETS))}")
     root = Path(root) if root is not None else cache_root()
-    folder = root / f"{preset}-{frames or 'default'}-s{seed}-{_VERSION}"
+    tag = "".join(f"-{k}{v}" for k, v in sorted(options.items()))
+    folder = root / f"{preset}{tag}-{frames or 'default'}-s{seed}-{_VERSION}"
     if (folder / ".complete").exists():
         return folder
     if folder.exists():
         shutil.rmtree(folder)          # an interrupted render
-    scene = scenes.make_scene(preset, n_frames=frames, seed=seed)
+    scene = scenes.make_scene(preset, n_frames=frames, seed=seed, **options)
     if not quiet:
         print(f"rendering synthetic sequence '{preset}' ({len(scene.times)} stereo pairs) into {folder}",
               file=sys.stderr)

@@ -235,14 +235,16 @@ class Tracker:
         R, p1, residuals, JtJ = self._estimate(match, t, t_right)
         timings["pose"] = time.perf_counter() - t_pose
         t_ver = time.perf_counter()
-        axes = self.axes_G @ R.T if self.config.estimator != "paper" else geo.axes_from_points(match.points, self.normal_signs)
-        if self.config.estimator == "paper":
-            p1 = match.points[1]
+        axes = self.axes_G @ R.T
         result = TrackResult(True, None, p1, axes, R, match.centers, residuals, match.epipolar,
                              match.fit_rms, mode, timings, blobs, match.blob_index,
                              cov_deg2=self._covariance(R, residuals, JtJ))
-        worst = np.nanmax(residuals)
-        if not np.isfinite(worst) or worst > self.config.reproj_tol_px:
+        worst = np.nanmax(residuals) if np.isfinite(residuals).any() else np.inf
+        if not (np.isfinite(R).all() and np.isfinite(p1).all() and np.isfinite(result.cov_deg2).all()):
+            result = replace(result, ok=False, position_mm=None, axes=None, R_world_G=None, cov_deg2=None,
+                             reason="pose fit diverged (non-finite result)")
+            self._prev_centers = self._prev2_centers = None
+        elif worst > self.config.reproj_tol_px:
             cam, marker = np.unravel_index(np.nanargmax(residuals), residuals.shape)
             result = replace(result, ok=False, position_mm=None, axes=None, R_world_G=None, cov_deg2=None,
                              reason=f"reprojection error {worst:.2f} px of {MARKER_NAMES[marker]} in the "
