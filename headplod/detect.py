@@ -95,6 +95,10 @@ class Blobs:
         Small and sharp: probably a specular reflection, not a marker.
     bbox_px : (n, 4) int
         Thresholded bounding box x, y, w, h in full-image pixels.
+    sigma_px : (n,) float64
+        Expected standard deviation of each centroid coordinate from the
+        background noise, px: σ_n · sqrt(Σ (x − c)² / 2) / flux over the
+        pixels that carry weight (first-order propagation of pixel noise).
     threshold_dn, background_dn, noise_dn : float
         The threshold used, the background level and noise σ it came from.
     """
@@ -105,6 +109,7 @@ class Blobs:
     flux_dn: np.ndarray
     glint: np.ndarray
     bbox_px: np.ndarray
+    sigma_px: np.ndarray = None
     threshold_dn: float = 0.0
     background_dn: float = 0.0
     noise_dn: float = 0.0
@@ -119,7 +124,7 @@ class Blobs:
         if idx.dtype == bool:
             idx = np.flatnonzero(idx)
         return Blobs(self.centers_px[idx], self.area_px[idx], self.peak_dn[idx],
-                     self.flux_dn[idx], self.glint[idx], self.bbox_px[idx],
+                     self.flux_dn[idx], self.glint[idx], self.bbox_px[idx], self.sigma_px[idx],
                      self.threshold_dn, self.background_dn, self.noise_dn,
                      [self.pixels[i] for i in idx] if self.pixels else [])
 
@@ -197,12 +202,14 @@ def detect_blobs(image: np.ndarray, params: DetectionParams = DetectionParams(),
             and not keep_pixels and side <= min(width, height)):
         stats = _centroids_fixed_windows(image, boxes, side, threshold, 2.0 * sigma)
         if stats is not None:
-            centers, area, peak, flux = stats
-            return _finish(centers, area, peak, flux, boxes, truncated, params, threshold, bg, sigma, [], 2.0 * sigma)
-    centers, area, peak, flux, pixels = _centroids_per_blob(
+            centers, area, peak, flux, spread = stats
+            return _finish(centers, area, peak, flux, spread, boxes, truncated, params, threshold, bg, sigma, [],
+                           2.0 * sigma)
+    centers, area, peak, flux, spread, pixels = _centroids_per_blob(
         image, binary, contours, boxes, (x_off, y_off), params, threshold, bg, sigma, keep_pixels)
     noise_floor = 2.0 * sigma if params.subtract_background else 0.0
-    return _finish(centers, area, peak, flux, boxes, truncated, params, threshold, bg, sigma, pixels, noise_floor)
+    return _finish(centers, area, peak, flux, spread, boxes, truncated, params, threshold, bg, sigma, pixels,
+                   noise_floor)
 
 
 # Blobs up to this window side (px) take the vectorized path: one array op per
@@ -226,8 +233,8 @@ def _centroids_fixed_windows(image, boxes, side, threshold, noise_floor):
               & (boxes[None, :, 1] < (oy + side)[:, None]) & (boxes[None, :, 1] + boxes[None, :, 3] > oy[:, None]))
     if inside.sum() > len(boxes):
         return None
-    centers, flux, peak, area, _ = _window_stats((image,), ox, oy, side, threshold, noise_floor)
-    return centers, area, peak, flux
+    centers, flux, peak, area, _, spread = _window_stats((image,), ox, oy, side, threshold, noise_floor)
+    return centers, area, peak, flux, spread
 
 
 def _window_view(image: np.ndarray, side: int) -> np.ndarray:
@@ -265,7 +272,8 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
     Returns
     -------
     centers (n, 2) px, flux (n,), peak (n,), area (n,) px above threshold,
-    border_peak (n,) or None: a blob cut by its window has a large one.
+    border_peak (n,) or None: a blob cut by its window has a large one,
+    spread (n,): Σ (x − cx)² + (y − cy)² over the pixels with weight, px².
     """
     if which is None:
         windows = _window_view(images[0], side)[oy, ox]
@@ -285,13 +293,17 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
     with np.errstate(invalid="ignore", divide="ignore"):
         centers = np.column_stack([ox + cols @ ramp / flux, oy + rows @ ramp / flux])
     centers[flux <= 0] = np.nan
+    support = weights > 0
+    dx = ramp[None, :] - (centers[:, :1] - ox[:, None])
+    dy = ramp[None, :] - (centers[:, 1:] - oy[:, None])
+    spread = (support.sum(axis=1) * dx ** 2).sum(axis=1) + (support.sum(axis=2) * dy ** 2).sum(axis=1)
     peak = weights.max(axis=(1, 2)) + noise_floor
     area = np.count_nonzero(windows >= np.reshape(threshold, (-1, 1, 1)), axis=(1, 2))
     border_peak = None
     if border:
         weights[:, 1:-1, 1:-1] = 0
         border_peak = weights.max(axis=(1, 2)) + noise_floor
-    return centers, flux, peak, area, border_peak
+    return centers, flux, peak, area, border_peak, spread
 
 
 def centroids_near(images, guesses_px: np.ndarray, sides_px, backgrounds, thresholds_dn):
@@ -316,7 +328,8 @@ def centroids_near(images, guesses_px: np.ndarray, sides_px, backgrounds, thresh
 
     Returns
     -------
-    centers_px (k, n, 2), found (k, n) bool, area_px (k, n)
+    centers_px (k, n, 2), found (k, n) bool, area_px (k, n), flux (k, n),
+    sigma_px (k, n): expected centroid noise per coordinate (see Blobs.sigma_px)
     """
     k, n = np.shape(guesses_px)[:2]
     height, width = images[0].shape
@@ -334,13 +347,16 @@ def centroids_near(images, guesses_px: np.ndarray, sides_px, backgrounds, thresh
         side = int(min(side, width, height))
         ox = np.clip(np.rint(centers[:, 0]).astype(np.int64) - side // 2, 0, width - side)
         oy = np.clip(np.rint(centers[:, 1]).astype(np.int64) - side // 2, 0, height - side)
-        new, flux, peak, area, border_peak = _window_stats(images, ox, oy, side, threshold, noise_floor,
-                                                           which if k > 1 else None, border=final)
+        new, flux, peak, area, border_peak, spread = _window_stats(images, ox, oy, side, threshold, noise_floor,
+                                                                   which if k > 1 else None, border=final)
         found &= np.isfinite(new[:, 0]) & (peak >= contrast)
         centers = np.where(np.isfinite(new), new, centers)
     # The blob must lie wholly inside the final window.
     found &= border_peak <= 0.15 * peak + noise_floor
-    return centers.reshape(k, n, 2), found.reshape(k, n), area.reshape(k, n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        centroid_sigma = sigma * np.sqrt(spread / 2) / flux
+    return (centers.reshape(k, n, 2), found.reshape(k, n), area.reshape(k, n), flux.reshape(k, n),
+            centroid_sigma.reshape(k, n))
 
 
 def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshold, bg, sigma, keep_pixels):
@@ -363,6 +379,7 @@ def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshol
     area = np.zeros(n, dtype=np.int64)
     peak = np.zeros(n)
     flux = np.zeros(n)
+    spread = np.zeros(n)
     pixels = []
     noise_floor = 2.0 * sigma if params.subtract_background else 0.0
     for i in range(n):  # a handful of blobs; per-pixel work inside is OpenCV/numpy
@@ -388,21 +405,24 @@ def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshol
             continue
         centers[i] = (x0[i] + m["m10"] / m["m00"], y0[i] + m["m01"] / m["m00"])
         flux[i] = m["m00"]
+        ys, xs = np.nonzero(weights)
+        spread[i] = np.sum((xs + x0[i] - centers[i, 0]) ** 2 + (ys + y0[i] - centers[i, 1]) ** 2)
         peak[i] = float(weights.max()) + noise_floor
         bx, by, bw, bh = boxes[i, 0] - x_off, boxes[i, 1] - y_off, boxes[i, 2], boxes[i, 3]
         area[i] = cv2.countNonZero(binary[by:by + bh, bx:bx + bw])
         if keep_pixels:
-            ys, xs = np.nonzero(weights)
             pixels.append((np.column_stack([xs + x0[i], ys + y0[i]]).astype(np.float64),
                            weights[ys, xs].astype(np.float64)))
-    return centers, area, peak, flux, pixels
+    return centers, area, peak, flux, spread, pixels
 
 
-def _finish(centers, area, peak, flux, boxes, truncated, params, threshold, bg, sigma, pixels, noise_floor):
+def _finish(centers, area, peak, flux, spread, boxes, truncated, params, threshold, bg, sigma, pixels, noise_floor):
+    with np.errstate(invalid="ignore", divide="ignore"):
+        centroid_sigma = sigma * np.sqrt(spread / 2) / flux
     effective_area = flux / np.maximum(peak - noise_floor, 1e-9)
     glint = (area <= params.glint_max_area_px) & (effective_area <= params.glint_max_effective_area_px)
     keep = np.isfinite(centers[:, 0]) & (area >= params.min_area_px) & ~truncated
-    return Blobs(centers, area, peak, flux, glint, boxes, threshold, bg, sigma, pixels).subset(keep)
+    return Blobs(centers, area, peak, flux, glint, boxes, centroid_sigma, threshold, bg, sigma, pixels).subset(keep)
 
 
 def _border_mean(win: np.ndarray) -> float:
@@ -415,4 +435,4 @@ def _border_mean(win: np.ndarray) -> float:
 
 def _empty(threshold: float, bg: float, sigma: float) -> Blobs:
     return Blobs(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0), np.zeros(0),
-                 np.zeros(0, bool), np.zeros((0, 4), np.int64), threshold, bg, sigma, [])
+                 np.zeros(0, bool), np.zeros((0, 4), np.int64), np.zeros(0), threshold, bg, sigma, [])

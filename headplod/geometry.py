@@ -209,7 +209,7 @@ def project(points_mm: np.ndarray, R_cam_world: np.ndarray, t_cam_world: np.ndar
 def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm: np.ndarray,
                         obs_left_px: np.ndarray, obs_right_px: np.ndarray,
                         visible_left: np.ndarray, visible_right: np.ndarray, rig,
-                        iterations: int = 5, right_motion=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        iterations: int = 5, right_motion=None, sigma_px=None):
     """Refine a head pose by Gauss-Newton on the reprojection error in both images.
 
     Parameters
@@ -229,6 +229,9 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
         The head's motion in the world frame between the left and right
         exposures (when the cameras are not synchronized), applied to the
         points before the right camera sees them.
+    sigma_px : (2, 5), optional
+        Expected noise of each centre, px: residuals are weighted by 1/σ
+        (maximum likelihood for independent Gaussian centroid errors).
 
     Returns
     -------
@@ -253,8 +256,14 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
     obj_l = obj[vl]
     obj_r = obj[vr]
     nl = len(obj_l)
+    if sigma_px is None:
+        weight = np.ones(2 * (nl + len(obj_r)))
+    else:
+        sig = np.concatenate([np.asarray(sigma_px[0])[vl], np.asarray(sigma_px[1])[vr]])
+        weight = np.repeat(1.0 / np.maximum(sig / np.median(sig), 1e-3), 2)
     for _ in range(iterations + 1):
         res, J = _residuals_and_jacobian(rvec, tvec, obj_l, obj_r, obs_l, obs_r, rig, rig_rvec, rig_tvec)
+        res, J = res * weight, J * weight[:, None]
         step = np.linalg.solve(J.T @ J + 1e-9 * np.eye(6), -J.T @ res)
         small = np.abs(step).max() < 1e-5
         if small:
@@ -267,6 +276,9 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
             break
     else:
         res, _ = _residuals_and_jacobian(rvec, tvec, obj_l, obj_r, obs_l, obs_r, rig, rig_rvec, rig_tvec)
+        res = res * weight
+    res = res / weight              # back to pixels
+    J = J / weight[:, None]
     R_out = cv2.Rodrigues(rvec)[0]
     residuals = np.full((2, len(model_mm)), np.nan)
     norms = np.hypot(res[0::2], res[1::2])

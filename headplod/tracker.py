@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from itertools import permutations
 
 import cv2
 import numpy as np
@@ -70,6 +69,18 @@ class TrackerConfig:
         Keep each marker's pixel cloud in the result (for uncertainty).
     min_centroid_sigma_px : float
         Floor of the centroid noise used for the covariance, px.
+    track_flux_change : float
+        While tracking, a marker whose flux changes by more than this factor
+        from the previous frame (a glint or a neighbour in its window) makes
+        the frame re-detect and re-identify.
+    weighted_fit : bool
+        Weight each centre in the reprojection fit by its expected noise
+        (from its flux, size and the image noise).
+    outlier_sigma, outlier_floor_px : float
+        A centre whose residual exceeds both ``outlier_sigma`` times its
+        expected noise and ``outlier_floor_px`` is an outlier (a glint fused
+        with the marker, a partial occlusion): it is dropped and the pose
+        refitted from the other nine, if they agree.
     """
 
     estimator: str = "reproj"
@@ -85,6 +96,10 @@ class TrackerConfig:
     compensate_offset: bool = True
     keep_pixels: bool = False
     min_centroid_sigma_px: float = 0.03
+    track_flux_change: float = 1.25
+    weighted_fit: bool = True
+    outlier_sigma: float = 10.0
+    outlier_floor_px: float = 0.3
 
     def __post_init__(self):
         if self.estimator not in ESTIMATORS:
@@ -159,6 +174,8 @@ class _Match:
     R: np.ndarray
     t: np.ndarray
     fit_rms: float
+    sigma_px: np.ndarray = None     # (2, 5) expected centroid noise, px
+    flux: np.ndarray = None         # (2, 5) blob flux, DN·px
 
 
 class Tracker:
@@ -194,6 +211,7 @@ class Tracker:
         self._prev_area = [None, None]
         self._history = []            # [(t, R_world_G, p1)] last two accepted poses
         self._prev_pose = None
+        self._uncompensated = False
 
     # ------------------------------------------------------------------ public
     def process(self, left: np.ndarray, right: np.ndarray, t: float | None = None,
@@ -232,15 +250,41 @@ class Tracker:
             return TrackResult(False, reason, mode=mode, timings_s=timings, blobs=blobs)
 
         t_pose = time.perf_counter()
+        self._uncompensated = (t_right is not None and t is not None and t_right != t
+                               and self._right_motion(t, t_right) is None
+                               and (not self._history or t - self._history[-1][0] > 0.2))
         R, p1, residuals, JtJ = self._estimate(match, t, t_right)
+        dropped = None
+        outlier = self._outlier(residuals, match)
+        if outlier is not None and self.config.estimator == "reproj" and match.visible.all():
+            # One centre disagrees with the other nine (a glint fused with a
+            # marker, a partial occlusion): refit without it.
+            dropped = outlier
+            match.visible = match.visible.copy()
+            match.visible[outlier] = False
+            R, p1, residuals, JtJ = self._estimate(match, t, t_right)
+            if self._outlier(residuals, match) is not None:
+                dropped = None
         timings["pose"] = time.perf_counter() - t_pose
         t_ver = time.perf_counter()
         axes = self.axes_G @ R.T
+        if dropped is not None:
+            match.centers = match.centers.copy()
+            match.centers[dropped] = np.nan
         result = TrackResult(True, None, p1, axes, R, match.centers, residuals, match.epipolar,
                              match.fit_rms, mode, timings, blobs, match.blob_index,
                              cov_deg2=self._covariance(R, residuals, JtJ))
         worst = np.nanmax(residuals) if np.isfinite(residuals).any() else np.inf
-        if not (np.isfinite(R).all() and np.isfinite(p1).all() and np.isfinite(result.cov_deg2).all()):
+        outlier = self._outlier(residuals, match)
+        if outlier is not None and worst <= self.config.reproj_tol_px:
+            cam, marker = outlier
+            result = replace(result, ok=False, position_mm=None, axes=None, R_world_G=None, cov_deg2=None,
+                             reason=f"{MARKER_NAMES[marker]} in the {('left', 'right')[cam]} image is "
+                                    f"{residuals[cam, marker]:.2f} px from where the other markers put it "
+                                    f"({residuals[cam, marker] / match.sigma_px[cam, marker]:.0f}x its expected "
+                                    "noise): a glint or partial occlusion; pose not trusted")
+            self._prev_centers = self._prev2_centers = None
+        elif not (np.isfinite(R).all() and np.isfinite(p1).all() and np.isfinite(result.cov_deg2).all()):
             result = replace(result, ok=False, position_mm=None, axes=None, R_world_G=None, cov_deg2=None,
                              reason="pose fit diverged (non-finite result)")
             self._prev_centers = self._prev2_centers = None
@@ -286,12 +330,17 @@ class Tracker:
         args = (self._prev_background, self._prev_threshold)
         # A constant-velocity prediction is usually within a few px: one small
         # window; otherwise search a wider one first.
-        centers, found, area = centroids_near(images, predicted, (side + 6,), *args)
+        centers, found, area, flux, sigma = centroids_near(images, predicted, (side + 6,), *args)
         if not found.all():
-            centers, found, area = centroids_near(images, predicted, (side + 2 * int(self.config.track_margin_px), side),
-                                                  *args)
+            centers, found, area, flux, sigma = centroids_near(
+                images, predicted, (side + 2 * int(self.config.track_margin_px), side), *args)
             if not found.all():
                 return None
+        # A glint or a neighbour entering a window adds flux: re-identify
+        # rather than let it pull the centroid.
+        change = flux / self._prev_flux
+        if np.any(change > self.config.track_flux_change) or np.any(change < 1 / self.config.track_flux_change):
+            return None
         # Two windows locked onto one blob: the labels are no longer trustworthy.
         gaps = np.linalg.norm(centers[:, :, None] - centers[:, None, :], axis=3) + 1e9 * np.eye(5)
         if gaps.min() < radius + 1.0:
@@ -303,8 +352,11 @@ class Tracker:
             # from the last pose verifies them: no triangulation needed.
             R, t = self._prev_pose
             nan = np.full(5, np.nan)
-            return _Match(centers, visible, index, nan, np.full((5, 3), np.nan), R, t, float("nan"))
-        return self._match_from_centers(centers, visible, index)
+            return _Match(centers, visible, index, nan, np.full((5, 3), np.nan), R, t, float("nan"), sigma, flux)
+        match = self._match_from_centers(centers, visible, index)
+        if match is not None:
+            match.sigma_px, match.flux = sigma, flux
+        return match
 
     def _match_from_centers(self, centers, visible, index) -> _Match | None:
         """Triangulate labeled centres and fit the model; None if they break the checks."""
@@ -353,73 +405,105 @@ class Tracker:
                       "and two beside)" if missing else "no consistent stereo identification")
         return match, reason
 
+    def _epipolar_matrix(self, xn) -> np.ndarray:
+        """Epipolar error (px) of every left candidate against every right one: (m_left, m_right)."""
+        return geo.epipolar_error_px(xn[0][:, None, :], xn[1][None, :, :], self.E, *self.focal)
+
     def _best_pair(self, hyps, xn, cand, blobs) -> tuple[_Match | None, str | None]:
+        """The left/right pair of labelings that best fits the epipolar geometry and the model.
+
+        Pairs are screened by a lookup in the candidates' epipolar-error
+        matrix before anything is triangulated; the paper's labelings are
+        tried first and the alternatives only when none of those fits.
+        """
         hl, hr = hyps
-        il = np.repeat(np.arange(len(hl)), len(hr))
-        ir = np.tile(np.arange(len(hr)), len(hl))
-        xl = xn[0][hl.index[il]]            # (P, 5, 2)
-        xr = xn[1][hr.index[ir]]
-        epi = geo.epipolar_error_px(xl, xr, self.E, *self.focal)      # (P, 5)
-        points, _ = geo.triangulate_midpoint(xl, xr, self.rig.R, self.rig.T)
-        R, t, rms = geo.kabsch(self.model_mm, points)
-        valid = (epi.max(axis=1) <= self.config.epipolar_tol_px) & (rms <= self.config.fit_tol_mm)
-        valid &= self._facing_cameras(R, t)
-        if not valid.any():
-            best = np.argmin(rms)
-            return None, (f"no consistent stereo identification: best candidate has rigid-fit error "
-                          f"{rms[best]:.1f} mm (tolerance {self.config.fit_tol_mm}) and epipolar error "
-                          f"{epi[best].max():.1f} px (tolerance {self.config.epipolar_tol_px})")
-        cost = (rms / self.config.fit_tol_mm + epi.max(axis=1) / self.config.epipolar_tol_px
-                + 0.05 * (hl.rank[il] + hr.rank[ir]))
-        cost = np.where(valid, cost, np.inf)
-        best = int(np.argmin(cost))
-        if self._ambiguous(R, valid, best):
-            return None, "ambiguous identification: two marker assignments fit equally well"
-        index = np.stack([cand[0][hl.index[il[best]]], cand[1][hr.index[ir[best]]]])
-        return self._make_match(blobs, index, epi[best], points[best], R[best], t[best], rms[best]), None
+        epi_matrix = self._epipolar_matrix(xn)
+        tol = self.config.epipolar_tol_px
+        best_reason = None
+        for ranks in ((0,), (0, 1)):
+            il_all = np.flatnonzero(np.isin(hl.rank, ranks))
+            ir_all = np.flatnonzero(np.isin(hr.rank, ranks))
+            il = np.repeat(il_all, len(ir_all))
+            ir = np.tile(ir_all, len(il_all))
+            epi = epi_matrix[hl.index[il], hr.index[ir]]           # (P, 5) by lookup
+            keep = epi.max(axis=1) <= tol
+            if not keep.any():
+                best_reason = (f"no consistent stereo identification: no labeling of the left blobs matches "
+                               f"one of the right blobs within the epipolar tolerance ({tol} px)")
+                continue
+            il, ir, epi = il[keep], ir[keep], epi[keep]
+            xl = xn[0][hl.index[il]]            # (P, 5, 2)
+            xr = xn[1][hr.index[ir]]
+            points, _ = geo.triangulate_midpoint(xl, xr, self.rig.R, self.rig.T)
+            R, t, rms = geo.kabsch(self.model_mm, points)
+            valid = (rms <= self.config.fit_tol_mm) & self._facing_cameras(R, t)
+            if not valid.any():
+                k = int(np.argmin(rms))
+                best_reason = (f"no consistent stereo identification: the best labeling is {rms[k]:.1f} mm "
+                               f"(RMS) from the marker model, tolerance {self.config.fit_tol_mm} mm")
+                continue
+            cost = rms / self.config.fit_tol_mm + epi.max(axis=1) / tol + 0.05 * (hl.rank[il] + hr.rank[ir])
+            cost = np.where(valid, cost, np.inf)
+            best = int(np.argmin(cost))
+            if self._ambiguous(R, valid, best):
+                return None, "ambiguous identification: two marker assignments fit equally well"
+            index = np.stack([cand[0][hl.index[il[best]]], cand[1][hr.index[ir[best]]]])
+            return self._make_match(blobs, index, epi[best], points[best], R[best], t[best], rms[best]), None
+        return None, best_reason
 
     def _hidden_marker(self, hyps, xn, cand, blobs) -> tuple[_Match | None, str | None]:
-        """One marker hidden in one view: label the full view, match the other's blobs to it."""
+        """One marker hidden in one view: label the full view, match the other's blobs to it.
+
+        For each labeled marker, the other view's blobs within the epipolar
+        tolerance are its only possible partners; the assignments are the
+        products of those short lists with exactly one marker hidden.
+        """
+        epi_matrix = self._epipolar_matrix(xn)
+        tol = self.config.epipolar_tol_px
         best = None
         for full in (0, 1):
             other = 1 - full
             h = hyps[full]
             if h is None or not len(h) or len(cand[other]) < 4:
                 continue
-            m = len(cand[other])
-            # Injective maps of 4 of the 5 labels to the other view's blobs.
-            assignments = []
-            for hidden in range(5):
-                shown = [k for k in range(5) if k != hidden]
-                for perm in permutations(range(m), 4):
-                    row = np.full(5, -1)
-                    row[shown] = perm
-                    assignments.append(row)
-            assignments = np.array(assignments)                        # (A, 5)
-            hi = np.repeat(np.arange(len(h)), len(assignments))
-            ai = np.tile(np.arange(len(assignments)), len(h))
-            xf = xn[full][h.index[hi]]                                 # (P, 5, 2)
-            xo = xn[other][np.maximum(assignments[ai], 0)]
-            weights = (assignments[ai] >= 0).astype(np.float64)
+            rows, hyp_of_row = [], []
+            for k, labels in enumerate(h.index[h.rank == 0] if (h.rank == 0).any() else h.index):
+                errors = epi_matrix[labels, :] if full == 0 else epi_matrix[:, labels].T     # (5, m_other)
+                options = [np.flatnonzero(errors[j] <= tol) for j in range(5)]
+                for hidden in range(5):
+                    lists = [options[j] if j != hidden else np.array([-1]) for j in range(5)]
+                    if any(len(o) == 0 for o in lists):
+                        continue
+                    combos = np.array(np.meshgrid(*lists, indexing="ij")).reshape(5, -1).T
+                    shown = combos[:, [j for j in range(5) if j != hidden]]
+                    distinct = np.array([len(set(r)) == 4 for r in shown.tolist()])
+                    rows.append(combos[distinct])
+                    hyp_of_row.append(np.full(int(distinct.sum()), k))
+            if not rows:
+                continue
+            assignments = np.concatenate(rows)
+            labels_full = (h.index[h.rank == 0] if (h.rank == 0).any() else h.index)[np.concatenate(hyp_of_row)]
+            if len(assignments) == 0:
+                continue
+            xf = xn[full][labels_full]                                   # (P, 5, 2)
+            xo = xn[other][np.maximum(assignments, 0)]
+            weights = (assignments >= 0).astype(np.float64)
             xl, xr = (xf, xo) if full == 0 else (xo, xf)
-            epi = geo.epipolar_error_px(xl, xr, self.E, *self.focal)
-            epi = np.where(weights > 0, epi, 0.0)
+            epi = np.where(weights > 0, geo.epipolar_error_px(xl, xr, self.E, *self.focal), 0.0)
             points, _ = geo.triangulate_midpoint(xl, xr, self.rig.R, self.rig.T)
             R, t, rms = geo.kabsch(self.model_mm, points, weights)
-            valid = ((epi.max(axis=1) <= self.config.epipolar_tol_px) & (rms <= self.config.fit_tol_mm)
-                     & self._facing_cameras(R, t))
+            valid = (rms <= self.config.fit_tol_mm) & self._facing_cameras(R, t)
             if not valid.any():
                 continue
-            cost = np.where(valid, rms / self.config.fit_tol_mm + epi.max(axis=1) / self.config.epipolar_tol_px
-                            + 0.05 * h.rank[hi], np.inf)
+            cost = np.where(valid, rms / self.config.fit_tol_mm + epi.max(axis=1) / tol, np.inf)
             k = int(np.argmin(cost))
             if self._ambiguous(R, valid, k):
                 return None, "ambiguous identification with a marker hidden in one view"
             if best is None or cost[k] < best[0]:
                 index = np.full((2, 5), -1)
-                index[full] = cand[full][h.index[hi[k]]]
-                shown = assignments[ai[k]] >= 0
-                index[other, shown] = cand[other][assignments[ai[k]][shown]]
+                index[full] = cand[full][labels_full[k]]
+                shown = assignments[k] >= 0
+                index[other, shown] = cand[other][assignments[k][shown]]
                 pts = np.where(weights[k][:, None] > 0, points[k], np.nan)
                 best = (cost[k], index, epi[k], pts, R[k], t[k], rms[k])
         if best is None:
@@ -432,7 +516,11 @@ class Tracker:
         for cam in range(2):
             centers[cam, visible[cam]] = blobs[cam].centers_px[index[cam, visible[cam]]]
         epi = np.where(visible.all(axis=0), epi, np.nan)
-        return _Match(centers, visible, index, epi, points, R, t, float(rms))
+        sigma, flux = np.full((2, 5), np.nan), np.full((2, 5), np.nan)
+        for cam in range(2):
+            sigma[cam, visible[cam]] = blobs[cam].sigma_px[index[cam, visible[cam]]]
+            flux[cam, visible[cam]] = blobs[cam].flux_dn[index[cam, visible[cam]]]
+        return _Match(centers, visible, index, epi, points, R, t, float(rms), sigma, flux)
 
     def _facing_cameras(self, R, t) -> np.ndarray:
         """The glasses' front (V) must face the cameras: retro-reflectors are seen only from the front."""
@@ -458,9 +546,38 @@ class Tracker:
             residuals = self._residuals(R, p1, match)
             JtJ = geo.reprojection_jacobian(R, p1, self.model_mm, match.visible[0], match.visible[1], self.rig)
             return R, p1, residuals, JtJ
+        sigma = match.sigma_px if self.config.weighted_fit else None
         motion = self._right_motion(t, t_right) if self.config.compensate_offset else None
-        return geo.refine_reprojection(match.R, match.t, self.model_mm, match.centers[0], match.centers[1],
-                                       match.visible[0], match.visible[1], self.rig, right_motion=motion)
+        fit = geo.refine_reprojection(match.R, match.t, self.model_mm, match.centers[0], match.centers[1],
+                                      match.visible[0], match.visible[1], self.rig, right_motion=motion,
+                                      sigma_px=sigma)
+        if self.config.compensate_offset and t_right is not None and t_right != t:
+            # Second pass: the velocity from the last pose to this one lags by
+            # half a frame instead of one and a half.
+            motion = self._right_motion(t, t_right, current=fit[:2])
+            if motion is not None:
+                fit = geo.refine_reprojection(fit[0], fit[1], self.model_mm, match.centers[0], match.centers[1],
+                                              match.visible[0], match.visible[1], self.rig, right_motion=motion,
+                                              sigma_px=sigma)
+        return fit
+
+    def _outlier(self, residuals, match: _Match):
+        """(camera, marker) of the worst centre if it is an outlier, else None.
+
+        Not tested while the right image's exposure offset cannot be
+        compensated (no recent pose to take the velocity from): the motion
+        then displaces every right centre, and only the absolute tolerance
+        applies.
+        """
+        if match.sigma_px is None or self._uncompensated:
+            return None
+        sigma = np.where(np.isfinite(match.sigma_px), np.maximum(match.sigma_px, self.config.min_centroid_sigma_px),
+                         np.inf)
+        score = np.where(np.isfinite(residuals) & (residuals > self.config.outlier_floor_px),
+                         residuals / sigma, 0.0)
+        if score.max() <= self.config.outlier_sigma:
+            return None
+        return np.unravel_index(int(np.argmax(score)), score.shape)
 
     def _covariance(self, R, residuals, JtJ) -> np.ndarray:
         """cov of (φ, θ), deg²: first-order propagation of the centroid noise.
@@ -485,13 +602,23 @@ class Tracker:
             res[cam, vis] = np.linalg.norm(proj[vis] - match.centers[cam, vis], axis=1)
         return res
 
-    def _right_motion(self, t, t_right):
-        """World-frame motion (rvec, tvec) of the head from t to t_right, from the last two poses."""
-        if t is None or t_right is None or t_right == t or len(self._history) < 2:
+    def _right_motion(self, t, t_right, current=None):
+        """World-frame motion (rvec, tvec) of the head from t to t_right.
+
+        The velocity comes from the last accepted pose and ``current`` (this
+        frame's pose, R and p1) when given, else from the last two poses.
+        None when the cameras are synchronous or there is no recent history.
+        """
+        if t is None or t_right is None or t_right == t or not self._history:
             return None
-        (ta, Ra, pa), (tb, Rb, pb) = self._history[-2:]
+        if current is not None:
+            (ta, Ra, pa), (tb, Rb, pb) = self._history[-1], (t, *current)
+        elif len(self._history) >= 2:
+            (ta, Ra, pa), (tb, Rb, pb) = self._history[-2:]
+        else:
+            return None
         dt = tb - ta
-        if dt <= 0 or t - tb > 3 * dt:
+        if dt <= 0 or t - ta > 4 * dt or (current is None and t - tb > 3 * dt):
             return None
         scale = (t_right - t) / dt
         omega = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() * scale
@@ -510,6 +637,7 @@ class Tracker:
             continuing = self._prev_centers is not None
             self._prev2_centers = self._prev_centers if continuing else None
             self._prev_centers = match.centers
+            self._prev_flux = match.flux
         for cam in range(2):
             if blobs[cam] is not None and len(blobs[cam]):
                 self._prev_threshold[cam] = blobs[cam].threshold_dn
