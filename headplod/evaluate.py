@@ -53,6 +53,7 @@ def summarize(records: list[dict], truth: dict | None) -> dict:
         return out
     err = pose_errors(records, truth)
     v, p = err["v_err_deg"], err["pos_err_mm"]
+    out["wrong_identifications"] = int(np.sum(v > WRONG_IDENTIFICATION_DEG))
     if len(v):
         out.update({
             "v_err_deg_median": float(np.median(v)),
@@ -60,7 +61,6 @@ def summarize(records: list[dict], truth: dict | None) -> dict:
             "v_err_deg_max": float(v.max()),
             "pos_err_mm_median": float(np.median(p)),
             "pos_err_mm_p95": float(np.percentile(p, 95)),
-            "wrong_identifications": int(np.sum(v > WRONG_IDENTIFICATION_DEG)),
         })
     return out
 

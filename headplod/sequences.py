@@ -13,8 +13,19 @@ import sys
 from pathlib import Path
 
 #: The sequence ``headplod track`` runs without a dataset.
-DEFAULT_SEQUENCE = "default"
-_VERSION = "v1"    # bump when the renderer changes what it draws
+DEFAULT_SEQUENCE = "looking_around"
+
+
+def _renderer_version() -> str:
+    """Hash of the synthetic package's source: a changed renderer never reuses stale renders."""
+    import hashlib
+
+    import synthetic
+
+    digest = hashlib.sha256()
+    for path in sorted(Path(synthetic.__file__).parent.glob("*.py")):
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:10]
 
 
 def cache_root() -> Path:
@@ -47,7 +58,7 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
         raise ValueError(f"unknown synthetic preset {preset!r}; choose one of {', '.join(sorted(scenes.PRESETS))}")
     root = Path(root) if root is not None else cache_root()
     tag = "".join(f"-{k}{v}" for k, v in sorted(options.items()))
-    folder = root / f"{preset}{tag}-{frames or 'default'}-s{seed}-{_VERSION}"
+    folder = root / f"{preset}{tag}-{frames or 'default'}-s{seed}-{_renderer_version()}"
     if (folder / ".complete").exists():
         return folder
     if folder.exists():
