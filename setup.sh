@@ -28,7 +28,7 @@ if [ ! -x .venv/bin/python ]; then
     "$PYTHON" -m venv .venv
 fi
 stamp=.venv/.headplod-installed
-want="$(sha256sum pyproject.toml | cut -d' ' -f1)"
+want="$({ cat pyproject.toml; ls -1 */__init__.py; } 2>/dev/null | sha256sum | cut -d" " -f1)"  # packages are mapped at install time
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     echo "setup: installing headplod and its dependencies into .venv" >&2
     .venv/bin/python -m pip install --quiet --upgrade pip >/dev/null 2>&1 || true

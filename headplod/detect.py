@@ -29,6 +29,7 @@ import numpy as np
 
 # Scale from the median absolute deviation to σ for Gaussian noise.
 _MAD_TO_SIGMA = 1.4826
+_CLOSE_KERNEL = np.ones((3, 3), np.uint8)
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,11 @@ class DetectionParams:
         source blurred by the optics has about 2π σ_psf² ≈ 2.3 px).
     pad_px : int
         Margin around a blob's thresholded box for centroiding, px.
+    local_background : bool
+        With the adaptive threshold, measure each pixel's height above a map
+        of the local background (:func:`background_map`) rather than above
+        the image's median: ambient IR gradients then neither hide dim
+        markers nor raise noise above the threshold.
     """
 
     threshold_dn: float | None = None
@@ -71,6 +77,7 @@ class DetectionParams:
     glint_max_area_px: int = 6
     glint_max_effective_area_px: float = 2.6
     pad_px: int = 3
+    local_background: bool = True
 
     @classmethod
     def paper(cls) -> "DetectionParams":
@@ -154,6 +161,20 @@ def estimate_background(image: np.ndarray, step: int = 16) -> tuple[float, float
     return median, max(mean_abs * np.sqrt(np.pi / 2) / np.sqrt(2.0), 0.5)
 
 
+def background_map(image: np.ndarray, cell_px: int = 16) -> np.ndarray:
+    """The slowly varying background under an IR image, (H, W) uint8.
+
+    Block means over ``cell_px`` cells, then the minimum of each 3x3
+    neighbourhood of cells (a marker or a lamp raises its own cells' means,
+    not their darkest neighbour's), smoothed back to full size.
+    """
+    height, width = image.shape
+    coarse = cv2.resize(image, (max(width // cell_px, 1), max(height // cell_px, 1)), interpolation=cv2.INTER_AREA)
+    coarse = cv2.erode(coarse, _CLOSE_KERNEL)
+    coarse = cv2.blur(coarse, (3, 3))
+    return cv2.resize(coarse, (width, height), interpolation=cv2.INTER_LINEAR)
+
+
 def detect_blobs(image: np.ndarray, params: DetectionParams = DetectionParams(),
                  roi: tuple[int, int, int, int] | None = None,
                  background: tuple[float, float] | None = None,
@@ -193,9 +214,19 @@ def detect_blobs(image: np.ndarray, params: DetectionParams = DetectionParams(),
     if sub.size == 0:
         return _empty(threshold, bg, sigma)
 
-    # THRESH_BINARY keeps pixels > thresh; floor() so "≥ threshold" holds for ints.
-    _, binary = cv2.threshold(sub, np.floor(threshold), 255, cv2.THRESH_BINARY)
-    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if params.threshold_dn is None and params.local_background and roi is None:
+        # Ambient IR varies across the image by more than the noise: compare
+        # each pixel with the background around it, not with the median.
+        contrast = threshold - bg
+        local = background_map(image)
+        _, binary = cv2.threshold(cv2.subtract(sub, local), np.floor(contrast), 255, cv2.THRESH_BINARY)
+    else:
+        # THRESH_BINARY keeps pixels > thresh; floor() so "≥ threshold" holds for ints.
+        _, binary = cv2.threshold(sub, np.floor(threshold), 255, cv2.THRESH_BINARY)
+    # A dim, foreshortened marker can break into pieces at the threshold;
+    # closing one-pixel gaps keeps it one blob (markers lie far further apart).
+    grouped = cv2.dilate(binary, _CLOSE_KERNEL)
+    contours, _ = cv2.findContours(grouped, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     if not contours:
         return _empty(threshold, bg, sigma)
     boxes = np.array([cv2.boundingRect(c) for c in contours], dtype=np.int64)

@@ -70,9 +70,10 @@ class TrackerConfig:
     min_centroid_sigma_px : float
         Floor of the centroid noise used for the covariance, px.
     track_flux_change : float
-        While tracking, a marker whose flux changes by more than this factor
-        from the previous frame (a glint or a neighbour in its window) makes
-        the frame re-detect and re-identify.
+        While tracking, a marker whose flux changes from the previous frame
+        by more than this factor relative to the other markers of its view (a
+        glint or a neighbour in its window) makes the frame re-detect and
+        re-identify.
     weighted_fit : bool
         Weight each centre in the reprojection fit by its expected noise
         (from its flux, size and the image noise).
@@ -336,9 +337,11 @@ class Tracker:
                 images, predicted, (side + 2 * int(self.config.track_margin_px), side), *args)
             if not found.all():
                 return None
-        # A glint or a neighbour entering a window adds flux: re-identify
-        # rather than let it pull the centroid.
+        # A glint or a neighbour entering a window adds flux to one marker:
+        # re-identify rather than let it pull the centroid. Head motion
+        # changes all markers of a view alike, so compare with the median.
         change = flux / self._prev_flux
+        change = change / np.median(change, axis=1, keepdims=True)
         if np.any(change > self.config.track_flux_change) or np.any(change < 1 / self.config.track_flux_change):
             return None
         # Two windows locked onto one blob: the labels are no longer trustworthy.
@@ -373,8 +376,12 @@ class Tracker:
         n = len(b)
         if n == 0:
             return np.zeros(0, np.int64)
-        clean = ~b.glint
-        typical = np.median(b.area_px[clean]) if clean.any() else np.median(b.area_px)
+        clean = np.flatnonzero(~b.glint)
+        pool = clean if len(clean) else np.arange(n)
+        # Typical marker size: the median of the five brightest clean blobs
+        # (noise specks must not make the markers look oversized).
+        brightest = pool[np.argsort(-b.flux_dn[pool])[:5]]
+        typical = np.median(b.area_px[brightest])
         oversized = b.area_px > 6 * max(typical, 1)
         penalty = 2 * b.glint + 1 * oversized
         order = np.lexsort((-b.flux_dn, penalty))
@@ -445,7 +452,7 @@ class Tracker:
             cost = rms / self.config.fit_tol_mm + epi.max(axis=1) / tol + 0.05 * (hl.rank[il] + hr.rank[ir])
             cost = np.where(valid, cost, np.inf)
             best = int(np.argmin(cost))
-            if self._ambiguous(R, valid, best):
+            if self._ambiguous(R, cost, best):
                 return None, "ambiguous identification: two marker assignments fit equally well"
             index = np.stack([cand[0][hl.index[il[best]]], cand[1][hr.index[ir[best]]]])
             return self._make_match(blobs, index, epi[best], points[best], R[best], t[best], rms[best]), None
@@ -497,7 +504,7 @@ class Tracker:
                 continue
             cost = np.where(valid, rms / self.config.fit_tol_mm + epi.max(axis=1) / tol, np.inf)
             k = int(np.argmin(cost))
-            if self._ambiguous(R, valid, k):
+            if self._ambiguous(R, cost, k):
                 return None, "ambiguous identification with a marker hidden in one view"
             if best is None or cost[k] < best[0]:
                 index = np.full((2, 5), -1)
@@ -528,9 +535,16 @@ class Tracker:
         to_cams = self.cameras_mid_mm - t
         return np.einsum("...i,...i->...", v, to_cams) > 0
 
-    def _ambiguous(self, R, valid, best) -> bool:
+    def _ambiguous(self, R, cost, best) -> bool:
+        """Another acceptable identification nearly as good as the best, with a different V.
+
+        "Nearly as good": cost below twice the best's plus 0.2 (costs are
+        errors in units of their tolerances). A hypothesis that merely passes
+        the tolerances while the best fits at the noise level is not a rival.
+        """
         v = np.einsum("...ij,j->...i", R, self.axes_G[2])
-        cos = np.clip(v[valid] @ v[best], -1, 1)
+        rivals = np.isfinite(cost) & (cost <= 2 * cost[best] + 0.2)
+        cos = np.clip(v[rivals] @ v[best], -1, 1)
         return bool(np.any(np.degrees(np.arccos(cos)) > self.config.ambiguity_deg))
 
     # -------------------------------------------------------------------- pose
