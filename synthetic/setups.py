@@ -207,7 +207,8 @@ def build_setup(
 def default_setup() -> Setup:
     """The embedded default rig: two 640x480 webcams beside a 24" monitor.
 
-    - image 640 x 480 px, fx ≈ fy ≈ 600 px (56° horizontal field of view);
+    - image 640 x 480 px, fx ≈ fy ≈ 700 px (49° horizontal field of view, a
+      4 mm M12 lens on a 1/4-inch VGA sensor; see calib/README.md for why);
     - principal points a few px off the image centre (319.5, 239.5);
     - mild webcam barrel distortion, k1 ≈ −0.12, k2 ≈ 0.09, k3 ≈ −0.02, small
       tangential terms, slightly different for the two cameras;
@@ -215,9 +216,9 @@ def default_setup() -> Setup:
       toward H0 = (0, −80, 650) mm in M; the left (world) camera is on the
       user's right-hand side.
     """
-    K1 = np.array([[602.3, 0.0, 322.1], [0.0, 601.2, 237.4], [0.0, 0.0, 1.0]])
+    K1 = np.array([[702.3, 0.0, 322.1], [0.0, 701.2, 237.4], [0.0, 0.0, 1.0]])
     D1 = np.array([-0.118, 0.089, 0.0007, -0.0004, -0.021])
-    K2 = np.array([[597.6, 0.0, 316.8], [0.0, 598.3, 242.0], [0.0, 0.0, 1.0]])
+    K2 = np.array([[697.6, 0.0, 316.8], [0.0, 698.3, 242.0], [0.0, 0.0, 1.0]])
     D2 = np.array([-0.124, 0.094, -0.0005, 0.0006, -0.018])
     return build_setup((640, 480), K1, D1, K2, D2, name="default")
 

@@ -181,7 +181,7 @@ def test_default_setup_geometry():
     np.testing.assert_allclose(M_from_world(s.top_right), [-265.7, -149.45, 0], atol=1e-9)
     np.testing.assert_allclose(M_from_world(s.bottom_left), [265.7, 149.45, 0], atol=1e-9)
     for K in (s.K1, s.K2):
-        assert 590 < K[0, 0] < 610 and abs(K[0, 2] - 319.5) < 8 and abs(K[1, 2] - 239.5) < 8
+        assert 690 < K[0, 0] < 710 and abs(K[0, 2] - 319.5) < 8 and abs(K[1, 2] - 239.5) < 8
 
 
 def test_wide_hd_distortion_monotonic_and_wide():
