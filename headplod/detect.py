@@ -290,7 +290,7 @@ def _window_view(image: np.ndarray, side: int) -> np.ndarray:
                       strides=(image.strides[0], image.strides[1], image.strides[0], image.strides[1]))
 
 
-def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, border=False, window_iterations=3):
+def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, border=False, window_iterations=2):
     """Background-subtracted centroid statistics of n square windows at once.
 
     Parameters
@@ -332,7 +332,7 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
     flux = cols.sum(axis=1, dtype=np.float64)
     ramp = np.arange(side, dtype=np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
-        centers = np.column_stack([ox + cols @ ramp / flux, oy + rows @ ramp / flux])
+        centers = np.stack([ox + cols @ ramp / flux, oy + rows @ ramp / flux], axis=1)
     centers[flux <= 0] = np.nan
     support = weights > 0
     dx = ramp[None, :] - (centers[:, :1] - ox[:, None])
@@ -342,10 +342,11 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
     if window_iterations:
         signal = windows - (level - noise_floor)[:, None, None]
         size = np.sqrt(np.maximum(flux / np.maximum(peak - noise_floor, 1e-6), 1.0) / (2 * np.pi))
-        local, spread_w = _gaussian_windowed_centroid(signal, centers - np.column_stack([ox, oy]),
-                                                      np.maximum(size, 0.7), window_iterations)
-        good = np.isfinite(local).all(axis=1) & (np.abs(local - (centers - np.column_stack([ox, oy]))).max(axis=1) < 2)
-        centers = np.where(good[:, None], local + np.column_stack([ox, oy]), centers)
+        origin = np.stack([ox, oy], axis=1)
+        start = centers - origin
+        local, spread_w = _gaussian_windowed_centroid(signal, start, np.maximum(size, 0.7), window_iterations)
+        good = np.isfinite(local).all(axis=1) & (np.abs(local - start).max(axis=1) < 2)
+        centers = np.where(good[:, None], local + origin, centers)
         spread = np.where(good, spread_w * flux ** 2, spread)    # callers divide by flux²
     area = np.count_nonzero(windows >= np.reshape(threshold, (-1, 1, 1)), axis=(1, 2))
     border_peak = None
@@ -355,7 +356,7 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
     return centers, flux, peak, area, border_peak, spread
 
 
-def _gaussian_windowed_centroid(signal, start, size, iterations):
+def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=False):
     """Gaussian-windowed centroids of background-subtracted windows (n, s, s).
 
     The weight of each pixel is its signal times a Gaussian of the blob's own
@@ -367,87 +368,105 @@ def _gaussian_windowed_centroid(signal, start, size, iterations):
 
     Returns centres (n, 2) in window pixels and ``spread`` (n,), with
     var(c_x) + var(c_y) = σ_n² · spread for pixel noise σ_n: first-order
-    propagation, var(c_x) = 4 σ_n² Σ g² (x − c)² / (Σ g I)².
+    propagation, var(c_x) = 4 σ_n² Σ g² (x − c)² / (Σ g I)²; with
+    ``with_total`` also Σ g I, the Gaussian-weighted flux (DN·px).
     """
-    n, side, _ = signal.shape
-    ramp = np.arange(side, dtype=np.float64)
-    c = np.array(start, dtype=np.float64)
-    inv = 1.0 / (2.0 * size[:, None] ** 2)
-    for _ in range(iterations):
-        dx = ramp[None, :] - c[:, :1]
-        dy = ramp[None, :] - c[:, 1:]
-        gx = np.exp(-dx ** 2 * inv)
-        gy = np.exp(-dy ** 2 * inv)
-        col = np.einsum("nyx,ny->nx", signal, gy)          # Σ_y g(y) I(x, y)
-        row = np.einsum("nyx,nx->ny", signal, gx)
-        total = np.einsum("nx,nx->n", col, gx)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            step_x = 2 * np.einsum("nx,nx->n", col, gx * dx) / total
-            step_y = 2 * np.einsum("ny,ny->n", row, gy * dy) / total
-        c = c + np.clip(np.column_stack([step_x, step_y]), -1.0, 1.0)
-    dx = ramp[None, :] - c[:, :1]
-    dy = ramp[None, :] - c[:, 1:]
-    gx = np.exp(-dx ** 2 * inv)
-    gy = np.exp(-dy ** 2 * inv)
-    total = np.einsum("nyx,ny,nx->n", signal, gy, gx)
-    g2x = (gx ** 2 * dx ** 2).sum(axis=1) * (gy ** 2).sum(axis=1)
-    g2y = (gy ** 2 * dy ** 2).sum(axis=1) * (gx ** 2).sum(axis=1)
+    n, side = signal.shape[:2]
+    ramp = np.arange(side, dtype=np.float32)
+    c = np.asarray(start, dtype=np.float32)
+    inv = (-0.5 / size.astype(np.float32) ** 2)[:, None, None]
+    proj = np.empty((n, 2, side), np.float32)
     with np.errstate(invalid="ignore", divide="ignore"):
-            spread = 4 * (g2x + g2y) / total ** 2
-    return c, spread
+        for _ in range(max(iterations, 1)):
+            d = ramp - c[:, :, None]                           # (n, 2, side): x then y offsets
+            g = np.exp(d * d * inv)
+            np.matmul(g[:, 1, None, :], signal, out=proj[:, 0:1, :])      # Σ_y g(y) I(y, x)
+            np.matmul(signal, g[:, 0, :, None], out=proj[:, 1, :, None])  # Σ_x g(x) I(y, x)
+            proj *= g
+            total = proj[:, 0].sum(axis=1)
+            step = (proj * d).sum(axis=2) * (2 / total)[:, None]
+            np.minimum(step, 1.0, out=step)
+            np.maximum(step, -1.0, out=step)
+            c = c + step
+        # Noise propagation at the last weights (the final step is far below σ_c).
+        g2 = g * g
+        g2d2 = (g2 * d * d).sum(axis=2)
+        g2 = g2.sum(axis=2)                                    # (n, 2): Σ g(x)², Σ g(y)²
+        total = total.astype(np.float64)
+        spread = 4 * (g2d2[:, 0] * g2[:, 1] + g2d2[:, 1] * g2[:, 0]) / total ** 2
+    if with_total:
+        return c.astype(np.float64), spread, total
+    return c.astype(np.float64), spread
 
 
-def centroids_near(images, guesses_px: np.ndarray, sides_px, backgrounds, thresholds_dn):
+
+def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, thresholds_dn,
+                   size_px: np.ndarray):
     """Re-measure known blobs near predicted positions, without a full detection.
 
-    One pass of :func:`_window_stats` per window side: e.g. a large window
-    around each guess finds the blob, then a small one re-centred on it gives
-    the centroid with a symmetric background; a good prediction needs only
-    the small one. This is the tracking fast path: a few array operations for
-    all markers of both images.
+    The tracking fast path: one square window per blob around its predicted
+    centre, the window's edge as the local background, and Gaussian-windowed
+    centroid iterations started at the prediction; a few array operations
+    for all markers of both images, and no threshold, contour or clipping.
 
     Parameters
     ----------
     images : sequence of k (H, W) uint8
     guesses_px : (k, n, 2)
         Predicted centres per image, px.
-    sides_px : sequence of int
-        Window side of each pass, px; the blob must lie wholly inside the last.
+    side_px : int
+        Window side, px: the blob plus the prediction's error must fit.
     backgrounds : sequence of k (level_dn, sigma_dn)
     thresholds_dn : sequence of k float
-        A blob whose peak does not reach its image's threshold is not found.
+        A blob whose peak does not reach its image's threshold (above the
+        local background) is not found.
+    size_px : (k, n)
+        Gaussian σ of each blob (from the previous frame), px.
 
     Returns
     -------
-    centers_px (k, n, 2), found (k, n) bool, area_px (k, n), flux (k, n),
-    sigma_px (k, n): expected centroid noise per coordinate (see Blobs.sigma_px)
+    centers_px (k, n, 2), found (k, n) bool, flux (k, n) Gaussian-weighted
+    flux (DN·px), sigma_px (k, n) expected centroid noise per coordinate,
+    size_px (k, n) the blobs' Gaussian σ measured now.
     """
     k, n = np.shape(guesses_px)[:2]
     height, width = images[0].shape
-    which = np.repeat(np.arange(k), n)
-    sigma = np.repeat([b[1] for b in backgrounds], n)
-    noise_floor = 2.0 * sigma
-    contrast = np.repeat([t - b[0] for t, b in zip(thresholds_dn, backgrounds)], n)
-    threshold = np.repeat(np.asarray(thresholds_dn, dtype=np.float64), n)
-    centers = np.reshape(guesses_px, (k * n, 2)).astype(np.float64)
-    found = np.isfinite(centers).all(axis=1)
-    centers = np.where(found[:, None], centers, 0.0)
-    sides_px = list(sides_px)
-    for step, side in enumerate(sides_px):
-        final = step == len(sides_px) - 1
-        side = int(min(side, width, height))
-        ox = np.clip(np.rint(centers[:, 0]).astype(np.int64) - side // 2, 0, width - side)
-        oy = np.clip(np.rint(centers[:, 1]).astype(np.int64) - side // 2, 0, height - side)
-        new, flux, peak, area, border_peak, spread = _window_stats(images, ox, oy, side, threshold, noise_floor,
-                                                                   which if k > 1 else None, border=final)
-        found &= np.isfinite(new[:, 0]) & (peak >= contrast)
-        centers = np.where(np.isfinite(new), new, centers)
-    # The blob must lie wholly inside the final window.
-    found &= border_peak <= 0.15 * peak + noise_floor
+    side = int(min(side_px, width, height))
+    sigma = np.repeat(np.array([b[1] for b in backgrounds], np.float32), n)
+    contrast = np.repeat(np.array([t - b[0] for t, b in zip(thresholds_dn, backgrounds)], np.float32), n)
+    guesses = np.reshape(guesses_px, (k * n, 2))
+    found = np.isfinite(guesses).all(axis=1)
+    origin = np.nan_to_num(guesses).astype(np.int64) - side // 2
+    np.clip(origin, 0, [width - side, height - side], out=origin)
+    ox, oy = origin[:, 0], origin[:, 1]
+    windows = np.concatenate([_window_view(img, side)[oy[j * n:(j + 1) * n], ox[j * n:(j + 1) * n]]
+                              for j, img in enumerate(images)]).astype(np.float32)
+    level = (windows.sum(axis=(1, 2)) - windows[:, 1:-1, 1:-1].sum(axis=(1, 2))) * (1.0 / (4 * side - 4))
+    signal = windows - level[:, None, None]
+    # Start from the plain centroid of what stands above the noise: robust to
+    # a prediction several pixels off, which the Gaussian window is not.
+    bright = signal - (2.0 * sigma)[:, None, None]
+    np.maximum(bright, 0, out=bright)
+    ramp = np.arange(side, dtype=np.float32)
+    start = np.empty((k * n, 2), np.float32)
     with np.errstate(invalid="ignore", divide="ignore"):
-        centroid_sigma = sigma * np.sqrt(spread / 2) / flux
-    return (centers.reshape(k, n, 2), found.reshape(k, n), area.reshape(k, n), flux.reshape(k, n),
-            centroid_sigma.reshape(k, n))
+        mass = bright.sum(axis=(1, 2))
+        np.matmul(bright.sum(axis=1), ramp, out=start[:, 0])
+        np.matmul(bright.sum(axis=2), ramp, out=start[:, 1])
+        start /= mass[:, None]
+    # One step from the plain centroid converges (measured: no gain from more).
+    local, spread, total = _gaussian_windowed_centroid(signal, start, np.reshape(size_px, -1), 1, with_total=True)
+    peak = signal.max(axis=(1, 2))
+    # Found: converged inside the window, bright enough, and wholly inside it
+    # (nothing bright on the window's edge).
+    found &= (mass > 0) & (peak >= contrast) & (local.min(axis=1) > 1) & (local.max(axis=1) < side - 2)
+    signal[:, 1:-1, 1:-1] = 0
+    found &= signal.max(axis=(1, 2)) <= 0.15 * peak + 2.0 * sigma
+    with np.errstate(invalid="ignore", divide="ignore"):
+        centroid_sigma = sigma * np.sqrt(spread / 2)
+        size = np.sqrt(np.maximum(2 * total / peak, 1.0) / (2 * np.pi))
+    return ((local + origin).reshape(k, n, 2), found.reshape(k, n), total.reshape(k, n),
+            centroid_sigma.reshape(k, n), size.reshape(k, n))
 
 
 def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshold, bg, sigma, keep_pixels):

@@ -200,6 +200,7 @@ class Tracker:
         self.E = geo.essential_matrix(rig.R, rig.T)
         self.focal = (float(np.sqrt(rig.K1[0, 0] * rig.K1[1, 1])), float(np.sqrt(rig.K2[0, 0] * rig.K2[1, 1])))
         self.cameras_mid_mm = 0.5 * (-rig.R.T @ np.reshape(rig.T, 3))
+        self._rig_rt = geo.rig_rotation_vector(rig)
         self.reset()
 
     def reset(self) -> None:
@@ -209,7 +210,9 @@ class Tracker:
         self._prev_visible = None
         self._prev_background = [None, None]
         self._prev_threshold = [None, None]
-        self._prev_area = [None, None]
+        self._prev_size = None         # (2, 5) Gaussian σ of each marker's blob, px
+        self._prev_flux = None
+        self._tracked_flux = self._tracked_size = None
         self._history = []            # [(t, R_world_G, p1)] last two accepted poses
         self._prev_pose = None
         self._uncompensated = False
@@ -264,43 +267,53 @@ class Tracker:
             match.visible = match.visible.copy()
             match.visible[outlier] = False
             R, p1, residuals, JtJ = self._estimate(match, t, t_right)
-            if self._outlier(residuals, match) is not None:
+            outlier = self._outlier(residuals, match)
+            if outlier is not None:
                 dropped = None
         timings["pose"] = time.perf_counter() - t_pose
+
         t_ver = time.perf_counter()
-        axes = self.axes_G @ R.T
+        reason = self._verify(R, p1, residuals, outlier, match)
+        timings["verify"] = time.perf_counter() - t_ver
+        if reason is not None:
+            self._prev_centers = self._prev2_centers = None
+            timings["total"] = time.perf_counter() - start
+            return TrackResult(False, reason, centers_px=match.centers, residuals_px=residuals, mode=mode,
+                               timings_s=timings, blobs=blobs, marker_blob=match.blob_index)
+        self._remember(match, t, R, p1, blobs, mode)
         if dropped is not None:
             match.centers = match.centers.copy()
             match.centers[dropped] = np.nan
-        result = TrackResult(True, None, p1, axes, R, match.centers, residuals, match.epipolar,
-                             match.fit_rms, mode, timings, blobs, match.blob_index,
-                             cov_deg2=self._covariance(R, residuals, JtJ))
-        worst = np.nanmax(residuals) if np.isfinite(residuals).any() else np.inf
-        outlier = self._outlier(residuals, match)
-        if outlier is not None and worst <= self.config.reproj_tol_px:
-            cam, marker = outlier
-            result = replace(result, ok=False, position_mm=None, axes=None, R_world_G=None, cov_deg2=None,
-                             reason=f"{MARKER_NAMES[marker]} in the {('left', 'right')[cam]} image is "
-                                    f"{residuals[cam, marker]:.2f} px from where the other markers put it "
-                                    f"({residuals[cam, marker] / match.sigma_px[cam, marker]:.0f}x its expected "
-                                    "noise): a glint or partial occlusion; pose not trusted")
-            self._prev_centers = self._prev2_centers = None
-        elif not (np.isfinite(R).all() and np.isfinite(p1).all() and np.isfinite(result.cov_deg2).all()):
-            result = replace(result, ok=False, position_mm=None, axes=None, R_world_G=None, cov_deg2=None,
-                             reason="pose fit diverged (non-finite result)")
-            self._prev_centers = self._prev2_centers = None
-        elif worst > self.config.reproj_tol_px:
-            cam, marker = np.unravel_index(np.nanargmax(residuals), residuals.shape)
-            result = replace(result, ok=False, position_mm=None, axes=None, R_world_G=None, cov_deg2=None,
-                             reason=f"reprojection error {worst:.2f} px of {MARKER_NAMES[marker]} in the "
-                                    f"{('left', 'right')[cam]} image exceeds {self.config.reproj_tol_px} px: "
-                                    "the identification is not trusted")
-            self._prev_centers = self._prev2_centers = None
-        else:
-            self._remember(match, t, R, p1, blobs)
-        timings["verify"] = time.perf_counter() - t_ver
+        timings["mean_pose"] = time.perf_counter() - start
+
+        # The uncertainty of V is its own stage (the mean pose is done).
+        t_cov = time.perf_counter()
+        cov = self._covariance(R, residuals, JtJ)
+        timings["covariance"] = time.perf_counter() - t_cov
         timings["total"] = time.perf_counter() - start
-        return result
+        if not np.isfinite(cov).all():
+            return TrackResult(False, "covariance of the viewing direction is not finite", mode=mode,
+                               timings_s=timings, blobs=blobs)
+        return TrackResult(True, None, p1, self.axes_G @ R.T, R, match.centers, residuals, match.epipolar,
+                           match.fit_rms, mode, timings, blobs, match.blob_index, cov_deg2=cov)
+
+    def _verify(self, R, p1, residuals, outlier, match) -> str | None:
+        """Why a fitted pose is not to be trusted, or None."""
+        if not (np.isfinite(R).all() and np.isfinite(p1).all()):
+            return "pose fit diverged (non-finite result)"
+        worst = np.nanmax(residuals) if np.isfinite(residuals).any() else np.inf
+        if worst > self.config.reproj_tol_px:
+            cam, marker = np.unravel_index(np.nanargmax(residuals), residuals.shape)
+            return (f"reprojection error {worst:.2f} px of {MARKER_NAMES[marker]} in the "
+                    f"{('left', 'right')[cam]} image exceeds {self.config.reproj_tol_px} px: "
+                    "the identification is not trusted")
+        if outlier is not None:
+            cam, marker = outlier
+            return (f"{MARKER_NAMES[marker]} in the {('left', 'right')[cam]} image is "
+                    f"{residuals[cam, marker]:.2f} px from where the other markers put it "
+                    f"({residuals[cam, marker] / match.sigma_px[cam, marker]:.0f}x its expected "
+                    "noise): a glint or partial occlusion; pose not trusted")
+        return None
 
     # --------------------------------------------------------------- detection
     def _check_images(self, left, right) -> str | None:
@@ -326,40 +339,43 @@ class Tracker:
         """Re-measure the previous frame's markers in small windows; None to re-acquire."""
         prev = self._prev_centers
         predicted = prev + (prev - self._prev2_centers) if self._prev2_centers is not None else prev
-        radius = np.sqrt(max(max(self._prev_area), 1.0) / np.pi)
-        side = 2 * int(np.ceil(radius)) + 2 * self.config.detection.pad_px + 1
-        args = (self._prev_background, self._prev_threshold)
-        # A constant-velocity prediction is usually within a few px: one small
-        # window; otherwise search a wider one first.
-        centers, found, area, flux, sigma = centroids_near(images, predicted, (side + 6,), *args)
+        size = self._prev_size
+        # Window: the blob (±3 σ) plus the prediction's error.
+        side = 2 * int(np.ceil(3 * size.max() + self.config.track_margin_px / 2)) + 1
+        centers, found, flux, sigma, size = centroids_near(images, predicted, side, self._prev_background,
+                                                           self._prev_threshold, size)
         if not found.all():
-            centers, found, area, flux, sigma = centroids_near(
-                images, predicted, (side + 2 * int(self.config.track_margin_px), side), *args)
-            if not found.all():
-                return None
+            return None
+        # (Two windows locked onto one blob leave a residual of a marker
+        # spacing, tens of pixels: verification rejects that frame.)
         # A glint or a neighbour entering a window adds flux to one marker:
         # re-identify rather than let it pull the centroid. Head motion
         # changes all markers of a view alike, so compare with the median.
-        change = flux / self._prev_flux
-        change = change / np.median(change, axis=1, keepdims=True)
-        if np.any(change > self.config.track_flux_change) or np.any(change < 1 / self.config.track_flux_change):
-            return None
-        # Two windows locked onto one blob: the labels are no longer trustworthy.
-        gaps = np.linalg.norm(centers[:, :, None] - centers[:, None, :], axis=3) + 1e9 * np.eye(5)
-        if gaps.min() < radius + 1.0:
-            return None
-        self._prev_area = [float(area[0].max()), float(area[1].max())]
+        if self._prev_flux is not None:
+            limit = self.config.track_flux_change
+            for low, _, median, _, high in np.sort(flux / self._prev_flux, axis=1).tolist():
+                if high > limit * median or median > limit * low:
+                    return None
+        self._tracked_flux, self._tracked_size = flux, size
         visible, index = np.ones((2, 5), bool), np.full((2, 5), -1)
         if self.config.estimator == "reproj":
             # The labels are carried over, and the reprojection fit started
             # from the last pose verifies them: no triangulation needed.
-            R, t = self._prev_pose
+            R, t = self._predicted_pose()
             nan = np.full(5, np.nan)
             return _Match(centers, visible, index, nan, np.full((5, 3), np.nan), R, t, float("nan"), sigma, flux)
         match = self._match_from_centers(centers, visible, index)
         if match is not None:
             match.sigma_px, match.flux = sigma, flux
         return match
+
+    def _predicted_pose(self):
+        """This frame's pose by constant velocity from the last two (the last one if unknown)."""
+        R, p = self._prev_pose
+        if len(self._history) == 2 and self._history[-1][1] is R:
+            (_, Ra, pa), (_, Rb, pb) = self._history
+            return (Rb @ Ra.T) @ Rb, 2 * pb - pa
+        return R, p
 
     def _match_from_centers(self, centers, visible, index) -> _Match | None:
         """Triangulate labeled centres and fit the model; None if they break the checks."""
@@ -564,7 +580,7 @@ class Tracker:
         motion = self._right_motion(t, t_right) if self.config.compensate_offset else None
         fit = geo.refine_reprojection(match.R, match.t, self.model_mm, match.centers[0], match.centers[1],
                                       match.visible[0], match.visible[1], self.rig, right_motion=motion,
-                                      sigma_px=sigma)
+                                      sigma_px=sigma, rig_rt=self._rig_rt)
         if self.config.compensate_offset and t_right is not None and t_right != t:
             # Second pass: the velocity from the last pose to this one lags by
             # half a frame instead of one and a half.
@@ -572,7 +588,7 @@ class Tracker:
             if motion is not None:
                 fit = geo.refine_reprojection(fit[0], fit[1], self.model_mm, match.centers[0], match.centers[1],
                                               match.visible[0], match.visible[1], self.rig, right_motion=motion,
-                                              sigma_px=sigma)
+                                              sigma_px=sigma, rig_rt=self._rig_rt)
         return fit
 
     def _outlier(self, residuals, match: _Match):
@@ -643,7 +659,7 @@ class Tracker:
         tvec = p_now - dR @ p_now + shift
         return omega, tvec
 
-    def _remember(self, match: _Match, t, R, p1, blobs) -> None:
+    def _remember(self, match: _Match, t, R, p1, blobs, mode) -> None:
         self._prev_pose = (R, p1)
         if not match.visible.all():
             self._prev_centers = self._prev2_centers = None    # re-identify while a marker is hidden
@@ -651,11 +667,17 @@ class Tracker:
             continuing = self._prev_centers is not None
             self._prev2_centers = self._prev_centers if continuing else None
             self._prev_centers = match.centers
-            self._prev_flux = match.flux
+            if mode == "track":
+                self._prev_flux, self._prev_size = self._tracked_flux, self._tracked_size
+            else:
+                # Fluxes of a full detection are measured differently: the
+                # first tracked frame skips the flux comparison.
+                self._prev_flux = None
+                self._prev_size = np.stack([np.sqrt(np.maximum(blobs[cam].flux_dn[match.blob_index[cam]]
+                                                               / np.maximum(blobs[cam].peak_dn[match.blob_index[cam]], 1e-6),
+                                                               1.0) / (2 * np.pi)) for cam in range(2)])
         for cam in range(2):
             if blobs[cam] is not None and len(blobs[cam]):
                 self._prev_threshold[cam] = blobs[cam].threshold_dn
-                shown = match.blob_index[cam][match.blob_index[cam] >= 0]
-                self._prev_area[cam] = float(np.max(blobs[cam].area_px[shown])) if len(shown) else 4.0
         if t is not None:
             self._history = (self._history + [(t, R, p1)])[-2:]
