@@ -39,7 +39,7 @@ TRACK_SETS = [
     ("fast motion", "fast_motion", 60, 20, {}),
     ("wide-angle HD", "wide_hd", 40, 15, {}),
     ("custom model", "custom_model", 40, 15, {}),
-    ("random poses", "random", 1000, 150, {}),
+    ("random poses, glints, hidden markers", "random_mixed", 1000, 150, {}),
 ]
 NEAR_SETS = ["static 55 cm", "static 80 cm", "yaw sweep", "pitch sweep", "roll sweep"]
 
@@ -100,6 +100,10 @@ def run_track_bench(json_path=None, chart_path=None, quick: bool = False, sets=N
     """Run every set with every estimator; print a table, check the goals, write JSON and chart."""
     cv2.setNumThreads(1)
     chosen = [s for s in TRACK_SETS if sets is None or s[0] in sets]
+    if sets is not None and len(chosen) < len(sets):
+        known = ", ".join(s[0] for s in TRACK_SETS)
+        print(f"headplod: unknown set in {sets}; the sets are: {known}", file=sys.stderr)
+        return 2
     results = {}
     for name, preset, n_full, n_quick, options in chosen:
         folder = ensure_dataset(preset, frames=n_quick if quick else n_full, **options)

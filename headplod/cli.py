@@ -51,6 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--json", help="write the results as JSON")
     bt.add_argument("--chart", help="write the accuracy-against-time chart (PNG)")
     bt.add_argument("--quick", action="store_true", help="fewer frames (a smoke run)")
+    bt.add_argument("--sets", help="comma-separated names of the sets to run (default: all); "
+                                   "see headplod.bench.TRACK_SETS")
 
     synth = sub.add_parser("synth", help="render a synthetic dataset folder")
     synth.add_argument("preset")
@@ -69,7 +71,8 @@ def main(argv=None) -> int:
             return _cmd_track(args)
         if args.command == "bench":
             from . import bench
-            return bench.run_track_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
+            sets = [x.strip() for x in args.sets.split(",")] if args.sets else None
+            return bench.run_track_bench(json_path=args.json, chart_path=args.chart, quick=args.quick, sets=sets)
         if args.command == "synth":
             return _cmd_synth(args)
     except io.ContractError as exc:

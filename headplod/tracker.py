@@ -235,10 +235,20 @@ class Tracker:
         if problem:
             return TrackResult(False, problem, timings_s={"total": time.perf_counter() - start})
         images = (left, right)
+        tracking = self.config.track and self._prev_centers is not None and not self.config.keep_pixels
+        result = self._attempt(images, t, t_right, timings, start, tracking)
+        if tracking and not result.ok and result.mode == "track":
+            # The re-measured markers did not verify: detect and identify afresh.
+            result = self._attempt(images, t, t_right, timings, start, False)
+        return result
+
+    def _attempt(self, images, t, t_right, timings, start, tracking) -> TrackResult:
+        """One pass: re-measure (tracking) or detect and identify, then fit and verify."""
         match, mode, reason, blobs = None, "acquire", None, (None, None)
-        if self.config.track and self._prev_centers is not None and not self.config.keep_pixels:
+        if tracking:
+            t_det = time.perf_counter()
             match = self._track_fast(images)
-            timings["detect"] = time.perf_counter() - start
+            timings["detect"] = time.perf_counter() - t_det
             mode = "track"
         if match is None:
             t_det = time.perf_counter()
@@ -352,10 +362,14 @@ class Tracker:
         # re-identify rather than let it pull the centroid. Head motion
         # changes all markers of a view alike, so compare with the median.
         if self._prev_flux is not None:
-            limit = self.config.track_flux_change
-            for low, _, median, _, high in np.sort(flux / self._prev_flux, axis=1).tolist():
-                if high > limit * median or median > limit * low:
-                    return None
+            # Allowed: the configured change plus 3σ of the flux noise, which
+            # for the Gaussian-weighted flux is σ_n √π s (s the blob's σ).
+            noise = np.array([self._prev_background[0][1], self._prev_background[1][1]])[:, None]
+            rel = noise * np.sqrt(np.pi) * size / np.maximum(flux, 1e-6)
+            log_change = np.log(np.maximum(flux / self._prev_flux, 1e-6))
+            log_change -= np.sort(log_change, axis=1)[:, 2:3]         # relative to the median of five
+            if np.any(np.abs(log_change) > np.log(self.config.track_flux_change) + 3 * np.sqrt(2) * rel):
+                return None
         self._tracked_flux, self._tracked_size = flux, size
         visible, index = np.ones((2, 5), bool), np.full((2, 5), -1)
         if self.config.estimator == "reproj":
