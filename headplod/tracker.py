@@ -411,7 +411,7 @@ class Tracker:
         # Typical marker size: the median of the five brightest clean blobs
         # (noise specks must not make the markers look oversized).
         brightest = pool[np.argsort(-b.flux_dn[pool])[:5]]
-        typical = np.median(b.area_px[brightest])
+        typical = np.sort(b.area_px[brightest])[len(brightest) // 2]
         oversized = b.area_px > 6 * max(typical, 1)
         penalty = 2 * b.glint + 1 * oversized
         order = np.lexsort((-b.flux_dn, penalty))
@@ -458,8 +458,8 @@ class Tracker:
         tol = self.config.epipolar_tol_px
         best_reason = None
         for ranks in ((0,), (0, 1)):
-            il_all = np.flatnonzero(np.isin(hl.rank, ranks))
-            ir_all = np.flatnonzero(np.isin(hr.rank, ranks))
+            il_all = np.flatnonzero(hl.rank <= max(ranks))
+            ir_all = np.flatnonzero(hr.rank <= max(ranks))
             il = np.repeat(il_all, len(ir_all))
             ir = np.tile(ir_all, len(il_all))
             epi = epi_matrix[hl.index[il], hr.index[ir]]           # (P, 5) by lookup
