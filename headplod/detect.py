@@ -418,8 +418,8 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
         Window side, px: the blob plus the prediction's error must fit.
     backgrounds : sequence of k (level_dn, sigma_dn)
     thresholds_dn : sequence of k float
-        A blob whose peak does not reach its image's threshold (above the
-        local background) is not found.
+        A blob whose peak does not reach 0.6 of its image's threshold above
+        the background is not found.
     size_px : (k, n)
         Gaussian σ of each blob (from the previous frame), px.
 
@@ -432,12 +432,13 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
     k, n = np.shape(guesses_px)[:2]
     height, width = images[0].shape
     side = int(min(side_px, width, height))
-    sigma = np.repeat(np.array([b[1] for b in backgrounds], np.float32), n)
-    contrast = np.repeat(np.array([t - b[0] for t, b in zip(thresholds_dn, backgrounds)], np.float32), n)
+    sigma = np.repeat(np.array([backgrounds[0][1], backgrounds[-1][1]][:k], np.float32), n)
+    contrast = np.repeat(np.array([thresholds_dn[j] - backgrounds[j][0] for j in range(k)], np.float32), n)
     guesses = np.reshape(guesses_px, (k * n, 2))
     found = np.isfinite(guesses).all(axis=1)
-    origin = np.nan_to_num(guesses).astype(np.int64) - side // 2
-    np.clip(origin, 0, [width - side, height - side], out=origin)
+    origin = np.where(found[:, None], guesses, 0.0).astype(np.int64)
+    origin -= side // 2
+    np.minimum(np.maximum(origin, 0, out=origin), (width - side, height - side), out=origin)
     ox, oy = origin[:, 0], origin[:, 1]
     windows = np.concatenate([_window_view(img, side)[oy[j * n:(j + 1) * n], ox[j * n:(j + 1) * n]]
                               for j, img in enumerate(images)]).astype(np.float32)
@@ -461,9 +462,11 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
     # (nothing bright on the window's edge).
     # Where a marker is expected, a peak of 0.6 of the detection contrast
     # (3σ with the default 5σ) is enough: nothing else is being searched for.
-    found &= (mass > 0) & (peak >= 0.6 * contrast) & (local.min(axis=1) > 1) & (local.max(axis=1) < side - 2)
+    # The centre must stay inside the window, and nothing bright may touch
+    # the window's edge (the blob lies wholly inside).
     signal[:, 1:-1, 1:-1] = 0
-    found &= signal.max(axis=(1, 2)) <= 0.15 * peak + 2.0 * sigma
+    found &= ((peak >= 0.6 * contrast) & (signal.max(axis=(1, 2)) <= 0.15 * peak + 2.0 * sigma)
+              & (np.abs(local - 0.5 * (side - 1)).max(axis=1) < 0.5 * side - 2))
     with np.errstate(invalid="ignore", divide="ignore"):
         centroid_sigma = sigma * np.sqrt(spread / 2)
         size = np.sqrt(np.maximum(2 * total / peak, 1.0) / (2 * np.pi))

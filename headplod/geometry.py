@@ -206,11 +206,49 @@ def project(points_mm: np.ndarray, R_cam_world: np.ndarray, t_cam_world: np.ndar
     return img.reshape(-1, 2)
 
 
+class StereoCameras:
+    """The two cameras of a rig as the pose fit needs them, computed once.
+
+    Attributes
+    ----------
+    K, D : tuple of the intrinsics and distortion of camera 0 (left) and 1.
+    R_cam_world : (2, 3, 3)
+        World (left camera) frame to each camera frame.
+    rvec, tvec : tuple of (3, 1)
+        The same as OpenCV vectors.
+    """
+
+    def __init__(self, rig):
+        self.K = (np.asarray(rig.K1, np.float64), np.asarray(rig.K2, np.float64))
+        self.D = (np.asarray(rig.D1, np.float64), np.asarray(rig.D2, np.float64))
+        self.R_cam_world = np.stack([np.eye(3), np.asarray(rig.R, np.float64)])
+        self.rvec = (np.zeros((3, 1)), cv2.Rodrigues(self.R_cam_world[1])[0])
+        self.tvec = (np.zeros((3, 1)), np.reshape(rig.T, (3, 1)).astype(np.float64))
+
+    def with_right_motion(self, right_motion):
+        """The same rig with the right camera seeing the world moved by (rvec, tvec) first."""
+        if right_motion is None:
+            return self
+        moved = object.__new__(StereoCameras)
+        moved.K, moved.D = self.K, self.D
+        r, t = cv2.composeRT(np.reshape(right_motion[0], (3, 1)), np.reshape(right_motion[1], (3, 1)),
+                             self.rvec[1], self.tvec[1])[:2]
+        moved.rvec, moved.tvec = (self.rvec[0], r), (self.tvec[0], t)
+        moved.R_cam_world = np.stack([self.R_cam_world[0], cv2.Rodrigues(r)[0]])
+        return moved
+
+
 def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm: np.ndarray,
                         obs_left_px: np.ndarray, obs_right_px: np.ndarray,
                         visible_left: np.ndarray, visible_right: np.ndarray, rig,
-                        iterations: int = 5, right_motion=None, sigma_px=None, rig_rt=None):
+                        iterations: int = 5, right_motion=None, sigma_px=None, cameras=None):
     """Refine a head pose by Gauss-Newton on the reprojection error in both images.
+
+    The pose is updated as R ← exp([δ]×) R, p1 ← p1 + ε (δ a rotation vector
+    in the world frame, rad; ε in mm). The Jacobian of a projected point x
+    is ∂x/∂X_cam · R_cam_world · [(R m) × · | I] with ∂x/∂X_cam read off
+    OpenCV's projectPoints (its derivative w.r.t. the translation vector):
+    two projectPoints calls per step and no rotation-vector chain rule.
 
     Parameters
     ----------
@@ -232,107 +270,98 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
     sigma_px : (2, 5), optional
         Expected noise of each centre, px: residuals are weighted by 1/σ
         (maximum likelihood for independent Gaussian centroid errors).
-    rig_rt : (rvec (3, 1), tvec (3, 1)), optional
-        The rig's R, T as OpenCV vectors (:func:`rig_rotation_vector`), to
-        skip converting them on every call.
+    cameras : StereoCameras, optional
+        ``StereoCameras(rig)`` computed once by the caller.
 
     Returns
     -------
     R_world_G (3, 3), p1_world_mm (3,), residuals_px (2, 5), JtJ (6, 6)
         Residual norms per image and marker after refinement (NaN if hidden);
-        JᵀJ of the reprojection residuals w.r.t. (rvec, tvec) at the solution,
-        px² per (rad, mm)², for first-order covariance propagation.
+        JᵀJ of the unweighted reprojection residuals w.r.t. (δ, ε) at the
+        solution, px² per (rad, mm)², for first-order covariance propagation.
     """
-    rvec = cv2.Rodrigues(R_world_G)[0].ravel()
-    tvec = np.array(p1_world_mm, dtype=np.float64).ravel()
-    rig_rvec, rig_tvec = rig_rt if rig_rt is not None else rig_rotation_vector(rig)
-    if right_motion is not None:
-        # world → world (motion) then world → right camera.
-        rig_rvec, rig_tvec = cv2.composeRT(np.reshape(right_motion[0], (3, 1)), np.reshape(right_motion[1], (3, 1)),
-                                           rig_rvec, rig_tvec)[:2]
-    obj = np.ascontiguousarray(model_mm, dtype=np.float64).reshape(-1, 1, 3)
-    vl = np.asarray(visible_left, bool)
-    vr = np.asarray(visible_right, bool)
-    obs_l = obs_left_px[vl]
-    obs_r = obs_right_px[vr]
-    obj_l = obj[vl]
-    obj_r = obj[vr]
-    nl = len(obj_l)
+    cams = (cameras if cameras is not None else StereoCameras(rig)).with_right_motion(right_motion)
+    visible = (np.asarray(visible_left, bool), np.asarray(visible_right, bool))
+    model = np.asarray(model_mm, dtype=np.float64)
+    obs = np.concatenate([obs_left_px[visible[0]], obs_right_px[visible[1]]]).ravel()
+    counts = (int(visible[0].sum()), int(visible[1].sum()))
+    # Per observation: its camera's rotation, for the chain rule.
+    R_cams = np.repeat(cams.R_cam_world, counts, axis=0)                      # (m, 3, 3)
     if sigma_px is None:
-        weight = np.ones(2 * (nl + len(obj_r)))
+        weight = np.ones(2 * sum(counts))
     else:
-        # Relative weights 1/σ (a common scale changes nothing).
-        sig = np.concatenate([sigma_px[0][vl], sigma_px[1][vr]])
-        weight = np.repeat(1.0 / np.maximum(sig, 1e-4), 2)
-        weight /= weight.max()
+        weight = np.repeat(1.0 / np.maximum(np.concatenate([sigma_px[0][visible[0]], sigma_px[1][visible[1]]]),
+                                            1e-4), 2)
+    R = np.asarray(R_world_G, dtype=np.float64)
+    p1 = np.asarray(p1_world_mm, dtype=np.float64).ravel()
     for _ in range(iterations + 1):
-        res, J = _residuals_and_jacobian(rvec, tvec, obj_l, obj_r, obs_l, obs_r, rig, rig_rvec, rig_tvec)
-        res, J = res * weight, J * weight[:, None]
-        JtJ = J.T @ J
-        JtJ[_DIAG6] += 1e-9
-        step = cv2.solve(JtJ, -(J.T @ res)[:, None], flags=cv2.DECOMP_CHOLESKY)[1].ravel()
+        res, J = _residuals_and_jacobian(R, p1, model, visible, cams, R_cams, obs)
+        Jw = J * weight[:, None]
+        ok, step = cv2.solve(Jw.T @ Jw, -(Jw.T @ (res * weight))[:, None], flags=cv2.DECOMP_CHOLESKY)
+        if not ok:
+            break
+        step = step.ravel()
+        rot = step[:3].tolist()
+        shift = step[3:].tolist()
         # Gauss-Newton converges quadratically here (small residuals): after
         # a step of 3e-3 rad and 2 mm the error left is ~1e-5 rad (0.0005°)
         # and ~(2/z)² z ≈ 0.006 mm, far below the noise, and the linear
         # prediction of the residuals is as good. From a tracked frame's
         # predicted pose one step usually suffices.
-        small = np.abs(step[:3]).max() < 3e-3 and np.abs(step[3:]).max() < 2.0
+        small = max(map(abs, rot)) < 3e-3 and max(map(abs, shift)) < 2.0
         if small:
-            # Gauss-Newton converges quadratically: the residual after this
-            # step is the linear prediction to ~1e-10 px, no re-projection needed.
             res = res + J @ step
-        rvec = rvec + step[:3]
-        tvec = tvec + step[3:]
+        R = cv2.Rodrigues(step[:3])[0] @ R
+        p1 = p1 + step[3:]
         if small:
             break
     else:
-        res, _ = _residuals_and_jacobian(rvec, tvec, obj_l, obj_r, obs_l, obs_r, rig, rig_rvec, rig_tvec)
-        res = res * weight
-    res = res / weight              # back to pixels
-    J = J / weight[:, None]
-    R_out = cv2.Rodrigues(rvec)[0]
-    residuals = np.full((2, len(model_mm)), np.nan)
+        res, J = _residuals_and_jacobian(R, p1, model, visible, cams, R_cams, obs)
+    # Products of rotations drift off SO(3) by rounding; frames chain them.
+    R = cv2.Rodrigues(cv2.Rodrigues(R)[0])[0]
     norms = np.hypot(res[0::2], res[1::2])
-    residuals[0, vl] = norms[:nl]
-    residuals[1, vr] = norms[nl:]
-    return R_out, tvec, residuals, J.T @ J
+    residuals = np.full((2, len(model)), np.nan)
+    residuals[0, visible[0]] = norms[:counts[0]]
+    residuals[1, visible[1]] = norms[counts[0]:]
+    return R, p1, residuals, J.T @ J
 
 
-_DIAG6 = np.diag_indices(6)
+_LEVI_CIVITA = np.zeros((3, 3, 3))
+_LEVI_CIVITA[0, 1, 2] = _LEVI_CIVITA[1, 2, 0] = _LEVI_CIVITA[2, 0, 1] = 1.0
+_LEVI_CIVITA[0, 2, 1] = _LEVI_CIVITA[2, 1, 0] = _LEVI_CIVITA[1, 0, 2] = -1.0
 
 
-def rig_rotation_vector(rig) -> tuple[np.ndarray, np.ndarray]:
-    """The rig's extrinsics as OpenCV's (rvec (3, 1), tvec (3, 1) mm)."""
-    return cv2.Rodrigues(np.asarray(rig.R, dtype=np.float64))[0], np.reshape(rig.T, (3, 1)).astype(np.float64)
+def _residuals_and_jacobian(R, p1, model, visible, cams, R_cams, obs):
+    """Stacked residuals (2m,) px and their Jacobian (2m, 6) w.r.t. (δ, ε)."""
+    rotated = model @ R.T                                          # R m, world frame
+    world = rotated + p1
+    proj, jac = [], []
+    for cam in (0, 1):
+        if visible[cam].any():
+            pts, dpts = cv2.projectPoints(world[visible[cam]].reshape(-1, 1, 3), cams.rvec[cam], cams.tvec[cam],
+                                          cams.K[cam], cams.D[cam])
+            proj.append(pts.reshape(-1))
+            jac.append(dpts[:, 3:6])                               # ∂x/∂t = ∂x/∂X_cam
+    res = np.concatenate(proj) - obs
+    dx_dcam = np.concatenate(jac).reshape(-1, 2, 3)                # (m, 2, 3)
+    dx_dworld = dx_dcam @ R_cams                                   # (m, 2, 3)
+    lever = np.concatenate([rotated[visible[0]], rotated[visible[1]]])
+    # a · (δ × r) = δ · (r × a): the rotation columns are r × (each row a),
+    # (r × a)_j = ε_jkl r_k a_l (np.cross is ten times slower on these sizes).
+    d_rot = dx_dworld @ np.einsum("mk,jkl->mlj", lever, _LEVI_CIVITA)
+    return res, np.concatenate([d_rot, dx_dworld], axis=2).reshape(-1, 6)
 
 
-def _residuals_and_jacobian(rvec, tvec, obj_l, obj_r, obs_l, obs_r, rig, rig_rvec, rig_tvec):
-    """Stacked residuals (2·n,) and their Jacobian (2·n, 6) w.r.t. (rvec, tvec)."""
-    blocks_r, blocks_j = [], []
-    if len(obj_l):
-        pl, jl = cv2.projectPoints(obj_l, rvec, tvec, rig.K1, rig.D1)
-        blocks_r.append((pl.reshape(-1, 2) - obs_l).ravel())
-        blocks_j.append(jl[:, :6])
-    if len(obj_r):
-        comp = cv2.composeRT(rvec.reshape(3, 1), tvec.reshape(3, 1), rig_rvec, rig_tvec)
-        r2, t2, dr3dr1, dr3dt1, _, _, dt3dr1, dt3dt1 = comp[:8]
-        pr, jr = cv2.projectPoints(obj_r, r2, t2, rig.K2, rig.D2)
-        chain = np.empty((6, 6))
-        chain[:3, :3], chain[:3, 3:], chain[3:, :3], chain[3:, 3:] = dr3dr1, dr3dt1, dt3dr1, dt3dt1
-        blocks_r.append((pr.reshape(-1, 2) - obs_r).ravel())
-        blocks_j.append(jr[:, :6] @ chain)
-    return np.concatenate(blocks_r), np.concatenate(blocks_j)
-
-
-def reprojection_jacobian(R_world_G, p1_world_mm, model_mm, visible_left, visible_right, rig) -> np.ndarray:
-    """JᵀJ (6, 6) of the reprojection residuals at a pose, w.r.t. (rvec, tvec)."""
-    rvec = cv2.Rodrigues(R_world_G)[0].ravel()
-    tvec = np.asarray(p1_world_mm, dtype=np.float64).ravel()
-    obj = np.ascontiguousarray(model_mm, dtype=np.float64).reshape(-1, 1, 3)
-    vl, vr = np.asarray(visible_left, bool), np.asarray(visible_right, bool)
-    rig_rvec, rig_tvec = rig_rotation_vector(rig)
-    _, J = _residuals_and_jacobian(rvec, tvec, obj[vl], obj[vr], np.zeros((vl.sum(), 2)),
-                                   np.zeros((vr.sum(), 2)), rig, rig_rvec, rig_tvec)
+def reprojection_jacobian(R_world_G, p1_world_mm, model_mm, visible_left, visible_right, rig,
+                          cameras=None) -> np.ndarray:
+    """JᵀJ (6, 6) of the reprojection residuals at a pose, w.r.t. (δ, ε) as in :func:`refine_reprojection`."""
+    cams = cameras if cameras is not None else StereoCameras(rig)
+    visible = (np.asarray(visible_left, bool), np.asarray(visible_right, bool))
+    counts = (int(visible[0].sum()), int(visible[1].sum()))
+    R_cams = np.repeat(cams.R_cam_world, counts, axis=0)
+    _, J = _residuals_and_jacobian(np.asarray(R_world_G, np.float64), np.asarray(p1_world_mm, np.float64).ravel(),
+                                   np.asarray(model_mm, np.float64), visible, cams, R_cams,
+                                   np.zeros(2 * sum(counts)))
     return J.T @ J
 
 
@@ -340,25 +369,13 @@ def view_angle_covariance(R_world_G: np.ndarray, JtJ: np.ndarray, sigma_px: floa
                           axes_G: np.ndarray) -> np.ndarray:
     """First-order covariance of (φ, θ), deg², from the pose fit's JᵀJ.
 
-    The pose parameters (rvec, tvec) have covariance σ² (JᵀJ)⁻¹ for centroid
-    noise σ (px) in every coordinate. A change of rvec rotates the head by
-    δ = J_l(rvec) drvec (J_l the left Jacobian of SO(3)), which moves V by
-    δ × V; in the reported head frame (conventions.md) that is
-    dφ = Ψ·(δ × V) = −Ξ·δ and dθ = Ξ·(δ × V) = Ψ·δ (radians).
+    The pose parameters (δ, ε) have covariance σ² (JᵀJ)⁻¹ for centroid noise
+    σ (px) in every coordinate. A rotation δ moves V by δ × V; in the
+    reported head frame (conventions.md) that is dφ = Ψ·(δ × V) = −Ξ·δ and
+    dθ = Ξ·(δ × V) = Ψ·δ (radians).
     """
-    rvec = cv2.Rodrigues(R_world_G)[0].ravel()
-    cov_r = sigma_px ** 2 * np.linalg.inv(JtJ)[:3, :3]
+    cov_rot = sigma_px ** 2 * np.linalg.inv(JtJ)[:3, :3]
     axes = axes_G @ R_world_G.T
-    A = np.stack([-axes[0], axes[1]]) @ _left_jacobian(rvec)
-    cov = A @ cov_r @ A.T * np.degrees(1.0) ** 2
+    A = np.stack([-axes[0], axes[1]])
+    cov = A @ cov_rot @ A.T * np.degrees(1.0) ** 2
     return 0.5 * (cov + cov.T)
-
-
-def _left_jacobian(rvec: np.ndarray) -> np.ndarray:
-    """Left Jacobian of SO(3) at rvec (3,): d(exp(rvec))·exp(rvec)⁻¹ per d rvec."""
-    angle = float(np.linalg.norm(rvec))
-    k = np.array([[0, -rvec[2], rvec[1]], [rvec[2], 0, -rvec[0]], [-rvec[1], rvec[0], 0]])
-    if angle < 1e-8:
-        return np.eye(3) + 0.5 * k
-    return (np.eye(3) + (1 - np.cos(angle)) / angle ** 2 * k
-            + (angle - np.sin(angle)) / angle ** 3 * (k @ k))

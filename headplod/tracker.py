@@ -200,7 +200,7 @@ class Tracker:
         self.E = geo.essential_matrix(rig.R, rig.T)
         self.focal = (float(np.sqrt(rig.K1[0, 0] * rig.K1[1, 1])), float(np.sqrt(rig.K2[0, 0] * rig.K2[1, 1])))
         self.cameras_mid_mm = 0.5 * (-rig.R.T @ np.reshape(rig.T, 3))
-        self._rig_rt = geo.rig_rotation_vector(rig)
+        self._cameras = geo.StereoCameras(rig)
         self.reset()
 
     def reset(self) -> None:
@@ -309,9 +309,11 @@ class Tracker:
 
     def _verify(self, R, p1, residuals, outlier, match) -> str | None:
         """Why a fitted pose is not to be trusted, or None."""
-        if not (np.isfinite(R).all() and np.isfinite(p1).all()):
+        if not np.isfinite(R.sum() + p1.sum()):
             return "pose fit diverged (non-finite result)"
-        worst = np.nanmax(residuals) if np.isfinite(residuals).any() else np.inf
+        worst = np.fmax.reduce(residuals, axis=None)          # ignores hidden markers' NaN
+        if np.isnan(worst):
+            worst = np.inf
         if worst > self.config.reproj_tol_px:
             cam, marker = np.unravel_index(np.nanargmax(residuals), residuals.shape)
             return (f"reprojection error {worst:.2f} px of {MARKER_NAMES[marker]} in the "
@@ -588,13 +590,14 @@ class Tracker:
                 R = axes.T @ self.axes_G     # rotation taking the model's axes onto the measured ones
                 p1 = match.points[1]
             residuals = self._residuals(R, p1, match)
-            JtJ = geo.reprojection_jacobian(R, p1, self.model_mm, match.visible[0], match.visible[1], self.rig)
+            JtJ = geo.reprojection_jacobian(R, p1, self.model_mm, match.visible[0], match.visible[1], self.rig,
+                                            cameras=self._cameras)
             return R, p1, residuals, JtJ
         sigma = match.sigma_px if self.config.weighted_fit else None
         motion = self._right_motion(t, t_right) if self.config.compensate_offset else None
         fit = geo.refine_reprojection(match.R, match.t, self.model_mm, match.centers[0], match.centers[1],
                                       match.visible[0], match.visible[1], self.rig, right_motion=motion,
-                                      sigma_px=sigma, rig_rt=self._rig_rt)
+                                      sigma_px=sigma, cameras=self._cameras)
         if self.config.compensate_offset and t_right is not None and t_right != t:
             # Second pass: the velocity from the last pose to this one lags by
             # half a frame instead of one and a half.
@@ -602,7 +605,7 @@ class Tracker:
             if motion is not None:
                 fit = geo.refine_reprojection(fit[0], fit[1], self.model_mm, match.centers[0], match.centers[1],
                                               match.visible[0], match.visible[1], self.rig, right_motion=motion,
-                                              sigma_px=sigma, rig_rt=self._rig_rt)
+                                              sigma_px=sigma, cameras=self._cameras)
         return fit
 
     def _outlier(self, residuals, match: _Match):
