@@ -225,6 +225,13 @@ class StereoCameras:
         self.rvec = (np.zeros((3, 1)), cv2.Rodrigues(self.R_cam_world[1])[0])
         self.tvec = (np.zeros((3, 1)), np.reshape(rig.T, (3, 1)).astype(np.float64))
 
+    def per_point(self, n: int) -> np.ndarray:
+        """(2n, 3, 3): each camera's rotation repeated for n points per camera (cached)."""
+        cache = self.__dict__.setdefault("_per_point", {})
+        if n not in cache:
+            cache[n] = np.repeat(self.R_cam_world, n, axis=0)
+        return cache[n]
+
     def with_right_motion(self, right_motion):
         """The same rig with the right camera seeing the world moved by (rvec, tvec) first."""
         if right_motion is None:
@@ -283,15 +290,18 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
     cams = (cameras if cameras is not None else StereoCameras(rig)).with_right_motion(right_motion)
     visible = (np.asarray(visible_left, bool), np.asarray(visible_right, bool))
     model = np.asarray(model_mm, dtype=np.float64)
-    obs = np.concatenate([obs_left_px[visible[0]], obs_right_px[visible[1]]]).ravel()
-    counts = (int(visible[0].sum()), int(visible[1].sum()))
-    # Per observation: its camera's rotation, for the chain rule.
-    R_cams = np.repeat(cams.R_cam_world, counts, axis=0)                      # (m, 3, 3)
-    if sigma_px is None:
-        weight = np.ones(2 * sum(counts))
+    n = len(model)
+    counts = (int(np.count_nonzero(visible[0])), int(np.count_nonzero(visible[1])))
+    everything = counts == (n, n)
+    if everything:             # the tracking case: no selection to make
+        obs = np.concatenate([obs_left_px, obs_right_px], axis=None)
+        sig = None if sigma_px is None else np.ravel(sigma_px)
     else:
-        weight = np.repeat(1.0 / np.maximum(np.concatenate([sigma_px[0][visible[0]], sigma_px[1][visible[1]]]),
-                                            1e-4), 2)
+        obs = np.concatenate([obs_left_px[visible[0]], obs_right_px[visible[1]]]).ravel()
+        sig = None if sigma_px is None else np.concatenate([sigma_px[0][visible[0]], sigma_px[1][visible[1]]])
+    # Per observation: its camera's rotation, for the chain rule.
+    R_cams = cams.per_point(n) if everything else np.repeat(cams.R_cam_world, counts, axis=0)   # (m, 3, 3)
+    weight = np.ones(2 * sum(counts)) if sig is None else np.repeat(1.0 / np.maximum(sig, 1e-4), 2)
     R = np.asarray(R_world_G, dtype=np.float64)
     p1 = np.asarray(p1_world_mm, dtype=np.float64).ravel()
     for _ in range(iterations + 1):
