@@ -183,6 +183,7 @@ def _chart(results: dict, path: str) -> None:
     ax.set_xlabel("time per stereo pair / one cv2.threshold pass over both images")
     ax.set_ylabel("median error of V (degrees)")
     ax.set_yscale("log")
+    ax.set_xscale("log")
     ax.axvline(RATIO_GOAL, color="k", ls=":", lw=1)
     ax.set_title("headplod tracker: accuracy against time, per estimator and set")
     ax.grid(True, which="both", alpha=0.3)
