@@ -54,6 +54,12 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--sets", help="comma-separated names of the sets to run (default: all); "
                                    "see headplod.bench.TRACK_SETS")
 
+    bu = bench_sub.add_parser("uncertainty", help="calibration (NEES), stability and cost of the covariance of V")
+    bu.add_argument("--json", help="write the results as JSON")
+    bu.add_argument("--chart", help="write the NEES/stability chart (PNG; a second chart *_paper.png "
+                                    "reproduces the paper's Fig. 10 and 17)")
+    bu.add_argument("--quick", action="store_true", help="fewer frames (a smoke run)")
+
     synth = sub.add_parser("synth", help="render a synthetic dataset folder")
     synth.add_argument("preset")
     synth.add_argument("out")
@@ -69,6 +75,10 @@ def main(argv=None) -> int:
     try:
         if args.command == "track":
             return _cmd_track(args)
+        if args.command == "bench" and args.bench == "uncertainty":
+            from . import bench_uncertainty
+            return bench_uncertainty.run_uncertainty_bench(json_path=args.json, chart_path=args.chart,
+                                                           quick=args.quick)
         if args.command == "bench":
             from . import bench
             sets = [x.strip() for x in args.sets.split(",")] if args.sets else None

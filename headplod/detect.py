@@ -105,8 +105,10 @@ class Blobs:
         Thresholded bounding box x, y, w, h in full-image pixels.
     sigma_px : (n,) float64
         Expected standard deviation of each centroid coordinate from the
-        background noise, px: σ_n · sqrt(Σ (x − c)² / 2) / flux over the
-        pixels that carry weight (first-order propagation of pixel noise).
+        background noise, px: first-order propagation of pixel noise σ_n.
+    shot_var : (n,) float64
+        Centroid variance per coordinate per unit shot-noise factor κ (pixel
+        variance κ·I for intensity I), px²/DN; NaN where not measured.
     threshold_dn, background_dn, noise_dn : float
         The threshold used, the background level and noise σ it came from.
     """
@@ -122,6 +124,7 @@ class Blobs:
     background_dn: float = 0.0
     noise_dn: float = 0.0
     pixels: list = field(default_factory=list)
+    shot_var: np.ndarray = None
 
     def __len__(self) -> int:
         return len(self.centers_px)
@@ -131,10 +134,11 @@ class Blobs:
         idx = np.asarray(index)
         if idx.dtype == bool:
             idx = np.flatnonzero(idx)
+        shot = self.shot_var if self.shot_var is not None else np.full(len(self.centers_px), np.nan)
         return Blobs(self.centers_px[idx], self.area_px[idx], self.peak_dn[idx],
                      self.flux_dn[idx], self.glint[idx], self.bbox_px[idx], self.sigma_px[idx],
                      self.threshold_dn, self.background_dn, self.noise_dn,
-                     [self.pixels[i] for i in idx] if self.pixels else [])
+                     [self.pixels[i] for i in idx] if self.pixels else [], shot[idx])
 
 
 def estimate_background(image: np.ndarray, step: int = 16) -> tuple[float, float]:
@@ -243,9 +247,9 @@ def detect_blobs(image: np.ndarray, params: DetectionParams = DetectionParams(),
             and not keep_pixels and side <= min(width, height)):
         stats = _centroids_fixed_windows(image, boxes, side, threshold, 2.0 * sigma)
         if stats is not None:
-            centers, area, peak, flux, spread = stats
+            centers, area, peak, flux, spread, shot = stats
             return _finish(centers, area, peak, flux, spread, boxes, truncated, params, threshold, bg, sigma, [],
-                           2.0 * sigma)
+                           2.0 * sigma, shot)
     centers, area, peak, flux, spread, pixels = _centroids_per_blob(
         image, binary, contours, boxes, (x_off, y_off), params, threshold, bg, sigma, keep_pixels)
     noise_floor = 2.0 * sigma if params.subtract_background else 0.0
@@ -274,8 +278,8 @@ def _centroids_fixed_windows(image, boxes, side, threshold, noise_floor):
               & (boxes[None, :, 1] < (oy + side)[:, None]) & (boxes[None, :, 1] + boxes[None, :, 3] > oy[:, None]))
     if inside.sum() > len(boxes):
         return None
-    centers, flux, peak, area, _, spread = _window_stats((image,), ox, oy, side, threshold, noise_floor)
-    return centers, area, peak, flux, spread
+    centers, flux, peak, area, _, spread, shot = _window_stats((image,), ox, oy, side, threshold, noise_floor)
+    return centers, area, peak, flux, spread, shot
 
 
 def _window_view(image: np.ndarray, side: int) -> np.ndarray:
@@ -339,21 +343,24 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
     dy = ramp[None, :] - (centers[:, 1:] - oy[:, None])
     spread = (support.sum(axis=1) * dx ** 2).sum(axis=1) + (support.sum(axis=2) * dy ** 2).sum(axis=1)
     peak = weights.max(axis=(1, 2)) + noise_floor
+    shot = np.full(len(centers), np.nan)
     if window_iterations:
         signal = windows - (level - noise_floor)[:, None, None]
         size = np.sqrt(np.maximum(flux / np.maximum(peak - noise_floor, 1e-6), 1.0) / (2 * np.pi))
         origin = np.stack([ox, oy], axis=1)
         start = centers - origin
-        local, spread_w = _gaussian_windowed_centroid(signal, start, np.maximum(size, 0.7), window_iterations)
+        local, spread_w, _, shot_w = _gaussian_windowed_centroid(signal, start, np.maximum(size, 0.7),
+                                                                 window_iterations, with_total=True)
         good = np.isfinite(local).all(axis=1) & (np.abs(local - start).max(axis=1) < 2)
         centers = np.where(good[:, None], local + origin, centers)
         spread = np.where(good, spread_w * flux ** 2, spread)    # callers divide by flux²
+        shot = np.where(good, shot_w / 2, np.nan)
     area = np.count_nonzero(windows >= np.reshape(threshold, (-1, 1, 1)), axis=(1, 2))
     border_peak = None
     if border:
         weights[:, 1:-1, 1:-1] = 0
         border_peak = weights.max(axis=(1, 2)) + noise_floor
-    return centers, flux, peak, area, border_peak, spread
+    return centers, flux, peak, area, border_peak, spread, shot
 
 
 def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=False):
@@ -394,8 +401,17 @@ def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=Fals
         g2 = g2.sum(axis=2)                                    # (n, 2): Σ g(x)², Σ g(y)²
         total = total.astype(np.float64)
         spread = 4 * (g2d2[:, 0] * g2[:, 1] + g2d2[:, 1] * g2[:, 0]) / total ** 2
+        if with_total:
+            # The same propagation for the shot noise of the blob's own signal
+            # (variance ∝ intensity): 4 Σ g² (x − c)² I / (Σ g I)².
+            positive = np.maximum(signal, 0)
+            gx2, gy2 = g[:, 0] ** 2, g[:, 1] ** 2
+            right = np.stack([gx2 * d[:, 0] ** 2, gx2], axis=2)               # (n, side, 2)
+            left = np.stack([gy2, gy2 * d[:, 1] ** 2], axis=1)                # (n, 2, side)
+            terms = left @ (positive @ right)                                 # (n, 2, 2)
+            shot = 4 * (terms[:, 0, 0] + terms[:, 1, 1]).astype(np.float64) / total ** 2
     if with_total:
-        return c.astype(np.float64), spread, total
+        return c.astype(np.float64), spread, total, shot
     return c.astype(np.float64), spread
 
 
@@ -427,7 +443,9 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
     -------
     centers_px (k, n, 2), found (k, n) bool, flux (k, n) Gaussian-weighted
     flux (DN·px), sigma_px (k, n) expected centroid noise per coordinate,
-    size_px (k, n) the blobs' Gaussian σ measured now.
+    size_px (k, n) the blobs' Gaussian σ measured now, and the centroid
+    variance per coordinate per unit pixel-noise variance (k, n) and per
+    unit shot-noise factor (k, n) (see :func:`_gaussian_windowed_centroid`).
     """
     k, n = np.shape(guesses_px)[:2]
     height, width = images[0].shape
@@ -456,7 +474,8 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
         np.matmul(bright.sum(axis=2), ramp, out=start[:, 1])
         start /= mass[:, None]
     # One step from the plain centroid converges (measured: no gain from more).
-    local, spread, total = _gaussian_windowed_centroid(signal, start, np.reshape(size_px, -1), 1, with_total=True)
+    local, spread, total, shot = _gaussian_windowed_centroid(signal, start, np.reshape(size_px, -1), 1,
+                                                             with_total=True)
     peak = signal.max(axis=(1, 2))
     # Found: converged inside the window, bright enough, and wholly inside it
     # (nothing bright on the window's edge).
@@ -471,7 +490,7 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
         centroid_sigma = sigma * np.sqrt(spread / 2)
         size = np.sqrt(np.maximum(2 * total / peak, 1.0) / (2 * np.pi))
     return ((local + origin).reshape(k, n, 2), found.reshape(k, n), total.reshape(k, n),
-            centroid_sigma.reshape(k, n), size.reshape(k, n))
+            centroid_sigma.reshape(k, n), size.reshape(k, n), (spread / 2).reshape(k, n), (shot / 2).reshape(k, n))
 
 
 def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshold, bg, sigma, keep_pixels):
@@ -531,13 +550,16 @@ def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshol
     return centers, area, peak, flux, spread, pixels
 
 
-def _finish(centers, area, peak, flux, spread, boxes, truncated, params, threshold, bg, sigma, pixels, noise_floor):
+def _finish(centers, area, peak, flux, spread, boxes, truncated, params, threshold, bg, sigma, pixels, noise_floor,
+            shot=None):
     with np.errstate(invalid="ignore", divide="ignore"):
         centroid_sigma = sigma * np.sqrt(spread / 2) / flux
     effective_area = flux / np.maximum(peak - noise_floor, 1e-9)
     glint = (area <= params.glint_max_area_px) & (effective_area <= params.glint_max_effective_area_px)
     keep = np.isfinite(centers[:, 0]) & (area >= params.min_area_px) & ~truncated
-    return Blobs(centers, area, peak, flux, glint, boxes, centroid_sigma, threshold, bg, sigma, pixels).subset(keep)
+    blobs = Blobs(centers, area, peak, flux, glint, boxes, centroid_sigma, threshold, bg, sigma, pixels)
+    blobs.shot_var = shot if shot is not None else np.full(len(centers), np.nan)
+    return blobs.subset(keep)
 
 
 def _border_mean(win: np.ndarray) -> float:

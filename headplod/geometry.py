@@ -18,6 +18,8 @@ Three estimators of the pose from identified marker centres, compared by
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import cv2
 import numpy as np
 
@@ -206,6 +208,21 @@ def project(points_mm: np.ndarray, R_cam_world: np.ndarray, t_cam_world: np.ndar
     return img.reshape(-1, 2)
 
 
+class PoseFit(NamedTuple):
+    """Result of :func:`refine_reprojection`.
+
+    R_world_G (3, 3); p1_world_mm (3,); residuals_px (2, 5) norms (NaN if
+    hidden); info (6, 6) Jᵀ Σ⁻¹ J w.r.t. (δ, ε); residual_vectors_px (2, 5, 2)
+    projected minus observed centre.
+    """
+
+    R_world_G: np.ndarray
+    p1_world_mm: np.ndarray
+    residuals_px: np.ndarray
+    info: np.ndarray
+    residual_vectors_px: np.ndarray
+
+
 class StereoCameras:
     """The two cameras of a rig as the pose fit needs them, computed once.
 
@@ -282,10 +299,12 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
 
     Returns
     -------
-    R_world_G (3, 3), p1_world_mm (3,), residuals_px (2, 5), JtJ (6, 6)
-        Residual norms per image and marker after refinement (NaN if hidden);
-        JᵀJ of the unweighted reprojection residuals w.r.t. (δ, ε) at the
-        solution, px² per (rad, mm)², for first-order covariance propagation.
+    PoseFit
+        R_world_G (3, 3), p1_world_mm (3,), residuals_px (2, 5): residual
+        norms per image and marker after refinement (NaN if hidden), info
+        (6, 6): Jᵀ Σ⁻¹ J w.r.t. (δ, ε) at the solution (Σ from ``sigma_px``;
+        plain JᵀJ in px² per (rad, mm)² without it), for first-order
+        covariance propagation, and the residual vectors (2, 5, 2).
     """
     cams = (cameras if cameras is not None else StereoCameras(rig)).with_right_motion(right_motion)
     visible = (np.asarray(visible_left, bool), np.asarray(visible_right, bool))
@@ -329,11 +348,11 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
         res, J = _residuals_and_jacobian(R, p1, model, visible, cams, R_cams, obs)
     # Products of rotations drift off SO(3) by rounding; frames chain them.
     R = cv2.Rodrigues(cv2.Rodrigues(R)[0])[0]
-    norms = np.hypot(res[0::2], res[1::2])
-    residuals = np.full((2, len(model)), np.nan)
-    residuals[0, visible[0]] = norms[:counts[0]]
-    residuals[1, visible[1]] = norms[counts[0]:]
-    return R, p1, residuals, J.T @ J
+    vectors = np.full((2, len(model), 2), np.nan)
+    vectors[0, visible[0]] = res[:2 * counts[0]].reshape(-1, 2)
+    vectors[1, visible[1]] = res[2 * counts[0]:].reshape(-1, 2)
+    Jw = J * weight[:, None]
+    return PoseFit(R, p1, np.hypot(vectors[..., 0], vectors[..., 1]), Jw.T @ Jw, vectors)
 
 
 _LEVI_CIVITA = np.zeros((3, 3, 3))
@@ -362,9 +381,23 @@ def _residuals_and_jacobian(R, p1, model, visible, cams, R_cams, obs):
     return res, np.concatenate([d_rot, dx_dworld], axis=2).reshape(-1, 6)
 
 
+def reprojection_rows(R_world_G, p1_world_mm, model_mm, visible, cameras) -> np.ndarray:
+    """Jacobian rows (2, 5, 2, 6) of each projected centre w.r.t. (δ, ε) at a pose (NaN if hidden)."""
+    vis = (np.asarray(visible[0], bool), np.asarray(visible[1], bool))
+    counts = (int(vis[0].sum()), int(vis[1].sum()))
+    R_cams = np.repeat(cameras.R_cam_world, counts, axis=0)
+    _, J = _residuals_and_jacobian(np.asarray(R_world_G, np.float64), np.asarray(p1_world_mm, np.float64).ravel(),
+                                   np.asarray(model_mm, np.float64), vis, cameras, R_cams, np.zeros(2 * sum(counts)))
+    rows = np.full((2, len(model_mm), 2, 6), np.nan)
+    rows[0, vis[0]] = J[:2 * counts[0]].reshape(-1, 2, 6)
+    rows[1, vis[1]] = J[2 * counts[0]:].reshape(-1, 2, 6)
+    return rows
+
+
 def reprojection_jacobian(R_world_G, p1_world_mm, model_mm, visible_left, visible_right, rig,
-                          cameras=None) -> np.ndarray:
-    """JᵀJ (6, 6) of the reprojection residuals at a pose, w.r.t. (δ, ε) as in :func:`refine_reprojection`."""
+                          cameras=None, sigma_px=None) -> np.ndarray:
+    """Jᵀ Σ⁻¹ J (6, 6) of the reprojection residuals at a pose, w.r.t. (δ, ε) as in
+    :func:`refine_reprojection` (plain JᵀJ without ``sigma_px`` (2, 5))."""
     cams = cameras if cameras is not None else StereoCameras(rig)
     visible = (np.asarray(visible_left, bool), np.asarray(visible_right, bool))
     counts = (int(visible[0].sum()), int(visible[1].sum()))
@@ -372,15 +405,19 @@ def reprojection_jacobian(R_world_G, p1_world_mm, model_mm, visible_left, visibl
     _, J = _residuals_and_jacobian(np.asarray(R_world_G, np.float64), np.asarray(p1_world_mm, np.float64).ravel(),
                                    np.asarray(model_mm, np.float64), visible, cams, R_cams,
                                    np.zeros(2 * sum(counts)))
+    if sigma_px is not None:
+        sig = np.concatenate([sigma_px[0][visible[0]], sigma_px[1][visible[1]]])
+        J = J * np.repeat(1.0 / np.maximum(sig, 1e-4), 2)[:, None]
     return J.T @ J
 
 
 def view_angle_covariance(R_world_G: np.ndarray, JtJ: np.ndarray, sigma_px: float,
                           axes_G: np.ndarray) -> np.ndarray:
-    """First-order covariance of (φ, θ), deg², from the pose fit's JᵀJ.
+    """First-order covariance of (φ, θ), deg², from the pose fit's information matrix.
 
     The pose parameters (δ, ε) have covariance σ² (JᵀJ)⁻¹ for centroid noise
-    σ (px) in every coordinate. A rotation δ moves V by δ × V; in the
+    σ (px) in every coordinate (or s² (Jᵀ Σ⁻¹ J)⁻¹ with a scale s on a
+    per-centre noise Σ). A rotation δ moves V by δ × V; in the
     reported head frame (conventions.md) that is dφ = Ψ·(δ × V) = −Ξ·δ and
     dθ = Ξ·(δ × V) = Ψ·δ (radians).
     """

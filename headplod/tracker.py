@@ -26,6 +26,7 @@ import numpy as np
 from . import geometry as geo
 from .detect import Blobs, DetectionParams, centroids_near, detect_blobs, estimate_background
 from .identify import ModelRule, find_hypotheses
+from .uncertainty import DEFAULT_COVARIANCE, CovarianceInput, make_covariance_estimator
 
 ESTIMATORS = ("paper", "rigid", "reproj")
 MARKER_NAMES = ("P0", "P1", "P2", "P3", "P4")
@@ -67,8 +68,11 @@ class TrackerConfig:
         offset before the right camera sees it (reproj estimator).
     keep_pixels : bool
         Keep each marker's pixel cloud in the result (for uncertainty).
+    uncertainty : str
+        Estimator of the covariance of V (:mod:`headplod.uncertainty`);
+        the default was chosen by ``headplod bench uncertainty``.
     min_centroid_sigma_px : float
-        Floor of the centroid noise used for the covariance, px.
+        Floor of the expected centroid noise, px.
     track_flux_change : float
         While tracking, a marker whose flux changes from the previous frame
         by more than this factor relative to the other markers of its view (a
@@ -96,7 +100,8 @@ class TrackerConfig:
     hidden_marker: bool = True
     compensate_offset: bool = True
     keep_pixels: bool = False
-    min_centroid_sigma_px: float = 0.03
+    uncertainty: str = DEFAULT_COVARIANCE
+    min_centroid_sigma_px: float = 0.01
     track_flux_change: float = 1.25
     weighted_fit: bool = True
     outlier_sigma: float = 10.0
@@ -153,6 +158,7 @@ class TrackResult:
     blobs: tuple = (None, None)
     marker_blob: np.ndarray | None = None
     cov_deg2: np.ndarray | None = None
+    cov_input: CovarianceInput | None = None
 
     def record_extras(self) -> dict:
         """JSON-ready diagnostics for a pose record (the contract allows more keys)."""
@@ -177,6 +183,7 @@ class _Match:
     fit_rms: float
     sigma_px: np.ndarray = None     # (2, 5) expected centroid noise, px
     flux: np.ndarray = None         # (2, 5) blob flux, DN·px
+    shot_var: np.ndarray = None     # (2, 5) centroid variance per unit shot-noise factor, px²/DN
 
 
 class Tracker:
@@ -201,10 +208,13 @@ class Tracker:
         self.focal = (float(np.sqrt(rig.K1[0, 0] * rig.K1[1, 1])), float(np.sqrt(rig.K2[0, 0] * rig.K2[1, 1])))
         self.cameras_mid_mm = 0.5 * (-rig.R.T @ np.reshape(rig.T, 3))
         self._cameras = geo.StereoCameras(rig)
+        self.uncertainty = make_covariance_estimator(config.uncertainty, rig, self.model_mm, self.axes_G)
         self.reset()
 
     def reset(self) -> None:
         """Forget the previous frames (e.g. after a seek)."""
+        if hasattr(self, "uncertainty"):
+            self.uncertainty.reset()
         self._prev_centers = None     # (2, 5, 2) last accepted centres, px
         self._prev2_centers = None    # the ones before, for a constant-velocity prediction
         self._prev_visible = None
@@ -267,7 +277,7 @@ class Tracker:
         self._uncompensated = (t_right is not None and t is not None and t_right != t
                                and self._right_motion(t, t_right) is None
                                and (not self._history or t - self._history[-1][0] > 0.2))
-        R, p1, residuals, JtJ = self._estimate(match, t, t_right)
+        R, p1, residuals, JtJ, vectors = self._estimate(match, t, t_right)
         dropped = None
         outlier = self._outlier(residuals, match)
         if outlier is not None and self.config.estimator == "reproj" and match.visible.all():
@@ -276,7 +286,7 @@ class Tracker:
             dropped = outlier
             match.visible = match.visible.copy()
             match.visible[outlier] = False
-            R, p1, residuals, JtJ = self._estimate(match, t, t_right)
+            R, p1, residuals, JtJ, vectors = self._estimate(match, t, t_right)
             outlier = self._outlier(residuals, match)
             if outlier is not None:
                 dropped = None
@@ -298,14 +308,20 @@ class Tracker:
 
         # The uncertainty of V is its own stage (the mean pose is done).
         t_cov = time.perf_counter()
-        cov = self._covariance(R, residuals, JtJ)
+        axes = self.axes_G @ R.T
+        cov_input = CovarianceInput(images, match.centers, match.visible,
+                                    np.maximum(match.sigma_px, self.config.min_centroid_sigma_px), residuals, JtJ,
+                                    R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
+                                    vectors, t, match.shot_var,
+                                    geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras))
+        cov = self.uncertainty(cov_input)
         timings["covariance"] = time.perf_counter() - t_cov
         timings["total"] = time.perf_counter() - start
-        if not np.isfinite(cov).all():
-            return TrackResult(False, "covariance of the viewing direction is not finite", mode=mode,
-                               timings_s=timings, blobs=blobs)
-        return TrackResult(True, None, p1, self.axes_G @ R.T, R, match.centers, residuals, match.epipolar,
-                           match.fit_rms, mode, timings, blobs, match.blob_index, cov_deg2=cov)
+        if not np.isfinite(cov).all() or np.linalg.det(cov) <= 0:
+            return TrackResult(False, f"no covariance of V from the {self.uncertainty.name} estimator "
+                                      "(too few marker pixels?)", mode=mode, timings_s=timings, blobs=blobs)
+        return TrackResult(True, None, p1, axes, R, match.centers, residuals, match.epipolar,
+                           match.fit_rms, mode, timings, blobs, match.blob_index, cov_deg2=cov, cov_input=cov_input)
 
     def _verify(self, R, p1, residuals, outlier, match) -> str | None:
         """Why a fitted pose is not to be trusted, or None."""
@@ -354,8 +370,8 @@ class Tracker:
         size = self._prev_size
         # Window: the blob (±3 σ) plus the prediction's error.
         side = 2 * int(np.ceil(3 * size.max() + self.config.track_margin_px / 2)) + 1
-        centers, found, flux, sigma, size = centroids_near(images, predicted, side, self._prev_background,
-                                                           self._prev_threshold, size)
+        centers, found, flux, sigma, size, _, shot_var = centroids_near(images, predicted, side, self._prev_background,
+                                                                        self._prev_threshold, size)
         if not found.all():
             return None
         # (Two windows locked onto one blob leave a residual of a marker
@@ -379,10 +395,11 @@ class Tracker:
             # from the last pose verifies them: no triangulation needed.
             R, t = self._predicted_pose()
             nan = np.full(5, np.nan)
-            return _Match(centers, visible, index, nan, np.full((5, 3), np.nan), R, t, float("nan"), sigma, flux)
+            return _Match(centers, visible, index, nan, np.full((5, 3), np.nan), R, t, float("nan"), sigma, flux,
+                          shot_var)
         match = self._match_from_centers(centers, visible, index)
         if match is not None:
-            match.sigma_px, match.flux = sigma, flux
+            match.sigma_px, match.flux, match.shot_var = sigma, flux, shot_var
         return match
 
     def _predicted_pose(self):
@@ -555,11 +572,13 @@ class Tracker:
         for cam in range(2):
             centers[cam, visible[cam]] = blobs[cam].centers_px[index[cam, visible[cam]]]
         epi = np.where(visible.all(axis=0), epi, np.nan)
-        sigma, flux = np.full((2, 5), np.nan), np.full((2, 5), np.nan)
+        sigma, flux, shot = np.full((2, 5), np.nan), np.full((2, 5), np.nan), np.full((2, 5), np.nan)
         for cam in range(2):
             sigma[cam, visible[cam]] = blobs[cam].sigma_px[index[cam, visible[cam]]]
             flux[cam, visible[cam]] = blobs[cam].flux_dn[index[cam, visible[cam]]]
-        return _Match(centers, visible, index, epi, points, R, t, float(rms), sigma, flux)
+            if blobs[cam].shot_var is not None:
+                shot[cam, visible[cam]] = blobs[cam].shot_var[index[cam, visible[cam]]]
+        return _Match(centers, visible, index, epi, points, R, t, float(rms), sigma, flux, shot)
 
     def _facing_cameras(self, R, t) -> np.ndarray:
         """The glasses' front (V) must face the cameras: retro-reflectors are seen only from the front."""
@@ -589,11 +608,12 @@ class Tracker:
                 axes = geo.axes_from_points(match.points, self.normal_signs)
                 R = axes.T @ self.axes_G     # rotation taking the model's axes onto the measured ones
                 p1 = match.points[1]
-            residuals = self._residuals(R, p1, match)
+            vectors = self._residuals(R, p1, match)
+            residuals = np.hypot(vectors[..., 0], vectors[..., 1])
             JtJ = geo.reprojection_jacobian(R, p1, self.model_mm, match.visible[0], match.visible[1], self.rig,
-                                            cameras=self._cameras)
-            return R, p1, residuals, JtJ
-        sigma = match.sigma_px if self.config.weighted_fit else None
+                                            cameras=self._cameras, sigma_px=self._sigma(match))
+            return R, p1, residuals, JtJ, vectors
+        sigma = self._sigma(match) if self.config.weighted_fit else None
         motion = self._right_motion(t, t_right) if self.config.compensate_offset else None
         fit = geo.refine_reprojection(match.R, match.t, self.model_mm, match.centers[0], match.centers[1],
                                       match.visible[0], match.visible[1], self.rig, right_motion=motion,
@@ -618,7 +638,7 @@ class Tracker:
         """
         if match.sigma_px is None or self._uncompensated:
             return None
-        sigma = np.where(np.isfinite(match.sigma_px), np.maximum(match.sigma_px, self.config.min_centroid_sigma_px),
+        sigma = np.where(np.isfinite(match.sigma_px), np.maximum(match.sigma_px, 0.03),
                          np.inf)
         score = np.where(np.isfinite(residuals) & (residuals > self.config.outlier_floor_px),
                          residuals / sigma, 0.0)
@@ -626,27 +646,19 @@ class Tracker:
             return None
         return np.unravel_index(int(np.argmax(score)), score.shape)
 
-    def _covariance(self, R, residuals, JtJ) -> np.ndarray:
-        """cov of (φ, θ), deg²: first-order propagation of the centroid noise.
-
-        The centroid noise σ is estimated from the fit's own residuals,
-        σ² = Σ r² / (2 n − 6) over the n visible marker images, floored at
-        ``config.min_centroid_sigma_px`` (a perfect fit does not mean a
-        perfect pose). Issue 3 compares this with the paper's pixel clouds.
-        """
-        r = residuals[np.isfinite(residuals)]
-        dof = max(2 * len(r) - 6, 1)
-        sigma = max(float(np.sqrt(np.sum(r ** 2) / dof)), self.config.min_centroid_sigma_px)
-        return geo.view_angle_covariance(R, JtJ, sigma, self.axes_G)
+    def _sigma(self, match: _Match) -> np.ndarray:
+        """Expected centroid noise (2, 5), px, floored (a perfect image is never perfect)."""
+        return np.maximum(match.sigma_px, self.config.min_centroid_sigma_px)
 
     def _residuals(self, R, p1, match: _Match) -> np.ndarray:
+        """Residual vectors (2, 5, 2), projected minus measured centre, px (NaN if hidden)."""
         pts = (R @ self.model_mm.T).T + p1
-        res = np.full((2, 5), np.nan)
+        res = np.full((2, 5, 2), np.nan)
         pl = geo.project(pts, np.eye(3), np.zeros(3), self.rig.K1, self.rig.D1)
         pr = geo.project(pts, self.rig.R, self.rig.T, self.rig.K2, self.rig.D2)
         for cam, proj in ((0, pl), (1, pr)):
             vis = match.visible[cam]
-            res[cam, vis] = np.linalg.norm(proj[vis] - match.centers[cam, vis], axis=1)
+            res[cam, vis] = proj[vis] - match.centers[cam, vis]
         return res
 
     def _right_motion(self, t, t_right, current=None):

@@ -230,12 +230,12 @@ def _head_at(z_mm: float, x_mm: float = 0.0, y_mm: float = NOMINAL_HEAD_M[1]) ->
 # ----------------------------------------------------------------------------
 
 def static(n_frames: int = 30, seed: int = 0, distance_mm: float = 600.0, fps: float = 30.0,
-           setup: Optional[Setup] = None) -> Scene:
-    """A still head at ``distance_mm`` from the screen, looking at its centre."""
+           setup: Optional[Setup] = None, diameter_mm: float = DEFAULT_DIAMETER_MM) -> Scene:
+    """A still head at ``distance_mm`` from the screen, looking at its centre (markers ``diameter_mm`` wide)."""
     s = setup or default_setup()
     pf = make_pose_fn(s, _const(_head_at(distance_mm)), _screen_centre, _const((0.0, 0.0, 0.0)))
     return _scene("static", s, pf, _times(n_frames, fps), RenderOptions(ambient_seed=seed),
-                  f"still head at {distance_mm:.0f} mm looking at the screen centre")
+                  f"still head at {distance_mm:.0f} mm looking at the screen centre", diameter=diameter_mm)
 
 
 def looking_around(n_frames: int = 150, seed: int = 0, fps: float = 30.0) -> Scene:

@@ -89,7 +89,7 @@ def test_refinement_converges_and_reports_residuals(rig):
     _, left, right = project_both(rig, R, p1)
     noise = rng.normal(0, 0.05, (2, 5, 2))
     R0 = cv2.Rodrigues(np.array([0.02, -0.01, 0.015]))[0] @ R     # about 1.5° off
-    R_fit, t_fit, res, JtJ = geo.refine_reprojection(R0, p1 + [3, -2, 5], MODEL, left + noise[0], right + noise[1],
+    R_fit, t_fit, res, JtJ, _ = geo.refine_reprojection(R0, p1 + [3, -2, 5], MODEL, left + noise[0], right + noise[1],
                                                      np.ones(5, bool), np.ones(5, bool), rig)
     v_err = np.degrees(np.arccos(np.clip((R_fit @ [0, 0, 1]) @ (R @ [0, 0, 1]), -1, 1)))
     assert v_err < 0.2
@@ -98,7 +98,7 @@ def test_refinement_converges_and_reports_residuals(rig):
     # Hidden marker in one view: 9 observations still give the pose.
     vis = np.ones(5, bool)
     vis[3] = False
-    R_h, t_h, res_h, _ = geo.refine_reprojection(R0, p1, MODEL, left, right, np.ones(5, bool), vis, rig)
+    R_h, t_h, res_h, _, _ = geo.refine_reprojection(R0, p1, MODEL, left, right, np.ones(5, bool), vis, rig)
     # Exact data: the fit stops once a step is below 3e-3 rad / 2 mm, which
     # leaves ~1e-5 rad of error: residuals of a few 1e-6 px, not zero.
     assert np.isnan(res_h[1, 3]) and np.nanmax(res_h) < 1e-4

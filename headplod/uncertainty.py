@@ -1,0 +1,400 @@
+"""Uncertainty of the viewing direction: cov of (φ, θ) in deg² (conventions.md).
+
+Estimators, all fed the same :class:`CovarianceInput` by the tracker:
+
+- ``paper``: Martinez et al. (2008, §4.3). Each marker is the cloud of its
+  thresholded pixels in each image; pixel pairs across the images whose rays
+  pass within ``gap_mm`` (2.0 mm, the first peak of the reconstruction-error
+  histogram) and whose normalized distances to their blob centres agree (the
+  structural constraint) are triangulated; each 3D cloud is sub-sampled
+  uniformly (ratio 0.3, random as in the paper); combinations of one point per
+  marker give V by the paper's three normals; their (φ, θ) about the reported
+  head frame give the sample covariance.
+- ``paper_deterministic``: the same with a sub-sampling and a choice of
+  combinations that do not change between frames (strided sub-samples, a
+  fixed draw of combinations): the paper blames its LOD jitter on random
+  sampling.
+- ``first_order``: the centroid noise of each marker image (σ from the image
+  noise, blob size and flux: :mod:`headplod.detect`) propagated through the
+  reprojection fit, cov(δ) = s² (Jᵀ Σ⁻¹ J)⁻¹, then to (φ, θ). The scale s²
+  is the fit's own χ²/dof averaged over recent frames: it absorbs what the
+  per-pixel model leaves out (shot noise of the marker signal, blur, motion)
+  from the residuals that this very noise produces, so it follows the
+  physics of the images rather than one renderer's settings.
+- ``*_smoothed``: an exponential moving average of another estimator
+  (time constant ``frames``), a steady input for the PLOD module.
+- ``*_fixed``: the largest covariance (by trace) measured so far, the
+  paper's "fixed" scenario.
+
+Why the paper's estimator is off (measured by ``headplod bench uncertainty``):
+its spread is that of single pixels, not of the centroids the pose is made
+from. Pairing whole pixel clouds measures the size of the marker image, which
+is roughly constant, while the pose error shrinks with the number of pixels
+and grows with noise; so it overstates the error of close, bright markers and
+cannot see noise at all.
+"""
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import geometry as geo
+
+COVARIANCE_ESTIMATORS = ("first_order", "first_order_smoothed", "first_order_fixed",
+                         "paper", "paper_deterministic", "paper_smoothed", "paper_fixed")
+DEFAULT_COVARIANCE = "first_order_smoothed"
+
+
+@dataclass
+class CovarianceInput:
+    """What a covariance estimator may use, for one tracked frame.
+
+    Attributes
+    ----------
+    images : (left, right) (H, W) uint8
+    centers_px : (2, 5, 2)
+        Marker centres per image, px (NaN if hidden).
+    visible : (2, 5) bool
+    sigma_px : (2, 5)
+        Expected centroid noise per coordinate from the image noise, px.
+    residuals_px : (2, 5)
+        Reprojection residual of each centre after the fit, px.
+    info : (6, 6)
+        Jᵀ Σ⁻¹ J of the fit w.r.t. (δ rad, ε mm), with Σ from ``sigma_px``.
+    R_world_G, p1_mm, axes : the fitted pose (axes rows Ξ, Ψ, V).
+    thresholds_dn : (2,)
+        Marker segmentation threshold per image, DN.
+    backgrounds : ((level, σ), (level, σ)) DN
+    residual_vectors_px : (2, 5, 2)
+        Projected minus measured centre, px.
+    t : float or None
+        Frame time, s.
+    shot_var : (2, 5)
+        Centroid variance per coordinate per unit shot-noise factor κ
+        (pixel variance κ·I), px²/DN; NaN where unknown.
+    jacobian_rows : (2, 5, 2, 6)
+        ∂(projected centre)/∂(δ, ε) of each marker image at the fitted pose.
+    """
+
+    images: tuple
+    centers_px: np.ndarray
+    visible: np.ndarray
+    sigma_px: np.ndarray
+    residuals_px: np.ndarray
+    info: np.ndarray
+    R_world_G: np.ndarray
+    p1_mm: np.ndarray
+    axes: np.ndarray
+    thresholds_dn: tuple
+    backgrounds: tuple
+    residual_vectors_px: np.ndarray = None
+    t: float | None = None
+    shot_var: np.ndarray = None
+    jacobian_rows: np.ndarray = None
+
+
+def view_angles_deg(directions: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """(φ, θ) in degrees of unit directions (M, 3) in the head frame ``axes`` (rows Ξ, Ψ, V)."""
+    local = directions @ axes.T
+    return np.degrees(np.stack([np.arctan2(local[:, 1], local[:, 2]), np.arctan2(local[:, 0], local[:, 2])], axis=1))
+
+
+class FirstOrder:
+    """First-order propagation of the centroid noise, with the noise model fitted from the residuals.
+
+    Each centre's variance per coordinate is a·v_bg + κ·v_shot, where v_bg is
+    the propagation of the image's pixel noise σ_n through the centroid
+    (:mod:`headplod.detect`) and v_shot that of a shot noise whose pixel
+    variance is proportional to the pixel's signal. a (≈ 1 if σ_n is right)
+    and κ (1/gain, DN) are not assumed: they are fitted, by least squares
+    over recent frames, to the change of each centre's reprojection residual
+    from one frame to the next, E|Δr_i|² = f (σ_i,k² + σ_i,k−1²), f the
+    fraction of the residual space that survives the pose fit (1 − 6/2m).
+    Differencing keeps the noise, new in every frame, and cancels what is
+    constant from frame to frame (a centroid bias of a foreshortened or
+    distorted blob). Then cov(δ) = (Σ_i J_iᵀ J_i / σ_i²)⁻¹ is mapped to
+    (φ, θ). Markers differ in brightness, which separates a from κ.
+
+    Parameters
+    ----------
+    axes_G : (3, 3)
+        The model's head axes in G.
+    calibration_frames : int
+        Time constant of the exponential average of the fit's normal
+        equations, frames.
+    """
+
+    name = "first_order"
+
+    def __init__(self, axes_G: np.ndarray, calibration_frames: int = 60):
+        self.axes_G = axes_G
+        self.calibration_frames = calibration_frames
+        self.reset()
+
+    def reset(self) -> None:
+        self.normal = np.zeros((2, 2))
+        self.rhs = np.zeros(2)
+        self.frames = 0
+        self.coefficients = np.array([2.0, 0.0])      # prior until the residuals speak: a = 2, κ = 0
+        self._previous = None
+
+    def variances(self, x: CovarianceInput) -> np.ndarray:
+        """Per-coordinate centroid variance (2, 5), px², under the current noise model."""
+        v_bg = x.sigma_px ** 2
+        v_shot = np.nan_to_num(x.shot_var) if x.shot_var is not None else np.zeros_like(v_bg)
+        a, kappa = self.coefficients
+        return a * v_bg + kappa * v_shot
+
+    def __call__(self, x: CovarianceInput) -> np.ndarray:
+        self._update(x)
+        variance = self.variances(x)
+        seen = x.visible & np.isfinite(variance)
+        rows = x.jacobian_rows[seen]                                  # (m, 2, 6)
+        weights = 1.0 / np.maximum(variance[seen], 1e-8)
+        info = np.einsum("mij,mik,m->jk", rows, rows, weights)
+        # A frame whose residuals the noise model cannot explain (a glint
+        # fused with a marker, a partial occlusion) has a worse pose than the
+        # model says: inflate by its χ²/dof beyond what chance gives 5% of
+        # frames (≈ 1.75 for the 14 degrees of freedom of ten centres).
+        dof = max(2 * int(seen.sum()) - 6, 1)
+        chi2 = float(np.nansum(x.residuals_px[seen] ** 2 * weights)) / dof
+        inflation = max(1.0, chi2 / _chi2_95_per_dof(dof))
+        return geo.view_angle_covariance(x.R_world_G, info, math.sqrt(inflation), self.axes_G)
+
+    def _update(self, x: CovarianceInput) -> None:
+        v_bg = x.sigma_px ** 2
+        v_shot = np.nan_to_num(x.shot_var) if x.shot_var is not None else np.zeros_like(v_bg)
+        current = (x.residual_vectors_px, v_bg, v_shot, x.t)
+        previous, self._previous = self._previous, current
+        if previous is None:
+            return
+        prev_vec, prev_bg, prev_shot, prev_t = previous
+        if x.t is not None and prev_t is not None and not 0 < x.t - prev_t < 0.25:
+            return
+        diff = x.residual_vectors_px - prev_vec
+        seen = np.isfinite(diff).all(axis=2)
+        count = int(seen.sum())
+        if count < 4:
+            return
+        survive = max(1 - 6 / (2 * count), 0.2)
+        # Per centre, E|Δr|² / (2 coordinates · survive) = σ_k² + σ_{k−1}².
+        energy = (diff[seen] ** 2).sum(axis=1) / (2 * survive)
+        design = np.stack([v_bg[seen] + prev_bg[seen], v_shot[seen] + prev_shot[seen]], axis=1)
+        # Weighted least squares (relative errors: each centre by its own scale).
+        scale = 1.0 / np.maximum(design @ np.maximum(self.coefficients, 1e-6), 1e-10)
+        self.frames += 1
+        rate = max(1.0 / self.frames, 1.0 / self.calibration_frames)
+        self.normal = (1 - rate) * self.normal + rate * (design.T * scale ** 2) @ design
+        self.rhs = (1 - rate) * self.rhs + rate * (design.T * scale ** 2) @ energy
+        self.coefficients = _nonnegative_solve(self.normal, self.rhs, self.coefficients)
+
+
+@functools.lru_cache(maxsize=32)
+def _chi2_95_per_dof(dof: int) -> float:
+    """95th percentile of χ²/dof: what 5% of frames exceed by chance."""
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(0.95, dof) / dof)
+
+
+def _nonnegative_solve(normal: np.ndarray, rhs: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """argmin of the quadratic with both coefficients ≥ 0 (2x2: try the full solve, then each alone)."""
+    candidates = []
+    if abs(np.linalg.det(normal)) > 1e-12 * max(np.abs(normal).max(), 1e-30) ** 2:
+        full = np.linalg.solve(normal, rhs)
+        if (full >= 0).all():
+            return full
+    for k in (0, 1):
+        if normal[k, k] > 0:
+            c = np.zeros(2)
+            c[k] = max(rhs[k] / normal[k, k], 0.0)
+            candidates.append(c)
+    if not candidates:
+        return fallback
+    cost = [c @ normal @ c - 2 * c @ rhs for c in candidates]
+    return candidates[int(np.argmin(cost))]
+
+
+class PaperPixelClouds:
+    """Martinez et al.'s pixel-cloud sampling estimator (see the module docstring).
+
+    Parameters
+    ----------
+    rig : headplod.io.Rig
+    model_mm : (5, 3)
+    ratio : float
+        Fraction of each marker's 3D cloud kept (the paper: 0.3).
+    deterministic : bool
+        Strided sub-samples and a fixed draw of combinations instead of fresh
+        random draws every frame.
+    gap_mm : float
+        Largest distance between the two viewing rays of a kept pixel pair
+        (the paper: 2.0 mm, the first peak of its Fig. 10 histogram).
+    structure : float
+        Largest difference of the two pixels' distances to their blob
+        centres, each divided by its blob's RMS radius. The paper compared raw
+        pixel distances with a threshold set to "the mean difference over
+        frames"; normalizing by the blob's size makes the rule hold when the
+        two cameras see the marker at different distances and angles.
+    max_combinations : int
+        Combinations of one point per marker evaluated per frame: the full
+        product (often 10⁶ and more) is replaced by this many combinations
+        drawn uniformly, which bounds time and memory; the sample covariance
+        of 4096 draws is within ±3% (1σ) of the full product's.
+    window_px : int
+        Side of the window searched for each marker's pixels.
+    """
+
+    name = "paper"
+
+    def __init__(self, rig, model_mm, ratio: float = 0.3, deterministic: bool = False, gap_mm: float = 2.0,
+                 structure: float = 0.5, max_combinations: int = 4096, window_px: int = 31, seed: int = 0):
+        self.rig, self.model_mm = rig, np.asarray(model_mm, np.float64)
+        self.ratio, self.deterministic = ratio, deterministic
+        self.gap_mm, self.structure = gap_mm, structure
+        self.max_combinations, self.window_px = max_combinations, window_px
+        self.signs = geo.normal_signs(self.model_mm)
+        self.seed = seed
+        self.name = "paper_deterministic" if deterministic else "paper"
+        self.reset()
+
+    def reset(self) -> None:
+        self.rng = np.random.default_rng(self.seed)
+        self.last_gaps_mm = np.zeros(0)
+
+    def clouds(self, x: CovarianceInput):
+        """Per marker, the 3D points of its kept pixel pairs (list of (k, 3) mm), and every pair's ray gap."""
+        pixels = [marker_pixels(x.images[cam], x.centers_px[cam], x.thresholds_dn[cam], self.window_px)
+                  for cam in (0, 1)]
+        clouds, gaps_all = [], []
+        for k in range(5):
+            (pl, dl), (pr, dr) = pixels[0][k], pixels[1][k]
+            if len(pl) == 0 or len(pr) == 0 or not x.visible[:, k].all():
+                clouds.append(np.zeros((0, 3)))
+                continue
+            xl = geo.undistort(pl, self.rig.K1, self.rig.D1)
+            xr = geo.undistort(pr, self.rig.K2, self.rig.D2)
+            il, ir = np.meshgrid(np.arange(len(pl)), np.arange(len(pr)), indexing="ij")
+            il, ir = il.ravel(), ir.ravel()
+            points, gaps = geo.triangulate_midpoint(xl[il], xr[ir], self.rig.R, self.rig.T)
+            gaps_all.append(gaps)
+            keep = (gaps < self.gap_mm) & (np.abs(dl[il] - dr[ir]) < self.structure)
+            clouds.append(points[keep])
+        self.last_gaps_mm = np.concatenate(gaps_all) if gaps_all else np.zeros(0)
+        return clouds
+
+    def __call__(self, x: CovarianceInput) -> np.ndarray:
+        clouds = self.clouds(x)
+        if any(len(c) == 0 for c in clouds):
+            return np.full((2, 2), np.nan)            # a marker without pairs: no estimate
+        rng = np.random.default_rng(self.seed) if self.deterministic else self.rng
+        subsets = []
+        for cloud in clouds:
+            keep = max(int(round(self.ratio * len(cloud))), 1)
+            if self.deterministic:
+                index = np.linspace(0, len(cloud) - 1, keep).round().astype(np.int64)
+            else:
+                index = rng.choice(len(cloud), keep, replace=False)
+            subsets.append(cloud[index])
+        sizes = [len(s) for s in subsets]
+        total = math.prod(sizes)
+        if total <= self.max_combinations:
+            grids = np.meshgrid(*[np.arange(n) for n in sizes], indexing="ij")
+            choice = np.stack([g.ravel() for g in grids], axis=1)
+        else:
+            choice = np.stack([rng.integers(0, n, self.max_combinations) for n in sizes], axis=1)
+        points = np.stack([subsets[k][choice[:, k]] for k in range(5)], axis=1)     # (M, 5, 3)
+        directions = batched_view_directions(points, self.signs)
+        angles = view_angles_deg(directions, x.axes)
+        if len(angles) < 3:
+            return np.full((2, 2), np.nan)
+        return np.cov(angles.T)
+
+
+def batched_view_directions(points_mm: np.ndarray, signs: np.ndarray) -> np.ndarray:
+    """V (M, 3) of marker sets (M, 5, 3): the normalized mean of the oriented triangle normals."""
+    tri = points_mm[:, geo.VIEW_TRIANGLES]                                     # (M, 3, 3, 3)
+    normals = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0]) * signs[None, :, None]
+    normals /= np.linalg.norm(normals, axis=2, keepdims=True)
+    v = normals.mean(axis=1)
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def marker_pixels(image: np.ndarray, centers_px: np.ndarray, threshold_dn: float, window_px: int):
+    """Each marker's thresholded pixels: list of 5 (pixels (k, 2) px, distance to the centre / RMS radius (k,))."""
+    height, width = image.shape
+    half = window_px // 2
+    out = []
+    for c in centers_px:
+        if not np.isfinite(c).all():
+            out.append((np.zeros((0, 2)), np.zeros(0)))
+            continue
+        x0, y0 = max(int(round(c[0])) - half, 0), max(int(round(c[1])) - half, 0)
+        win = image[y0:min(y0 + window_px, height), x0:min(x0 + window_px, width)]
+        ys, xs = np.nonzero(win >= threshold_dn)
+        pts = np.column_stack([xs + x0, ys + y0]).astype(np.float64)
+        dist = np.linalg.norm(pts - c, axis=1)
+        rms = math.sqrt(float(np.mean(dist ** 2))) if len(dist) else 1.0
+        out.append((pts, dist / max(rms, 1e-6)))
+    return out
+
+
+class Smoothed:
+    """Exponential moving average of another estimator's covariance (time constant ``frames``)."""
+
+    def __init__(self, inner, frames: int = 15):
+        self.inner, self.frames = inner, frames
+        self.name = inner.name + "_smoothed"
+        self.reset()
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.value, self.count = None, 0
+
+    def __call__(self, x: CovarianceInput) -> np.ndarray:
+        cov = self.inner(x)
+        if not np.isfinite(cov).all():
+            return self.value if self.value is not None else cov
+        self.count += 1
+        rate = max(1.0 / self.count, 1.0 / self.frames)
+        self.value = cov if self.value is None else (1 - rate) * self.value + rate * cov
+        return self.value
+
+
+class Fixed:
+    """The largest covariance (by trace) measured so far: the paper's 'fixed' scenario."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.name = inner.name + "_fixed"
+        self.reset()
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.value = None
+
+    def __call__(self, x: CovarianceInput) -> np.ndarray:
+        cov = self.inner(x)
+        if np.isfinite(cov).all() and (self.value is None or np.trace(cov) > np.trace(self.value)):
+            self.value = cov
+        return self.value if self.value is not None else cov
+
+
+def make_covariance_estimator(name: str, rig, model_mm, axes_G):
+    """An estimator by name (one of :data:`COVARIANCE_ESTIMATORS`)."""
+    if name not in COVARIANCE_ESTIMATORS:
+        raise ValueError(f"covariance estimator must be one of {COVARIANCE_ESTIMATORS}, got {name!r}")
+    base, _, variant = name.partition("_")
+    if name.startswith("first_order"):
+        inner = FirstOrder(axes_G)
+        variant = name[len("first_order"):].lstrip("_")
+    else:
+        inner = PaperPixelClouds(rig, model_mm, deterministic=(variant == "deterministic"))
+    if variant == "smoothed":
+        return Smoothed(inner)
+    if variant == "fixed":
+        return Fixed(inner)
+    return inner
