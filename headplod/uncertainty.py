@@ -21,8 +21,10 @@ Estimators, all fed the same :class:`CovarianceInput` by the tracker:
   per-pixel model leaves out (shot noise of the marker signal, blur, motion)
   from the residuals that this very noise produces, so it follows the
   physics of the images rather than one renderer's settings.
-- ``*_smoothed``: an exponential moving average of another estimator
-  (time constant ``frames``), a steady input for the PLOD module.
+- ``*_smoothed``: for ``first_order``, each centre's noise variance is
+  averaged over ~10 frames while the Jacobian stays the current frame's (a
+  steady input for the PLOD module that still follows a moving head); for
+  ``paper``, an exponential moving average of its covariances.
 - ``*_fixed``: the largest covariance (by trace) measured so far, the
   paper's "fixed" scenario.
 
@@ -35,7 +37,6 @@ cannot see noise at all.
 """
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -129,40 +130,57 @@ class FirstOrder:
 
     name = "first_order"
 
-    def __init__(self, axes_G: np.ndarray, calibration_frames: int = 60):
+    def __init__(self, axes_G: np.ndarray, calibration_frames: int = 60, smoothing_frames: int = 0):
         self.axes_G = axes_G
         self.calibration_frames = calibration_frames
+        self.smoothing_frames = smoothing_frames
+        if smoothing_frames:
+            self.name = "first_order_smoothed"
         self.reset()
 
     def reset(self) -> None:
-        self.normal = np.zeros((2, 2))
-        self.rhs = np.zeros(2)
+        # One noise model per camera: the two views of a marker differ in
+        # angle, distance and sensor.
+        self.normal = np.zeros((2, 2, 2))
+        self.rhs = np.zeros((2, 2))
         self.frames = 0
-        self.coefficients = np.array([2.0, 0.0])      # prior until the residuals speak: a = 2, κ = 0
+        self.coefficients = np.array([[2.0, 0.0], [2.0, 0.0]])   # prior until the residuals speak: a = 2, κ = 0
         self._previous = None
+        self._smoothed = None
 
     def variances(self, x: CovarianceInput) -> np.ndarray:
         """Per-coordinate centroid variance (2, 5), px², under the current noise model."""
         v_bg = x.sigma_px ** 2
         v_shot = np.nan_to_num(x.shot_var) if x.shot_var is not None else np.zeros_like(v_bg)
-        a, kappa = self.coefficients
+        a, kappa = self.coefficients[:, 0:1], self.coefficients[:, 1:2]
         return a * v_bg + kappa * v_shot
 
     def __call__(self, x: CovarianceInput) -> np.ndarray:
         self._update(x)
         variance = self.variances(x)
+        if self.smoothing_frames:
+            # Smooth each centre's noise (it changes slowly with the pose),
+            # not the covariance: the Jacobian stays this frame's, so the
+            # covariance follows a moving head without lag but does not
+            # flicker with the noise of the noise estimates.
+            if self._smoothed is None or self._smoothed.shape != variance.shape:
+                self._smoothed = variance.copy()
+            else:
+                rate = 1.0 / self.smoothing_frames
+                known = np.isfinite(variance) & np.isfinite(self._smoothed)
+                self._smoothed = np.where(known, (1 - rate) * self._smoothed + rate * variance, variance)
+            variance = self._smoothed
         seen = x.visible & np.isfinite(variance)
         rows = x.jacobian_rows[seen]                                  # (m, 2, 6)
-        weights = 1.0 / np.maximum(variance[seen], 1e-8)
+        variance = variance[seen]
+        # A centre whose residual the noise model cannot explain (a glint
+        # fused with the marker, a partial occlusion) is worse than the model
+        # says: its variance grows by its squared residual beyond what chance
+        # gives 5% of centres (χ² with 2 dof: 5.99).
+        excess = x.residuals_px[seen] ** 2 / np.maximum(variance, 1e-10) / _CHI2_2DOF_95
+        weights = 1.0 / (np.maximum(variance, 1e-10) * np.maximum(excess, 1.0))
         info = np.einsum("mij,mik,m->jk", rows, rows, weights)
-        # A frame whose residuals the noise model cannot explain (a glint
-        # fused with a marker, a partial occlusion) has a worse pose than the
-        # model says: inflate by its χ²/dof beyond what chance gives 5% of
-        # frames (≈ 1.75 for the 14 degrees of freedom of ten centres).
-        dof = max(2 * int(seen.sum()) - 6, 1)
-        chi2 = float(np.nansum(x.residuals_px[seen] ** 2 * weights)) / dof
-        inflation = max(1.0, chi2 / _chi2_95_per_dof(dof))
-        return geo.view_angle_covariance(x.R_world_G, info, math.sqrt(inflation), self.axes_G)
+        return geo.view_angle_covariance(x.R_world_G, info, 1.0, self.axes_G)
 
     def _update(self, x: CovarianceInput) -> None:
         v_bg = x.sigma_px ** 2
@@ -181,23 +199,29 @@ class FirstOrder:
             return
         survive = max(1 - 6 / (2 * count), 0.2)
         # Per centre, E|Δr|² / (2 coordinates · survive) = σ_k² + σ_{k−1}².
-        energy = (diff[seen] ** 2).sum(axis=1) / (2 * survive)
-        design = np.stack([v_bg[seen] + prev_bg[seen], v_shot[seen] + prev_shot[seen]], axis=1)
-        # Weighted least squares (relative errors: each centre by its own scale).
-        scale = 1.0 / np.maximum(design @ np.maximum(self.coefficients, 1e-6), 1e-10)
+        energy = (diff ** 2).sum(axis=2) / (2 * survive)                          # (2, 5)
+        design = np.stack([v_bg + prev_bg, v_shot + prev_shot], axis=2)         # (2, 5, 2)
         self.frames += 1
         rate = max(1.0 / self.frames, 1.0 / self.calibration_frames)
-        self.normal = (1 - rate) * self.normal + rate * (design.T * scale ** 2) @ design
-        self.rhs = (1 - rate) * self.rhs + rate * (design.T * scale ** 2) @ energy
-        self.coefficients = _nonnegative_solve(self.normal, self.rhs, self.coefficients)
+        for cam in (0, 1):
+            use = seen[cam]
+            e, d = energy[cam, use], design[cam, use]
+            expected = d @ np.maximum(self.coefficients[cam], 1e-6)
+            if self.frames > 10:
+                # A glint that comes and goes is not noise: leave out changes
+                # beyond what χ² with 2 dof reaches once in 1000 (×6.9).
+                usual = e <= 6.9 * expected
+                e, d, expected = e[usual], d[usual], expected[usual]
+            if len(e) == 0:
+                continue
+            scale2 = 1.0 / np.maximum(expected, 1e-10) ** 2          # relative errors
+            self.normal[cam] = (1 - rate) * self.normal[cam] + rate * (d.T * scale2) @ d
+            self.rhs[cam] = (1 - rate) * self.rhs[cam] + rate * (d.T * scale2) @ e
+            self.coefficients[cam] = _nonnegative_solve(self.normal[cam], self.rhs[cam], self.coefficients[cam])
 
 
-@functools.lru_cache(maxsize=32)
-def _chi2_95_per_dof(dof: int) -> float:
-    """95th percentile of χ²/dof: what 5% of frames exceed by chance."""
-    from scipy.stats import chi2
-
-    return float(chi2.ppf(0.95, dof) / dof)
+# 95th percentile of χ² with 2 degrees of freedom (scipy.stats.chi2.ppf(0.95, 2) = −2 ln 0.05).
+_CHI2_2DOF_95 = -2 * math.log(0.05)
 
 
 def _nonnegative_solve(normal: np.ndarray, rhs: np.ndarray, fallback: np.ndarray) -> np.ndarray:
@@ -389,8 +413,10 @@ def make_covariance_estimator(name: str, rig, model_mm, axes_G):
         raise ValueError(f"covariance estimator must be one of {COVARIANCE_ESTIMATORS}, got {name!r}")
     base, _, variant = name.partition("_")
     if name.startswith("first_order"):
-        inner = FirstOrder(axes_G)
         variant = name[len("first_order"):].lstrip("_")
+        if variant == "smoothed":
+            return FirstOrder(axes_G, smoothing_frames=10)
+        inner = FirstOrder(axes_G)
     else:
         inner = PaperPixelClouds(rig, model_mm, deterministic=(variant == "deterministic"))
     if variant == "smoothed":
