@@ -250,11 +250,11 @@ def detect_blobs(image: np.ndarray, params: DetectionParams = DetectionParams(),
             centers, area, peak, flux, spread, shot = stats
             return _finish(centers, area, peak, flux, spread, boxes, truncated, params, threshold, bg, sigma, [],
                            2.0 * sigma, shot)
-    centers, area, peak, flux, spread, pixels = _centroids_per_blob(
+    centers, area, peak, flux, spread, pixels, shot = _centroids_per_blob(
         image, binary, contours, boxes, (x_off, y_off), params, threshold, bg, sigma, keep_pixels)
     noise_floor = 2.0 * sigma if params.subtract_background else 0.0
     return _finish(centers, area, peak, flux, spread, boxes, truncated, params, threshold, bg, sigma, pixels,
-                   noise_floor)
+                   noise_floor, shot)
 
 
 # Blobs up to this window side (px) take the vectorized path: one array op per
@@ -514,6 +514,7 @@ def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshol
     peak = np.zeros(n)
     flux = np.zeros(n)
     spread = np.zeros(n)
+    shot = np.full(n, np.nan)
     pixels = []
     noise_floor = 2.0 * sigma if params.subtract_background else 0.0
     for i in range(n):  # a handful of blobs; per-pixel work inside is OpenCV/numpy
@@ -540,14 +541,17 @@ def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshol
         centers[i] = (x0[i] + m["m10"] / m["m00"], y0[i] + m["m01"] / m["m00"])
         flux[i] = m["m00"]
         ys, xs = np.nonzero(weights)
-        spread[i] = np.sum((xs + x0[i] - centers[i, 0]) ** 2 + (ys + y0[i] - centers[i, 1]) ** 2)
+        offsets2 = (xs + x0[i] - centers[i, 0]) ** 2 + (ys + y0[i] - centers[i, 1]) ** 2
+        spread[i] = np.sum(offsets2)
+        # Shot noise (pixel variance ∝ its signal), per coordinate: Σ (x − c)² I / 2F².
+        shot[i] = float(np.sum(offsets2 * weights[ys, xs])) / (2 * m["m00"] ** 2)
         peak[i] = float(weights.max()) + noise_floor
         bx, by, bw, bh = boxes[i, 0] - x_off, boxes[i, 1] - y_off, boxes[i, 2], boxes[i, 3]
         area[i] = cv2.countNonZero(binary[by:by + bh, bx:bx + bw])
         if keep_pixels:
             pixels.append((np.column_stack([xs + x0[i], ys + y0[i]]).astype(np.float64),
                            weights[ys, xs].astype(np.float64)))
-    return centers, area, peak, flux, spread, pixels
+    return centers, area, peak, flux, spread, pixels, shot
 
 
 def _finish(centers, area, peak, flux, spread, boxes, truncated, params, threshold, bg, sigma, pixels, noise_floor,

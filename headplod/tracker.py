@@ -309,8 +309,7 @@ class Tracker:
         # The uncertainty of V is its own stage (the mean pose is done).
         t_cov = time.perf_counter()
         axes = self.axes_G @ R.T
-        cov_input = CovarianceInput(images, match.centers, match.visible,
-                                    np.maximum(match.sigma_px, self.config.min_centroid_sigma_px), residuals, JtJ,
+        cov_input = CovarianceInput(images, match.centers, match.visible, match.sigma_px, residuals, JtJ,
                                     R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
                                     vectors, t, match.shot_var,
                                     geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras))

@@ -150,7 +150,7 @@ class FirstOrder:
 
     def variances(self, x: CovarianceInput) -> np.ndarray:
         """Per-coordinate centroid variance (2, 5), px², under the current noise model."""
-        v_bg = x.sigma_px ** 2
+        v_bg = np.maximum(x.sigma_px, _SIGMA_FLOOR_PX) ** 2
         v_shot = np.nan_to_num(x.shot_var) if x.shot_var is not None else np.zeros_like(v_bg)
         a, kappa = self.coefficients[:, 0:1], self.coefficients[:, 1:2]
         return a * v_bg + kappa * v_shot
@@ -183,7 +183,7 @@ class FirstOrder:
         return geo.view_angle_covariance(x.R_world_G, info, 1.0, self.axes_G)
 
     def _update(self, x: CovarianceInput) -> None:
-        v_bg = x.sigma_px ** 2
+        v_bg = np.maximum(x.sigma_px, _SIGMA_FLOOR_PX) ** 2
         v_shot = np.nan_to_num(x.shot_var) if x.shot_var is not None else np.zeros_like(v_bg)
         current = (x.residual_vectors_px, v_bg, v_shot, x.t)
         previous, self._previous = self._previous, current
@@ -208,17 +208,21 @@ class FirstOrder:
             e, d = energy[cam, use], design[cam, use]
             expected = d @ np.maximum(self.coefficients[cam], 1e-6)
             if self.frames > 10:
-                # A glint that comes and goes is not noise: leave out changes
-                # beyond what χ² with 2 dof reaches once in 1000 (×6.9).
-                usual = e <= 6.9 * expected
-                e, d, expected = e[usual], d[usual], expected[usual]
-            if len(e) == 0:
-                continue
-            scale2 = 1.0 / np.maximum(expected, 1e-10) ** 2          # relative errors
+                # A glint that comes and goes is not noise, and must not teach
+                # the model that it is: a change beyond what χ² with 2 dof
+                # reaches once in 100 (×4.6) counts as that, no more.
+                e = np.minimum(e, 4.6 * expected)
+            # Relative errors, each frame weighing the same in the average.
+            scale2 = 1.0 / np.maximum(expected, 1e-8) ** 2
+            scale2 /= scale2.mean()
             self.normal[cam] = (1 - rate) * self.normal[cam] + rate * (d.T * scale2) @ d
             self.rhs[cam] = (1 - rate) * self.rhs[cam] + rate * (d.T * scale2) @ e
             self.coefficients[cam] = _nonnegative_solve(self.normal[cam], self.rhs[cam], self.coefficients[cam])
 
+
+# Centroid noise below this (px) is not believed: quantization of the 8-bit
+# levels alone leaves about this much on a bright blob.
+_SIGMA_FLOOR_PX = 0.002
 
 # 95th percentile of χ² with 2 degrees of freedom (scipy.stats.chi2.ppf(0.95, 2) = −2 ln 0.05).
 _CHI2_2DOF_95 = -2 * math.log(0.05)
@@ -415,7 +419,7 @@ def make_covariance_estimator(name: str, rig, model_mm, axes_G):
     if name.startswith("first_order"):
         variant = name[len("first_order"):].lstrip("_")
         if variant == "smoothed":
-            return FirstOrder(axes_G, smoothing_frames=10)
+            return FirstOrder(axes_G, smoothing_frames=5)
         inner = FirstOrder(axes_G)
     else:
         inner = PaperPixelClouds(rig, model_mm, deterministic=(variant == "deterministic"))
