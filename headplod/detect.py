@@ -363,7 +363,7 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
     return centers, flux, peak, area, border_peak, spread, shot
 
 
-def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=False):
+def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=False, with_shot=True):
     """Gaussian-windowed centroids of background-subtracted windows (n, s, s).
 
     The weight of each pixel is its signal times a Gaussian of the blob's own
@@ -394,14 +394,16 @@ def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=Fals
             step = (proj * d).sum(axis=2) * (2 / total)[:, None]
             np.minimum(step, 1.0, out=step)
             np.maximum(step, -1.0, out=step)
-            c = c + step
+            if iterations:              # 0: only the weights at the given centres
+                c = c + step
         # Noise propagation at the last weights (the final step is far below σ_c).
         g2 = g * g
         g2d2 = (g2 * d * d).sum(axis=2)
         g2 = g2.sum(axis=2)                                    # (n, 2): Σ g(x)², Σ g(y)²
         total = total.astype(np.float64)
         spread = 4 * (g2d2[:, 0] * g2[:, 1] + g2d2[:, 1] * g2[:, 0]) / total ** 2
-        if with_total:
+        shot = None
+        if with_total and with_shot:
             # The same propagation for the shot noise of the blob's own signal
             # (variance ∝ intensity): 4 Σ g² (x − c)² I / (Σ g I)².
             positive = np.maximum(signal, 0)
@@ -417,7 +419,7 @@ def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=Fals
 
 
 def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, thresholds_dn,
-                   size_px: np.ndarray):
+                   size_px: np.ndarray, with_shot: bool = False):
     """Re-measure known blobs near predicted positions, without a full detection.
 
     The tracking fast path: one square window per blob around its predicted
@@ -445,7 +447,9 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
     flux (DN·px), sigma_px (k, n) expected centroid noise per coordinate,
     size_px (k, n) the blobs' Gaussian σ measured now, and the centroid
     variance per coordinate per unit pixel-noise variance (k, n) and per
-    unit shot-noise factor (k, n) (see :func:`_gaussian_windowed_centroid`).
+    unit shot-noise factor (k, n) (see :func:`_gaussian_windowed_centroid`;
+    None unless ``with_shot``: the tracking path leaves it to the covariance
+    stage, :func:`shot_variance`).
     """
     k, n = np.shape(guesses_px)[:2]
     height, width = images[0].shape
@@ -475,7 +479,7 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
         start /= mass[:, None]
     # One step from the plain centroid converges (measured: no gain from more).
     local, spread, total, shot = _gaussian_windowed_centroid(signal, start, np.reshape(size_px, -1), 1,
-                                                             with_total=True)
+                                                             with_total=True, with_shot=with_shot)
     peak = signal.max(axis=(1, 2))
     # Found: converged inside the window, bright enough, and wholly inside it
     # (nothing bright on the window's edge).
@@ -490,7 +494,35 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
         centroid_sigma = sigma * np.sqrt(spread / 2)
         size = np.sqrt(np.maximum(2 * total / peak, 1.0) / (2 * np.pi))
     return ((local + origin).reshape(k, n, 2), found.reshape(k, n), total.reshape(k, n),
-            centroid_sigma.reshape(k, n), size.reshape(k, n), (spread / 2).reshape(k, n), (shot / 2).reshape(k, n))
+            centroid_sigma.reshape(k, n), size.reshape(k, n), (spread / 2).reshape(k, n),
+            None if shot is None else (shot / 2).reshape(k, n))
+
+
+def shot_variance(images, centers_px: np.ndarray, size_px: np.ndarray, backgrounds) -> np.ndarray:
+    """Centroid variance per coordinate per unit shot-noise factor (k, n), px²/DN.
+
+    The Gaussian-windowed centroid's propagation of a pixel noise whose
+    variance is κ times the pixel's signal, at given centres (k, n, 2) and
+    blob sizes (k, n) px; for the covariance stage, after the tracking path
+    measured the centres without it.
+    """
+    k, n = np.shape(centers_px)[:2]
+    height, width = images[0].shape
+    side = 2 * int(np.ceil(3 * np.nanmax(size_px))) + 3
+    side = int(min(side, width, height))
+    guesses = np.reshape(centers_px, (k * n, 2))
+    found = np.isfinite(guesses).all(axis=1)
+    origin = np.where(found[:, None], guesses, 0.0).astype(np.int64) - side // 2
+    np.minimum(np.maximum(origin, 0, out=origin), (width - side, height - side), out=origin)
+    windows = np.concatenate([_window_view(img, side)[origin[j * n:(j + 1) * n, 1], origin[j * n:(j + 1) * n, 0]]
+                              for j, img in enumerate(images)]).astype(np.float32)
+    level = (windows.sum(axis=(1, 2)) - windows[:, 1:-1, 1:-1].sum(axis=(1, 2))) * (1.0 / (4 * side - 4))
+    signal = windows - level[:, None, None]
+    start = (np.where(found[:, None], guesses, 0.0) - origin).astype(np.float32)
+    size = np.nan_to_num(np.reshape(size_px, -1), nan=1.0)
+    # Zero iterations of the centre: the weights at the given centres.
+    _, _, _, shot = _gaussian_windowed_centroid(signal, start, np.maximum(size, 0.7), 0, with_total=True)
+    return np.where(found, shot / 2, np.nan).reshape(k, n)
 
 
 def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshold, bg, sigma, keep_pixels):

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from . import geometry as geo
-from .detect import Blobs, DetectionParams, centroids_near, detect_blobs, estimate_background
+from .detect import Blobs, DetectionParams, centroids_near, detect_blobs, estimate_background, shot_variance
 from .identify import ModelRule, find_hypotheses
 from .uncertainty import DEFAULT_COVARIANCE, CovarianceInput, make_covariance_estimator
 
@@ -309,6 +309,8 @@ class Tracker:
         # The uncertainty of V is its own stage (the mean pose is done).
         t_cov = time.perf_counter()
         axes = self.axes_G @ R.T
+        if match.shot_var is None:      # the tracking path leaves the shot-noise term to this stage
+            match.shot_var = shot_variance(images, match.centers, self._tracked_sizes, self._prev_background)
         cov_input = CovarianceInput(images, match.centers, match.visible, match.sigma_px, residuals, JtJ,
                                     R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
                                     vectors, t, match.shot_var,
@@ -371,6 +373,7 @@ class Tracker:
         side = 2 * int(np.ceil(3 * size.max() + self.config.track_margin_px / 2)) + 1
         centers, found, flux, sigma, size, _, shot_var = centroids_near(images, predicted, side, self._prev_background,
                                                                         self._prev_threshold, size)
+        self._tracked_sizes = size
         if not found.all():
             return None
         # (Two windows locked onto one blob leave a residual of a marker

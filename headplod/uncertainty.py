@@ -22,7 +22,7 @@ Estimators, all fed the same :class:`CovarianceInput` by the tracker:
   from the residuals that this very noise produces, so it follows the
   physics of the images rather than one renderer's settings.
 - ``*_smoothed``: for ``first_order``, each centre's noise variance is
-  averaged over ~10 frames while the Jacobian stays the current frame's (a
+  averaged over ~5 frames while the Jacobian stays the current frame's (a
   steady input for the PLOD module that still follows a moving head); for
   ``paper``, an exponential moving average of its covariances.
 - ``*_fixed``: the largest covariance (by trace) measured so far, the
