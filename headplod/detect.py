@@ -106,9 +106,11 @@ class Blobs:
     sigma_px : (n,) float64
         Expected standard deviation of each centroid coordinate from the
         background noise, px: first-order propagation of pixel noise σ_n.
-    shot_var : (n,) float64
-        Centroid variance per coordinate per unit shot-noise factor κ (pixel
-        variance κ·I for intensity I), px²/DN; NaN where not measured.
+    shot_var : (n, 2) float64
+        Centroid variance of x and of y per unit shot-noise factor κ (pixel
+        variance κ·I for intensity I), px²/DN; NaN where not measured. It is
+        anisotropic: an elongated (foreshortened) blob's centre is noisier
+        along its length.
     threshold_dn, background_dn, noise_dn : float
         The threshold used, the background level and noise σ it came from.
     """
@@ -134,7 +136,7 @@ class Blobs:
         idx = np.asarray(index)
         if idx.dtype == bool:
             idx = np.flatnonzero(idx)
-        shot = self.shot_var if self.shot_var is not None else np.full(len(self.centers_px), np.nan)
+        shot = self.shot_var if self.shot_var is not None else np.full((len(self.centers_px), 2), np.nan)
         return Blobs(self.centers_px[idx], self.area_px[idx], self.peak_dn[idx],
                      self.flux_dn[idx], self.glint[idx], self.bbox_px[idx], self.sigma_px[idx],
                      self.threshold_dn, self.background_dn, self.noise_dn,
@@ -343,7 +345,7 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
     dy = ramp[None, :] - (centers[:, 1:] - oy[:, None])
     spread = (support.sum(axis=1) * dx ** 2).sum(axis=1) + (support.sum(axis=2) * dy ** 2).sum(axis=1)
     peak = weights.max(axis=(1, 2)) + noise_floor
-    shot = np.full(len(centers), np.nan)
+    shot = np.full((len(centers), 2), np.nan)
     if window_iterations:
         signal = windows - (level - noise_floor)[:, None, None]
         size = np.sqrt(np.maximum(flux / np.maximum(peak - noise_floor, 1e-6), 1.0) / (2 * np.pi))
@@ -354,7 +356,7 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
         good = np.isfinite(local).all(axis=1) & (np.abs(local - start).max(axis=1) < 2)
         centers = np.where(good[:, None], local + origin, centers)
         spread = np.where(good, spread_w * flux ** 2, spread)    # callers divide by flux²
-        shot = np.where(good, shot_w / 2, np.nan)
+        shot = np.where(good[:, None], shot_w, np.nan)
     area = np.count_nonzero(windows >= np.reshape(threshold, (-1, 1, 1)), axis=(1, 2))
     border_peak = None
     if border:
@@ -366,52 +368,60 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
 def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=False, with_shot=True):
     """Gaussian-windowed centroids of background-subtracted windows (n, s, s).
 
-    The weight of each pixel is its signal times a Gaussian of the blob's own
-    size centred on the current estimate, and the estimate moves by twice the
-    weighted mean offset (SExtractor's XWIN scheme: for a Gaussian blob it
-    converges in one step, and it is unbiased for any symmetric blob). Far
-    pixels, where noise dominates, get almost no weight; nothing is clipped,
-    so noise does not pull the centre toward the window's middle.
+    The centre c solves Σ g(x − c) I(x) (x − c) = 0 per axis, g a Gaussian of
+    the blob's own size s (SExtractor's XWIN): unbiased for any symmetric
+    blob, and far pixels, where noise dominates, get almost no weight; nothing
+    is clipped, so noise does not pull the centre toward the window's middle.
+    Each step is Newton's: Δc = Σ g I (x − c) / D, D = Σ g I − Σ g I (x − c)² / s²
+    per axis (= half of Σ g I for a round Gaussian blob, XWIN's factor 2;
+    smaller along the length of an elongated blob, whose centre is noisier
+    that way).
 
     Returns centres (n, 2) in window pixels and ``spread`` (n,), with
     var(c_x) + var(c_y) = σ_n² · spread for pixel noise σ_n: first-order
-    propagation, var(c_x) = 4 σ_n² Σ g² (x − c)² / (Σ g I)²; with
-    ``with_total`` also Σ g I, the Gaussian-weighted flux (DN·px).
+    propagation, var(c_x) = σ_n² Σ g² (x − c)² / D_x²; with ``with_total``
+    also Σ g I, the Gaussian-weighted flux (DN·px), and (``with_shot``) the
+    variance of c_x and c_y per unit shot-noise factor κ (pixel variance κ I),
+    Σ g² (x − c)² I / D_x², shape (n, 2).
     """
     n, side = signal.shape[:2]
     ramp = np.arange(side, dtype=np.float32)
     c = np.asarray(start, dtype=np.float32)
-    inv = (-0.5 / size.astype(np.float32) ** 2)[:, None, None]
+    inv_size2 = (1.0 / size.astype(np.float32) ** 2)[:, None, None]
     proj = np.empty((n, 2, side), np.float32)
     with np.errstate(invalid="ignore", divide="ignore"):
         for _ in range(max(iterations, 1)):
             d = ramp - c[:, :, None]                           # (n, 2, side): x then y offsets
-            g = np.exp(d * d * inv)
+            d2 = d * d
+            g = np.exp(-0.5 * d2 * inv_size2)
             np.matmul(g[:, 1, None, :], signal, out=proj[:, 0:1, :])      # Σ_y g(y) I(y, x)
             np.matmul(signal, g[:, 0, :, None], out=proj[:, 1, :, None])  # Σ_x g(x) I(y, x)
             proj *= g
             total = proj[:, 0].sum(axis=1)
-            step = (proj * d).sum(axis=2) * (2 / total)[:, None]
+            # Newton's derivative per axis, kept ≥ T/4 (a blob much longer
+            # than the window would otherwise make the step explode).
+            slope = total[:, None] - (proj * d2).sum(axis=2) * inv_size2[:, :, 0]
+            slope = np.maximum(slope, 0.25 * total[:, None])
+            step = (proj * d).sum(axis=2) / slope
             np.minimum(step, 1.0, out=step)
             np.maximum(step, -1.0, out=step)
             if iterations:              # 0: only the weights at the given centres
                 c = c + step
         # Noise propagation at the last weights (the final step is far below σ_c).
         g2 = g * g
-        g2d2 = (g2 * d * d).sum(axis=2)
+        g2d2 = (g2 * d2).sum(axis=2)
         g2 = g2.sum(axis=2)                                    # (n, 2): Σ g(x)², Σ g(y)²
         total = total.astype(np.float64)
-        spread = 4 * (g2d2[:, 0] * g2[:, 1] + g2d2[:, 1] * g2[:, 0]) / total ** 2
+        slope = slope.astype(np.float64)
+        spread = g2d2[:, 0] * g2[:, 1] / slope[:, 0] ** 2 + g2d2[:, 1] * g2[:, 0] / slope[:, 1] ** 2
         shot = None
         if with_total and with_shot:
-            # The same propagation for the shot noise of the blob's own signal
-            # (variance ∝ intensity): 4 Σ g² (x − c)² I / (Σ g I)².
             positive = np.maximum(signal, 0)
             gx2, gy2 = g[:, 0] ** 2, g[:, 1] ** 2
-            right = np.stack([gx2 * d[:, 0] ** 2, gx2], axis=2)               # (n, side, 2)
-            left = np.stack([gy2, gy2 * d[:, 1] ** 2], axis=1)                # (n, 2, side)
+            right = np.stack([gx2 * d2[:, 0], gx2], axis=2)                   # (n, side, 2)
+            left = np.stack([gy2, gy2 * d2[:, 1]], axis=1)                    # (n, 2, side)
             terms = left @ (positive @ right)                                 # (n, 2, 2)
-            shot = 4 * (terms[:, 0, 0] + terms[:, 1, 1]).astype(np.float64) / total ** 2
+            shot = np.stack([terms[:, 0, 0], terms[:, 1, 1]], axis=1).astype(np.float64) / slope ** 2
     if with_total:
         return c.astype(np.float64), spread, total, shot
     return c.astype(np.float64), spread
@@ -446,8 +456,8 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
     centers_px (k, n, 2), found (k, n) bool, flux (k, n) Gaussian-weighted
     flux (DN·px), sigma_px (k, n) expected centroid noise per coordinate,
     size_px (k, n) the blobs' Gaussian σ measured now, and the centroid
-    variance per coordinate per unit pixel-noise variance (k, n) and per
-    unit shot-noise factor (k, n) (see :func:`_gaussian_windowed_centroid`;
+    variance per coordinate per unit pixel-noise variance (k, n) and of x
+    and y per unit shot-noise factor (k, n, 2) (see :func:`_gaussian_windowed_centroid`;
     None unless ``with_shot``: the tracking path leaves it to the covariance
     stage, :func:`shot_variance`).
     """
@@ -478,7 +488,7 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
         np.matmul(bright.sum(axis=2), ramp, out=start[:, 1])
         start /= mass[:, None]
     # One step from the plain centroid converges (measured: no gain from more).
-    local, spread, total, shot = _gaussian_windowed_centroid(signal, start, np.reshape(size_px, -1), 1,
+    local, spread, total, shot = _gaussian_windowed_centroid(signal, start, np.reshape(size_px, -1), 2,
                                                              with_total=True, with_shot=with_shot)
     peak = signal.max(axis=(1, 2))
     # Found: converged inside the window, bright enough, and wholly inside it
@@ -495,11 +505,11 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
         size = np.sqrt(np.maximum(2 * total / peak, 1.0) / (2 * np.pi))
     return ((local + origin).reshape(k, n, 2), found.reshape(k, n), total.reshape(k, n),
             centroid_sigma.reshape(k, n), size.reshape(k, n), (spread / 2).reshape(k, n),
-            None if shot is None else (shot / 2).reshape(k, n))
+            None if shot is None else shot.reshape(k, n, 2))
 
 
 def shot_variance(images, centers_px: np.ndarray, size_px: np.ndarray, backgrounds) -> np.ndarray:
-    """Centroid variance per coordinate per unit shot-noise factor (k, n), px²/DN.
+    """Centroid variance of x and y per unit shot-noise factor (k, n, 2), px²/DN.
 
     The Gaussian-windowed centroid's propagation of a pixel noise whose
     variance is κ times the pixel's signal, at given centres (k, n, 2) and
@@ -522,7 +532,7 @@ def shot_variance(images, centers_px: np.ndarray, size_px: np.ndarray, backgroun
     size = np.nan_to_num(np.reshape(size_px, -1), nan=1.0)
     # Zero iterations of the centre: the weights at the given centres.
     _, _, _, shot = _gaussian_windowed_centroid(signal, start, np.maximum(size, 0.7), 0, with_total=True)
-    return np.where(found, shot / 2, np.nan).reshape(k, n)
+    return np.where(found[:, None], shot, np.nan).reshape(k, n, 2)
 
 
 def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshold, bg, sigma, keep_pixels):
@@ -546,7 +556,7 @@ def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshol
     peak = np.zeros(n)
     flux = np.zeros(n)
     spread = np.zeros(n)
-    shot = np.full(n, np.nan)
+    shot = np.full((n, 2), np.nan)
     pixels = []
     noise_floor = 2.0 * sigma if params.subtract_background else 0.0
     for i in range(n):  # a handful of blobs; per-pixel work inside is OpenCV/numpy
@@ -575,8 +585,10 @@ def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshol
         ys, xs = np.nonzero(weights)
         offsets2 = (xs + x0[i] - centers[i, 0]) ** 2 + (ys + y0[i] - centers[i, 1]) ** 2
         spread[i] = np.sum(offsets2)
-        # Shot noise (pixel variance ∝ its signal), per coordinate: Σ (x − c)² I / 2F².
-        shot[i] = float(np.sum(offsets2 * weights[ys, xs])) / (2 * m["m00"] ** 2)
+        # Shot noise (pixel variance ∝ its signal), per axis: Σ (x − c)² I / F².
+        signal_px = weights[ys, xs]
+        shot[i] = (np.sum((xs + x0[i] - centers[i, 0]) ** 2 * signal_px) / m["m00"] ** 2,
+                   np.sum((ys + y0[i] - centers[i, 1]) ** 2 * signal_px) / m["m00"] ** 2)
         peak[i] = float(weights.max()) + noise_floor
         bx, by, bw, bh = boxes[i, 0] - x_off, boxes[i, 1] - y_off, boxes[i, 2], boxes[i, 3]
         area[i] = cv2.countNonZero(binary[by:by + bh, bx:bx + bw])
@@ -594,7 +606,7 @@ def _finish(centers, area, peak, flux, spread, boxes, truncated, params, thresho
     glint = (area <= params.glint_max_area_px) & (effective_area <= params.glint_max_effective_area_px)
     keep = np.isfinite(centers[:, 0]) & (area >= params.min_area_px) & ~truncated
     blobs = Blobs(centers, area, peak, flux, glint, boxes, centroid_sigma, threshold, bg, sigma, pixels)
-    blobs.shot_var = shot if shot is not None else np.full(len(centers), np.nan)
+    blobs.shot_var = shot if shot is not None else np.full((len(centers), 2), np.nan)
     return blobs.subset(keep)
 
 

@@ -183,7 +183,7 @@ class _Match:
     fit_rms: float
     sigma_px: np.ndarray = None     # (2, 5) expected centroid noise, px
     flux: np.ndarray = None         # (2, 5) blob flux, DN·px
-    shot_var: np.ndarray = None     # (2, 5) centroid variance per unit shot-noise factor, px²/DN
+    shot_var: np.ndarray = None     # (2, 5, 2) centroid variance of x, y per unit shot-noise factor, px²/DN
 
 
 class Tracker:
@@ -574,7 +574,7 @@ class Tracker:
         for cam in range(2):
             centers[cam, visible[cam]] = blobs[cam].centers_px[index[cam, visible[cam]]]
         epi = np.where(visible.all(axis=0), epi, np.nan)
-        sigma, flux, shot = np.full((2, 5), np.nan), np.full((2, 5), np.nan), np.full((2, 5), np.nan)
+        sigma, flux, shot = np.full((2, 5), np.nan), np.full((2, 5), np.nan), np.full((2, 5, 2), np.nan)
         for cam in range(2):
             sigma[cam, visible[cam]] = blobs[cam].sigma_px[index[cam, visible[cam]]]
             flux[cam, visible[cam]] = blobs[cam].flux_dn[index[cam, visible[cam]]]

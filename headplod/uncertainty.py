@@ -73,8 +73,8 @@ class CovarianceInput:
         Projected minus measured centre, px.
     t : float or None
         Frame time, s.
-    shot_var : (2, 5)
-        Centroid variance per coordinate per unit shot-noise factor κ
+    shot_var : (2, 5, 2)
+        Centroid variance of x and of y per unit shot-noise factor κ
         (pixel variance κ·I), px²/DN; NaN where unknown.
     jacobian_rows : (2, 5, 2, 6)
         ∂(projected centre)/∂(δ, ε) of each marker image at the fitted pose.
@@ -106,18 +106,20 @@ def view_angles_deg(directions: np.ndarray, axes: np.ndarray) -> np.ndarray:
 class FirstOrder:
     """First-order propagation of the centroid noise, with the noise model fitted from the residuals.
 
-    Each centre's variance per coordinate is a·v_bg + κ·v_shot, where v_bg is
-    the propagation of the image's pixel noise σ_n through the centroid
-    (:mod:`headplod.detect`) and v_shot that of a shot noise whose pixel
-    variance is proportional to the pixel's signal. a (≈ 1 if σ_n is right)
-    and κ (1/gain, DN) are not assumed: they are fitted, by least squares
-    over recent frames, to the change of each centre's reprojection residual
-    from one frame to the next, E|Δr_i|² = f (σ_i,k² + σ_i,k−1²), f the
-    fraction of the residual space that survives the pose fit (1 − 6/2m).
-    Differencing keeps the noise, new in every frame, and cancels what is
-    constant from frame to frame (a centroid bias of a foreshortened or
-    distorted blob). Then cov(δ) = (Σ_i J_iᵀ J_i / σ_i²)⁻¹ is mapped to
-    (φ, θ). Markers differ in brightness, which separates a from κ.
+    The variance of each centre's x and y is a·v_bg + κ·v_shot,x|y: v_bg
+    propagates the image's pixel noise σ_n through the Gaussian-windowed
+    centroid (isotropic: the window is round), v_shot a shot noise whose
+    pixel variance is proportional to the pixel's signal (anisotropic: a
+    foreshortened blob's centre is noisier along its length, and along the
+    stereo baseline that is what sets depth and V). a (≈ 1 if σ_n is right)
+    and κ (1/gain, DN) are not assumed: they are fitted per camera, by least
+    squares over recent frames, to the change of each centre's residual from
+    one frame to the next, E Δr_c² = f (σ_c,k² + σ_c,k−1²), f the fraction of
+    the residual space the pose fit leaves (1 − 6/2m). Differencing keeps the
+    noise, new in every frame, and cancels what is constant from frame to
+    frame (a centroid bias). Markers differ in brightness and blobs in shape,
+    which separates a from κ. Then cov(δ) = (Σ Jᵀ diag(1/σ²) J)⁻¹ is mapped
+    to (φ, θ).
 
     Parameters
     ----------
@@ -126,6 +128,9 @@ class FirstOrder:
     calibration_frames : int
         Time constant of the exponential average of the fit's normal
         equations, frames.
+    smoothing_frames : int
+        Time constant of an exponential average of each centre's variance
+        (0: none).
     """
 
     name = "first_order"
@@ -148,11 +153,17 @@ class FirstOrder:
         self._previous = None
         self._smoothed = None
 
+    @staticmethod
+    def _terms(x: CovarianceInput):
+        """v_bg (2, 5, 1) and v_shot (2, 5, 2), px² per unit a and κ."""
+        v_bg = (np.maximum(x.sigma_px, _SIGMA_FLOOR_PX) ** 2)[..., None]
+        v_shot = np.nan_to_num(x.shot_var) if x.shot_var is not None else np.zeros(v_bg.shape[:2] + (2,))
+        return v_bg, v_shot
+
     def variances(self, x: CovarianceInput) -> np.ndarray:
-        """Per-coordinate centroid variance (2, 5), px², under the current noise model."""
-        v_bg = np.maximum(x.sigma_px, _SIGMA_FLOOR_PX) ** 2
-        v_shot = np.nan_to_num(x.shot_var) if x.shot_var is not None else np.zeros_like(v_bg)
-        a, kappa = self.coefficients[:, 0:1], self.coefficients[:, 1:2]
+        """Variance of each centre's x and y (2, 5, 2), px², under the current noise model."""
+        v_bg, v_shot = self._terms(x)
+        a, kappa = self.coefficients[:, 0, None, None], self.coefficients[:, 1, None, None]
         return a * v_bg + kappa * v_shot
 
     def __call__(self, x: CovarianceInput) -> np.ndarray:
@@ -163,28 +174,27 @@ class FirstOrder:
             # not the covariance: the Jacobian stays this frame's, so the
             # covariance follows a moving head without lag but does not
             # flicker with the noise of the noise estimates.
-            if self._smoothed is None or self._smoothed.shape != variance.shape:
+            if self._smoothed is None:
                 self._smoothed = variance.copy()
             else:
                 rate = 1.0 / self.smoothing_frames
                 known = np.isfinite(variance) & np.isfinite(self._smoothed)
                 self._smoothed = np.where(known, (1 - rate) * self._smoothed + rate * variance, variance)
             variance = self._smoothed
-        seen = x.visible & np.isfinite(variance)
+        seen = x.visible & np.isfinite(variance).all(axis=2)
         rows = x.jacobian_rows[seen]                                  # (m, 2, 6)
-        variance = variance[seen]
+        variance = np.maximum(variance[seen], 1e-10)                  # (m, 2)
         # A centre whose residual the noise model cannot explain (a glint
         # fused with the marker, a partial occlusion) is worse than the model
         # says: its variance grows by its squared residual beyond what chance
         # gives 5% of centres (χ² with 2 dof: 5.99).
-        excess = x.residuals_px[seen] ** 2 / np.maximum(variance, 1e-10) / _CHI2_2DOF_95
-        weights = 1.0 / (np.maximum(variance, 1e-10) * np.maximum(excess, 1.0))
-        info = np.einsum("mij,mik,m->jk", rows, rows, weights)
+        excess = (x.residual_vectors_px[seen] ** 2 / variance).sum(axis=1) / _CHI2_2DOF_95
+        weights = 1.0 / (variance * np.maximum(excess, 1.0)[:, None])
+        info = np.einsum("mij,mik,mi->jk", rows, rows, weights)
         return geo.view_angle_covariance(x.R_world_G, info, 1.0, self.axes_G)
 
     def _update(self, x: CovarianceInput) -> None:
-        v_bg = np.maximum(x.sigma_px, _SIGMA_FLOOR_PX) ** 2
-        v_shot = np.nan_to_num(x.shot_var) if x.shot_var is not None else np.zeros_like(v_bg)
+        v_bg, v_shot = self._terms(x)
         current = (x.residual_vectors_px, v_bg, v_shot, x.t)
         previous, self._previous = self._previous, current
         if previous is None:
@@ -198,20 +208,22 @@ class FirstOrder:
         if count < 4:
             return
         survive = max(1 - 6 / (2 * count), 0.2)
-        # Per centre, E|Δr|² / (2 coordinates · survive) = σ_k² + σ_{k−1}².
-        energy = (diff ** 2).sum(axis=2) / (2 * survive)                          # (2, 5)
-        design = np.stack([v_bg + prev_bg, v_shot + prev_shot], axis=2)         # (2, 5, 2)
+        # Per centre and axis, E Δr² / survive = σ_k² + σ_{k−1}².
+        energy = diff ** 2 / survive                                             # (2, 5, 2)
+        design = np.stack([np.broadcast_to(v_bg + prev_bg, energy.shape), v_shot + prev_shot], axis=3)  # (2,5,2,2)
         self.frames += 1
         rate = max(1.0 / self.frames, 1.0 / self.calibration_frames)
         for cam in (0, 1):
-            use = seen[cam]
-            e, d = energy[cam, use], design[cam, use]
+            e = energy[cam][seen[cam]].reshape(-1)
+            d = design[cam][seen[cam]].reshape(-1, 2)
             expected = d @ np.maximum(self.coefficients[cam], 1e-6)
             if self.frames > 10:
                 # A glint that comes and goes is not noise, and must not teach
-                # the model that it is: a change beyond what χ² with 2 dof
-                # reaches once in 100 (×4.6) counts as that, no more.
-                e = np.minimum(e, 4.6 * expected)
+                # the model that it is: a change beyond what χ² with 1 dof
+                # reaches once in 100 (×6.6) counts as that, no more.
+                e = np.minimum(e, 6.6 * expected)
+            if len(e) == 0:
+                continue
             # Relative errors, each frame weighing the same in the average.
             scale2 = 1.0 / np.maximum(expected, 1e-8) ** 2
             scale2 /= scale2.mean()
