@@ -187,8 +187,8 @@ class FirstOrder:
         # A centre whose residual the noise model cannot explain (a glint
         # fused with the marker, a partial occlusion) is worse than the model
         # says: its variance grows by its squared residual beyond what chance
-        # gives 5% of centres (χ² with 2 dof: 5.99).
-        excess = (x.residual_vectors_px[seen] ** 2 / variance).sum(axis=1) / _CHI2_2DOF_95
+        # gives 1% of centres (χ² with 2 dof: 9.21).
+        excess = (x.residual_vectors_px[seen] ** 2 / variance).sum(axis=1) / _CHI2_2DOF_99
         weights = 1.0 / (variance * np.maximum(excess, 1.0)[:, None])
         info = np.einsum("mij,mik,mi->jk", rows, rows, weights)
         return geo.view_angle_covariance(x.R_world_G, info, 1.0, self.axes_G)
@@ -236,8 +236,8 @@ class FirstOrder:
 # levels alone leaves about this much on a bright blob.
 _SIGMA_FLOOR_PX = 0.002
 
-# 95th percentile of χ² with 2 degrees of freedom (scipy.stats.chi2.ppf(0.95, 2) = −2 ln 0.05).
-_CHI2_2DOF_95 = -2 * math.log(0.05)
+# 99th percentile of χ² with 2 degrees of freedom (scipy.stats.chi2.ppf(0.99, 2) = −2 ln 0.01).
+_CHI2_2DOF_99 = -2 * math.log(0.01)
 
 
 def _nonnegative_solve(normal: np.ndarray, rhs: np.ndarray, fallback: np.ndarray) -> np.ndarray:
