@@ -17,6 +17,7 @@ Stages (each timed per frame in ``TrackResult.timings_s``):
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 
@@ -29,6 +30,13 @@ from .identify import ModelRule, find_hypotheses
 from .uncertainty import DEFAULT_COVARIANCE, CovarianceInput, make_covariance_estimator
 
 ESTIMATORS = ("paper", "rigid", "reproj")
+# Read-only constants of the tracking path (copied before any change).
+_ALL_VISIBLE = np.ones((2, 5), bool)
+_NO_BLOB = np.full((2, 5), -1)
+_NAN5 = np.full(5, np.nan)
+_NAN53 = np.full((5, 3), np.nan)
+for _constant in (_ALL_VISIBLE, _NO_BLOB, _NAN5, _NAN53):
+    _constant.flags.writeable = False
 MARKER_NAMES = ("P0", "P1", "P2", "P3", "P4")
 
 
@@ -315,6 +323,8 @@ class Tracker:
                                     R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
                                     vectors, t, match.shot_var,
                                     geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras))
+        t_est = time.perf_counter()
+        timings["covariance_input"] = t_est - t_cov
         cov = self.uncertainty(cov_input)
         timings["covariance"] = time.perf_counter() - t_cov
         timings["total"] = time.perf_counter() - start
@@ -382,23 +392,24 @@ class Tracker:
         # re-identify rather than let it pull the centroid. Head motion
         # changes all markers of a view alike, so compare with the median.
         if self._prev_flux is not None:
-            # Allowed: the configured change plus 3σ of the flux noise, which
-            # for the Gaussian-weighted flux is σ_n √π s (s the blob's σ).
-            noise = np.array([self._prev_background[0][1], self._prev_background[1][1]])[:, None]
-            rel = noise * np.sqrt(np.pi) * size / np.maximum(flux, 1e-6)
-            log_change = np.log(np.maximum(flux / self._prev_flux, 1e-6))
-            log_change -= np.sort(log_change, axis=1)[:, 2:3]         # relative to the median of five
-            if np.any(np.abs(log_change) > np.log(self.config.track_flux_change) + 3 * np.sqrt(2) * rel):
-                return None
+            # Allowed: the configured change plus 3σ of the relative flux
+            # noise of the dimmest marker (Gaussian-weighted flux: σ_n √π s,
+            # s the blob's σ), around the median change of the five.
+            changes = np.sort(flux / self._prev_flux, axis=1).tolist()
+            dimmest = (flux.min(axis=1) / size.max(axis=1)).tolist()
+            for cam in (0, 1):
+                low, _, median, _, high = changes[cam]
+                rel = self._prev_background[cam][1] * 1.7725 / max(dimmest[cam], 1e-6)
+                limit = self.config.track_flux_change * math.exp(4.24 * rel)      # 3√2 σ of a ratio
+                if not (median / limit <= low and high <= median * limit):
+                    return None
         self._tracked_flux, self._tracked_size = flux, size
-        visible, index = np.ones((2, 5), bool), np.full((2, 5), -1)
+        visible, index = _ALL_VISIBLE, _NO_BLOB
         if self.config.estimator == "reproj":
             # The labels are carried over, and the reprojection fit started
             # from the last pose verifies them: no triangulation needed.
             R, t = self._predicted_pose()
-            nan = np.full(5, np.nan)
-            return _Match(centers, visible, index, nan, np.full((5, 3), np.nan), R, t, float("nan"), sigma, flux,
-                          shot_var)
+            return _Match(centers, visible, index, _NAN5, _NAN53, R, t, float("nan"), sigma, flux, shot_var)
         match = self._match_from_centers(centers, visible, index)
         if match is not None:
             match.sigma_px, match.flux, match.shot_var = sigma, flux, shot_var
@@ -640,6 +651,8 @@ class Tracker:
         """
         if match.sigma_px is None or self._uncompensated:
             return None
+        if not np.fmax.reduce(residuals, axis=None) > self.config.outlier_floor_px:
+            return None                                   # the usual case: nothing near the floor
         sigma = np.where(np.isfinite(match.sigma_px), np.maximum(match.sigma_px, 0.03),
                          np.inf)
         score = np.where(np.isfinite(residuals) & (residuals > self.config.outlier_floor_px),
