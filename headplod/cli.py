@@ -99,7 +99,7 @@ def _cmd_track(args) -> int:
     from .detect import DetectionParams
     from .pipeline import Progress, track_dataset
     from .sequences import DEFAULT_SEQUENCE, ensure_dataset
-    from .tracker import MARKER_NAMES, TrackerConfig
+    from .tracker import TrackerConfig
 
     folder = args.dataset
     if folder is None:

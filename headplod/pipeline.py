@@ -3,10 +3,7 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 from typing import Callable, Iterable
-
-import numpy as np
 
 from . import io
 from .tracker import Tracker, TrackerConfig, TrackResult

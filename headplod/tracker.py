@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -74,8 +74,6 @@ class TrackerConfig:
         When the right image is exposed at another time than the left one
         (times.csv's t_right), move the model by the head's velocity over that
         offset before the right camera sees it (reproj estimator).
-    keep_pixels : bool
-        Keep each marker's pixel cloud in the result (for uncertainty).
     uncertainty : str
         Estimator of the covariance of V (:mod:`headplod.uncertainty`);
         the default was chosen by ``headplod bench uncertainty``.
@@ -107,7 +105,6 @@ class TrackerConfig:
     track_margin_px: float = 10.0
     hidden_marker: bool = True
     compensate_offset: bool = True
-    keep_pixels: bool = False
     uncertainty: str = DEFAULT_COVARIANCE
     min_centroid_sigma_px: float = 0.01
     track_flux_change: float = 1.25
@@ -253,7 +250,7 @@ class Tracker:
         if problem:
             return TrackResult(False, problem, timings_s={"total": time.perf_counter() - start})
         images = (left, right)
-        tracking = self.config.track and self._prev_centers is not None and not self.config.keep_pixels
+        tracking = self.config.track and self._prev_centers is not None
         result = self._attempt(images, t, t_right, timings, start, tracking)
         if tracking and not result.ok and result.mode == "track":
             # The re-measured markers did not verify: detect and identify afresh.
@@ -370,8 +367,7 @@ class Tracker:
     def _detect_full(self, image, cam) -> Blobs:
         background = estimate_background(image)
         self._prev_background[cam] = background
-        return detect_blobs(image, self.config.detection, background=background,
-                            keep_pixels=self.config.keep_pixels)
+        return detect_blobs(image, self.config.detection, background=background)
 
     # ----------------------------------------------------------- identification
     def _track_fast(self, images) -> _Match | None:

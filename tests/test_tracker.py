@@ -7,8 +7,6 @@ all that no pose is more than 5° off (a wrong identification).
 """
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -19,20 +17,9 @@ from headplod import evaluate, io
 from headplod.cli import main as cli_main
 from headplod.detect import DetectionParams
 from headplod.pipeline import track_dataset
-from headplod.sequences import ensure_dataset
 from headplod.tracker import Tracker, TrackerConfig
 
 DATA = Path(__file__).parent / "data"
-
-
-@pytest.fixture(scope="session")
-def synth(tmp_path_factory):
-    """Render (once per session) a synthetic preset into a temporary cache."""
-    root = tmp_path_factory.mktemp("synthetic")
-
-    def make(preset, frames, **options):
-        return io.Dataset(ensure_dataset(preset, frames=frames, root=root, quiet=True, **options))
-    return make
 
 
 def summary_of(dataset, config=TrackerConfig()):

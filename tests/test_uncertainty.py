@@ -1,21 +1,9 @@
 """Covariance of V against ground truth and against its physics."""
 import numpy as np
-import pytest
 
-from headplod import io
 from headplod.bench_uncertainty import nees
-from headplod.sequences import ensure_dataset
 from headplod.tracker import Tracker, TrackerConfig
 from headplod.uncertainty import COVARIANCE_ESTIMATORS, PaperPixelClouds, make_covariance_estimator
-
-
-@pytest.fixture(scope="module")
-def synth(tmp_path_factory):
-    root = tmp_path_factory.mktemp("synthetic_unc")
-
-    def make(preset, frames, **options):
-        return io.Dataset(ensure_dataset(preset, frames=frames, root=root, quiet=True, **options))
-    return make
 
 
 def covariances(dataset, name="first_order_smoothed", config=None):
