@@ -41,6 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="blob threshold in DN (the paper: 100) or 'adaptive' (default)")
     track.add_argument("--paper-detection", action="store_true",
                        help="the paper's detection: threshold 100, 9x9 smoothing, raw intensity weights")
+    track.add_argument("--uncertainty", default=None, metavar="NAME",
+                       help="estimator of the covariance of V: first_order_smoothed (default), first_order, "
+                            "first_order_fixed, paper, paper_deterministic, paper_smoothed, paper_fixed")
     track.add_argument("--no-tracking", action="store_true",
                        help="detect and identify from scratch in every frame")
     track.add_argument("--quiet", "-q", action="store_true", help="no per-frame lines")
@@ -111,7 +114,13 @@ def _cmd_track(args) -> int:
     detection = DetectionParams.paper() if args.paper_detection else DetectionParams(threshold_dn=args.threshold)
     if args.paper_detection and args.threshold is not None:
         detection = DetectionParams(threshold_dn=args.threshold, smooth_px=9, subtract_background=False)
-    config = TrackerConfig(estimator=args.estimator, detection=detection, track=not args.no_tracking)
+    from .uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
+    if args.uncertainty is not None and args.uncertainty not in COVARIANCE_ESTIMATORS:
+        print(f"headplod: --uncertainty must be one of {', '.join(COVARIANCE_ESTIMATORS)}, got {args.uncertainty!r}",
+              file=sys.stderr)
+        return 2
+    config = TrackerConfig(estimator=args.estimator, detection=detection, track=not args.no_tracking,
+                           uncertainty=args.uncertainty or DEFAULT_COVARIANCE)
     writer = io.PoseWriter(args.out) if args.out else None
     to_stdout = args.out == "-"
     log = sys.stderr
