@@ -5,7 +5,7 @@
 set -euo pipefail
 cd "$(dirname "$0")"
 
-APT_PACKAGES="libusb-1.0-0"
+APT_PACKAGES="libusb-1.0-0 libegl1 libgl1-mesa-dri"   # camera identity; offscreen OpenGL (EGL, Mesa llvmpipe)
 missing=""
 for pkg in $APT_PACKAGES; do
     dpkg -s "$pkg" >/dev/null 2>&1 || missing="$missing $pkg"
