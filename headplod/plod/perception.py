@@ -1,0 +1,883 @@
+"""Per-triangle perceptual criteria of the perceptual level of detail (PLOD).
+
+Everything here is pure numpy/scipy and vectorized over triangles (arrays of
+shape ``(n,)`` or broadcastable ones; no Python loop over triangles). The
+equations, constants and the papers' slips are gathered in
+``shared/spec/methods.md``; the papers are Martinez et al. (2008, PLOD with
+head-pose uncertainty), Ohshima et al. (1996, gaze-directed adaptive
+rendering), Wakatsuki et al. (tolerance of micro-motion) and Murphy et al.
+(2009, Geisler-Perry CSF).
+
+Units
+-----
+- spatial frequency ``f``: cpd, cycles per degree of visual angle;
+- retinal / angular speed ``v``: deg/s;
+- eccentricity ``e`` and every other angle: degrees;
+- lengths: mm;
+- contrast: Michelson contrast (Lmax - Lmin) / (Lmax + Lmin), dimensionless;
+- levels: number of 1-to-4 subdivisions of a base triangle (0 = coarsest).
+
+Levels, continuous and discrete
+-------------------------------
+Every criterion computes a *continuous* level first and then rounds it. The
+rounding differs with the criterion, and :class:`Hysteresis` must be told
+which one was used:
+
+- Martinez eq. 4, ``LOD = ceil(log2(f_max / f))``: ``"ceil"``
+  (:func:`lod_continuous`, :func:`lod_from_frequency`);
+- screen-space error, the coarsest level whose error is within tolerance:
+  ``"ceil"`` (:func:`sse_level`);
+- Ohshima, the finest level whose edges are all >= r_min: ``"floor"``
+  (:func:`acuity_level`).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import lambertw
+
+__all__ = [
+    "CSF_MODELS", "MIN_SPEED_DEG_S", "ECC_SLOPE",
+    "sensitivity", "csf_coefficients", "max_visible_freq_cpd", "gp_cutoff_cpd",
+    "lod_continuous", "lod_from_frequency",
+    "triangle_frequency_cpd", "view_offsets_deg", "eccentricity_deg",
+    "uncertainty_shift",
+    "acuity_factors", "combine_acuity", "r_min_mm", "acuity_level", "display_acuity_a0",
+    "vergence_deg",
+    "sse_level", "velocity_baseline_level",
+    "Hysteresis",
+]
+
+CSF_MODELS = ("paper", "kelly", "daly", "kelly_scaled")
+
+MIN_SPEED_DEG_S = 0.1
+"""Speed floor (deg/s) of every CSF: Kelly's G is 0 at v = 0 (no stabilized image)."""
+
+ECC_SLOPE = 0.29
+"""Rovamo & Virsu's cortical-magnification slope, 1/deg: M(e) ∝ 1 / (1 + 0.29 e)."""
+
+# Daly (1998) constants of the spatio-velocity CSF.
+_DALY_C0, _DALY_C1, _DALY_C2 = 1.14, 0.67, 1.7
+
+
+# ---------------------------------------------------------------------------
+# Contrast sensitivity
+# ---------------------------------------------------------------------------
+
+def _check_model(model):
+    if model not in CSF_MODELS:
+        raise ValueError(f"unknown CSF model {model!r}; expected one of {CSF_MODELS}")
+
+
+def csf_coefficients(speed_deg_s, model="kelly_scaled"):
+    """The foveal CSF written as ``S(f) = A f^2 exp(-b f)`` (f in cpd).
+
+    Parameters
+    ----------
+    speed_deg_s : array_like
+        Retinal speed, deg/s, any shape; its absolute value is floored at
+        :data:`MIN_SPEED_DEG_S` (0.1 deg/s).
+    model : {"paper", "kelly", "daly", "kelly_scaled"}
+        ``"kelly"`` and ``"kelly_scaled"`` share these coefficients (they
+        differ only in how eccentricity enters).
+
+    Returns
+    -------
+    A : ndarray
+        Amplitude, cpd^-2, shape of ``speed_deg_s``.
+    b : ndarray
+        Decay, 1/cpd (deg per cycle), same shape.
+
+    Notes
+    -----
+    - ``"paper"``, Martinez eq. 3 as printed:
+      A = (250.1 + 299.3 |log10(v/3)|^3) v, b = 5.5 ln(10) (v + 2) / 45.9.
+    - ``"kelly"``, Kelly (1979): G = (6.1 + 7.3 |log10(v/3)|^3) v (2πf)^2
+      exp(-2 (2πf)(v + 2)/45.9), so A = 4π^2 (6.1 + 7.3 |log10(v/3)|^3) v,
+      b = 4π (v + 2)/45.9. The paper's 250.1, 299.3 are 41 x (6.1, 7.3), with
+      41.0 for 4π^2 = 39.48, and its 5.5 stands for 4π/ln 10 = 5.4575.
+    - ``"daly"``, Daly (1998), c0 = 1.14, c1 = 0.67, c2 = 1.7:
+      A = (6.1 + 7.3 |log10(c2 v/3)|^3) c0 c2 v (2π c1)^2,
+      b = 4π c1 (c2 v + 2)/45.9.
+    """
+    _check_model(model)
+    v = np.maximum(np.abs(np.asarray(speed_deg_s, dtype=float)), MIN_SPEED_DEG_S)
+    if model == "paper":
+        k = 250.1 + 299.3 * np.abs(np.log10(v / 3.0)) ** 3
+        return k * v, 5.5 * np.log(10.0) * (v + 2.0) / 45.9
+    if model == "daly":
+        c0, c1, c2 = _DALY_C0, _DALY_C1, _DALY_C2
+        k = 6.1 + 7.3 * np.abs(np.log10(c2 * v / 3.0)) ** 3
+        return (k * c0 * c2 * v * (2.0 * np.pi * c1) ** 2,
+                4.0 * np.pi * c1 * (c2 * v + 2.0) / 45.9)
+    k = 6.1 + 7.3 * np.abs(np.log10(v / 3.0)) ** 3
+    return k * v * (2.0 * np.pi) ** 2, 4.0 * np.pi * (v + 2.0) / 45.9
+
+
+def _ecc_factor(ecc_deg):
+    """1 + 0.29 |e| (dimensionless)."""
+    return 1.0 + ECC_SLOPE * np.abs(np.asarray(ecc_deg, dtype=float))
+
+
+def sensitivity(freq_cpd, speed_deg_s, ecc_deg, model="kelly_scaled"):
+    """Contrast sensitivity S(f, v, e) (1 / threshold contrast).
+
+    Parameters
+    ----------
+    freq_cpd : array_like
+        Spatial frequency f, cpd (>= 0).
+    speed_deg_s : array_like
+        Retinal speed v, deg/s; floored at 0.1 deg/s.
+    ecc_deg : array_like
+        Eccentricity e, deg (its absolute value is used).
+    model : {"paper", "kelly", "daly", "kelly_scaled"}
+        ``"paper"``, ``"kelly"``, ``"daly"``: the foveal CSF (see
+        :func:`csf_coefficients`) divided by (1 + 0.29 e), as Martinez eq. 3
+        does. ``"kelly_scaled"``: Kelly's CSF with the frequency scaled by the
+        cortical magnification, S(f (1 + 0.29 e), v), no division; this is
+        how Rovamo & Virsu's 0.29 is meant, and it cuts the periphery far
+        more (f_max falls as 1 / (1 + 0.29 e) instead of logarithmically).
+
+    Returns
+    -------
+    ndarray
+        Sensitivity, dimensionless, the broadcast shape of the inputs.
+    """
+    _check_model(model)
+    f = np.asarray(freq_cpd, dtype=float)
+    A, b = csf_coefficients(speed_deg_s, model)
+    m = _ecc_factor(ecc_deg)
+    if model == "kelly_scaled":
+        fs = f * m
+        return A * fs ** 2 * np.exp(-b * fs)
+    return A * f ** 2 * np.exp(-b * f) / m
+
+
+def max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model="kelly_scaled"):
+    """Highest spatial frequency visible at a contrast: max f with C S(f) >= 1.
+
+    With S = A f^2 exp(-b f) (eccentricity folded into A or f), C S(f) = 1 is
+    solved in closed form by the lower branch of Lambert's W:
+    ``f_max = -(2/b) W_{-1}(-(b/2) / sqrt(A C))``. When
+    (b/2)/sqrt(A C) > 1/e the peak of C S(f) is below 1 and nothing is
+    visible: 0 is returned (also for C <= 0).
+
+    Parameters
+    ----------
+    contrast : array_like
+        Michelson contrast C (dimensionless).
+    speed_deg_s : array_like
+        Retinal speed v, deg/s (floored at 0.1 deg/s).
+    ecc_deg : array_like
+        Eccentricity e, deg.
+    model : {"paper", "kelly", "daly", "kelly_scaled"}
+        See :func:`sensitivity`. For ``"kelly_scaled"`` the foveal f_max is
+        divided by (1 + 0.29 e).
+
+    Returns
+    -------
+    ndarray
+        f_max, cpd, the broadcast shape of the inputs; 0 where nothing is
+        visible. For Kelly at C = 1: 18.1 cpd at 0.15 deg/s, 13.1 at 1,
+        3.1 at 10 (Kelly's foveal cutoff is below real acuity, 40-60 cpd).
+    """
+    _check_model(model)
+    C = np.asarray(contrast, dtype=float)
+    A, b = csf_coefficients(speed_deg_s, model)
+    m = _ecc_factor(ecc_deg)
+    C, A, b, m = np.broadcast_arrays(C, A, b, m)
+    if model != "kelly_scaled":
+        A = A / m
+    AC = A * C
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(AC > 0, 0.5 * b / np.sqrt(np.where(AC > 0, AC, 1.0)), np.inf)
+    visible = z <= np.exp(-1.0)
+    zv = np.where(visible, z, 0.1)            # any point inside the domain
+    w = lambertw(-zv, -1).real                # <= -1
+    f = np.where(visible, -2.0 / b * w, 0.0)
+    if model == "kelly_scaled":
+        f = f / m
+    return f
+
+
+def gp_cutoff_cpd(contrast, ecc_deg, ct0=1.0 / 64.0, alpha=0.106, e2=2.3):
+    """Geisler-Perry cutoff frequency (Murphy et al. 2009, eq. 1-2).
+
+    From CT(f, e) = CT0 exp(α f (e + e2)/e2) = C:
+    ``f_c = e2 ln(C / CT0) / (α (e + e2))``.
+
+    Parameters
+    ----------
+    contrast : array_like
+        Contrast C (dimensionless); C = 1 gives the usual resolution map.
+    ecc_deg : array_like
+        Eccentricity e, deg (absolute value used).
+    ct0 : float
+        Minimum contrast threshold (1/64).
+    alpha : float
+        Spatial-frequency decay constant, deg per cycle (0.106).
+    e2 : float
+        Half-resolution eccentricity, deg (2.3).
+
+    Returns
+    -------
+    ndarray
+        f_c, cpd; 39.2 cpd at the fovea for C = 1; 0 where C <= CT0.
+    """
+    C = np.asarray(contrast, dtype=float)
+    e = np.abs(np.asarray(ecc_deg, dtype=float))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lr = np.log(np.where(C > ct0, C, ct0) / ct0)
+    return np.where(C > ct0, e2 * lr / (alpha * (e + e2)), 0.0)
+
+
+# ---------------------------------------------------------------------------
+# Martinez eq. 4: level from frequency
+# ---------------------------------------------------------------------------
+
+def lod_continuous(triangle_freq_cpd, max_freq_cpd):
+    """Continuous level ``log2(f_max / f)`` before Martinez eq. 4's ceiling.
+
+    Parameters
+    ----------
+    triangle_freq_cpd : array_like
+        The triangle's spatial frequency f = 1 / (angular diameter), cpd.
+    max_freq_cpd : array_like
+        The highest visible frequency f_max, cpd (:func:`max_visible_freq_cpd`).
+
+    Returns
+    -------
+    ndarray of float
+        Number of frequency doublings (1-to-4 subdivisions) from f to f_max;
+        -inf where f_max = 0 (nothing visible), +inf where f = 0; NaN where
+        both are 0 or an input is NaN.
+    """
+    f = np.asarray(triangle_freq_cpd, dtype=float)
+    fm = np.asarray(max_freq_cpd, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.log2(fm) - np.log2(f)
+
+
+def lod_from_frequency(triangle_freq_cpd, max_freq_cpd, max_level):
+    """Martinez eq. 4: ``LOD = ceil(log2(f_max / f))`` clamped to [0, max_level].
+
+    One 1-to-4 subdivision halves the triangle's diameter, so doubles its
+    frequency: after LOD subdivisions the sub-triangles' frequency
+    f 2^LOD first reaches f_max (details finer than the eye resolves).
+
+    Parameters
+    ----------
+    triangle_freq_cpd : array_like
+        f = 1 / (angular diameter of the triangle's projection), cpd.
+    max_freq_cpd : array_like
+        f_max, cpd. 0 (nothing visible) gives level 0.
+    max_level : int
+        Finest level available.
+
+    Returns
+    -------
+    ndarray of int
+        Levels in [0, max_level], broadcast shape; NaN inputs give 0.
+    """
+    x = lod_continuous(triangle_freq_cpd, max_freq_cpd)
+    return round_level(x, "ceil", max_level)
+
+
+def round_level(x, rounding, max_level):
+    """Round a continuous level to int and clamp to [0, max_level] (NaN -> 0)."""
+    x = np.asarray(x, dtype=float)
+    x = np.nan_to_num(x, nan=-1.0, posinf=max_level + 1.0, neginf=-1.0)
+    x = np.clip(x, -1.0, max_level + 1.0)
+    r = {"ceil": np.ceil, "floor": np.floor, "round": np.round}[rounding](x)
+    return np.clip(r, 0, max_level).astype(int)
+
+
+# ---------------------------------------------------------------------------
+# Geometry of the view
+# ---------------------------------------------------------------------------
+
+def _unit(v):
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return v / n
+
+
+def _angle_deg(u, v):
+    """Angle between vectors along the last axis, deg (robust atan2 form)."""
+    cr = np.linalg.norm(np.cross(u, v), axis=-1)
+    dt = np.sum(u * v, axis=-1)
+    return np.degrees(np.arctan2(cr, dt))
+
+
+def triangle_frequency_cpd(vertices_mm, eye_mm):
+    """Spatial frequency of triangles: 1 / (angular diameter), cpd.
+
+    The angular diameter is the largest angle, seen from the eye, between two
+    of the triangle's vertices (the diameter of its projection, Martinez §5.2).
+
+    Parameters
+    ----------
+    vertices_mm : (n, 3, 3) array_like
+        Triangles' vertices, mm, any frame.
+    eye_mm : (3,) array_like
+        Eye (or head) position in the same frame, mm.
+
+    Returns
+    -------
+    (n,) ndarray
+        Frequency, cpd (one cycle per triangle diameter); inf for a
+        degenerate (zero-size) projection.
+    """
+    d = np.asarray(vertices_mm, dtype=float) - np.asarray(eye_mm, dtype=float)
+    a01 = _angle_deg(d[:, 0], d[:, 1])
+    a12 = _angle_deg(d[:, 1], d[:, 2])
+    a20 = _angle_deg(d[:, 2], d[:, 0])
+    diam = np.maximum(np.maximum(a01, a12), a20)
+    with np.errstate(divide="ignore"):
+        return 1.0 / diam
+
+
+def view_offsets_deg(points_mm, head_position_mm, axes):
+    """(φ, θ) of points about the viewing direction, deg (conventions.md).
+
+    Parameters
+    ----------
+    points_mm : (..., 3) array_like
+        Points (e.g. triangle centroids), world frame, mm.
+    head_position_mm : (3,) array_like
+        Head position (P1), world frame, mm.
+    axes : (3, 3) array_like
+        Rows Ξ, Ψ, V (unit vectors, world frame).
+
+    Returns
+    -------
+    (..., 2) ndarray
+        (φ, θ) in deg: θ = atan2(Ξ·d, V·d) (horizontal), φ = atan2(Ψ·d, V·d)
+        (vertical), d = point − head position.
+    """
+    d = np.asarray(points_mm, dtype=float) - np.asarray(head_position_mm, dtype=float)
+    loc = d @ np.asarray(axes, dtype=float).T
+    th = np.degrees(np.arctan2(loc[..., 0], loc[..., 2]))
+    ph = np.degrees(np.arctan2(loc[..., 1], loc[..., 2]))
+    return np.stack([ph, th], axis=-1)
+
+
+def eccentricity_deg(offset_deg):
+    """Eccentricity of (φ, θ) offsets: the angle from V, deg.
+
+    Parameters
+    ----------
+    offset_deg : (..., 2) array_like
+        (φ, θ), deg, as in :func:`view_offsets_deg` (|φ|, |θ| < 90).
+
+    Returns
+    -------
+    (...,) ndarray
+        atan(sqrt(tan²φ + tan²θ)), deg; ≈ |(φ, θ)| for small angles.
+    """
+    p = np.radians(np.asarray(offset_deg, dtype=float))
+    return np.degrees(np.arctan(np.hypot(np.tan(p[..., 0]), np.tan(p[..., 1]))))
+
+
+# ---------------------------------------------------------------------------
+# Martinez eq. 1: uncertainty shift
+# ---------------------------------------------------------------------------
+
+def uncertainty_shift(offset_deg, cov_deg2):
+    """Shift offsets toward the POI by the chance that they are the POI.
+
+    Martinez eq. 1 corrected: ``P' = (1 - exp(-½ Pᵀ Σ⁻¹ P)) P``.
+    As printed the exponent is ``+Pᵀ Σ⁻¹ P``: then exp(...) >= 1 and the
+    factor 1 - exp(...) is <= 0 everywhere, which would flip every triangle
+    through the POI (and push far ones to -inf). The intent (shift toward the
+    POI by the Gaussian's un-normalized density at P) needs the minus sign;
+    the ½ makes it the Gaussian of covariance Σ.
+
+    Properties: P' = 0 at the POI (P = 0); P' → P far away (at 10 σ the
+    relative change is e^-50); along a ray P = t u, |P'| = (1 - e^{-q t²/2}) t
+    is strictly increasing in t, so the shift never reorders triangles along
+    a ray.
+
+    Parameters
+    ----------
+    offset_deg : (..., 2) array_like
+        P = (φ, θ) of each triangle's projection about the reported viewing
+        direction, deg.
+    cov_deg2 : (2, 2) array_like or None
+        Σ, covariance of (φ, θ) of the true viewing direction, deg². None or
+        an all-zero matrix: no uncertainty, P returned unchanged. A singular
+        Σ is handled through its eigenvectors: any component of P along a
+        zero-variance direction makes the quadratic form infinite (factor 1).
+
+    Returns
+    -------
+    (..., 2) ndarray
+        P', deg.
+    """
+    P = np.asarray(offset_deg, dtype=float)
+    if cov_deg2 is None:
+        return P.copy()
+    S = np.asarray(cov_deg2, dtype=float)
+    if S.shape != (2, 2):
+        raise ValueError(f"cov_deg2 must be (2, 2), got {S.shape}")
+    if not np.all(np.isfinite(S)):
+        raise ValueError("cov_deg2 must be finite")
+    S = 0.5 * (S + S.T)
+    lam, U = np.linalg.eigh(S)
+    lmax = lam.max()
+    if lmax <= 0.0:
+        return P.copy()
+    pos = lam > 1e-12 * lmax
+    proj = P @ U                                        # (..., 2) components along eigenvectors
+    with np.errstate(divide="ignore", invalid="ignore"):
+        terms = np.where(pos, proj ** 2 / np.where(pos, lam, 1.0),
+                         np.where(proj == 0.0, 0.0, np.inf))
+    q = terms.sum(axis=-1)
+    factor = -np.expm1(-0.5 * q)                        # 1 - exp(-q/2), exact for small q
+    return factor[..., None] * P
+
+
+# ---------------------------------------------------------------------------
+# Ohshima et al. (1996): visual acuity
+# ---------------------------------------------------------------------------
+
+def acuity_factors(theta_deg, radius_deg, speed_deg_s, dpsi_deg,
+                   c1=6.2, c2=180.0, c3=0.62, b=0.0):
+    """Ohshima's three visual-acuity factors (eqs. 1-3), each in [0, 1].
+
+    Parameters
+    ----------
+    theta_deg : array_like
+        θ, angle between the visual axis and the direction to the object
+        (triangle) centre, deg.
+    radius_deg : array_like
+        α, the object's angular radius, deg: inside it k1 = 1 (no switching
+        while the gaze stays on the object).
+    speed_deg_s : array_like
+        Δφ, the object's angular speed, deg/s.
+    dpsi_deg : array_like
+        Δψ = |ψ - ψ0|, difference between the object's and the fixation
+        point's convergence angles, deg (:func:`vergence_deg`); abs taken.
+    c1 : float
+        Peripheral decay, deg (6.2: k1 = exp(-10/6.2) ≈ 0.2 at 10° for α = 0).
+    c2 : float
+        Speed at which k2 reaches 0, deg/s (180).
+    c3 : float
+        Fusional decay, deg (0.62).
+    b : float
+        Half-width of the fusional area, deg (0).
+
+    Returns
+    -------
+    k1, k2, k3 : ndarray
+        k1 = 1 for θ <= α, exp(-(θ - α)/c1) beyond (central/peripheral);
+        k2 = 1 - Δφ/c2 for Δφ <= c2, else 0 (kinetic vision);
+        k3 = 1 for Δψ <= b, exp(-(Δψ - b)/c3) beyond (fusion).
+        Each of the broadcast shape of all inputs.
+    """
+    th = np.asarray(theta_deg, dtype=float)
+    r = np.asarray(radius_deg, dtype=float)
+    sp = np.abs(np.asarray(speed_deg_s, dtype=float))
+    dp = np.abs(np.asarray(dpsi_deg, dtype=float))
+    shape = np.broadcast_shapes(th.shape, r.shape, sp.shape, dp.shape)
+    k1 = np.exp(-np.maximum(th - r, 0.0) / c1)
+    k2 = np.clip(1.0 - sp / c2, 0.0, 1.0)
+    k3 = np.exp(-np.maximum(dp - b, 0.0) / c3)
+    return (np.broadcast_to(k1, shape).copy(), np.broadcast_to(k2, shape).copy(),
+            np.broadcast_to(k3, shape).copy())
+
+
+def combine_acuity(k1, k2, k3, a0, combine="min"):
+    """Visual acuity a from the factors: eq. 4 ``min(k1,k2,k3) a0`` or eq. 5 ``k1 k2 k3 a0``.
+
+    Parameters
+    ----------
+    k1, k2, k3 : array_like
+        Factors in [0, 1].
+    a0 : float or array_like
+        Base acuity, 1/deg (:func:`display_acuity_a0`).
+    combine : {"min", "product"}
+        Eq. 4 (which looked better in Ohshima's tests) or eq. 5.
+
+    Returns
+    -------
+    ndarray
+        a, 1/deg: 1/a is the smallest detail to render, in degrees.
+    """
+    k1, k2, k3 = (np.asarray(k, dtype=float) for k in (k1, k2, k3))
+    if combine == "min":
+        k = np.minimum(np.minimum(k1, k2), k3)
+    elif combine == "product":
+        k = k1 * k2 * k3
+    else:
+        raise ValueError(f"combine must be 'min' or 'product', got {combine!r}")
+    return k * np.asarray(a0, dtype=float)
+
+
+def r_min_mm(acuity_per_deg, distance_mm):
+    """Ohshima eq. 6: ``r_min = 2 D tan(1 / (2a))``, the angle 1/(2a) in degrees.
+
+    Parameters
+    ----------
+    acuity_per_deg : array_like
+        a, 1/deg (see :func:`display_acuity_a0` for why degrees).
+    distance_mm : array_like
+        D, distance from the eye to the object, mm.
+
+    Returns
+    -------
+    ndarray
+        r_min, mm: the smallest polygon edge worth rendering; inf where
+        a <= 0 or 1/(2a) >= 90° (nothing is resolved).
+    """
+    a = np.asarray(acuity_per_deg, dtype=float)
+    D = np.asarray(distance_mm, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        half = np.where(a > 0, 0.5 / np.where(a > 0, a, 1.0), np.inf)
+        return np.where(half < 90.0, 2.0 * D * np.tan(np.radians(np.minimum(half, 89.0))), np.inf)
+
+
+def display_acuity_a0(pixel_pitch_mm, distance_mm, detail_px=5):
+    """Ohshima eq. 7: base acuity ``a0 = 1 / (2 atan(l / 2D))``, l = detail_px · pitch.
+
+    The angle 2 atan(l/2D) is in **degrees**, so a0 is in 1/deg and 1/a0 is
+    the visual angle (deg) of the smallest detail to render. Only degrees
+    reproduce the paper's numbers: l = 7.85 mm at D = 1500 mm subtends 0.30°,
+    a0 = 1/0.30 ≈ 3.3 (in arcmin the same detail is 18', a0 = 0.056; in
+    radians a0 = 191). The same convention makes eq. 6 invert eq. 7:
+    r_min(a0, D) = l. So Ohshima's "visual acuity" is not the clinical
+    decimal acuity (1.0 = resolves 1 arcmin, i.e. a = 60 /deg).
+
+    Slip in the paper: it quotes a 1.1 mm pixel (right for a 70-inch,
+    1280x1024 screen) but "5 pixels, 7.85 mm, 0.3°": 7.85 mm / 5 = 1.57 mm,
+    which is 0.06° at 1.5 m. With 1.1 mm pixels 5 px is 5.5 mm and a0 ≈ 4.8.
+    The example a0 = 3.3 needs ``pixel_pitch_mm = 1.57``.
+
+    Parameters
+    ----------
+    pixel_pitch_mm : float or array_like
+        Size of a display pixel, mm.
+    distance_mm : float or array_like
+        Viewer-to-display distance D, mm.
+    detail_px : float
+        Smallest detail to render, pixels (5).
+
+    Returns
+    -------
+    float or ndarray
+        a0, 1/deg.
+    """
+    l = detail_px * np.asarray(pixel_pitch_mm, dtype=float)
+    D = np.asarray(distance_mm, dtype=float)
+    out = 1.0 / (2.0 * np.degrees(np.arctan(l / (2.0 * D))))
+    return float(out) if np.ndim(out) == 0 else out
+
+
+def acuity_level(k1, k2, k3, a0, distance_mm, edge_len_at_level_mm, combine="min",
+                 return_continuous=False):
+    """Ohshima §3.2: the finest level whose longest edges are all >= r_min.
+
+    a = min(k1, k2, k3) a0 (eq. 4) or k1 k2 k3 a0 (eq. 5), in 1/deg;
+    r_min = 2 D tan(1/(2a)) (eq. 6); the chosen level is the largest l with
+    ``edge_len_at_level_mm[i, l] >= r_min[i]`` (Ohshima's "biggest model in
+    {H_l | ∀p ∈ H_l, r(p) >= r_min}"); level 0 when no level qualifies
+    (a = 0, or even the base triangle is below r_min).
+
+    Parameters
+    ----------
+    k1, k2, k3 : (n,) array_like
+        Acuity factors (:func:`acuity_factors`).
+    a0 : float
+        Base acuity, 1/deg.
+    distance_mm : (n,) array_like
+        D, eye-to-triangle distance, mm.
+    edge_len_at_level_mm : (n, L+1) array_like
+        For each triangle and level l, the smallest over the level-l
+        sub-triangles of their longest edge, mm (for 1-to-4 midpoint
+        subdivision: the base triangle's longest edge / 2^l).
+    combine : {"min", "product"}
+        Eq. 4 or eq. 5.
+    return_continuous : bool
+        Also return the continuous level (log-interpolated crossing of
+        r_min in the edge table, assumed decreasing with l), whose floor is
+        the level: feed it to ``Hysteresis(rounding="floor")``.
+
+    Returns
+    -------
+    levels : (n,) ndarray of int
+        In [0, L]; non-increasing with distance.
+    continuous : (n,) ndarray of float, only if ``return_continuous``
+    """
+    E = np.atleast_2d(np.asarray(edge_len_at_level_mm, dtype=float))
+    L = E.shape[1] - 1
+    a = combine_acuity(k1, k2, k3, a0, combine)
+    r = np.broadcast_to(r_min_mm(a, distance_mm), E.shape[:1])
+    ok = E >= r[:, None]
+    any_ok = ok.any(axis=1)
+    last = L - np.argmax(ok[:, ::-1], axis=1)
+    levels = np.where(any_ok, last, 0).astype(int)
+    if not return_continuous:
+        return levels
+    idx = np.arange(E.shape[0])
+    nxt = np.minimum(levels + 1, L)
+    e_l, e_n = E[idx, levels], E[idx, nxt]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.log(e_l / r) / np.log(e_l / e_n)
+    t = np.clip(np.nan_to_num(t, nan=0.0, posinf=0.0, neginf=0.0), 0.0, 1.0 - 1e-9)
+    cont = np.where(any_ok & (levels < L), levels + t, levels.astype(float))
+    return levels, cont
+
+
+def vergence_deg(points_mm, eye_mid_mm, ipd_mm, interocular_axis=(1.0, 0.0, 0.0)):
+    """Convergence angle of each point: the angle at the point between the eyes.
+
+    Points on one Vieth-Müller circle (through both eyes) share a vergence
+    angle (inscribed-angle theorem), so Δψ = |ψ(point) - ψ(fixation)| is the
+    angular distance from the geometric horopter used by Ohshima's k3.
+
+    Parameters
+    ----------
+    points_mm : (n, 3) array_like
+        Points, mm.
+    eye_mid_mm : (3,) array_like
+        Midpoint between the eyes, mm, same frame.
+    ipd_mm : float
+        Interpupillary distance, mm (typically ~63).
+    interocular_axis : (3,) array_like
+        Direction of the line through both eyes, either sign (the angle does
+        not depend on it): the eyes are at eye_mid ± ipd/2 · axis. Default
+        the frame's x axis; in the world frame of conventions.md pass Ξ.
+
+    Returns
+    -------
+    (n,) ndarray
+        ψ, deg: ~ipd/D rad for a distant point straight ahead; 180 between
+        the eyes, 0 at infinity.
+    """
+    p = np.atleast_2d(np.asarray(points_mm, dtype=float))
+    ax = np.asarray(interocular_axis, dtype=float)
+    ax = ax / np.linalg.norm(ax)
+    mid = np.asarray(eye_mid_mm, dtype=float)
+    e_l = mid + 0.5 * ipd_mm * ax
+    e_r = mid - 0.5 * ipd_mm * ax
+    return _angle_deg(e_l - p, e_r - p)
+
+
+# ---------------------------------------------------------------------------
+# Screen-space error with Wakatsuki's tolerance of micro-motion
+# ---------------------------------------------------------------------------
+
+def sse_level(geometric_error_mm, distance_mm, pixels_per_radian, tolerance_px=1.0,
+              speed_deg_s=None, frame_s=1.0 / 60.0, return_continuous=False):
+    """Coarsest level whose projected geometric error is within tolerance.
+
+    The error of level l, E_l (mm) at distance d (mm), subtends
+    tan φ_s = E_l / d (Wakatsuki eq. 5), i.e. ``err_px = ppr · E_l / d``
+    on a flat screen whose focal length is ``ppr`` pixels per radian.
+
+    With a speed (Wakatsuki's tolerance of micro-motion, TMM, eq. 3 and 6-7):
+    the movement within one frame, φ_fc = v Δt (deg), is unrecognizable and
+    is subtracted from the error: tan ψ_s = max(0, tan φ_s - tan φ_fc), i.e.
+    ``effective = max(0, err_px - ppr · tan(v Δt))``. Wakatsuki uses the
+    component of the motion along the node's normal n (n · v_f): pass the
+    speed across the contour if known; the full speed is an upper bound on
+    the tolerance. Wakatsuki keeps a node while tan ψ_s < threshold (strict);
+    here ``<=`` (they differ only on the boundary, and ``<=`` lets a
+    zero-tolerance still accept zero error).
+
+    Parameters
+    ----------
+    geometric_error_mm : (n, L+1) array_like
+        Geometric (shape) error of each level, mm; level 0 coarsest, errors
+        decreasing with level (for the continuous value).
+    distance_mm : (n,) array_like
+        Eye-to-triangle distance, mm.
+    pixels_per_radian : float
+        Screen focal length, px/rad (e.g. screen_width_px / (2 tan(hfov/2))).
+    tolerance_px : float
+        Largest acceptable error, px (1).
+    speed_deg_s : (n,) array_like or None
+        Angular (retinal) speed of the triangle, deg/s; None: static.
+    frame_s : float
+        Frame interval Δt, s (1/60, Wakatsuki's standard).
+    return_continuous : bool
+        Also return the continuous level (log-interpolated crossing of the
+        tolerance), whose ceiling is the level: ``Hysteresis(rounding="ceil")``.
+
+    Returns
+    -------
+    levels : (n,) ndarray of int
+        Smallest l with effective error <= tolerance; L when none is.
+        Non-increasing with distance and with speed.
+    continuous : (n,) ndarray of float, only if ``return_continuous``
+    """
+    E = np.atleast_2d(np.asarray(geometric_error_mm, dtype=float))
+    n, L1 = E.shape
+    L = L1 - 1
+    d = np.broadcast_to(np.asarray(distance_mm, dtype=float), (n,))
+    err_px = pixels_per_radian * E / d[:, None]
+    if speed_deg_s is not None:
+        sp = np.broadcast_to(np.abs(np.asarray(speed_deg_s, dtype=float)), (n,))
+        ang = np.radians(np.minimum(sp * frame_s, 89.0))
+        move_px = pixels_per_radian * np.tan(ang)
+        err_px = np.maximum(0.0, err_px - move_px[:, None])
+    ok = err_px <= tolerance_px
+    any_ok = ok.any(axis=1)
+    levels = np.where(any_ok, np.argmax(ok, axis=1), L).astype(int)
+    if not return_continuous:
+        return levels
+    idx = np.arange(n)
+    prv = np.maximum(levels - 1, 0)
+    e_p, e_l = err_px[idx, prv], err_px[idx, levels]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.log(e_p / tolerance_px) / np.log(e_p / e_l)
+    t = np.clip(np.nan_to_num(t, nan=1.0, posinf=1.0, neginf=1.0), 1e-9, 1.0)
+    cont = np.where(any_ok & (levels > 0), prv + t, levels.astype(float))
+    return levels, cont
+
+
+def velocity_baseline_level(base_levels, speed_deg_s, mode="ipv", v_ref=10.0,
+                            max_level=None, return_continuous=False):
+    """Wakatsuki's velocity-only baselines, IPV and DPV.
+
+    Wakatsuki et al. compare their micro-motion tolerance with two older
+    criteria that apply one speed to a whole object: "inverse proportional
+    to velocity" (IPV; Clark 1976, Hitchner & McGreevy 1993) and "direct
+    proportional to velocity" (DPV; Funkhouser & Séquin 1993, Ohshima 1996).
+    The paper gives no formula; they were tuned to TMM's mean frame time.
+    Our reading, with the linear resolution 2^level as the "detail":
+
+    - IPV: resolution ∝ 1 / (1 + v/v_ref): the level drops by
+      log2(1 + v/v_ref), rounded up (ceil), so nothing changes until
+      v >= v_ref, then one level per doubling of 1 + v/v_ref: detail
+      inversely proportional to v at high speed and never 0. This matches
+      Fig. 8's IPV, flat at low speed and then falling.
+    - DPV: the resolution *reduction* is directly proportional to v:
+      resolution ∝ 1 - v/v_ref (Ohshima's k2 = 1 - Δφ/c2 scaling the
+      acuity, i.e. 1/r_min); the level is base + log2(1 - v/v_ref), rounded
+      up, and at v >= v_ref the resolution is 0: the triangle vanishes
+      (level -1, "do not draw"), DPV's "fatal disadvantage" in Fig. 8. For
+      Ohshima's constant pass v_ref = 180 deg/s.
+
+    Parameters
+    ----------
+    base_levels : (n,) array_like of int
+        Levels without the velocity criterion.
+    speed_deg_s : (n,) array_like
+        Angular speed, deg/s.
+    mode : {"ipv", "dpv"}
+    v_ref : float
+        deg/s: IPV's knee speed; DPV's vanishing speed.
+    max_level : int or None
+        Upper clamp (None: no clamp above).
+    return_continuous : bool
+        Also return the continuous levels (before ceil; -inf where vanished).
+
+    Returns
+    -------
+    levels : (n,) ndarray of int
+        >= 0, except -1 for triangles DPV makes vanish.
+    continuous : (n,) ndarray of float, only if ``return_continuous``
+    """
+    base = np.asarray(base_levels, dtype=float)
+    v = np.abs(np.asarray(speed_deg_s, dtype=float))
+    if mode == "ipv":
+        cont = base - np.log2(1.0 + v / v_ref)
+        vanished = np.zeros(np.broadcast(cont, v).shape, dtype=bool)
+    elif mode == "dpv":
+        vanished = v >= v_ref
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cont = base + np.log2(np.clip(1.0 - v / v_ref, 0.0, 1.0))
+        vanished = np.broadcast_to(vanished, cont.shape)
+    else:
+        raise ValueError(f"mode must be 'ipv' or 'dpv', got {mode!r}")
+    top = np.inf if max_level is None else max_level
+    lv = np.clip(np.ceil(np.clip(np.nan_to_num(cont, neginf=-1.0), -1.0, None)), 0, top)
+    levels = np.where(vanished, -1, lv).astype(int)
+    return (levels, cont) if return_continuous else levels
+
+
+# ---------------------------------------------------------------------------
+# Hysteresis
+# ---------------------------------------------------------------------------
+
+class Hysteresis:
+    """Per-triangle level stability: a dead band of ``margin`` levels.
+
+    A triangle at level L owns the continuous interval that rounds to L
+    (``"ceil"``: (L-1, L]; ``"floor"``: [L, L+1); ``"round"``:
+    [L-½, L+½); the extreme levels own everything beyond them). It keeps L
+    while the continuous level stays within ``margin`` of that interval, and
+    otherwise jumps straight to the rounded value, however far (so a real
+    head movement changes levels in the same frame). Noise of amplitude
+    < margin around a boundary therefore never switches a triangle after the
+    first frame. This addresses Martinez's finding that jitter (of the
+    covariance) made peripheral triangles oscillate between levels.
+
+    Parameters
+    ----------
+    n : int
+        Number of triangles.
+    margin : float
+        Dead band, levels (0.35). 0 reproduces plain rounding.
+    rounding : {"ceil", "floor", "round"}
+        How the criterion turns its continuous level into a level (see the
+        module notes): "ceil" for eq. 4 and :func:`sse_level`, "floor" for
+        :func:`acuity_level`.
+
+    Attributes
+    ----------
+    levels : (n,) ndarray of int or None
+        Current levels (None before the first update).
+    """
+
+    def __init__(self, n, margin=0.35, rounding="ceil"):
+        if margin < 0:
+            raise ValueError("margin must be >= 0")
+        if rounding not in ("ceil", "floor", "round"):
+            raise ValueError(f"rounding must be 'ceil', 'floor' or 'round', got {rounding!r}")
+        self.n = int(n)
+        self.margin = float(margin)
+        self.rounding = rounding
+        self.levels = None
+
+    def reset(self):
+        """Forget the state: the next update takes the rounded levels."""
+        self.levels = None
+
+    def update(self, continuous_level, max_level):
+        """Levels for this frame.
+
+        Parameters
+        ----------
+        continuous_level : (n,) array_like of float
+            The criterion's continuous level (±inf allowed; NaN keeps the
+            current level, or gives 0 on the first frame).
+        max_level : int
+            Finest level available.
+
+        Returns
+        -------
+        (n,) ndarray of int
+            Levels in [0, max_level] (a copy; the state is kept inside).
+        """
+        x = np.asarray(continuous_level, dtype=float)
+        if x.shape != (self.n,):
+            raise ValueError(f"expected shape ({self.n},), got {x.shape}")
+        nominal = round_level(x, self.rounding, max_level)
+        if self.levels is None:
+            self.levels = nominal
+            return self.levels.copy()
+        cur = np.clip(self.levels, 0, max_level)
+        c = cur.astype(float)
+        if self.rounding == "ceil":
+            lo, hi = c - 1.0, c
+        elif self.rounding == "floor":
+            lo, hi = c, c + 1.0
+        else:
+            lo, hi = c - 0.5, c + 0.5
+        lo = np.where(cur == 0, -np.inf, lo)
+        hi = np.where(cur == max_level, np.inf, hi)
+        m = self.margin
+        switch = (x < lo - m) | (x > hi + m)          # False for NaN: keep
+        self.levels = np.where(switch, nominal, cur).astype(int)
+        return self.levels.copy()

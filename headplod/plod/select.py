@@ -1,0 +1,198 @@
+"""Per-triangle level selection: the perceptual criteria applied to a view.
+
+A view is the viewer's eye position (world frame = left camera frame, mm), the
+point of interest on the screen (POI, screen px) and the covariance of the
+viewing direction (deg², conventions.md). The terrain lives in scene units
+and is placed in the world by a 4x4 model matrix (scene → world mm).
+
+Every criterion computes, for all base triangles at once, a *continuous*
+level (for hysteresis) and returns integer levels in [0, max_level]:
+
+- ``csf`` (Martinez et al.): eccentricity of the triangle from the POI seen
+  from the eye, shifted toward the POI by the uncertainty (eq. 1, with the
+  sign the paper's print dropped), angular speed relative to the head
+  (floored at 0.1 deg/s), contrast of the shaded terrain over the triangle;
+  the CSF inverted for the highest visible frequency; LOD = ⌈log2(α_max/α)⌉.
+- ``gp``: the same with the Geisler–Perry cutoff.
+- ``acuity``: Ohshima et al.'s k1·k2·k3 acuity and eq. 6.
+- ``sse``: screen-space geometric error with Wakatsuki's micro-motion
+  tolerance; ``ipv`` and ``dpv`` their velocity baselines on top of it.
+- ``distance``: classic LOD by distance; ``full``: everything at max_level.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import perception as pc
+
+MODES = ("csf", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full")
+UNCERTAINTY_MODES = ("none", "fixed", "adaptive", "smoothed")
+
+
+@dataclass
+class View:
+    """One frame's view of the screen.
+
+    Attributes
+    ----------
+    eye_mm : (3,)
+        Eye (head) position, world frame, mm.
+    poi_px : (2,)
+        Point of interest on the screen, screen pixels.
+    cov_deg2 : (2, 2) or None
+        Covariance of (φ, θ) of the viewing direction, deg².
+    t : float
+        Time, s.
+    """
+
+    eye_mm: np.ndarray
+    poi_px: np.ndarray
+    cov_deg2: np.ndarray | None = None
+    t: float = 0.0
+
+
+class UncertaintyPolicy:
+    """Which covariance the selection uses: none, the largest seen (fixed), this frame's, or smoothed."""
+
+    def __init__(self, mode: str = "adaptive", smoothing_frames: int = 15):
+        if mode not in UNCERTAINTY_MODES:
+            raise ValueError(f"uncertainty mode must be one of {UNCERTAINTY_MODES}, got {mode!r}")
+        self.mode, self.smoothing_frames = mode, smoothing_frames
+        self.fixed = None
+        self.smoothed = None
+
+    def __call__(self, cov):
+        if self.mode == "none" or cov is None:
+            return None if self.mode == "none" else (self.fixed if self.mode == "fixed" else self.smoothed)
+        cov = np.asarray(cov, dtype=np.float64)
+        if self.fixed is None or np.trace(cov) > np.trace(self.fixed):
+            self.fixed = cov
+        rate = 1.0 / self.smoothing_frames
+        self.smoothed = cov if self.smoothed is None else (1 - rate) * self.smoothed + rate * cov
+        return {"fixed": self.fixed, "adaptive": cov, "smoothed": self.smoothed}[self.mode]
+
+
+class LevelSelector:
+    """Chooses a level per base triangle for a view.
+
+    Parameters
+    ----------
+    centroids_scene : (F, 3)
+        Base triangle centroids, scene units.
+    edge_len_scene : (F, L+1)
+        Longest edge of the triangle's pieces at each level, scene units.
+    geometric_error_scene : (F, L+1)
+        Largest distance of the level's surface from the finest, scene units.
+    contrast : (F,)
+        Michelson contrast of the shaded terrain over each triangle.
+    model : (4, 4)
+        Scene → world (mm) transform.
+    screen : headplod.io.Screen
+    mode : one of MODES
+    uncertainty : one of UNCERTAINTY_MODES
+    csf_model : one of perception.CSF_MODELS
+    hysteresis : bool
+    """
+
+    def __init__(self, centroids_scene, edge_len_scene, geometric_error_scene, contrast, model, screen,
+                 mode="csf", uncertainty="adaptive", csf_model="kelly_scaled", hysteresis=True,
+                 sse_tolerance_px=1.0, distance_ref_mm=700.0, frame_s=1 / 60):
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        self.mode, self.csf_model = mode, csf_model
+        self.max_level = edge_len_scene.shape[1] - 1
+        model = np.asarray(model, dtype=np.float64)
+        self.scale_mm = float(np.cbrt(abs(np.linalg.det(model[:3, :3]))))
+        homog = np.concatenate([centroids_scene, np.ones((len(centroids_scene), 1))], axis=1)
+        self.centroids_mm = (homog @ model.T)[:, :3]
+        self.edge_len_mm = edge_len_scene * self.scale_mm
+        self.error_mm = geometric_error_scene * self.scale_mm
+        self.contrast = np.asarray(contrast, dtype=np.float64)
+        self.screen = screen
+        width, height = screen.size_px
+        self.px_per_mm = width / float(np.linalg.norm(np.asarray(screen.top_right) - screen.top_left))
+        self.policy = UncertaintyPolicy(uncertainty)
+        # Eq. 4 and the screen-space error round up; Ohshima's eq. 6 takes the
+        # finest level whose edges are long enough, which rounds down.
+        self.rounding = "floor" if mode == "acuity" else "ceil"
+        self.hysteresis = pc.Hysteresis(len(centroids_scene), rounding=self.rounding) if hysteresis else None
+        self.sse_tolerance_px, self.distance_ref_mm, self.frame_s = sse_tolerance_px, distance_ref_mm, frame_s
+        self._previous = None          # (t, eye_mm, directions (F, 3))
+
+    def head_axes(self, view: View) -> np.ndarray:
+        """Rows Ξ, Ψ, V of the head frame looking from the eye at the POI (Ξ along the screen's rows)."""
+        poi_mm = self.screen.pixel_to_world(np.asarray(view.poi_px, dtype=np.float64))
+        v = poi_mm - view.eye_mm
+        v /= np.linalg.norm(v)
+        right = np.asarray(self.screen.top_right, float) - np.asarray(self.screen.top_left, float)
+        xi = right - v * (right @ v)
+        xi /= np.linalg.norm(xi)
+        return np.stack([xi, np.cross(v, xi), v])
+
+    def select(self, view: View):
+        """Levels (F,) int, and the continuous levels and per-triangle features used (dict)."""
+        eye = np.asarray(view.eye_mm, dtype=np.float64)
+        rel = self.centroids_mm - eye
+        distance = np.linalg.norm(rel, axis=1)
+        directions = rel / distance[:, None]
+        axes = self.head_axes(view)
+        offsets = pc.view_offsets_deg(self.centroids_mm, eye, axes)
+        cov = self.policy(view.cov_deg2)
+        shifted = pc.uncertainty_shift(offsets, cov) if cov is not None else offsets
+        ecc = pc.eccentricity_deg(shifted)
+        speed = self._angular_speed(view.t, eye, directions)
+        # Angular size of a level's pieces and its spatial frequency (1 / diameter).
+        angular_deg = np.degrees(2 * np.arctan(self.edge_len_mm / (2 * distance[:, None])))
+        freq = 1.0 / np.maximum(angular_deg, 1e-9)
+        continuous = self._continuous(freq, distance, ecc, speed, angular_deg)
+        if self.hysteresis is not None:
+            levels = self.hysteresis.update(continuous, self.max_level)
+        else:
+            levels = pc.round_level(continuous, self.rounding, self.max_level)
+        levels = np.clip(levels, 0, self.max_level).astype(np.int64)
+        return levels, {"eccentricity_deg": ecc, "speed_deg_s": speed, "distance_mm": distance,
+                        "continuous": continuous}
+
+    def _continuous(self, freq, distance, ecc, speed, angular_deg):
+        L = self.max_level
+        if self.mode == "full":
+            return np.full(len(freq), float(L))
+        if self.mode == "distance":
+            # One level coarser per doubling of distance beyond the reference.
+            return L - np.log2(np.maximum(distance / self.distance_ref_mm, 1e-9))
+        if self.mode in ("csf", "gp"):
+            if self.mode == "csf":
+                fmax = pc.max_visible_freq_cpd(self.contrast, speed, ecc, model=self.csf_model)
+            else:
+                fmax = pc.gp_cutoff_cpd(self.contrast, ecc)
+            with np.errstate(divide="ignore"):
+                return np.log2(np.maximum(fmax, 1e-12) / freq[:, 0])
+        if self.mode == "acuity":
+            radius = 0.5 * angular_deg[:, 0]
+            k1, k2, k3 = pc.acuity_factors(ecc, radius, speed, np.zeros_like(ecc))
+            a0 = pc.display_acuity_a0(1.0 / self.px_per_mm, float(np.median(distance)))
+            return pc.acuity_level(k1, k2, k3, a0, distance, self.edge_len_mm, return_continuous=True)[1]
+        pixels_per_radian = self.px_per_mm * float(np.median(distance))
+        if self.mode == "sse":
+            return pc.sse_level(self.error_mm, distance, pixels_per_radian, self.sse_tolerance_px,
+                                speed_deg_s=speed, frame_s=self.frame_s, return_continuous=True)[1]
+        base = pc.sse_level(self.error_mm, distance, pixels_per_radian, self.sse_tolerance_px,
+                            return_continuous=True)[1]
+        return pc.velocity_baseline_level(base, speed, mode=self.mode, max_level=L, return_continuous=True)[1]
+
+    def _angular_speed(self, t, eye, directions):
+        """Angular speed (deg/s) of each triangle's direction from the eye since the last view, ≥ 0.1."""
+        previous, self._previous = self._previous, (t, eye, directions)
+        if previous is None or t is None or previous[0] is None or t <= previous[0]:
+            return np.full(len(directions), pc.MIN_SPEED_DEG_S)
+        dt = t - previous[0]
+        cos = np.clip(np.einsum("ij,ij->i", directions, previous[2]), -1.0, 1.0)
+        return np.maximum(np.degrees(np.arccos(cos)) / dt, pc.MIN_SPEED_DEG_S)
+
+    def reset(self):
+        self._previous = None
+        if self.hysteresis is not None:
+            self.hysteresis.reset()
