@@ -99,7 +99,7 @@ class LevelSelector:
 
     def __init__(self, centroids_scene, edge_len_scene, geometric_error_scene, contrast, model, screen,
                  mode="csf", uncertainty="adaptive", csf_model="kelly_scaled", hysteresis=True,
-                 sse_tolerance_px=1.0, distance_ref_mm=700.0, frame_s=1 / 60):
+                 sse_tolerance_px=1.0, distance_ref_mm=700.0, frame_s=1 / 60, smoothing_s=0.25):
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         self.mode, self.csf_model = mode, csf_model
@@ -121,6 +121,8 @@ class LevelSelector:
         self.hysteresis = pc.Hysteresis(len(centroids_scene), rounding=self.rounding) if hysteresis else None
         self.sse_tolerance_px, self.distance_ref_mm, self.frame_s = sse_tolerance_px, distance_ref_mm, frame_s
         self._previous = None          # (t, eye_mm, directions (F, 3))
+        self._smooth = None            # (t, eye_mm, poi_px) smoothed
+        self.smoothing_s = smoothing_s
 
     def head_axes(self, view: View) -> np.ndarray:
         """Rows Ξ, Ψ, V of the head frame looking from the eye at the POI (Ξ along the screen's rows)."""
@@ -134,6 +136,7 @@ class LevelSelector:
 
     def select(self, view: View):
         """Levels (F,) int, and the continuous levels and per-triangle features used (dict)."""
+        view = self._smoothed_view(view)
         eye = np.asarray(view.eye_mm, dtype=np.float64)
         rel = self.centroids_mm - eye
         distance = np.linalg.norm(rel, axis=1)
@@ -183,6 +186,32 @@ class LevelSelector:
                             return_continuous=True)[1]
         return pc.velocity_baseline_level(base, speed, mode=self.mode, max_level=L, return_continuous=True)[1]
 
+    def _smoothed_view(self, view: View) -> View:
+        """Eye and POI averaged over the last frames (time constant ``smoothing_s``).
+
+        Tracker noise moves the eye and the POI by a fraction of a degree per
+        frame; unsmoothed, that reads as tens of degrees per second of head
+        motion and as eccentricity jitter, and triangles near a level boundary
+        flicker (Ohshima et al. smooth the gaze for the same reason). A real
+        movement of a few degrees still passes within a frame or two.
+        """
+        eye = np.asarray(view.eye_mm, dtype=np.float64)
+        poi = np.asarray(view.poi_px, dtype=np.float64)
+        if self._smooth is None or view.t is None or self._smooth[0] is None:
+            self._smooth = (view.t, eye, poi)
+            return view
+        t0, eye0, poi0 = self._smooth
+        dt = max(view.t - t0, 0.0) if view.t is not None else 0.0
+        # A jump larger than the noise (here 30 px or 20 mm) is a real movement: follow it at once.
+        if np.linalg.norm(poi - poi0) > 30.0 or np.linalg.norm(eye - eye0) > 20.0:
+            rate = 1.0
+        else:
+            rate = 1.0 - math.exp(-dt / self.smoothing_s) if dt > 0 else 1.0
+        eye = eye0 + rate * (eye - eye0)
+        poi = poi0 + rate * (poi - poi0)
+        self._smooth = (view.t, eye, poi)
+        return View(eye, poi, view.cov_deg2, view.t)
+
     def _angular_speed(self, t, eye, directions):
         """Angular speed (deg/s) of each triangle's direction from the eye since the last view, ≥ 0.1."""
         previous, self._previous = self._previous, (t, eye, directions)
@@ -194,5 +223,6 @@ class LevelSelector:
 
     def reset(self):
         self._previous = None
+        self._smooth = None
         if self.hysteresis is not None:
             self.hysteresis.reset()

@@ -1,0 +1,85 @@
+"""Level selection on a synthetic field of base triangles behind the default screen."""
+import numpy as np
+import pytest
+
+from calib import DEFAULT_SCREEN
+from headplod.io import read_screen
+from headplod.plod.select import MODES, LevelSelector, View
+
+MAX_LEVEL = 5
+
+
+@pytest.fixture(scope="module")
+def field():
+    """A 40x24 grid of base triangles on the screen plane (scene = world, mm), 14 mm wide at level 0."""
+    screen = read_screen(DEFAULT_SCREEN)
+    u = np.linspace(0.02, 0.98, 40)
+    v = np.linspace(0.02, 0.98, 24)
+    uu, vv = np.meshgrid(u, v)
+    px = np.stack([uu.ravel() * screen.size_px[0], vv.ravel() * screen.size_px[1]], axis=1)
+    centroids = screen.pixel_to_world(px)
+    edge0 = 14.0
+    edge = edge0 / 2.0 ** np.arange(MAX_LEVEL + 1)
+    edge_len = np.tile(edge, (len(centroids), 1))
+    error = np.tile(0.5 * edge ** 2 / edge0, (len(centroids), 1))
+    error[:, -1] = 0.0
+    contrast = np.full(len(centroids), 0.3)
+    normal = np.cross(np.asarray(screen.top_right) - screen.top_left, np.asarray(screen.bottom_left) - screen.top_left)
+    normal /= np.linalg.norm(normal)
+    centre = screen.pixel_to_world(np.array(screen.size_px) / 2.0)
+    # The viewer faces the screen from its front: the side the cameras see the head on.
+    eye = centre + 600.0 * normal * np.sign(normal @ (np.zeros(3) - centre) or 1.0)
+    return screen, centroids, edge_len, error, contrast, eye, px
+
+
+def make(field, mode="csf", uncertainty="adaptive", hysteresis=True):
+    screen, centroids, edge_len, error, contrast, eye, px = field
+    return LevelSelector(centroids, edge_len, error, contrast, np.eye(4), screen, mode=mode,
+                         uncertainty=uncertainty, hysteresis=hysteresis)
+
+
+def test_levels_follow_the_poi(field):
+    screen, *_, eye, px = field
+    for poi in ([300.0, 300.0], [1600.0, 800.0]):
+        levels, _ = make(field, hysteresis=False).select(View(eye, np.array(poi)))
+        nearest = np.argmin(np.linalg.norm(px - poi, axis=1))
+        farthest = np.argmax(np.linalg.norm(px - poi, axis=1))
+        assert levels[nearest] > levels[farthest]
+        assert levels[nearest] == levels.max()
+
+
+def test_uncertainty_widens_the_detailed_disc(field):
+    *_, eye, px = field
+    poi = np.array([960.0, 540.0])
+    sharp, _ = make(field, uncertainty="adaptive", hysteresis=False).select(View(eye, poi, None))
+    cov = np.diag([4.0, 4.0])          # 2° standard deviation
+    wide, _ = make(field, uncertainty="adaptive", hysteresis=False).select(View(eye, poi, cov))
+    assert (wide == wide.max()).sum() > (sharp == sharp.max()).sum()
+    assert np.all(wide >= sharp)       # the shift only moves triangles toward the POI
+
+
+def test_every_mode_gives_valid_levels(field):
+    *_, eye, px = field
+    for mode in MODES:
+        levels, _ = make(field, mode=mode, hysteresis=False).select(View(eye, np.array([960.0, 540.0])))
+        assert levels.dtype.kind == "i" and levels.min() >= 0 and levels.max() <= MAX_LEVEL, mode
+    full, _ = make(field, mode="full").select(View(eye, np.array([960.0, 540.0])))
+    assert np.all(full == MAX_LEVEL)
+
+
+def test_noisy_still_head_does_not_flicker_with_hysteresis(field):
+    *_, eye, px = field
+    rng = np.random.default_rng(0)
+    selector = make(field, uncertainty="smoothed")
+    changes = []
+    previous = None
+    for k in range(40):
+        poi = np.array([960.0, 540.0]) + rng.normal(0, 6.0, 2)          # ~0.3° of POI noise
+        levels, _ = selector.select(View(eye + rng.normal(0, 0.5, 3), poi, np.diag([0.05, 0.05]), t=k / 30))
+        if previous is not None and k > 10:
+            changes.append(int((levels != previous).sum()))
+        previous = levels
+    assert sum(changes) == 0
+    # A real move of the POI changes levels in the same frame.
+    moved, _ = selector.select(View(eye, np.array([200.0, 200.0]), np.diag([0.05, 0.05]), t=41 / 30))
+    assert (moved != previous).sum() > 20
