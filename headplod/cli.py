@@ -63,12 +63,37 @@ def build_parser() -> argparse.ArgumentParser:
                                     "reproduces the paper's Fig. 10 and 17)")
     bu.add_argument("--quick", action="store_true", help="fewer frames (a smoke run)")
 
+    render = sub.add_parser("render", help="render one PLOD frame of the terrain to an image")
+    render.add_argument("--mode", default="csf", choices=("csf", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full"))
+    render.add_argument("--uncertainty", default="adaptive", choices=("none", "fixed", "adaptive", "smoothed"))
+    render.add_argument("--head", type=_floats(3), help="eye position X,Y,Z in the world frame, mm "
+                                                          "(default: 600 mm in front of the screen centre)")
+    render.add_argument("--poi", type=_floats(2), help="point of interest X,Y in screen pixels (default: centre)")
+    render.add_argument("--cov", type=_floats(3), help="covariance of (φ, θ) as PP,PT,TT in deg²")
+    render.add_argument("--size", type=_floats(2), default=(1280, 720), help="image size W,H (default 1280,720)")
+    render.add_argument("--view", default="shaded", choices=("shaded", "wire", "levels"))
+    render.add_argument("--screen", help="screen.yaml (default: the embedded 24-inch screen)")
+    render.add_argument("--out", required=True, help="output image (PNG)")
+    render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
+
     synth = sub.add_parser("synth", help="render a synthetic dataset folder")
     synth.add_argument("preset")
     synth.add_argument("out")
     synth.add_argument("--frames", type=int)
     synth.add_argument("--seed", type=int, default=0)
     return parser
+
+
+def _floats(n):
+    def parse(text: str):
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {n} comma-separated numbers, got {text!r}")
+        if len(values) != n or not all(np.isfinite(values)):
+            raise argparse.ArgumentTypeError(f"expected {n} comma-separated finite numbers, got {text!r}")
+        return tuple(values)
+    return parse
 
 
 def main(argv=None) -> int:
@@ -88,6 +113,8 @@ def main(argv=None) -> int:
             return bench.run_track_bench(json_path=args.json, chart_path=args.chart, quick=args.quick, sets=sets)
         if args.command == "synth":
             return _cmd_synth(args)
+        if args.command == "render":
+            return _cmd_render(args)
     except io.ContractError as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 1
@@ -158,6 +185,28 @@ def _cmd_track(args) -> int:
     print(evaluate.format_summary(str(Path(folder).name), summary), file=log)
     if args.out and args.out != "-":
         print(f"pose records: {args.out}", file=log)
+    return 0
+
+
+def _cmd_render(args) -> int:
+    from calib import DEFAULT_SCREEN
+    from . import io
+    from .plod.still import render_still
+
+    screen = io.read_screen(args.screen or DEFAULT_SCREEN)
+    cov = None
+    if args.cov is not None:
+        pp, pt, tt = args.cov
+        cov = np.array([[pp, pt], [pt, tt]])
+        if np.any(np.linalg.eigvalsh(cov) <= 0):
+            print(f"headplod: --cov {args.cov} is not positive definite", file=sys.stderr)
+            return 2
+    size = tuple(int(v) for v in args.size)
+    _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
+                            poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
+                            stats_path=args.stats)
+    print(f"{stats['triangles']} triangles; select {stats['select_ms']:.1f} ms, build {stats['build_ms']:.1f} ms, "
+          f"render {stats['render_ms']:.1f} ms; image: {args.out}", file=sys.stderr)
     return 0
 
 
