@@ -1,7 +1,6 @@
 """`headplod render`: one PLOD frame end to end (levels, mesh, head-coupled render)."""
 import json
 
-import numpy as np
 import pytest
 
 from calib import DEFAULT_SCREEN
