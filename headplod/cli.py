@@ -76,6 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--out", required=True, help="output image (PNG)")
     render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
 
+    bp = bench_sub.add_parser("plod", help="speed and image quality of the LOD modes against full (1280x720)")
+    bp.add_argument("--json", help="write the results as JSON")
+    bp.add_argument("--chart", help="write the triangles/frame time against PSNR chart (PNG)")
+
     synth = sub.add_parser("synth", help="render a synthetic dataset folder")
     synth.add_argument("preset")
     synth.add_argument("out")
@@ -103,6 +107,9 @@ def main(argv=None) -> int:
     try:
         if args.command == "track":
             return _cmd_track(args)
+        if args.command == "bench" and args.bench == "plod":
+            from . import bench_plod
+            return bench_plod.run_plod_bench(json_path=args.json, chart_path=args.chart)
         if args.command == "bench" and args.bench == "uncertainty":
             from . import bench_uncertainty
             return bench_uncertainty.run_uncertainty_bench(json_path=args.json, chart_path=args.chart,
