@@ -145,12 +145,20 @@ class LevelSelector:
         offsets = pc.view_offsets_deg(self.centroids_mm, eye, axes)
         cov = self.policy(view.cov_deg2)
         shifted = pc.uncertainty_shift(offsets, cov) if cov is not None else offsets
-        ecc = pc.eccentricity_deg(shifted)
         speed = self._angular_speed(view.t, eye, directions)
         # Angular size of a level's pieces and its spatial frequency (1 / diameter).
         angular_deg = np.degrees(2 * np.arctan(self.edge_len_mm / (2 * distance[:, None])))
+        # The triangle's nearest point to the POI, not its centroid, decides
+        # what the eye can see of it: a large base triangle reaching into the
+        # fovea must be refined there.
+        ecc = np.maximum(pc.eccentricity_deg(shifted) - 0.5 * angular_deg[:, 0], 0.0)
         freq = 1.0 / np.maximum(angular_deg, 1e-9)
         continuous = self._continuous(freq, distance, ecc, speed, angular_deg)
+        if self.mode != "full":
+            # Frustum culling (the paper's renderer culled too): a base
+            # triangle wholly outside the screen as seen from the eye gets
+            # the coarsest level; GL clips it anyway.
+            continuous = np.where(self._outside_screen(eye, rel), 0.0, continuous)
         if self.hysteresis is not None:
             levels = self.hysteresis.update(continuous, self.max_level)
         else:
@@ -185,6 +193,23 @@ class LevelSelector:
         base = pc.sse_level(self.error_mm, distance, pixels_per_radian, self.sse_tolerance_px,
                             return_continuous=True)[1]
         return pc.velocity_baseline_level(base, speed, mode=self.mode, max_level=L, return_continuous=True)[1]
+
+    def _outside_screen(self, eye, rel) -> np.ndarray:
+        """(F,) bool: the base triangle projects wholly outside the screen rectangle."""
+        tl = np.asarray(self.screen.top_left, dtype=np.float64)
+        u = np.asarray(self.screen.top_right, dtype=np.float64) - tl
+        v = np.asarray(self.screen.bottom_left, dtype=np.float64) - tl
+        normal = np.cross(u, v)
+        along = rel @ normal
+        with np.errstate(divide="ignore", invalid="ignore"):
+            hit = eye + rel * (((tl - eye) @ normal) / along)[:, None] - tl
+        width, height = self.screen.size_px
+        x = hit @ u / (u @ u) * width
+        y = hit @ v / (v @ v) * height
+        # Margin: the triangle's size at level 0 on the screen, generously.
+        margin = 1.5 * self.edge_len_mm[:, 0] * self.px_per_mm
+        outside = (x < -margin) | (x > width + margin) | (y < -margin) | (y > height + margin)
+        return outside | ~(along * ((tl - eye) @ normal) > 0)      # behind the eye: not seen
 
     def _smoothed_view(self, view: View) -> View:
         """Eye and POI averaged over the last frames (time constant ``smoothing_s``).
