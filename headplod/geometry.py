@@ -181,19 +181,24 @@ def normal_signs(model_mm: np.ndarray) -> np.ndarray:
     return signs
 
 
-def axes_from_points(points_mm: np.ndarray, signs: np.ndarray) -> np.ndarray:
-    """Head axes (rows Ξ, Ψ, V) from five marker positions (5, 3) in any frame.
+def view_directions(points_mm: np.ndarray, signs: np.ndarray) -> np.ndarray:
+    """V of marker sets (..., 5, 3) → (..., 3): the normalized mean of the oriented triangle normals.
 
     ``signs`` (3,) orients each triangle normal to the glasses' front (from
     :func:`normal_signs` of the model): Martinez et al.'s third triangle
     (P1, P3, P4) is wound opposite to the other two, so a plain mean of the
     raw normals would cancel instead of average.
     """
-    tri = points_mm[VIEW_TRIANGLES]
-    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]) * signs[:, None]
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    v = normals.mean(axis=0)
-    v /= np.linalg.norm(v)
+    tri = points_mm[..., VIEW_TRIANGLES, :]                                  # (..., 3, 3, 3)
+    normals = np.cross(tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :]) * signs[:, None]
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    v = normals.mean(axis=-2)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def axes_from_points(points_mm: np.ndarray, signs: np.ndarray) -> np.ndarray:
+    """Head axes (rows Ξ, Ψ, V) from five marker positions (5, 3) in any frame (V: :func:`view_directions`)."""
+    v = view_directions(points_mm, signs)
     xi = points_mm[0] - points_mm[1]
     xi -= v * (xi @ v)
     xi /= np.linalg.norm(xi)

@@ -92,6 +92,10 @@ class TrackerConfig:
         expected noise and ``outlier_floor_px`` is an outlier (a glint fused
         with the marker, a partial occlusion): it is dropped and the pose
         refitted from the other nine, if they agree.
+    outlier_min_sigma_px : float
+        Floor of the expected centroid noise in that test, px: the noise
+        model leaves out shot noise, so a bright blob's σ is not trusted
+        below this.
     """
 
     estimator: str = "reproj"
@@ -111,6 +115,7 @@ class TrackerConfig:
     weighted_fit: bool = True
     outlier_sigma: float = 10.0
     outlier_floor_px: float = 0.3
+    outlier_min_sigma_px: float = 0.03
 
     def __post_init__(self):
         if self.estimator not in ESTIMATORS:
@@ -649,7 +654,7 @@ class Tracker:
             return None
         if not np.fmax.reduce(residuals, axis=None) > self.config.outlier_floor_px:
             return None                                   # the usual case: nothing near the floor
-        sigma = np.where(np.isfinite(match.sigma_px), np.maximum(match.sigma_px, 0.03),
+        sigma = np.where(np.isfinite(match.sigma_px), np.maximum(match.sigma_px, self.config.outlier_min_sigma_px),
                          np.inf)
         score = np.where(np.isfinite(residuals) & (residuals > self.config.outlier_floor_px),
                          residuals / sigma, 0.0)

@@ -348,20 +348,11 @@ class PaperPixelClouds:
         else:
             choice = np.stack([rng.integers(0, n, self.max_combinations) for n in sizes], axis=1)
         points = np.stack([subsets[k][choice[:, k]] for k in range(5)], axis=1)     # (M, 5, 3)
-        directions = batched_view_directions(points, self.signs)
+        directions = geo.view_directions(points, self.signs)
         angles = view_angles_deg(directions, x.axes)
         if len(angles) < 3:
             return np.full((2, 2), np.nan)
         return np.cov(angles.T)
-
-
-def batched_view_directions(points_mm: np.ndarray, signs: np.ndarray) -> np.ndarray:
-    """V (M, 3) of marker sets (M, 5, 3): the normalized mean of the oriented triangle normals."""
-    tri = points_mm[:, geo.VIEW_TRIANGLES]                                     # (M, 3, 3, 3)
-    normals = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0]) * signs[None, :, None]
-    normals /= np.linalg.norm(normals, axis=2, keepdims=True)
-    v = normals.mean(axis=1)
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
 def marker_pixels(image: np.ndarray, centers_px: np.ndarray, threshold_dn: float, window_px: int):

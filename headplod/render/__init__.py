@@ -4,26 +4,5 @@ See :mod:`headplod.render.gl` for frames, units and the matrix convention
 (column vectors, ``p_clip = proj @ view @ model @ [p, 1]``, uploaded to GL as
 ``M.T.tobytes()``).
 """
-from .gl import (
-    PALETTE,
-    VIEW_MODES,
-    SceneTransform,
-    TerrainRenderer,
-    create_context,
-    off_axis_projection,
-    overlay_poi,
-    scene_to_world,
-    screen_frame,
-)
-
-__all__ = [
-    "create_context",
-    "screen_frame",
-    "off_axis_projection",
-    "SceneTransform",
-    "scene_to_world",
-    "TerrainRenderer",
-    "overlay_poi",
-    "PALETTE",
-    "VIEW_MODES",
-]
+from .gl import __all__  # noqa: F401  (one list of the public names, in gl.py)
+from .gl import *  # noqa: F401,F403
