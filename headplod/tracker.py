@@ -400,8 +400,11 @@ class Tracker:
             dimmest = (flux.min(axis=1) / size.max(axis=1)).tolist()
             for cam in (0, 1):
                 low, _, median, _, high = changes[cam]
-                rel = self._prev_background[cam][1] * 1.7725 / max(dimmest[cam], 1e-6)
-                limit = self.config.track_flux_change * math.exp(4.24 * rel)      # 3√2 σ of a ratio
+                if not dimmest[cam] > 0:
+                    return None                       # a window with no flux: re-detect
+                rel = self._prev_background[cam][1] * 1.7725 / dimmest[cam]
+                # 3√2 σ of a ratio; beyond a factor e⁵ the check says nothing anyway.
+                limit = self.config.track_flux_change * math.exp(min(4.24 * rel, 5.0))
                 if not (median / limit <= low and high <= median * limit):
                     return None
         self._tracked_flux, self._tracked_size = flux, size
