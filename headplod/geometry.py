@@ -328,8 +328,9 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
     weight = np.ones(2 * sum(counts)) if sig is None else np.repeat(1.0 / np.maximum(sig, 1e-4), 2)
     R = np.asarray(R_world_G, dtype=np.float64)
     p1 = np.asarray(p1_world_mm, dtype=np.float64).ravel()
+    selection = None if everything else visible
     for _ in range(iterations + 1):
-        res, J = _residuals_and_jacobian(R, p1, model, visible, cams, R_cams, obs)
+        res, J = _residuals_and_jacobian(R, p1, model, selection, cams, R_cams, obs)
         Jw = J * weight[:, None]
         ok, step = cv2.solve(Jw.T @ Jw, -(Jw.T @ (res * weight))[:, None], flags=cv2.DECOMP_CHOLESKY)
         if not ok:
@@ -350,7 +351,7 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
         if small:
             break
     else:
-        res, J = _residuals_and_jacobian(R, p1, model, visible, cams, R_cams, obs)
+        res, J = _residuals_and_jacobian(R, p1, model, selection, cams, R_cams, obs)
     # Products of rotations drift off SO(3) by rounding; frames chain them.
     R = cv2.Rodrigues(cv2.Rodrigues(R)[0])[0]
     vectors = np.full((2, len(model), 2), np.nan)
@@ -366,20 +367,28 @@ _LEVI_CIVITA[0, 2, 1] = _LEVI_CIVITA[2, 1, 0] = _LEVI_CIVITA[1, 0, 2] = -1.0
 
 
 def _residuals_and_jacobian(R, p1, model, visible, cams, R_cams, obs):
-    """Stacked residuals (2m,) px and their Jacobian (2m, 6) w.r.t. (δ, ε)."""
+    """Stacked residuals (2m,) px and their Jacobian (2m, 6) w.r.t. (δ, ε).
+
+    ``visible`` is a pair of (n,) bool masks, or None when every centre of
+    both images is seen (the tracking case: no selection to make).
+    """
     rotated = model @ R.T                                          # R m, world frame
     world = rotated + p1
     proj, jac = [], []
     for cam in (0, 1):
-        if visible[cam].any():
-            pts, dpts = cv2.projectPoints(world[visible[cam]].reshape(-1, 1, 3), cams.rvec[cam], cams.tvec[cam],
+        seen = world if visible is None else world[visible[cam]]
+        if len(seen):
+            pts, dpts = cv2.projectPoints(seen.reshape(-1, 1, 3), cams.rvec[cam], cams.tvec[cam],
                                           cams.K[cam], cams.D[cam])
             proj.append(pts.reshape(-1))
             jac.append(dpts[:, 3:6])                               # ∂x/∂t = ∂x/∂X_cam
     res = np.concatenate(proj) - obs
     dx_dcam = np.concatenate(jac).reshape(-1, 2, 3)                # (m, 2, 3)
     dx_dworld = dx_dcam @ R_cams                                   # (m, 2, 3)
-    lever = np.concatenate([rotated[visible[0]], rotated[visible[1]]])
+    if visible is None:
+        lever = np.concatenate([rotated, rotated])
+    else:
+        lever = np.concatenate([rotated[visible[0]], rotated[visible[1]]])
     # a · (δ × r) = δ · (r × a): the rotation columns are r × (each row a),
     # (r × a)_j = ε_jkl r_k a_l (np.cross is ten times slower on these sizes).
     d_rot = dx_dworld @ np.einsum("mk,jkl->mlj", lever, _LEVI_CIVITA)
