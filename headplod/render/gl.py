@@ -370,69 +370,85 @@ def scene_to_world(scale_mm_per_unit: float, center_scene: Any, screen: Screen,
 # shaders
 # --------------------------------------------------------------------------
 
+# Shading is per vertex (Gouraud): Lambert + ambient times the height colour
+# (or the level's palette colour), one interpolated colour per fragment. On
+# llvmpipe the cost of a triangle grows with the number of interpolated
+# values; per-pixel lighting (normal, height and the wireframe's barycentric
+# coordinates: 7 values) made a PLOD frame 1.6x as slow as one colour (3)
+# for the same image within a few grey levels: the terrain's diffuse shading
+# varies across a triangle only through its vertex normals. The wireframe
+# view adds the barycentric coordinates (its own program).
+
 _VERTEX_SHADER = """
 #version 330
 uniform mat4 u_mvp;           // T_clip_scene, column-major
-in vec3 in_position;          // scene units
-in vec3 in_normal;            // scene frame
-in uint in_level;
-out vec3 v_normal;
-out float v_height;           // scene z
-out vec3 v_bary;              // barycentric coordinates, for the wireframe
-flat out uint v_level;
-
-void main() {
-    gl_Position = u_mvp * vec4(in_position, 1.0);
-    v_normal = in_normal;
-    v_height = in_position.z;
-    // triangle soup: vertex k of a triangle is gl_VertexID % 3
-    int k = gl_VertexID % 3;
-    v_bary = vec3(k == 0, k == 1, k == 2);
-    v_level = in_level;
-}
-"""
-
-_FRAGMENT_SHADER = """
-#version 330
 uniform int u_mode;           // 0 shaded, 1 wire, 2 levels
 uniform vec3 u_light;         // unit vector toward the light, scene frame
 uniform float u_ambient;      // in [0, 1]
 uniform vec2 u_height_range;  // scene z of the low and high colour
-uniform float u_wire_px;      // wire half-width, px
-uniform vec3 u_wire_color;
 uniform vec3 u_palette[8];
-in vec3 v_normal;
-in float v_height;
-in vec3 v_bary;
-flat in uint v_level;
-out vec4 f_color;
+in vec3 in_position;          // scene units
+in vec3 in_normal;            // scene frame
+in uint in_level;
+out vec3 v_color;
+#ifdef WIRE
+out vec3 v_bary;              // barycentric coordinates, for the wireframe
+#endif
 
 const vec3 LOW = vec3(0.30, 0.42, 0.26);   // grey-green valleys
 const vec3 MID = vec3(0.52, 0.56, 0.40);
 const vec3 HIGH = vec3(0.80, 0.80, 0.76);  // pale grey peaks
 
 void main() {
-    vec3 n = normalize(v_normal);
-    float lambert = max(dot(n, u_light), 0.0);
-    float shade = u_ambient + (1.0 - u_ambient) * lambert;
+    gl_Position = u_mvp * vec4(in_position, 1.0);
+    vec3 n = normalize(in_normal);
+    float shade = u_ambient + (1.0 - u_ambient) * max(dot(n, u_light), 0.0);
     vec3 base;
     if (u_mode == 2) {
-        base = u_palette[v_level % 8u];
+        base = u_palette[in_level % 8u];
     } else {
         float span = max(u_height_range.y - u_height_range.x, 1e-20);
-        float t = clamp((v_height - u_height_range.x) / span, 0.0, 1.0);
+        float t = clamp((in_position.z - u_height_range.x) / span, 0.0, 1.0);
         base = t < 0.5 ? mix(LOW, MID, 2.0 * t) : mix(MID, HIGH, 2.0 * t - 1.0);
     }
-    vec3 color = base * shade;
-    if (u_mode == 1) {
-        vec3 w = fwidth(v_bary) * u_wire_px;
-        vec3 e = smoothstep(0.5 * w, 1.5 * w, v_bary);
-        float inside = min(min(e.x, e.y), e.z);
-        color = mix(u_wire_color, color, inside);
-    }
+    v_color = base * shade;
+#ifdef WIRE
+    // triangle soup: vertex k of a triangle is gl_VertexID % 3
+    int k = gl_VertexID % 3;
+    v_bary = vec3(k == 0, k == 1, k == 2);
+#endif
+}
+"""
+
+_FRAGMENT_SHADER = """
+#version 330
+in vec3 v_color;
+#ifdef WIRE
+uniform float u_wire_px;      // wire half-width, px
+uniform vec3 u_wire_color;
+in vec3 v_bary;
+#endif
+out vec4 f_color;
+
+void main() {
+    vec3 color = v_color;
+#ifdef WIRE
+    vec3 w = fwidth(v_bary) * u_wire_px;
+    vec3 e = smoothstep(0.5 * w, 1.5 * w, v_bary);
+    float inside = min(min(e.x, e.y), e.z);
+    color = mix(u_wire_color, color, inside);
+#endif
     f_color = vec4(color, 1.0);
 }
 """
+
+
+def _shader_variant(source: str, wire: bool) -> str:
+    """The shader with ``WIRE`` defined (after the #version line) or not."""
+    if not wire:
+        return source
+    head, rest = source.lstrip().split("\n", 1)
+    return f"{head}\n#define WIRE 1\n{rest}"
 
 
 # --------------------------------------------------------------------------
@@ -501,8 +517,11 @@ class TerrainRenderer:
         self.n_triangles = 0
         self.height_range = (0.0, 1.0)
 
-        self.program = ctx.program(vertex_shader=_VERTEX_SHADER, fragment_shader=_FRAGMENT_SHADER)
-        self.program["u_palette"].write((PALETTE.astype("f4") / 255.0).tobytes())
+        self.programs = {wire: ctx.program(vertex_shader=_shader_variant(_VERTEX_SHADER, wire),
+                                           fragment_shader=_shader_variant(_FRAGMENT_SHADER, wire))
+                         for wire in (False, True)}
+        for prog in self.programs.values():
+            prog["u_palette"].write((PALETTE.astype("f4") / 255.0).tobytes())
         self._fbo = ctx.framebuffer(
             color_attachments=[ctx.renderbuffer((w, h), components=4, samples=samples)],
             depth_attachment=ctx.depth_renderbuffer((w, h), samples=samples),
@@ -512,7 +531,7 @@ class TerrainRenderer:
         else:
             self._resolve = self._fbo
         self._buffers: dict[str, Any] = {}
-        self._vao = None
+        self._vaos: dict[bool, Any] = {}
 
     # -- data ----------------------------------------------------------------
 
@@ -606,13 +625,13 @@ class TerrainRenderer:
         self._write("position", pos)
         self._write("normal", nrm)
         self._write("level", lev)
-        if self._vao is None:
+        if not self._vaos:
             b = self._buffers
-            self._vao = self.ctx.vertex_array(self.program, [
+            self._vaos = {wire: self.ctx.vertex_array(prog, [
                 (b["position"], "3f", "in_position"),
                 (b["normal"], "3f", "in_normal"),
                 (b["level"], "u1", "in_level"),
-            ])
+            ]) for wire, prog in self.programs.items()}
         self.n_triangles = len(pos) // 3
         if len(pos):
             z = pos[:, 2]
@@ -636,7 +655,7 @@ class TerrainRenderer:
         model : SceneTransform or array_like, shape (4, 4), optional
             ``T_world_scene``; identity when ``None``.
         view_mode : {"shaded", "wire", "levels"}
-            "shaded": Lambert + ambient, grey-green colour by scene height;
+            "shaded": Lambert + ambient, per vertex (Gouraud), grey-green colour by scene height;
             "wire": "shaded" with triangle edges drawn dark (one pass,
             barycentric); "levels": ``PALETTE[level % 8]`` with the same
             shading.
@@ -669,14 +688,16 @@ class TerrainRenderer:
             raise ValueError(f"render: light_dir must be a non-zero 3-vector, got {light_dir!r}")
         light /= np.linalg.norm(light)
 
-        prog = self.program
+        wire = view_mode == "wire"
+        prog = self.programs[wire]
         prog["u_mvp"].write(np.ascontiguousarray(mvp.T, dtype="f4").tobytes())  # column-major
         prog["u_mode"].value = VIEW_MODES[view_mode]
         prog["u_light"].value = tuple(light)
         prog["u_ambient"].value = float(ambient)
         prog["u_height_range"].value = tuple(float(v) for v in self.height_range)
-        prog["u_wire_px"].value = float(wire_px)
-        prog["u_wire_color"].value = tuple(float(c) for c in wire_color)
+        if wire:
+            prog["u_wire_px"].value = float(wire_px)
+            prog["u_wire_color"].value = tuple(float(c) for c in wire_color)
 
         ctx = self.ctx
         ctx.finish()  # uploads and earlier work are not part of the timing
@@ -686,8 +707,8 @@ class TerrainRenderer:
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         self._fbo.clear(*self.background, 1.0, depth=1.0)
-        if self._vao is not None and self.n_triangles:
-            self._vao.render(moderngl.TRIANGLES, vertices=3 * self.n_triangles)
+        if self._vaos and self.n_triangles:
+            self._vaos[wire].render(moderngl.TRIANGLES, vertices=3 * self.n_triangles)
         if self.samples:
             ctx.copy_framebuffer(self._resolve, self._fbo)
         ctx.finish()
@@ -701,11 +722,11 @@ class TerrainRenderer:
 
     def release(self) -> None:
         """Free the GL objects (the context stays)."""
-        for obj in [self._vao, *self._buffers.values(), self._fbo,
-                    None if self._resolve is self._fbo else self._resolve, self.program]:
+        for obj in [*self._vaos.values(), *self._buffers.values(), self._fbo,
+                    None if self._resolve is self._fbo else self._resolve, *self.programs.values()]:
             if obj is not None:
                 obj.release()
-        self._vao = None
+        self._vaos = {}
         self._buffers = {}
 
     def __enter__(self) -> "TerrainRenderer":
