@@ -1,0 +1,805 @@
+"""Stereo frame sources: one interface for recordings, videos, the renderer and cameras.
+
+Every source is a :class:`FrameSource`: :meth:`~FrameSource.read` returns the
+next stereo pair as a :class:`CaptureFrame` (an :class:`io.Frame
+<headplod.io.Frame>` with capture diagnostics), or ``None`` once the source has
+ended. Replay (a dataset folder, two video files, the synthetic renderer) and
+live capture (two V4L2 cameras, :mod:`headplod.capture.v4l2`) run through the
+same loop::
+
+    with open_source("synthetic:static") as source:
+        for frame in source:          # CaptureFrame, usable as an io.Frame
+            ...
+
+Conventions
+-----------
+- Images are 8-bit grayscale, shape ``(height, width)``, px; pixel (u, v) =
+  (0, 0) is the centre of the top-left pixel (``spec/conventions.md``).
+- ``t`` / ``t_right``: mid-exposure times of the left / right image, s. For
+  replay they come from the recording; for live cameras they are seconds
+  since the source was opened, on the monotonic clock.
+- Skew: ``|t_right - t|`` in ms, the time between the two images of a pair.
+- A per-frame problem is a value, never an exception: the frame comes with
+  ``error`` set and both images ``None``; the source goes on. Exceptions are
+  for a spec or file that cannot be opened (:class:`SourceOpenError`,
+  ``ValueError``, :class:`~headplod.io.ContractError`).
+"""
+from __future__ import annotations
+
+import abc
+import math
+import os
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, ClassVar, Iterator
+
+import cv2
+import numpy as np
+
+from .. import io
+
+__all__ = [
+    "CaptureFrame",
+    "SourceStatus",
+    "SourceOpenError",
+    "FrameSource",
+    "DatasetSource",
+    "SyntheticSource",
+    "VideoSource",
+    "open_source",
+    "register_source",
+    "source_forms",
+    "to_gray",
+    "SOURCE_STATES",
+]
+
+#: The states :meth:`FrameSource.status` reports.
+SOURCE_STATES = ("running", "stalled", "lost", "ended")
+#: Number of recent frames over which fps and skew percentiles are measured.
+STATS_WINDOW = 300
+#: A gap between consecutive frame times above this many frame periods means
+#: frames were lost (1.5: halfway between one period and two).
+GAP_PERIODS = 1.5
+
+
+class SourceOpenError(OSError):
+    """A source (file, camera) named by a valid spec cannot be opened.
+
+    The message names the file or device first and says what is wrong.
+    """
+
+
+# --------------------------------------------------------------------------
+# frames and status
+# --------------------------------------------------------------------------
+
+
+@dataclass
+class CaptureFrame(io.Frame):
+    """A stereo frame with capture diagnostics; an :class:`io.Frame` subclass.
+
+    Attributes
+    ----------
+    index, t, t_right, left, right, error, warning
+        As in :class:`headplod.io.Frame`: ``left`` and ``right`` are 8-bit
+        gray images, shape (height, width), px, both ``None`` when ``error``
+        is set; ``t`` and ``t_right`` in s.
+    t_monotonic_left, t_monotonic_right : float or None
+        ``time.monotonic()`` (s) when each image was captured by a live
+        camera; ``None`` for replay.
+    skew_ms : float or None
+        ``|left - right|`` capture-time difference, ms; ``None`` when unknown
+        (error frames). Replay of a recording without ``t_right`` gives 0.0:
+        the contract says the two images of a frame are the same instant.
+    dropped : int
+        Stereo pairs lost between the previous frame this source returned and
+        this one (timestamp gaps, grab failures, unpaired images).
+    flags : list of str
+        Notes on a frame that is still usable, e.g.
+        ``"skew 21.3 ms > 16.7 ms bound"``.
+    """
+
+    t_monotonic_left: float | None = None
+    t_monotonic_right: float | None = None
+    skew_ms: float | None = None
+    dropped: int = 0
+    flags: list[str] = field(default_factory=list)
+
+    @classmethod
+    def from_frame(cls, frame: io.Frame, **diagnostics: Any) -> "CaptureFrame":
+        """A CaptureFrame with the fields of ``frame`` and the given diagnostics."""
+        return cls(index=frame.index, t=frame.t, t_right=frame.t_right, left=frame.left,
+                   right=frame.right, error=frame.error, warning=frame.warning, **diagnostics)
+
+
+@dataclass
+class SourceStatus:
+    """Health of a source, from :meth:`FrameSource.status`.
+
+    Attributes
+    ----------
+    state : str
+        ``'running'``; ``'stalled'`` (a camera delivered nothing for the last
+        read's timeout); ``'lost'`` (a camera vanished, reconnecting);
+        ``'ended'`` (replay finished or source closed).
+    frames : int
+        Good frames (no ``error``) returned so far.
+    errors : int
+        Error frames returned so far.
+    dropped : int
+        Stereo pairs lost so far (sum of the frames' ``dropped``).
+    fps : float or None
+        Frame rate over the last ``STATS_WINDOW`` good frames, Hz, from their
+        times (the monotonic clock for live cameras, the recorded ``t`` for
+        replay); ``None`` before two frames.
+    skew_ms_median, skew_ms_p95 : float or None
+        Median and 95th percentile of the pairs' skew over the same window,
+        ms; ``None`` before any frame with a known skew.
+    last_error : str or None
+        The most recent ``error`` of a frame (or of the source).
+    reconnects : int
+        Times a lost camera was opened again.
+    """
+
+    state: str
+    frames: int = 0
+    errors: int = 0
+    dropped: int = 0
+    fps: float | None = None
+    skew_ms_median: float | None = None
+    skew_ms_p95: float | None = None
+    last_error: str | None = None
+    reconnects: int = 0
+
+    def __str__(self) -> str:
+        def num(v: float | None, fmt: str) -> str:
+            return "-" if v is None else format(v, fmt)
+        return (f"{self.state}: {self.frames} frames, {self.errors} errors, {self.dropped} dropped, "
+                f"{num(self.fps, '.1f')} fps, skew median {num(self.skew_ms_median, '.1f')} ms "
+                f"p95 {num(self.skew_ms_p95, '.1f')} ms, {self.reconnects} reconnects"
+                + (f"; last error: {self.last_error}" if self.last_error else ""))
+
+
+class _Stats:
+    """Counters and recent times/skews behind :class:`SourceStatus` (thread-safe)."""
+
+    def __init__(self, window: int = STATS_WINDOW):
+        self._lock = threading.Lock()
+        self.frames = 0
+        self.errors = 0
+        self.dropped = 0
+        self.reconnects = 0
+        self.last_error: str | None = None
+        self._times = deque(maxlen=window)
+        self._skews = deque(maxlen=window)
+
+    def note(self, frame: CaptureFrame) -> None:
+        with self._lock:
+            self.dropped += int(frame.dropped)
+            if frame.error is not None:
+                self.errors += 1
+                self.last_error = frame.error
+                return
+            self.frames += 1
+            clock = frame.t_monotonic_left if frame.t_monotonic_left is not None else frame.t
+            self._times.append(float(clock))
+            if frame.skew_ms is not None:
+                self._skews.append(float(frame.skew_ms))
+
+    def note_reconnect(self) -> None:
+        with self._lock:
+            self.reconnects += 1
+
+    def note_error(self, message: str) -> None:
+        with self._lock:
+            self.last_error = message
+
+    def status(self, state: str) -> SourceStatus:
+        with self._lock:
+            fps = None
+            if len(self._times) >= 2:
+                span = self._times[-1] - self._times[0]
+                fps = (len(self._times) - 1) / span if span > 0 else None
+            med = p95 = None
+            if self._skews:
+                med, p95 = (float(v) for v in np.percentile(np.fromiter(self._skews, float), [50, 95]))
+            return SourceStatus(state=state, frames=self.frames, errors=self.errors,
+                                dropped=self.dropped, fps=fps, skew_ms_median=med, skew_ms_p95=p95,
+                                last_error=self.last_error, reconnects=self.reconnects)
+
+
+# --------------------------------------------------------------------------
+# images
+# --------------------------------------------------------------------------
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """An image from a camera or a video as 8-bit gray, shape (height, width).
+
+    Parameters
+    ----------
+    image : ndarray
+        (H, W) or (H, W, 1) gray; (H, W, 2) packed YUYV (what OpenCV returns
+        for a YUYV camera with RGB conversion off); (H, W, 3) BGR; (H, W, 4)
+        BGRA. uint8, or uint16 (kept: the 8 most significant bits).
+
+    Returns
+    -------
+    ndarray, uint8, shape (H, W)
+        C-contiguous.
+
+    Raises
+    ------
+    ValueError
+        For another shape or dtype.
+    """
+    img = np.asarray(image)
+    if img.dtype == np.uint16:
+        img = (img >> 8).astype(np.uint8)
+    if img.dtype != np.uint8:
+        raise ValueError(f"image of dtype {img.dtype}, expected uint8 or uint16")
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim == 2:
+        return np.ascontiguousarray(img)
+    if img.ndim == 3 and img.shape[2] in (2, 3, 4):
+        code = {2: cv2.COLOR_YUV2GRAY_YUY2, 3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}[img.shape[2]]
+        return cv2.cvtColor(np.ascontiguousarray(img), code)
+    raise ValueError(f"image of shape {img.shape}, expected (H, W) gray or (H, W, 2|3|4) colour")
+
+
+def _size_error(what: str, image: np.ndarray, rig: io.Rig | None) -> str | None:
+    """'WHAT: WxH, rig says W'xH'' when the image does not match the rig."""
+    if rig is None:
+        return None
+    h, w = image.shape[:2]
+    rw, rh = rig.image_size
+    return None if (w, h) == (rw, rh) else f"{what}: {w}x{h}, rig says {rw}x{rh}"
+
+
+def _skew_flag(skew_ms: float | None, bound_ms: float | None) -> list[str]:
+    if skew_ms is None or bound_ms is None or not skew_ms > bound_ms:
+        return []
+    return [f"skew {skew_ms:.1f} ms > {bound_ms:.1f} ms bound"]
+
+
+# --------------------------------------------------------------------------
+# the interface
+# --------------------------------------------------------------------------
+
+
+class FrameSource(abc.ABC):
+    """A source of stereo frames: the one interface the tracker reads from.
+
+    Attributes
+    ----------
+    name : str
+        What the source reads, for messages (a folder, files, devices).
+    rig : io.Rig or None
+        The calibrated rig, ``None`` when the source has none (an
+        uncalibrated camera pair).
+    markers : io.MarkerModel or None
+        The marker model that comes with the source, if any.
+    screen : io.Screen or None
+        The screen that comes with the source, if any.
+    warnings : list of str
+        Problems that did not stop the source (refused camera settings,
+        videos of different lengths, dataset warnings).
+
+    Notes
+    -----
+    :meth:`read` never raises for a per-frame problem; it returns a
+    :class:`CaptureFrame` with ``error`` set and both images ``None``.
+    ``for frame in source`` reads until the source ends. A source is a
+    context manager that closes itself.
+    """
+
+    #: Short name of the kind of source (registry key).
+    kind: ClassVar[str] = "source"
+
+    def __init__(self, name: str, rig: io.Rig | None = None, markers: io.MarkerModel | None = None,
+                 screen: io.Screen | None = None):
+        self.name = name
+        self.rig = rig
+        self.markers = markers
+        self.screen = screen
+        self.warnings: list[str] = []
+        self._stats = _Stats()
+        self._closed = False
+
+    @abc.abstractmethod
+    def read(self, timeout_s: float = 1.0) -> CaptureFrame | None:
+        """The next stereo frame, or ``None`` once the source has ended.
+
+        Parameters
+        ----------
+        timeout_s : float
+            Live sources: how long to wait for a pair, s, before returning an
+            error frame that says which camera is late. Replay ignores it.
+
+        Returns
+        -------
+        CaptureFrame or None
+        """
+
+    def status(self) -> SourceStatus:
+        """Counters, measured rate and skew, and the state of the source."""
+        return self._stats.status(self._state())
+
+    def _state(self) -> str:
+        return "ended" if self._closed else "running"
+
+    def close(self) -> None:
+        """Release files or cameras; idempotent. ``read`` then returns ``None``."""
+        self._closed = True
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def _emit(self, frame: CaptureFrame) -> CaptureFrame:
+        self._stats.note(frame)
+        return frame
+
+    def __iter__(self) -> Iterator[CaptureFrame]:
+        while True:
+            frame = self.read()
+            if frame is None:
+                return
+            yield frame
+
+    def __enter__(self) -> "FrameSource":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r}, {self._state()})"
+
+
+class _Pacer:
+    """Sleeps so that frames come out at the pace of their times (realtime replay)."""
+
+    def __init__(self, enabled: bool):
+        self.enabled = enabled
+        self._origin: tuple[float, float] | None = None
+
+    def wait(self, t: float) -> None:
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if self._origin is None:
+            self._origin = (now, t)
+            return
+        delay = self._origin[0] + (t - self._origin[1]) - now
+        if delay > 0:
+            time.sleep(delay)
+
+
+def _median_period_s(times: list[float]) -> float | None:
+    if len(times) < 2:
+        return None
+    d = np.diff(np.asarray(times, dtype=np.float64))
+    d = d[d > 0]
+    return float(np.median(d)) if d.size else None
+
+
+# --------------------------------------------------------------------------
+# replay: dataset folder, synthetic renderer
+# --------------------------------------------------------------------------
+
+
+class DatasetSource(FrameSource):
+    """Replay a dataset folder of the contract through :class:`io.Dataset`.
+
+    Parameters
+    ----------
+    folder : str or Path
+        A folder with ``rig.yaml``, ``left/``, ``right/`` (``times.csv``,
+        ``markers.yaml``, ``screen.yaml`` optional).
+    realtime : bool
+        Pace the frames by their ``t`` (wall-clock replay); default as fast
+        as they are read.
+    skew_bound_ms : float, optional
+        Flag frames whose ``|t_right - t|`` exceeds this, ms. Default half the
+        median frame period of the recording.
+
+    Attributes
+    ----------
+    dataset : io.Dataset
+        The dataset read (``truth``, ``times``, ``indices``, ``warnings``).
+
+    Raises
+    ------
+    io.ContractError
+        When the folder is not a valid dataset (as :class:`io.Dataset`).
+
+    Notes
+    -----
+    Frames are exactly those of ``io.Dataset`` (same index, times, images,
+    error, warning). ``dropped`` is the number of indices missing before a
+    frame (a gap in the recording). A recording without ``t_right`` has skew
+    0.0 ms (the contract's "same index is the same instant").
+    """
+
+    kind = "dataset"
+
+    def __init__(self, folder: str | Path, realtime: bool = False, skew_bound_ms: float | None = None):
+        dataset = io.Dataset(folder)
+        super().__init__(str(dataset.folder), dataset.rig, dataset.markers, dataset.screen)
+        self.dataset = dataset
+        self.warnings.extend(dataset.warnings)
+        self._iter = iter(dataset.indices)
+        self._previous: int | None = None
+        self._pacer = _Pacer(realtime)
+        if skew_bound_ms is None:
+            times = [tt[0] for tt in (dataset.times or {}).values()]
+            period = _median_period_s(times) or 1.0 / io.DEFAULT_FPS
+            skew_bound_ms = 500.0 * period
+        self.skew_bound_ms = float(skew_bound_ms)
+
+    def read(self, timeout_s: float = 1.0) -> CaptureFrame | None:
+        if self._closed:
+            return None
+        index = next(self._iter, None)
+        if index is None:
+            self._closed = True
+            return None
+        frame = self.dataset.frame(index)
+        dropped = 0 if self._previous is None else max(0, index - self._previous - 1)
+        self._previous = index
+        skew = None
+        if frame.ok:
+            skew = 0.0 if frame.t_right is None else abs(frame.t_right - frame.t) * 1000.0
+        self._pacer.wait(frame.t)
+        return self._emit(CaptureFrame.from_frame(
+            frame, skew_ms=skew, dropped=dropped, flags=_skew_flag(skew, self.skew_bound_ms)))
+
+
+class SyntheticSource(DatasetSource):
+    """Replay a built-in synthetic sequence, rendered once and cached.
+
+    Parameters
+    ----------
+    preset : str
+        A preset of ``synthetic.scenes.PRESETS`` (default the sequence
+        ``headplod track`` runs).
+    frames : int, optional
+        Number of frames (the preset's default when ``None``).
+    seed : int
+        Random seed of the render.
+    realtime : bool
+        Pace frames by their times.
+    skew_bound_ms : float, optional
+        As in :class:`DatasetSource`.
+    root : Path, optional
+        Cache folder (default ``$HEADPLOD_CACHE`` or ``~/.cache/headplod``).
+    **preset_options
+        Passed to :func:`headplod.sequences.ensure_dataset` (e.g.
+        ``distance_mm`` for ``static``).
+
+    Raises
+    ------
+    ValueError
+        For an unknown preset (the message lists the presets).
+    """
+
+    kind = "synthetic"
+
+    def __init__(self, preset: str | None = None, frames: int | None = None, seed: int = 0,
+                 realtime: bool = False, skew_bound_ms: float | None = None,
+                 root: str | Path | None = None, **preset_options: Any):
+        from ..sequences import DEFAULT_SEQUENCE, ensure_dataset
+
+        self.preset = preset or DEFAULT_SEQUENCE
+        folder = ensure_dataset(self.preset, frames=frames, seed=seed,
+                                root=None if root is None else Path(root), quiet=True,
+                                **preset_options)
+        super().__init__(folder, realtime=realtime, skew_bound_ms=skew_bound_ms)
+        self.name = f"synthetic:{self.preset} ({folder})"
+
+
+# --------------------------------------------------------------------------
+# replay: two video files
+# --------------------------------------------------------------------------
+
+
+def _read_beside(folder: Path, rig: Any) -> tuple[io.Rig | None, io.MarkerModel | None, io.Screen | None]:
+    """rig (given, a path, or rig.yaml in folder), markers.yaml and screen.yaml in folder."""
+    if isinstance(rig, (str, os.PathLike)):
+        rig = io.read_rig(rig)
+    elif rig is None and (folder / "rig.yaml").is_file():
+        rig = io.read_rig(folder / "rig.yaml")
+    markers = io.read_markers(folder / "markers.yaml") if (folder / "markers.yaml").is_file() else None
+    screen = io.read_screen(folder / "screen.yaml") if (folder / "screen.yaml").is_file() else None
+    return rig, markers, screen
+
+
+class VideoSource(FrameSource):
+    """Replay a stereo pair of video files (left, right), frames as 8-bit gray.
+
+    Parameters
+    ----------
+    left, right : str or Path
+        The two video files; frame ``i`` of one is the same instant as frame
+        ``i`` of the other.
+    rig : io.Rig or str or Path, optional
+        The rig, or the path of a ``rig.yaml``. Default: ``rig.yaml`` in the
+        left video's folder when there is one, else ``None``
+        (``markers.yaml`` and ``screen.yaml`` there are read too).
+    times : str or Path, optional
+        A ``times.csv`` (``frame,t[,t_right]``, s) giving each frame's time.
+        Default: ``times.csv`` in the left video's folder when there is one;
+        otherwise ``t = index / fps`` with the left file's frame rate.
+    realtime : bool
+        Pace frames by their times.
+    skew_bound_ms : float, optional
+        Flag frames whose ``|t_right - t|`` exceeds this, ms (default half a
+        frame period).
+
+    Attributes
+    ----------
+    fps : float
+        The left file's frame rate, Hz (``DEFAULT_FPS`` when it has none).
+    frame_counts : tuple of int
+        Frame counts the containers declare (left, right); may be 0 or
+        approximate, the source reads until a file ends.
+
+    Raises
+    ------
+    SourceOpenError
+        When a file is missing or cannot be decoded (names the file).
+
+    Notes
+    -----
+    When the files have different lengths, the source ends with the shorter
+    one and adds a warning (to ``warnings`` and to the last frame's
+    ``warning`` when possible). Colour videos are converted with
+    ``cv2.cvtColor(..., BGR2GRAY)``; lossy codecs (MJPG) change pixel values
+    by a few DN, lossless ones (FFV1, PNG) keep them exactly.
+    """
+
+    kind = "video"
+
+    def __init__(self, left: str | Path, right: str | Path, rig: Any = None,
+                 times: str | Path | None = None, realtime: bool = False,
+                 skew_bound_ms: float | None = None):
+        self.paths = (Path(left), Path(right))
+        folder = self.paths[0].parent
+        rig, markers, screen = _read_beside(folder, rig)
+        super().__init__(f"{self.paths[0]},{self.paths[1]}", rig, markers, screen)
+        if times is None and (folder / "times.csv").is_file():
+            times = folder / "times.csv"
+        self.times = io.read_times(times) if times is not None else None
+        self._caps: list[Any] = []
+        try:
+            for path in self.paths:
+                self._caps.append(self._open(path))
+        except BaseException:
+            self.close()
+            raise
+        fps = [float(c.get(cv2.CAP_PROP_FPS) or 0.0) for c in self._caps]
+        self.fps = fps[0] if math.isfinite(fps[0]) and fps[0] > 0 else io.DEFAULT_FPS
+        if not (math.isfinite(fps[0]) and fps[0] > 0):
+            self.warnings.append(f"{self.paths[0]}: no frame rate in the file; assuming {io.DEFAULT_FPS:g} fps")
+        elif math.isfinite(fps[1]) and fps[1] > 0 and abs(fps[1] - fps[0]) > 1e-3 * fps[0]:
+            self.warnings.append(f"frame rates differ: {self.paths[0]} {fps[0]:g} fps, "
+                                 f"{self.paths[1]} {fps[1]:g} fps; times follow the left file")
+        counts = [int(c.get(cv2.CAP_PROP_FRAME_COUNT) or 0) for c in self._caps]
+        self.frame_counts = tuple(counts)
+        if self.times:
+            period = _median_period_s([tt[0] for tt in self.times.values()]) or 1.0 / self.fps
+        else:
+            period = 1.0 / self.fps
+        self.skew_bound_ms = 500.0 * period if skew_bound_ms is None else float(skew_bound_ms)
+        self._index = 0
+        self._pacer = _Pacer(realtime)
+
+    @staticmethod
+    def _open(path: Path) -> Any:
+        if not path.is_file():
+            raise SourceOpenError(f"{path}: video file not found" if not path.exists()
+                                  else f"{path}: is not a file, expected a video file")
+        cap = cv2.VideoCapture(str(path))
+        if not cap.isOpened():
+            cap.release()
+            raise SourceOpenError(f"{path}: cannot be opened as a video (unknown container or codec, "
+                                  "or a corrupt file)")
+        return cap
+
+    def _time(self, index: int) -> tuple[float, float | None, str | None]:
+        if self.times is None:
+            return index / self.fps, None, None
+        if index in self.times:
+            t, t_right = self.times[index]
+            return t, t_right, None
+        return index / self.fps, None, f"times.csv has no row for frame {index}; t = index / {self.fps:g} fps"
+
+    def read(self, timeout_s: float = 1.0) -> CaptureFrame | None:
+        if self._closed:
+            return None
+        index = self._index
+        grabbed = [bool(c.grab()) for c in self._caps]
+        if not all(grabbed):
+            if any(grabbed):
+                longer, shorter = (0, 1) if grabbed[0] else (1, 0)
+                self.warnings.append(
+                    f"{self.paths[shorter]} ends after {index} frames, {self.paths[longer]} has more: "
+                    "the extra frames are ignored")
+            self.close()
+            return None
+        self._index += 1
+        t, t_right, note = self._time(index)
+        images, errors = [], []
+        for side, cap, path in zip(("left", "right"), self._caps, self.paths):
+            ok, img = cap.retrieve()
+            if not ok or img is None:
+                errors.append(f"{path} frame {index}: cannot be decoded")
+                images.append(None)
+                continue
+            try:
+                gray = to_gray(img)
+            except ValueError as exc:
+                errors.append(f"{path} frame {index}: {exc}")
+                images.append(None)
+                continue
+            bad = _size_error(f"{path} frame {index}", gray, self.rig)
+            if bad:
+                errors.append(bad)
+            images.append(gray)
+        if errors:
+            images = [None, None]
+        skew = None if errors else (0.0 if t_right is None else abs(t_right - t) * 1000.0)
+        self._pacer.wait(t)
+        return self._emit(CaptureFrame(
+            index=index, t=t, t_right=t_right, left=images[0], right=images[1],
+            error="; ".join(errors) or None, warning=note, skew_ms=skew,
+            flags=_skew_flag(skew, self.skew_bound_ms)))
+
+    def close(self) -> None:
+        for cap in self._caps:
+            cap.release()
+        self._caps = []
+        super().close()
+
+
+# --------------------------------------------------------------------------
+# registry
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Entry:
+    kind: str
+    form: str
+    accepts: Callable[[str], bool]
+    factory: Callable[..., FrameSource]
+
+
+_REGISTRY: list[_Entry] = []
+
+
+def register_source(kind: str, form: str, accepts: Callable[[str], bool],
+                    factory: Callable[..., FrameSource]) -> None:
+    """Add a kind of source to :func:`open_source`.
+
+    Parameters
+    ----------
+    kind : str
+        Short name (replaces an entry of the same name).
+    form : str
+        The spec form(s) it accepts, for the error message of
+        :func:`open_source`.
+    accepts : callable(str) -> bool
+        Whether a spec is for this kind. Entries are tried in registration
+        order; the first that accepts wins.
+    factory : callable(spec, **options) -> FrameSource
+    """
+    _REGISTRY[:] = [e for e in _REGISTRY if e.kind != kind]
+    _REGISTRY.append(_Entry(kind, form, accepts, factory))
+
+
+def source_forms() -> list[str]:
+    """The spec forms :func:`open_source` accepts, one line each."""
+    return [e.form for e in _REGISTRY]
+
+
+def open_source(spec: str | os.PathLike, **options: Any) -> FrameSource:
+    """Open a frame source from a spec string.
+
+    Parameters
+    ----------
+    spec : str or path-like
+        One of (tried in this order):
+
+        - ``synthetic`` or ``synthetic:PRESET``: the built-in renderer
+          (:class:`SyntheticSource`);
+        - ``v4l2:/dev/video0,/dev/video2`` or ``v4l2:0,2``, or just two
+          integers ``0,2``: two V4L2 cameras, left first
+          (:class:`~headplod.capture.v4l2.V4L2StereoSource`);
+        - an existing folder: a dataset folder (:class:`DatasetSource`);
+        - ``LEFT.avi,RIGHT.avi``: two video files (:class:`VideoSource`).
+    **options
+        Passed to the source's constructor (e.g. ``realtime=True``,
+        ``frames=30``, ``fps=60``, ``opener=...``).
+
+    Returns
+    -------
+    FrameSource
+
+    Raises
+    ------
+    ValueError
+        For a spec of none of these forms (the message lists them).
+    SourceOpenError, io.ContractError
+        When the spec's form is recognised but the files or devices cannot be
+        opened.
+    """
+    text = os.fspath(spec).strip() if not isinstance(spec, str) else spec.strip()
+    for entry in _REGISTRY:
+        if entry.accepts(text):
+            return entry.factory(text, **options)
+    forms = "\n  ".join(source_forms())
+    why = "no such file or folder" if "," not in text else "expected exactly two comma-separated parts"
+    raise ValueError(f"cannot open source {text!r} ({why}). Accepted forms:\n  {forms}")
+
+
+def _two_parts(text: str) -> list[str] | None:
+    parts = [p.strip() for p in text.split(",")]
+    return parts if len(parts) == 2 and all(parts) else None
+
+
+def _is_int(text: str) -> bool:
+    return text.isdigit()
+
+
+def _accepts_v4l2(text: str) -> bool:
+    if text.lower().startswith("v4l2:"):
+        return True
+    parts = _two_parts(text)
+    return parts is not None and all(_is_int(p) for p in parts)
+
+
+def _open_v4l2(text: str, **options: Any) -> FrameSource:
+    from .v4l2 import V4L2StereoSource
+
+    body = text[5:] if text.lower().startswith("v4l2:") else text
+    parts = _two_parts(body)
+    if parts is None:
+        raise ValueError(f"cannot open source {text!r}: expected two devices, left first, "
+                         "as v4l2:/dev/video0,/dev/video2 or v4l2:0,2")
+    left, right = (int(p) if _is_int(p) else p for p in parts)
+    return V4L2StereoSource(left, right, **options)
+
+
+def _accepts_synthetic(text: str) -> bool:
+    return text == "synthetic" or text.startswith("synthetic:")
+
+
+def _open_synthetic(text: str, **options: Any) -> FrameSource:
+    preset = text.partition(":")[2].strip() or None
+    return SyntheticSource(preset, **options)
+
+
+def _accepts_video(text: str) -> bool:
+    parts = _two_parts(text)
+    return parts is not None and not Path(text).is_dir() and not all(_is_int(p) for p in parts)
+
+
+def _open_video(text: str, **options: Any) -> FrameSource:
+    left, right = _two_parts(text)  # type: ignore[misc]
+    return VideoSource(left, right, **options)
+
+
+register_source("synthetic", "synthetic or synthetic:PRESET (the built-in renderer, e.g. synthetic:static)",
+                _accepts_synthetic, _open_synthetic)
+register_source("v4l2", "v4l2:/dev/video0,/dev/video2 or v4l2:0,2 or 0,2 (two V4L2 cameras, left first)",
+                _accepts_v4l2, _open_v4l2)
+register_source("dataset", "DATASET_FOLDER (an existing folder with rig.yaml, left/, right/)",
+                lambda text: Path(text).is_dir(), lambda text, **o: DatasetSource(text, **o))
+register_source("video", "LEFT_VIDEO,RIGHT_VIDEO (two video files, e.g. left.avi,right.avi)",
+                _accepts_video, _open_video)

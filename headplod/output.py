@@ -1,0 +1,531 @@
+"""Outputs to other programs: opentrack's UDP protocol, and a live status line.
+
+opentrack ("UDP over network" input)
+-------------------------------------
+opentrack's UDP input (``tracker-udp/ftnoir_tracker_udp.cpp`` in the
+opentrack/opentrack repository, listening on port 4242 by default, see
+``tracker-udp/ftnoir_tracker_udp.h``) reads datagrams of six ``double`` in the
+order of ``enum Axis`` in ``api/plugin-api.hpp``: ``TX, TY, TZ, Yaw, Pitch,
+Roll``; a datagram holding a NaN is ignored. The maintainer states that the
+doubles are little-endian, positions in centimetres and rotations in degrees
+(opentrack issue #881). A datagram here is therefore ``struct.pack('<6d', x_cm,
+y_cm, z_cm, yaw_deg, pitch_deg, roll_deg)``: 48 bytes.
+
+Position. ``x_cm, y_cm, z_cm`` is the head position (marker P1) in headplod's
+world frame, the left camera's OpenCV frame (x to the camera's right, y DOWN,
+z forward, away from the camera), in centimetres, no axis flipped. That is
+what opentrack's ArUco tracker sends (``tracker-aruco/ftnoir_tracker_aruco.cpp``
+sends ``tvec * .1`` of ``cv::solvePnP``, the same OpenCV camera frame). x
+(positive: the head moves to the camera's right, which is the wearer's left)
+and z (positive: farther from the camera) agree with opentrack's other
+trackers; y does not: the SteamVR and neural-net trackers send y positive UP.
+If raising the head lowers the view in a game, tick "invert" for Y in
+opentrack's Options > Output. opentrack centres the pose when tracking
+starts, so only the directions matter there, not the origin.
+
+Angles. A head facing the cameras (V along the world's -z, Ψ up = world -y,
+Ξ the wearer's left = world +x) has yaw = pitch = roll = 0. The angles are
+intrinsic Tait-Bryan angles in the order yaw, then pitch, then roll (the
+"aerospace" z-y'-x'' sequence), with opentrack's signs:
+
+- yaw: rotation about the head's up axis; positive when the wearer turns to
+  their RIGHT (V moves toward the world's -x, the cameras' left);
+- pitch: about the yawed lateral axis; positive when the wearer looks UP
+  (V moves toward the world's -y);
+- roll: about the yawed and pitched forward axis V; positive when the head
+  tilts to the wearer's LEFT (left ear toward the left shoulder, the top of
+  the head toward the world's +x; clockwise as the cameras see it).
+
+Written as a matrix: with the user frame F = (forward, left, up) =
+(-z, +x, -y) of the world, the head axes expressed in F, columns (V, Ξ, Ψ),
+are ``Rz(-yaw) @ Ry(-pitch) @ Rx(-roll)`` (right-handed elementary
+rotations). This is exactly the decomposition of opentrack's
+``compat/euler.cpp`` (``euler_to_rmat`` negates all three angles and builds
+Rz Ry Rx; ``rmat_to_euler`` is the inverse used here). The signs were checked
+against two trackers whose frames are unambiguous: ``tracker-steamvr/
+steamvr.cpp`` (``matrix_to_euler`` on OpenVR's x right, y up, z back frame:
+turning right, looking up and tilting left give positive yaw, pitch, roll)
+and ``tracker-aruco/ftnoir_tracker_aruco.cpp`` (``cv::RQDecomp3x3`` of the
+OpenCV camera-frame rotation, yaw = euler[1], pitch = -euler[0], roll =
+euler[2]; the same three signs). Ranges: yaw and roll in (-180, 180], pitch
+in [-90, 90]; at pitch ±90° roll is reported as 0.
+
+A record with ``ok`` false sends nothing: opentrack keeps the last pose it
+received (it also ignores datagrams holding NaN), which is the right
+behaviour for a frame without a trustworthy pose.
+"""
+from __future__ import annotations
+
+import math
+import socket
+import struct
+import sys
+import time
+from collections import deque
+from typing import Mapping, Sequence, TextIO
+
+import numpy as np
+
+OPENTRACK_PORT = 4242
+"""opentrack's default UDP input port (``tracker-udp/ftnoir_tracker_udp.h``)."""
+
+_PACKET = struct.Struct("<6d")
+OPENTRACK_PACKET_BYTES = _PACKET.size  # 48
+
+# Columns: the user frame F = (forward, left, up) in world coordinates.
+_F_IN_WORLD = np.array([[0.0, 1.0, 0.0],
+                        [0.0, 0.0, -1.0],
+                        [-1.0, 0.0, 0.0]])
+
+
+def _check_pose(position_mm, axes) -> tuple[np.ndarray, np.ndarray]:
+    p = np.asarray(position_mm, dtype=float)
+    a = np.asarray(axes, dtype=float)
+    if p.shape != (3,):
+        raise ValueError(f"position_mm: expected shape (3,), got {p.shape}")
+    if a.shape != (3, 3):
+        raise ValueError(f"axes: expected shape (3, 3) (rows Ξ, Ψ, V), got {a.shape}")
+    return p, a
+
+
+def opentrack_values(position_mm, axes) -> tuple[float, float, float, float, float, float]:
+    """The six values opentrack expects for a head pose.
+
+    Parameters
+    ----------
+    position_mm : (3,) array_like of float
+        Head position (P1), world frame (left camera, OpenCV: x right, y down,
+        z forward), mm.
+    axes : (3, 3) array_like of float
+        Rows Ξ, Ψ, V: unit vectors in the world frame (the contract's pose
+        axes; a proper rotation).
+
+    Returns
+    -------
+    x_cm, y_cm, z_cm : float
+        The position in the world frame, cm (no axis flipped; y is down).
+    yaw_deg, pitch_deg, roll_deg : float
+        Intrinsic yaw-pitch-roll in degrees, zero facing the cameras; yaw
+        positive turning to the wearer's right, pitch positive looking up,
+        roll positive tilting to the wearer's left. See the module docstring
+        for the definition and its sources.
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape.
+    """
+    p, a = _check_pose(position_mm, axes)
+    xi, psi, v = a
+    # Head axes (forward V, left Ξ, up Ψ) expressed in F: M = F^T [V Ξ Ψ].
+    M = _F_IN_WORLD.T @ np.column_stack([v, xi, psi])
+    cos_pitch = math.hypot(M[0, 0], M[1, 0])
+    if cos_pitch > 1e-9:
+        yaw = -math.atan2(M[1, 0], M[0, 0])
+        pitch = math.atan2(M[2, 0], cos_pitch)
+        roll = -math.atan2(M[2, 1], M[2, 2])
+    else:  # looking straight up or down: yaw and roll share an axis; put it all in yaw
+        pitch = math.atan2(M[2, 0], cos_pitch)
+        yaw = -math.atan2(-M[0, 1], M[1, 1])
+        roll = 0.0
+    x_cm, y_cm, z_cm = (float(c) / 10.0 for c in p)
+    return (x_cm, y_cm, z_cm, math.degrees(yaw), math.degrees(pitch), math.degrees(roll))
+
+
+def axes_from_opentrack(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """Head axes for opentrack angles; the inverse of :func:`opentrack_values`.
+
+    Parameters
+    ----------
+    yaw_deg, pitch_deg, roll_deg : float
+        Angles in degrees, in :func:`opentrack_values`'s convention.
+
+    Returns
+    -------
+    axes : (3, 3) ndarray of float
+        Rows Ξ, Ψ, V in the world frame; a proper rotation.
+    """
+    a, b, c = (-math.radians(yaw_deg), -math.radians(pitch_deg), -math.radians(roll_deg))
+    ca, sa, cb, sb, cc, sc = math.cos(a), math.sin(a), math.cos(b), math.sin(b), math.cos(c), math.sin(c)
+    Rz = np.array([[ca, -sa, 0.0], [sa, ca, 0.0], [0.0, 0.0, 1.0]])
+    Ry = np.array([[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]])
+    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cc, -sc], [0.0, sc, cc]])
+    v, xi, psi = (_F_IN_WORLD @ (Rz @ Ry @ Rx)).T
+    return np.array([xi, psi, v])
+
+
+def encode_opentrack(values: Sequence[float]) -> bytes:
+    """Pack six values into an opentrack UDP datagram.
+
+    Parameters
+    ----------
+    values : sequence of 6 float
+        ``x_cm, y_cm, z_cm, yaw_deg, pitch_deg, roll_deg`` (as returned by
+        :func:`opentrack_values`).
+
+    Returns
+    -------
+    bytes
+        48 bytes: six little-endian IEEE-754 doubles (``struct`` format ``'<6d'``).
+
+    Raises
+    ------
+    ValueError
+        When there are not six values or one is not finite (opentrack would
+        drop the datagram anyway).
+    """
+    vals = [float(x) for x in values]
+    if len(vals) != 6:
+        raise ValueError(f"expected 6 values (x, y, z cm, yaw, pitch, roll deg), got {len(vals)}")
+    if not all(math.isfinite(x) for x in vals):
+        raise ValueError(f"values must be finite, got {vals}")
+    return _PACKET.pack(*vals)
+
+
+def decode_opentrack(data: bytes) -> tuple[float, float, float, float, float, float]:
+    """Unpack an opentrack UDP datagram made by :func:`encode_opentrack`.
+
+    Parameters
+    ----------
+    data : bytes
+        Exactly 48 bytes.
+
+    Returns
+    -------
+    x_cm, y_cm, z_cm, yaw_deg, pitch_deg, roll_deg : float
+
+    Raises
+    ------
+    ValueError
+        When ``data`` is not 48 bytes long.
+    """
+    if len(data) != _PACKET.size:
+        raise ValueError(f"an opentrack datagram is {_PACKET.size} bytes, got {len(data)}")
+    return _PACKET.unpack(data)
+
+
+def parse_host_port(text: str, default_port: int = OPENTRACK_PORT) -> tuple[str, int]:
+    """Split ``"HOST:PORT"`` or ``"HOST"`` into ``(host, port)``.
+
+    IPv6 addresses are written ``[::1]:4242``; a bare address with several
+    colons (``::1``) is taken as a host without a port.
+
+    Parameters
+    ----------
+    text : str
+        The address as given on a command line.
+    default_port : int
+        The port when ``text`` has none (opentrack's 4242).
+
+    Returns
+    -------
+    host : str
+    port : int
+        In 1..65535.
+
+    Raises
+    ------
+    ValueError
+        On an empty host, a port that is not an integer or is out of range,
+        or an unclosed ``[``.
+    """
+    s = str(text).strip()
+    port_text = None
+    if s.startswith("["):
+        end = s.find("]")
+        if end < 0:
+            raise ValueError(f"bad address {text!r}: '[' without ']' (write IPv6 as [::1]:4242)")
+        host, rest = s[1:end], s[end + 1:]
+        if rest:
+            if not rest.startswith(":"):
+                raise ValueError(f"bad address {text!r}: expected ':PORT' after ']', got {rest!r}")
+            port_text = rest[1:]
+    elif s.count(":") == 1:
+        host, port_text = s.split(":")
+    else:
+        host = s
+    host = host.strip()
+    if not host:
+        raise ValueError(f"bad address {text!r}: empty host (expected HOST or HOST:PORT, e.g. 127.0.0.1:4242)")
+    if port_text is None:
+        return host, int(default_port)
+    try:
+        port = int(port_text.strip())
+    except ValueError:
+        raise ValueError(f"bad port in {text!r}: expected an integer 1..65535, got {port_text!r}") from None
+    if not 1 <= port <= 65535:
+        raise ValueError(f"bad port in {text!r}: expected 1..65535, got {port}")
+    return host, port
+
+
+class OpentrackSender:
+    """Send pose records to opentrack's "UDP over network" input.
+
+    Parameters
+    ----------
+    host : str
+        Host name or address of the machine running opentrack. It is
+        resolved once, here.
+    port : int
+        opentrack's UDP port (default 4242).
+
+    Attributes
+    ----------
+    sent : int
+        Datagrams sent.
+    skipped : int
+        Records not sent (``ok`` false, or a non-finite pose).
+    last_error : str or None
+        The last socket error (a send that failed returns False; the caller
+        keeps running).
+
+    Examples
+    --------
+    >>> with OpentrackSender("127.0.0.1") as out:     # doctest: +SKIP
+    ...     for record in records:
+    ...         out.send(record)
+    """
+
+    def __init__(self, host: str, port: int = OPENTRACK_PORT):
+        if not host:
+            raise ValueError("OpentrackSender: empty host")
+        if not 1 <= int(port) <= 65535:
+            raise ValueError(f"OpentrackSender: port must be 1..65535, got {port}")
+        try:
+            infos = socket.getaddrinfo(host, int(port), type=socket.SOCK_DGRAM)
+        except socket.gaierror as e:
+            raise ValueError(f"OpentrackSender: cannot resolve host {host!r}: {e}") from None
+        family, type_, proto, _, self.address = infos[0]
+        self.host, self.port = host, int(port)
+        self._sock = socket.socket(family, type_, proto)
+        self.sent = 0
+        self.skipped = 0
+        self.last_error: str | None = None
+
+    def send(self, record: Mapping) -> bool:
+        """Send one pose record.
+
+        Parameters
+        ----------
+        record : mapping
+            A pose record as the tracker writes it: keys ``ok``, ``position``
+            ((3,) mm, world frame) and ``axes`` ((3, 3), rows Ξ, Ψ, V).
+
+        Returns
+        -------
+        bool
+            True when a datagram was sent. False, and nothing sent, for a
+            record with ``ok`` false or a missing or non-finite pose, or when
+            the socket reports an error (kept in ``last_error``).
+        """
+        if self._sock is None:
+            raise ValueError("OpentrackSender: send() after close()")
+        if not record.get("ok") or record.get("position") is None or record.get("axes") is None:
+            self.skipped += 1
+            return False
+        try:
+            packet = encode_opentrack(opentrack_values(record["position"], record["axes"]))
+        except ValueError:
+            self.skipped += 1
+            return False
+        try:
+            self._sock.sendto(packet, self.address)
+        except OSError as e:
+            self.last_error = f"{self.host}:{self.port}: {e}"
+            return False
+        self.sent += 1
+        return True
+
+    def close(self) -> None:
+        """Close the socket (idempotent)."""
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+    def __enter__(self) -> "OpentrackSender":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class StatusLine:
+    """A one-line live summary of tracking, for a terminal.
+
+    Call :meth:`update` once per frame. At most every ``every_s`` seconds the
+    line is written: on a terminal it overwrites itself (``'\\r'``), otherwise
+    (a pipe, a log file) each rendering is its own line. Example::
+
+        59.8 Hz | latency 14.2/19.0 ms (med/p95) | skew 0.3/1.1 ms (med/max) | dropped 2 | ok 97.5% | last failure: ...
+
+    Parameters
+    ----------
+    stream : text stream
+        Where to write (default standard error).
+    every_s : float
+        Minimum interval between two renderings, s (> 0).
+    window_s : float
+        Length of the sliding window for the rate, latency and skew, s.
+
+    Notes
+    -----
+    Rate: (frames in the window - 1) / (time between the first and the last),
+    Hz. Latency (capture to pose, ms): median and 95th percentile over the
+    window. Skew (left/right capture-time difference, ms): median and maximum
+    of its absolute value over the window. Dropped frames, % ok and the last
+    failure reason are over the whole run.
+    """
+
+    def __init__(self, stream: TextIO | None = None, every_s: float = 1.0, window_s: float = 5.0):
+        if not every_s > 0:
+            raise ValueError(f"every_s must be > 0, got {every_s}")
+        if not window_s > 0:
+            raise ValueError(f"window_s must be > 0, got {window_s}")
+        self.stream = sys.stderr if stream is None else stream
+        self.every_s = float(every_s)
+        self.window_s = float(window_s)
+        try:
+            self._tty = bool(self.stream.isatty())
+        except (AttributeError, ValueError):
+            self._tty = False
+        self._times: deque[float] = deque()
+        self._latency: deque[tuple[float, float]] = deque()
+        self._skew: deque[tuple[float, float]] = deque()
+        self.frames = 0
+        self.ok = 0
+        self.failed = 0
+        self.dropped = 0
+        self.last_failure: str | None = None
+        self._last_render: float | None = None
+        self._last_len = 0
+        self._rendered = False
+        self._closed = False
+
+    def update(self, record: Mapping, latency_ms: float | None = None, skew_ms: float | None = None,
+               dropped: int = 0, now: float | None = None) -> str | None:
+        """Account for one frame, and write the line when it is due.
+
+        Parameters
+        ----------
+        record : mapping
+            The frame's pose record (``ok``, ``reason``).
+        latency_ms : float, optional
+            Capture (mid-exposure) to pose, ms.
+        skew_ms : float, optional
+            Left minus right capture time, ms (its absolute value is used).
+        dropped : int
+            Frames dropped since the previous update.
+        now : float, optional
+            The current time, s, on any monotonic clock (default
+            ``time.monotonic()``).
+
+        Returns
+        -------
+        str or None
+            The line when it was written, else None.
+        """
+        now = time.monotonic() if now is None else float(now)
+        self.frames += 1
+        self.dropped += int(dropped)
+        if record.get("ok"):
+            self.ok += 1
+        else:
+            self.failed += 1
+            self.last_failure = record.get("reason") or "no reason given"
+        self._times.append(now)
+        if latency_ms is not None and math.isfinite(latency_ms):
+            self._latency.append((now, float(latency_ms)))
+        if skew_ms is not None and math.isfinite(skew_ms):
+            self._skew.append((now, abs(float(skew_ms))))
+        self._expire(now)
+        if self._last_render is None:
+            self._last_render = now
+            return None
+        if now - self._last_render < self.every_s:
+            return None
+        self._last_render = now
+        line = self.render()
+        self._write(line)
+        return line
+
+    def _expire(self, now: float) -> None:
+        start = now - self.window_s
+        while self._times and self._times[0] < start:
+            self._times.popleft()
+        for q in (self._latency, self._skew):
+            while q and q[0][0] < start:
+                q.popleft()
+
+    def rate_hz(self) -> float | None:
+        """Frame rate over the sliding window, Hz; None with fewer than two frames."""
+        if len(self._times) < 2 or self._times[-1] <= self._times[0]:
+            return None
+        return (len(self._times) - 1) / (self._times[-1] - self._times[0])
+
+    def summary(self) -> dict:
+        """The current statistics.
+
+        Returns
+        -------
+        dict
+            ``frames``, ``ok``, ``failed``, ``dropped`` (counts over the run),
+            ``ok_percent``, ``rate_hz``, ``latency_ms_median``,
+            ``latency_ms_p95``, ``skew_ms_median``, ``skew_ms_max`` (over the
+            window; None when there is no data) and ``last_failure``.
+        """
+        lat = np.array([v for _, v in self._latency])
+        skew = np.array([v for _, v in self._skew])
+        return {
+            "frames": self.frames,
+            "ok": self.ok,
+            "failed": self.failed,
+            "dropped": self.dropped,
+            "ok_percent": 100.0 * self.ok / self.frames if self.frames else None,
+            "rate_hz": self.rate_hz(),
+            "latency_ms_median": float(np.median(lat)) if lat.size else None,
+            "latency_ms_p95": float(np.percentile(lat, 95)) if lat.size else None,
+            "skew_ms_median": float(np.median(skew)) if skew.size else None,
+            "skew_ms_max": float(skew.max()) if skew.size else None,
+            "last_failure": self.last_failure,
+        }
+
+    def render(self) -> str:
+        """The status line for the current statistics (no newline, no ``'\\r'``)."""
+        s = self.summary()
+
+        def num(x, fmt="{:.1f}"):
+            return "--" if x is None else fmt.format(x)
+
+        parts = [f"{num(s['rate_hz'])} Hz",
+                 f"latency {num(s['latency_ms_median'])}/{num(s['latency_ms_p95'])} ms (med/p95)",
+                 f"skew {num(s['skew_ms_median'])}/{num(s['skew_ms_max'])} ms (med/max)",
+                 f"dropped {s['dropped']}",
+                 f"ok {num(s['ok_percent'])}%"]
+        if s["last_failure"]:
+            parts.append(f"last failure: {s['last_failure']}")
+        return " | ".join(parts)
+
+    def _write(self, line: str) -> None:
+        if self._tty:
+            pad = max(0, self._last_len - len(line))
+            self.stream.write("\r" + line + " " * pad)
+            self._last_len = len(line)
+        else:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+        self._rendered = True
+
+    def close(self) -> None:
+        """End the line on a terminal (a final newline); idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._tty and self._rendered:
+            self.stream.write("\n")
+            self.stream.flush()
+
+    def __enter__(self) -> "StatusLine":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
