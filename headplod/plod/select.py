@@ -95,14 +95,20 @@ class LevelSelector:
     uncertainty : one of UNCERTAINTY_MODES
     csf_model : one of perception.CSF_MODELS
     hysteresis : bool
+    level_bias : float
+        Added to every continuous level before rounding (0 by default): the
+        one knob that trades triangles for image error in every mode alike,
+        for the quality curves of ``headplod bench plod``.
     """
 
     def __init__(self, centroids_scene, edge_len_scene, geometric_error_scene, contrast, model, screen,
                  mode="csf", uncertainty="adaptive", csf_model="kelly_scaled", hysteresis=True,
-                 sse_tolerance_px=1.0, distance_ref_mm=700.0, frame_s=1 / 60, smoothing_s=0.25):
+                 sse_tolerance_px=1.0, distance_ref_mm=700.0, frame_s=1 / 60, smoothing_s=0.25,
+                 level_bias=0.0):
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         self.mode, self.csf_model = mode, csf_model
+        self.level_bias = float(level_bias)
         self.max_level = edge_len_scene.shape[1] - 1
         model = np.asarray(model, dtype=np.float64)
         self.scale_mm = float(np.cbrt(abs(np.linalg.det(model[:3, :3]))))
@@ -153,7 +159,7 @@ class LevelSelector:
         # fovea must be refined there.
         ecc = np.maximum(pc.eccentricity_deg(shifted) - 0.5 * angular_deg[:, 0], 0.0)
         freq = 1.0 / np.maximum(angular_deg, 1e-9)
-        continuous = self._continuous(freq, distance, ecc, speed, angular_deg)
+        continuous = self._continuous(freq, distance, ecc, speed, angular_deg) + self.level_bias
         if self.mode != "full":
             # Frustum culling (the paper's renderer culled too): a base
             # triangle wholly outside the screen as seen from the eye gets
@@ -227,9 +233,20 @@ class LevelSelector:
             return view
         t0, eye0, poi0 = self._smooth
         dt = max(view.t - t0, 0.0) if view.t is not None else 0.0
-        # A jump larger than the noise (here 30 px or 20 mm) is a real movement: follow it at once.
-        if np.linalg.norm(poi - poi0) > 30.0 or np.linalg.norm(eye - eye0) > 20.0:
+        # A jump larger than the noise is a real movement: follow it at once,
+        # and let the levels follow at once too (hysteresis restarted).
+        # The noise: 20 mm for the eye; for the POI 30 px or five of the
+        # tracker's σ of V projected on the screen, whichever is larger (at
+        # 1 m a fixed 30 px is crossed by noise now and then).
+        poi_noise_px = 30.0
+        if view.cov_deg2 is not None:
+            sigma_deg = math.sqrt(max(float(np.linalg.eigvalsh(np.asarray(view.cov_deg2, dtype=np.float64))[-1]), 0.0))
+            reach_mm = float(np.linalg.norm(self.screen.pixel_to_world(poi) - eye))
+            poi_noise_px = max(poi_noise_px, 5.0 * reach_mm * math.tan(math.radians(sigma_deg)) * self.px_per_mm)
+        if np.linalg.norm(poi - poi0) > poi_noise_px or np.linalg.norm(eye - eye0) > 20.0:
             rate = 1.0
+            if self.hysteresis is not None:
+                self.hysteresis.reset()
         else:
             rate = 1.0 - math.exp(-dt / self.smoothing_s) if dt > 0 else 1.0
         eye = eye0 + rate * (eye - eye0)

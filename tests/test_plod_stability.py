@@ -1,0 +1,94 @@
+"""Temporal stability of the PLOD level selection: a still head through the real tracker.
+
+The issue: "a still head fed through the real tracker on synthetic noisy
+frames: level changes per frame after the first 10 frames for none, fixed,
+adaptive and smoothed adaptive; the fixed and smoothed modes reach zero."
+"""
+import numpy as np
+import pytest
+
+from headplod.plod.select import View
+from headplod.plod.stability import (
+    level_changes, levels_sequence, plot_stability, stability_report, still_head_views,
+)
+from headplod.plod.still import TerrainScene
+
+FRAMES = 40
+WARMUP = 10
+
+
+@pytest.fixture(scope="module")
+def still(tmp_path_factory):
+    """(tracked views, truth views, scene) of 40 static frames at 600 mm; the scene is built once."""
+    root = tmp_path_factory.mktemp("stability")
+    tracked, truth, screen = still_head_views(FRAMES, 600.0, seed=0, root=root)
+    return tracked, truth, TerrainScene.build(screen)
+
+
+def test_the_tracker_sees_a_still_head(still):
+    tracked, truth, scene = still
+    assert len(tracked) == FRAMES and tracked.lost == 0
+    poi = np.array([v.poi_px for v in tracked])
+    true_poi = np.array([v.poi_px for v in truth])
+    assert np.all(np.abs(poi - true_poi) < 15.0)          # the real tracker, not the truth
+    assert np.ptp(poi, axis=0).max() > 0.1                 # with noise
+    assert all(v.cov_deg2 is not None and np.trace(v.cov_deg2) > 0 for v in tracked)
+
+
+@pytest.mark.parametrize("uncertainty", ["fixed", "smoothed"])
+def test_fixed_and_smoothed_reach_zero_changes_with_hysteresis(still, uncertainty):
+    tracked, _, scene = still
+    result = level_changes(scene, tracked, "csf", uncertainty, hysteresis=True, warmup=WARMUP)
+    assert len(result["changes_per_frame"]) == FRAMES - WARMUP
+    assert result["changes_per_frame"] == [0] * (FRAMES - WARMUP), result
+
+
+def test_the_truth_driven_reference_is_still(still):
+    _, truth, scene = still
+    for uncertainty in ("none", "adaptive"):
+        result = level_changes(scene, truth, "csf", uncertainty, hysteresis=False, warmup=WARMUP)
+        assert result["max_changes"] == 0
+
+
+def _still_then_jump(still, uncertainty, jump_px=300.0):
+    """Levels of the last still frame, of the frame after a POI jump, its features, and a fresh selection."""
+    tracked, _, scene = still
+    selector = scene.selector("csf", uncertainty, hysteresis=True)
+    levels = [selector.select(view)[0] for view in tracked]
+    last = tracked[-1]
+    moved = View(last.eye_mm, np.asarray(last.poi_px) + [jump_px, 0.0], last.cov_deg2,
+                 last.t + (last.t - tracked[-2].t))
+    after, info = selector.select(moved)
+    fresh = levels_sequence(scene, [moved], "csf", uncertainty, hysteresis=False)[0]
+    return levels[-1], after, info, fresh
+
+
+@pytest.mark.parametrize("uncertainty", ["fixed", "smoothed"])
+def test_levels_still_follow_a_real_movement(still, uncertainty):
+    """The zero above is not a frozen selector: a 300 px POI jump changes levels in the same frame."""
+    before, after, info, _ = _still_then_jump(still, uncertainty)
+    changed = np.count_nonzero(after != before)
+    assert changed >= 100, changed
+    # The detail follows the POI: the triangle nearest the new POI is among the finest.
+    nearest = np.argmin(info["eccentricity_deg"])
+    assert after[nearest] == after.max() > before[nearest]
+
+
+def test_after_a_real_movement_levels_match_a_fresh_selection(still):
+    _, after, _, fresh = _still_then_jump(still, "smoothed")
+    assert np.count_nonzero(after != fresh) <= 0.02 * len(after)
+
+
+def test_report_and_chart(still, tmp_path):
+    tracked, truth, scene = still
+    report = stability_report(scene, frames=FRAMES, uncertainties=("adaptive", "smoothed"),
+                              views=(tracked, truth), warmup=WARMUP)
+    assert [(r["hysteresis"], r["uncertainty"]) for r in report["runs"]] == [
+        (True, "adaptive"), (True, "smoothed"), (False, "adaptive"), (False, "smoothed")]
+    for run in report["runs"]:
+        assert {"changes_per_frame", "mean_changes", "max_changes", "frames_with_changes", "triangles",
+                "differs_from_truth"} <= set(run)
+        assert run["triangles"] > scene.mesh.n_faces
+        assert 0 <= run["differs_from_truth"] <= 0.05 * scene.mesh.n_faces
+    path = plot_stability(report, tmp_path / "stability.png")
+    assert path.exists() and path.stat().st_size > 10_000
