@@ -47,6 +47,47 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--no-tracking", action="store_true",
                        help="detect and identify from scratch in every frame")
     track.add_argument("--quiet", "-q", action="store_true", help="no per-frame lines")
+    live = track.add_argument_group("live cameras, recording and outputs")
+    live.add_argument("--camera", nargs="+", metavar="DEV",
+                      help="track live: LEFT RIGHT (/dev/videoN or N) or 'auto' (the cameras named in --calib, "
+                           "found by USB identity; see 'headplod cameras')")
+    live.add_argument("--calib", help="rig.yaml of the cameras (required with --camera)")
+    live.add_argument("--markers", help="markers.yaml (default: the dataset's, else the default model)")
+    live.add_argument("--screen", help="screen.yaml, for the POI in the records (default: the dataset's)")
+    live.add_argument("--fps", type=float, default=60.0, help="camera frame rate to request (default 60)")
+    live.add_argument("--fourcc", help="camera pixel format to request: GREY, YUYV or MJPG (default: the camera's)")
+    live.add_argument("--exposure", type=float, help="manual exposure (V4L2 units; auto exposure is then off)")
+    live.add_argument("--gain", type=float, help="camera gain (V4L2 units)")
+    live.add_argument("--record", metavar="DIR", help="write the frames as a dataset folder while tracking")
+    live.add_argument("--udp", metavar="HOST[:PORT]",
+                      help="send each pose to opentrack's UDP input (six float64: x, y, z cm, yaw, pitch, "
+                           "roll deg; default port 4242)")
+    live.add_argument("--filter", nargs="?", const="1.0,0.02", metavar="MIN_CUTOFF,BETA",
+                      help="One Euro filter on the recorded/sent poses (default off; 1.0 Hz, 0.02 when given "
+                           "without values)")
+    live.add_argument("--status", action="store_true",
+                      help="a status line (rate, latency, skew, drops); on by default with --camera")
+    live.add_argument("--frames", type=int, help="stop after N frames")
+
+    cameras = sub.add_parser("cameras", help="list the video devices with their USB identity")
+    cameras.add_argument("--all-nodes", action="store_true", help="also the metadata nodes of UVC cameras")
+
+    calibrate = sub.add_parser("calibrate", help="stereo calibration from chessboard/ChArUco pairs -> rig.yaml")
+    calibrate.add_argument("folder", nargs="?", help="image pairs: left/ and right/ with matching names, or "
+                                                     "leftNN.* and rightNN.* side by side")
+    calibrate.add_argument("--camera", nargs="+", metavar="DEV",
+                           help="capture the pairs live from LEFT RIGHT (or 'auto' with --identify-from "
+                                "rig.yaml), with a guide to the poses still missing; they are kept in --save")
+    calibrate.add_argument("--board", choices=("chessboard", "charuco"), default="chessboard")
+    calibrate.add_argument("--cols", type=int, required=True, help="inner corners per row")
+    calibrate.add_argument("--rows", type=int, required=True, help="inner corners per column")
+    calibrate.add_argument("--square-mm", type=float, required=True, help="side of a square, mm")
+    calibrate.add_argument("--marker-mm", type=float, help="ChArUco: side of a marker, mm (default 0.7 square)")
+    calibrate.add_argument("--dictionary", default="DICT_5X5_100", help="ChArUco dictionary (default DICT_5X5_100)")
+    calibrate.add_argument("--out", required=True, help="rig.yaml to write")
+    calibrate.add_argument("--save", help="live: folder for the captured pairs (default: beside --out)")
+    calibrate.add_argument("--pairs", type=int, default=20, help="live: pairs to capture (default 20)")
+    calibrate.add_argument("--size", type=_floats(2), help="live: camera image size W,H (default 640,480)")
 
     bench = sub.add_parser("bench", help="benchmarks: accuracy against speed")
     bench_sub = bench.add_subparsers(dest="bench", required=True)
@@ -76,9 +117,15 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--out", required=True, help="output image (PNG)")
     render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
 
+    bl = bench_sub.add_parser("live", help="rate, latency and capture-layer cost of tracking a replayed recording")
+    bl.add_argument("dataset", nargs="?", help="a recording (dataset folder); default: the built-in sequence")
+    bl.add_argument("--json", help="write the results as JSON")
+    bl.add_argument("--repeats", type=int, default=3, help="passes over the recording (default 3)")
+
     bp = bench_sub.add_parser("plod", help="speed and image quality of the LOD modes against full (1280x720)")
     bp.add_argument("--json", help="write the results as JSON")
-    bp.add_argument("--chart", help="write the triangles/frame time against PSNR chart (PNG)")
+    bp.add_argument("--chart", help="write the chart (PNG); the level-colour pictures go beside it")
+    bp.add_argument("--quick", action="store_true", help="fewer points on the curves and sweeps (a smoke run)")
 
     synth = sub.add_parser("synth", help="render a synthetic dataset folder")
     synth.add_argument("preset")
@@ -109,7 +156,14 @@ def main(argv=None) -> int:
             return _cmd_track(args)
         if args.command == "bench" and args.bench == "plod":
             from . import bench_plod
-            return bench_plod.run_plod_bench(json_path=args.json, chart_path=args.chart)
+            return bench_plod.run_plod_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
+        if args.command == "bench" and args.bench == "live":
+            from . import bench_live
+            return bench_live.run_live_bench(args.dataset, json_path=args.json, repeats=args.repeats)
+        if args.command == "cameras":
+            return _cmd_cameras(args)
+        if args.command == "calibrate":
+            return _cmd_calibrate(args)
         if args.command == "bench" and args.bench == "uncertainty":
             from . import bench_uncertainty
             return bench_uncertainty.run_uncertainty_bench(json_path=args.json, chart_path=args.chart,
@@ -131,20 +185,53 @@ def main(argv=None) -> int:
     return 2
 
 
+def _open_track_source(args, io):
+    """The frame source of ``headplod track``, the rig and whether it is live."""
+    from .capture import open_source
+    from .sequences import DEFAULT_SEQUENCE, ensure_dataset
+
+    rig = io.read_rig(args.calib) if args.calib else None
+    if args.camera:
+        if rig is None:
+            raise _Usage("--camera needs --calib rig.yaml (the calibration of these cameras; "
+                         "'headplod calibrate' makes one)")
+        if args.camera == ["auto"]:
+            from .cameras import list_cameras, resolve_rig_cameras
+            left, right = resolve_rig_cameras(rig, list_cameras())
+            print(f"cameras from {args.calib}: left {left}, right {right}", file=sys.stderr)
+        elif len(args.camera) == 2:
+            left, right = args.camera
+        else:
+            raise _Usage("--camera takes LEFT RIGHT (two devices) or 'auto'")
+        from .capture import V4L2StereoSource
+        width, height = rig.image_size
+        source = V4L2StereoSource(_device(left), _device(right), width=width, height=height, fps=args.fps,
+                                  fourcc=args.fourcc, exposure=args.exposure, gain=args.gain, rig=rig)
+        print(source.settings_report(text=True), file=sys.stderr)
+        return source, rig, True
+    spec = args.dataset
+    if spec is None:
+        spec = str(ensure_dataset(DEFAULT_SEQUENCE))
+        print(f"tracking the built-in synthetic sequence: {spec}", file=sys.stderr)
+    source = open_source(spec)
+    return source, rig or source.rig, False
+
+
+class _Usage(Exception):
+    """A command-line mistake: the message says what to do; exit status 2."""
+
+
+def _device(text: str):
+    return int(text) if text.isdigit() else text
+
+
 def _cmd_track(args) -> int:
     from . import evaluate, io
     from .detect import DetectionParams
-    from .pipeline import Progress, track_dataset
-    from .sequences import DEFAULT_SEQUENCE, ensure_dataset
+    from .live import run_source
+    from .pipeline import Progress
     from .tracker import TrackerConfig
 
-    folder = args.dataset
-    if folder is None:
-        folder = ensure_dataset(DEFAULT_SEQUENCE)
-        print(f"tracking the built-in synthetic sequence: {folder}", file=sys.stderr)
-    dataset = io.Dataset(folder)
-    for warning in dataset.warnings:
-        print(f"warning: {warning}", file=sys.stderr)
     detection = DetectionParams.paper() if args.paper_detection else DetectionParams(threshold_dn=args.threshold)
     if args.paper_detection and args.threshold is not None:
         detection = DetectionParams(threshold_dn=args.threshold, smooth_px=9, subtract_background=False)
@@ -155,18 +242,42 @@ def _cmd_track(args) -> int:
         return 2
     config = TrackerConfig(estimator=args.estimator, detection=detection, track=not args.no_tracking,
                            uncertainty=args.uncertainty or DEFAULT_COVARIANCE)
-    writer = io.PoseWriter(args.out) if args.out else None
+    pose_filter = None
+    if args.filter:
+        from .filters import PoseFilter
+        try:
+            min_cutoff, beta = (float(v) for v in args.filter.split(","))
+            pose_filter = PoseFilter(min_cutoff_hz=min_cutoff, beta=beta)
+        except ValueError as exc:
+            print(f"headplod: --filter expects MIN_CUTOFF_HZ,BETA such as 1.0,0.02 ({exc})", file=sys.stderr)
+            return 2
+    try:
+        source, rig, live = _open_track_source(args, io)
+    except _Usage as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
+    except (ValueError, OSError, LookupError) as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 1
+    for warning in source.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    markers = io.read_markers(args.markers) if args.markers else None
+    screen = io.read_screen(args.screen) if args.screen else None
+    truth = getattr(getattr(source, "dataset", None), "truth", None) or {}
     to_stdout = args.out == "-"
     log = sys.stderr
-    truth = dataset.truth or {}
-    progress = Progress(len(dataset), "track") if args.quiet and not to_stdout else None
+    writer = sender = recorder = status = None
+    total = len(source.dataset) if hasattr(source, "dataset") else None
+    progress = Progress(total, "track") if args.quiet and not to_stdout and total and not live else None
+    records = []
 
     def on_record(record, result):
+        records.append(record)
         if writer is not None:
             writer.write(record)
         if progress is not None:
             progress.step()
-        if args.quiet:
+        if args.quiet or status is not None:
             return
         line = f"frame {record['frame']:6d} "
         if record["ok"]:
@@ -181,17 +292,141 @@ def _cmd_track(args) -> int:
                 line += f"  {result.timings_s.get('total', 0) * 1e3:5.2f} ms [{result.mode}]"
         else:
             line += f"no pose: {record['reason']}"
+        if record.get("flags"):
+            line += "  [" + "; ".join(record["flags"]) + "]"
         print(line, file=log)
 
     try:
-        records = track_dataset(dataset, config, on_record=on_record)
+        writer = io.PoseWriter(args.out) if args.out else None
+        if args.udp:
+            from .output import OpentrackSender, parse_host_port
+            sender = OpentrackSender(*parse_host_port(args.udp))
+        if args.record:
+            from .capture import DatasetRecorder
+            recorder = DatasetRecorder(args.record, rig, markers=markers or source.markers,
+                                       screen=screen or source.screen)
+        if args.status or (live and not args.quiet):
+            from .output import StatusLine
+            status = StatusLine(stream=log)
+        stats = run_source(source, config, rig=rig, markers=markers, screen=screen, on_record=on_record,
+                           recorder=recorder, sender=sender, pose_filter=pose_filter, status=status,
+                           max_frames=args.frames)
+    except (ValueError, OSError) as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("headplod: stopped (Ctrl-C); everything up to here is kept", file=sys.stderr)
+        stats = None
     finally:
-        if writer is not None:
-            writer.close()
-    summary = evaluate.summarize(records, dataset.truth)
-    print(evaluate.format_summary(str(Path(folder).name), summary), file=log)
+        for thing in (status, recorder, sender, writer, source):
+            if thing is not None:
+                thing.close()
+    summary = evaluate.summarize(records, truth or None)
+    name = source.name if live else Path(str(source.name)).name
+    print(evaluate.format_summary(name, summary), file=log)
+    if stats is not None and (live or args.status):
+        s = stats.summary()
+        print(f"rate {s['rate_hz'] or 0:.1f} Hz, latency p50 {s['latency_ms_p50'] or 0:.1f} ms, "
+              f"p95 {s['latency_ms_p95'] or 0:.1f} ms", file=log)
+    if args.record:
+        print(f"recording: {args.record} (replay: headplod track {args.record})", file=log)
     if args.out and args.out != "-":
         print(f"pose records: {args.out}", file=log)
+    return 0
+
+
+def _cmd_cameras(args) -> int:
+    from .cameras import LibusbMissingError, format_cameras, list_cameras
+
+    try:
+        cams = list_cameras(all_nodes=args.all_nodes)
+    except LibusbMissingError as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 1
+    print(format_cameras(cams))
+    return 0
+
+
+def _cmd_calibrate(args) -> int:
+    from .calibrate import BoardSpec, CalibrationError, calibrate_folder, format_report
+
+    try:
+        spec = BoardSpec(kind=args.board, cols=args.cols, rows=args.rows, square_mm=args.square_mm,
+                         marker_mm=args.marker_mm, dictionary=args.dictionary)
+    except ValueError as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
+    folder = args.folder
+    if args.camera:
+        if folder:
+            print("headplod: give either FOLDER or --camera, not both", file=sys.stderr)
+            return 2
+        folder = args.save or str(Path(args.out).with_suffix("")) + "_pairs"
+        code = _capture_calibration_pairs(args, spec, Path(folder))
+        if code:
+            return code
+    if not folder:
+        print("headplod: calibrate needs FOLDER (image pairs) or --camera LEFT RIGHT", file=sys.stderr)
+        return 2
+    from .pipeline import Progress
+    progress = Progress(0, "detect board")
+
+    def step(done, total):
+        progress.total = total
+        progress.step()
+
+    try:
+        result = calibrate_folder(folder, spec, out=args.out, progress=step)
+    except CalibrationError as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 1
+    print(format_report(result))
+    print(f"rig: {args.out}", file=sys.stderr)
+    return 0
+
+
+def _capture_calibration_pairs(args, spec, folder: Path) -> int:
+    """Live: keep board pairs seen by both cameras, with a guide to the poses still missing."""
+    import cv2
+
+    from .calibrate import coverage_guide, detect_board
+    from .capture import V4L2StereoSource
+
+    if len(args.camera) != 2:
+        print("headplod: calibrate --camera takes LEFT RIGHT", file=sys.stderr)
+        return 2
+    width, height = (int(v) for v in (args.size or (640, 480)))
+    (folder / "left").mkdir(parents=True, exist_ok=True)
+    (folder / "right").mkdir(parents=True, exist_ok=True)
+    kept, last_kept = [], None
+    with V4L2StereoSource(_device(args.camera[0]), _device(args.camera[1]), width=width, height=height,
+                          fps=15, fourcc=args.fourcc if hasattr(args, "fourcc") else None) as source:
+        print(source.settings_report(text=True), file=sys.stderr)
+        print(f"show the board to both cameras; {args.pairs} pairs are kept, at least 1 s apart "
+              "(Ctrl-C to stop early)", file=sys.stderr)
+        try:
+            while len(kept) < args.pairs:
+                frame = source.read(timeout_s=2.0)
+                if frame is None:
+                    break
+                if frame.error:
+                    print(f"  {frame.error}", file=sys.stderr)
+                    continue
+                det_l, det_r = detect_board(frame.left, spec), detect_board(frame.right, spec)
+                if not (det_l and det_r) or (last_kept is not None and frame.t - last_kept < 1.0):
+                    continue
+                name = f"{len(kept):02d}.png"
+                cv2.imwrite(str(folder / "left" / name), frame.left)
+                cv2.imwrite(str(folder / "right" / name), frame.right)
+                kept.append(det_l)
+                last_kept = frame.t
+                missing = coverage_guide(kept, (width, height))
+                print(f"  pair {len(kept)}/{args.pairs} kept" + (": still missing: " + "; ".join(missing)
+                                                                  if missing else ": coverage is good"),
+                      file=sys.stderr)
+        except KeyboardInterrupt:
+            print("  stopped; calibrating with the pairs kept", file=sys.stderr)
+    print(f"pairs: {folder}", file=sys.stderr)
     return 0
 
 

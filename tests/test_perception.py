@@ -377,3 +377,24 @@ def test_hysteresis_follows_real_changes_at_once():
     assert np.all(lv == 0)
     with pytest.raises(ValueError):
         h.update(np.zeros(n + 1), max_level=6)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0, 2 * np.pi), st.floats(0.05, 3.0), st.floats(0.05, 3.0), st.floats(-0.9, 0.9))
+def test_ellipse_shift_zero_inside_2_sigma_then_offset_less_2_sigma(ang, s1, s2, rho):
+    cov = np.array([[s1 ** 2, rho * s1 * s2], [rho * s1 * s2, s2 ** 2]])
+    u = np.array([np.cos(ang), np.sin(ang)])
+    sigma_u = 1.0 / np.sqrt(u @ np.linalg.inv(cov) @ u)     # σ along u: the 1σ ellipse's radius there
+    t = np.linspace(0, 12 * max(s1, s2), 400)
+    r = np.linalg.norm(p.uncertainty_shift(t[:, None] * u, cov, form="ellipse"), axis=1)
+    inside = t <= 2 * sigma_u
+    assert np.all(r[inside] == 0)
+    np.testing.assert_allclose(r[~inside], t[~inside] - 2 * sigma_u, atol=1e-9)
+    # Never farther than eq. 1 puts it: the ellipse form is the more conservative.
+    r_eq1 = np.linalg.norm(p.uncertainty_shift(t[:, None] * u, cov, form="eq1"), axis=1)
+    assert np.all(r <= r_eq1 + 1e-12)
+
+
+def test_unknown_shift_form():
+    with pytest.raises(ValueError, match="form must be one of"):
+        p.uncertainty_shift(np.ones((3, 2)), np.eye(2), form="eq2")

@@ -571,6 +571,7 @@ class AdaptiveMesh:
         index = np.full((N + 2, N + 2), -1, dtype=np.int64)
         index[B, C] = np.arange(len(B))
 
+        self.corners = corners.astype(np.float64)           # (F, 3, 3) scene units
         self.centroids = corners.mean(axis=1)
         self.edge_length = np.zeros((F, M + 1))
         self.geometric_error = np.zeros((F, M + 1))

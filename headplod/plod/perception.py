@@ -382,10 +382,21 @@ def eccentricity_deg(offset_deg):
 # Martinez eq. 1: uncertainty shift
 # ---------------------------------------------------------------------------
 
-def uncertainty_shift(offset_deg, cov_deg2):
+SHIFT_FORMS = ("eq1", "ellipse")
+
+
+def uncertainty_shift(offset_deg, cov_deg2, form="eq1", n_sigma=2.0):
     """Shift offsets toward the POI by the chance that they are the POI.
 
-    Martinez eq. 1 corrected: ``P' = (1 - exp(-½ Pᵀ Σ⁻¹ P)) P``.
+    ``form="eq1"``: Martinez eq. 1 corrected: ``P' = (1 - exp(-½ Pᵀ Σ⁻¹ P)) P``.
+    ``form="ellipse"``: ``P' = max(0, 1 - n/m) P`` with ``m² = Pᵀ Σ⁻¹ P``:
+    the eccentricity from the nearest gaze direction inside the ``n``-σ
+    ellipse (0 inside it; outside, the offset less ``n`` standard deviations
+    along its direction). Eq. 1 keeps 86% of the offset at 2σ (and 39% at
+    1σ), so with a large Σ the full-detail disc does not reach the 2σ
+    ellipse; the ellipse form covers it by construction and, for the
+    tracker's usual σ of a few hundredths of a degree, differs from eq. 1 by
+    as much.
     As printed the exponent is ``+Pᵀ Σ⁻¹ P``: then exp(...) >= 1 and the
     factor 1 - exp(...) is <= 0 everywhere, which would flip every triangle
     through the POI (and push far ones to -inf). The intent (shift toward the
@@ -432,7 +443,13 @@ def uncertainty_shift(offset_deg, cov_deg2):
         terms = np.where(pos, proj ** 2 / np.where(pos, lam, 1.0),
                          np.where(proj == 0.0, 0.0, np.inf))
     q = terms.sum(axis=-1)
-    factor = -np.expm1(-0.5 * q)                        # 1 - exp(-q/2), exact for small q
+    if form == "ellipse":
+        with np.errstate(divide="ignore"):
+            factor = np.maximum(1.0 - n_sigma / np.sqrt(q), 0.0)
+    elif form == "eq1":
+        factor = -np.expm1(-0.5 * q)                    # 1 - exp(-q/2), exact for small q
+    else:
+        raise ValueError(f"uncertainty_shift: form must be one of {SHIFT_FORMS}, got {form!r}")
     return factor[..., None] * P
 
 

@@ -9,7 +9,8 @@ Every criterion computes, for all base triangles at once, a *continuous*
 level (for hysteresis) and returns integer levels in [0, max_level]:
 
 - ``csf`` (Martinez et al.): eccentricity of the triangle from the POI seen
-  from the eye, shifted toward the POI by the uncertainty (eq. 1, with the
+  from the eye, shifted toward the POI by the uncertainty (by default so
+  that the 2σ ellipse around the POI gets full detail; or by eq. 1, with the
   sign the paper's print dropped), angular speed relative to the head
   (floored at 0.1 deg/s), contrast of the shaded terrain over the triangle;
   the CSF inverted for the highest visible frequency; LOD = ⌈log2(α_max/α)⌉.
@@ -95,6 +96,16 @@ class LevelSelector:
     uncertainty : one of UNCERTAINTY_MODES
     csf_model : one of perception.CSF_MODELS
     hysteresis : bool
+    shift : one of perception.SHIFT_FORMS
+        How the uncertainty moves eccentricities toward the POI: ``"ellipse"``
+        (default: the 2σ ellipse is at zero eccentricity, so its triangles
+        get full detail) or ``"eq1"`` (Martinez eq. 1, corrected; see
+        :func:`perception.uncertainty_shift` for why it falls short of that).
+    corners_scene : (F, 3, 3), optional
+        The base triangles' corners, scene units. With them a triangle's
+        angular size is the diameter of its projection seen from the eye
+        (the largest angle between two corners: the paper's definition,
+        foreshortening included); without, its longest edge seen face-on.
     level_bias : float
         Added to every continuous level before rounding (0 by default): the
         one knob that trades triangles for image error in every mode alike,
@@ -104,11 +115,14 @@ class LevelSelector:
     def __init__(self, centroids_scene, edge_len_scene, geometric_error_scene, contrast, model, screen,
                  mode="csf", uncertainty="adaptive", csf_model="kelly_scaled", hysteresis=True,
                  sse_tolerance_px=1.0, distance_ref_mm=700.0, frame_s=1 / 60, smoothing_s=0.25,
-                 level_bias=0.0):
+                 level_bias=0.0, shift="ellipse", corners_scene=None):
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         self.mode, self.csf_model = mode, csf_model
         self.level_bias = float(level_bias)
+        if shift not in pc.SHIFT_FORMS:
+            raise ValueError(f"shift must be one of {pc.SHIFT_FORMS}, got {shift!r}")
+        self.shift = shift
         self.max_level = edge_len_scene.shape[1] - 1
         model = np.asarray(model, dtype=np.float64)
         self.scale_mm = float(np.cbrt(abs(np.linalg.det(model[:3, :3]))))
@@ -116,6 +130,13 @@ class LevelSelector:
         self.centroids_mm = (homog @ model.T)[:, :3]
         self.edge_len_mm = edge_len_scene * self.scale_mm
         self.error_mm = geometric_error_scene * self.scale_mm
+        self.corners_mm = None
+        if corners_scene is not None:
+            corners = np.asarray(corners_scene, dtype=np.float64)
+            homog = np.concatenate([corners, np.ones(corners.shape[:2] + (1,))], axis=2)
+            self.corners_mm = (homog @ model.T)[..., :3]
+            # A level's pieces are the level-0 triangle scaled by its edge ratio.
+            self._level_scale = self.edge_len_mm / np.maximum(self.edge_len_mm[:, :1], 1e-12)
         self.contrast = np.asarray(contrast, dtype=np.float64)
         self.screen = screen
         width, height = screen.size_px
@@ -127,7 +148,7 @@ class LevelSelector:
         self.hysteresis = pc.Hysteresis(len(centroids_scene), rounding=self.rounding) if hysteresis else None
         self.sse_tolerance_px, self.distance_ref_mm, self.frame_s = sse_tolerance_px, distance_ref_mm, frame_s
         self._previous = None          # (t, eye_mm, directions (F, 3))
-        self._smooth = None            # (t, eye_mm, poi_px) smoothed
+        self._smooth = None            # the eye and POI filters and the last raw eye and POI
         self.smoothing_s = smoothing_s
 
     def head_axes(self, view: View) -> np.ndarray:
@@ -141,7 +162,10 @@ class LevelSelector:
         return np.stack([xi, np.cross(v, xi), v])
 
     def select(self, view: View):
-        """Levels (F,) int, and the continuous levels and per-triangle features used (dict)."""
+        """Levels (F,) int, and the continuous levels and per-triangle features used (dict).
+
+        The features are NaN for base triangles outside the view (frustum-culled: level 0).
+        """
         view = self._smoothed_view(view)
         eye = np.asarray(view.eye_mm, dtype=np.float64)
         rel = self.centroids_mm - eye
@@ -150,21 +174,34 @@ class LevelSelector:
         axes = self.head_axes(view)
         offsets = pc.view_offsets_deg(self.centroids_mm, eye, axes)
         cov = self.policy(view.cov_deg2)
-        shifted = pc.uncertainty_shift(offsets, cov) if cov is not None else offsets
+        shifted = pc.uncertainty_shift(offsets, cov, self.shift) if cov is not None else offsets
         speed = self._angular_speed(view.t, eye, directions)
+        # Frustum culling (the paper's renderer culled too): a base triangle
+        # wholly outside the screen as seen from the eye gets the coarsest
+        # level (GL clips it anyway), and the criterion is computed only for
+        # the others.
+        if self.mode != "full":
+            seen = np.flatnonzero(~self._outside_screen(eye, rel))
+        else:
+            seen = np.arange(len(rel))
         # Angular size of a level's pieces and its spatial frequency (1 / diameter).
-        angular_deg = np.degrees(2 * np.arctan(self.edge_len_mm / (2 * distance[:, None])))
+        if self.corners_mm is not None:
+            to_corners = self.corners_mm[seen] - eye
+            to_corners /= np.linalg.norm(to_corners, axis=2, keepdims=True)
+            chord = np.linalg.norm(to_corners - to_corners[:, [2, 0, 1]], axis=2)           # (S, 3)
+            diameter_deg = np.degrees(2 * np.arcsin(np.minimum(chord.max(axis=1) / 2, 1.0)))
+            angular_deg = diameter_deg[:, None] * self._level_scale[seen]
+        else:
+            angular_deg = np.degrees(2 * np.arctan(self.edge_len_mm[seen] / (2 * distance[seen, None])))
         # The triangle's nearest point to the POI, not its centroid, decides
         # what the eye can see of it: a large base triangle reaching into the
         # fovea must be refined there.
-        ecc = np.maximum(pc.eccentricity_deg(shifted) - 0.5 * angular_deg[:, 0], 0.0)
+        ecc = np.full(len(rel), np.nan)
+        ecc[seen] = np.maximum(pc.eccentricity_deg(shifted[seen]) - 0.5 * angular_deg[:, 0], 0.0)
         freq = 1.0 / np.maximum(angular_deg, 1e-9)
-        continuous = self._continuous(freq, distance, ecc, speed, angular_deg) + self.level_bias
-        if self.mode != "full":
-            # Frustum culling (the paper's renderer culled too): a base
-            # triangle wholly outside the screen as seen from the eye gets
-            # the coarsest level; GL clips it anyway.
-            continuous = np.where(self._outside_screen(eye, rel), 0.0, continuous)
+        continuous = np.zeros(len(rel))
+        continuous[seen] = self._continuous(freq, distance[seen], ecc[seen], speed[seen], angular_deg,
+                                            seen) + self.level_bias
         if self.hysteresis is not None:
             levels = self.hysteresis.update(continuous, self.max_level)
         else:
@@ -173,7 +210,8 @@ class LevelSelector:
         return levels, {"eccentricity_deg": ecc, "speed_deg_s": speed, "distance_mm": distance,
                         "continuous": continuous}
 
-    def _continuous(self, freq, distance, ecc, speed, angular_deg):
+    def _continuous(self, freq, distance, ecc, speed, angular_deg, seen):
+        """Continuous levels of the base triangles ``seen`` (indices); the other arguments are theirs."""
         L = self.max_level
         if self.mode == "full":
             return np.full(len(freq), float(L))
@@ -182,21 +220,21 @@ class LevelSelector:
             return L - np.log2(np.maximum(distance / self.distance_ref_mm, 1e-9))
         if self.mode in ("csf", "gp"):
             if self.mode == "csf":
-                fmax = pc.max_visible_freq_cpd(self.contrast, speed, ecc, model=self.csf_model)
+                fmax = pc.max_visible_freq_cpd(self.contrast[seen], speed, ecc, model=self.csf_model)
             else:
-                fmax = pc.gp_cutoff_cpd(self.contrast, ecc)
+                fmax = pc.gp_cutoff_cpd(self.contrast[seen], ecc)
             with np.errstate(divide="ignore"):
                 return np.log2(np.maximum(fmax, 1e-12) / freq[:, 0])
         if self.mode == "acuity":
             radius = 0.5 * angular_deg[:, 0]
             k1, k2, k3 = pc.acuity_factors(ecc, radius, speed, np.zeros_like(ecc))
             a0 = pc.display_acuity_a0(1.0 / self.px_per_mm, float(np.median(distance)))
-            return pc.acuity_level(k1, k2, k3, a0, distance, self.edge_len_mm, return_continuous=True)[1]
+            return pc.acuity_level(k1, k2, k3, a0, distance, self.edge_len_mm[seen], return_continuous=True)[1]
         pixels_per_radian = self.px_per_mm * float(np.median(distance))
         if self.mode == "sse":
-            return pc.sse_level(self.error_mm, distance, pixels_per_radian, self.sse_tolerance_px,
+            return pc.sse_level(self.error_mm[seen], distance, pixels_per_radian, self.sse_tolerance_px,
                                 speed_deg_s=speed, frame_s=self.frame_s, return_continuous=True)[1]
-        base = pc.sse_level(self.error_mm, distance, pixels_per_radian, self.sse_tolerance_px,
+        base = pc.sse_level(self.error_mm[seen], distance, pixels_per_radian, self.sse_tolerance_px,
                             return_continuous=True)[1]
         return pc.velocity_baseline_level(base, speed, mode=self.mode, max_level=L, return_continuous=True)[1]
 
@@ -218,40 +256,46 @@ class LevelSelector:
         return outside | ~(along * ((tl - eye) @ normal) > 0)      # behind the eye: not seen
 
     def _smoothed_view(self, view: View) -> View:
-        """Eye and POI averaged over the last frames (time constant ``smoothing_s``).
+        """Eye and POI through One Euro filters (the tracker's noise out, real motion through).
 
         Tracker noise moves the eye and the POI by a fraction of a degree per
-        frame; unsmoothed, that reads as tens of degrees per second of head
+        frame; unfiltered, that reads as tens of degrees per second of head
         motion and as eccentricity jitter, and triangles near a level boundary
-        flicker (Ohshima et al. smooth the gaze for the same reason). A real
-        movement of a few degrees still passes within a frame or two.
+        flicker (Ohshima et al. smooth the gaze for the same reason). A plain
+        exponential average would lag a moving head by speed x time constant
+        (190 mm at 750 mm/s with 0.25 s): the One Euro filter raises its
+        cutoff with the speed, so a steady movement passes with little lag.
+        A jump from one frame to the next larger than the noise (20 mm for
+        the eye; for the POI 30 px or five of the tracker's σ of V on the
+        screen, whichever is larger) is a real movement: the filters and the
+        hysteresis restart, so the levels follow within the frame.
         """
+        from ..filters import OneEuroFilter
+
         eye = np.asarray(view.eye_mm, dtype=np.float64)
         poi = np.asarray(view.poi_px, dtype=np.float64)
-        if self._smooth is None or view.t is None or self._smooth[0] is None:
-            self._smooth = (view.t, eye, poi)
+        if view.t is None:
             return view
-        t0, eye0, poi0 = self._smooth
-        dt = max(view.t - t0, 0.0) if view.t is not None else 0.0
-        # A jump larger than the noise is a real movement: follow it at once,
-        # and let the levels follow at once too (hysteresis restarted).
-        # The noise: 20 mm for the eye; for the POI 30 px or five of the
-        # tracker's σ of V projected on the screen, whichever is larger (at
-        # 1 m a fixed 30 px is crossed by noise now and then).
-        poi_noise_px = 30.0
-        if view.cov_deg2 is not None:
-            sigma_deg = math.sqrt(max(float(np.linalg.eigvalsh(np.asarray(view.cov_deg2, dtype=np.float64))[-1]), 0.0))
-            reach_mm = float(np.linalg.norm(self.screen.pixel_to_world(poi) - eye))
-            poi_noise_px = max(poi_noise_px, 5.0 * reach_mm * math.tan(math.radians(sigma_deg)) * self.px_per_mm)
-        if np.linalg.norm(poi - poi0) > poi_noise_px or np.linalg.norm(eye - eye0) > 20.0:
-            rate = 1.0
-            if self.hysteresis is not None:
-                self.hysteresis.reset()
-        else:
-            rate = 1.0 - math.exp(-dt / self.smoothing_s) if dt > 0 else 1.0
-        eye = eye0 + rate * (eye - eye0)
-        poi = poi0 + rate * (poi - poi0)
-        self._smooth = (view.t, eye, poi)
+        if self._smooth is None:
+            cutoff = 1.0 / (2 * math.pi * self.smoothing_s)
+            self._smooth = {"eye": OneEuroFilter(cutoff, beta=0.05), "poi": OneEuroFilter(cutoff, beta=0.02),
+                            "raw": None}
+        raw = self._smooth["raw"]
+        self._smooth["raw"] = (eye, poi)
+        if raw is not None:
+            poi_noise_px = 30.0
+            if view.cov_deg2 is not None:
+                lam = float(np.linalg.eigvalsh(np.asarray(view.cov_deg2, dtype=np.float64))[-1])
+                reach_mm = float(np.linalg.norm(self.screen.pixel_to_world(poi) - eye))
+                poi_noise_px = max(poi_noise_px, 5.0 * reach_mm * math.tan(math.radians(math.sqrt(max(lam, 0.0))))
+                                   * self.px_per_mm)
+            if np.linalg.norm(poi - raw[1]) > poi_noise_px or np.linalg.norm(eye - raw[0]) > 20.0:
+                self._smooth["eye"].reset()
+                self._smooth["poi"].reset()
+                if self.hysteresis is not None:
+                    self.hysteresis.reset()
+        eye = self._smooth["eye"](eye, view.t)
+        poi = self._smooth["poi"](poi, view.t)
         return View(eye, poi, view.cov_deg2, view.t)
 
     def _angular_speed(self, t, eye, directions):

@@ -45,7 +45,7 @@ class TerrainScene:
     def selector(self, mode: str, uncertainty: str, **options) -> LevelSelector:
         m = self.mesh
         return LevelSelector(m.centroids, m.edge_length, m.geometric_error, m.contrast, self.model, self.screen,
-                             mode=mode, uncertainty=uncertainty, **options)
+                             mode=mode, uncertainty=uncertainty, corners_scene=m.corners, **options)
 
 
 def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
