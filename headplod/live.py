@@ -70,7 +70,7 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
     on_record : callable(record, TrackResult or None), optional
         Called with each finished record (writing, printing).
     recorder : headplod.capture.DatasetRecorder, optional
-        Every frame is recorded as read (before tracking).
+        Every frame is recorded as read (its images, not the pose).
     sender : headplod.output.OpentrackSender, optional
     pose_filter : headplod.filters.PoseFilter, optional
         Applied to the record before it is sent and written.
@@ -102,14 +102,14 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         if frame is None:
             break
         read_mono = time.monotonic()
-        if recorder is not None and frame.error is None:
-            recorder.write(frame)
         result = None
         if frame.error is None:
             result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
         else:
             tracker.reset()
         t_tracked = time.perf_counter()
+        if recorder is not None and frame.error is None:
+            recorder.write(frame)
         record = result_record(frame, result, screen)
         skew = getattr(frame, "skew_ms", None)
         dropped = int(getattr(frame, "dropped", 0) or 0)
