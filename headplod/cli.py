@@ -114,6 +114,9 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--size", type=_floats(2), default=(1280, 720), help="image size W,H (default 1280,720)")
     render.add_argument("--view", default="shaded", choices=("shaded", "wire", "levels"))
     render.add_argument("--screen", help="screen.yaml (default: the embedded 24-inch screen)")
+    render.add_argument("--contrast", choices=("shading", "readback"), default="shading",
+                        help="triangle contrast: from the shading, no read-back (default), or the paper's "
+                             "10x10 window read back from a first frame")
     render.add_argument("--out", required=True, help="output image (PNG)")
     render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
 
@@ -446,7 +449,7 @@ def _cmd_render(args) -> int:
     size = tuple(int(v) for v in args.size)
     _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
                             poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
-                            stats_path=args.stats)
+                            stats_path=args.stats, contrast=args.contrast)
     print(f"{stats['triangles']} triangles; select {stats['select_ms']:.1f} ms, build {stats['build_ms']:.1f} ms, "
           f"render {stats['render_ms']:.1f} ms; image: {args.out}", file=sys.stderr)
     return 0

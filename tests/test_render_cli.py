@@ -44,3 +44,12 @@ def test_csf_keeps_full_detail_at_the_poi_and_far_fewer_triangles(egl):
 def test_bad_cov_is_refused(tmp_path, capsys):
     assert cli_main(["render", "--cov", "1,2,1", "--out", str(tmp_path / "x.png")]) == 2
     assert "positive definite" in capsys.readouterr().err
+
+
+def test_readback_contrast_variant_renders_and_reports_its_cost(egl, tmp_path):
+    out, stats = tmp_path / "rb.png", tmp_path / "rb.json"
+    assert cli_main(["render", "--mode", "csf", "--size", "320,180", "--contrast", "readback",
+                     "--out", str(out), "--stats", str(stats)]) == 0
+    s = json.loads(stats.read_text())
+    assert s["contrast"] == "readback" and s["readback_ms"] > 0
+    assert 2048 < s["triangles"] < 2_000_000

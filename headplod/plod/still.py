@@ -60,8 +60,16 @@ def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
 
 
 def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_px=None, cov_deg2=None,
-                 size=(1280, 720), view_mode="shaded", out=None, stats_path=None, scene=None, renderer=None):
-    """Render one frame and return (image (H, W, 3) uint8 RGB, stats dict)."""
+                 size=(1280, 720), view_mode="shaded", out=None, stats_path=None, scene=None, renderer=None,
+                 contrast="shading"):
+    """Render one frame and return (image (H, W, 3) uint8 RGB, stats dict).
+
+    ``contrast="readback"``: the paper's way (eq. 2): a first frame with the
+    shading contrast is read back, each base triangle's contrast is taken
+    from a 10x10 window of its luminance around the triangle's projected
+    centroid, and the frame is selected and rendered again with it
+    (``readback_ms`` in the stats: the read-back and the filters).
+    """
     from ..render import TerrainRenderer, create_context, off_axis_projection, overlay_poi
 
     scene = scene or TerrainScene.build(screen)
@@ -78,6 +86,24 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     renderer.upload(positions, normals, tri_levels)
     view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
     image = renderer.render(view, proj, scene.model, view_mode=view_mode)
+    readback_ms = None
+    if contrast == "readback":
+        from .contrast import project_to_screen_px, readback_contrast
+
+        shaded = image if view_mode == "shaded" else renderer.render(view, proj, scene.model, view_mode="shaded")
+        t3 = time.perf_counter()
+        centroids_px = project_to_screen_px(selector.centroids_mm, head, screen)
+        selector.contrast = readback_contrast(shaded, centroids_px, screen.size_px, fallback=scene.mesh.contrast)
+        readback_ms = renderer.last_readback_ms + (time.perf_counter() - t3) * 1e3
+        t0 = time.perf_counter()
+        levels, features = selector.select(View(head, poi, cov_deg2, 0.0))
+        t1 = time.perf_counter()
+        positions, normals, tri_levels = scene.mesh.update(levels)
+        t2 = time.perf_counter()
+        renderer.upload(positions, normals, tri_levels)
+        image = renderer.render(view, proj, scene.model, view_mode=view_mode)
+    elif contrast != "shading":
+        raise ValueError(f"render_still: contrast must be 'shading' or 'readback', got {contrast!r}")
     if cov_deg2 is not None or view_mode == "levels":
         px_per_deg = _px_per_deg(screen, head, size)
         scaled_poi = poi * np.array(size) / np.array(screen.size_px)
@@ -86,7 +112,10 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     stats = {"mode": mode, "uncertainty": uncertainty, "view": view_mode, "size": list(size),
              "head_mm": head.round(2).tolist(), "poi_px": poi.round(2).tolist(),
              "triangles": int(len(tri_levels)), "select_ms": (t1 - t0) * 1e3, "build_ms": (t2 - t1) * 1e3,
-             "render_ms": renderer.last_render_ms, "triangles_per_level": counts.tolist()}
+             "render_ms": renderer.last_render_ms, "triangles_per_level": counts.tolist(),
+             "contrast": contrast}
+    if readback_ms is not None:
+        stats["readback_ms"] = readback_ms
     if out:
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
