@@ -148,6 +148,7 @@ class LevelSelector:
         self.hysteresis = pc.Hysteresis(len(centroids_scene), rounding=self.rounding) if hysteresis else None
         self.sse_tolerance_px, self.distance_ref_mm, self.frame_s = sse_tolerance_px, distance_ref_mm, frame_s
         self._previous = None          # (t, eye_mm, directions (F, 3))
+        self._foveal_fmax = None       # (contrast, seen, speed, foveal f_max) of the last frame
         self._smooth = None            # the eye and POI filters and the last raw eye and POI
         self.smoothing_s = smoothing_s
 
@@ -219,7 +220,17 @@ class LevelSelector:
             # One level coarser per doubling of distance beyond the reference.
             return L - np.log2(np.maximum(distance / self.distance_ref_mm, 1e-9))
         if self.mode in ("csf", "gp"):
-            if self.mode == "csf":
+            if self.mode == "csf" and self.csf_model == "kelly_scaled":
+                # Eccentricity scales the frequency: f_max(C, v, e) = f_max(C, v, 0) / (1 + 0.29 e),
+                # and the foveal part (Lambert's W) changes only with the contrast and the speed:
+                # for a still head (speed at its floor) it is reused from the last frame.
+                cache = self._foveal_fmax
+                if (cache is None or cache[0] is not self.contrast or not np.array_equal(cache[1], seen)
+                        or not np.array_equal(cache[2], speed)):
+                    fmax0 = pc.max_visible_freq_cpd(self.contrast[seen], speed, 0.0, model=self.csf_model)
+                    self._foveal_fmax = cache = (self.contrast, seen, speed, fmax0)
+                fmax = cache[3] / pc._ecc_factor(ecc)
+            elif self.mode == "csf":
                 fmax = pc.max_visible_freq_cpd(self.contrast[seen], speed, ecc, model=self.csf_model)
             else:
                 fmax = pc.gp_cutoff_cpd(self.contrast[seen], ecc)
