@@ -192,13 +192,18 @@ class LevelSelector:
             chord = np.linalg.norm(to_corners - to_corners[:, [2, 0, 1]], axis=2)           # (S, 3)
             diameter_deg = np.degrees(2 * np.arcsin(np.minimum(chord.max(axis=1) / 2, 1.0)))
             angular_deg = diameter_deg[:, None] * self._level_scale[seen]
+            # Angular radius about the centroid's direction: the farthest corner.
+            chord_c = np.linalg.norm(to_corners - directions[seen, None, :], axis=2).max(axis=1)
+            reach_deg = np.degrees(2 * np.arcsin(np.minimum(chord_c / 2, 1.0)))
         else:
             angular_deg = np.degrees(2 * np.arctan(self.edge_len_mm[seen] / (2 * distance[seen, None])))
+            reach_deg = angular_deg[:, 0] / math.sqrt(3)      # an equilateral triangle's circumradius
         # The triangle's nearest point to the POI, not its centroid, decides
         # what the eye can see of it: a large base triangle reaching into the
-        # fovea must be refined there.
+        # fovea must be refined there. (Bounded by the centroid's eccentricity
+        # less the angle to the farthest corner.)
         ecc = np.full(len(rel), np.nan)
-        ecc[seen] = np.maximum(pc.eccentricity_deg(shifted[seen]) - 0.5 * angular_deg[:, 0], 0.0)
+        ecc[seen] = np.maximum(pc.eccentricity_deg(shifted[seen]) - reach_deg, 0.0)
         freq = 1.0 / np.maximum(angular_deg, 1e-9)
         continuous = np.zeros(len(rel))
         continuous[seen] = self._continuous(freq, distance[seen], ecc[seen], speed[seen], angular_deg,
