@@ -130,6 +130,9 @@ def build_parser() -> argparse.ArgumentParser:
     bp.add_argument("--chart", help="write the chart (PNG); the level-colour pictures go beside it")
     bp.add_argument("--quick", action="store_true", help="fewer points on the curves and sweeps (a smoke run)")
 
+    from .demo.cli import add_demo_arguments
+    add_demo_arguments(sub.add_parser("demo", help="head-coupled PLOD terrain viewer (a window, or --headless)"))
+
     synth = sub.add_parser("synth", help="render a synthetic dataset folder")
     synth.add_argument("preset")
     synth.add_argument("out")
@@ -163,6 +166,9 @@ def main(argv=None) -> int:
         if args.command == "bench" and args.bench == "live":
             from . import bench_live
             return bench_live.run_live_bench(args.dataset, json_path=args.json, repeats=args.repeats)
+        if args.command == "demo":
+            from .demo.cli import run_demo
+            return run_demo(args)
         if args.command == "cameras":
             return _cmd_cameras(args)
         if args.command == "calibrate":

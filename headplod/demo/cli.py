@@ -1,0 +1,354 @@
+"""``headplod demo``: the head-coupled PLOD terrain viewer, in a window or headless.
+
+    headplod demo [--source SPEC | --mouse] [--mode csf] [--uncertainty adaptive] [--viewpoint overview]
+    headplod demo --headless [--frames N] [--out DIR] [--size W,H] [--source SPEC | --mouse]
+
+Headless, the same loop as the window runs offscreen: for each named
+viewpoint, the PLOD criterion (``--mode``, default csf) under each
+uncertainty scenario, then ``full`` (every triangle at the finest level), each
+for N frames of the same poses; it writes a few frames per run, a level-colour
+picture per viewpoint with the POI and its 2σ ellipse, ``summary.json`` and
+``summary.png``, and prints a table with each run's frame rate against
+``full``'s on the same viewpoint.
+
+Also runnable as ``python -m headplod.demo.cli``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import loop as lp
+from .viewpoints import VIEWPOINTS
+
+#: Frames written per run (as fractions of the run: the middle and the last).
+_PNG_AT = (0.5, 1.0)
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(float(v)) for v in text.replace("x", ",").split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must be W,H in pixels, got {text!r}") from None
+    if not (16 <= w <= 8192 and 16 <= h <= 8192):
+        raise argparse.ArgumentTypeError(f"size must lie between 16 and 8192 px per side, got {w}x{h}")
+    return w, h
+
+
+def _names(allowed):
+    def parse(text: str) -> list[str]:
+        names = [t.strip() for t in text.split(",") if t.strip()]
+        bad = [n for n in names if n not in allowed]
+        if bad or not names:
+            raise argparse.ArgumentTypeError(f"expected a comma-separated subset of {', '.join(allowed)}, "
+                                             f"got {text!r}")
+        return names
+    return parse
+
+
+def _span(text: str) -> range:
+    try:
+        a, b = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected START:END frame numbers, got {text!r}") from None
+    if not 0 <= a < b:
+        raise argparse.ArgumentTypeError(f"need 0 <= START < END, got {text!r}")
+    return range(a, b)
+
+
+def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the ``demo`` options to a (sub)parser; returns it."""
+    from ..plod.select import MODES
+
+    parser.description = (
+        "Head-coupled perceptual level of detail on the Jacksboro terrain, driven by the tracker "
+        "(live cameras, a recording, the built-in synthetic sequence) or the mouse. Window keys: "
+        "1-6 criterion (csf, gp, acuity, sse, distance, full); N/F/A/S uncertainty scenario (none, fixed, "
+        "adaptive, smoothed); V shaded, W wireframe, L level colours; C next viewpoint; H heads-up display; "
+        "Esc or Q quit. Without a tracker (--mouse) the mouse moves the point of interest.")
+    src = parser.add_argument_group("poses")
+    src.add_argument("--source", default="synthetic", metavar="SPEC",
+                     help="frame source tracked live: 'synthetic' (default: the built-in sequence), a dataset "
+                          "folder, 'v4l2:/dev/video0,/dev/video2', or LEFT.avi,RIGHT.avi")
+    src.add_argument("--calib", metavar="RIG.YAML", help="rig.yaml of live cameras (with --source v4l2:...)")
+    src.add_argument("--mouse", action="store_true",
+                     help="no tracker: the POI follows the mouse (headless: a scripted path with one saccade), "
+                          "the eye 60 cm in front of the screen centre")
+    src.add_argument("--dropout", type=_span, metavar="START:END",
+                     help="simulate a tracking failure on frames START..END-1 of every run")
+    src.add_argument("--growth", type=float, default=lp.GROWTH_DEG2_PER_S, metavar="DEG2_PER_S",
+                     help=f"covariance growth while tracking is lost, deg²/s (default {lp.GROWTH_DEG2_PER_S:g})")
+    view = parser.add_argument_group("view")
+    view.add_argument("--mode", default="csf", choices=MODES,
+                      help="LOD criterion (window: the initial one; headless: the one compared with full)")
+    view.add_argument("--uncertainty", default="adaptive", choices=lp.SCENARIOS,
+                      help="uncertainty scenario (window: initial; default adaptive)")
+    view.add_argument("--viewpoint", default="overview", choices=tuple(VIEWPOINTS),
+                      help="initial viewpoint of the window: " + "; ".join(
+                          f"{v.name}: {v.description}" for v in VIEWPOINTS.values()))
+    view.add_argument("--view", default="shaded", choices=lp.VIEW_MODES, help="initial view (window)")
+    view.add_argument("--size", type=_size, default=(1280, 720), metavar="W,H",
+                      help="render size, px (default 1280,720)")
+    view.add_argument("--saccade-deg-s", type=float, default=lp.SACCADE_DEG_S,
+                      help=f"POI speed above which levels are kept (default {lp.SACCADE_DEG_S:g} deg/s, Ohshima)")
+    head = parser.add_argument_group("headless run")
+    head.add_argument("--headless", action="store_true", help="run offscreen and write frames and a summary")
+    head.add_argument("--frames", type=int, default=30, help="frames per run (default 30)")
+    head.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    head.add_argument("--viewpoints", type=_names(tuple(VIEWPOINTS)), default=list(VIEWPOINTS),
+                      help="comma-separated viewpoints to run (default all three)")
+    head.add_argument("--scenarios", type=_names(lp.SCENARIOS), default=list(lp.SCENARIOS),
+                      help="comma-separated uncertainty scenarios to run with --mode (default all four)")
+    head.add_argument("--no-full", action="store_true", help="skip the 'full' runs (no frame-rate ratio)")
+    return parser
+
+
+# --------------------------------------------------------------------------
+# headless
+# --------------------------------------------------------------------------
+
+
+def scripted_path(screen, frames: int, fps: float = 30.0):
+    """A POI path (callable(k, t) -> screen px): a slow Lissajous (≤ ~35°/s) with one saccade halfway.
+
+    At frame ``frames // 2`` the POI jumps by 40% of the screen width over
+    two frames (several hundred deg/s): the saccade rule keeps the levels.
+    """
+    w, h = screen.size_px
+    jump = frames // 2
+
+    def path(k, t):
+        x = 0.5 * w + 0.3 * w * np.sin(2 * np.pi * t / 5.0)
+        y = 0.5 * h + 0.3 * h * np.sin(4 * np.pi * t / 5.0 + 0.7)
+        x += 0.4 * w * np.clip((k - jump + 2) / 2.0, 0.0, 1.0) - 0.2 * w
+        return np.array([x, y])
+    return path
+
+
+def make_poses(args, screen=None, frames: int | None = None) -> lp.PoseSource:
+    """The pose source the options ask for (a fresh one per run)."""
+    if args.mouse:
+        screen = screen or lp.default_screen()
+        n = frames or args.frames
+        poses = lp.MousePoses(screen, path=scripted_path(screen, n) if args.headless else None,
+                              clock=None if args.headless else time.monotonic)
+        if args.headless:
+            poses = _Limit(poses, n)
+    else:
+        live = args.source.lower().startswith("v4l2")
+        options = {} if args.headless or live else {"realtime": True}
+        if getattr(args, "calib", None):
+            options["rig"] = args.calib
+        elif live:
+            raise ValueError("--source v4l2:... needs --calib rig.yaml (the calibration of these cameras)")
+        poses = lp.TrackerPoses(args.source, screen=screen, loop=not args.headless, max_frames=frames,
+                                **options)
+    if args.dropout is not None:
+        poses = lp.DropoutPoses(poses, args.dropout)
+    return poses
+
+
+class _Limit(lp.PoseSource):
+    """At most ``n`` poses of another source."""
+
+    def __init__(self, inner, n):
+        self.inner, self.n, self.count = inner, n, 0
+        self.screen, self.name = inner.screen, inner.name
+
+    def read(self):
+        if self.count >= self.n:
+            return None
+        self.count += 1
+        return self.inner.read()
+
+    def close(self):
+        self.inner.close()
+
+
+def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None) -> dict:
+    """The headless benchmark run; returns the summary (also written to ``args.out``).
+
+    ``scene`` (a TerrainScene for the poses' screen) and ``renderer`` (at
+    ``args.size``) may be passed in to reuse them (tests); they are made here
+    otherwise.
+    """
+    import cv2
+
+    from ..pipeline import Progress
+    from ..plod.still import TerrainScene
+    from ..render import TerrainRenderer, create_context
+
+    start = time.perf_counter()
+    folder = Path(args.out)
+    (folder / "frames").mkdir(parents=True, exist_ok=True)
+    first = make_poses(args, frames=1)          # opens (and on first use renders) the source; gives the screen
+    screen = first.screen
+    source_name = first.name
+    first.close()
+    if scene is None:
+        print(f"demo: building the terrain mesh; poses from {source_name}", file=err)
+    scene = scene or TerrainScene.build(screen)
+    if renderer is None:
+        renderer = TerrainRenderer(create_context(), size=tuple(args.size))
+    elif tuple(renderer.size) != tuple(args.size):
+        raise ValueError(f"run_headless: the renderer is {renderer.size}, --size is {tuple(args.size)}")
+    plan = [(vp, args.mode, sc) for vp in args.viewpoints for sc in args.scenarios]
+    if not args.no_full and args.mode != "full":
+        plan += [(vp, "full", "none") for vp in args.viewpoints]   # together: the full mesh is built once
+    progress = Progress(len(plan) * args.frames, "demo", stream=err)
+    runs, pictures = [], {}
+    for vp, mode, scenario in plan:
+        poses = make_poses(args, screen=screen, frames=args.frames)
+        demo = lp.DemoLoop(scene, poses, renderer, mode=mode, uncertainty=scenario, viewpoint=vp,
+                           view_mode="shaded", hud=True, saccade_deg_s=args.saccade_deg_s,
+                           growth_deg2_per_s=args.growth)
+        stem = f"{vp}_{mode}_{scenario}"
+        keep = {max(0, int(round(f * args.frames)) - 1) for f in _PNG_AT}
+        written = []
+        while demo.index < args.frames:
+            result = demo.step()
+            if result is None:
+                break
+            if result.index in keep:
+                path = folder / "frames" / f"{stem}_{result.index:03d}.png"
+                cv2.imwrite(str(path), cv2.cvtColor(result.image, cv2.COLOR_RGB2BGR))
+                written.append(str(path))
+            progress.step(f"{stem} {result.frame_ms:.0f} ms")
+        poses.close()
+        if demo.last is None:
+            raise RuntimeError(f"the pose source gave no frame ({source_name})")
+        if mode == args.mode and (scenario == "adaptive" or vp not in pictures):
+            pose = demo.last.pose
+            caption = (f"{vp}: {mode}, {scenario}, level colours; POI and 2-sigma ellipse "
+                       f"(sigma {np.sqrt(np.max(np.diag(pose.cov_deg2))) if pose.cov_deg2 is not None else 0:.2f} deg)")
+            path = folder / f"viewpoint_{vp}_levels.png"
+            cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
+            pictures[vp] = str(path)
+        s = demo.stats
+        runs.append({"viewpoint": vp, "mode": mode, "uncertainty": scenario, **s.summary(),
+                     "per_frame": {"frame_ms": [round(v, 3) for v in s.frame_ms],
+                                   "triangles": [int(v) for v in s.triangles],
+                                   "stage_ms": {k: [round(x, 3) for x in v] for k, v in s.stage_ms.items()}},
+                     "frames_png": written})
+    ratios = {}
+    for run in runs:
+        full = next((r for r in runs if r["viewpoint"] == run["viewpoint"] and r["mode"] == "full"), None)
+        run["fps_ratio_to_full"] = None if full is None or run is full else run["fps"] / full["fps"]
+    for vp in args.viewpoints:
+        mine = [r for r in runs if r["viewpoint"] == vp and r["mode"] == args.mode]
+        full = next((r for r in runs if r["viewpoint"] == vp and r["mode"] == "full"), None)
+        if mine and full is not None:
+            ref = next((r for r in mine if r["uncertainty"] == "adaptive"), mine[0])
+            ratios[vp] = {"mode": args.mode, "uncertainty": ref["uncertainty"], "fps": ref["fps"],
+                          "full_fps": full["fps"], "ratio": ref["fps"] / full["fps"],
+                          "ratio_range": [min(r["fps"] for r in mine) / full["fps"],
+                                          max(r["fps"] for r in mine) / full["fps"]]}
+    summary = {"size": list(args.size), "frames_per_run": args.frames, "poses": source_name,
+               "mode": args.mode, "viewpoints": {vp: VIEWPOINTS[vp].description for vp in args.viewpoints},
+               "fps_ratio_to_full": ratios, "pictures": pictures, "runs": runs,
+               "notes": "medians over each run's frames after its first (the first rebuilds the mesh "
+                        "for the run's criterion); frame = pose (capture + track) + select + build + upload + "
+                        "render + readback + hud; upload is skipped when the mesh did not change",
+               "wall_s": None}
+    chart = folder / "summary.png"
+    write_chart(runs, args.viewpoints, chart, title=f"{args.size[0]}x{args.size[1]}, {source_name}")
+    summary["chart"] = str(chart)
+    summary["wall_s"] = round(time.perf_counter() - start, 1)
+    (folder / "summary.json").write_text(json.dumps(summary, indent=1))
+    print_table(summary, out)
+    return summary
+
+
+def print_table(summary: dict, out=sys.stdout) -> None:
+    """The short table of the runs, the csf/full ratio per viewpoint and where the pictures are."""
+    w, h = summary["size"]
+    print(f"\nheadless demo, {w}x{h}, {summary['frames_per_run']} frames per run, poses: {summary['poses']}",
+          file=out)
+    print(f"{'viewpoint':<10} {'mode':<8} {'scenario':<9} {'fps':>6} {'frame ms':>9} {'select':>7} {'build':>6} "
+          f"{'render':>7} {'triangles':>10} {'x full':>7} {'saccade':>7} {'lost':>5}", file=out)
+    for r in summary["runs"]:
+        st = r["stage_ms_median"]
+        ratio = "" if r["fps_ratio_to_full"] is None else f"{r['fps_ratio_to_full']:.1f}x"
+        print(f"{r['viewpoint']:<10} {r['mode']:<8} {r['uncertainty']:<9} {r['fps']:6.1f} {r['frame_ms_median']:9.1f} "
+              f"{st['select']:7.1f} {st['build']:6.1f} {st['render']:7.1f} {int(r['triangles_median']):>10,} "
+              f"{ratio:>7} {r['saccade_skipped']:>7} {r['tracking_failures']:>5}", file=out)
+    for vp, q in summary["fps_ratio_to_full"].items():
+        lo, hi = q["ratio_range"]
+        print(f"{vp}: {q['mode']} ({q['uncertainty']}) {q['fps']:.1f} fps against full {q['full_fps']:.2f} fps: "
+              f"{q['ratio']:.1f}x (all scenarios {lo:.1f}-{hi:.1f}x)", file=out)
+    for vp, path in summary["pictures"].items():
+        print(f"picture {vp}: {path}", file=out)
+    folder = Path(summary["chart"]).parent
+    print(f"frames: {folder / 'frames'}/   summary: {folder / 'summary.json'}, {summary['chart']}   "
+          f"({summary['wall_s']} s)", file=out)
+
+
+def write_chart(runs, viewpoints, path, title="") -> None:
+    """summary.png: frame time and triangles per frame, per viewpoint, one line per run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, len(viewpoints), figsize=(4.2 * len(viewpoints), 6.4), squeeze=False,
+                             sharex=True)
+    styles = {"none": "-", "fixed": "--", "adaptive": "-", "smoothed": ":"}
+    for j, vp in enumerate(viewpoints):
+        for r in (r for r in runs if r["viewpoint"] == vp):
+            full = r["mode"] == "full"
+            label = "full" if full else f"{r['mode']} {r['uncertainty']}"
+            kw = {"color": "black", "lw": 1.6} if full else {"ls": styles.get(r["uncertainty"], "-"), "lw": 1.2}
+            x = np.arange(len(r["per_frame"]["frame_ms"]))
+            axes[0, j].plot(x, r["per_frame"]["frame_ms"], label=label, **kw)
+            axes[1, j].plot(x, r["per_frame"]["triangles"], label=label, **kw)
+        axes[0, j].set_title(f"{vp}: {VIEWPOINTS[vp].description}", fontsize=8)
+        axes[0, j].set_yscale("log")
+        axes[1, j].set_yscale("log")
+        axes[1, j].set_xlabel("frame")
+        axes[0, j].grid(True, which="both", alpha=0.3)
+        axes[1, j].grid(True, which="both", alpha=0.3)
+    axes[0, 0].set_ylabel("frame time, ms")
+    axes[1, 0].set_ylabel("triangles")
+    axes[0, -1].legend(fontsize=7)
+    fig.suptitle(f"headplod demo: frame time and triangles per frame ({title})", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# --------------------------------------------------------------------------
+# entry points
+# --------------------------------------------------------------------------
+
+
+def run_demo(args) -> int:
+    """Run ``headplod demo`` from parsed arguments; the exit status."""
+    from .. import io
+
+    if args.frames < 1:
+        print("headplod demo: --frames must be at least 1", file=sys.stderr)
+        return 2
+    try:
+        if args.headless:
+            run_headless(args)
+            return 0
+        from .window import run_window
+
+        return run_window(args)
+    except (io.ContractError, OSError, ValueError, RuntimeError) as exc:
+        print(f"headplod demo: {exc}", file=sys.stderr)
+        return 1
+
+
+def main(argv=None) -> int:
+    parser = add_demo_arguments(argparse.ArgumentParser(prog="headplod demo"))
+    return run_demo(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

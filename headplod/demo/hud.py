@@ -1,0 +1,214 @@
+"""The heads-up display, drawn with OpenCV onto the rendered RGB image.
+
+The window uploads the composed image as one texture, the headless run
+writes it to PNG: both show the same pixels. Everything is a handful of
+OpenCV calls per frame (text, boxes, two thumbnails); nothing per triangle.
+
+Image coordinates: (H, W, 3) uint8 RGB, pixel (x, y) = column x, row y,
+row 0 at the top; the POI is given in image pixels (screen px scaled by the
+image/screen size ratio).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+#: Key help, one line (see :func:`headplod.demo.window.action_for_key`).
+KEY_HELP = "keys: 1-6 criterion (csf gp acuity sse distance full)  N/F/A/S scenario  V/W/L view  C viewpoint  " \
+           "H hud  Esc quit"
+
+_WHITE = (255, 255, 255)
+_GREEN = (110, 235, 110)
+_RED = (255, 80, 70)
+_YELLOW = (255, 220, 60)
+_POI = (255, 40, 40)
+#: Marker colours P0..P4 in the camera thumbnails (RGB).
+_MARKER_COLOURS = ((255, 80, 80), (80, 255, 80), (80, 160, 255), (255, 230, 60), (230, 80, 255))
+
+
+@dataclass
+class HudInfo:
+    """What the HUD shows for one frame (see :meth:`headplod.demo.loop.DemoLoop.hud_info`)."""
+
+    fps: float
+    stage_ms: dict
+    frame_ms: float
+    triangles: int
+    mode: str
+    uncertainty: str
+    viewpoint: str
+    view_mode: str
+    source: str = ""
+    poi_image_px: np.ndarray | None = None      # (2,) image px
+    cov_deg2: np.ndarray | None = None          # (2, 2) deg², (φ, θ)
+    px_per_deg: float = 1.0                     # image px per degree at the screen centre
+    tracking_lost: str | None = None
+    lost_s: float = 0.0
+    saccade: bool = False
+    poi_speed_deg_s: float = 0.0
+    images: tuple | None = None                 # (left, right) (H, W) uint8
+    markers_px: np.ndarray | None = None        # (2, 5, 2) camera px
+    failures: int = 0
+    frame: int = 0
+    extra: list = field(default_factory=list)   # more text lines
+
+
+def _scale(image) -> float:
+    """Font scale for the image height (0.5 at 720 rows)."""
+    return max(0.28, image.shape[0] / 1440.0)
+
+
+def _text_block(image, lines, origin, scale):
+    """Lines of (text, colour) on a darkened box at origin (x, y) top-left; returns the box's bottom y."""
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    thick = 1
+    sizes = [cv2.getTextSize(t, font, scale, thick)[0] for t, _ in lines]
+    if not sizes:
+        return origin[1]
+    line_h = int(max(s[1] for s in sizes) * 1.7) + 2
+    pad = max(3, int(6 * scale))
+    w = max(s[0] for s in sizes) + 2 * pad
+    h = line_h * len(lines) + pad
+    x0, y0 = origin
+    x1, y1 = min(image.shape[1], x0 + w), min(image.shape[0], y0 + h)
+    if x1 > x0 and y1 > y0:
+        region = image[y0:y1, x0:x1]
+        region >>= 1                     # half as bright: one integer op
+    for k, (text, colour) in enumerate(lines):
+        y = y0 + pad + line_h * k + int(line_h * 0.6)
+        cv2.putText(image, text, (x0 + pad, y), font, scale, colour, thick, cv2.LINE_AA)
+    return y1
+
+
+def _status_line(info: HudInfo):
+    if info.tracking_lost is not None:
+        sigma = ""
+        if info.cov_deg2 is not None:
+            sigma = f", sigma {np.sqrt(max(float(np.max(np.diag(info.cov_deg2))), 0.0)):.2f} deg"
+        return f"tracking lost: {info.tracking_lost} ({info.lost_s:.1f} s{sigma})", _RED
+    if info.saccade:
+        return f"saccade ({info.poi_speed_deg_s:.0f} deg/s > 180): previous levels kept", _YELLOW
+    return f"tracking ok   POI speed {info.poi_speed_deg_s:.0f} deg/s", _GREEN
+
+
+def draw_poi(image, info: HudInfo) -> np.ndarray:
+    """The POI crosshair and the covariance's 2σ ellipse (in place)."""
+    from ..render import overlay_poi
+
+    if info.poi_image_px is None:
+        return image
+    arm = max(6, image.shape[0] // 60)
+    return overlay_poi(image, info.poi_image_px, info.cov_deg2, max(info.px_per_deg, 1e-6), color=_POI,
+                       cross_px=arm, thickness=1 if image.shape[0] < 400 else 2, inplace=True)
+
+
+def draw_cameras(image, info: HudInfo) -> np.ndarray:
+    """The two camera images with the identified markers, bottom right (in place)."""
+    if info.images is None or info.images[0] is None:
+        return image
+    H, W = image.shape[:2]
+    thumb_w = max(32, W // 6)
+    margin = max(2, W // 160)
+    x = W - margin
+    for cam in (1, 0):                                   # right image rightmost
+        gray = info.images[cam]
+        if gray is None:
+            continue
+        h, w = gray.shape[:2]
+        s = thumb_w / w
+        th = max(1, int(round(h * s)))
+        thumb = cv2.cvtColor(cv2.resize(gray, (thumb_w, th), interpolation=cv2.INTER_AREA), cv2.COLOR_GRAY2RGB)
+        if info.markers_px is not None:
+            pts = np.asarray(info.markers_px, dtype=np.float64)[cam]
+            for k, p in enumerate(pts):
+                if np.isfinite(p).all():
+                    c = (int(round(p[0] * s)), int(round(p[1] * s)))
+                    cv2.circle(thumb, c, max(3, thumb_w // 40), _MARKER_COLOURS[k % 5], 1, cv2.LINE_AA)
+                    cv2.putText(thumb, str(k), (c[0] + 4, c[1] - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.3,
+                                _MARKER_COLOURS[k % 5], 1, cv2.LINE_AA)
+        cv2.putText(thumb, "LR"[cam], (3, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.35, _WHITE, 1, cv2.LINE_AA)
+        y0 = H - margin - th
+        x0 = x - thumb_w
+        if x0 < 0 or y0 < 0:
+            break
+        image[y0:y0 + th, x0:x0 + thumb_w] = thumb
+        cv2.rectangle(image, (x0, y0), (x0 + thumb_w - 1, y0 + th - 1), _WHITE, 1)
+        x = x0 - margin
+    return image
+
+
+def draw_legend(image, max_level: int, origin=None) -> np.ndarray:
+    """Level colour swatches L0..L{max_level} (the "levels" view's palette), bottom left (in place)."""
+    from ..render import PALETTE
+
+    scale = _scale(image)
+    box = max(8, int(22 * scale))
+    H = image.shape[0]
+    x, y = origin if origin is not None else (max(2, box // 2), H - 2 * box - max(14, int(40 * scale)))
+    for level in range(max_level + 1):
+        colour = tuple(int(c) for c in PALETTE[level % len(PALETTE)])
+        cv2.rectangle(image, (x, y), (x + box, y + box), colour, -1)
+        cv2.rectangle(image, (x, y), (x + box, y + box), (0, 0, 0), 1)
+        cv2.putText(image, f"L{level}", (x + 2, y + box + int(box * 0.7)), cv2.FONT_HERSHEY_SIMPLEX,
+                    0.8 * scale, _WHITE, 1, cv2.LINE_AA)
+        x += int(box * 1.6)
+    return image
+
+
+def draw_hud(image: np.ndarray, info: HudInfo, inplace: bool = False, max_level: int = 5) -> np.ndarray:
+    """Compose the HUD onto a rendered frame.
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8
+        RGB frame.
+    info : HudInfo
+    inplace : bool
+        Draw into ``image`` itself.
+    max_level : int
+        Levels shown in the legend of the "levels" view.
+
+    Returns
+    -------
+    (H, W, 3) uint8
+        Frame rate, frame time by stage, triangles, settings with their keys,
+        tracking state, the POI with its 2σ ellipse and, with a tracker, the
+        camera images with the identified markers.
+    """
+    img = np.asarray(image)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"draw_hud: image must be (H, W, 3) uint8, got {img.shape} {img.dtype}")
+    out = img if inplace else img.copy()
+    draw_poi(out, info)
+    scale = _scale(out)
+    stages = "  ".join(f"{k} {v:.1f}" for k, v in info.stage_ms.items())
+    lines = [(f"{info.fps:5.1f} fps   frame {info.frame_ms:.1f} ms   triangles {info.triangles:,}", _WHITE),
+             (f"ms: {stages}", _WHITE),
+             (f"criterion {info.mode}   scenario {info.uncertainty}   view {info.view_mode}   "
+              f"viewpoint {info.viewpoint}", _WHITE),
+             _status_line(info)]
+    if info.failures:
+        lines.append((f"frames without a pose so far: {info.failures}", _WHITE))
+    if info.source:
+        lines.append((f"poses: {info.source}"[:110], _WHITE))
+    lines += [(t, _WHITE) for t in info.extra]
+    margin = max(2, out.shape[1] // 160)
+    _text_block(out, lines, (margin, margin), scale)
+    draw_cameras(out, info)
+    if info.view_mode == "levels":
+        draw_legend(out, max_level)
+    _text_block(out, [(KEY_HELP, _WHITE)], (margin, out.shape[0] - margin - int(26 * scale) - 8), scale * 0.85)
+    return out
+
+
+def draw_picture_overlay(image: np.ndarray, info: HudInfo, caption: str | None = None, legend: bool = True,
+                         max_level: int = 5) -> np.ndarray:
+    """A still for the README: the POI with its 2σ ellipse, a caption and the level legend (in place)."""
+    draw_poi(image, info)
+    if caption:
+        _text_block(image, [(caption, _WHITE)], (4, 4), _scale(image))
+    if legend:
+        draw_legend(image, max_level)
+    return image

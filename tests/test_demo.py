@@ -1,0 +1,253 @@
+"""The terrain demo viewer: headless loop, POI following, tracking loss, saccade rule, viewpoints, keys.
+
+Small images (320x180) and few frames keep this fast on llvmpipe; the
+terrain and its mesh are built once for the module.
+"""
+import argparse
+import json
+import shutil
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from headplod.demo import loop as lp
+from headplod.demo.viewpoints import VIEWPOINTS, place
+from headplod.demo.window import action_for_key
+
+SIZE = (320, 180)
+#: The renderer's clear colour in 8 bits (TerrainRenderer's default background).
+BACKGROUND = np.round(np.array([0.62, 0.72, 0.82]) * 255)
+
+
+@pytest.fixture(scope="module")
+def screen():
+    return lp.default_screen()
+
+
+@pytest.fixture(scope="module")
+def scene(screen):
+    from headplod.plod.still import TerrainScene
+
+    return TerrainScene.build(screen)
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    from headplod.render import TerrainRenderer, create_context
+
+    try:
+        ctx = create_context()
+    except RuntimeError as exc:           # no EGL / Mesa here: say so instead of failing
+        pytest.skip(f"no headless OpenGL: {exc}")
+    return TerrainRenderer(ctx, size=SIZE)
+
+
+def _run(loop, n):
+    results = []
+    for _ in range(n):
+        r = loop.step()
+        if r is None:
+            break
+        results.append(r)
+    return results
+
+
+def _terrain_fraction(image):
+    """Fraction of pixels that are not the clear colour."""
+    return float(np.mean(np.abs(image.astype(float) - BACKGROUND).sum(axis=2) > 6))
+
+
+def test_headless_run_writes_frames_and_summary(tmp_path, scene, renderer):
+    from headplod.demo.cli import add_demo_arguments, run_headless
+
+    parser = add_demo_arguments(argparse.ArgumentParser())
+    args = parser.parse_args(["--headless", "--mouse", "--frames", "4", "--out", str(tmp_path / "demo"),
+                              "--size", "320,180", "--viewpoints", "overview", "--scenarios", "none,adaptive"])
+    out = tmp_path / "table.txt"
+    with open(out, "w") as stream:
+        summary = run_headless(args, out=stream, err=stream, scene=scene, renderer=renderer)
+    text = out.read_text()
+    folder = tmp_path / "demo"
+    on_disk = json.loads((folder / "summary.json").read_text())
+    assert on_disk["size"] == [320, 180] and on_disk["frames_per_run"] == 4
+    runs = {(r["mode"], r["uncertainty"]) for r in on_disk["runs"]}
+    assert runs == {("csf", "none"), ("csf", "adaptive"), ("full", "none")}
+    for r in on_disk["runs"]:
+        assert r["frames"] == 4
+        for key in ("fps", "frame_ms_median", "triangles_median", "saccade_skipped", "tracking_failures"):
+            assert np.isfinite(r[key]), key
+        assert set(r["stage_ms_median"]) >= {"pose", "select", "build", "upload", "render"}
+        assert len(r["per_frame"]["frame_ms"]) == len(r["per_frame"]["triangles"]) == 4
+    csf = next(r for r in on_disk["runs"] if r["uncertainty"] == "adaptive")
+    full = next(r for r in on_disk["runs"] if r["mode"] == "full")
+    assert full["triangles_median"] == 2048 * 4 ** 5 and csf["triangles_median"] < full["triangles_median"] / 4
+    assert on_disk["fps_ratio_to_full"]["overview"]["ratio"] > 0
+    assert (folder / "summary.png").stat().st_size > 10_000
+    picture = cv2.imread(summary["pictures"]["overview"])
+    assert picture.shape == (180, 320, 3) and _terrain_fraction(picture[..., ::-1]) > 0.2
+    frames = sorted((folder / "frames").glob("*.png"))
+    assert len(frames) == 6                                    # two per run
+    for path in frames:
+        image = cv2.imread(str(path))
+        assert image.shape == (180, 320, 3) and image.std() > 10
+    assert "overview" in text and "x full" in text and "picture overview" in text
+
+
+def test_levels_follow_the_poi(scene, renderer, screen):
+    from headplod.plod.contrast import project_to_screen_px
+
+    w, h = screen.size_px
+    path = [(0.25 * w, 0.5 * h)] * 4 + [(0.75 * w, 0.5 * h)] * 4
+    poses = lp.MousePoses(screen, path=path, cov_deg2=None)
+    loop = lp.DemoLoop(scene, poses, renderer, mode="csf", uncertainty="none", viewpoint="overview", hud=False)
+    results = _run(loop, 8)
+    assert len(results) == 8
+    centroids_px = project_to_screen_px(loop.selector().centroids_mm, poses.eye_mm, screen)
+
+    def finest_x(levels):
+        finest = levels == levels.max()
+        return float(np.nanmean(centroids_px[finest, 0]))
+
+    left, right = finest_x(results[3].levels), finest_x(results[7].levels)
+    assert abs(left - 0.25 * w) < 0.12 * w
+    assert abs(right - 0.75 * w) < 0.12 * w
+    assert right - left > 0.35 * w
+    assert not results[7].saccade_skipped
+
+
+def test_tracker_failure_keeps_running_on_the_last_pose(tmp_path_factory, scene, renderer):
+    """The real tracker on the synthetic sequence, two frames blanked mid-run."""
+    from headplod.sequences import ensure_dataset
+
+    root = tmp_path_factory.mktemp("demo_synth")
+    folder = root / "blanked"
+    shutil.copytree(ensure_dataset("looking_around", frames=8, root=root, quiet=True), folder)
+    for k in (3, 4, 5):
+        path = folder / "left" / f"{k:06d}.png"
+        cv2.imwrite(str(path), np.zeros_like(cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)))
+    poses = lp.TrackerPoses(str(folder))
+    loop = lp.DemoLoop(scene, poses, renderer, viewpoint="overview", hud=True)
+    results = _run(loop, 20)
+    assert len(results) == 8                               # ran to the end
+    held = [r.pose.held for r in results]
+    assert held == [False, False, False, True, True, True, False, False]
+    good = results[2].pose
+    traces = [np.trace(good.cov_deg2)] + [np.trace(r.pose.cov_deg2) for r in results[3:6]]
+    assert np.all(np.diff(traces) > 0)                     # growing while lost
+    rate = (traces[-1] - traces[0]) / (2 * (results[5].t - good.t))
+    assert rate == pytest.approx(lp.GROWTH_DEG2_PER_S, rel=1e-6)
+    for r in results[3:6]:
+        np.testing.assert_array_equal(r.pose.eye_mm, good.eye_mm)
+        np.testing.assert_array_equal(r.pose.poi_px, good.poi_px)
+        assert r.tracking_lost and "blob" in r.tracking_lost
+        assert r.image.shape == (180, 320, 3) and r.image.std() > 10
+        info = loop.hud_info(r)
+        assert info.tracking_lost == r.tracking_lost
+    assert loop.stats.tracking_failures == 3 and loop.stats.summary()["tracking_failures"] == 3
+    assert np.isfinite(results[6].pose.markers_px).all()  # tracked again, markers identified
+    assert results[6].pose.images[0].shape == results[0].pose.images[0].shape
+
+
+def test_saccade_rule_keeps_levels(scene, renderer, screen):
+    w, h = screen.size_px
+    # 30 fps; 1920 px over 531 mm at 600 mm: 300 px per frame is ~240 deg/s, 2 px per frame ~1.6 deg/s.
+    slow = [(0.2 * w + 2 * k, 0.5 * h) for k in range(4)]
+    fast = [(slow[-1][0] + 300 * (k + 1), 0.5 * h) for k in range(3)]
+    still = [fast[-1]] * 2
+    poses = lp.MousePoses(screen, path=slow + fast + still, cov_deg2=None)
+    loop = lp.DemoLoop(scene, poses, renderer, mode="csf", uncertainty="none", viewpoint="overview", hud=False)
+    results = _run(loop, 9)
+    speeds = [r.poi_speed_deg_s for r in results]
+    assert max(speeds[1:4]) < 5 and min(speeds[4:7]) > lp.SACCADE_DEG_S
+    assert [r.saccade_skipped for r in results] == [False] * 4 + [True] * 3 + [False] * 2
+    for k in (4, 5, 6):
+        np.testing.assert_array_equal(results[k].levels, results[3].levels)
+    assert results[6].triangles == results[3].triangles
+    assert not np.array_equal(results[7].levels, results[3].levels)      # re-selected where the POI landed
+    assert loop.stats.saccade_skipped == 3
+
+
+def test_viewpoints_differ_and_render(scene, renderer, screen):
+    models = {name: place(scene, name).model for name in VIEWPOINTS}
+    assert set(models) == {"overview", "mountains", "plains"}
+    names = list(models)
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            assert not np.allclose(models[names[i]], models[names[j]])
+    for name in names:
+        loop = lp.DemoLoop(scene, lp.MousePoses(screen, path=[(960, 540)]), renderer, viewpoint=name,
+                           hud=False)
+        result = loop.step()
+        assert result.triangles > 2048
+        assert _terrain_fraction(result.image) > 0.3, name
+
+
+def test_key_mapping_and_apply(scene, renderer, screen):
+    assert [action_for_key(str(k)) for k in range(1, 7)] == [("mode", m) for m in lp.DEMO_MODES]
+    assert action_for_key("N") == action_for_key("n") == ("uncertainty", "none")
+    assert action_for_key("f") == ("uncertainty", "fixed")
+    assert action_for_key("a") == ("uncertainty", "adaptive")
+    assert action_for_key("s") == ("uncertainty", "smoothed")
+    assert action_for_key("w") == ("view_mode", "wire")
+    assert action_for_key("l") == ("view_mode", "levels")
+    assert action_for_key("v") == ("view_mode", "shaded")
+    assert action_for_key("h") == ("hud", "toggle")
+    assert action_for_key("c") == ("viewpoint", "next")
+    assert action_for_key("escape") == ("quit", None)
+    assert action_for_key("x") is None and action_for_key("") is None
+    loop = lp.DemoLoop(scene, lp.MousePoses(screen, path=[(960, 540)] * 3), renderer, hud=True)
+    assert loop.apply(action_for_key("6")) and loop.settings["mode"] == "full"
+    assert loop.apply(action_for_key("c")) and loop.settings["viewpoint"] == "mountains"
+    assert loop.apply(action_for_key("l")) and loop.settings["view_mode"] == "levels"
+    assert loop.apply(action_for_key("h")) and loop.hud is False
+    assert loop.apply(action_for_key("2")) and loop.settings["mode"] == "gp"
+    assert loop.apply(action_for_key("x"))
+    assert loop.apply(action_for_key("q")) is False
+    result = loop.step()
+    assert result.image.shape == (180, 320, 3)
+    with pytest.raises(ValueError, match="viewpoint"):
+        loop.set("viewpoint", "moon")
+
+
+def test_window_module_imports_without_moderngl_window():
+    import importlib
+
+    saved = {k: sys.modules.pop(k) for k in list(sys.modules) if k.startswith("moderngl_window")}
+    try:
+        sys.modules["moderngl_window"] = None          # import fails like an absent package
+        import headplod.demo.window as window
+
+        window = importlib.reload(window)
+        assert window.action_for_key("1") == ("mode", "csf")
+        assert window.run_window(argparse.Namespace(size=(64, 64))) == 1
+    finally:
+        sys.modules.pop("moderngl_window", None)
+        sys.modules.update(saved)
+
+
+def test_window_runs_on_the_headless_backend():
+    """The WindowConfig subclass on moderngl-window's headless (EGL) window: frames reach its framebuffer."""
+    import weakref
+
+    mglw = pytest.importorskip("moderngl_window")
+    from headplod.demo.cli import add_demo_arguments
+    from headplod.demo.window import make_window_class
+
+    args = add_demo_arguments(argparse.ArgumentParser()).parse_args(["--mouse", "--size", "320,180"])
+    try:
+        wnd = mglw.get_local_window_cls("headless")(title="demo", size=(320, 180), gl_version=(3, 3),
+                                                    backend="egl")
+    except Exception as exc:
+        pytest.skip(f"no headless moderngl-window context: {exc}")
+    mglw.activate_context(window=wnd)
+    config = make_window_class()(demo_args=args, ctx=wnd.ctx, wnd=wnd, timer=mglw.Timer())
+    wnd._config = weakref.ref(config)
+    config.on_mouse_position_event(40, 90, 0, 0)           # window px → screen px (x6 on a 1920 px screen)
+    np.testing.assert_allclose(config.poses.poi_px, [240, 540])
+    config.on_render(0.0, 1 / 30)
+    config.on_render(1 / 30, 1 / 30)
+    image = np.frombuffer(wnd.fbo.read(components=3), np.uint8).reshape(180, 320, 3)
+    assert image.std() > 10 and config.loop.last.triangles > 2048
+    config.on_close()
