@@ -357,10 +357,18 @@ class Terrain:
             d_dy.append(np.einsum("ij,ij->i", taps, w_y) * keep_y)
         return value, d_dx, d_dy
 
-    def _waves(self, x, y, gradient):
+    def _waves(self, x, y, gradient, smooth_m=None):
         """Sum of the detail waves (float32 arithmetic; needs at least one wave) and optionally its
-        gradient, each (n,) float64 (gradient entries None when not asked for)."""
+        gradient, each (n,) float64 (gradient entries None when not asked for).
+
+        ``smooth_m`` (scalar or (n,), metres): the gradient of the waves as
+        seen through a Gaussian of that standard deviation, i.e. each wave of
+        wavenumber k scaled by exp(−½ k² σ²) (exact for plane waves); the
+        sum itself (heights) stays exact."""
         n = len(x)
+        sigma2 = None
+        if smooth_m is not None:
+            sigma2 = (np.broadcast_to(np.asarray(smooth_m, dtype=np.float32), (n,)) ** 2).astype(np.float32)
         s = np.zeros(n, np.float32)
         xr = (x - self._centre[0]).astype(np.float32)
         yr = (y - self._centre[1]).astype(np.float32)
@@ -371,14 +379,20 @@ class Terrain:
             s += a * np.cos(arg)
             if gradient:
                 sn = a * np.sin(arg)
+                if sigma2 is not None:
+                    sn *= np.exp(np.float32(-0.5 * (kx * kx + ky * ky)) * sigma2)
                 gx -= kx * sn
                 gy -= ky * sn
         if not gradient:
             return s.astype(np.float64), None, None
         return s.astype(np.float64), gx.astype(np.float64), gy.astype(np.float64)
 
-    def _evaluate(self, x, y, *, dem=True, detail=None, gradient=True):
-        """Height and gradient over flattened arrays, chunked. Returns z, dz/dx, dz/dy (n,)."""
+    def _evaluate(self, x, y, *, dem=True, detail=None, gradient=True, smooth_m=None):
+        """Height and gradient over flattened arrays, chunked. Returns z, dz/dx, dz/dy (n,).
+
+        ``smooth_m``: the synthetic detail's gradient prefiltered by a Gaussian of this σ (m; scalar or (n,))."""
+        if smooth_m is not None:
+            smooth_m = np.broadcast_to(np.asarray(smooth_m, dtype=np.float64), (len(x),))
         detail = self.detail if detail is None else detail
         n = len(x)
         z, gx, gy = np.zeros(n), np.zeros(n), np.zeros(n)
@@ -389,7 +403,7 @@ class Terrain:
             if dem:
                 z[sl], gx[sl], gy[sl] = value[0], d_dx[0], d_dy[0]
             if detail and len(self._w_a):
-                w, wx, wy = self._waves(xs, ys, gradient)
+                w, wx, wy = self._waves(xs, ys, gradient, None if smooth_m is None else smooth_m[sl])
                 e = value[1]
                 z[sl] += e * w
                 if gradient:
@@ -436,13 +450,19 @@ class Terrain:
         _, gx, gy = self._evaluate(xf, yf)
         return gx.reshape(shape), gy.reshape(shape)
 
-    def sample(self, x, y) -> tuple[np.ndarray, np.ndarray]:
+    def sample(self, x, y, smooth_m=None) -> tuple[np.ndarray, np.ndarray]:
         """Heights and unit normals in one pass.
 
         Parameters
         ----------
         x, y : array_like, broadcastable
             Scene coordinates, metres.
+        smooth_m : float or array_like, optional
+            σ (metres) of a Gaussian prefilter of the synthetic detail's
+            slope, per point (broadcast with x, y): the normals of the
+            surface a coarse mesh level can represent; heights stay exact
+            (the DEM's spline is left as it is: its finest features are its
+            75-92 m samples).
 
         Returns
         -------
@@ -452,7 +472,8 @@ class Terrain:
             Upward unit normals ``(-dz/dx, -dz/dy, 1) / norm``, scene frame.
         """
         shape, xf, yf = self._flat(x, y)
-        z, gx, gy = self._evaluate(xf, yf)
+        sm = None if smooth_m is None else np.broadcast_to(np.asarray(smooth_m, dtype=np.float64), shape).ravel()
+        z, gx, gy = self._evaluate(xf, yf, smooth_m=sm)
         n = np.column_stack([-gx, -gy, np.ones_like(gx)])
         n /= np.linalg.norm(n, axis=1, keepdims=True)
         return z.reshape(shape), n.reshape(shape + (3,))
