@@ -371,3 +371,40 @@ def test_terrain_rejects_bad_grids():
         Terrain(np.zeros(10), 1.0, 1.0)
     with pytest.raises(ValueError, match="positive"):
         Terrain(np.zeros((5, 5)), -1.0, 1.0)
+
+
+def test_prefiltered_normals_keep_heights_and_tend_to_the_dem(terrain):
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(100, 29000, 400), rng.uniform(100, 31000, 400)
+    z0, n0 = terrain.sample(x, y)
+    z1, n1 = terrain.sample(x, y, smooth_m=60.0)
+    np.testing.assert_array_equal(z0, z1)                     # heights stay exact
+    assert np.allclose(np.linalg.norm(n1, axis=1), 1)
+    _, n_zero = terrain.sample(x, y, smooth_m=0.0)
+    np.testing.assert_allclose(n_zero, n0, atol=1e-6)
+    # Far beyond the detail's wavelengths only the DEM's slope is left.
+    _, n_wide = terrain.sample(x, y, smooth_m=1e4)
+    gx, gy = (np.gradient(terrain.dem_heights(np.stack([x - 0.5, x + 0.5]), np.stack([y, y])), axis=0)[0],
+              np.gradient(terrain.dem_heights(np.stack([x, x]), np.stack([y - 0.5, y + 0.5])), axis=0)[0])
+    dem_n = np.column_stack([-gx, -gy, np.ones_like(gx)])
+    dem_n /= np.linalg.norm(dem_n, axis=1, keepdims=True)
+    assert np.abs(n_wide - dem_n).max() < 1e-2 < np.abs(n0 - dem_n).max()
+    # A wider filter moves the normals monotonically toward the DEM's.
+    d = [np.abs(terrain.sample(x, y, smooth_m=s)[1] - dem_n).mean() for s in (0.0, 15.0, 30.0, 60.0)]
+    assert all(a > b for a, b in zip(d, d[1:]))
+
+
+def test_finest_level_normals_are_exact_and_coarse_ones_filtered(big, terrain):
+    M = big.max_level
+    assert big.normal_filter_m[M] == 0 and np.all(np.diff(big.normal_filter_m) < 0)
+    for level in (M, 2):
+        big.clear()
+        positions, normals, _ = big.update(np.full(big.n_faces, level))
+        sub = slice(0, 30000, 7)
+        _, exact = terrain.sample(positions[sub, 0], positions[sub, 1])
+        err = np.abs(normals[sub] - exact).max()
+        if level == M:
+            assert err < 1e-5
+        else:
+            assert err > 1e-3                 # filtered at level 2 (corners of base faces stay exact)
+    big.clear()
