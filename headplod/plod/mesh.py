@@ -175,6 +175,9 @@ class Template:
     boundary_edge : (Pb,) int64
     boundary_k : (Pb,) int64
     interior_bary : (Pi, 3) float64
+    interior_keys : (Pi, 2) int64
+        The interior points' lattice keys (B, C) in units of 1/(3 * 2**M) of
+        the face (``interior_bary`` = ((3N − B − C), B, C) / 3N).
     triangles : (T, 3) int32
         Indices into the concatenation [boundary points, interior points],
         counter-clockwise like the face.
@@ -183,6 +186,7 @@ class Template:
     boundary_edge: np.ndarray
     boundary_k: np.ndarray
     interior_bary: np.ndarray
+    interior_keys: np.ndarray
     triangles: np.ndarray
 
 
@@ -270,6 +274,8 @@ def build_template(max_level: int, level: int, edge_levels) -> Template:
         boundary_edge=np.array([t[1] for t in boundary], dtype=np.int64),
         boundary_k=np.array([t[2] for t in boundary], dtype=np.int64),
         interior_bary=np.array([t[1:] for t in interior], dtype=np.float64).reshape(-1, 3),
+        interior_keys=np.array([[t[2] * N3, t[3] * N3] for t in interior], dtype=np.float64).round()
+                        .astype(np.int64).reshape(-1, 2),
         triangles=remap[np.array(tris, dtype=np.int64)].astype(np.int32),
     )
 
@@ -391,6 +397,7 @@ class AdaptiveMesh:
         self._edge_pos = edge_pos.astype(np.float32)
         self._edge_nrm = edge_nrm.astype(np.float32)
 
+        self._level_points(terrain)
         self._face_data(light_dir, ambient, edge_pos)
 
         self._case = np.full(self.n_faces, -1, dtype=np.int64)
@@ -398,6 +405,45 @@ class AdaptiveMesh:
         self._output = None
         self.stats: dict = {}
         self.last_rebuilt_faces = np.zeros(0, dtype=np.int64)
+
+    def _level_points(self, terrain) -> None:
+        """Every interior point a face of each level can use, sampled once for every face.
+
+        A level-L face's interior points are its level-L lattice points and
+        the centres of its corner fans; the template with all three edges
+        refined to the finest level has all of them. Heights are exact,
+        normals prefiltered for the level (``normal_filter``), so building a
+        face later is a gather, with no terrain evaluation.
+        """
+        M = self.max_level
+        N3 = 3 * 2 ** M
+        corners = self.base.vertices[self.base.faces][..., :2]                 # (F, 3, 2)
+        self._points = []
+        for L in range(M + 1):                                                 # loop over levels
+            keys = build_template(M, L, (M, M, M)).interior_keys
+            index = {(int(b), int(c)): i for i, (b, c) in enumerate(keys)}
+            bary = np.column_stack([N3 - keys[:, 0] - keys[:, 1], keys[:, 0], keys[:, 1]]) / N3
+            F, K = len(corners), len(keys)
+            pos = np.zeros((F, K, 3), np.float32)
+            nrm = np.zeros((F, K, 3), np.float32)
+            if K:
+                xy = np.einsum("pk,mkd->mpd", bary, corners)                   # (F, K, 2)
+                z, n = _sample(terrain, xy[..., 0].ravel(), xy[..., 1].ravel(),
+                               self.normal_filter_m[L] if L < M else None)
+                pos[..., :2] = xy
+                pos[..., 2] = z.reshape(F, K)
+                nrm[:] = n.reshape(F, K, 3)
+            self._points.append((index, pos, nrm))
+        self._interior_index: dict[int, np.ndarray] = {}
+
+    def _interior(self, case_id: int, tpl: "Template", level: int) -> np.ndarray:
+        """Indices of a template's interior points in its level's point table, cached."""
+        idx = self._interior_index.get(case_id)
+        if idx is None:
+            index = self._points[level][0]
+            idx = np.array([index[(int(b), int(c))] for b, c in tpl.interior_keys], dtype=np.int64)
+            self._interior_index[case_id] = idx
+        return idx
 
     # ------------------------------------------------------------------ cases
     def template(self, case_id: int) -> Template:
@@ -442,7 +488,7 @@ class AdaptiveMesh:
 
     # ------------------------------------------------------------------ building
     def _build(self, groups):
-        """Blocks of rebuilt faces, one terrain call for all their interior points.
+        """Blocks of rebuilt faces: gathers from the edge points and the level's point table.
 
         Parameters
         ----------
@@ -455,31 +501,20 @@ class AdaptiveMesh:
         """
         base, N = self.base, 2 ** self.max_level
         M1 = self.max_level + 1
-        tpls, xys, smooth, case_levels = [], [], [], []
+        out = []
         for cid, fids in groups:                                                   # loop over cases
             tpl = self.template(cid)
-            corners = base.vertices[base.faces[fids]][..., :2]                     # (m, 3, 2)
-            xys.append(np.einsum("pk,mkd->mpd", tpl.interior_bary, corners).reshape(-1, 2))
             level, e0, e1, e2 = np.unravel_index(cid, (M1,) * 4)
-            smooth.append(np.full(len(xys[-1]), self.normal_filter_m[level]))
-            case_levels.append(np.array([e0, e1, e2]))
-            tpls.append(tpl)
-        xy = np.concatenate(xys) if xys else np.zeros((0, 2))
-        z, nrm_all = (_sample(self.terrain, xy[:, 0], xy[:, 1], np.concatenate(smooth)) if len(xy)
-                      else (np.zeros(0), np.zeros((0, 3))))
-        interior = np.column_stack([xy, z]).astype(np.float32)
-        nrm_all = nrm_all.astype(np.float32)
-        out, start = [], 0
-        for (cid, fids), tpl, part, elev in zip(groups, tpls, xys, case_levels):   # loop over cases
-            m = len(fids)
+            elev = np.array([e0, e1, e2])
+            _, pos_table, nrm_table = self._points[level]
+            inner = self._interior(cid, tpl, level)
             eids = base.face_edges[fids][:, tpl.boundary_edge]                     # (m, Pb)
             fwd = base.face_edge_forward[fids][:, tpl.boundary_edge]
             kk = np.where(fwd, tpl.boundary_k, N - tpl.boundary_k)
-            stop = start + len(part)
-            pos = np.concatenate([self._edge_pos[eids, kk], interior[start:stop].reshape(m, -1, 3)], axis=1)
+            rows = fids[:, None]
+            pos = np.concatenate([self._edge_pos[eids, kk], pos_table[rows, inner[None, :]]], axis=1)
             edge_nrm = self._edge_nrm[elev[tpl.boundary_edge][None, :], eids, kk]   # each edge at its level
-            nrm = np.concatenate([edge_nrm, nrm_all[start:stop].reshape(m, -1, 3)], axis=1)
-            start = stop
+            nrm = np.concatenate([edge_nrm, nrm_table[rows, inner[None, :]]], axis=1)
             idx = tpl.triangles.reshape(-1)
             out.append((pos[:, idx], nrm[:, idx]))
         return out
@@ -588,10 +623,10 @@ class AdaptiveMesh:
         parts = [edge_pos[eids, kk]]
         nparts = [self._edge_nrm[M, eids, kk].astype(np.float64)]
         if len(full.interior_bary):
-            xy = np.einsum("pk,mkd->mpd", full.interior_bary, corners[..., :2])
-            z, n = _sample(self.terrain, xy[..., 0].ravel(), xy[..., 1].ravel())
-            parts.append(np.concatenate([xy, z.reshape(F, -1, 1)], axis=2))
-            nparts.append(n.reshape(F, -1, 3))
+            _, pos_table, nrm_table = self._points[M]                # sampled once, exact at level M
+            inner = self._interior(int(np.ravel_multi_index((M,) * 4, (M + 1,) * 4)), full, M)
+            parts.append(pos_table[:, inner].astype(np.float64))
+            nparts.append(nrm_table[:, inner].astype(np.float64))
         fine = np.concatenate(parts, axis=1)                                     # (F, P, 3)
         fine_n = np.concatenate(nparts, axis=1)
         # Lattice coordinates (B, C) of each point: B along corner 0→1, C along 0→2, in 1/N.
