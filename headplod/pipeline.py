@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import Callable, Iterable
+from typing import Callable
 
 from . import io
-from .tracker import Tracker, TrackerConfig, TrackResult
+from .tracker import TrackerConfig, TrackResult
 
 
 def result_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen | None = None,
@@ -29,12 +29,13 @@ def result_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen
 
 
 def track_dataset(dataset: io.Dataset, config: TrackerConfig = TrackerConfig(),
-                  on_record: Callable[[dict, TrackResult | None], None] | None = None,
-                  frames: Iterable[int] | None = None) -> list[dict]:
-    """Track every frame of a dataset, in frame order.
+                  on_record: Callable[[dict, TrackResult | None], None] | None = None) -> list[dict]:
+    """Track every frame of a dataset, in frame order, through the live loop.
 
     A frame that cannot be loaded becomes an ``ok: false`` record with the
-    loader's reason; the other frames are still processed.
+    loader's reason; the other frames are still processed. This is
+    :func:`headplod.live.run_source` over the dataset's folder, so a dataset
+    and a live session give the same records.
 
     Parameters
     ----------
@@ -42,28 +43,27 @@ def track_dataset(dataset: io.Dataset, config: TrackerConfig = TrackerConfig(),
     config : TrackerConfig
     on_record : callable(record, result), optional
         Called after each frame (progress, writing).
-    frames : iterable of int, optional
-        Only these frame indices.
 
     Returns
     -------
     list of pose records (dicts)
     """
-    tracker = Tracker(dataset.rig, dataset.markers, config)
+    from .capture import DatasetSource
+    from .live import run_source
+
     records = []
-    wanted = None if frames is None else set(frames)
-    for frame in dataset:
-        if wanted is not None and frame.index not in wanted:
-            continue
-        result = None
-        if frame.error is None:
-            result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
-        else:
-            tracker.reset()
-        record = result_record(frame, result, dataset.screen)
+
+    def collect(record, result):
         records.append(record)
         if on_record is not None:
             on_record(record, result)
+
+    source = DatasetSource(dataset.folder)
+    try:
+        run_source(source, config, rig=dataset.rig, markers=dataset.markers, screen=dataset.screen,
+                   on_record=collect)
+    finally:
+        source.close()
     return records
 
 

@@ -255,21 +255,17 @@ class LevelSelector:
         return pc.velocity_baseline_level(base, speed, mode=self.mode, max_level=L, return_continuous=True)[1]
 
     def _outside_screen(self, eye, rel) -> np.ndarray:
-        """(F,) bool: the base triangle projects wholly outside the screen rectangle."""
-        tl = np.asarray(self.screen.top_left, dtype=np.float64)
-        u = np.asarray(self.screen.top_right, dtype=np.float64) - tl
-        v = np.asarray(self.screen.bottom_left, dtype=np.float64) - tl
-        normal = np.cross(u, v)
-        along = rel @ normal
-        with np.errstate(divide="ignore", invalid="ignore"):
-            hit = eye + rel * (((tl - eye) @ normal) / along)[:, None] - tl
+        """(F,) bool: the base triangle projects wholly outside the screen rectangle (or lies behind the eye)."""
+        from .contrast import project_to_screen_px
+
+        xy = project_to_screen_px(self.centroids_mm, eye, self.screen)
         width, height = self.screen.size_px
-        x = hit @ u / (u @ u) * width
-        y = hit @ v / (v @ v) * height
         # Margin: the triangle's size at level 0 on the screen, generously.
         margin = 1.5 * self.edge_len_mm[:, 0] * self.px_per_mm
-        outside = (x < -margin) | (x > width + margin) | (y < -margin) | (y > height + margin)
-        return outside | ~(along * ((tl - eye) @ normal) > 0)      # behind the eye: not seen
+        with np.errstate(invalid="ignore"):
+            inside = ((xy[:, 0] >= -margin) & (xy[:, 0] <= width + margin)
+                      & (xy[:, 1] >= -margin) & (xy[:, 1] <= height + margin))
+        return ~inside                                   # NaN (not in front of the eye): outside
 
     def _smoothed_view(self, view: View) -> View:
         """Eye and POI through One Euro filters (the tracker's noise out, real motion through).
