@@ -645,6 +645,43 @@ def rig_with_cameras(rig: io.Rig, left_info: CameraInfo, right_info: CameraInfo)
     return dataclasses.replace(rig, extra=extra)
 
 
+def store_rig_cameras(rig_path, left_device: str, right_device: str, cameras: Sequence[CameraInfo]) -> io.Rig:
+    """Record in ``rig_path`` (rewritten) which USB cameras are its left and right ones.
+
+    Parameters
+    ----------
+    rig_path : str or Path
+        A rig.yaml (contract format), calibrated with these two cameras.
+    left_device, right_device : str
+        Their device nodes now, e.g. ``/dev/video0`` (or ``0``).
+    cameras : sequence of CameraInfo
+        :func:`list_cameras`.
+
+    Returns
+    -------
+    io.Rig
+        The rig as written.
+
+    Raises
+    ------
+    LookupError
+        If a device is not among ``cameras`` (the message lists them).
+    ValueError
+        If a camera is not on USB, or both are the same.
+    """
+    def find(device):
+        text = str(device)
+        for info in cameras:
+            if info.device == text or (text.isdigit() and Path(info.device).name == f"video{text}"):
+                return info
+        name = f"/dev/video{text}" if text.isdigit() else text
+        raise LookupError(f"{name} is not a video capture device here. {_present(cameras)}")
+
+    rig = rig_with_cameras(io.read_rig(rig_path), find(left_device), find(right_device))
+    io.write_rig(rig_path, rig)
+    return rig
+
+
 # --------------------------------------------------------------------------
 # printing
 # --------------------------------------------------------------------------

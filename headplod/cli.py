@@ -71,6 +71,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     cameras = sub.add_parser("cameras", help="list the video devices with their USB identity")
     cameras.add_argument("--all-nodes", action="store_true", help="also the metadata nodes of UVC cameras")
+    cameras.add_argument("--store", nargs=2, metavar=("LEFT", "RIGHT"),
+                         help="record these devices' USB identities in --rig as its left and right cameras, "
+                              "so 'headplod track --camera auto' finds them whatever /dev/videoN they get")
+    cameras.add_argument("--rig", help="rig.yaml to update with --store")
 
     calibrate = sub.add_parser("calibrate", help="stereo calibration from chessboard/ChArUco pairs -> rig.yaml")
     calibrate.add_argument("folder", nargs="?", help="image pairs: left/ and right/ with matching names, or "
@@ -345,11 +349,22 @@ def _cmd_track(args) -> int:
 
 
 def _cmd_cameras(args) -> int:
-    from .cameras import LibusbMissingError, format_cameras, list_cameras
+    from .cameras import LibusbMissingError, format_cameras, list_cameras, store_rig_cameras
 
+    if bool(args.store) != bool(args.rig):
+        print("headplod: --store LEFT RIGHT and --rig rig.yaml go together", file=sys.stderr)
+        return 2
     try:
         cams = list_cameras(all_nodes=args.all_nodes)
+        if args.store:
+            rig = store_rig_cameras(args.rig, *args.store, cams)
+            print(f"{args.rig}: left camera {rig.extra['left_camera']}, right camera {rig.extra['right_camera']}",
+                  file=sys.stderr)
+            return 0
     except LibusbMissingError as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 1
+    except (LookupError, ValueError) as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 1
     print(format_cameras(cams))

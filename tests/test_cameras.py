@@ -375,3 +375,19 @@ def test_address_reused_by_another_device_is_noted(tmp_path):
     backend = FakeBackend(usb_devices(dict(LEFT, vid=0x1234, pid=0x5678)))
     (cam,) = hc.list_cameras(sys_root, dev_root, backend=backend)
     assert cam.usb_id == "046d:0825" and "pyusb sees 1234:5678" in cam.note
+
+
+def test_store_identities_in_a_rig_then_auto_resolves_after_a_swap(boot1, tmp_path):
+    sys_root, dev_root, backend = boot1
+    cams = hc.list_cameras(sys_root, dev_root, backend=backend)
+    path = tmp_path / "rig.yaml"
+    io.write_rig(path, small_rig())
+    rig = hc.store_rig_cameras(path, "0", f"{dev_root}/video2", cams)   # a number or a device path
+    assert io.read_rig(path).extra["left_camera"] == rig.extra["left_camera"] == hc.identity_of(cams[0])
+    assert io.read_rig(path).extra["rms_px"] == pytest.approx(0.3)        # the rest of the rig is kept
+    sys2, dev2 = make_sysfs(tmp_path / "boot2",
+                            [dict(LEFT, videos=(2, 3), devnum=9), dict(RIGHT, videos=(0, 1), devnum=8)])
+    cams2 = hc.list_cameras(sys2, dev2, backend=FakeBackend(usb_devices(dict(LEFT, devnum=9), dict(RIGHT, devnum=8))))
+    assert hc.resolve_rig_cameras(io.read_rig(path), cams2) == (f"{dev2}/video2", f"{dev2}/video0")
+    with pytest.raises(LookupError, match="video7"):
+        hc.store_rig_cameras(path, "7", "0", cams)
