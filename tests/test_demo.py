@@ -251,3 +251,38 @@ def test_window_runs_on_the_headless_backend():
     image = np.frombuffer(wnd.fbo.read(components=3), np.uint8).reshape(180, 320, 3)
     assert image.std() > 10 and config.loop.last.triangles > 2048
     config.on_close()
+
+
+def test_prefetch_keeps_the_order_and_the_end():
+    """Poses read ahead on a thread come out in order, and the end and errors come through."""
+    from headplod.demo import loop as lp
+
+    class Counting(lp.PoseSource):
+        name = "counting"
+
+        def __init__(self, n, fail_at=None):
+            self.n, self.k, self.fail_at, self.closed = n, 0, fail_at, False
+
+        def read(self):
+            if self.k == self.fail_at:
+                raise RuntimeError("camera gone")
+            if self.k >= self.n:
+                return None
+            self.k += 1
+            return lp.Pose(float(self.k), False, reason=f"pose {self.k}")
+
+        def close(self):
+            self.closed = True
+
+    src = Counting(7)
+    with lp.PrefetchPoses(src, depth=2) as pre:
+        got = []
+        while (pose := pre.read()) is not None:
+            got.append(pose.t)
+        assert pre.read() is None
+    assert got == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0] and src.closed
+    pre = lp.PrefetchPoses(Counting(5, fail_at=3))
+    assert [pre.read().t for _ in range(3)] == [1.0, 2.0, 3.0]
+    with pytest.raises(RuntimeError, match="camera gone"):
+        pre.read()
+    pre.close()

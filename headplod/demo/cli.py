@@ -150,6 +150,8 @@ def make_poses(args, screen=None, frames: int | None = None) -> lp.PoseSource:
                                 **options)
     if args.dropout is not None:
         poses = lp.DropoutPoses(poses, args.dropout)
+    if not args.mouse:
+        poses = lp.PrefetchPoses(poses)       # tracking on its own thread, as a live tracker runs
     return poses
 
 

@@ -296,6 +296,72 @@ class MousePoses(PoseSource):
                     None if self.cov_deg2 is None else self.cov_deg2.copy())
 
 
+class PrefetchPoses(PoseSource):
+    """Another source read ahead on its own thread: tracking runs while the viewer renders.
+
+    This is how a live tracker feeds a viewer: the cameras' frames are
+    tracked as they arrive, concurrently with rendering, and the render loop
+    takes the next pose when it starts a frame. Poses keep their order (at
+    most ``depth`` are read ahead; the reader waits for the loop), so a
+    headless run draws exactly the frames it would without prefetching.
+
+    Parameters
+    ----------
+    inner : PoseSource
+    depth : int
+        Poses read ahead (≥ 1).
+    """
+
+    def __init__(self, inner: PoseSource, depth: int = 2):
+        import queue
+        import threading
+
+        if depth < 1:
+            raise ValueError(f"PrefetchPoses: depth must be ≥ 1, got {depth}")
+        self.inner, self.screen, self.name = inner, inner.screen, inner.name
+        self._queue: "queue.Queue" = queue.Queue(maxsize=depth)
+        self._stop = threading.Event()
+        self._done = False
+        self._thread = threading.Thread(target=self._run, name="pose-prefetch", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        import queue
+
+        while not self._stop.is_set():
+            try:
+                item = self.inner.read()
+            except Exception as exc:           # handed to the loop, which reports it
+                item = exc
+            while not self._stop.is_set():
+                try:
+                    self._queue.put(item, timeout=0.1)
+                    break
+                except queue.Full:
+                    continue
+            if item is None or isinstance(item, Exception):
+                return
+
+    def read(self) -> Pose | None:
+        if self._done:
+            return None
+        item = self._queue.get()
+        if item is None:
+            self._done = True
+        elif isinstance(item, Exception):
+            self._done = True
+            raise item
+        return item
+
+    def __getattr__(self, name):               # e.g. set_poi of a mouse source
+        return getattr(self.inner, name)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.inner.close()
+
+
 class DropoutPoses(PoseSource):
     """Another source with tracking failures injected at given frames (tests, ``--dropout``).
 
