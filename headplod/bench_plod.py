@@ -101,7 +101,8 @@ class _Bench:
         scene, r = self.scene, self.renderer
         scene.mesh.clear()
         steady, image = [], None
-        centroids_px = project_to_screen_px(selector.centroids_mm, self.head, self.screen)
+        if contrast_from_readback:
+            centroids_px = project_to_screen_px(selector.centroids_mm, self.head, self.screen)
         readback_ms = []
         for k in range(self.frames):
             t0 = time.perf_counter()

@@ -198,8 +198,9 @@ def main(argv=None) -> int:
     return 2
 
 
-def _open_track_source(args, io):
+def _open_track_source(args):
     """The frame source of ``headplod track``, the rig and whether it is live."""
+    from . import io
     from .capture import open_source
     from .sequences import DEFAULT_SEQUENCE, ensure_dataset
 
@@ -265,7 +266,7 @@ def _cmd_track(args) -> int:
             print(f"headplod: --filter expects MIN_CUTOFF_HZ,BETA such as 1.0,0.02 ({exc})", file=sys.stderr)
             return 2
     try:
-        source, rig, live = _open_track_source(args, io)
+        source, rig, live = _open_track_source(args)
     except _Usage as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 2

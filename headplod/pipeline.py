@@ -58,7 +58,7 @@ def track_dataset(dataset: io.Dataset, config: TrackerConfig = TrackerConfig(),
         if on_record is not None:
             on_record(record, result)
 
-    source = DatasetSource(dataset.folder)
+    source = DatasetSource(dataset)
     try:
         run_source(source, config, rig=dataset.rig, markers=dataset.markers, screen=dataset.screen,
                    on_record=collect)

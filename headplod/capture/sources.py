@@ -398,9 +398,10 @@ class DatasetSource(FrameSource):
 
     Parameters
     ----------
-    folder : str or Path
+    folder : str, Path or io.Dataset
         A folder with ``rig.yaml``, ``left/``, ``right/`` (``times.csv``,
-        ``markers.yaml``, ``screen.yaml`` optional).
+        ``markers.yaml``, ``screen.yaml`` optional), or a dataset already
+        read from one.
     realtime : bool
         Pace the frames by their ``t`` (wall-clock replay); default as fast
         as they are read.
@@ -428,8 +429,9 @@ class DatasetSource(FrameSource):
 
     kind = "dataset"
 
-    def __init__(self, folder: str | Path, realtime: bool = False, skew_bound_ms: float | None = None):
-        dataset = io.Dataset(folder)
+    def __init__(self, folder: str | Path | io.Dataset, realtime: bool = False,
+                 skew_bound_ms: float | None = None):
+        dataset = folder if isinstance(folder, io.Dataset) else io.Dataset(folder)
         super().__init__(str(dataset.folder), dataset.rig, dataset.markers, dataset.screen)
         self.dataset = dataset
         self.warnings.extend(dataset.warnings)

@@ -182,7 +182,7 @@ class LevelSelector:
         # level (GL clips it anyway), and the criterion is computed only for
         # the others.
         if self.mode != "full":
-            seen = np.flatnonzero(~self._outside_screen(eye, rel))
+            seen = np.flatnonzero(~self._outside_screen(eye))
         else:
             seen = np.arange(len(rel))
         # Angular size of a level's pieces and its spatial frequency (1 / diameter).
@@ -254,7 +254,7 @@ class LevelSelector:
                             return_continuous=True)[1]
         return pc.velocity_baseline_level(base, speed, mode=self.mode, max_level=L, return_continuous=True)[1]
 
-    def _outside_screen(self, eye, rel) -> np.ndarray:
+    def _outside_screen(self, eye) -> np.ndarray:
         """(F,) bool: the base triangle projects wholly outside the screen rectangle (or lies behind the eye)."""
         from .contrast import project_to_screen_px
 

@@ -75,35 +75,33 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     scene = scene or TerrainScene.build(screen)
     head = default_head(screen) if head_mm is None else np.asarray(head_mm, dtype=np.float64)
     poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
+    if contrast not in ("shading", "readback"):
+        raise ValueError(f"render_still: contrast must be 'shading' or 'readback', got {contrast!r}")
     selector = scene.selector(mode, uncertainty, hysteresis=False)
-    t0 = time.perf_counter()
-    levels, features = selector.select(View(head, poi, cov_deg2, 0.0))
-    t1 = time.perf_counter()
-    positions, normals, tri_levels = scene.mesh.update(levels)
-    t2 = time.perf_counter()
     if renderer is None:
         renderer = TerrainRenderer(create_context(), size=tuple(size))
-    renderer.upload(positions, normals, tri_levels)
     view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
-    image = renderer.render(view, proj, scene.model, view_mode=view_mode)
-    readback_ms = None
-    if contrast == "readback":
-        from .contrast import project_to_screen_px, readback_contrast
 
-        shaded = image if view_mode == "shaded" else renderer.render(view, proj, scene.model, view_mode="shaded")
-        t3 = time.perf_counter()
-        centroids_px = project_to_screen_px(selector.centroids_mm, head, screen)
-        selector.contrast = readback_contrast(shaded, centroids_px, screen.size_px, fallback=scene.mesh.contrast)
-        readback_ms = renderer.last_readback_ms + (time.perf_counter() - t3) * 1e3
+    def frame(render_mode):
+        """Select, build, upload and render; (image, levels per triangle, select s, build s)."""
         t0 = time.perf_counter()
-        levels, features = selector.select(View(head, poi, cov_deg2, 0.0))
+        levels, _ = selector.select(View(head, poi, cov_deg2, 0.0))
         t1 = time.perf_counter()
         positions, normals, tri_levels = scene.mesh.update(levels)
         t2 = time.perf_counter()
         renderer.upload(positions, normals, tri_levels)
-        image = renderer.render(view, proj, scene.model, view_mode=view_mode)
-    elif contrast != "shading":
-        raise ValueError(f"render_still: contrast must be 'shading' or 'readback', got {contrast!r}")
+        return renderer.render(view, proj, scene.model, view_mode=render_mode), tri_levels, t1 - t0, t2 - t1
+
+    readback_ms = None
+    if contrast == "readback":
+        from .contrast import project_to_screen_px, readback_contrast
+
+        shaded = frame("shaded")[0]
+        t3 = time.perf_counter()
+        centroids_px = project_to_screen_px(selector.centroids_mm, head, screen)
+        selector.contrast = readback_contrast(shaded, centroids_px, screen.size_px, fallback=scene.mesh.contrast)
+        readback_ms = renderer.last_readback_ms + (time.perf_counter() - t3) * 1e3
+    image, tri_levels, select_s, build_s = frame(view_mode)
     if cov_deg2 is not None or view_mode == "levels":
         px_per_deg = _px_per_deg(screen, head, size)
         scaled_poi = poi * np.array(size) / np.array(screen.size_px)
@@ -111,7 +109,7 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     counts = np.bincount(tri_levels, minlength=scene.mesh.max_level + 1)
     stats = {"mode": mode, "uncertainty": uncertainty, "view": view_mode, "size": list(size),
              "head_mm": head.round(2).tolist(), "poi_px": poi.round(2).tolist(),
-             "triangles": int(len(tri_levels)), "select_ms": (t1 - t0) * 1e3, "build_ms": (t2 - t1) * 1e3,
+             "triangles": int(len(tri_levels)), "select_ms": select_s * 1e3, "build_ms": build_s * 1e3,
              "render_ms": renderer.last_render_ms, "triangles_per_level": counts.tolist(),
              "contrast": contrast}
     if readback_ms is not None:
