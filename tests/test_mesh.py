@@ -256,6 +256,26 @@ def test_incremental_equals_from_scratch(sequence):
         assert np.array_equal(a, b)
 
 
+def test_indices_address_the_vertex_table_and_give_the_soup(big):
+    """update_indices + the static vertex table is the soup of update, also after an incremental change."""
+    rng = np.random.default_rng(5)
+    table_p, table_n = big.vertex_positions, big.vertex_normals
+    assert table_p.shape == table_n.shape and table_p.dtype == np.float32
+    for step in range(2):
+        levels = rng.integers(0, big.max_level + 1, big.n_faces)
+        idx, lv = big.update_indices(levels)
+        assert idx.dtype == np.uint32 and idx.size == 3 * len(lv) and int(idx.max()) < len(table_p)
+        assert big.update_indices(levels)[0] is idx           # unchanged levels: the same arrays
+        p, n, lv2 = big.update(levels)
+        np.testing.assert_array_equal(p, table_p[idx])
+        np.testing.assert_array_equal(n, table_n[idx])
+        np.testing.assert_array_equal(lv, lv2)
+        assert len(lv) == big.triangle_count(levels)
+    big.clear()
+    idx_scratch, _ = big.update_indices(levels)
+    np.testing.assert_array_equal(np.unique(idx_scratch.reshape(-1, 3), axis=0), np.unique(idx.reshape(-1, 3), axis=0))
+
+
 def test_rebuild_touches_only_changed_cases(big):
     rng = np.random.default_rng(11)
     levels = rng.integers(0, 4, big.n_faces)

@@ -267,6 +267,31 @@ def test_render_is_deterministic_and_indexed_equals_soup(renderer, scene):
         np.testing.assert_array_equal(x, y)
 
 
+def test_set_indices_draws_a_new_selection_over_the_uploaded_vertices(ctx, scene):
+    screen, model, view, proj = scene
+    pos, nrm, levels, P, tri = grid_mesh(n=20)
+    fresh = TerrainRenderer(ctx, (W, H))
+    try:
+        with pytest.raises(ValueError, match="upload the vertices first"):
+            fresh.set_indices(tri)
+        normals = np.tile(np.float32([0, 0, 1]), (len(P), 1))
+        fresh.upload(P, normals, levels, tri, tag="table")
+        assert fresh.tag == "table" and fresh.indexed
+        half = np.arange(0, len(tri), 2)                    # every other triangle
+        fresh.set_indices(tri[half].astype(np.uint32), levels[half])
+        assert fresh.n_triangles == len(half) and fresh.tag == "table"
+        got = [fresh.render(view, proj, model, m, light_dir=(0.3, 0.2, 1)) for m in ("shaded", "levels")]
+        fresh.upload(P[tri[half].reshape(-1)], normals[tri[half].reshape(-1)], levels[half])
+        assert not fresh.indexed and fresh.tag is None
+        want = [fresh.render(view, proj, model, m, light_dir=(0.3, 0.2, 1)) for m in ("shaded", "levels")]
+        for x, y in zip(got, want):
+            np.testing.assert_array_equal(x, y)
+        with pytest.raises(ValueError, match="indices"):
+            fresh.set_indices(np.array([[0, 1, 3 * len(half)]]))
+    finally:
+        fresh.release()
+
+
 def test_upload_rejects_bad_meshes(renderer):
     pos, nrm, levels, *_ = grid_mesh(n=2)
     with pytest.raises(ValueError, match="multiple of 3"):

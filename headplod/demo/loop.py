@@ -30,9 +30,10 @@ Per frame
    here). Head tremor is handled in the selector, whose One Euro filters on
    the eye and POI and hysteresis on the levels keep small motions from
    switching levels (:meth:`headplod.plod.select.LevelSelector._smoothed_view`).
-4. Levels → :meth:`AdaptiveMesh.update` (only base triangles whose case
-   changed are rebuilt) → upload, skipped when the mesh did not change →
-   off-axis render → HUD.
+4. Levels → :meth:`AdaptiveMesh.update_indices` (only base triangles whose
+   case changed are rebuilt, as indices into the mesh's vertex table, which
+   is uploaded once) → upload of the indices, skipped when the mesh did not
+   change → off-axis indexed render → HUD.
 """
 from __future__ import annotations
 
@@ -663,11 +664,15 @@ class DemoLoop:
             self._levels, _ = selector.select(View(pose.eye_mm, pose.poi_px, pose.cov_deg2, pose.t))
         t2 = time.perf_counter()
         scene = self.scene
-        positions, normals, tri_levels = scene.mesh.update(self._levels)
+        mesh = scene.mesh
+        indices, tri_levels = mesh.update_indices(self._levels)
         t3 = time.perf_counter()
-        if self._uploaded is not positions:
-            self.renderer.upload(positions, normals, tri_levels)
-            self._uploaded = positions
+        if self.renderer.tag is not mesh:          # the mesh's vertex table, once per renderer
+            self.renderer.upload(mesh.vertex_positions, mesh.vertex_normals, tri_levels, indices, tag=mesh)
+            self._uploaded = indices
+        elif self._uploaded is not indices:        # a new selection: only its indices and levels move
+            self.renderer.set_indices(indices, tri_levels)
+            self._uploaded = indices
         t4 = time.perf_counter()
         view, proj = off_axis_projection(pose.eye_mm, self.screen, NEAR_MM, FAR_MM)
         image = self.renderer.render(view, proj, scene.model, view_mode=self.settings["view_mode"])

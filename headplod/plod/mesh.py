@@ -29,11 +29,26 @@ T-junctions at any mix of levels. Big level jumps between neighbours give
 long thin fan triangles (still valid); a selector that keeps neighbours within
 one level of each other gets well-shaped transitions.
 
-Output of ``AdaptiveMesh.update`` is a **non-indexed triangle soup**: three
-consecutive rows of ``positions`` (and ``normals``) per triangle, counter-
-clockwise seen from +z, float32, ready for ``glDrawArrays(GL_TRIANGLES)``.
-Normals are the terrain's analytic normals at each vertex (smooth shading
-that is continuous across faces and levels).
+Output
+------
+Every vertex any case can use is sampled once, when the mesh is made, into
+one static **vertex table** (``vertex_positions``, ``vertex_normals``): the
+canonical edge points once per edge level (an edge's normals are
+prefiltered for its level) and every face's interior points per level. A
+build is then only indices into that table:
+
+- ``AdaptiveMesh.update_indices`` gives the triangles as indices into the
+  table, ready for ``glDrawElements`` over a table uploaded once: a change
+  of levels moves 12 bytes per triangle, not 72 (``TerrainRenderer.
+  set_indices``);
+- ``AdaptiveMesh.update`` gives the same triangles as a **non-indexed
+  triangle soup** (the table gathered by those indices): three consecutive
+  rows of ``positions`` (and ``normals``) per triangle, ready for
+  ``glDrawArrays(GL_TRIANGLES)``.
+
+Both are counter-clockwise seen from +z, float32. Normals are the terrain's
+analytic normals at each vertex (smooth shading that is continuous across
+faces and levels).
 """
 from __future__ import annotations
 
@@ -301,12 +316,12 @@ def triangle_count_table(max_level: int) -> np.ndarray:
 
 # ---------------------------------------------------------------------------- adaptive mesh
 class _Store:
-    """The cached blocks of all faces currently in one case."""
+    """The cached index blocks, (m, 3T) uint32 into the vertex table, of all faces currently in one case."""
 
-    __slots__ = ("faces", "positions", "normals")
+    __slots__ = ("faces", "indices")
 
-    def __init__(self, faces, positions, normals):
-        self.faces, self.positions, self.normals = faces, positions, normals
+    def __init__(self, faces, indices):
+        self.faces, self.indices = faces, indices
 
 
 class AdaptiveMesh:
@@ -355,10 +370,17 @@ class AdaptiveMesh:
         Michelson contrast ``(max - min) / (max + min)`` of the Lambertian
         shading ``ambient + (1 - ambient) max(n·l, 0)`` over the face's
         finest-level vertices.
+    vertex_positions : (V, 3) float32
+        The vertex table, scene units: every vertex any build can use
+        (``update_indices`` indexes it). About 1.9 million rows (47 MB with
+        the normals) for the default 2048 faces and max_level 5.
+    vertex_normals : (V, 3) float32
+        Unit normal of each table row (prefiltered for the row's level).
     stats : dict
-        After each ``update``: ``rebuilt_faces``, ``rebuilt_triangles``,
-        ``triangles``, ``build_ms`` (templates + terrain sampling of the
-        rebuilt faces), ``assemble_ms`` (concatenation).
+        After each ``update`` / ``update_indices``: ``rebuilt_faces``,
+        ``rebuilt_triangles``, ``triangles``, ``build_ms`` (index gathers of
+        the rebuilt faces), ``assemble_ms`` (concatenation, and for
+        ``update`` the gather of the soup from the table).
     last_rebuilt_faces : (k,) int64
         Base faces rebuilt by the last ``update``.
     """
@@ -398,11 +420,13 @@ class AdaptiveMesh:
         self._edge_nrm = edge_nrm.astype(np.float32)
 
         self._level_points(terrain)
+        self._vertex_table()
         self._face_data(light_dir, ambient, edge_pos)
 
         self._case = np.full(self.n_faces, -1, dtype=np.int64)
         self._stores: dict[int, _Store] = {}
-        self._output = None
+        self._output = None          # (indices, level_per_triangle) of the current cases
+        self._soup = None            # (positions, normals, level_per_triangle) gathered from it
         self.stats: dict = {}
         self.last_rebuilt_faces = np.zeros(0, dtype=np.int64)
 
@@ -435,6 +459,35 @@ class AdaptiveMesh:
                 nrm[:] = n.reshape(F, K, 3)
             self._points.append((index, pos, nrm))
         self._interior_index: dict[int, np.ndarray] = {}
+
+    def _vertex_table(self) -> None:
+        """Concatenate the edge points (once per edge level) and the level point tables into one table.
+
+        Rows: ``edge_vertex(l, e, k) = (l * E + e) * (N + 1) + k`` for edge
+        ``e`` at level ``l`` (position ``k`` in 1/N of the edge, canonical
+        direction), then level ``L``'s interior points at
+        ``_interior_offset[L] + f * K_L + i``. The level tables become views
+        into the table (no second copy).
+        """
+        M, E = self.max_level, len(self.base.edges)
+        n_edge = (M + 1) * E * (2 ** M + 1)
+        sizes = [pos.shape[0] * pos.shape[1] for _, pos, _ in self._points]
+        self._interior_offset = n_edge + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        total = n_edge + int(sum(sizes))
+        if total >= 2 ** 32:
+            raise ValueError(f"AdaptiveMesh: {total} table vertices do not fit 32-bit indices; "
+                             f"use fewer base faces or a lower max_level")
+        positions = np.empty((total, 3), np.float32)
+        normals = np.empty((total, 3), np.float32)
+        positions[:n_edge] = np.broadcast_to(self._edge_pos, (M + 1, *self._edge_pos.shape)).reshape(-1, 3)
+        normals[:n_edge] = self._edge_nrm.reshape(-1, 3)
+        for L, (index, pos, nrm) in enumerate(self._points):                   # loop over levels
+            a, F, K = int(self._interior_offset[L]), pos.shape[0], pos.shape[1]
+            positions[a:a + F * K] = pos.reshape(-1, 3)
+            normals[a:a + F * K] = nrm.reshape(-1, 3)
+            self._points[L] = (index, positions[a:a + F * K].reshape(F, K, 3),
+                               normals[a:a + F * K].reshape(F, K, 3))
+        self.vertex_positions, self.vertex_normals = positions, normals
 
     def _interior(self, case_id: int, tpl: "Template", level: int) -> np.ndarray:
         """Indices of a template's interior points in its level's point table, cached."""
@@ -488,7 +541,7 @@ class AdaptiveMesh:
 
     # ------------------------------------------------------------------ building
     def _build(self, groups):
-        """Blocks of rebuilt faces: gathers from the edge points and the level's point table.
+        """Index blocks of rebuilt faces into the vertex table.
 
         Parameters
         ----------
@@ -497,30 +550,102 @@ class AdaptiveMesh:
 
         Returns
         -------
-        list of (positions, normals), each (m, 3T, 3) float32, in the order of ``groups``.
+        list of (m, 3T) uint32, in the order of ``groups``.
         """
         base, N = self.base, 2 ** self.max_level
-        M1 = self.max_level + 1
+        M1, E = self.max_level + 1, len(base.edges)
         out = []
         for cid, fids in groups:                                                   # loop over cases
             tpl = self.template(cid)
             level, e0, e1, e2 = np.unravel_index(cid, (M1,) * 4)
-            elev = np.array([e0, e1, e2])
-            _, pos_table, nrm_table = self._points[level]
-            inner = self._interior(cid, tpl, level)
+            elev = np.array([e0, e1, e2])[tpl.boundary_edge]                       # each edge at its level
             eids = base.face_edges[fids][:, tpl.boundary_edge]                     # (m, Pb)
             fwd = base.face_edge_forward[fids][:, tpl.boundary_edge]
             kk = np.where(fwd, tpl.boundary_k, N - tpl.boundary_k)
-            rows = fids[:, None]
-            pos = np.concatenate([self._edge_pos[eids, kk], pos_table[rows, inner[None, :]]], axis=1)
-            edge_nrm = self._edge_nrm[elev[tpl.boundary_edge][None, :], eids, kk]   # each edge at its level
-            nrm = np.concatenate([edge_nrm, nrm_table[rows, inner[None, :]]], axis=1)
-            idx = tpl.triangles.reshape(-1)
-            out.append((pos[:, idx], nrm[:, idx]))
+            boundary = (elev[None, :] * E + eids) * (N + 1) + kk
+            K = self._points[level][1].shape[1]
+            interior = (self._interior_offset[level] + fids[:, None] * K
+                        + self._interior(cid, tpl, level)[None, :])
+            rows = np.concatenate([boundary, interior], axis=1)
+            out.append(rows[:, tpl.triangles.reshape(-1)].astype(np.uint32))
         return out
 
+    def update_indices(self, levels):
+        """Triangles for per-face levels as indices into the vertex table, rebuilding only changed cases.
+
+        Parameters
+        ----------
+        levels : (F,) int
+            Level of each base face, 0..max_level.
+
+        Returns
+        -------
+        indices : (3T,) uint32
+            Rows of ``vertex_positions`` / ``vertex_normals``; entries 3t,
+            3t+1, 3t+2 are triangle t, counter-clockwise seen from +z.
+        level_per_triangle : (T,) uint8
+            Level of the base face each triangle belongs to (transition fans
+            carry their face's level).
+
+        Notes
+        -----
+        Triangles are grouped by case, then by the order in which faces
+        entered that case; ``face_per_triangle()`` gives each one's base
+        face. The returned arrays are reused (returned again) when no case
+        changes; do not modify them.
+        """
+        t0 = time.perf_counter()
+        case = self.cases(levels)
+        changed = case != self._case
+        rebuilt = np.flatnonzero(changed)
+        self.last_rebuilt_faces = rebuilt
+        n_rebuilt_tris = 0
+        if len(rebuilt):
+            old_cases = np.unique(self._case[rebuilt])
+            for key in old_cases[old_cases >= 0].tolist():  # loop over the cases that lose faces
+                store = self._stores[key]
+                keep = ~changed[store.faces]
+                if not keep.all():
+                    if keep.any():
+                        self._stores[key] = _Store(store.faces[keep], store.indices[keep])
+                    else:
+                        del self._stores[key]
+            new_case = case[rebuilt]
+            order = np.argsort(new_case, kind="stable")
+            ids, starts = np.unique(new_case[order], return_index=True)
+            groups = list(zip(ids.tolist(), np.split(rebuilt[order], starts[1:])))
+            for (cid, fids), idx in zip(groups, self._build(groups)):              # loop over cases
+                n_rebuilt_tris += idx.size // 3
+                store = self._stores.get(cid)
+                if store is None:
+                    self._stores[cid] = _Store(fids, idx)
+                else:
+                    self._stores[cid] = _Store(np.concatenate([store.faces, fids]),
+                                               np.concatenate([store.indices, idx]))
+            self._case = case
+            self._output = None
+        t1 = time.perf_counter()
+        if self._output is None:
+            keys = sorted(self._stores)
+            stores = [self._stores[k] for k in keys]
+            M1 = self.max_level + 1
+            if stores:
+                indices = np.concatenate([s.indices.reshape(-1) for s in stores])
+                lv = np.repeat(np.array([k // M1 ** 3 for k in keys], dtype=np.uint8),
+                               [s.indices.size // 3 for s in stores])
+            else:
+                indices = np.zeros(0, np.uint32)
+                lv = np.zeros(0, np.uint8)
+            self._output = (indices, lv)
+            self._soup = None
+        t2 = time.perf_counter()
+        self.stats = {"rebuilt_faces": int(len(rebuilt)), "rebuilt_triangles": int(n_rebuilt_tris),
+                      "triangles": int(len(self._output[1])),
+                      "build_ms": 1e3 * (t1 - t0), "assemble_ms": 1e3 * (t2 - t1)}
+        return self._output
+
     def update(self, levels):
-        """Mesh for per-face levels, rebuilding only faces whose case changed since the last call.
+        """Mesh for per-face levels as a triangle soup, rebuilding only faces whose case changed.
 
         Parameters
         ----------
@@ -540,73 +665,30 @@ class AdaptiveMesh:
 
         Notes
         -----
-        Triangles are grouped by case, then by the order in which faces
-        entered that case; ``face_per_triangle()`` gives each one's base
-        face. The returned arrays are reused (returned again) when no case
-        changes; do not modify them.
+        The soup is ``vertex_positions[indices]`` for ``update_indices``'s
+        indices (same triangle order). The returned arrays are reused
+        (returned again) when no case changes; do not modify them.
         """
+        indices, lv = self.update_indices(levels)
         t0 = time.perf_counter()
-        case = self.cases(levels)
-        changed = case != self._case
-        rebuilt = np.flatnonzero(changed)
-        self.last_rebuilt_faces = rebuilt
-        n_rebuilt_tris = 0
-        if len(rebuilt):
-            for key in list(self._stores):                  # loop over cases (at most (M+1)^4)
-                store = self._stores[key]
-                keep = ~changed[store.faces]
-                if not keep.all():
-                    if keep.any():
-                        self._stores[key] = _Store(store.faces[keep], store.positions[keep], store.normals[keep])
-                    else:
-                        del self._stores[key]
-            new_case = case[rebuilt]
-            order = np.argsort(new_case, kind="stable")
-            ids, starts = np.unique(new_case[order], return_index=True)
-            groups = list(zip(ids.tolist(), np.split(rebuilt[order], starts[1:])))
-            for (cid, fids), (pos, nrm) in zip(groups, self._build(groups)):      # loop over cases
-                n_rebuilt_tris += pos.shape[0] * pos.shape[1] // 3
-                store = self._stores.get(cid)
-                if store is None:
-                    self._stores[cid] = _Store(fids, pos, nrm)
-                else:
-                    self._stores[cid] = _Store(np.concatenate([store.faces, fids]),
-                                               np.concatenate([store.positions, pos]),
-                                               np.concatenate([store.normals, nrm]))
-            self._case = case
-            self._output = None
-        t1 = time.perf_counter()
-        if self._output is None:
-            keys = sorted(self._stores)
-            stores = [self._stores[k] for k in keys]
-            M1 = self.max_level + 1
-            if stores:
-                positions = np.concatenate([s.positions.reshape(-1, 3) for s in stores])
-                normals = np.concatenate([s.normals.reshape(-1, 3) for s in stores])
-                lv = np.repeat(np.array([k // M1 ** 3 for k in keys], dtype=np.uint8),
-                               [s.positions.shape[0] * s.positions.shape[1] // 3 for s in stores])
-            else:
-                positions = normals = np.zeros((0, 3), np.float32)
-                lv = np.zeros(0, np.uint8)
-            self._output = (positions, normals, lv)
-        t2 = time.perf_counter()
-        self.stats = {"rebuilt_faces": int(len(rebuilt)), "rebuilt_triangles": int(n_rebuilt_tris),
-                      "triangles": int(len(self._output[2])),
-                      "build_ms": 1e3 * (t1 - t0), "assemble_ms": 1e3 * (t2 - t1)}
-        return self._output
+        if self._soup is None:
+            self._soup = (self.vertex_positions[indices], self.vertex_normals[indices], lv)
+        self.stats["assemble_ms"] += 1e3 * (time.perf_counter() - t0)
+        return self._soup
 
     def clear(self) -> None:
         """Forget the cached blocks: the next ``update`` builds every face from scratch."""
         self._case = np.full(self.n_faces, -1, dtype=np.int64)
         self._stores = {}
         self._output = None
+        self._soup = None
 
     def face_per_triangle(self) -> np.ndarray:
         """Base face of each triangle of the last ``update`` output, (T,) int64."""
         stores = [self._stores[k] for k in sorted(self._stores)]
         if not stores:
             return np.zeros(0, dtype=np.int64)
-        return np.concatenate([np.repeat(s.faces, s.positions.shape[1] // 3) for s in stores])
+        return np.concatenate([np.repeat(s.faces, s.indices.shape[1] // 3) for s in stores])
 
     # ------------------------------------------------------------------ per-face data
     def _face_data(self, light_dir, ambient, edge_pos):

@@ -166,7 +166,14 @@ class LevelSelector:
         """Levels (F,) int, and the continuous levels and per-triangle features used (dict).
 
         The features are NaN for base triangles outside the view (frustum-culled: level 0).
+        ``full`` computes nothing: every base triangle at the finest level, features NaN.
         """
+        if self.mode == "full":       # no criterion to evaluate (and no culling: the reference mesh)
+            n = len(self.centroids_mm)
+            nan = np.full(n, np.nan)
+            return (np.full(n, self.max_level, dtype=np.int64),
+                    {"eccentricity_deg": nan, "speed_deg_s": nan.copy(), "distance_mm": nan.copy(),
+                     "continuous": np.full(n, float(self.max_level))})
         view = self._smoothed_view(view)
         eye = np.asarray(view.eye_mm, dtype=np.float64)
         rel = self.centroids_mm - eye
@@ -181,10 +188,7 @@ class LevelSelector:
         # wholly outside the screen as seen from the eye gets the coarsest
         # level (GL clips it anyway), and the criterion is computed only for
         # the others.
-        if self.mode != "full":
-            seen = np.flatnonzero(~self._outside_screen(eye))
-        else:
-            seen = np.arange(len(rel))
+        seen = np.flatnonzero(~self._outside_screen(eye))
         # Angular size of a level's pieces and its spatial frequency (1 / diameter).
         if self.corners_mm is not None:
             to_corners = self.corners_mm[seen] - eye
@@ -219,8 +223,6 @@ class LevelSelector:
     def _continuous(self, freq, distance, ecc, speed, angular_deg, seen):
         """Continuous levels of the base triangles ``seen`` (indices); the other arguments are theirs."""
         L = self.max_level
-        if self.mode == "full":
-            return np.full(len(freq), float(L))
         if self.mode == "distance":
             # One level coarser per doubling of distance beyond the reference.
             return L - np.log2(np.maximum(distance / self.distance_ref_mm, 1e-9))

@@ -79,7 +79,7 @@ PALETTE = np.array([
     [240, 50, 230],   # magenta
 ], dtype=np.uint8)
 
-#: Accepted values of ``view_mode``, mapped to the shader's ``u_mode``.
+#: Accepted values of ``view_mode`` (each has its own shader program).
 VIEW_MODES = {"shaded": 0, "wire": 1, "levels": 2}
 
 
@@ -370,30 +370,30 @@ def scene_to_world(scale_mm_per_unit: float, center_scene: Any, screen: Screen,
 # shaders
 # --------------------------------------------------------------------------
 
-# Shading is per vertex (Gouraud): Lambert + ambient times the height colour
-# (or the level's palette colour), one interpolated colour per fragment. On
-# llvmpipe the cost of a triangle grows with the number of interpolated
-# values; per-pixel lighting (normal, height and the wireframe's barycentric
-# coordinates: 7 values) made a PLOD frame 1.6x as slow as one colour (3)
-# for the same image within a few grey levels: the terrain's diffuse shading
-# varies across a triangle only through its vertex normals. The wireframe
-# view adds the barycentric coordinates (its own program).
+# Shading is per vertex (Gouraud): Lambert + ambient times the height colour,
+# one interpolated colour per fragment. On llvmpipe the cost of a triangle
+# grows with the number of interpolated values; per-pixel lighting (normal,
+# height and the wireframe's barycentric coordinates: 7 values) made a PLOD
+# frame 1.6x as slow as one colour (3) for the same image within a few grey
+# levels: the terrain's diffuse shading varies across a triangle only
+# through its vertex normals.
+#
+# Variants (``#define``s, one program each): LEVELS colours a triangle by
+# its level, read per fragment from a texture at ``gl_PrimitiveID`` (so an
+# indexed mesh, whose vertices are shared by faces of different levels, is
+# coloured per triangle); WIRE adds barycentric coordinates made by a
+# geometry shader (which works for indexed meshes too, unlike
+# ``gl_VertexID % 3``) and draws the edges dark.
 
 _VERTEX_SHADER = """
 #version 330
 uniform mat4 u_mvp;           // T_clip_scene, column-major
-uniform int u_mode;           // 0 shaded, 1 wire, 2 levels
 uniform vec3 u_light;         // unit vector toward the light, scene frame
 uniform float u_ambient;      // in [0, 1]
 uniform vec2 u_height_range;  // scene z of the low and high colour
-uniform vec3 u_palette[8];
 in vec3 in_position;          // scene units
 in vec3 in_normal;            // scene frame
-in uint in_level;
 out vec3 v_color;
-#ifdef WIRE
-out vec3 v_bary;              // barycentric coordinates, for the wireframe
-#endif
 
 const vec3 LOW = vec3(0.30, 0.42, 0.26);   // grey-green valleys
 const vec3 MID = vec3(0.52, 0.56, 0.40);
@@ -403,38 +403,64 @@ void main() {
     gl_Position = u_mvp * vec4(in_position, 1.0);
     vec3 n = normalize(in_normal);
     float shade = u_ambient + (1.0 - u_ambient) * max(dot(n, u_light), 0.0);
-    vec3 base;
-    if (u_mode == 2) {
-        base = u_palette[in_level % 8u];
-    } else {
-        float span = max(u_height_range.y - u_height_range.x, 1e-20);
-        float t = clamp((in_position.z - u_height_range.x) / span, 0.0, 1.0);
-        base = t < 0.5 ? mix(LOW, MID, 2.0 * t) : mix(MID, HIGH, 2.0 * t - 1.0);
-    }
+#ifdef LEVELS
+    v_color = vec3(shade);    // times the triangle's palette colour, per fragment
+#else
+    float span = max(u_height_range.y - u_height_range.x, 1e-20);
+    float t = clamp((in_position.z - u_height_range.x) / span, 0.0, 1.0);
+    vec3 base = t < 0.5 ? mix(LOW, MID, 2.0 * t) : mix(MID, HIGH, 2.0 * t - 1.0);
     v_color = base * shade;
-#ifdef WIRE
-    // triangle soup: vertex k of a triangle is gl_VertexID % 3
-    int k = gl_VertexID % 3;
-    v_bary = vec3(k == 0, k == 1, k == 2);
 #endif
+}
+"""
+
+_GEOMETRY_SHADER = """
+#version 330
+layout(triangles) in;
+layout(triangle_strip, max_vertices = 3) out;
+in vec3 v_color[];
+out vec3 g_color;
+out vec3 g_bary;              // barycentric coordinates, for the wireframe
+void main() {
+    for (int i = 0; i < 3; ++i) {
+        gl_Position = gl_in[i].gl_Position;
+        g_color = v_color[i];
+        g_bary = vec3(i == 0, i == 1, i == 2);
+        gl_PrimitiveID = gl_PrimitiveIDIn;
+        EmitVertex();
+    }
+    EndPrimitive();
 }
 """
 
 _FRAGMENT_SHADER = """
 #version 330
-in vec3 v_color;
 #ifdef WIRE
 uniform float u_wire_px;      // wire half-width, px
 uniform vec3 u_wire_color;
-in vec3 v_bary;
+in vec3 g_color;
+in vec3 g_bary;
+#define COLOR g_color
+#else
+in vec3 v_color;
+#define COLOR v_color
+#endif
+#ifdef LEVELS
+uniform usampler2D u_levels;  // level of triangle p at texel (p % width, p / width)
+uniform vec3 u_palette[8];
 #endif
 out vec4 f_color;
 
 void main() {
-    vec3 color = v_color;
+    vec3 color = COLOR;
+#ifdef LEVELS
+    int width = textureSize(u_levels, 0).x;
+    uint level = texelFetch(u_levels, ivec2(gl_PrimitiveID % width, gl_PrimitiveID / width), 0).r;
+    color *= u_palette[level % 8u];
+#endif
 #ifdef WIRE
-    vec3 w = fwidth(v_bary) * u_wire_px;
-    vec3 e = smoothstep(0.5 * w, 1.5 * w, v_bary);
+    vec3 w = fwidth(g_bary) * u_wire_px;
+    vec3 e = smoothstep(0.5 * w, 1.5 * w, g_bary);
     float inside = min(min(e.x, e.y), e.z);
     color = mix(u_wire_color, color, inside);
 #endif
@@ -442,13 +468,19 @@ void main() {
 }
 """
 
+#: ``#define``s of each view mode's program.
+_VARIANTS = {"shaded": (), "wire": ("WIRE",), "levels": ("LEVELS",)}
 
-def _shader_variant(source: str, wire: bool) -> str:
-    """The shader with ``WIRE`` defined (after the #version line) or not."""
-    if not wire:
+#: Width of the per-triangle level texture, texels (its height grows with the triangle count).
+_LEVEL_TEXTURE_WIDTH = 4096
+
+
+def _shader_variant(source: str, defines) -> str:
+    """The shader with ``defines`` added after the #version line."""
+    if not defines:
         return source
     head, rest = source.lstrip().split("\n", 1)
-    return f"{head}\n#define WIRE 1\n{rest}"
+    return head + "\n" + "".join(f"#define {d} 1\n" for d in defines) + rest
 
 
 # --------------------------------------------------------------------------
@@ -487,17 +519,33 @@ class TerrainRenderer:
     last_readback_ms : float
         Wall time of the last read-back and flip, ms.
     n_triangles : int
-        Triangles uploaded.
+        Triangles to draw.
+    n_vertices : int
+        Vertices uploaded.
+    tag : object
+        The ``tag`` of the last :meth:`upload` (None by default).
+    indexed : bool
+        Whether the mesh is drawn through an index buffer (``upload`` with
+        ``indices``, or ``set_indices``) or as a triangle soup.
     height_range : tuple of float
         Scene z mapped to the low and high terrain colours; set by
-        :meth:`upload` to the mesh's z range, may be overwritten.
+        :meth:`upload` to the vertices' z range, may be overwritten.
 
     Notes
     -----
-    Depth test on (24-bit depth), no face culling, no blending. The mesh is
-    stored as a triangle soup in three vertex buffers (position 3f, normal
-    3f, level u1: 25 bytes per vertex, 75 per triangle), grown with
-    ``orphan`` when an upload is larger and shrunk when it is much smaller.
+    Depth test on (24-bit depth), no face culling, no blending. Vertices are
+    two buffers (position 3f, normal 3f: 24 bytes per vertex); an indexed
+    mesh adds a uint32 index buffer (12 bytes per triangle). Each
+    triangle's level lives in a uint8 texture read by the "levels" view at
+    ``gl_PrimitiveID``. Buffers grow with ``orphan`` when an upload is
+    larger and shrink when it is much smaller.
+
+    Indexed drawing is the fast path for a PLOD mesh: upload the mesh's
+    vertex table once (``AdaptiveMesh.vertex_positions``/``vertex_normals``)
+    and give each new selection's indices to :meth:`set_indices`. On
+    llvmpipe a shared vertex is also shaded once per batch rather than once
+    per triangle (measured 1.3-1.5x faster draws than the soup of the same
+    triangles).
     """
 
     def __init__(self, ctx: "moderngl.Context", size: tuple[int, int] = (1280, 720), *,
@@ -515,13 +563,19 @@ class TerrainRenderer:
         self.last_render_ms = float("nan")
         self.last_readback_ms = float("nan")
         self.n_triangles = 0
+        self.n_vertices = 0
+        self.indexed = False
+        self.tag = None
         self.height_range = (0.0, 1.0)
 
-        self.programs = {wire: ctx.program(vertex_shader=_shader_variant(_VERTEX_SHADER, wire),
-                                           fragment_shader=_shader_variant(_FRAGMENT_SHADER, wire))
-                         for wire in (False, True)}
-        for prog in self.programs.values():
-            prog["u_palette"].write((PALETTE.astype("f4") / 255.0).tobytes())
+        self.programs = {}
+        for mode, defines in _VARIANTS.items():
+            self.programs[mode] = ctx.program(
+                vertex_shader=_shader_variant(_VERTEX_SHADER, defines),
+                geometry_shader=_shader_variant(_GEOMETRY_SHADER, defines) if "WIRE" in defines else None,
+                fragment_shader=_shader_variant(_FRAGMENT_SHADER, defines))
+        self.programs["levels"]["u_palette"].write((PALETTE.astype("f4") / 255.0).tobytes())
+        self.programs["levels"]["u_levels"].value = 0          # texture unit 0
         self._fbo = ctx.framebuffer(
             color_attachments=[ctx.renderbuffer((w, h), components=4, samples=samples)],
             depth_attachment=ctx.depth_renderbuffer((w, h), samples=samples),
@@ -531,7 +585,9 @@ class TerrainRenderer:
         else:
             self._resolve = self._fbo
         self._buffers: dict[str, Any] = {}
-        self._vaos: dict[bool, Any] = {}
+        self._vaos: dict[tuple[str, bool], Any] = {}     # (view mode, indexed) -> vertex array
+        self._level_texture = None
+        self._rgba = None                  # read-back buffer
 
     # -- data ----------------------------------------------------------------
 
@@ -542,11 +598,44 @@ class TerrainRenderer:
         if buf is None:
             self._buffers[name] = buf = self.ctx.buffer(reserve=need)
         elif need > buf.size or need < buf.size // 4:
-            buf.orphan(need)   # same GL name, so the vertex array stays valid
+            buf.orphan(need)   # same GL name, so the vertex arrays stay valid
         if raw:
             buf.write(raw)
 
-    def upload(self, positions: Any, normals: Any, levels: Any = None, indices: Any = None) -> None:
+    def _write_levels(self, levels: np.ndarray) -> None:
+        """Per-triangle levels (T,) uint8 into the level texture (row-major, ``_LEVEL_TEXTURE_WIDTH`` wide)."""
+        width = _LEVEL_TEXTURE_WIDTH
+        rows = max(1, -(-len(levels) // width))
+        tex = self._level_texture
+        if tex is None or tex.height < rows or tex.height > 4 * rows:
+            if tex is not None:
+                tex.release()
+            tex = self._level_texture = self.ctx.texture((width, rows), 1, dtype="u1")
+            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        data = np.zeros(tex.width * tex.height, np.uint8)
+        data[:len(levels)] = levels
+        tex.write(data.tobytes())
+
+    @staticmethod
+    def _levels_per_triangle(levels: Any, n_triangles: int, last_vertex: np.ndarray, n_vertices: int
+                             ) -> np.ndarray:
+        """(T,) uint8 from levels per triangle (T,) or per vertex (N,) (a triangle takes its last vertex's)."""
+        if levels is None:
+            return np.zeros(n_triangles, np.uint8)
+        lev = np.asarray(levels).reshape(-1)
+        if lev.size and not np.issubdtype(lev.dtype, np.number):
+            raise ValueError(f"TerrainRenderer: levels have dtype {lev.dtype}, expected integers")
+        if lev.size and (lev.min() < 0 or lev.max() > 255):
+            raise ValueError(f"TerrainRenderer.upload: levels in {lev.min()}..{lev.max()}, expected 0..255")
+        if len(lev) == n_triangles:
+            return lev.astype(np.uint8)
+        if len(lev) == n_vertices:
+            return lev[last_vertex].astype(np.uint8)
+        raise ValueError(f"TerrainRenderer.upload: {len(lev)} levels, expected {n_triangles} (per triangle) "
+                         f"or {n_vertices} (per vertex)")
+
+    def upload(self, positions: Any, normals: Any, levels: Any = None, indices: Any = None, *,
+               tag: Any = None) -> None:
         """Replace the mesh.
 
         Parameters
@@ -557,24 +646,22 @@ class TerrainRenderer:
             Vertex normals, scene frame (need not be unit).
         levels : array_like of uint8, shape (T,) or (N,), optional
             Level of each triangle (T triangles), or of each vertex; in the
-            latter case a triangle takes the level of its last vertex (GL's
-            provoking vertex). When both readings fit (indexed, N == T), it
-            is per triangle. ``None``: all 0.
+            latter case a triangle takes the level of its last vertex. When
+            both readings fit (N == T), it is per triangle. ``None``: all 0.
         indices : array_like of int, shape (T, 3) or (3T,), optional
-            Triangles as vertex indices. ``None``: ``positions`` is a
-            triangle soup, three vertices per triangle (N = 3T).
+            Triangles as vertex indices (drawn indexed). ``None``:
+            ``positions`` is a triangle soup, three vertices per triangle
+            (N = 3T).
+        tag : object, optional
+            Kept as :attr:`tag`: lets callers sharing the renderer tell
+            whether the vertices on the GPU are still theirs (e.g. a mesh's
+            vertex table, uploaded once for :meth:`set_indices`).
 
         Raises
         ------
         ValueError
             On wrong shapes, non-finite positions, out-of-range indices or
             levels outside 0..255.
-
-        Notes
-        -----
-        Indexed meshes are expanded to a soup (the one-pass wireframe needs
-        each triangle's own barycentric coordinates), 75 bytes per triangle
-        on the GPU.
         """
         pos = _as_array("positions", positions, np.float32, (3,))
         nrm = _as_array("normals", normals, np.float32, (3,))
@@ -583,60 +670,71 @@ class TerrainRenderer:
             raise ValueError(f"TerrainRenderer.upload: {len(nrm)} normals for {n} positions, expected equal")
         if not np.isfinite(pos).all():
             raise ValueError("TerrainRenderer.upload: positions have NaN or inf")
-        lev = None
-        if levels is not None:
-            lev = np.asarray(levels).reshape(-1)
-            if lev.size and (lev.min() < 0 or lev.max() > 255):
-                raise ValueError(f"TerrainRenderer.upload: levels in {lev.min()}..{lev.max()}, expected 0..255")
-            lev = lev.astype(np.uint8)
-        if indices is None:
-            if n % 3:
-                raise ValueError(f"TerrainRenderer.upload: a triangle soup needs 3 vertices per triangle, "
-                                 f"got {n} positions (not a multiple of 3); or pass indices")
-            t = n // 3
-            if lev is not None:
-                if len(lev) == t:
-                    lev = np.repeat(lev, 3)
-                elif len(lev) != n:
-                    raise ValueError(f"TerrainRenderer.upload: {len(lev)} levels, expected {t} (per triangle) "
-                                     f"or {n} (per vertex)")
-        else:
-            idx = np.asarray(indices)
-            if not np.issubdtype(idx.dtype, np.integer):
-                raise ValueError(f"TerrainRenderer.upload: indices have dtype {idx.dtype}, expected integers")
-            if not ((idx.ndim == 2 and idx.shape[1] == 3) or (idx.ndim == 1 and idx.size % 3 == 0)):
-                raise ValueError(f"TerrainRenderer.upload: indices have shape {idx.shape}, expected (T, 3) or (3T,)")
-            idx = idx.reshape(-1)
-            if idx.size and (idx.min() < 0 or idx.max() >= n):
-                raise ValueError(f"TerrainRenderer.upload: indices in {idx.min()}..{idx.max()}, "
-                                 f"expected 0..{n - 1}")
-            t = idx.size // 3
-            if lev is not None:
-                if len(lev) == t:
-                    lev = np.repeat(lev, 3)
-                elif len(lev) == n:
-                    lev = lev[idx]
-                else:
-                    raise ValueError(f"TerrainRenderer.upload: {len(lev)} levels, expected {t} (per triangle) "
-                                     f"or {n} (per vertex)")
-            pos, nrm = pos[idx], nrm[idx]
-        if lev is None:
-            lev = np.zeros(len(pos), np.uint8)
+        if indices is None and n % 3:
+            raise ValueError(f"TerrainRenderer.upload: a triangle soup needs 3 vertices per triangle, "
+                             f"got {n} positions (not a multiple of 3); or pass indices")
         self._write("position", pos)
         self._write("normal", nrm)
-        self._write("level", lev)
-        if not self._vaos:
+        self.n_vertices = n
+        self.tag = tag
+        if not any(not idx for _, idx in self._vaos):
             b = self._buffers
-            self._vaos = {wire: self.ctx.vertex_array(prog, [
-                (b["position"], "3f", "in_position"),
-                (b["normal"], "3f", "in_normal"),
-                (b["level"], "u1", "in_level"),
-            ]) for wire, prog in self.programs.items()}
-        self.n_triangles = len(pos) // 3
-        if len(pos):
+            for mode, prog in self.programs.items():
+                self._vaos[mode, False] = self.ctx.vertex_array(
+                    prog, [(b["position"], "3f", "in_position"), (b["normal"], "3f", "in_normal")])
+        if n:
             z = pos[:, 2]
             lo, hi = float(z.min()), float(z.max())
             self.height_range = (lo, hi if hi > lo else lo + 1.0)
+        if indices is None:
+            t = n // 3
+            self._write_levels(self._levels_per_triangle(levels, t, np.arange(2, n, 3), n))
+            self.indexed = False
+            self.n_triangles = t
+        else:
+            self.set_indices(indices, levels)
+
+    def set_indices(self, indices: Any, levels: Any = None) -> None:
+        """Draw the uploaded vertices through new triangle indices (the vertices stay on the GPU).
+
+        Parameters
+        ----------
+        indices : array_like of int, shape (T, 3) or (3T,)
+            Triangles as rows of the last :meth:`upload`'s vertices,
+            counter-clockwise seen from the front. uint32 is used as is.
+        levels : array_like, shape (T,) or (N,), optional
+            As in :meth:`upload`.
+
+        Raises
+        ------
+        ValueError
+            With no vertices uploaded, on a wrong shape or dtype, or indices
+            outside ``0..n_vertices-1``.
+        """
+        if "position" not in self._buffers:
+            raise ValueError("TerrainRenderer.set_indices: upload the vertices first (upload(positions, normals))")
+        idx = np.asarray(indices)
+        if not np.issubdtype(idx.dtype, np.integer):
+            raise ValueError(f"TerrainRenderer.upload: indices have dtype {idx.dtype}, expected integers")
+        if not ((idx.ndim == 2 and idx.shape[1] == 3) or (idx.ndim == 1 and idx.size % 3 == 0)):
+            raise ValueError(f"TerrainRenderer.upload: indices have shape {idx.shape}, expected (T, 3) or (3T,)")
+        idx = idx.reshape(-1)
+        n = self.n_vertices
+        if idx.size and (idx.min() < 0 or idx.max() >= n):
+            raise ValueError(f"TerrainRenderer.upload: indices in {idx.min()}..{idx.max()}, "
+                             f"expected 0..{n - 1}")
+        t = idx.size // 3
+        levels = self._levels_per_triangle(levels, t, idx[2::3], n)
+        self._write("index", np.ascontiguousarray(idx, dtype=np.uint32))
+        if not any(indexed for _, indexed in self._vaos):
+            b = self._buffers
+            for mode, prog in self.programs.items():
+                self._vaos[mode, True] = self.ctx.vertex_array(
+                    prog, [(b["position"], "3f", "in_position"), (b["normal"], "3f", "in_normal")],
+                    index_buffer=b["index"], index_element_size=4)
+        self._write_levels(levels)
+        self.indexed = True
+        self.n_triangles = t
 
     # -- drawing -------------------------------------------------------------
 
@@ -689,12 +787,12 @@ class TerrainRenderer:
         light /= np.linalg.norm(light)
 
         wire = view_mode == "wire"
-        prog = self.programs[wire]
+        prog = self.programs[view_mode]
         prog["u_mvp"].write(np.ascontiguousarray(mvp.T, dtype="f4").tobytes())  # column-major
-        prog["u_mode"].value = VIEW_MODES[view_mode]
         prog["u_light"].value = tuple(light)
         prog["u_ambient"].value = float(ambient)
-        prog["u_height_range"].value = tuple(float(v) for v in self.height_range)
+        if view_mode != "levels":      # the levels view does not use heights (the uniform is compiled out)
+            prog["u_height_range"].value = tuple(float(v) for v in self.height_range)
         if wire:
             prog["u_wire_px"].value = float(wire_px)
             prog["u_wire_color"].value = tuple(float(c) for c in wire_color)
@@ -707,27 +805,34 @@ class TerrainRenderer:
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         self._fbo.clear(*self.background, 1.0, depth=1.0)
-        if self._vaos and self.n_triangles:
-            self._vaos[wire].render(moderngl.TRIANGLES, vertices=3 * self.n_triangles)
+        if self.n_triangles:
+            if view_mode == "levels":
+                self._level_texture.use(0)
+            self._vaos[view_mode, self.indexed].render(moderngl.TRIANGLES, vertices=3 * self.n_triangles)
         if self.samples:
             ctx.copy_framebuffer(self._resolve, self._fbo)
         ctx.finish()
         t1 = time.perf_counter()
         w, h = self.size
-        raw = self._resolve.read(components=3, alignment=1)
-        image = np.frombuffer(raw, np.uint8).reshape(h, w, 3)[::-1].copy()
+        # RGBA is GL's native layout here: reading it is ~10x faster on llvmpipe than RGB;
+        # one cvtColor drops alpha and (reading the rows bottom-up) flips.
+        if self._rgba is None:
+            self._rgba = np.empty((h, w, 4), np.uint8)
+        self._resolve.read_into(self._rgba, components=4)
+        image = cv2.cvtColor(self._rgba[::-1], cv2.COLOR_RGBA2RGB)
         self.last_render_ms = (t1 - t0) * 1e3
         self.last_readback_ms = (time.perf_counter() - t1) * 1e3
         return image
 
     def release(self) -> None:
         """Free the GL objects (the context stays)."""
-        for obj in [*self._vaos.values(), *self._buffers.values(), self._fbo,
+        for obj in [*self._vaos.values(), *self._buffers.values(), self._fbo, self._level_texture,
                     None if self._resolve is self._fbo else self._resolve, *self.programs.values()]:
             if obj is not None:
                 obj.release()
         self._vaos = {}
         self._buffers = {}
+        self._level_texture = None
 
     def __enter__(self) -> "TerrainRenderer":
         return self
