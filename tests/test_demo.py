@@ -286,3 +286,60 @@ def test_prefetch_keeps_the_order_and_the_end():
     with pytest.raises(RuntimeError, match="camera gone"):
         pre.read()
     pre.close()
+
+
+def test_tee_gives_every_consumer_every_pose_and_reads_each_once():
+    """The interleaved headless runs share one tracked sequence: each run sees every pose, in order."""
+    from headplod.demo import loop as lp
+
+    class Counting(lp.PoseSource):
+        name = "counting"
+
+        def __init__(self, n):
+            self.n, self.reads, self.closed = n, 0, 0
+
+        def read(self):
+            if self.reads >= self.n:
+                return None
+            self.reads += 1
+            return lp.Pose(float(self.reads), False, reason="x")
+
+        def close(self):
+            self.closed += 1
+
+    src = Counting(5)
+    tee = lp.TeePoses(src, 3)
+    a, b, c = (tee.consumer(k) for k in range(3))
+    got = {0: [], 1: [], 2: []}
+    for _ in range(2):                                   # uneven pace: a runs ahead, c lags
+        got[0] += [a.read().t, a.read().t]
+        got[1].append(b.read().t)
+    while (p := c.read()) is not None:
+        got[2].append(p.t)
+    for k, consumer in ((0, a), (1, b)):
+        while (p := consumer.read()) is not None:
+            got[k].append(p.t)
+    assert got[0] == got[1] == got[2] == [1.0, 2.0, 3.0, 4.0, 5.0]
+    assert src.reads == 5                                # each pose read (tracked) once
+    a.close()
+    b.close()
+    assert src.closed == 0
+    c.close()
+    c.close()
+    assert src.closed == 1
+    with pytest.raises(ValueError):
+        tee.consumer(3)
+
+
+def test_loops_side_by_side_keep_their_own_mesh_state(scene, renderer, screen):
+    """Two loops interleaved on one scene each rebuild only what their own selection changes."""
+    fine = scene.mesh.share()
+    coarse = scene.mesh.share()
+    assert fine.vertex_positions is scene.mesh.vertex_positions          # the tables are shared
+    n = scene.mesh.n_faces
+    fine.update_indices(np.full(n, 3))
+    coarse.update_indices(np.zeros(n, int))
+    idx, lv = fine.update_indices(np.full(n, 3))
+    assert fine.stats["rebuilt_faces"] == 0 and (lv == 3).all() and len(lv) == n * 4 ** 3
+    idx0, lv0 = coarse.update_indices(np.zeros(n, int))
+    assert coarse.stats["rebuilt_faces"] == 0 and len(lv0) == n

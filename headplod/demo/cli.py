@@ -199,44 +199,71 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
         renderer = TerrainRenderer(create_context(), size=tuple(args.size))
     elif tuple(renderer.size) != tuple(args.size):
         raise ValueError(f"run_headless: the renderer is {renderer.size}, --size is {tuple(args.size)}")
-    plan = [(vp, args.mode, sc) for vp in args.viewpoints for sc in args.scenarios]
-    if not args.no_full and args.mode != "full":
-        plan += [(vp, "full", "none") for vp in args.viewpoints]   # together: the full mesh is built once
-    progress = Progress(len(plan) * args.frames, "demo", stream=err)
+    # Per viewpoint, the scenarios and full run interleaved (one frame of each in turn) on one
+    # tracked sequence: the same poses for all, and the speed ratios measured back to back.
+    groups = []
+    for vp in args.viewpoints:
+        plan = [(vp, args.mode, sc) for sc in args.scenarios]
+        if not args.no_full and args.mode != "full":
+            plan.append((vp, "full", "none"))
+        groups.append(plan)
+    # One renderer per run of a group: each keeps its mesh on the GPU between its frames.
+    renderers = [renderer] + [TerrainRenderer(renderer.ctx, size=tuple(args.size))
+                              for _ in range(max(len(g) for g in groups) - 1)]
+    progress = Progress(sum(len(g) for g in groups) * args.frames, "demo", stream=err)
+    keep = {max(0, int(round(f * args.frames)) - 1) for f in _PNG_AT}
     runs, pictures = [], {}
-    for vp, mode, scenario in plan:
-        poses = make_poses(args, screen=screen, frames=args.frames)
-        demo = lp.DemoLoop(scene, poses, renderer, mode=mode, uncertainty=scenario, viewpoint=vp,
-                           view_mode="shaded", hud=True, saccade_deg_s=args.saccade_deg_s,
-                           growth_deg2_per_s=args.growth)
-        stem = f"{vp}_{mode}_{scenario}"
-        keep = {max(0, int(round(f * args.frames)) - 1) for f in _PNG_AT}
-        written = []
-        while demo.index < args.frames:
-            result = demo.step()
-            if result is None:
-                break
-            if result.index in keep:
-                path = folder / "frames" / f"{stem}_{result.index:03d}.png"
-                cv2.imwrite(str(path), cv2.cvtColor(result.image, cv2.COLOR_RGB2BGR))
-                written.append(str(path))
-            progress.step(f"{stem} {result.frame_ms:.0f} ms")
-        poses.close()
-        if demo.last is None:
-            raise RuntimeError(f"the pose source gave no frame ({source_name})")
-        if mode == args.mode and (scenario == "adaptive" or vp not in pictures):
-            pose = demo.last.pose
-            caption = (f"{vp}: {mode}, {scenario}, level colours; POI and 2-sigma ellipse "
-                       f"(sigma {np.sqrt(np.max(np.diag(pose.cov_deg2))) if pose.cov_deg2 is not None else 0:.2f} deg)")
-            path = folder / f"viewpoint_{vp}_levels.png"
-            cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
-            pictures[vp] = str(path)
-        s = demo.stats
-        runs.append({"viewpoint": vp, "mode": mode, "uncertainty": scenario, **s.summary(),
-                     "per_frame": {"frame_ms": [round(v, 3) for v in s.frame_ms],
-                                   "triangles": [int(v) for v in s.triangles],
-                                   "stage_ms": {k: [round(x, 3) for x in v] for k, v in s.stage_ms.items()}},
-                     "frames_png": written})
+    try:
+        for plan in groups:
+            tee = lp.TeePoses(make_poses(args, screen=screen, frames=args.frames), len(plan))
+            demos, written = [], []
+            for k, (vp, mode, scenario) in enumerate(plan):
+                demos.append(lp.DemoLoop(scene, tee.consumer(k), renderers[k], mode=mode, uncertainty=scenario,
+                                         viewpoint=vp, view_mode="shaded", hud=True,
+                                         saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth))
+                written.append([])
+            active = list(range(len(plan)))
+            try:
+                turn = 0
+                while active:
+                    # one frame of each run in turn, starting one further each round: the run
+                    # right after a new pose is taken shares the CPU with the tracking thread
+                    for k in active[turn % len(active):] + active[:turn % len(active)]:
+                        demo = demos[k]
+                        result = demo.step() if demo.index < args.frames else None
+                        if result is None:
+                            active.remove(k)
+                            continue
+                        stem = "_".join(plan[k])
+                        if result.index in keep:
+                            path = folder / "frames" / f"{stem}_{result.index:03d}.png"
+                            cv2.imwrite(str(path), cv2.cvtColor(result.image, cv2.COLOR_RGB2BGR))
+                            written[k].append(str(path))
+                        progress.step(f"{stem} {result.frame_ms:.0f} ms")
+                    turn += 1
+            finally:
+                tee.close()
+            for k, (vp, mode, scenario) in enumerate(plan):
+                demo = demos[k]
+                if demo.last is None:
+                    raise RuntimeError(f"the pose source gave no frame ({source_name})")
+                if mode == args.mode and (scenario == "adaptive" or vp not in pictures):
+                    pose = demo.last.pose
+                    sigma = np.sqrt(np.max(np.diag(pose.cov_deg2))) if pose.cov_deg2 is not None else 0
+                    caption = (f"{vp}: {mode}, {scenario}, level colours; POI and 2-sigma ellipse "
+                               f"(sigma {sigma:.2f} deg)")
+                    path = folder / f"viewpoint_{vp}_levels.png"
+                    cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
+                    pictures[vp] = str(path)
+                s = demo.stats
+                runs.append({"viewpoint": vp, "mode": mode, "uncertainty": scenario, **s.summary(),
+                             "per_frame": {"frame_ms": [round(v, 3) for v in s.frame_ms],
+                                           "triangles": [int(v) for v in s.triangles],
+                                           "stage_ms": {k: [round(x, 3) for x in v] for k, v in s.stage_ms.items()}},
+                             "frames_png": written[k]})
+    finally:
+        for extra in renderers[1:]:
+            extra.release()
     ratios = {}
     for run in runs:
         full = next((r for r in runs if r["viewpoint"] == run["viewpoint"] and r["mode"] == "full"), None)
@@ -253,9 +280,11 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
     summary = {"size": list(args.size), "frames_per_run": args.frames, "poses": source_name,
                "mode": args.mode, "viewpoints": {vp: VIEWPOINTS[vp].description for vp in args.viewpoints},
                "fps_ratio_to_full": ratios, "pictures": pictures, "runs": runs,
-               "notes": "medians over each run's frames after its first (the first rebuilds the mesh "
-                        "for the run's criterion); frame = pose (capture + track) + select + build + upload + "
-                        "render + readback + hud; upload is skipped when the mesh did not change",
+               "notes": "per viewpoint, the runs are interleaved (one frame of each in turn) on one tracked "
+                        "sequence; medians over each run's frames after its first (the first uploads the "
+                        "mesh's vertex table and builds the mesh); frame = pose (waiting for the tracking "
+                        "thread) + select + build + upload (indices) + render + readback + hud; upload is "
+                        "skipped when the mesh did not change",
                "wall_s": None}
     chart = folder / "summary.png"
     write_chart(runs, args.viewpoints, chart, title=f"{args.size[0]}x{args.size[1]}, {source_name}")

@@ -38,6 +38,7 @@ Per frame
 from __future__ import annotations
 
 import abc
+import dataclasses
 import math
 import time
 from collections import deque
@@ -297,6 +298,76 @@ class MousePoses(PoseSource):
                     None if self.cov_deg2 is None else self.cov_deg2.copy())
 
 
+class TeePoses:
+    """One pose source read once for several consumers, each of which gets every pose in order.
+
+    The headless demo runs its scenarios and ``full`` interleaved, one frame
+    of each in turn, from one tracked sequence: every run sees the same
+    poses, the tracking is done once, and a drift of the machine's speed
+    during the run affects all of them alike (their frame-rate ratios are
+    measured back to back).
+
+    Parameters
+    ----------
+    inner : PoseSource
+    consumers : int
+        Number of consumers (``consumer(k)``, k < consumers). Poses a
+        consumer has not read yet wait for it (at most the lead of the
+        fastest consumer).
+    """
+
+    def __init__(self, inner: PoseSource, consumers: int):
+        if consumers < 1:
+            raise ValueError(f"TeePoses: need at least one consumer, got {consumers}")
+        self.inner = inner
+        self._queues = [deque() for _ in range(consumers)]
+        self._open = set(range(consumers))
+        self._ended = False
+
+    def consumer(self, k: int) -> PoseSource:
+        """The PoseSource of consumer ``k``."""
+        if k not in range(len(self._queues)):
+            raise ValueError(f"TeePoses: consumer {k} of {len(self._queues)}")
+        return _TeeConsumer(self, k)
+
+    def _read(self, k: int) -> Pose | None:
+        queue = self._queues[k]
+        if not queue:
+            if self._ended:
+                return None
+            pose = self.inner.read()
+            if pose is None:
+                self._ended = True
+                return None
+            for j in self._open:
+                self._queues[j].append(pose)
+        return queue.popleft()
+
+    def _close(self, k: int) -> None:
+        self._open.discard(k)
+        self._queues[k].clear()
+        if not self._open:
+            self.inner.close()
+
+    def close(self) -> None:
+        """Close every consumer and the inner source."""
+        for k in list(self._open):
+            self._close(k)
+
+
+class _TeeConsumer(PoseSource):
+    def __init__(self, tee: TeePoses, k: int):
+        self._tee, self._k = tee, k
+        self.screen, self.name = tee.inner.screen, tee.inner.name
+
+    def read(self) -> Pose | None:
+        return self._tee._read(self._k)
+
+    def close(self) -> None:
+        if self._k in self._tee._open:
+            self._tee._close(self._k)
+
+
 class PrefetchPoses(PoseSource):
     """Another source read ahead on its own thread: tracking runs while the viewer renders.
 
@@ -528,7 +599,8 @@ class DemoLoop:
     Parameters
     ----------
     scene : headplod.plod.still.TerrainScene
-        Built once; viewpoints only change its model matrix.
+        Built once; viewpoints only change its model matrix. The loop builds
+        its meshes in its own :meth:`AdaptiveMesh.share` of ``scene.mesh``.
     poses : PoseSource
         Its screen must be the scene's.
     renderer : TerrainRenderer, optional
@@ -554,7 +626,9 @@ class DemoLoop:
         from ..plod.select import MODES
         from ..plod.still import default_head
 
-        self.base_scene = scene
+        # Its own build state over the scene's shared tables: loops run side by side (the
+        # headless demo interleaves them) each rebuild only what their own selection changes.
+        self.base_scene = dataclasses.replace(scene, mesh=scene.mesh.share())
         self.screen = scene.screen
         if poses.screen is not None and not _same_screen(poses.screen, self.screen):
             raise ValueError(f"DemoLoop: the pose source's screen ({poses.screen.size_px} px, top-left "
@@ -667,8 +741,9 @@ class DemoLoop:
         mesh = scene.mesh
         indices, tri_levels = mesh.update_indices(self._levels)
         t3 = time.perf_counter()
-        if self.renderer.tag is not mesh:          # the mesh's vertex table, once per renderer
-            self.renderer.upload(mesh.vertex_positions, mesh.vertex_normals, tri_levels, indices, tag=mesh)
+        if self.renderer.tag is not mesh.vertex_positions:     # the vertex table, once per renderer
+            self.renderer.upload(mesh.vertex_positions, mesh.vertex_normals, tri_levels, indices,
+                                 tag=mesh.vertex_positions)
             self._uploaded = indices
         elif self._uploaded is not indices:        # a new selection: only its indices and levels move
             self.renderer.set_indices(indices, tri_levels)

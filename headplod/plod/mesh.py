@@ -52,6 +52,7 @@ faces and levels).
 """
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass
 
@@ -675,6 +676,19 @@ class AdaptiveMesh:
             self._soup = (self.vertex_positions[indices], self.vertex_normals[indices], lv)
         self.stats["assemble_ms"] += 1e3 * (time.perf_counter() - t0)
         return self._soup
+
+    def share(self) -> "AdaptiveMesh":
+        """A mesh over the same tables (vertex table, templates, per-face data) with its own build state.
+
+        Several selections can then be built side by side, each rebuilding
+        only what its own levels change, without a second copy of the
+        tables (which are never modified after construction).
+        """
+        other = copy.copy(self)
+        other.clear()
+        other.stats = {}
+        other.last_rebuilt_faces = np.zeros(0, dtype=np.int64)
+        return other
 
     def clear(self) -> None:
         """Forget the cached blocks: the next ``update`` builds every face from scratch."""
