@@ -677,7 +677,7 @@ class TerrainRenderer:
         self._write("normal", nrm)
         self.n_vertices = n
         self.tag = tag
-        if not any(not idx for _, idx in self._vaos):
+        if ("shaded", False) not in self._vaos:           # soup vertex arrays, made once
             b = self._buffers
             for mode, prog in self.programs.items():
                 self._vaos[mode, False] = self.ctx.vertex_array(
@@ -726,7 +726,7 @@ class TerrainRenderer:
         t = idx.size // 3
         levels = self._levels_per_triangle(levels, t, idx[2::3], n)
         self._write("index", np.ascontiguousarray(idx, dtype=np.uint32))
-        if not any(indexed for _, indexed in self._vaos):
+        if ("shaded", True) not in self._vaos:            # indexed vertex arrays, made once
             b = self._buffers
             for mode, prog in self.programs.items():
                 self._vaos[mode, True] = self.ctx.vertex_array(
