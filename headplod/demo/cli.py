@@ -172,6 +172,26 @@ class _Limit(lp.PoseSource):
         self.inner.close()
 
 
+def _interleaved(demos, frames: int):
+    """Step the loops one frame each in turn, up to ``frames`` each; yields (loop index, FrameResult).
+
+    Each round starts one loop further: the loop that runs right after a new
+    pose is taken shares the CPU with the tracking thread, and this spreads
+    that over all of them.
+    """
+    active = list(range(len(demos)))
+    turn = 0
+    while active:
+        start = turn % len(active)
+        for k in active[start:] + active[:start]:
+            result = demos[k].step() if demos[k].index < frames else None
+            if result is None:
+                active.remove(k)
+            else:
+                yield k, result
+        turn += 1
+
+
 def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None) -> dict:
     """The headless benchmark run; returns the summary (also written to ``args.out``).
 
@@ -222,25 +242,14 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
                                          viewpoint=vp, view_mode="shaded", hud=True,
                                          saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth))
                 written.append([])
-            active = list(range(len(plan)))
             try:
-                turn = 0
-                while active:
-                    # one frame of each run in turn, starting one further each round: the run
-                    # right after a new pose is taken shares the CPU with the tracking thread
-                    for k in active[turn % len(active):] + active[:turn % len(active)]:
-                        demo = demos[k]
-                        result = demo.step() if demo.index < args.frames else None
-                        if result is None:
-                            active.remove(k)
-                            continue
-                        stem = "_".join(plan[k])
-                        if result.index in keep:
-                            path = folder / "frames" / f"{stem}_{result.index:03d}.png"
-                            cv2.imwrite(str(path), cv2.cvtColor(result.image, cv2.COLOR_RGB2BGR))
-                            written[k].append(str(path))
-                        progress.step(f"{stem} {result.frame_ms:.0f} ms")
-                    turn += 1
+                for k, result in _interleaved(demos, args.frames):
+                    stem = "_".join(plan[k])
+                    if result.index in keep:
+                        path = folder / "frames" / f"{stem}_{result.index:03d}.png"
+                        cv2.imwrite(str(path), cv2.cvtColor(result.image, cv2.COLOR_RGB2BGR))
+                        written[k].append(str(path))
+                    progress.step(f"{stem} {result.frame_ms:.0f} ms")
             finally:
                 tee.close()
             for k, (vp, mode, scenario) in enumerate(plan):
@@ -259,7 +268,8 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
                 runs.append({"viewpoint": vp, "mode": mode, "uncertainty": scenario, **s.summary(),
                              "per_frame": {"frame_ms": [round(v, 3) for v in s.frame_ms],
                                            "triangles": [int(v) for v in s.triangles],
-                                           "stage_ms": {k: [round(x, 3) for x in v] for k, v in s.stage_ms.items()}},
+                                           "stage_ms": {name: [round(x, 3) for x in v]
+                                                        for name, v in s.stage_ms.items()}},
                              "frames_png": written[k]})
     finally:
         for extra in renderers[1:]:

@@ -604,7 +604,9 @@ class DemoLoop:
     poses : PoseSource
         Its screen must be the scene's.
     renderer : TerrainRenderer, optional
-        Default: a new one on a headless EGL context at ``size``.
+        Default: a new one on a headless EGL context at ``size``. Loops
+        stepped in turn need a renderer each (a loop re-sends its mesh only
+        when its selection changed).
     size : (2,) int
         Image size (width, height), px, when the renderer is made here.
     mode, uncertainty, viewpoint, view_mode : str
@@ -744,10 +746,9 @@ class DemoLoop:
         if self.renderer.tag is not mesh.vertex_positions:     # the vertex table, once per renderer
             self.renderer.upload(mesh.vertex_positions, mesh.vertex_normals, tri_levels, indices,
                                  tag=mesh.vertex_positions)
-            self._uploaded = indices
         elif self._uploaded is not indices:        # a new selection: only its indices and levels move
             self.renderer.set_indices(indices, tri_levels)
-            self._uploaded = indices
+        self._uploaded = indices
         t4 = time.perf_counter()
         view, proj = off_axis_projection(pose.eye_mm, self.screen, NEAR_MM, FAR_MM)
         image = self.renderer.render(view, proj, scene.model, view_mode=self.settings["view_mode"])
