@@ -294,6 +294,8 @@ def test_set_indices_draws_a_new_selection_over_the_uploaded_vertices(ctx, scene
 
 def test_upload_rejects_bad_meshes(renderer):
     pos, nrm, levels, *_ = grid_mesh(n=2)
+    renderer.upload(pos, nrm, levels)
+    before = (renderer.n_triangles, renderer.n_vertices, renderer.indexed)
     with pytest.raises(ValueError, match="multiple of 3"):
         renderer.upload(pos[:-1], nrm[:-1])
     with pytest.raises(ValueError, match="levels"):
@@ -302,6 +304,9 @@ def test_upload_rejects_bad_meshes(renderer):
         renderer.upload(pos, nrm[:3])
     with pytest.raises(ValueError, match="indices"):
         renderer.upload(pos, nrm, None, np.array([[0, 1, len(pos)]]))
+    with pytest.raises(ValueError, match="levels"):
+        renderer.upload(pos[:6], nrm[:6], np.arange(2), np.array([[0, 1, 2]]).repeat(3, 0))
+    assert (renderer.n_triangles, renderer.n_vertices, renderer.indexed) == before   # refused: nothing lost
     with pytest.raises(ValueError, match="view_mode"):
         renderer.render(np.eye(4), np.eye(4), None, "xray")
 

@@ -673,6 +673,13 @@ class TerrainRenderer:
         if indices is None and n % 3:
             raise ValueError(f"TerrainRenderer.upload: a triangle soup needs 3 vertices per triangle, "
                              f"got {n} positions (not a multiple of 3); or pass indices")
+        # Everything is checked before anything is written: a refused upload leaves the mesh as it was.
+        if indices is None:
+            idx, t, last = None, n // 3, np.arange(2, n, 3)
+        else:
+            idx = self._check_indices(indices, n)
+            t, last = idx.size // 3, idx[2::3]
+        tri_levels = self._levels_per_triangle(levels, t, last, n)
         self._write("position", pos)
         self._write("normal", nrm)
         self.n_vertices = n
@@ -686,13 +693,26 @@ class TerrainRenderer:
             z = pos[:, 2]
             lo, hi = float(z.min()), float(z.max())
             self.height_range = (lo, hi if hi > lo else lo + 1.0)
-        if indices is None:
-            t = n // 3
-            self._write_levels(self._levels_per_triangle(levels, t, np.arange(2, n, 3), n))
+        if idx is None:
+            self._write_levels(tri_levels)
             self.indexed = False
             self.n_triangles = t
         else:
-            self.set_indices(indices, levels)
+            self._set_checked_indices(idx, tri_levels)
+
+    @staticmethod
+    def _check_indices(indices: Any, n_vertices: int) -> np.ndarray:
+        """(3T,) uint32 from (T, 3) or (3T,) integer indices, each in 0..n_vertices-1."""
+        idx = np.asarray(indices)
+        if not np.issubdtype(idx.dtype, np.integer):
+            raise ValueError(f"TerrainRenderer.upload: indices have dtype {idx.dtype}, expected integers")
+        if not ((idx.ndim == 2 and idx.shape[1] == 3) or (idx.ndim == 1 and idx.size % 3 == 0)):
+            raise ValueError(f"TerrainRenderer.upload: indices have shape {idx.shape}, expected (T, 3) or (3T,)")
+        idx = idx.reshape(-1)
+        if idx.size and (idx.min() < 0 or idx.max() >= n_vertices):
+            raise ValueError(f"TerrainRenderer.upload: indices in {idx.min()}..{idx.max()}, "
+                             f"expected 0..{n_vertices - 1}")
+        return np.ascontiguousarray(idx, dtype=np.uint32)
 
     def set_indices(self, indices: Any, levels: Any = None) -> None:
         """Draw the uploaded vertices through new triangle indices (the vertices stay on the GPU).
@@ -713,19 +733,14 @@ class TerrainRenderer:
         """
         if "position" not in self._buffers:
             raise ValueError("TerrainRenderer.set_indices: upload the vertices first (upload(positions, normals))")
-        idx = np.asarray(indices)
-        if not np.issubdtype(idx.dtype, np.integer):
-            raise ValueError(f"TerrainRenderer.upload: indices have dtype {idx.dtype}, expected integers")
-        if not ((idx.ndim == 2 and idx.shape[1] == 3) or (idx.ndim == 1 and idx.size % 3 == 0)):
-            raise ValueError(f"TerrainRenderer.upload: indices have shape {idx.shape}, expected (T, 3) or (3T,)")
-        idx = idx.reshape(-1)
-        n = self.n_vertices
-        if idx.size and (idx.min() < 0 or idx.max() >= n):
-            raise ValueError(f"TerrainRenderer.upload: indices in {idx.min()}..{idx.max()}, "
-                             f"expected 0..{n - 1}")
+        idx = self._check_indices(indices, self.n_vertices)
+        self._set_checked_indices(idx, self._levels_per_triangle(levels, idx.size // 3, idx[2::3],
+                                                                 self.n_vertices))
+
+    def _set_checked_indices(self, idx: np.ndarray, levels: np.ndarray) -> None:
+        """Write checked (3T,) uint32 indices and their (T,) uint8 levels."""
         t = idx.size // 3
-        levels = self._levels_per_triangle(levels, t, idx[2::3], n)
-        self._write("index", np.ascontiguousarray(idx, dtype=np.uint32))
+        self._write("index", idx)
         if ("shaded", True) not in self._vaos:            # indexed vertex arrays, made once
             b = self._buffers
             for mode, prog in self.programs.items():
