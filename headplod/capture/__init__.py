@@ -17,39 +17,11 @@ v4l2
 record
     :class:`DatasetRecorder` and :func:`record`.
 """
-from .record import DatasetRecorder, RecordingSummary, record
-from .sources import (
-    SOURCE_STATES,
-    CaptureFrame,
-    DatasetSource,
-    FrameSource,
-    SourceOpenError,
-    SourceStatus,
-    SyntheticSource,
-    VideoSource,
-    open_source,
-    register_source,
-    source_forms,
-    to_gray,
-)
+from . import record as _record
+from . import sources as _sources
+from .record import *  # noqa: F401,F403  (the names in record.__all__)
+from .sources import *  # noqa: F401,F403  (the names in sources.__all__)
 from .v4l2 import CameraSetting, V4L2StereoSource
 
-__all__ = [
-    "CaptureFrame",
-    "SourceStatus",
-    "SourceOpenError",
-    "FrameSource",
-    "DatasetSource",
-    "SyntheticSource",
-    "VideoSource",
-    "V4L2StereoSource",
-    "CameraSetting",
-    "open_source",
-    "register_source",
-    "source_forms",
-    "to_gray",
-    "SOURCE_STATES",
-    "DatasetRecorder",
-    "RecordingSummary",
-    "record",
-]
+# The modules' own lists, so a name is exported from one place.
+__all__ = [*_sources.__all__, "V4L2StereoSource", "CameraSetting", *_record.__all__]
