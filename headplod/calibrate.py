@@ -24,6 +24,17 @@ Conventions (``spec/conventions.md``)
 - Rig: ``X_right = R @ X_left + T``, T in mm (the board is measured in mm),
   the world frame is the left camera's.
 
+Uncertainty
+-----------
+The rig.yaml written carries the calibration's own 1-sigma, for a tracker
+to use as a prior (read them with :func:`headplod.io.rig_calibration_std`):
+``calibration_std_left`` / ``calibration_std_right`` (1x4: fx, fy, cx, cy,
+px, from ``cv2.calibrateCameraExtended``), ``calibration_std_rotation_deg``
+(1x3: the components of the rotation vector ``cv2.Rodrigues(R)``, degrees)
+and ``calibration_std_translation_mm`` (1x3: T, mm). The last two come from
+the Gauss-Newton information matrix of the whole stereo problem at its
+solution (:func:`_stereo_covariance`).
+
 Failures
 --------
 A pair that cannot be used is a value (a ``(name, reason)`` in ``rejected``),
@@ -488,6 +499,18 @@ class CalibrationResult:
         :func:`coverage_guide` advice for the left and right images (empty
         when the poses cover the images well).
     spec : BoardSpec
+    std_rotation_deg : (3,) ndarray or None
+        1-sigma of the components of the rig's rotation vector
+        ``cv2.Rodrigues(R)``, degrees (see :func:`_stereo_covariance`); None
+        when it could not be computed (a degenerate set of views).
+    std_translation_mm : (3,) ndarray or None
+        1-sigma of the components of T, mm.
+
+    The same stds are in ``rig.extra`` (and so in the rig.yaml written):
+    ``calibration_std_left`` / ``calibration_std_right`` (1x4: fx, fy, cx,
+    cy, px), ``calibration_std_rotation_deg`` and
+    ``calibration_std_translation_mm`` (1x3); read them back with
+    :func:`headplod.io.rig_calibration_std`.
     """
 
     rig: io.Rig
@@ -502,6 +525,8 @@ class CalibrationResult:
     coverage: list
     spec: BoardSpec
     detections: dict = field(default_factory=dict, repr=False)
+    std_rotation_deg: Optional[np.ndarray] = None
+    std_translation_mm: Optional[np.ndarray] = None
 
 
 def _load(item: Any, what: str) -> tuple[Optional[np.ndarray], Optional[str]]:
@@ -615,6 +640,130 @@ def _pair_errors(pairs: list[_Pair], K1, D1, K2, D2, R, T, rvecs, tvecs):
             sq[side] += d2.sum()
         count += len(obj)
     return errs, np.sqrt(sq / max(count, 1)), float(np.sqrt(sq.sum() / max(2 * count, 1)))
+
+
+#: (flag, indices into [fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6, s1..s4, tx, ty]) an
+#: intrinsic block loses when the flag holds the parameters fixed (see :func:`_stereo_covariance`).
+_FIXED_BY_FLAG = (
+    ("CALIB_FIX_FOCAL_LENGTH", (0, 1)),
+    ("CALIB_FIX_PRINCIPAL_POINT", (2, 3)),
+    ("CALIB_ZERO_TANGENT_DIST", (6, 7)),
+    ("CALIB_FIX_TANGENT_DIST", (6, 7)),
+    ("CALIB_FIX_K1", (4,)),
+    ("CALIB_FIX_K2", (5,)),
+    ("CALIB_FIX_K3", (8,)),
+    ("CALIB_FIX_K4", (9,)),
+    ("CALIB_FIX_K5", (10,)),
+    ("CALIB_FIX_K6", (11,)),
+    ("CALIB_FIX_S1_S2_S3_S4", (12, 13, 14, 15)),
+    ("CALIB_FIX_TAUX_TAUY", (16, 17)),
+)
+
+
+def _intrinsic_columns(J: np.ndarray, K: np.ndarray, flags: int) -> np.ndarray:
+    """The columns of a ``cv2.projectPoints`` Jacobian block [fx fy cx cy dist...]
+    for the intrinsics that the calibration estimated (fixed ones dropped,
+    fx and fy merged under ``CALIB_FIX_ASPECT_RATIO``)."""
+    keep = [True] * J.shape[1]
+    for name, idx in _FIXED_BY_FLAG:
+        if flags & getattr(cv2, name, 0):
+            for i in idx:
+                if i < len(keep):
+                    keep[i] = False
+    J = J.copy()
+    if flags & cv2.CALIB_FIX_ASPECT_RATIO and keep[0] and keep[1]:
+        J[:, 0] += (K[1, 1] / K[0, 0]) * J[:, 1]  # fy = a fx, a fixed
+        keep[1] = False
+    return J[:, keep]
+
+
+def _stereo_covariance(pairs: list[_Pair], K1, D1, K2, D2, R, T, rvecs, tvecs,
+                       flags: int = 0) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    """1-sigma of the rig's rotation vector (deg) and of T (mm), or None.
+
+    Gauss-Newton information matrix of the whole stereo problem at its
+    solution: the parameters are both cameras' intrinsics (fx, fy, cx, cy
+    and the distortion coefficients that ``flags`` leave free), the rig
+    (rvec = Rodrigues(R), T) and the board pose of every pair in the left
+    camera; the residuals are the reprojection errors of the corners of
+    every pair in both images (the right pose of a board is the left one
+    composed with the rig). Then ``cov = s^2 (J^T J)^-1`` with ``s^2`` the
+    residual sum of squares over (residuals - parameters), and the rig's
+    stds are the square roots of its diagonal. Keeping the intrinsics free
+    in J makes their uncertainty part of the rig's (fx errors move T, for
+    example), also when they were fixed in the stereo fit. This is the
+    standard first-order covariance (what ``cv2.calibrateCameraExtended``
+    reports for the intrinsics); it assumes independent corner errors of
+    equal variance. Returns None when J^T J cannot be inverted (a
+    degenerate set of views).
+
+    Chosen over the spread of per-pair relative poses (sample std /
+    sqrt(n)) because that spread misses the intrinsics' errors, which all
+    pairs share, and is not the spread of the least-squares estimator
+    actually used. On synthetic sets (10 chessboard, 8 ChArUco) the true
+    rig's errors divided by these stds gave mean z^2 1.1 and 0.9.
+
+    The rotation std is per component of rvec = Rodrigues(R), OpenCV's own
+    parameterization. For a rig whose cameras converge strongly (|rvec| of
+    tens of degrees) this is not the same as a small rotation applied to R:
+    a change d of rvec turns R by about J(rvec) d (J the SO(3) Jacobian).
+    """
+    R = np.asarray(R, np.float64)
+    r_rig = cv2.Rodrigues(R)[0].reshape(3)
+    T = np.asarray(T, np.float64).reshape(3)
+    # per view, the Jacobian has columns [global | view]: global = [left
+    # intrinsics | right intrinsics | rig r, T], view = that board's (r, t)
+    # in the left camera. The views' blocks are eliminated one by one (Schur
+    # complement), so memory does not grow with the number of pairs.
+    views = []
+    ssr, n_res = 0.0, 0
+    for k, p in enumerate(pairs):
+        rv = np.asarray(rvecs[k], np.float64).reshape(3)
+        tv = np.asarray(tvecs[k], np.float64).reshape(3)
+        obj = p.obj.astype(np.float64)
+        uv1, J1 = cv2.projectPoints(obj, rv, tv, K1, D1)
+        # right view = board pose composed with the rig, and its derivatives
+        rv2, tv2, dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2 = cv2.composeRT(
+            rv, tv, r_rig, T)
+        uv2, J2 = cv2.projectPoints(obj, rv2, tv2, K2, D2)
+        A, B = J2[:, 0:3], J2[:, 3:6]  # d/d(rvec, tvec) of the right view
+        i1 = _intrinsic_columns(J1[:, 6:], K1, flags)
+        i2 = _intrinsic_columns(J2[:, 6:], K2, flags)
+        m = 2 * len(obj)
+        g = np.vstack([np.hstack([i1, np.zeros((m, i2.shape[1])), np.zeros((m, 6))]),
+                       np.hstack([np.zeros((m, i1.shape[1])), i2,
+                                  A @ dr3dr2 + B @ dt3dr2, A @ dr3dt2 + B @ dt3dt2])])
+        v = np.vstack([J1[:, 0:6], np.hstack([A @ dr3dr1 + B @ dt3dr1, A @ dr3dt1 + B @ dt3dt1])])
+        views.append((g, v))
+        for uv, seen in ((uv1, p.img_l), (uv2, p.img_r)):
+            ssr += float(((uv.reshape(-1, 2) - seen) ** 2).sum())
+        n_res += 2 * m
+    n_global = views[0][0].shape[1]
+    rig_cols = slice(n_global - 6, n_global)
+    dof = n_res - n_global - 6 * len(views)
+    if dof <= 0:
+        return None
+    # scale the columns so that the normal matrices are well conditioned
+    g_scale = np.sqrt(sum((g ** 2).sum(axis=0) for g, _ in views))
+    if not np.all(g_scale > 0):
+        return None
+    S = np.zeros((n_global, n_global))
+    try:
+        for g, v in views:
+            v_scale = np.linalg.norm(v, axis=0)
+            if not np.all(v_scale > 0):
+                return None
+            gs, vs = g / g_scale, v / v_scale
+            Hgv = gs.T @ vs
+            S += gs.T @ gs - Hgv @ np.linalg.solve(vs.T @ vs, Hgv.T)
+        cov = np.linalg.inv(S) / np.outer(g_scale, g_scale) * (ssr / dof)
+    except np.linalg.LinAlgError:
+        return None
+    var = np.diag(cov)[rig_cols]
+    if not (np.all(np.isfinite(var)) and np.all(var > 0)):
+        return None
+    std = np.sqrt(var)
+    return np.degrees(std[:3]), std[3:]
 
 
 def calibrate_stereo(pairs: Sequence[tuple[str, Any, Any]], spec: BoardSpec, image_size=None, *,
@@ -789,11 +938,17 @@ def calibrate_stereo(pairs: Sequence[tuple[str, Any, Any]], spec: BoardSpec, ima
     }
     # Rodrigues round trip makes R orthonormal to machine precision
     R = cv2.Rodrigues(cv2.Rodrigues(np.asarray(R, np.float64))[0])[0]
-    rig = io.Rig(tuple(int(v) for v in image_size), K1, D1, K2, D2, R, T, extra=extra)
-    names = [p.name for p in good]
     std = {}
     for side, s in (("left", std1), ("right", std2)):
         std[side] = {k: float(s[i]) for i, k in enumerate(("fx", "fy", "cx", "cy"))}
+        # 1x4 !!opencv-matrix (fx, fy, cx cy), px, like D's 1xN
+        extra[f"calibration_std_{side}"] = np.asarray(s[:4], np.float64).reshape(1, 4)
+    rig_std = _stereo_covariance(good, K1, D1, K2, D2, R, T, rvecs, tvecs, flags)
+    if rig_std is not None:
+        extra["calibration_std_rotation_deg"] = rig_std[0].reshape(1, 3)
+        extra["calibration_std_translation_mm"] = rig_std[1].reshape(1, 3)
+    rig = io.Rig(tuple(int(v) for v in image_size), K1, D1, K2, D2, R, T, extra=extra)
+    names = [p.name for p in good]
     coverage = []
     for side, idx in (("left", 0), ("right", 1)):
         dets = [detections[p.name][idx] for p in good]
@@ -809,6 +964,8 @@ def calibrate_stereo(pairs: Sequence[tuple[str, Any, Any]], spec: BoardSpec, ima
         rejected=rejected,
         std_px=std,
         coverage=coverage,
+        std_rotation_deg=None if rig_std is None else rig_std[0],
+        std_translation_mm=None if rig_std is None else rig_std[1],
         spec=spec,
         detections=detections,
     )
@@ -824,8 +981,9 @@ def calibrate_folder(folder: str | Path, spec: BoardSpec, out: str | Path | None
         A folder in one of :func:`find_pairs`'s layouts.
     spec : BoardSpec
     out : str or Path, optional
-        Where to write the rig (``headplod.io.write_rig``; the rms values and
-        the board are in its extra keys).
+        Where to write the rig (``headplod.io.write_rig``; the rms values,
+        the board and the calibration's 1-sigma values are in its extra
+        keys).
     progress : callable, optional
         ``progress(done, total)`` after each pair's detection.
     **options
@@ -951,6 +1109,20 @@ def _convergence_deg(R: np.ndarray) -> float:
     return math.degrees(math.acos(float(np.clip(z_right_in_left[2], -1.0, 1.0))))
 
 
+def _std_line(result: CalibrationResult) -> str:
+    """One line with the 1-sigma values written to rig.yaml as the tracker's prior."""
+    def vec(v) -> str:
+        return "n/a" if v is None else " ".join(f"{float(x):.3g}" for x in np.ravel(v))
+
+    parts = []
+    for side in ("left", "right"):
+        sd = result.std_px.get(side)
+        parts.append(f"{side} fx fy cx cy {vec(None if not sd else [sd[k] for k in ('fx', 'fy', 'cx', 'cy')])} px")
+    parts.append(f"rotation vector {vec(result.std_rotation_deg)} deg")
+    parts.append(f"T {vec(result.std_translation_mm)} mm")
+    return "calibration 1-sigma (written to rig.yaml): " + "; ".join(parts)
+
+
 def format_report(result: CalibrationResult) -> str:
     """A human-readable summary of a calibration, for the command line."""
     rig = result.rig
@@ -973,6 +1145,7 @@ def format_report(result: CalibrationResult) -> str:
     lines.append(f"reprojection RMS: left {result.rms_left_px:.3f} px, right {result.rms_right_px:.3f} px, "
                  f"stereo {result.rms_stereo_px:.3f} px (single-camera calibrations: "
                  f"{result.rms_zhang_px[0]:.3f}, {result.rms_zhang_px[1]:.3f} px)")
+    lines.append(_std_line(result))
     worst = sorted(result.pair_errors_px.items(), key=lambda kv: -max(kv[1]))[:3]
     if worst:
         lines.append("worst pairs: " + ", ".join(f"{n} ({max(e):.2f} px)" for n, e in worst))

@@ -47,6 +47,8 @@ __all__ = [
     "Rig",
     "read_rig",
     "write_rig",
+    "rig_calibration_std",
+    "CALIBRATION_STD_KEYS",
     "MarkerModel",
     "default_marker_model",
     "read_markers",
@@ -680,6 +682,91 @@ def write_rig(path: str | Path, rig: Rig) -> None:
         raise ValueError(f"{path}: cannot write rig: {_cv_message(exc)}") from exc
     finally:
         fs.release()
+
+
+#: Keys of ``rig.yaml`` that ``headplod calibrate`` writes with the
+#: calibration's own 1-sigma uncertainty, and the number of values of each:
+#: fx, fy, cx, cy of the left / right camera (px); the components of the
+#: rotation vector ``cv2.Rodrigues(R)`` (degrees); the components of T (mm).
+CALIBRATION_STD_KEYS = {
+    "calibration_std_left": 4,
+    "calibration_std_right": 4,
+    "calibration_std_rotation_deg": 3,
+    "calibration_std_translation_mm": 3,
+}
+_CALIBRATION_STD_MEANING = {
+    "calibration_std_left": "fx, fy, cx, cy of the left camera, px",
+    "calibration_std_right": "fx, fy, cx, cy of the right camera, px",
+    "calibration_std_rotation_deg": "the components of the rotation vector cv2.Rodrigues(R), degrees",
+    "calibration_std_translation_mm": "the components of T, mm",
+}
+
+
+def rig_calibration_std(rig: Rig) -> dict[str, np.ndarray] | None:
+    """The calibration's own uncertainty stored in a rig's extra keys.
+
+    ``headplod calibrate`` writes the 1-sigma (standard deviation) of the
+    estimate into ``rig.yaml`` (see :data:`CALIBRATION_STD_KEYS`) so that
+    a tracker can use it as a prior:
+
+    - ``calibration_std_left``, ``calibration_std_right``: (4,) fx, fy, cx,
+      cy, px (stored as 1x4 matrices);
+    - ``calibration_std_rotation_deg``: (3,) the components of the rotation
+      vector ``cv2.Rodrigues(R)``, degrees (1x3);
+    - ``calibration_std_translation_mm``: (3,) the components of T, mm
+      (1x3).
+
+    Either orientation (1xN, Nx1) or a flat list is accepted.
+
+    Parameters
+    ----------
+    rig : Rig
+
+    Returns
+    -------
+    dict of key -> float64 ndarray, or None
+        None when the rig has none of these keys (e.g. a hand-made rig.yaml);
+        otherwise the keys present, each a flat read-only array of 4 or 3
+        finite, non-negative values. Missing keys are absent from the dict.
+
+    Raises
+    ------
+    ContractError
+        A key present with the wrong number of values, a string or a
+        mapping, a non-finite or a negative value. The message names the
+        file (``rig.path``; ``Rig.extra`` for a rig built in code) and the key.
+    """
+    if not isinstance(rig, Rig):
+        raise TypeError(f"rig_calibration_std needs a Rig, got {type(rig).__name__}")
+    ctx = _Ctx.file(rig.path) if rig.path is not None else _Ctx("Rig.extra", None, "key")
+    out: dict[str, np.ndarray] = {}
+    for key, n in CALIBRATION_STD_KEYS.items():
+        if key not in rig.extra:
+            continue
+        value = rig.extra[key]
+        hint = (f"{key} holds the 1-sigma of {_CALIBRATION_STD_MEANING[key]}, as a 1x{n} matrix; "
+                "recalibrate with 'headplod calibrate' or delete the key")
+        if isinstance(value, (str, Mapping)) or value is None:
+            what = f"the string {value!r}" if isinstance(value, str) else (
+                "a mapping" if isinstance(value, Mapping) else "empty")
+            raise ctx.error(f"{ctx.name(key)} is {what}, expected {n} numbers", hint)
+        try:
+            a = np.array(value, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ctx.error(f"{ctx.name(key)} is not numeric ({exc})", hint) from None
+        if not (a.ndim <= 2 and a.size == n and (a.ndim < 2 or 1 in a.shape)):
+            raise ctx.error(
+                f"{ctx.name(key)} has shape {_shape_str(a)}, expected 1x{n}, {n}x1 or a flat list of {n}",
+                hint)
+        a = a.reshape(n)
+        _check_finite(ctx, key, a)
+        if (a < 0).any():
+            i = int(np.argmax(a < 0))
+            raise ctx.error(
+                f"{ctx.name(key)} has a negative value {_fmt(a[i])} at index {i}, expected standard "
+                "deviations >= 0", hint)
+        out[key] = _frozen(a)
+    return out or None
 
 
 # --------------------------------------------------------------------------

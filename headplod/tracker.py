@@ -27,6 +27,7 @@ import numpy as np
 from . import geometry as geo
 from .detect import Blobs, DetectionParams, centroids_near, detect_blobs, estimate_background, shot_variance
 from .identify import ModelRule, find_hypotheses
+from .tracking.rig_refine import RigErrorModel, RigRefineConfig, RigRefiner, rig_jacobian_rows
 from .uncertainty import DEFAULT_COVARIANCE, CovarianceInput, make_covariance_estimator
 
 ESTIMATORS = ("paper", "rigid", "reproj")
@@ -96,6 +97,16 @@ class TrackerConfig:
         Floor of the expected centroid noise in that test, px: the noise
         model leaves out shot noise, so a bright blob's σ is not trusted
         below this.
+    rig_refine : RigRefineConfig
+        Online refinement of the rig from the tracked frames
+        (:mod:`headplod.tracking.rig_refine`).
+    rig_errors : RigErrorModel
+        How far the real rig may be from ``rig.yaml`` before any refinement
+        (1σ): with the calibration's own σ, the prior of the refinement.
+    rig_gate_sigma : float
+        The consistency checks (epipolar, model fit, reprojection, outlier)
+        allow this many σ of the image displacement the rig's remaining
+        uncertainty can cause, on top of their image-noise tolerances.
     """
 
     estimator: str = "reproj"
@@ -116,6 +127,9 @@ class TrackerConfig:
     outlier_sigma: float = 10.0
     outlier_floor_px: float = 0.3
     outlier_min_sigma_px: float = 0.03
+    rig_refine: RigRefineConfig = field(default_factory=RigRefineConfig)
+    rig_errors: RigErrorModel = field(default_factory=RigErrorModel)
+    rig_gate_sigma: float = 3.0
 
     def __post_init__(self):
         if self.estimator not in ESTIMATORS:
@@ -169,10 +183,16 @@ class TrackResult:
     marker_blob: np.ndarray | None = None
     cov_deg2: np.ndarray | None = None
     cov_input: CovarianceInput | None = None
+    rig: dict | None = None
+    rig_message: str | None = None
 
     def record_extras(self) -> dict:
         """JSON-ready diagnostics for a pose record (the contract allows more keys)."""
         out = {"mode": self.mode, "timings_ms": {k: round(v * 1e3, 4) for k, v in self.timings_s.items()}}
+        if self.rig is not None:
+            out["rig"] = self.rig
+        if self.rig_message:
+            out["rig_message"] = self.rig_message
         if self.ok:
             out["residuals_px"] = [[None if np.isnan(r) else round(float(r), 4) for r in row]
                                    for row in self.residuals_px]
@@ -206,20 +226,67 @@ class Tracker:
     config : TrackerConfig
     """
 
-    def __init__(self, rig, model, config: TrackerConfig = TrackerConfig()):
-        self.rig = rig
+    def __init__(self, rig, model, config: TrackerConfig = TrackerConfig(), calibration_std: dict | None = None):
+        self.calibrated_rig = rig
         self.model = model
         self.config = config
         self.model_mm = np.asarray(model.points_mm, dtype=np.float64)
         self.rule = ModelRule.from_model(self.model_mm)
         self.normal_signs = geo.normal_signs(self.model_mm)
         self.axes_G = geo.model_axes(self.model_mm)
+        self._calibration_std = calibration_std
+        self.refiner = None           # made at the first frame, when it is known whether t_right is given
+        self._apply_rig(rig)
+        self.uncertainty = make_covariance_estimator(config.uncertainty, rig, self.model_mm, self.axes_G)
+        self.reset()
+
+    def _apply_rig(self, rig) -> None:
+        """Use a (refined) rig from now on: epipolar geometry, cameras, the paper estimator's rig."""
+        self.rig = rig
         self.E = geo.essential_matrix(rig.R, rig.T)
         self.focal = (float(np.sqrt(rig.K1[0, 0] * rig.K1[1, 1])), float(np.sqrt(rig.K2[0, 0] * rig.K2[1, 1])))
         self.cameras_mid_mm = 0.5 * (-rig.R.T @ np.reshape(rig.T, 3))
         self._cameras = geo.StereoCameras(rig)
-        self.uncertainty = make_covariance_estimator(config.uncertainty, rig, self.model_mm, self.axes_G)
-        self.reset()
+        if hasattr(self, "uncertainty") and hasattr(self.uncertainty, "rig"):
+            self.uncertainty.rig = rig
+        self._rig_gate(None)
+
+    def _start_refiner(self, t, t_right) -> None:
+        declared = t_right is not None
+        self.refiner = RigRefiner(self.calibrated_rig, self.model_mm, self.config.rig_refine,
+                                  self.config.rig_errors, offset_declared=declared,
+                                  calibration_std=self._calibration_std)
+        self._rig_gate(None)
+
+    def _rig_gate(self, speed_px_s) -> None:
+        """Tolerances of the consistency checks: image noise plus what the rig's uncertainty can displace.
+
+        σ_rig (px): the image shift a 1σ error of the rig's turn, shift,
+        focal scale and exposure offset causes at a typical distance (60 cm)
+        and image radius (300 px).
+        """
+        c = self.config
+        P = self._rig_cov(wide=getattr(self, "_rig_suspect", False))
+        if P is None:
+            sigma_px = 0.0
+        else:
+            f = self.focal[1]
+            turn = float(np.sqrt(np.linalg.eigvalsh(P[:3, :3]).max()))
+            shift = float(np.sqrt(np.linalg.eigvalsh(P[3:6, 3:6]).max()))
+            sigma_px = float(np.sqrt((f * turn) ** 2 + (f * shift / 600.0) ** 2 + (300.0 * np.sqrt(P[6, 6])) ** 2
+                                     + ((speed_px_s or 0.0) * np.sqrt(P[7, 7])) ** 2))
+        self.rig_sigma_px = sigma_px
+        k = c.rig_gate_sigma * sigma_px
+        self.epipolar_tol_px = float(np.hypot(c.epipolar_tol_px, k))
+        # A rig error changes the triangulated shape by about a third of a
+        # millimetre per pixel of disparity error at 60 cm.
+        self.fit_tol_mm = float(np.hypot(c.fit_tol_mm, 0.35 * k))
+
+    def _rig_cov(self, wide: bool = False):
+        """Covariance (8, 8) of the rig's error state now (None before the first frame)."""
+        if self.refiner is None:
+            return None
+        return self.refiner.P + self.refiner.prior if wide else self.refiner.P
 
     def reset(self) -> None:
         """Forget the previous frames (e.g. after a seek)."""
@@ -236,6 +303,8 @@ class Tracker:
         self._history = []            # [(t, R_world_G, p1)] last two accepted poses
         self._prev_pose = None
         self._uncompensated = False
+        self._rig_suspect = False      # the last frames disagreed with the refined rig
+        self._disagreements = 0
 
     # ------------------------------------------------------------------ public
     def process(self, left: np.ndarray, right: np.ndarray, t: float | None = None,
@@ -255,6 +324,9 @@ class Tracker:
         if problem:
             return TrackResult(False, problem, timings_s={"total": time.perf_counter() - start})
         images = (left, right)
+        if self.refiner is None:
+            self._start_refiner(t, t_right)
+        t_right = self._right_time(t, t_right)
         tracking = self.config.track and self._prev_centers is not None
         result = self._attempt(images, t, t_right, timings, start, tracking)
         if tracking and not result.ok and result.mode == "track":
@@ -288,8 +360,10 @@ class Tracker:
                                and self._right_motion(t, t_right) is None
                                and (not self._history or t - self._history[-1][0] > 0.2))
         R, p1, residuals, JtJ, vectors = self._estimate(match, t, t_right)
+        velocity = self._head_velocity()
+        rig_rows, rig_sd = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
         dropped = None
-        outlier = self._outlier(residuals, match)
+        outlier = self._outlier(residuals, match, rig_sd)
         if outlier is not None and self.config.estimator == "reproj" and match.visible.all():
             # One centre disagrees with the other nine (a glint fused with a
             # marker, a partial occlusion): refit without it.
@@ -297,19 +371,30 @@ class Tracker:
             match.visible = match.visible.copy()
             match.visible[outlier] = False
             R, p1, residuals, JtJ, vectors = self._estimate(match, t, t_right)
-            outlier = self._outlier(residuals, match)
+            rig_rows, rig_sd = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
+            outlier = self._outlier(residuals, match, rig_sd)
             if outlier is not None:
                 dropped = None
         timings["pose"] = time.perf_counter() - t_pose
 
         t_ver = time.perf_counter()
-        reason = self._verify(R, p1, residuals, outlier, match)
+        reason = self._verify(R, p1, residuals, outlier, match, rig_sd)
+        rig_cov = self._rig_cov()
+        disagrees = False
+        if reason is not None and self.refiner is not None and not self._rig_suspect:
+            # Not consistent with the rig as refined: is it with the rig as
+            # uncertain as before any refinement (the rig changed: a bump)?
+            wide = self._rig_cov(wide=True)
+            _, wide_sd = self._rig_terms(R, p1, t, t_right, velocity, wide, match)
+            if self._verify(R, p1, residuals, self._outlier(residuals, match, wide_sd), match, wide_sd) is None:
+                reason, rig_cov, disagrees = None, wide, True
         timings["verify"] = time.perf_counter() - t_ver
         if reason is not None:
             self._prev_centers = self._prev2_centers = None
             timings["total"] = time.perf_counter() - start
             return TrackResult(False, reason, centers_px=match.centers, residuals_px=residuals, mode=mode,
-                               timings_s=timings, blobs=blobs, marker_blob=match.blob_index)
+                               timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
+                               rig=self._rig_status(), rig_message=self._rig_message())
         self._remember(match, t, R, p1, blobs, mode)
         if dropped is not None:
             match.centers = match.centers.copy()
@@ -324,29 +409,131 @@ class Tracker:
         cov_input = CovarianceInput(images, match.centers, match.visible, match.sigma_px, residuals, JtJ,
                                     R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
                                     vectors, t, match.shot_var,
-                                    geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras))
+                                    geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras),
+                                    rig_rows, rig_cov)
         t_est = time.perf_counter()
         timings["covariance_input"] = t_est - t_cov
         cov = self.uncertainty(cov_input)
         timings["covariance"] = time.perf_counter() - t_cov
-        timings["total"] = time.perf_counter() - start
         if not np.isfinite(cov).all() or np.linalg.det(cov) <= 0:
+            timings["total"] = time.perf_counter() - start
             return TrackResult(False, f"no covariance of V from the {self.uncertainty.name} estimator "
                                       "(too few marker pixels?)", mode=mode, timings_s=timings, blobs=blobs)
-        return TrackResult(True, None, p1, axes, R, match.centers, residuals, match.epipolar,
-                           match.fit_rms, mode, timings, blobs, match.blob_index, cov_deg2=cov, cov_input=cov_input)
 
-    def _verify(self, R, p1, residuals, outlier, match) -> str | None:
-        """Why a fitted pose is not to be trusted, or None."""
+        # The rig's refinement is its own stage, fed every accepted frame.
+        t_ref = time.perf_counter()
+        self._refine(match, t, t_right_declared=t_right, cov_input=cov_input, R=R, p1=p1, disagrees=disagrees)
+        timings["refine_rig"] = time.perf_counter() - t_ref
+        timings["total"] = time.perf_counter() - start
+        return TrackResult(True, None, p1, axes, R, match.centers, residuals, match.epipolar,
+                           match.fit_rms, mode, timings, blobs, match.blob_index, cov_deg2=cov, cov_input=cov_input,
+                           rig=self._rig_status(), rig_message=self._rig_message(disagrees))
+
+    # ------------------------------------------------------------------ the rig
+    def _right_time(self, t, t_right):
+        """The right image's exposure time: the given one (or t) plus the estimated offset, once it is known."""
+        if t is None or self.refiner is None:
+            return t_right
+        offset = self.refiner.state.offset_s
+        known = abs(offset) > max(2.0 * self.refiner.sigma()[7], 3e-4)
+        if not known:
+            return t_right
+        self._declared_right = t_right
+        return (t_right if t_right is not None else t) + offset
+
+    def _head_velocity(self):
+        """(ω rad/s, v mm/s) of the head in the world frame from the last two accepted poses, or None."""
+        if len(self._history) < 2:
+            return None
+        (ta, Ra, pa), (tb, Rb, pb) = self._history[-2:]
+        dt = tb - ta
+        if not dt > 0:
+            return None
+        return cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt, (pb - pa) / dt
+
+    def _rig_terms(self, R, p1, t, t_right, velocity, P, match):
+        """Rig Jacobian rows (2, 5, 2, 8) at the pose, and each centre's 1σ residual from the rig (2, 5), px.
+
+        A rig error e moves the centres by J_r e; the pose fit absorbs part
+        of that and leaves r = (I − H) J_r e in the residuals (H the fit's
+        hat matrix, with the fit's weights), in both images: that is what
+        the checks must allow.
+        """
+        if P is None or self.refiner is None:
+            return None, None
+        dt = (t_right - t) if (t is not None and t_right is not None) else 0.0
+        omega, v = velocity if velocity is not None else (None, None)
+        rows = rig_jacobian_rows(R, p1, self.model_mm, self.refiner.state, self._cameras.D[1], dt, omega, v)
+        vis = match.visible
+        pose_rows = geo.reprojection_rows(R, p1, self.model_mm, vis, self._cameras)
+        Jp = pose_rows[vis].reshape(-1, 6)
+        Jr = rows[vis].reshape(-1, rows.shape[-1])
+        w = np.repeat(1.0 / np.square(self._sigma(match)[vis]), 2)
+        A = Jp.T @ (Jp * w[:, None])
+        M = Jr - Jp @ np.linalg.solve(A, Jp.T @ (Jr * w[:, None]))
+        var = np.einsum("ij,jk,ik->i", M, P, M).reshape(-1, 2).sum(axis=1)
+        sd = np.full(vis.shape, np.nan)
+        sd[vis] = np.sqrt(np.maximum(var, 0.0))
+        return rows, sd
+
+    def _refine(self, match, t, t_right_declared, cov_input, R, p1, disagrees) -> None:
+        """Feed an accepted frame to the rig's refinement; use the refined rig when it changes."""
+        refiner = self.refiner
+        if refiner is None:
+            return
+        if disagrees:
+            self._disagreements += 1
+            if self._disagreements >= 3:
+                # Three frames in a row agree only with the unrefined rig: it changed.
+                refiner.widen(t)
+                self._disagreements = 0
+                self._rig_gate(None)
+            return
+        self._disagreements = 0
+        if not self.config.rig_refine.enabled:
+            return
+        inner = getattr(self.uncertainty, "inner", self.uncertainty)
+        if hasattr(inner, "variances"):
+            sigma = np.sqrt(inner.variances(cov_input))
+        else:
+            sigma = np.repeat(self._sigma(match)[..., None], 2, axis=2)
+        declared = getattr(self, "_declared_right", None)
+        offset = (declared - t) if (declared is not None and t is not None) else 0.0
+        if refiner.add_frame(t, offset, match.centers, match.visible, sigma, R, p1):
+            self._apply_rig(refiner.state.rig())
+
+    def _rig_status(self):
+        return None if self.refiner is None else self.refiner.status()
+
+    def _rig_message(self, disagrees: bool = False):
+        if self.refiner is None:
+            return None
+        if disagrees:
+            return "the images disagree with the refined rig (bumped?); tracking with the calibration's uncertainty"
+        if self.refiner.updates == 0 and not self.refiner.bumps:
+            return None
+        return self.refiner.describe()
+
+    def _verify(self, R, p1, residuals, outlier, match, rig_sd=None) -> str | None:
+        """Why a fitted pose is not to be trusted, or None.
+
+        ``rig_sd`` (2, 5), px: each centre's 1σ displacement from the rig's
+        uncertainty, which widens the reprojection tolerance.
+        """
         if not np.isfinite(R.sum() + p1.sum()):
             return "pose fit diverged (non-finite result)"
-        worst = np.fmax.reduce(residuals, axis=None)          # ignores hidden markers' NaN
+        tol = self.config.reproj_tol_px
+        if rig_sd is not None:
+            tol = np.hypot(tol, self.config.rig_gate_sigma * rig_sd)
+        excess = residuals / tol
+        worst = np.fmax.reduce(excess, axis=None)          # ignores hidden markers' NaN
         if np.isnan(worst):
             worst = np.inf
-        if worst > self.config.reproj_tol_px:
-            cam, marker = np.unravel_index(np.nanargmax(residuals), residuals.shape)
-            return (f"reprojection error {worst:.2f} px of {MARKER_NAMES[marker]} in the "
-                    f"{('left', 'right')[cam]} image exceeds {self.config.reproj_tol_px} px: "
+        if worst > 1.0:
+            cam, marker = np.unravel_index(np.nanargmax(excess), residuals.shape)
+            limit = float(np.broadcast_to(tol, residuals.shape)[cam, marker])
+            return (f"reprojection error {residuals[cam, marker]:.2f} px of {MARKER_NAMES[marker]} in the "
+                    f"{('left', 'right')[cam]} image exceeds {limit:.2f} px: "
                     "the identification is not trusted")
         if outlier is not None:
             cam, marker = outlier
@@ -433,7 +620,7 @@ class Tracker:
         epi = geo.epipolar_error_px(xn[0], xn[1], self.E, *self.focal)
         points, _ = geo.triangulate_midpoint(xn[0], xn[1], self.rig.R, self.rig.T)
         R, t, rms = geo.kabsch(self.model_mm, points)
-        if epi.max() > self.config.epipolar_tol_px or rms > self.config.fit_tol_mm:
+        if epi.max() > self.epipolar_tol_px or rms > self.fit_tol_mm:
             return None
         return _Match(centers, visible, index, epi, points, R, t, float(rms))
 
@@ -491,7 +678,7 @@ class Tracker:
         """
         hl, hr = hyps
         epi_matrix = self._epipolar_matrix(xn)
-        tol = self.config.epipolar_tol_px
+        tol = self.epipolar_tol_px
         best_reason = None
         for ranks in ((0,), (0, 1)):
             il_all = np.flatnonzero(hl.rank <= max(ranks))
@@ -502,20 +689,20 @@ class Tracker:
             keep = epi.max(axis=1) <= tol
             if not keep.any():
                 best_reason = (f"no consistent stereo identification: no labeling of the left blobs matches "
-                               f"one of the right blobs within the epipolar tolerance ({tol} px)")
+                               f"one of the right blobs within the epipolar tolerance ({tol:.1f} px)")
                 continue
             il, ir, epi = il[keep], ir[keep], epi[keep]
             xl = xn[0][hl.index[il]]            # (P, 5, 2)
             xr = xn[1][hr.index[ir]]
             points, _ = geo.triangulate_midpoint(xl, xr, self.rig.R, self.rig.T)
             R, t, rms = geo.kabsch(self.model_mm, points)
-            valid = (rms <= self.config.fit_tol_mm) & self._facing_cameras(R, t)
+            valid = (rms <= self.fit_tol_mm) & self._facing_cameras(R, t)
             if not valid.any():
                 k = int(np.argmin(rms))
                 best_reason = (f"no consistent stereo identification: the best labeling is {rms[k]:.1f} mm "
-                               f"(RMS) from the marker model, tolerance {self.config.fit_tol_mm} mm")
+                               f"(RMS) from the marker model, tolerance {self.fit_tol_mm:.1f} mm")
                 continue
-            cost = rms / self.config.fit_tol_mm + epi.max(axis=1) / tol + 0.05 * (hl.rank[il] + hr.rank[ir])
+            cost = rms / self.fit_tol_mm + epi.max(axis=1) / tol + 0.05 * (hl.rank[il] + hr.rank[ir])
             cost = np.where(valid, cost, np.inf)
             best = int(np.argmin(cost))
             if self._ambiguous(R, cost, best):
@@ -532,7 +719,7 @@ class Tracker:
         products of those short lists with exactly one marker hidden.
         """
         epi_matrix = self._epipolar_matrix(xn)
-        tol = self.config.epipolar_tol_px
+        tol = self.epipolar_tol_px
         best = None
         for full in (0, 1):
             other = 1 - full
@@ -565,10 +752,10 @@ class Tracker:
             epi = np.where(weights > 0, geo.epipolar_error_px(xl, xr, self.E, *self.focal), 0.0)
             points, _ = geo.triangulate_midpoint(xl, xr, self.rig.R, self.rig.T)
             R, t, rms = geo.kabsch(self.model_mm, points, weights)
-            valid = (rms <= self.config.fit_tol_mm) & self._facing_cameras(R, t)
+            valid = (rms <= self.fit_tol_mm) & self._facing_cameras(R, t)
             if not valid.any():
                 continue
-            cost = np.where(valid, rms / self.config.fit_tol_mm + epi.max(axis=1) / tol, np.inf)
+            cost = np.where(valid, rms / self.fit_tol_mm + epi.max(axis=1) / tol, np.inf)
             k = int(np.argmin(cost))
             if self._ambiguous(R, cost, k):
                 return None, "ambiguous identification with a marker hidden in one view"
@@ -645,8 +832,11 @@ class Tracker:
                                               sigma_px=sigma, cameras=self._cameras)
         return fit
 
-    def _outlier(self, residuals, match: _Match):
+    def _outlier(self, residuals, match: _Match, rig_sd=None):
         """(camera, marker) of the worst centre if it is an outlier, else None.
+
+        ``rig_sd`` (2, 5), px: the rig's share of each centre's expected
+        error (a stale rig displaces the right image's centres together).
 
         Not tested while the right image's exposure offset cannot be
         compensated (no recent pose to take the velocity from): the motion
@@ -659,6 +849,8 @@ class Tracker:
             return None                                   # the usual case: nothing near the floor
         sigma = np.where(np.isfinite(match.sigma_px), np.maximum(match.sigma_px, self.config.outlier_min_sigma_px),
                          np.inf)
+        if rig_sd is not None:
+            sigma = np.hypot(sigma, rig_sd)
         score = np.where(np.isfinite(residuals) & (residuals > self.config.outlier_floor_px),
                          residuals / sigma, 0.0)
         if score.max() <= self.config.outlier_sigma:

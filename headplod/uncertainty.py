@@ -79,6 +79,12 @@ class CovarianceInput:
         (pixel variance κ·I), px²/DN; NaN where unknown.
     jacobian_rows : (2, 5, 2, 6)
         ∂(projected centre)/∂(δ, ε) of each marker image at the fitted pose.
+    rig_rows : (2, 5, 2, 8), optional
+        ∂(projected centre)/∂(rig error state) (:mod:`headplod.tracking.rig_refine`).
+    rig_cov : (8, 8), optional
+        Covariance of the rig's error state: how far the rig used may be from
+        the true one (the calibration's uncertainty, its drift, the time
+        offset), as the online refinement knows it.
     """
 
     images: tuple
@@ -96,6 +102,29 @@ class CovarianceInput:
     t: float | None = None
     shot_var: np.ndarray = None
     jacobian_rows: np.ndarray = None
+    rig_rows: np.ndarray = None
+    rig_cov: np.ndarray = None
+
+
+def with_rig_uncertainty(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray,
+                         rig_cov: np.ndarray) -> np.ndarray:
+    """The pose's information (6, 6) once the rig's own uncertainty is marginalized.
+
+    The rig's error e ~ N(0, P) moves every centre by J_r e, correlated
+    across centres and frames alike; with the rig as 8 nuisance parameters
+    beside the pose (prior information P⁻¹), the pose's information is the
+    Schur complement I_pp − I_pr (I_rr + P⁻¹)⁻¹ I_rp, which equals
+    Jᵀ (Σ + J_r P J_rᵀ)⁻¹ J. ``pose_rows`` (m, 2, 6), ``rig_rows``
+    (m, 2, 8), ``weights`` (m, 2) = 1/σ² of each centre coordinate.
+    """
+    i_pr = np.einsum("mij,mik,mi->jk", pose_rows, rig_rows, weights)
+    i_rr = np.einsum("mij,mik,mi->jk", rig_rows, rig_rows, weights)
+    keep = np.diag(rig_cov) > 0
+    if not keep.any():
+        return info
+    i_rr = i_rr[np.ix_(keep, keep)] + np.linalg.inv(rig_cov[np.ix_(keep, keep)])
+    i_pr = i_pr[:, keep]
+    return info - i_pr @ np.linalg.solve(i_rr, i_pr.T)
 
 
 def view_angles_deg(directions: np.ndarray, axes: np.ndarray) -> np.ndarray:
@@ -192,6 +221,8 @@ class FirstOrder:
         excess = (x.residual_vectors_px[seen] ** 2 / variance).sum(axis=1) / _CHI2_2DOF_99
         weights = 1.0 / (variance * np.maximum(excess, 1.0)[:, None])
         info = np.einsum("mij,mik,mi->jk", rows, rows, weights)
+        if x.rig_rows is not None and x.rig_cov is not None:
+            info = with_rig_uncertainty(info, rows, x.rig_rows[seen], weights, x.rig_cov)
         return geo.view_angle_covariance(x.R_world_G, info, 1.0, self.axes_G)
 
     def _update(self, x: CovarianceInput) -> None:

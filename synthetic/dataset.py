@@ -8,9 +8,14 @@
       times.csv   frame,t[,t_right]      (6 decimals, s)
       truth.csv   frame,x,y,z,xi_x,...,v_z (6 decimals; P1 in mm and the
                   axes rows Ξ, Ψ, V at the left image's time t)
+      rig_truth.json  only when rig.yaml is not the rig the images were
+                  rendered with (a stale calibration, unsynchronized
+                  cameras): the true rig per frame range and the true
+                  exposure offset, kept aside like truth.csv
 """
 from __future__ import annotations
 
+import json
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -58,13 +63,16 @@ def write_dataset(
     (folder / "left").mkdir(parents=True, exist_ok=True)
     (folder / "right").mkdir(parents=True, exist_ok=True)
     s = scene.setup
-    write_rig(folder / "rig.yaml", s.image_size, s.K1, s.D1, s.K2, s.D2, s.R, s.T)
+    cal = getattr(scene, "calibrated_setup", None) or s
+    write_rig(folder / "rig.yaml", cal.image_size, cal.K1, cal.D1, cal.K2, cal.D2, cal.R, cal.T)
     write_markers(folder / "markers.yaml", scene.model_points_mm, scene.diameter_mm)
     write_screen(folder / "screen.yaml", s.screen_size_px, s.top_left, s.top_right, s.bottom_left)
 
     offset = float(scene.options.right_time_offset_s)
+    declared = offset != 0.0 and getattr(scene, "declare_time_offset", True)
     n = scene.n_frames
-    times_lines = ["frame,t,t_right" if offset != 0.0 else "frame,t"]
+    times_lines = ["frame,t,t_right" if declared else "frame,t"]
+    setup_for = getattr(scene, "setup_for", lambda k: s)
     truth_lines = [TRUTH_HEADER]
 
     def _write(path: Path, img: np.ndarray) -> None:
@@ -77,13 +85,13 @@ def write_dataset(
         for k, t in enumerate(scene.times):
             t = float(t)
             options = scene.options_for(k) if hasattr(scene, "options_for") else scene.options
-            left, right = render_pair(s, scene.model_points_mm, scene.diameter_mm, scene.pose_fn, t,
+            left, right = render_pair(setup_for(k), scene.model_points_mm, scene.diameter_mm, scene.pose_fn, t,
                                       options, frame_rng(seed, k))
             pending.append(pool.submit(_write, folder / "left" / f"{k:06d}.png", left))
             pending.append(pool.submit(_write, folder / "right" / f"{k:06d}.png", right))
             while len(pending) > 8:
                 pending.popleft().result()
-            if offset != 0.0:
+            if declared:
                 times_lines.append(f"{k},{t:.6f},{t + offset:.6f}")
             else:
                 times_lines.append(f"{k},{t:.6f}")
@@ -95,7 +103,32 @@ def write_dataset(
             pending.popleft().result()
     (folder / "times.csv").write_text("\n".join(times_lines) + "\n")
     (folder / "truth.csv").write_text("\n".join(truth_lines) + "\n")
+    truth_rig = _rig_truth(scene, n, offset)
+    if truth_rig is not None:
+        (folder / "rig_truth.json").write_text(json.dumps(truth_rig, indent=1) + "\n")
     return folder
+
+
+def _rig_truth(scene: Scene, n: int, offset: float):
+    """The true rig and exposure offset when rig.yaml or times.csv do not tell them, else None.
+
+    ``segments``: [{first_frame, R (3x3), T (3,) mm, K1, K2 (3x3)}] in frame
+    order (more than one when a camera was bumped during the recording);
+    ``time_offset_s``: the right exposure minus the left one, s.
+    """
+    stale = getattr(scene, "calibrated_setup", None) is not None or getattr(scene, "frame_setups", None) is not None
+    undeclared = offset != 0.0 and not getattr(scene, "declare_time_offset", True)
+    if not (stale or undeclared):
+        return None
+    segments, last = [], None
+    for k in range(n):
+        rig = scene.setup_for(k)
+        if rig is not last:
+            segments.append({"first_frame": k, "R": np.asarray(rig.R, float).tolist(),
+                             "T": np.asarray(rig.T, float).reshape(3).tolist(),
+                             "K1": np.asarray(rig.K1, float).tolist(), "K2": np.asarray(rig.K2, float).tolist()})
+            last = rig
+    return {"segments": segments, "time_offset_s": offset}
 
 
 def _print_progress(prefix: str = "") -> Callable[[int, int], None]:

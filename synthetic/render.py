@@ -134,6 +134,11 @@ class RenderOptions:
     glint_sigma_px : (min, max) Gaussian sigma of a glint, px.
     glint_spread : glints fall in the markers' image bounding box grown by
         this fraction of its size on each side.
+    fused_glints : (min, max) number of glints per image fused with a
+        marker's blob (a reflection off the lens rim beside a marker): each
+        lands ``fused_glint_offset_px`` from a random marker's centre.
+    fused_glint_offset_px : (min, max) distance of a fused glint from its
+        marker's centre, px.
     lamps : lamps drawn in both views.
     occluded : (camera, marker) pairs not drawn; camera 0/'left' or
         1/'right', marker 0..4.
@@ -159,6 +164,8 @@ class RenderOptions:
     glint_peak_dn: Tuple[float, float] = (250.0, 700.0)
     glint_sigma_px: Tuple[float, float] = (0.3, 0.55)
     glint_spread: float = 0.3
+    fused_glints: Tuple[int, int] = (0, 0)
+    fused_glint_offset_px: Tuple[float, float] = (1.0, 3.0)
     lamps: Tuple[Lamp, ...] = ()
     occluded: FrozenSet[Tuple[Union[int, str], int]] = frozenset()
 
@@ -631,6 +638,26 @@ def _add_glints(layer: np.ndarray, cam: CameraModel, positions_w: np.ndarray, op
         _add_spot(layer, u, v, sig, peak)
 
 
+def _add_fused_glints(layer: np.ndarray, cam: CameraModel, positions_w: np.ndarray, options: RenderOptions,
+                      rng: np.random.Generator) -> None:
+    """Glints on the rim of a marker's blob: they pull its centroid instead of making a blob of their own."""
+    lo, hi = options.fused_glints
+    n = int(rng.integers(lo, hi + 1)) if hi > 0 else 0
+    if n == 0:
+        return
+    pc = cam.to_cam(positions_w)
+    if np.any(pc[:, 2] <= 0):
+        return
+    uv = _project_cam(cam, pc)
+    for _ in range(n):
+        marker = int(rng.integers(0, len(uv)))
+        angle = rng.uniform(0.0, 2.0 * np.pi)
+        dist = rng.uniform(*options.fused_glint_offset_px)
+        peak = rng.uniform(*options.glint_peak_dn)
+        sig = rng.uniform(*options.glint_sigma_px)
+        _add_spot(layer, uv[marker, 0] + dist * np.cos(angle), uv[marker, 1] + dist * np.sin(angle), sig, peak)
+
+
 def _add_lamps(layer: np.ndarray, cam: CameraModel, options: RenderOptions) -> None:
     h, w = layer.shape
     for lamp in options.lamps:
@@ -741,6 +768,10 @@ def render_signal(cam: CameraModel, cam_index: int, model_points_mm: np.ndarray,
         Rwg, p1 = pose_fn(t)
         pw = np.asarray(model_points_mm, float) @ np.asarray(Rwg, float).T + np.asarray(p1, float)
         _add_glints(layer, cam, pw, options, rng)
+    if rng is not None and options.fused_glints[1] > 0:
+        Rwg, p1 = pose_fn(t)
+        pw = np.asarray(model_points_mm, float) @ np.asarray(Rwg, float).T + np.asarray(p1, float)
+        _add_fused_glints(layer, cam, pw, options, rng)
     return layer
 
 

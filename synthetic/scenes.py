@@ -69,6 +69,13 @@ class Scene:
     options : render options (time offset, motion blur, distractors...).
     description : one line for people.
     frame_options : optional list of per-frame render options.
+    calibrated_setup : the rig ``rig.yaml`` describes when it is not the
+        one the images are rendered with (a stale calibration,
+        :mod:`synthetic.imperfect`); None: the true rig.
+    declare_time_offset : whether ``times.csv`` states the right image's
+        time (``t_right``); unsynchronized webcams do not.
+    frame_setups : optional list of per-frame true rigs (a camera bumped
+        during the recording) overriding ``setup`` for rendering.
     """
 
     name: str
@@ -80,6 +87,13 @@ class Scene:
     options: RenderOptions = field(default_factory=RenderOptions)
     description: str = ""
     frame_options: Optional[list] = None    # per-frame RenderOptions overriding ``options``
+    calibrated_setup: Optional[Setup] = None
+    declare_time_offset: bool = True
+    frame_setups: Optional[list] = None
+
+    def setup_for(self, frame: int) -> Setup:
+        """The true rig of one frame (the cameras may be bumped during a recording)."""
+        return self.frame_setups[frame] if self.frame_setups is not None else self.setup
 
     def options_for(self, frame: int) -> RenderOptions:
         """Render options of one frame (distractors may change per frame)."""
@@ -502,6 +516,13 @@ def custom_model(n_frames: int = 60, seed: int = 0, fps: float = 30.0) -> Scene:
 
 
 #: name -> preset function ``f(n_frames=..., seed=..., **kw) -> Scene``.
+def imperfect_rig(n_frames: Optional[int] = None, seed: int = 0, **faults) -> Scene:
+    """A preset's motion seen by a rig that ``rig.yaml`` describes wrongly (:func:`synthetic.imperfect.imperfect_rig`)."""
+    from .imperfect import imperfect_rig as make
+
+    return make(n_frames=n_frames, seed=seed, **faults)
+
+
 PRESETS: Dict[str, Callable[..., Scene]] = {
     "looking_around": looking_around,
     "static": static,
@@ -519,6 +540,7 @@ PRESETS: Dict[str, Callable[..., Scene]] = {
     "wide_hd": wide_hd,
     "custom_model": custom_model,
     "random_mixed": random_mixed,
+    "imperfect_rig": imperfect_rig,
 }
 
 

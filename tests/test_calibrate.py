@@ -181,6 +181,47 @@ def test_rig_yaml_written_and_read_back(chess_result):
     assert back.right_center_mm[0] > 500
 
 
+STD_KEYS = {"calibration_std_left": 4, "calibration_std_right": 4,
+            "calibration_std_rotation_deg": 3, "calibration_std_translation_mm": 3}
+
+
+def _check_std(rig: io.Rig, truth: io.Rig, max_rot_deg: float, max_t_mm: float) -> None:
+    std = io.rig_calibration_std(rig)
+    assert std is not None and set(std) == set(STD_KEYS)
+    for key, n in STD_KEYS.items():
+        assert std[key].shape == (n,)
+        assert np.all(np.isfinite(std[key])) and np.all(std[key] > 0), (key, std[key])
+    # not vacuous: a 12-14 pair calibration knows the rig far better than this
+    assert np.all(std["calibration_std_rotation_deg"] < max_rot_deg), std["calibration_std_rotation_deg"]
+    assert np.all(std["calibration_std_translation_mm"] < max_t_mm), std["calibration_std_translation_mm"]
+    # the true rig lies within 5 sigma (the stds are first-order: measured over
+    # 10 chessboard and 8 ChArUco sets, mean z^2 = 1.1 and 0.9, max |z| 2.5)
+    d_rot = np.degrees(cv2.Rodrigues(rig.R)[0].ravel() - cv2.Rodrigues(truth.R)[0].ravel())
+    z_rot = d_rot / std["calibration_std_rotation_deg"]
+    z_t = (rig.T - truth.T) / std["calibration_std_translation_mm"]
+    assert np.all(np.abs(z_rot) < 5), z_rot
+    assert np.all(np.abs(z_t) < 5), z_t
+
+
+def test_rig_yaml_has_calibration_std(chess_set, chess_result):
+    result, out = chess_result
+    back = io.read_rig(out)
+    assert back == result.rig  # the std keys round-trip with the others
+    for key, n in STD_KEYS.items():
+        assert isinstance(back.extra[key], np.ndarray) and back.extra[key].shape == (1, n)
+    _check_std(back, io.read_rig(chess_set.truth_rig), max_rot_deg=0.1, max_t_mm=1.0)
+    std = io.rig_calibration_std(back)
+    for side in ("left", "right"):
+        assert std[f"calibration_std_{side}"].tolist() == pytest.approx(
+            [result.std_px[side][k] for k in ("fx", "fy", "cx", "cy")])
+    np.testing.assert_allclose(std["calibration_std_rotation_deg"], result.std_rotation_deg)
+    np.testing.assert_allclose(std["calibration_std_translation_mm"], result.std_translation_mm)
+
+
+def test_charuco_calibration_std(charuco_set, charuco_result):
+    _check_std(charuco_result.rig, io.read_rig(charuco_set.truth_rig), max_rot_deg=0.5, max_t_mm=5.0)
+
+
 # ---------------------------------------------------------------------------
 # pairs in a folder
 # ---------------------------------------------------------------------------
@@ -345,3 +386,7 @@ def test_format_report(chess_result):
     assert "rejected" in text and "sizes differ" in text
     assert f"stereo {result.rms_stereo_px:.3f} px" in text
     assert "chessboard 9x6 inner corners" in text
+    line = next(l for l in text.splitlines() if l.startswith("calibration 1-sigma"))
+    assert "left fx fy cx cy" in line and "right fx fy cx cy" in line
+    assert f"rotation vector {result.std_rotation_deg[0]:.3g}" in line
+    assert f"T {result.std_translation_mm[0]:.3g}" in line and "n/a" not in line

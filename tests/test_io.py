@@ -28,6 +28,7 @@ from headplod.io import (
     read_screen,
     read_times,
     read_truth,
+    rig_calibration_std,
     write_markers,
     write_rig,
     write_screen,
@@ -486,6 +487,56 @@ def test_rig_constructor_validates():
     e = good_rig_entries()
     with pytest.raises(ContractError, match="Rig: field 'R' is not a rotation"):
         Rig((64, 48), e["K1"], e["D1"], e["K2"], e["D2"], 2 * e["R"], e["T"])
+
+
+# ---------------------------------------------------------------------------
+# the calibration's uncertainty in rig.yaml
+# ---------------------------------------------------------------------------
+
+CAL_STD = dict(
+    calibration_std_left=np.array([[0.5, 0.48, 0.7, 0.6]]),
+    calibration_std_right=np.array([[0.52, 0.5, 0.71, 0.62]]),
+    calibration_std_rotation_deg=np.array([[0.02, 0.04, 0.01]]),
+    calibration_std_translation_mm=np.array([[0.13, 0.09, 0.3]]),
+)
+
+
+def test_rig_calibration_std_round_trip(tmp_path):
+    assert rig_calibration_std(small_rig()) is None
+    assert rig_calibration_std(small_rig(rms=0.2)) is None
+    rig = small_rig(**CAL_STD)
+    path = tmp_path / "rig.yaml"
+    write_rig(path, rig)
+    back = read_rig(path)
+    assert back == rig
+    std = rig_calibration_std(back)
+    assert set(std) == set(CAL_STD)
+    for k, v in CAL_STD.items():
+        assert std[k].shape == (v.size,) and std[k].dtype == np.float64
+        np.testing.assert_array_equal(std[k], v.ravel())
+    # only some keys, other orientations
+    part = rig_calibration_std(small_rig(calibration_std_translation_mm=[[0.1], [0.2], [0.3]]))
+    assert list(part) == ["calibration_std_translation_mm"]
+    np.testing.assert_array_equal(part["calibration_std_translation_mm"], [0.1, 0.2, 0.3])
+
+
+@pytest.mark.parametrize("key, value, fragments", [
+    ("calibration_std_left", np.array([[0.5, 0.5, 0.7]]), ["key 'calibration_std_left' has shape 1x3",
+                                                           "expected 1x4"]),
+    ("calibration_std_rotation_deg", np.eye(3), ["key 'calibration_std_rotation_deg' has shape 3x3"]),
+    ("calibration_std_translation_mm", np.array([[0.1, np.nan, 0.3]]), ["non-finite"]),
+    ("calibration_std_right", np.array([[0.5, -0.5, 0.7, 0.6]]), ["negative value -0.5 at index 1"]),
+    ("calibration_std_translation_mm", "small", ["the string 'small', expected 3 numbers"]),
+    ("calibration_std_rotation_deg", 0.1, ["has shape a scalar"]),
+])
+def test_bad_rig_calibration_std(tmp_path, key, value, fragments):
+    path = raw_yaml(tmp_path / "rig.yaml", **good_rig_entries(), **{key: value})
+    rig = read_rig(path)  # extra keys are free for read_rig ...
+    with pytest.raises(ContractError) as e:
+        rig_calibration_std(rig)  # ... the helper checks them
+    assert_contract_error(e, path, key, *fragments)
+    with pytest.raises(ContractError, match=f"Rig.extra: key '{key}'"):
+        rig_calibration_std(small_rig(**{key: value}))
 
 
 @pytest.mark.parametrize("change, fragments", [

@@ -1,0 +1,618 @@
+"""The rig as the glasses see it: an error model of ``rig.yaml`` and its online refinement.
+
+A real rig is not the one its ``rig.yaml`` describes: the bar gets bumped
+(the right camera turns by a fraction of a degree), a board printed at the
+wrong scale makes the baseline a few percent off, a focal length is poorly
+determined, and two webcams without hardware sync expose milliseconds apart.
+The five markers are a rigid object of known size seen by both cameras, so
+every tracked frame constrains the rig.
+
+Error state (8 parameters, relative to the current estimate)
+--------------------------------------------------------------
+``ω`` (3, rad)
+    Turn of the right camera about its own centre, in its frame:
+    ``R ← exp([ω]×) R``, ``T ← exp([ω]×) T``.
+``τ`` (3, mm)
+    Shift of the right camera's translation: ``T ← T + τ`` (a baseline
+    scale is ``τ`` along ``T``).
+``s`` (1)
+    Log scale of the right camera's focal lengths: ``fx, fy ← e^s fx, e^s fy``.
+    The left camera's focal length is the reference: together with the
+    markers' size it fixes the depth scale, and a common focal scale of both
+    cameras is observable only through perspective, which five markers 14 cm
+    apart at 65 cm barely show.
+``δt`` (1, s)
+    Exposure of the right image minus that of the left one, added to what
+    ``times.csv`` or the driver says (``t_right``).
+
+Estimator
+---------
+An iterated, chunked recursive filter (:class:`RigRefiner`): every
+``chunk_frames`` tracked frames, a Gauss-Newton solve over those frames'
+poses (6 each) and the 8 rig parameters, with the prior from the last
+solve (its covariance plus the drift expected since), iteratively
+reweighted with a Cauchy loss so a frame with a glint or a wrong centre
+does not pull the rig. The frames' poses are marginalized out; the rig's
+posterior covariance carries what they taught. Compared with
+``scipy.optimize.least_squares`` over a sliding window of overlapping
+frames, this uses every frame once (no double counting between windows),
+keeps what a still head cannot teach (the time offset, the focal scale)
+where the motion left it, and costs one small dense solve per chunk.
+
+- Parameters the chunk's motion does not make observable (their
+  information from the chunk below ``observable_fraction`` of the prior's)
+  are held, not refined: a still head does not drift the rig.
+- A chunk inconsistent with the prior (its residuals far beyond the noise)
+  is re-solved with the prior widened to the calibration's error model; if
+  that explains it, the rig changed (a bump) and the filter re-converges
+  from there, else the chunk is dropped.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+PARAMETERS = ("turn_x_rad", "turn_y_rad", "turn_z_rad", "shift_x_mm", "shift_y_mm", "shift_z_mm",
+              "log_focal_right", "time_offset_s")
+N_RIG = len(PARAMETERS)
+_TURN, _SHIFT, _FOCAL, _OFFSET = slice(0, 3), slice(3, 6), 6, 7
+
+
+@dataclass(frozen=True)
+class RigErrorModel:
+    """How far a rig may be from its ``rig.yaml``: the prior of the refinement (1σ per axis).
+
+    Attributes
+    ----------
+    turn_deg : float
+        Turn of the right camera since calibration (a bumped bar), deg.
+    shift_fraction : float
+        Error of the translation, fraction of the baseline (a board printed
+        at the wrong scale, a poor calibration).
+    focal_fraction : float
+        Relative error of the right camera's focal length.
+    offset_undeclared_s, offset_declared_s : float
+        Exposure offset between the cameras when ``times.csv``/the driver
+        gives no right time (webcams without sync), and when it does.
+    """
+
+    turn_deg: float = 0.5
+    shift_fraction: float = 0.02
+    focal_fraction: float = 0.01
+    offset_undeclared_s: float = 0.015
+    offset_declared_s: float = 0.002
+
+    def covariance(self, rig, offset_declared: bool, calibration_std: dict | None = None) -> np.ndarray:
+        """Prior covariance (8, 8) of the error state; the calibration's own σ (if written) add in quadrature."""
+        baseline = float(np.linalg.norm(rig.T))
+        sd = np.array([math.radians(self.turn_deg)] * 3 + [self.shift_fraction * baseline] * 3
+                      + [self.focal_fraction, self.offset_declared_s if offset_declared else self.offset_undeclared_s])
+        if calibration_std:
+            # (headplod.io.rig_calibration_std.) The calibration's σ of the rotation
+            # vector's components stands, at this size, for the σ of a small turn
+            # about each axis (their difference is well below the prior's).
+            rot = calibration_std.get("calibration_std_rotation_deg")
+            if rot is not None:
+                sd[_TURN] = np.hypot(sd[_TURN], np.radians(float(np.max(rot))))
+            shift = calibration_std.get("calibration_std_translation_mm")
+            if shift is not None:
+                sd[_SHIFT] = np.hypot(sd[_SHIFT], np.asarray(shift, float).reshape(3))
+            right = calibration_std.get("calibration_std_right")
+            if right is not None:
+                sd[_FOCAL] = math.hypot(sd[_FOCAL], float(right[0]) / float(rig.K2[0, 0]))
+        return np.diag(sd ** 2)
+
+
+@dataclass(frozen=True)
+class RigRefineConfig:
+    """Settings of the online rig refinement, each with its unit.
+
+    Attributes
+    ----------
+    enabled : bool
+        Refine the rig from the tracked frames (``track --refine-rig``).
+    chunk_frames : int
+        Tracked frames per update (an update costs one small solve).
+    iterations : int
+        Gauss-Newton steps per update.
+    cauchy_scale : float
+        Residual (in units of its σ) beyond which a centre's weight falls
+        (Cauchy loss): a glint or a bad frame does not pull the rig.
+    min_sigma_px : float
+        Floor of a centre's σ, px.
+    drift_turn_deg_per_sqrt_s, drift_shift_mm_per_sqrt_s, drift_focal_per_sqrt_s,
+    drift_offset_s_per_sqrt_s : float
+        Random-walk drift of the rig allowed between updates: what lets the
+        estimate follow a slowly changing rig (warming cameras, a webcam's
+        clock drift).
+    observable_fraction : float
+        A parameter is refined only when the chunk's information on it is at
+        least this fraction of the prior's.
+    inconsistency : float
+        A chunk whose mean squared standardized residual exceeds this is
+        tested for a change of the rig (a bump).
+    bump_evidence : float
+        Fall of the chunk's cost (χ², 8 dof) that re-solving with the
+        widened prior must bring to accept a change of the rig.
+    max_gap_frames : float
+        Velocities (for the time offset) come from neighbours at most this
+        many frame periods apart.
+    recalibrate_turn_deg, recalibrate_scale, recalibrate_offset_s : float
+        Beyond these, the status recommends recalibrating.
+    """
+
+    enabled: bool = True
+    chunk_frames: int = 8
+    iterations: int = 4
+    cauchy_scale: float = 3.0
+    min_sigma_px: float = 0.02
+    drift_turn_deg_per_sqrt_s: float = 0.005
+    drift_shift_mm_per_sqrt_s: float = 0.02
+    drift_focal_per_sqrt_s: float = 1e-4
+    drift_offset_s_per_sqrt_s: float = 2e-4
+    observable_fraction: float = 0.05
+    inconsistency: float = 4.0
+    bump_evidence: float = 60.0
+    max_gap_frames: float = 2.5
+    recalibrate_turn_deg: float = 1.0
+    recalibrate_scale: float = 0.03
+    recalibrate_offset_s: float = 0.02
+
+
+@dataclass
+class _Frame:
+    t: float
+    declared_offset_s: float      # t_right − t from times.csv / the driver (0 when not given)
+    centers: np.ndarray           # (2, 5, 2) px
+    visible: np.ndarray           # (2, 5) bool
+    sigma: np.ndarray             # (2, 5, 2) px per coordinate
+    R: np.ndarray                 # (3, 3) tracked R_world_G
+    p1: np.ndarray                # (3,) tracked P1, mm
+    omega: np.ndarray | None = None   # (3,) head angular velocity, world, rad/s
+    velocity: np.ndarray | None = None  # (3,) P1 velocity, mm/s
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """[v]× for v (..., 3) → (..., 3, 3)."""
+    z = np.zeros(np.shape(v)[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+class RigState:
+    """The rig as currently estimated: the right camera's R, T, focal scale and the exposure offset.
+
+    Attributes
+    ----------
+    R : (3, 3), T : (3,) mm
+        World (left camera) → right camera.
+    log_focal : float
+        Log scale of the right camera's focal lengths relative to ``rig.yaml``.
+    offset_s : float
+        Right exposure minus left, beyond what the timestamps say, s.
+    """
+
+    def __init__(self, rig):
+        self.calibrated = rig
+        self.R = np.asarray(rig.R, np.float64).copy()
+        self.T = np.asarray(rig.T, np.float64).reshape(3).copy()
+        self.log_focal = 0.0
+        self.offset_s = 0.0
+
+    def apply(self, increment: np.ndarray) -> None:
+        """Add an error-state increment (8,) to the estimate."""
+        turn = cv2.Rodrigues(np.asarray(increment[_TURN], np.float64))[0]
+        self.R = turn @ self.R
+        self.R = cv2.Rodrigues(cv2.Rodrigues(self.R)[0])[0]
+        self.T = turn @ self.T + increment[_SHIFT]
+        self.log_focal += float(increment[_FOCAL])
+        self.offset_s += float(increment[_OFFSET])
+
+    def K2(self) -> np.ndarray:
+        K = np.asarray(self.calibrated.K2, np.float64).copy()
+        K[0, 0] *= math.exp(self.log_focal)
+        K[1, 1] *= math.exp(self.log_focal)
+        return K
+
+    def rig(self):
+        """This estimate as a :class:`headplod.io.Rig` (intrinsics of the left camera and distortions unchanged)."""
+        from .. import io
+
+        cal = self.calibrated
+        extra = dict(cal.extra)
+        extra["refined_time_offset_ms"] = round(self.offset_s * 1e3, 4)
+        if cal.path:
+            extra["refined_from"] = str(cal.path)
+        return io.Rig(cal.image_size, cal.K1, cal.D1, self.K2(), cal.D2, self.R, self.T, extra=extra)
+
+    def differences(self) -> dict:
+        """How the estimate differs from ``rig.yaml``: turn (deg), baseline scale, focal scale, offset (ms)."""
+        cal = self.calibrated
+        turn = cv2.Rodrigues(self.R @ np.asarray(cal.R, np.float64).T)[0].ravel()
+        centre = -self.R.T @ self.T
+        centre_cal = -np.asarray(cal.R).T @ np.asarray(cal.T).reshape(3)
+        return {"turn_deg": float(np.degrees(np.linalg.norm(turn))),
+                "turn_axis": (turn / max(np.linalg.norm(turn), 1e-12)).tolist(),
+                "baseline_scale": float(np.linalg.norm(self.T) / np.linalg.norm(cal.T)),
+                "centre_shift_mm": float(np.linalg.norm(centre - centre_cal)),
+                "focal_scale": float(math.exp(self.log_focal)),
+                "offset_ms": self.offset_s * 1e3}
+
+
+def project_right(points_world: np.ndarray, R: np.ndarray, T: np.ndarray, K: np.ndarray, D: np.ndarray):
+    """Right-camera projections (n, 2) px and their derivatives.
+
+    Returns
+    -------
+    px : (n, 2)
+    d_cam : (n, 2, 3)
+        ∂px/∂X_cam (the right camera's frame, mm).
+    d_logf : (n, 2)
+        ∂px/∂s for a common log scale s of fx and fy.
+    cam : (n, 3)
+        The points in the right camera's frame, mm.
+    """
+    cam = points_world @ R.T + T
+    px, jac = cv2.projectPoints(cam.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, D)
+    jac = jac.reshape(-1, 2, jac.shape[1])
+    d_cam = jac[:, :, 3:6]
+    d_logf = jac[:, :, 6] * K[0, 0] + jac[:, :, 7] * K[1, 1]
+    return px.reshape(-1, 2), d_cam, d_logf, cam
+
+
+def rig_jacobian_rows(R_world_G: np.ndarray, p1_mm: np.ndarray, model_mm: np.ndarray, state: RigState,
+                      D2: np.ndarray, right_dt_s: float = 0.0, omega: np.ndarray | None = None,
+                      velocity: np.ndarray | None = None) -> np.ndarray:
+    """∂(projected centre)/∂(rig error state) at a pose: (2, 5, 2, 8), left rows zero.
+
+    ``omega`` (rad/s) and ``velocity`` (mm/s) are the head's motion in the
+    world frame; without them the time offset's column is zero.
+    """
+    world = model_mm @ R_world_G.T + p1_mm
+    motion = None
+    if omega is not None and velocity is not None:
+        motion = np.cross(omega, world - p1_mm) + velocity
+        world = world + right_dt_s * motion
+    _, d_cam, d_logf, cam = project_right(world, state.R, state.T, state.K2(), D2)
+    rows = np.zeros((2, len(model_mm), 2, N_RIG))
+    rows[1, :, :, _TURN] = np.einsum("nij,njk->nik", d_cam, -_skew(cam))
+    rows[1, :, :, _SHIFT] = d_cam
+    rows[1, :, :, _FOCAL] = d_logf
+    if motion is not None:
+        rows[1, :, :, _OFFSET] = np.einsum("nij,jk,nk->ni", d_cam, state.R, motion)
+    return rows
+
+
+class RigRefiner:
+    """Online estimate of the rig from the tracked frames (module docstring).
+
+    Parameters
+    ----------
+    rig : headplod.io.Rig
+        The rig as ``rig.yaml`` describes it.
+    model_mm : (5, 3)
+        The marker model in G, mm.
+    config : RigRefineConfig
+    error_model : RigErrorModel
+    offset_declared : bool
+        Whether the right image's time is given (``t_right``).
+    calibration_std : dict, optional
+        The calibration's own standard deviations (``headplod calibrate``).
+    """
+
+    def __init__(self, rig, model_mm, config: RigRefineConfig = RigRefineConfig(),
+                 error_model: RigErrorModel = RigErrorModel(), offset_declared: bool = False,
+                 calibration_std: dict | None = None):
+        self.config = config
+        self.error_model = error_model
+        self.model_mm = np.asarray(model_mm, np.float64)
+        self.calibrated = rig
+        self.D = (np.asarray(rig.D1, np.float64), np.asarray(rig.D2, np.float64))
+        self.K1 = np.asarray(rig.K1, np.float64)
+        self.offset_declared = offset_declared
+        self.prior = error_model.covariance(rig, offset_declared, calibration_std)
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to ``rig.yaml`` and its error model."""
+        self.state = RigState(self.calibrated)
+        self.P = self.prior.copy()
+        self._pending: list[_Frame] = []
+        self._recent: deque = deque(maxlen=3)   # last frames, for velocities across chunks
+        self._last_update_t = None
+        self.updates = 0
+        self.bumps = []             # times (s) of detected changes of the rig
+        self.dropped_chunks = 0
+        self.refined = np.zeros(N_RIG, bool)    # parameters refined at least once
+        self.last_chi2 = float("nan")
+        self.disagreements = 0
+
+    def widen(self, t: float | None) -> None:
+        """The rig changed (frames agree only with the unrefined uncertainty): re-converge from here."""
+        self.P = self.P + self.prior
+        self._pending = []
+        self.bumps.append(float(t) if t is not None else float("nan"))
+
+    # ---------------------------------------------------------------- queries
+    def sigma(self) -> np.ndarray:
+        """1σ of the error state (8,): rad ×3, mm ×3, log focal, s."""
+        return np.sqrt(np.maximum(np.diag(self.P), 0.0))
+
+    def converged(self) -> bool:
+        """The turn and shift are known to a tenth of their prior σ."""
+        s, s0 = self.sigma(), np.sqrt(np.diag(self.prior))
+        return bool(np.all(s[:6] < 0.1 * s0[:6]))
+
+    def describe(self) -> str:
+        """One line for a person: how the rig differs from rig.yaml and what the refinement is doing."""
+        d = self.state.differences()
+        sd = self.sigma()
+        parts = [f"rig.yaml: right camera turned ~{d['turn_deg']:.2f}°",
+                 f"baseline x{d['baseline_scale']:.3f}"]
+        if self.refined[_FOCAL] or abs(d["focal_scale"] - 1) > 1e-4:
+            parts.append(f"right focal x{d['focal_scale']:.3f}")
+        if self.refined[_OFFSET] or abs(d["offset_ms"]) > 0.05:
+            parts.append(f"time offset {d['offset_ms']:.1f} ms ±{sd[_OFFSET] * 1e3:.1f}")
+        state = "refined" if self.converged() else "refining"
+        if self.bumps:
+            state += f", rig changed at t={self.bumps[-1]:.1f} s"
+        advice = self.advice()
+        return ", ".join(parts) + f"; {state}" + (f"; {advice}" if advice else "")
+
+    def advice(self) -> str | None:
+        """A recommendation to recalibrate, and what the refinement cannot fix, or None."""
+        c = self.config
+        d = self.state.differences()
+        reasons = []
+        if d["turn_deg"] > c.recalibrate_turn_deg:
+            reasons.append(f"the right camera is turned {d['turn_deg']:.1f}°")
+        if abs(d["baseline_scale"] - 1) > c.recalibrate_scale:
+            reasons.append(f"the baseline is {d['baseline_scale']:.3f}x rig.yaml's (check the board's square size)")
+        if abs(d["offset_ms"]) * 1e-3 > c.recalibrate_offset_s:
+            reasons.append(f"the cameras expose {d['offset_ms']:.0f} ms apart (fast motion will blur depth)")
+        if not reasons:
+            return None
+        return ("recalibrate: " + "; ".join(reasons)
+                + " (refined online, but distortion and the left camera are taken from rig.yaml as they are)")
+
+    def status(self) -> dict:
+        """JSON-ready state for the pose records."""
+        d = self.state.differences()
+        sd = self.sigma()
+        return {"turn_deg": round(d["turn_deg"], 4), "baseline_scale": round(d["baseline_scale"], 5),
+                "focal_scale": round(d["focal_scale"], 5), "offset_ms": round(d["offset_ms"], 3),
+                "turn_sd_deg": round(float(np.degrees(sd[_TURN].max())), 4),
+                "offset_sd_ms": round(float(sd[_OFFSET] * 1e3), 3),
+                "state": "refined" if self.converged() else "refining", "updates": self.updates,
+                "bumps": len(self.bumps)}
+
+    # ----------------------------------------------------------------- update
+    def add_frame(self, t: float | None, declared_offset_s: float, centers: np.ndarray, visible: np.ndarray,
+                  sigma_px: np.ndarray, R_world_G: np.ndarray, p1_mm: np.ndarray) -> bool:
+        """Take one tracked frame; True when the rig estimate changed.
+
+        ``centers`` (2, 5, 2) px, ``visible`` (2, 5), ``sigma_px`` (2, 5, 2)
+        or (2, 5): each centre's noise, px; the pose is the tracker's.
+        """
+        if not self.config.enabled or t is None:
+            return False
+        sig = np.asarray(sigma_px, np.float64)
+        if sig.ndim == 2:
+            sig = np.repeat(sig[..., None], 2, axis=2)
+        sig = np.where(np.isfinite(sig), np.maximum(sig, self.config.min_sigma_px), np.inf)
+        frame = _Frame(float(t), float(declared_offset_s), np.asarray(centers, np.float64).copy(),
+                       np.asarray(visible, bool).copy(), sig, np.asarray(R_world_G, np.float64),
+                       np.asarray(p1_mm, np.float64).reshape(3))
+        self._pending.append(frame)
+        if len(self._pending) < self.config.chunk_frames:
+            return False
+        chunk, self._pending = self._pending, []
+        self._velocities(chunk)
+        changed = self._update(chunk)
+        self._recent.extend(chunk[-2:])
+        return changed
+
+    def flush(self) -> bool:
+        """Use the frames waiting for a full chunk (end of a recording)."""
+        if len(self._pending) < 2:
+            return False
+        chunk, self._pending = self._pending, []
+        self._velocities(chunk)
+        return self._update(chunk)
+
+    def _velocities(self, chunk: list[_Frame]) -> None:
+        """Head velocities by central differences of the tracked poses (one-sided at the ends)."""
+        frames = list(self._recent) + chunk
+        times = np.array([f.t for f in frames])
+        gaps = np.diff(times)
+        period = float(np.median(gaps)) if len(gaps) else 0.0
+        limit = self.config.max_gap_frames * period
+        for i in range(len(frames) - len(chunk), len(frames)):
+            lo = i - 1 if i > 0 and 0 < times[i] - times[i - 1] <= limit else i
+            hi = i + 1 if i + 1 < len(frames) and 0 < times[i + 1] - times[i] <= limit else i
+            if hi == lo:
+                continue
+            a, b = frames[lo], frames[hi]
+            dt = b.t - a.t
+            frames[i].omega = cv2.Rodrigues(b.R @ a.R.T)[0].ravel() / dt
+            frames[i].velocity = (b.p1 - a.p1) / dt
+
+    def _process_noise(self, t: float) -> np.ndarray:
+        c = self.config
+        elapsed = 0.0 if self._last_update_t is None else max(t - self._last_update_t, 0.0)
+        q = np.array([math.radians(c.drift_turn_deg_per_sqrt_s)] * 3 + [c.drift_shift_mm_per_sqrt_s] * 3
+                     + [c.drift_focal_per_sqrt_s, c.drift_offset_s_per_sqrt_s]) ** 2 * elapsed
+        return np.diag(q)
+
+    def _update(self, chunk: list[_Frame]) -> bool:
+        prior = self.P + self._process_noise(chunk[-1].t)
+        # Unobservable parameters must not grow without bound while the head is still.
+        np.fill_diagonal(prior, np.minimum(np.diag(prior), np.diag(self.prior)))
+        solution = self._solve(chunk, prior)
+        if solution is None:
+            self.dropped_chunks += 1
+            return False
+        increment, posterior, chi2, used = solution
+        mean_chi2 = chi2 / max(used, 1)
+        if mean_chi2 > self.config.inconsistency:
+            # The chunk disagrees with the rig: did the rig change (a bump)?
+            wide = prior + self.prior
+            retry = self._solve(chunk, wide)
+            if retry is not None and chi2 - retry[2] > self.config.bump_evidence \
+                    and retry[2] / max(retry[3], 1) <= self.config.inconsistency:
+                increment, posterior, chi2, used = retry
+                self.bumps.append(chunk[0].t)
+            else:
+                self.dropped_chunks += 1
+                return False
+        self.state.apply(increment)
+        self.P = posterior
+        self.last_chi2 = chi2 / max(used, 1)
+        self.updates += 1
+        self._last_update_t = chunk[-1].t
+        return True
+
+    def _solve(self, chunk: list[_Frame], prior: np.ndarray):
+        """Gauss-Newton with Cauchy reweighting over the chunk's poses and the rig.
+
+        Returns (rig increment (8,), posterior covariance (8, 8), χ² of the
+        data rows, number of data rows), or None when nothing is observable.
+        """
+        c = self.config
+        n = len(chunk)
+        model = self.model_mm
+        m = len(model)
+        prior_info = np.linalg.inv(prior)
+        # Which rig parameters can this chunk teach? Decided at the start (linearization point).
+        rig = np.zeros(N_RIG)
+        poses = np.zeros((n, 6))
+        observable = None
+        weights = [None] * n
+        for iteration in range(c.iterations + 1):
+            H = np.zeros((6 * n + N_RIG, 6 * n + N_RIG))
+            g = np.zeros(6 * n + N_RIG)
+            chi2, rows_used = 0.0, 0
+            state = _Shifted(self.state, rig)
+            K2 = state.K2()
+            for k, f in enumerate(chunk):
+                res, J_pose, J_rig, sig = self._frame_terms(f, poses[k], state, K2)
+                z = res / sig                                    # (2, 5, 2) standardized
+                seen = np.isfinite(z).all(axis=2) & f.visible
+                if weights[k] is None or iteration < 2:
+                    r2 = (z ** 2).sum(axis=2)
+                    w = 1.0 / (1.0 + np.where(seen, r2, 0.0) / (2 * c.cauchy_scale ** 2))
+                    weights[k] = np.where(seen, w, 0.0)
+                w = weights[k]
+                sel = seen
+                zs = z[sel]                                      # (q, 2)
+                ws = np.repeat(w[sel], 2)
+                Jp = (J_pose[sel] / sig[sel][..., None]).reshape(-1, 6)
+                Jr = (J_rig[sel] / sig[sel][..., None]).reshape(-1, N_RIG)
+                r = zs.reshape(-1)
+                blk = slice(6 * k, 6 * k + 6)
+                H[blk, blk] += Jp.T @ (Jp * ws[:, None])
+                H[blk, 6 * n:] += Jp.T @ (Jr * ws[:, None])
+                H[6 * n:, 6 * n:] += Jr.T @ (Jr * ws[:, None])
+                g[blk] += Jp.T @ (ws * r)
+                g[6 * n:] += Jr.T @ (ws * r)
+                chi2 += float((ws * r * r).sum())
+                rows_used += len(r)
+            H[6 * n:, :6 * n] = H[:6 * n, 6 * n:].T
+            if observable is None:
+                # What can this chunk teach? The data's information on the rig (poses
+                # marginalized: Schur complement), in units of the prior's: directions
+                # (eigenvectors) with less than `observable_fraction` are held.
+                try:
+                    A_inv = np.linalg.inv(H[:6 * n, :6 * n])
+                except np.linalg.LinAlgError:
+                    return None
+                data_info = H[6 * n:, 6 * n:] - H[6 * n:, :6 * n] @ A_inv @ H[:6 * n, 6 * n:]
+                L = np.linalg.cholesky(prior)
+                lam, U = np.linalg.eigh(L.T @ data_info @ L)
+                observable = U[:, lam >= c.observable_fraction]
+                if observable.shape[1] == 0:
+                    return None
+                # Rig steps are confined to the observable directions: δ ← L Π L⁻¹ δ.
+                confine = L @ observable @ observable.T @ np.linalg.inv(L)
+            if iteration == c.iterations:
+                break
+            full_H = H.copy()
+            full_H[6 * n:, 6 * n:] += prior_info
+            full_g = g.copy()
+            full_g[6 * n:] += prior_info @ rig
+            try:
+                step = -np.linalg.solve(full_H, full_g)
+            except np.linalg.LinAlgError:
+                return None
+            poses += step[:6 * n].reshape(n, 6)
+            rig += confine @ step[6 * n:]
+        full_H = H.copy()
+        full_H[6 * n:, 6 * n:] += prior_info
+        try:
+            cov = np.linalg.inv(full_H)[6 * n:, 6 * n:]
+        except np.linalg.LinAlgError:
+            return None
+        # An honest posterior: residuals larger than their σ say the noise is larger.
+        dof = max(rows_used - 6 * n - observable.shape[1], 1)
+        scale = max(1.0, chi2 / dof)
+        posterior = prior + (cov - prior) * 1.0
+        posterior = posterior + (cov * (scale - 1.0))
+        moved = np.diag(confine @ prior @ confine.T) / np.diag(prior)
+        self.refined |= moved > 0.5
+        return rig, 0.5 * (posterior + posterior.T), chi2, rows_used
+
+    def _frame_terms(self, f: _Frame, pose: np.ndarray, state: "_Shifted", K2: np.ndarray):
+        """Residuals (2, 5, 2) px, ∂/∂pose (2, 5, 2, 6), ∂/∂rig (2, 5, 2, 8), σ (2, 5, 2) of one frame."""
+        model = self.model_mm
+        R = cv2.Rodrigues(pose[:3])[0] @ f.R
+        p1 = f.p1 + pose[3:]
+        lever = model @ R.T
+        world = lever + p1
+        m = len(model)
+        res = np.full((2, m, 2), np.nan)
+        J_pose = np.zeros((2, m, 2, 6))
+        J_rig = np.zeros((2, m, 2, N_RIG))
+        dX_dpose = np.concatenate([-_skew(lever), np.broadcast_to(np.eye(3), (m, 3, 3))], axis=2)   # (m, 3, 6)
+        px, jac = cv2.projectPoints(world.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.K1, self.D[0])
+        jac = jac.reshape(-1, 2, jac.shape[1])
+        res[0] = px.reshape(-1, 2) - f.centers[0]
+        J_pose[0] = jac[:, :, 3:6] @ dX_dpose
+        dt = f.declared_offset_s + state.offset_s
+        motion = None
+        world_r = world
+        if f.omega is not None:
+            motion = np.cross(f.omega, lever) + f.velocity
+            world_r = world + dt * motion
+        pr, d_cam, d_logf, cam = project_right(world_r, state.R, state.T, K2, self.D[1])
+        res[1] = pr - f.centers[1]
+        d_world = d_cam @ state.R                                     # (m, 2, 3)
+        J_pose[1] = d_world @ dX_dpose
+        J_rig[1, :, :, _TURN] = np.einsum("nij,njk->nik", d_cam, -_skew(cam))
+        J_rig[1, :, :, _SHIFT] = d_cam
+        J_rig[1, :, :, _FOCAL] = d_logf
+        if motion is not None:
+            J_rig[1, :, :, _OFFSET] = np.einsum("nij,nj->ni", d_world, motion)
+        return res, J_pose, J_rig, f.sigma
+
+
+class _Shifted:
+    """A rig state moved by an error-state increment, without changing the original."""
+
+    def __init__(self, state: RigState, increment: np.ndarray):
+        turn = cv2.Rodrigues(np.asarray(increment[_TURN], np.float64))[0]
+        self.R = turn @ state.R
+        self.T = turn @ state.T + increment[_SHIFT]
+        self.log_focal = state.log_focal + float(increment[_FOCAL])
+        self.offset_s = state.offset_s + float(increment[_OFFSET])
+        self._K2 = np.asarray(state.calibrated.K2, np.float64)
+
+    def K2(self) -> np.ndarray:
+        K = self._K2.copy()
+        K[0, 0] *= math.exp(self.log_focal)
+        K[1, 1] *= math.exp(self.log_focal)
+        return K
