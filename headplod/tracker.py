@@ -410,7 +410,7 @@ class Tracker:
                                     R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
                                     vectors, t, match.shot_var,
                                     geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras),
-                                    rig_rows, rig_cov)
+                                    rig_rows, rig_cov, self._rig_version())
         t_est = time.perf_counter()
         timings["covariance_input"] = t_est - t_cov
         cov = self.uncertainty(cov_input)
@@ -501,6 +501,9 @@ class Tracker:
         offset = (declared - t) if (declared is not None and t is not None) else 0.0
         if refiner.add_frame(t, offset, match.centers, match.visible, sigma, R, p1):
             self._apply_rig(refiner.state.rig())
+
+    def _rig_version(self) -> int:
+        return 0 if self.refiner is None else self.refiner.updates + len(self.refiner.bumps)
 
     def _rig_status(self):
         return None if self.refiner is None else self.refiner.status()

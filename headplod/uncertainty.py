@@ -85,6 +85,9 @@ class CovarianceInput:
         Covariance of the rig's error state: how far the rig used may be from
         the true one (the calibration's uncertainty, its drift, the time
         offset), as the online refinement knows it.
+    rig_version : int
+        Changes whenever the rig used changes (a refinement step): the
+        residuals then jump by the change, which is not image noise.
     """
 
     images: tuple
@@ -104,6 +107,7 @@ class CovarianceInput:
     jacobian_rows: np.ndarray = None
     rig_rows: np.ndarray = None
     rig_cov: np.ndarray = None
+    rig_version: int = 0
 
 
 def with_rig_uncertainty(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray,
@@ -227,11 +231,13 @@ class FirstOrder:
 
     def _update(self, x: CovarianceInput) -> None:
         v_bg, v_shot = self._terms(x)
-        current = (x.residual_vectors_px, v_bg, v_shot, x.t)
+        current = (x.residual_vectors_px, v_bg, v_shot, x.t, x.rig_version)
         previous, self._previous = self._previous, current
         if previous is None:
             return
-        prev_vec, prev_bg, prev_shot, prev_t = previous
+        prev_vec, prev_bg, prev_shot, prev_t, prev_rig = previous
+        if prev_rig != x.rig_version:
+            return          # the rig changed between the frames: their residuals differ by that, not by noise
         if x.t is not None and prev_t is not None and not 0 < x.t - prev_t < 0.25:
             return
         diff = x.residual_vectors_px - prev_vec
