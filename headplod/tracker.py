@@ -304,6 +304,8 @@ class Tracker:
         self._prev_pose = None
         self._uncompensated = False
         self._rig_suspect = False      # the last frames disagreed with the refined rig
+        self._last_right = None        # (image, t, t_right) of the previous frame's right camera
+        self._periods = []             # recent frame periods, s
         self._disagreements = 0
 
     # ------------------------------------------------------------------ public
@@ -323,10 +325,9 @@ class Tracker:
         problem = self._check_images(left, right)
         if problem:
             return TrackResult(False, problem, timings_s={"total": time.perf_counter() - start})
-        images = (left, right)
         if self.refiner is None:
             self._start_refiner(t, t_right)
-        t_right = self._right_time(t, t_right)
+        images, t_right = self._pair(left, right, t, t_right)
         tracking = self.config.track and self._prev_centers is not None
         result = self._attempt(images, t, t_right, timings, start, tracking)
         if tracking and not result.ok and result.mode == "track":
@@ -430,16 +431,32 @@ class Tracker:
                            rig=self._rig_status(), rig_message=self._rig_message(disagrees))
 
     # ------------------------------------------------------------------ the rig
-    def _right_time(self, t, t_right):
-        """The right image's exposure time: the given one (or t) plus the estimated offset, once it is known."""
-        if t is None or self.refiner is None:
-            return t_right
-        offset = self.refiner.state.offset_s
-        known = abs(offset) > max(2.0 * self.refiner.sigma()[7], 3e-4)
-        if not known:
-            return t_right
+    def _pair(self, left, right, t, t_right):
+        """The images to use and the right one's exposure time, with the estimated offset.
+
+        The right time is the given one (or t) plus the offset the
+        refinement estimated, once it is known. When the right camera
+        exposes more than half a frame period after the left one, the
+        previous right image is the one nearest to this left image in
+        time: it is used instead (no added latency), and the motion over
+        what remains of the offset is compensated as usual.
+        """
+        previous, self._last_right = self._last_right, (right, t, t_right)
         self._declared_right = t_right
-        return (t_right if t_right is not None else t) + offset
+        if t is None or self.refiner is None:
+            return (left, right), t_right
+        if previous is not None and previous[1] is not None and 0 < t - previous[1] < 1.0:
+            self._periods = (self._periods + [t - previous[1]])[-8:]
+        offset = self.refiner.state.offset_s
+        if not abs(offset) > max(2.0 * self.refiner.sigma()[7], 3e-4):
+            return (left, right), t_right
+        period = float(np.median(self._periods)) if self._periods else None
+        if (period and offset > 0.5 * period and previous is not None and previous[1] is not None
+                and 0 < t - previous[1] < 1.5 * period):
+            right, t_prev, t_right_prev = previous
+            self._declared_right = t_right_prev if t_right_prev is not None else t_prev
+            return (left, right), self._declared_right + offset
+        return (left, right), (t_right if t_right is not None else t) + offset
 
     def _head_velocity(self):
         """(ω rad/s, v mm/s) of the head in the world frame from the last two accepted poses, or None."""

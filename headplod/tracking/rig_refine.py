@@ -83,7 +83,7 @@ class RigErrorModel:
     turn_deg: float = 0.5
     shift_fraction: float = 0.02
     focal_fraction: float = 0.01
-    offset_undeclared_s: float = 0.015
+    offset_undeclared_s: float = 0.025
     offset_declared_s: float = 0.002
 
     def covariance(self, rig, offset_declared: bool, calibration_std: dict | None = None) -> np.ndarray:
