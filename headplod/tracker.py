@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.stats import chi2
 
 from . import geometry as geo
 from .detect import Blobs, DetectionParams, centroids_near, detect_blobs, estimate_background, shot_variance
@@ -386,8 +387,9 @@ class Tracker:
             # Not consistent with the rig as refined: is it with the rig as
             # uncertain as before any refinement (the rig changed: a bump)?
             wide = self._rig_cov(wide=True)
-            _, wide_sd = self._rig_terms(R, p1, t, t_right, velocity, wide, match)
-            if self._verify(R, p1, residuals, self._outlier(residuals, match, wide_sd), match, wide_sd) is None:
+            wide_rows, wide_sd = self._rig_terms(R, p1, t, t_right, velocity, wide, match)
+            if (self._verify(R, p1, residuals, self._outlier(residuals, match, wide_sd), match, wide_sd) is None
+                    and self._rig_explains(R, p1, vectors, wide_rows, wide, match)):
                 reason, rig_cov, disagrees = None, wide, True
         timings["verify"] = time.perf_counter() - t_ver
         if reason is not None:
@@ -492,6 +494,32 @@ class Tracker:
         sd = np.full(vis.shape, np.nan)
         sd[vis] = np.sqrt(np.maximum(var, 0.0))
         return rows, sd
+
+    def _rig_explains(self, R, p1, vectors, rig_rows, P, match) -> bool:
+        """Whether one change of the rig (within P) explains the residuals down to the image noise.
+
+        A bumped camera displaces every centre of its image coherently; a
+        glint or a wrong centre displaces one. The residuals are fitted by a
+        rig change e (prior P) after the pose fit's share is removed; what
+        is left must pass χ² at 99.9% for the degrees of freedom left, or be
+        a tenth of the χ² before.
+        """
+        vis = match.visible
+        pose_rows = geo.reprojection_rows(R, p1, self.model_mm, vis, self._cameras)
+        Jp = pose_rows[vis].reshape(-1, 6)
+        Jr = rig_rows[vis].reshape(-1, rig_rows.shape[-1])
+        sigma = np.maximum(self._sigma(match), self.config.outlier_min_sigma_px)
+        w = np.repeat(1.0 / np.square(sigma[vis]), 2)
+        A = Jp.T @ (Jp * w[:, None])
+        M = (Jr - Jp @ np.linalg.solve(A, Jp.T @ (Jr * w[:, None]))) * np.sqrt(w)[:, None]
+        r = vectors[vis].reshape(-1) * np.sqrt(w)
+        e = np.linalg.solve(M.T @ M + np.linalg.inv(P), M.T @ r)
+        before = float(r @ r)
+        left = float(np.square(r - M @ e).sum())
+        dof = max(len(r) - 6 - P.shape[0], 1)
+        # The linear model leaves a little (the fit under the old rig, the σ
+        # floor): what is left must be small against what the rig removed.
+        return left <= max(float(chi2.ppf(0.999, dof)), 0.1 * before)
 
     def _refine(self, match, t, t_right_declared, cov_input, R, p1, disagrees) -> None:
         """Feed an accepted frame to the rig's refinement; use the refined rig when it changes."""
