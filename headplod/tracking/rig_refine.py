@@ -143,6 +143,11 @@ class RigRefineConfig:
         many frame periods apart.
     recalibrate_turn_deg, recalibrate_scale, recalibrate_offset_s : float
         Beyond these, the status recommends recalibrating.
+    still_turn_deg, still_shift_mm : float
+        A chunk over which the head turns less than this and moves less
+        than this is a still head: one pose cannot separate the camera's
+        turn from its shift (they move the five markers' images alike), so
+        the rig is held rather than let drift along that ambiguity.
     """
 
     enabled: bool = True
@@ -161,6 +166,8 @@ class RigRefineConfig:
     recalibrate_turn_deg: float = 1.0
     recalibrate_scale: float = 0.03
     recalibrate_offset_s: float = 0.02
+    still_turn_deg: float = 2.0
+    still_shift_mm: float = 10.0
 
 
 @dataclass
@@ -328,6 +335,7 @@ class RigRefiner:
         self.updates = 0
         self.bumps = []             # times (s) of detected changes of the rig
         self.dropped_chunks = 0
+        self.held_chunks = 0          # chunks of a still head, not used
         self.refined = np.zeros(N_RIG, bool)    # parameters refined at least once
         self.last_chi2 = float("nan")
         self.disagreements = 0
@@ -449,7 +457,17 @@ class RigRefiner:
                      + [c.drift_focal_per_sqrt_s, c.drift_offset_s_per_sqrt_s]) ** 2 * elapsed
         return np.diag(q)
 
+    def _still(self, chunk: list[_Frame]) -> bool:
+        """The head barely moved over the chunk (see ``still_turn_deg``)."""
+        p = np.array([f.p1 for f in chunk])
+        turn = max(np.linalg.norm(cv2.Rodrigues(f.R @ chunk[0].R.T)[0]) for f in chunk)
+        return (math.degrees(turn) < self.config.still_turn_deg
+                and float(np.ptp(p, axis=0).max()) < self.config.still_shift_mm)
+
     def _update(self, chunk: list[_Frame]) -> bool:
+        if self._still(chunk):
+            self.held_chunks += 1
+            return False
         prior = self.P + self._process_noise(chunk[-1].t)
         # Unobservable parameters must not grow without bound while the head is still.
         np.fill_diagonal(prior, np.minimum(np.diag(prior), np.diag(self.prior)))

@@ -1,0 +1,89 @@
+"""The tracker on rigs that are not their rig.yaml: refinement against the true rig kept aside.
+
+Datasets come from :mod:`synthetic.imperfect` (independent code): the images
+are rendered with a true rig, ``rig.yaml`` holds the stale one, and
+``rig_truth.json`` the truth.
+"""
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from headplod import evaluate, io
+from headplod.sequences import ensure_dataset
+from headplod.tracker import Tracker, TrackerConfig
+from headplod.tracking.rig_refine import RigRefineConfig
+
+
+def _track(faults, frames, config=TrackerConfig()):
+    folder = ensure_dataset("imperfect_rig", frames=frames, quiet=True, **faults)
+    ds = io.Dataset(folder)
+    truth = json.loads((folder / "rig_truth.json").read_text()) if (folder / "rig_truth.json").exists() else None
+    tracker = Tracker(ds.rig, ds.markers, config)
+    results, states = [], []
+    for f in ds:
+        r = tracker.process(f.left, f.right, f.t, f.t_right)
+        results.append((f, r))
+        states.append((tracker.refiner.state.R.copy(), tracker.refiner.state.T.copy(),
+                       tracker.refiner.state.offset_s, len(tracker.refiner.bumps)))
+    return ds, truth, tracker, results, states
+
+
+def _turn_error_deg(R, segment):
+    return float(np.degrees(np.linalg.norm(cv2.Rodrigues(R @ np.asarray(segment["R"]).T)[0])))
+
+
+@pytest.mark.parametrize("faults", [
+    dict(rotation_deg=0.5), dict(baseline_scale=1.02), dict(offset_s=0.008),
+    pytest.param(dict(rotation_deg=0.3, baseline_scale=1.02, offset_s=0.008), marks=pytest.mark.xfail(
+        strict=True, reason="known shortfall: with a turn, a scale and an offset together, slow reading motion "
+                            "leaves the offset at 6.3 of 8 ms after 5 s, 3.5 times its reported σ"))])
+def test_refinement_recovers_the_rig(faults):
+    ds, truth, tracker, results, _ = _track(faults, 150)
+    seg = truth["segments"][0]
+    state = tracker.refiner.state
+    turn = _turn_error_deg(state.R, seg)
+    scale = np.linalg.norm(state.T) / np.linalg.norm(seg["T"])
+    before = _turn_error_deg(np.asarray(ds.rig.R), seg)
+    assert turn < 0.05 and (before < 0.05 or turn < 0.2 * before), (turn, before)
+    assert abs(scale - 1) < 0.002
+    # The offset is known to its own σ (≈ 0.5 ms after 5 s of slow reading motion): within 0.5 ms or 2σ.
+    offset_sd = tracker.refiner.sigma()[7]
+    assert offset_sd < 1e-3
+    assert abs(state.offset_s - truth["time_offset_s"]) < max(0.5e-3, 2 * offset_sd)
+    ok = [r for _, r in results if r.ok]
+    assert len(ok) >= 0.97 * len(results)
+    late = [evaluate.angle_deg(r.axes[2], ds.truth[f.index][1][2]) for f, r in results[90:] if r.ok]
+    assert np.median(late) < 0.1
+
+
+def test_still_head_leaves_the_rig_unchanged():
+    # A perfect rig seen by a still head: nothing to learn about the offset or the focal length,
+    # and what is learnt about the turn and baseline must stay at the noise level.
+    ds, truth, tracker, results, states = _track(dict(base="static", offset_s=0.0), 90)
+    assert np.allclose(truth["segments"][0]["R"], ds.rig.R) and truth["time_offset_s"] == 0.0   # a true rig.yaml
+    for R, T, offset, _ in states:
+        assert _turn_error_deg(R, {"R": ds.rig.R}) < 0.02
+        assert abs(np.linalg.norm(T) / np.linalg.norm(ds.rig.T) - 1) < 0.001
+        assert offset == 0.0
+    assert tracker.refiner.state.log_focal == pytest.approx(0.0, abs=2e-3)
+    assert all(r.ok for _, r in results)
+
+
+def test_bump_mid_sequence_is_detected_and_reconverged():
+    ds, truth, tracker, results, states = _track(dict(bump_frame=60, bump_deg=0.4), 150)
+    assert len(truth["segments"]) == 2
+    assert tracker.refiner.bumps, "the bump was not detected"
+    assert 60 / 30 <= tracker.refiner.bumps[0] <= 90 / 30
+    assert _turn_error_deg(tracker.refiner.state.R, truth["segments"][1]) < 0.05
+    assert sum(r.ok for _, r in results) >= 0.97 * len(results)
+    assert max(evaluate.angle_deg(r.axes[2], ds.truth[f.index][1][2]) for f, r in results if r.ok) < 5.0
+
+
+def test_refinement_off_keeps_rig_yaml():
+    config = TrackerConfig(rig_refine=RigRefineConfig(enabled=False))
+    ds, truth, tracker, results, _ = _track(dict(rotation_deg=0.3), 40, config)
+    assert np.array_equal(tracker.rig.R, ds.rig.R) and tracker.refiner.updates == 0
+    # The error model alone still lets the stale rig track, with an honest (wider) covariance.
+    assert sum(r.ok for _, r in results) >= 0.9 * len(results)
