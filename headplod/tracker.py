@@ -750,7 +750,10 @@ class Tracker:
                 best_reason = (f"no consistent stereo identification: the best labeling is {rms[k]:.1f} mm "
                                f"(RMS) from the marker model, tolerance {self.fit_tol_mm:.1f} mm")
                 continue
-            cost = rms / self.fit_tol_mm + epi.max(axis=1) / tol + 0.05 * (hl.rank[il] + hr.rank[ir])
+            # Ranked in units of the image-noise tolerances, not of the rig-widened
+            # ones: widening must not make a clearly worse assignment a rival.
+            cost = (rms / self.config.fit_tol_mm + epi.max(axis=1) / self.config.epipolar_tol_px
+                    + 0.05 * (hl.rank[il] + hr.rank[ir]))
             cost = np.where(valid, cost, np.inf)
             best = int(np.argmin(cost))
             if self._ambiguous(R, cost, best):
@@ -803,7 +806,7 @@ class Tracker:
             valid = (rms <= self.fit_tol_mm) & self._facing_cameras(R, t)
             if not valid.any():
                 continue
-            cost = np.where(valid, rms / self.fit_tol_mm + epi.max(axis=1) / tol, np.inf)
+            cost = np.where(valid, rms / self.config.fit_tol_mm + epi.max(axis=1) / self.config.epipolar_tol_px, np.inf)
             k = int(np.argmin(cost))
             if self._ambiguous(R, cost, k):
                 return None, "ambiguous identification with a marker hidden in one view"
