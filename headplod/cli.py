@@ -47,6 +47,14 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--no-tracking", action="store_true",
                        help="detect and identify from scratch in every frame")
     track.add_argument("--quiet", "-q", action="store_true", help="no per-frame lines")
+    track.add_argument("--refine-rig", choices=("on", "off"), default="on",
+                       help="refine the rig online from the tracked glasses (right camera's turn and shift, "
+                            "baseline scale, right focal length, exposure offset); rig.yaml is never "
+                            "overwritten (default on)")
+    track.add_argument("--save-rig", metavar="FILE",
+                       help="at the end of the run, write the refined rig to FILE (a new rig.yaml; not the "
+                            "rig.yaml being read, nor inside the dataset or --record folder). Nothing is "
+                            "written, and the exit status is 1, when no frame was tracked")
     live = track.add_argument_group("live cameras, recording and outputs")
     live.add_argument("--camera", nargs="+", metavar="DEV",
                       help="track live: LEFT RIGHT (/dev/videoN or N) or 'auto' (the cameras named in --calib, "
@@ -97,10 +105,11 @@ def build_parser() -> argparse.ArgumentParser:
     bench_sub = bench.add_subparsers(dest="bench", required=True)
     bt = bench_sub.add_parser("track", help="tracker accuracy and per-stage time on synthetic sets")
     bt.add_argument("--json", help="write the results as JSON")
-    bt.add_argument("--chart", help="write the accuracy-against-time chart (PNG)")
+    bt.add_argument("--chart", help="write the accuracy-against-time chart (PNG); the imperfect-rig sets' "
+                                    "chart goes beside it as FILE_rig.png (in its place when only they run)")
     bt.add_argument("--quick", action="store_true", help="fewer frames (a smoke run)")
     bt.add_argument("--sets", help="comma-separated names of the sets to run (default: all); "
-                                   "see headplod.bench.TRACK_SETS")
+                                   "see headplod.bench.TRACK_SETS and headplod.bench_rig.RIG_SETS")
 
     bu = bench_sub.add_parser("uncertainty", help="calibration (NEES), stability and cost of the covariance of V")
     bu.add_argument("--json", help="write the results as JSON")
@@ -242,7 +251,7 @@ def _device(text: str):
 def _cmd_track(args) -> int:
     from . import evaluate, io
     from .detect import DetectionParams
-    from .live import run_source
+    from .live import make_tracker, run_source
     from .pipeline import Progress
     from .tracker import TrackerConfig
 
@@ -254,8 +263,10 @@ def _cmd_track(args) -> int:
         print(f"headplod: --uncertainty must be one of {', '.join(COVARIANCE_ESTIMATORS)}, got {args.uncertainty!r}",
               file=sys.stderr)
         return 2
+    from .tracking.rig_refine import RigRefineConfig
     config = TrackerConfig(estimator=args.estimator, detection=detection, track=not args.no_tracking,
-                           uncertainty=args.uncertainty or DEFAULT_COVARIANCE)
+                           uncertainty=args.uncertainty or DEFAULT_COVARIANCE,
+                           rig_refine=RigRefineConfig(enabled=args.refine_rig == "on"))
     pose_filter = None
     if args.filter:
         from .filters import PoseFilter
@@ -266,6 +277,7 @@ def _cmd_track(args) -> int:
             print(f"headplod: --filter expects MIN_CUTOFF_HZ,BETA such as 1.0,0.02 ({exc})", file=sys.stderr)
             return 2
     try:
+        _check_save_rig(args)                           # what can be checked before opening the source
         source, rig, live = _open_track_source(args)
     except _Usage as exc:
         print(f"headplod: {exc}", file=sys.stderr)
@@ -273,6 +285,12 @@ def _cmd_track(args) -> int:
     except (ValueError, OSError, LookupError) as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 1
+    try:
+        _check_save_rig(args, source, rig)              # the rig.yaml and dataset folder the source read
+    except _Usage as exc:
+        source.close()
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
     for warning in source.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     markers = io.read_markers(args.markers) if args.markers else None
@@ -280,7 +298,7 @@ def _cmd_track(args) -> int:
     truth = getattr(getattr(source, "dataset", None), "truth", None) or {}
     to_stdout = args.out == "-"
     log = sys.stderr
-    writer = sender = recorder = status = None
+    writer = sender = recorder = status = tracker = None
     total = len(source.dataset) if hasattr(source, "dataset") else None
     progress = Progress(total, "track") if args.quiet and not to_stdout and total and not live else None
     records = []
@@ -322,9 +340,9 @@ def _cmd_track(args) -> int:
         if args.status or (live and not args.quiet):
             from .output import StatusLine
             status = StatusLine(stream=log)
-        stats = run_source(source, config, rig=rig, markers=markers, screen=screen, on_record=on_record,
-                           recorder=recorder, sender=sender, pose_filter=pose_filter, status=status,
-                           max_frames=args.frames)
+        tracker = make_tracker(source, config, rig=rig, markers=markers)
+        stats = run_source(source, screen=screen, on_record=on_record, recorder=recorder, sender=sender,
+                           pose_filter=pose_filter, status=status, max_frames=args.frames, tracker=tracker)
     except (ValueError, OSError) as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 1
@@ -342,11 +360,127 @@ def _cmd_track(args) -> int:
         s = stats.summary()
         print(f"rate {s['rate_hz'] or 0:.1f} Hz, latency p50 {s['latency_ms_p50'] or 0:.1f} ms, "
               f"p95 {s['latency_ms_p95'] or 0:.1f} ms", file=log)
+    code = _report_rig(args, tracker, tracked=sum(bool(r["ok"]) for r in records), log=log)
     if args.record:
         print(f"recording: {args.record} (replay: headplod track {args.record})", file=log)
     if args.out and args.out != "-":
         print(f"pose records: {args.out}", file=log)
+    return code
+
+
+def _check_save_rig(args, source=None, rig=None) -> None:
+    """Refuse a ``--save-rig FILE`` that would overwrite what is read (raises _Usage); nothing is written.
+
+    Without ``source``: what the command line alone tells (the folder of FILE
+    exists; FILE is not --calib, --out, a dataset folder given as SOURCE or
+    --record's folder, nor inside them). With it: not the rig.yaml the source
+    read, nor inside its dataset folder.
+    """
+    if not args.save_rig:
+        return
+    target = Path(args.save_rig).expanduser()
+    resolved = target.resolve()
+    if source is None:
+        if args.refine_rig == "off":
+            raise _Usage("--save-rig needs the rig refinement (--refine-rig on): there is nothing to save")
+        if target.is_dir():
+            raise _Usage(f"--save-rig {args.save_rig}: is a folder; give the file to write, e.g. "
+                         f"{target / 'rig_refined.yaml'}")
+        if not resolved.parent.is_dir():
+            raise _Usage(f"--save-rig {args.save_rig}: the folder {target.parent} does not exist")
+    files, folders = [], []
+    if source is None:
+        if args.calib:
+            files.append(("the rig being read (--calib)", args.calib))
+        if args.out and args.out != "-":
+            files.append(("the pose records (--out)", args.out))
+        if args.dataset and Path(args.dataset).is_dir():
+            files.append(("the rig being read (the dataset's)", Path(args.dataset) / "rig.yaml"))
+            folders.append(("the dataset folder being read", args.dataset))
+        if args.record:
+            folders.append(("the --record folder (a recording keeps the rig it was tracked with)", args.record))
+    else:
+        for r in (rig, getattr(source, "rig", None)):
+            if r is not None and getattr(r, "path", None):
+                files.append(("the rig being read", r.path))
+        dataset = getattr(source, "dataset", None)
+        if dataset is not None:
+            folders.append(("the dataset folder being read", dataset.folder))
+    for what, path in files:
+        if _same_file(resolved, Path(path)):
+            raise _Usage(f"--save-rig {args.save_rig}: is {what}, which is never overwritten; "
+                         "give another file name")
+    for what, folder in folders:
+        folder = Path(folder).expanduser().resolve()
+        if resolved == folder or folder in resolved.parents:
+            raise _Usage(f"--save-rig {args.save_rig}: lies inside {what} ({folder}); "
+                         "write the refined rig elsewhere")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    b = Path(b).expanduser()
+    if a == b.resolve():
+        return True
+    try:
+        return a.exists() and b.exists() and a.samefile(b)
+    except OSError:
+        return False
+
+
+def _report_rig(args, tracker, tracked: int, log) -> int:
+    """After ``track``: how the refined rig differs from rig.yaml, advice, and ``--save-rig``. The exit status.
+
+    ``--save-rig`` with no tracked frame writes nothing and gives exit status
+    1 (the records and the rest of the run are kept): a script that expects
+    the file learns that it is not there.
+    """
+    refiner = getattr(tracker, "refiner", None)
+    if refiner is not None and args.refine_rig == "on":
+        refiner.flush()                                 # the frames short of a full chunk at the end
+        line = ""
+        if refiner.updates or refiner.bumps:
+            line = refiner.describe()
+            print(line, file=log)
+        else:
+            print("rig.yaml: not refined (too few tracked frames); used as it is", file=log)
+        advice = refiner.advice()
+        if advice and advice not in line:
+            print(advice, file=log)
+    if not args.save_rig:
+        return 0
+    if refiner is None or tracked == 0:
+        print(f"headplod: --save-rig: no frame was tracked, so nothing was refined; {args.save_rig} not written",
+              file=sys.stderr)
+        return 1
+    try:
+        _write_rig_atomically(args.save_rig, refiner.state.rig())
+    except (OSError, ValueError) as exc:
+        print(f"headplod: --save-rig {args.save_rig}: {exc}", file=sys.stderr)
+        return 1
+    note = "" if refiner.updates else " (no update from the tracked frames: rig.yaml's values)"
+    print(f"refined rig: {args.save_rig}{note}", file=log)
     return 0
+
+
+def _write_rig_atomically(path, rig) -> None:
+    """io.write_rig to a temporary name in the same folder, then os.replace: FILE is whole or untouched."""
+    import os
+    import tempfile
+
+    from . import io
+
+    target = Path(path).expanduser()
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp.yaml", dir=target.resolve().parent)
+    os.close(fd)
+    try:
+        io.write_rig(tmp, rig)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)                   # mkstemp's 0600 -> what a plain write would give
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def _cmd_cameras(args) -> int:

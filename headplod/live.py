@@ -54,11 +54,31 @@ class LiveStats:
         }
 
 
+def make_tracker(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig | None = None,
+                 markers: io.MarkerModel | None = None) -> Tracker:
+    """The tracker for a source: its rig (or ``rig``), its markers (or ``markers``, else the default model).
+
+    The calibration's own uncertainty, when ``rig.yaml`` carries it
+    (``headplod calibrate`` writes it), is the prior of the rig's refinement.
+
+    Raises
+    ------
+    ValueError
+        When neither ``rig`` nor the source has a rig.
+    """
+    rig = rig or source.rig
+    if rig is None:
+        raise ValueError(f"{source.name}: no rig (calibration); pass --calib rig.yaml")
+    markers = markers or source.markers or io.default_marker_model()
+    return Tracker(rig, markers, config, calibration_std=io.rig_calibration_std(rig))
+
+
 def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig | None = None,
                markers: io.MarkerModel | None = None, screen: io.Screen | None = None,
                on_record: Callable[[dict, object], None] | None = None, recorder=None, sender=None,
                pose_filter=None, status=None, max_frames: int | None = None,
-               timeout_s: float = 1.0, stop: Callable[[], bool] | None = None) -> LiveStats:
+               timeout_s: float = 1.0, stop: Callable[[], bool] | None = None,
+               tracker: Tracker | None = None) -> LiveStats:
     """Track every frame of a source until it ends (or ``max_frames``, or ``stop()``).
 
     Parameters
@@ -80,17 +100,18 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         How long a live source may wait for a pair before it reports a stall.
     stop : callable() -> bool, optional
         Polled between frames (Ctrl-C handling lives with the caller).
+    tracker : Tracker, optional
+        The tracker to use (e.g. :func:`make_tracker`), so that the caller
+        can read its refined rig after the run, even one ended by Ctrl-C;
+        ``config``, ``rig`` and ``markers`` then only serve when it is None.
 
     Returns
     -------
     LiveStats
     """
-    rig = rig or source.rig
-    if rig is None:
-        raise ValueError(f"{source.name}: no rig (calibration); pass --calib rig.yaml")
-    markers = markers or source.markers or io.default_marker_model()
     screen = screen if screen is not None else source.screen
-    tracker = Tracker(rig, markers, config)
+    if tracker is None:
+        tracker = make_tracker(source, config, rig=rig, markers=markers)
     stats = LiveStats()
     start = time.perf_counter()
     while max_frames is None or stats.frames < max_frames:

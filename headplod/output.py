@@ -57,6 +57,7 @@ behaviour for a frame without a trustworthy pose.
 from __future__ import annotations
 
 import math
+import re
 import socket
 import struct
 import sys
@@ -349,6 +350,39 @@ class OpentrackSender:
         self.close()
 
 
+def short_rig_message(message: str, width: int = 90) -> str:
+    """A tracker's ``rig_message`` shortened for a status line.
+
+    Drops the leading ``"rig.yaml: "``, long parenthesized explanations and
+    the ± of the time offset. When that is still longer than ``width`` and
+    the message recommends recalibrating, the recommendation is what is
+    kept; then trailing "; " clauses are dropped until it fits (a single
+    clause too long is cut at a word, ending in "…"). The full
+    text is in the records (``rig_message``) and printed at the end of
+    ``headplod track``.
+
+    Examples
+    --------
+    >>> short_rig_message("rig.yaml: right camera turned ~0.42°, baseline x1.021, "
+    ...                   "time offset 7.9 ms ±0.5; refining")
+    'right camera turned ~0.42°, baseline x1.021, time offset 7.9 ms; refining'
+    """
+    text = re.sub(r"^rig\.yaml:\s*", "", str(message).strip())
+    text = re.sub(r"\s*\([^()]{13,}\)", "", text)
+    text = re.sub(r"\s*±\s*[0-9.]+", "", text)
+    text = re.sub(r"\s+", " ", text).strip()
+    if len(text) > width and "recalibrate:" in text:
+        text = text[text.index("recalibrate:"):]
+    parts = text.split("; ")
+    while len(parts) > 1 and len("; ".join(parts)) > width:
+        parts.pop()                                   # the least important clause is the last
+    text = "; ".join(parts)
+    if len(text) > width:
+        cut = text[:max(width - 1, 1)]
+        text = (cut.rsplit(" ", 1)[0] if " " in cut else cut).rstrip(" ,;") + "…"
+    return text
+
+
 class StatusLine:
     """A one-line live summary of tracking, for a terminal.
 
@@ -357,6 +391,7 @@ class StatusLine:
     (a pipe, a log file) each rendering is its own line. Example::
 
         59.8 Hz | latency 14.2/19.0 ms (med/p95) | skew 0.3/1.1 ms (med/max) | dropped 2 | ok 97.5% | last failure: ...
+          | rig: right camera turned ~0.42°, baseline x1.021; refining
 
     Parameters
     ----------
@@ -373,7 +408,9 @@ class StatusLine:
     Hz. Latency (capture to pose, ms): median and 95th percentile over the
     window. Skew (left/right capture-time difference, ms): median and maximum
     of its absolute value over the window. Dropped frames, % ok and the last
-    failure reason are over the whole run.
+    failure reason are over the whole run. The rig part is the last record's
+    ``rig_message`` (the tracker's online refinement of ``rig.yaml``),
+    shortened by :func:`short_rig_message`.
     """
 
     def __init__(self, stream: TextIO | None = None, every_s: float = 1.0, window_s: float = 5.0):
@@ -396,6 +433,7 @@ class StatusLine:
         self.failed = 0
         self.dropped = 0
         self.last_failure: str | None = None
+        self.rig_message: str | None = None
         self._last_render: float | None = None
         self._last_len = 0
         self._rendered = False
@@ -408,7 +446,8 @@ class StatusLine:
         Parameters
         ----------
         record : mapping
-            The frame's pose record (``ok``, ``reason``).
+            The frame's pose record (``ok``, ``reason``, optional
+            ``rig_message``: kept until a later record brings another).
         latency_ms : float, optional
             Capture (mid-exposure) to pose, ms.
         skew_ms : float, optional
@@ -432,6 +471,8 @@ class StatusLine:
         else:
             self.failed += 1
             self.last_failure = record.get("reason") or "no reason given"
+        if record.get("rig_message"):
+            self.rig_message = str(record["rig_message"])
         self._times.append(now)
         if latency_ms is not None and math.isfinite(latency_ms):
             self._latency.append((now, float(latency_ms)))
@@ -471,7 +512,8 @@ class StatusLine:
             ``frames``, ``ok``, ``failed``, ``dropped`` (counts over the run),
             ``ok_percent``, ``rate_hz``, ``latency_ms_median``,
             ``latency_ms_p95``, ``skew_ms_median``, ``skew_ms_max`` (over the
-            window; None when there is no data) and ``last_failure``.
+            window; None when there is no data), ``last_failure`` and
+            ``rig_message`` (the last record's, in full).
         """
         lat = np.array([v for _, v in self._latency])
         skew = np.array([v for _, v in self._skew])
@@ -487,6 +529,7 @@ class StatusLine:
             "skew_ms_median": float(np.median(skew)) if skew.size else None,
             "skew_ms_max": float(skew.max()) if skew.size else None,
             "last_failure": self.last_failure,
+            "rig_message": self.rig_message,
         }
 
     def render(self) -> str:
@@ -503,6 +546,8 @@ class StatusLine:
                  f"ok {num(s['ok_percent'])}%"]
         if s["last_failure"]:
             parts.append(f"last failure: {s['last_failure']}")
+        if s["rig_message"]:
+            parts.append("rig: " + short_rig_message(s["rig_message"]))
         return " | ".join(parts)
 
     def _write(self, line: str) -> None:

@@ -188,7 +188,8 @@ class TrackerPoses(PoseSource):
         self.name = f"tracker on {self.source.name}"
         self.screen = screen or self.source.screen or default_screen()
         self.tracker = Tracker(self.source.rig, self.source.markers or io.default_marker_model(),
-                               config or TrackerConfig())
+                               config or TrackerConfig(),
+                               calibration_std=io.rig_calibration_std(self.source.rig))
         self.loop = loop and self._spec is not None
         self.max_frames = max_frames
         self.count = 0

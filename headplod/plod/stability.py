@@ -99,11 +99,13 @@ def still_head_views(frames: int = 60, distance_mm: float = 600.0, seed: int = 0
     truth). ``config`` is the TrackerConfig (default), ``root`` the render
     cache folder (default ``$HEADPLOD_CACHE``).
     """
+    from .. import io
     from ..tracker import Tracker, TrackerConfig
 
     dataset = _dataset(frames, distance_mm, seed, root)
     screen = _screen_of(dataset)
-    tracker = Tracker(dataset.rig, dataset.markers, config or TrackerConfig())
+    tracker = Tracker(dataset.rig, dataset.markers, config or TrackerConfig(),
+                      calibration_std=io.rig_calibration_std(dataset.rig))
     views, lost, indices = [], [], []
     for frame in dataset:
         result = None
