@@ -148,6 +148,9 @@ class RigRefineConfig:
         than this is a still head: one pose cannot separate the camera's
         turn from its shift (they move the five markers' images alike), so
         the rig is held rather than let drift along that ambiguity.
+        Off by default (0): holding also keeps the rig's prior in the
+        covariance of a still head, which made it 4x too conservative on a
+        perfect rig; the drift along the ambiguity moves no image.
     """
 
     enabled: bool = True
@@ -166,8 +169,8 @@ class RigRefineConfig:
     recalibrate_turn_deg: float = 1.0
     recalibrate_scale: float = 0.03
     recalibrate_offset_s: float = 0.02
-    still_turn_deg: float = 2.0
-    still_shift_mm: float = 10.0
+    still_turn_deg: float = 0.0
+    still_shift_mm: float = 0.0
 
 
 @dataclass
