@@ -617,16 +617,25 @@ def _add_spot(layer: np.ndarray, u: float, v: float, sigma: float, peak: float) 
     layer[y0:y1 + 1, x0:x1 + 1] += (total * py[:, None] * px[None, :]).astype(np.float32)
 
 
-def _add_glints(layer: np.ndarray, cam: CameraModel, positions_w: np.ndarray, options: RenderOptions,
-                rng: np.random.Generator) -> None:
-    lo, hi = options.glints
+def _glint_targets(cam: CameraModel, positions_w: np.ndarray, count: Tuple[int, int],
+                   rng: np.random.Generator):
+    """How many glints to draw (from ``count`` = (min, max)) and the markers' image points (5, 2) px,
+    or (0, None) when there are none or a marker is behind the camera."""
+    lo, hi = count
     n = int(rng.integers(lo, hi + 1)) if hi > 0 else 0
     if n == 0:
-        return
+        return 0, None
     pc = cam.to_cam(positions_w)
     if np.any(pc[:, 2] <= 0):
+        return 0, None
+    return n, _project_cam(cam, pc)
+
+
+def _add_glints(layer: np.ndarray, cam: CameraModel, positions_w: np.ndarray, options: RenderOptions,
+                rng: np.random.Generator) -> None:
+    n, uv = _glint_targets(cam, positions_w, options.glints, rng)
+    if n == 0:
         return
-    uv = _project_cam(cam, pc)
     mn, mx = uv.min(axis=0), uv.max(axis=0)
     ext = np.maximum(mx - mn, 10.0)
     mn = mn - options.glint_spread * ext
@@ -641,14 +650,9 @@ def _add_glints(layer: np.ndarray, cam: CameraModel, positions_w: np.ndarray, op
 def _add_fused_glints(layer: np.ndarray, cam: CameraModel, positions_w: np.ndarray, options: RenderOptions,
                       rng: np.random.Generator) -> None:
     """Glints on the rim of a marker's blob: they pull its centroid instead of making a blob of their own."""
-    lo, hi = options.fused_glints
-    n = int(rng.integers(lo, hi + 1)) if hi > 0 else 0
+    n, uv = _glint_targets(cam, positions_w, options.fused_glints, rng)
     if n == 0:
         return
-    pc = cam.to_cam(positions_w)
-    if np.any(pc[:, 2] <= 0):
-        return
-    uv = _project_cam(cam, pc)
     for _ in range(n):
         marker = int(rng.integers(0, len(uv)))
         angle = rng.uniform(0.0, 2.0 * np.pi)
@@ -764,13 +768,10 @@ def render_signal(cam: CameraModel, cam_index: int, model_points_mm: np.ndarray,
                          _sub_times(t, options), options)
     if options.lamps:
         _add_lamps(layer, cam, options)
-    if rng is not None and options.glints[1] > 0:
+    if rng is not None and (options.glints[1] > 0 or options.fused_glints[1] > 0):
         Rwg, p1 = pose_fn(t)
         pw = np.asarray(model_points_mm, float) @ np.asarray(Rwg, float).T + np.asarray(p1, float)
         _add_glints(layer, cam, pw, options, rng)
-    if rng is not None and options.fused_glints[1] > 0:
-        Rwg, p1 = pose_fn(t)
-        pw = np.asarray(model_points_mm, float) @ np.asarray(Rwg, float).T + np.asarray(p1, float)
         _add_fused_glints(layer, cam, pw, options, rng)
     return layer
 
