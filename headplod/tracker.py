@@ -250,32 +250,32 @@ class Tracker:
         self._cameras = geo.StereoCameras(rig)
         if hasattr(self, "uncertainty") and hasattr(self.uncertainty, "rig"):
             self.uncertainty.rig = rig
-        self._rig_gate(None)
+        self._rig_gate()
 
     def _start_refiner(self, t, t_right) -> None:
         declared = t_right is not None
         self.refiner = RigRefiner(self.calibrated_rig, self.model_mm, self.config.rig_refine,
                                   self.config.rig_errors, offset_declared=declared,
                                   calibration_std=self._calibration_std)
-        self._rig_gate(None)
+        self._rig_gate()
 
-    def _rig_gate(self, speed_px_s) -> None:
+    def _rig_gate(self) -> None:
         """Tolerances of the consistency checks: image noise plus what the rig's uncertainty can displace.
 
-        σ_rig (px): the image shift a 1σ error of the rig's turn, shift,
-        focal scale and exposure offset causes at a typical distance (60 cm)
-        and image radius (300 px).
+        σ_rig (px): the image shift a 1σ error of the rig's turn, shift and
+        focal scale causes at a typical distance (60 cm) and image radius
+        (300 px). The exposure offset's share needs the head's image speed,
+        unknown when acquiring; it is left to the reprojection checks.
         """
         c = self.config
-        P = self._rig_cov(wide=getattr(self, "_rig_suspect", False))
+        P = self._rig_cov()
         if P is None:
             sigma_px = 0.0
         else:
             f = self.focal[1]
             turn = float(np.sqrt(np.linalg.eigvalsh(P[:3, :3]).max()))
             shift = float(np.sqrt(np.linalg.eigvalsh(P[3:6, 3:6]).max()))
-            sigma_px = float(np.sqrt((f * turn) ** 2 + (f * shift / 600.0) ** 2 + (300.0 * np.sqrt(P[6, 6])) ** 2
-                                     + ((speed_px_s or 0.0) * np.sqrt(P[7, 7])) ** 2))
+            sigma_px = float(np.sqrt((f * turn) ** 2 + (f * shift / 600.0) ** 2 + (300.0 * np.sqrt(P[6, 6])) ** 2))
         self.rig_sigma_px = sigma_px
         k = c.rig_gate_sigma * sigma_px
         self.epipolar_tol_px = float(np.hypot(c.epipolar_tol_px, k))
@@ -304,8 +304,8 @@ class Tracker:
         self._history = []            # [(t, R_world_G, p1)] last two accepted poses
         self._prev_pose = None
         self._uncompensated = False
-        self._rig_suspect = False      # the last frames disagreed with the refined rig
         self._last_right = None        # (image, t, t_right) of the previous frame's right camera
+        self._declared_right = None    # the right image's time as given (times.csv, the driver), s
         self._periods = []             # recent frame periods, s
         self._disagreements = 0
 
@@ -363,7 +363,7 @@ class Tracker:
                                and (not self._history or t - self._history[-1][0] > 0.2))
         R, p1, residuals, JtJ, vectors = self._estimate(match, t, t_right)
         velocity = self._head_velocity()
-        rig_rows, rig_sd = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
+        rig_rows, rig_sd, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
         dropped = None
         outlier = self._outlier(residuals, match, rig_sd)
         if outlier is not None and self.config.estimator == "reproj" and match.visible.all():
@@ -373,7 +373,7 @@ class Tracker:
             match.visible = match.visible.copy()
             match.visible[outlier] = False
             R, p1, residuals, JtJ, vectors = self._estimate(match, t, t_right)
-            rig_rows, rig_sd = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
+            rig_rows, rig_sd, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
             outlier = self._outlier(residuals, match, rig_sd)
             if outlier is not None:
                 dropped = None
@@ -383,13 +383,13 @@ class Tracker:
         reason = self._verify(R, p1, residuals, outlier, match, rig_sd)
         rig_cov = self._rig_cov()
         disagrees = False
-        if reason is not None and self.refiner is not None and not self._rig_suspect:
+        if reason is not None and self.refiner is not None:
             # Not consistent with the rig as refined: is it with the rig as
             # uncertain as before any refinement (the rig changed: a bump)?
             wide = self._rig_cov(wide=True)
-            wide_rows, wide_sd = self._rig_terms(R, p1, t, t_right, velocity, wide, match)
+            wide_rows, wide_sd, _ = self._rig_terms(R, p1, t, t_right, velocity, wide, match)
             if (self._verify(R, p1, residuals, self._outlier(residuals, match, wide_sd), match, wide_sd) is None
-                    and self._rig_explains(R, p1, vectors, wide_rows, wide, match)):
+                    and self._rig_explains(pose_rows, vectors, wide_rows, wide, match)):
                 reason, rig_cov, disagrees = None, wide, True
         timings["verify"] = time.perf_counter() - t_ver
         if reason is not None:
@@ -412,8 +412,7 @@ class Tracker:
         cov_input = CovarianceInput(images, match.centers, match.visible, match.sigma_px, residuals, JtJ,
                                     R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
                                     vectors, t, match.shot_var,
-                                    geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras),
-                                    rig_rows, rig_cov, self._rig_version())
+                                    pose_rows, rig_rows, rig_cov, self._rig_version())
         t_est = time.perf_counter()
         timings["covariance_input"] = t_est - t_cov
         cov = self.uncertainty(cov_input)
@@ -425,7 +424,7 @@ class Tracker:
 
         # The rig's refinement is its own stage, fed every accepted frame.
         t_ref = time.perf_counter()
-        self._refine(match, t, t_right_declared=t_right, cov_input=cov_input, R=R, p1=p1, disagrees=disagrees)
+        self._refine(match, t, cov_input=cov_input, R=R, p1=p1, disagrees=disagrees)
         timings["refine_rig"] = time.perf_counter() - t_ref
         timings["total"] = time.perf_counter() - start
         return TrackResult(True, None, p1, axes, R, match.centers, residuals, match.epipolar,
@@ -471,31 +470,37 @@ class Tracker:
         return cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt, (pb - pa) / dt
 
     def _rig_terms(self, R, p1, t, t_right, velocity, P, match):
-        """Rig Jacobian rows (2, 5, 2, 8) at the pose, and each centre's 1σ residual from the rig (2, 5), px.
+        """Rig Jacobian rows (2, 5, 2, 8) at the pose, each centre's 1σ residual from the rig (2, 5), px,
+        and the pose's own Jacobian rows (2, 5, 2, 6) (:func:`geometry.reprojection_rows`).
 
         A rig error e moves the centres by J_r e; the pose fit absorbs part
         of that and leaves r = (I − H) J_r e in the residuals (H the fit's
         hat matrix, with the fit's weights), in both images: that is what
         the checks must allow.
         """
+        pose_rows = geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras)
         if P is None or self.refiner is None:
-            return None, None
+            return None, None, pose_rows
         dt = (t_right - t) if (t is not None and t_right is not None) else 0.0
         omega, v = velocity if velocity is not None else (None, None)
         rows = rig_jacobian_rows(R, p1, self.model_mm, self.refiner.state, self._cameras.D[1], dt, omega, v)
-        vis = match.visible
-        pose_rows = geo.reprojection_rows(R, p1, self.model_mm, vis, self._cameras)
-        Jp = pose_rows[vis].reshape(-1, 6)
-        Jr = rows[vis].reshape(-1, rows.shape[-1])
-        w = np.repeat(1.0 / np.square(self._sigma(match)[vis]), 2)
-        A = Jp.T @ (Jp * w[:, None])
-        M = Jr - Jp @ np.linalg.solve(A, Jp.T @ (Jr * w[:, None]))
+        M, _ = self._rig_after_fit(pose_rows, rows, match.visible, self._sigma(match))
         var = np.einsum("ij,jk,ik->i", M, P, M).reshape(-1, 2).sum(axis=1)
-        sd = np.full(vis.shape, np.nan)
-        sd[vis] = np.sqrt(np.maximum(var, 0.0))
-        return rows, sd
+        sd = np.full(match.visible.shape, np.nan)
+        sd[match.visible] = np.sqrt(np.maximum(var, 0.0))
+        return rows, sd, pose_rows
 
-    def _rig_explains(self, R, p1, vectors, rig_rows, P, match) -> bool:
+    @staticmethod
+    def _rig_after_fit(pose_rows, rig_rows, visible, sigma_px):
+        """(I − H) J_r (2m, 8), what a rig change leaves in the residuals after the pose fit (px per unit),
+        and the fit's weights 1/σ² (2m,), over the visible centres."""
+        Jp = pose_rows[visible].reshape(-1, 6)
+        Jr = rig_rows[visible].reshape(-1, rig_rows.shape[-1])
+        w = np.repeat(1.0 / np.square(sigma_px[visible]), 2)
+        A = Jp.T @ (Jp * w[:, None])
+        return Jr - Jp @ np.linalg.solve(A, Jp.T @ (Jr * w[:, None])), w
+
+    def _rig_explains(self, pose_rows, vectors, rig_rows, P, match) -> bool:
         """Whether one change of the rig (within P) explains the residuals down to the image noise.
 
         A bumped camera displaces every centre of its image coherently; a
@@ -505,13 +510,9 @@ class Tracker:
         a tenth of the χ² before.
         """
         vis = match.visible
-        pose_rows = geo.reprojection_rows(R, p1, self.model_mm, vis, self._cameras)
-        Jp = pose_rows[vis].reshape(-1, 6)
-        Jr = rig_rows[vis].reshape(-1, rig_rows.shape[-1])
         sigma = np.maximum(self._sigma(match), self.config.outlier_min_sigma_px)
-        w = np.repeat(1.0 / np.square(sigma[vis]), 2)
-        A = Jp.T @ (Jp * w[:, None])
-        M = (Jr - Jp @ np.linalg.solve(A, Jp.T @ (Jr * w[:, None]))) * np.sqrt(w)[:, None]
+        M, w = self._rig_after_fit(pose_rows, rig_rows, vis, sigma)
+        M = M * np.sqrt(w)[:, None]
         r = vectors[vis].reshape(-1) * np.sqrt(w)
         e = np.linalg.solve(M.T @ M + np.linalg.inv(P), M.T @ r)
         before = float(r @ r)
@@ -521,7 +522,7 @@ class Tracker:
         # floor): what is left must be small against what the rig removed.
         return left <= max(float(chi2.ppf(0.999, dof)), 0.1 * before)
 
-    def _refine(self, match, t, t_right_declared, cov_input, R, p1, disagrees) -> None:
+    def _refine(self, match, t, cov_input, R, p1, disagrees) -> None:
         """Feed an accepted frame to the rig's refinement; use the refined rig when it changes."""
         refiner = self.refiner
         if refiner is None:
@@ -532,7 +533,7 @@ class Tracker:
                 # Three frames in a row agree only with the unrefined rig: it changed.
                 refiner.widen(t)
                 self._disagreements = 0
-                self._rig_gate(None)
+                self._rig_gate()
             return
         self._disagreements = 0
         if not self.config.rig_refine.enabled:
@@ -542,7 +543,7 @@ class Tracker:
             sigma = np.sqrt(inner.variances(cov_input))
         else:
             sigma = np.repeat(self._sigma(match)[..., None], 2, axis=2)
-        declared = getattr(self, "_declared_right", None)
+        declared = self._declared_right
         offset = (declared - t) if (declared is not None and t is not None) else 0.0
         if refiner.add_frame(t, offset, match.centers, match.visible, sigma, R, p1):
             self._apply_rig(refiner.state.rig())

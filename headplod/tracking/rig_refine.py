@@ -49,6 +49,7 @@ where the motion left it, and costs one small dense solve per chunk.
 """
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -229,6 +230,12 @@ class RigState:
         K[1, 1] *= math.exp(self.log_focal)
         return K
 
+    def moved(self, increment: np.ndarray) -> "RigState":
+        """A copy moved by an error-state increment (8,); this estimate is left as it is."""
+        out = copy.copy(self)
+        out.apply(increment)
+        return out
+
     def rig(self):
         """This estimate as a :class:`headplod.io.Rig` (intrinsics of the left camera and distortions unchanged)."""
         from .. import io
@@ -290,12 +297,23 @@ def rig_jacobian_rows(R_world_G: np.ndarray, p1_mm: np.ndarray, model_mm: np.nda
         world = world + right_dt_s * motion
     _, d_cam, d_logf, cam = project_right(world, state.R, state.T, state.K2(), D2)
     rows = np.zeros((2, len(model_mm), 2, N_RIG))
-    rows[1, :, :, _TURN] = np.einsum("nij,njk->nik", d_cam, -_skew(cam))
-    rows[1, :, :, _SHIFT] = d_cam
-    rows[1, :, :, _FOCAL] = d_logf
-    if motion is not None:
-        rows[1, :, :, _OFFSET] = np.einsum("nij,jk,nk->ni", d_cam, state.R, motion)
+    rows[1] = _right_rig_columns(d_cam, d_logf, cam, state.R, motion)
     return rows
+
+
+def _right_rig_columns(d_cam, d_logf, cam, R_right, motion):
+    """∂(right projections)/∂(rig error state) (n, 2, 8) from :func:`project_right`'s derivatives.
+
+    ``motion`` (n, 3), mm/s: each point's world velocity (None: the time
+    offset's column is zero).
+    """
+    cols = np.zeros(d_cam.shape[:2] + (N_RIG,))
+    cols[:, :, _TURN] = np.einsum("nij,njk->nik", d_cam, -_skew(cam))
+    cols[:, :, _SHIFT] = d_cam
+    cols[:, :, _FOCAL] = d_logf
+    if motion is not None:
+        cols[:, :, _OFFSET] = np.einsum("nij,jk,nk->ni", d_cam, R_right, motion)
+    return cols
 
 
 class RigRefiner:
@@ -341,7 +359,6 @@ class RigRefiner:
         self.held_chunks = 0          # chunks of a still head, not used
         self.refined = np.zeros(N_RIG, bool)    # parameters refined at least once
         self.last_chi2 = float("nan")
-        self.disagreements = 0
 
     def widen(self, t: float | None) -> None:
         """The rig changed (frames agree only with the unrefined uncertainty): re-converge from here."""
@@ -506,8 +523,6 @@ class RigRefiner:
         """
         c = self.config
         n = len(chunk)
-        model = self.model_mm
-        m = len(model)
         prior_info = np.linalg.inv(prior)
         # Which rig parameters can this chunk teach? Decided at the start (linearization point).
         rig = np.zeros(N_RIG)
@@ -518,7 +533,7 @@ class RigRefiner:
             H = np.zeros((6 * n + N_RIG, 6 * n + N_RIG))
             g = np.zeros(6 * n + N_RIG)
             chi2, rows_used = 0.0, 0
-            state = _Shifted(self.state, rig)
+            state = self.state.moved(rig)
             K2 = state.K2()
             for k, f in enumerate(chunk):
                 res, J_pose, J_rig, sig = self._frame_terms(f, poses[k], state, K2)
@@ -581,13 +596,12 @@ class RigRefiner:
         # An honest posterior: residuals larger than their σ say the noise is larger.
         dof = max(rows_used - 6 * n - observable.shape[1], 1)
         scale = max(1.0, chi2 / dof)
-        posterior = prior + (cov - prior) * 1.0
-        posterior = posterior + (cov * (scale - 1.0))
+        posterior = cov * scale
         moved = np.diag(confine @ prior @ confine.T) / np.diag(prior)
         self.refined |= moved > 0.5
         return rig, 0.5 * (posterior + posterior.T), chi2, rows_used
 
-    def _frame_terms(self, f: _Frame, pose: np.ndarray, state: "_Shifted", K2: np.ndarray):
+    def _frame_terms(self, f: _Frame, pose: np.ndarray, state: RigState, K2: np.ndarray):
         """Residuals (2, 5, 2) px, ∂/∂pose (2, 5, 2, 6), ∂/∂rig (2, 5, 2, 8), σ (2, 5, 2) of one frame."""
         model = self.model_mm
         R = cv2.Rodrigues(pose[:3])[0] @ f.R
@@ -613,27 +627,5 @@ class RigRefiner:
         res[1] = pr - f.centers[1]
         d_world = d_cam @ state.R                                     # (m, 2, 3)
         J_pose[1] = d_world @ dX_dpose
-        J_rig[1, :, :, _TURN] = np.einsum("nij,njk->nik", d_cam, -_skew(cam))
-        J_rig[1, :, :, _SHIFT] = d_cam
-        J_rig[1, :, :, _FOCAL] = d_logf
-        if motion is not None:
-            J_rig[1, :, :, _OFFSET] = np.einsum("nij,nj->ni", d_world, motion)
+        J_rig[1] = _right_rig_columns(d_cam, d_logf, cam, state.R, motion)
         return res, J_pose, J_rig, f.sigma
-
-
-class _Shifted:
-    """A rig state moved by an error-state increment, without changing the original."""
-
-    def __init__(self, state: RigState, increment: np.ndarray):
-        turn = cv2.Rodrigues(np.asarray(increment[_TURN], np.float64))[0]
-        self.R = turn @ state.R
-        self.T = turn @ state.T + increment[_SHIFT]
-        self.log_focal = state.log_focal + float(increment[_FOCAL])
-        self.offset_s = state.offset_s + float(increment[_OFFSET])
-        self._K2 = np.asarray(state.calibrated.K2, np.float64)
-
-    def K2(self) -> np.ndarray:
-        K = self._K2.copy()
-        K[0, 0] *= math.exp(self.log_focal)
-        K[1, 1] *= math.exp(self.log_focal)
-        return K
