@@ -363,9 +363,14 @@ class Tracker:
                                and (not self._history or t - self._history[-1][0] > 0.2))
         R, p1, residuals, JtJ, vectors = self._estimate(match, t, t_right)
         velocity = self._head_velocity()
-        rig_rows, rig_sd, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
+        rig_rows = rig_sd = pose_rows = None
+        # The rig's share only widens the checks: a frame that passes them on
+        # image noise alone (the usual case) needs no rig terms before its covariance.
+        outlier = self._outlier(residuals, match)
+        if outlier is not None or self._verify(R, p1, residuals, None, match) is not None:
+            rig_rows, rig_sd, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
+            outlier = self._outlier(residuals, match, rig_sd)
         dropped = None
-        outlier = self._outlier(residuals, match, rig_sd)
         if outlier is not None and self.config.estimator == "reproj" and match.visible.all():
             # One centre disagrees with the other nine (a glint fused with a
             # marker, a partial occlusion): refit without it.
@@ -406,6 +411,9 @@ class Tracker:
 
         # The uncertainty of V is its own stage (the mean pose is done).
         t_cov = time.perf_counter()
+        if pose_rows is None:
+            rig_rows, _, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match,
+                                                     spread=False)
         axes = self.axes_G @ R.T
         if match.shot_var is None:      # the tracking path leaves the shot-noise term to this stage
             match.shot_var = shot_variance(images, match.centers, self._tracked_sizes, self._prev_background)
@@ -469,9 +477,10 @@ class Tracker:
             return None
         return cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt, (pb - pa) / dt
 
-    def _rig_terms(self, R, p1, t, t_right, velocity, P, match):
-        """Rig Jacobian rows (2, 5, 2, 8) at the pose, each centre's 1σ residual from the rig (2, 5), px,
-        and the pose's own Jacobian rows (2, 5, 2, 6) (:func:`geometry.reprojection_rows`).
+    def _rig_terms(self, R, p1, t, t_right, velocity, P, match, spread: bool = True):
+        """Rig Jacobian rows (2, 5, 2, 8) at the pose, each centre's 1σ residual from the rig (2, 5), px
+        (None unless ``spread``), and the pose's own Jacobian rows (2, 5, 2, 6)
+        (:func:`geometry.reprojection_rows`).
 
         A rig error e moves the centres by J_r e; the pose fit absorbs part
         of that and leaves r = (I − H) J_r e in the residuals (H the fit's
@@ -484,6 +493,8 @@ class Tracker:
         dt = (t_right - t) if (t is not None and t_right is not None) else 0.0
         omega, v = velocity if velocity is not None else (None, None)
         rows = rig_jacobian_rows(R, p1, self.model_mm, self.refiner.state, self._cameras.D[1], dt, omega, v)
+        if not spread:
+            return rows, None, pose_rows
         M, _ = self._rig_after_fit(pose_rows, rows, match.visible, self._sigma(match))
         var = np.einsum("ij,jk,ik->i", M, P, M).reshape(-1, 2).sum(axis=1)
         sd = np.full(match.visible.shape, np.nan)
