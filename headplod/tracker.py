@@ -92,12 +92,26 @@ class TrackerConfig:
     outlier_sigma, outlier_floor_px : float
         A centre whose residual exceeds both ``outlier_sigma`` times its
         expected noise and ``outlier_floor_px`` is an outlier (a glint fused
-        with the marker, a partial occlusion): it is dropped and the pose
-        refitted from the other nine, if they agree.
+        with the marker, a partial occlusion): the pose is refitted with a
+        robust loss, and the centres that stay outliers are down-weighted
+        (their variance gets the excess), if the others agree.
     outlier_min_sigma_px : float
         Floor of the expected centroid noise in that test, px: the noise
         model leaves out shot noise, so a bright blob's σ is not trusted
         below this.
+    robust_suspect_sigma : float
+        A centre whose residual exceeds this many σ of its expected error
+        (noise floored at ``outlier_min_sigma_px``) is suspect: the
+        residuals are fitted by a pose and a rig change with a robust loss,
+        and the centres still beyond it after that fit are down-weighted
+        (their variance gets the excess), if the others agree.
+    robust_cauchy_sigma : float
+        Scale of that fit's Cauchy loss, in σ of each centre's expected noise.
+    robust_iterations : int
+        Most reweighting passes of that fit.
+    robust_max_suspects : int
+        Most down-weighted centres in a frame; six centres of four markers
+        must remain.
     rig_refine : RigRefineConfig
         Online refinement of the rig from the tracked frames
         (:mod:`headplod.tracking.rig_refine`).
@@ -128,6 +142,10 @@ class TrackerConfig:
     outlier_sigma: float = 10.0
     outlier_floor_px: float = 0.3
     outlier_min_sigma_px: float = 0.03
+    robust_suspect_sigma: float = 4.0
+    robust_cauchy_sigma: float = 3.0
+    robust_iterations: int = 10
+    robust_max_suspects: int = 4
     rig_refine: RigRefineConfig = field(default_factory=RigRefineConfig)
     rig_errors: RigErrorModel = field(default_factory=RigErrorModel)
     rig_gate_sigma: float = 3.0
@@ -215,6 +233,7 @@ class _Match:
     sigma_px: np.ndarray = None     # (2, 5) expected centroid noise, px
     flux: np.ndarray = None         # (2, 5) blob flux, DN·px
     shot_var: np.ndarray = None     # (2, 5, 2) centroid variance of x, y per unit shot-noise factor, px²/DN
+    excess_px: np.ndarray = None    # (2, 5) error of a suspect centre beyond its noise (a fused glint), px
 
 
 class Tracker:
@@ -367,21 +386,22 @@ class Tracker:
         # The rig's share only widens the checks: a frame that passes them on
         # image noise alone (the usual case) needs no rig terms before its covariance.
         outlier = self._outlier(residuals, match)
-        if outlier is not None or self._verify(R, p1, residuals, None, match) is not None:
+        suspect = self._suspect(residuals, match)
+        if suspect or outlier is not None or self._verify(R, p1, residuals, None, match) is not None:
             rig_rows, rig_sd, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
             outlier = self._outlier(residuals, match, rig_sd)
-        dropped = None
-        if outlier is not None and self.config.estimator == "reproj" and match.visible.all():
-            # One centre disagrees with the other nine (a glint fused with a
-            # marker, a partial occlusion): refit without it.
-            dropped = outlier
-            match.visible = match.visible.copy()
-            match.visible[outlier] = False
-            R, p1, residuals, JtJ, vectors = self._estimate(match, t, t_right)
-            rig_rows, rig_sd, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
-            outlier = self._outlier(residuals, match, rig_sd)
-            if outlier is not None:
-                dropped = None
+        suspects = None
+        if suspect and self.config.estimator == "reproj":
+            # Centres that disagree with the others beyond what the rig's
+            # uncertainty explains (glints fused with markers, partial
+            # occlusions) are down-weighted rather than the frame refused,
+            # if the others agree.
+            suspects, excess = self._suspects(vectors, match, pose_rows, rig_rows, self._rig_cov())
+            if suspects is not None:
+                match.excess_px = excess        # their variance gets the excess
+                R, p1, residuals, JtJ, vectors = self._estimate(match, t, t_right)
+                rig_rows, rig_sd, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
+                outlier = self._outlier(residuals, match, rig_sd)
         timings["pose"] = time.perf_counter() - t_pose
 
         t_ver = time.perf_counter()
@@ -404,9 +424,6 @@ class Tracker:
                                timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
                                rig=self._rig_status(), rig_message=self._rig_message())
         self._remember(match, t, R, p1, blobs, mode)
-        if dropped is not None:
-            match.centers = match.centers.copy()
-            match.centers[dropped] = np.nan
         timings["mean_pose"] = time.perf_counter() - start
 
         # The uncertainty of V is its own stage (the mean pose is done).
@@ -420,7 +437,7 @@ class Tracker:
         cov_input = CovarianceInput(images, match.centers, match.visible, match.sigma_px, residuals, JtJ,
                                     R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
                                     vectors, t, match.shot_var,
-                                    pose_rows, rig_rows, rig_cov, self._rig_version())
+                                    pose_rows, rig_rows, rig_cov, self._rig_version(), match.excess_px)
         t_est = time.perf_counter()
         timings["covariance_input"] = t_est - t_cov
         cov = self.uncertainty(cov_input)
@@ -910,7 +927,7 @@ class Tracker:
             return None
         if not np.fmax.reduce(residuals, axis=None) > self.config.outlier_floor_px:
             return None                                   # the usual case: nothing near the floor
-        sigma = np.where(np.isfinite(match.sigma_px), np.maximum(match.sigma_px, self.config.outlier_min_sigma_px),
+        sigma = np.where(np.isfinite(match.sigma_px), np.maximum(self._sigma(match), self.config.outlier_min_sigma_px),
                          np.inf)
         if rig_sd is not None:
             sigma = np.hypot(sigma, rig_sd)
@@ -920,9 +937,74 @@ class Tracker:
             return None
         return np.unravel_index(int(np.argmax(score)), score.shape)
 
+    def _suspect(self, residuals, match: _Match) -> bool:
+        """Whether a centre's residual (2, 5) px exceeds ``robust_suspect_sigma`` times its expected
+        noise (floored at ``outlier_min_sigma_px``)."""
+        if match.sigma_px is None or self._uncompensated:
+            return False
+        expected = np.maximum(self._sigma(match), self.config.outlier_min_sigma_px)
+        return bool(np.nanmax(residuals / expected) > self.config.robust_suspect_sigma)
+
+    def _suspects(self, vectors, match: _Match, pose_rows, rig_rows, rig_cov):
+        """The centres (2, 5) bool that disagree with the others, and each one's excess error (2, 5) px;
+        (None, None) if none do, or too many for the others to be trusted.
+
+        A robust (Cauchy, scale ``robust_cauchy_sigma`` σ) fit of the
+        residual vectors (2, 5, 2) px by a pose change and a rig change
+        within its prior ``rig_cov``, linearized at the fitted pose
+        (``pose_rows`` (2, 5, 2, 6), ``rig_rows`` (2, 5, 2, 8) or None): a
+        rig error displaces the centres of a view coherently and is
+        explained by the rig's columns; a glint fused with a marker, or a
+        partial occlusion, displaces one centre and is not. The centres
+        still beyond ``robust_suspect_sigma`` σ of their noise after that
+        fit are suspect; their excess, per coordinate, is their residual
+        against it over √2.
+        """
+        cfg = self.config
+        vis = match.visible
+        sigma = np.maximum(self._sigma(match), cfg.outlier_min_sigma_px)[vis]          # (m,)
+        r = vectors[vis].reshape(-1)
+        J = pose_rows[vis].reshape(-1, 6)
+        prior = np.zeros((6, 6))
+        if rig_rows is not None and rig_cov is not None:
+            J = np.hstack([J, rig_rows[vis].reshape(-1, rig_rows.shape[-1])])
+            prior = np.zeros((J.shape[1], J.shape[1]))
+            prior[6:, 6:] = np.linalg.inv(rig_cov)
+        # Columns in their natural units (rad, mm, ...) differ by orders of
+        # magnitude: solve in scaled columns.
+        col = np.sqrt((J ** 2).sum(axis=0)) + 1e-12
+        Js, prior = J / col, prior / np.outer(col, col)
+        weight = np.ones(len(sigma))
+        for _ in range(cfg.robust_iterations):
+            w = np.repeat(weight / sigma ** 2, 2)
+            A = Js.T @ (Js * w[:, None]) + prior + 1e-9 * np.eye(Js.shape[1])
+            left = (r - Js @ np.linalg.solve(A, Js.T @ (w * r))).reshape(-1, 2)
+            z = np.hypot(left[:, 0], left[:, 1]) / sigma
+            new = 1.0 / (1.0 + (z / cfg.robust_cauchy_sigma) ** 2)
+            if np.abs(new - weight).max() < 0.01:
+                break
+            weight = new
+        bad = z > cfg.robust_suspect_sigma
+        if not bad.any():
+            return None, None
+        suspects = np.zeros(vis.shape, bool)
+        suspects[vis] = bad
+        # The others agree: at most a few suspects, and six centres of four
+        # markers among the rest (a pose and its check).
+        agree = vis & ~suspects
+        if bad.sum() > cfg.robust_max_suspects or agree.sum() < 6 or agree.any(axis=0).sum() < 4:
+            return None, None
+        excess = np.zeros(vis.shape)
+        excess[vis] = np.where(bad, np.hypot(left[:, 0], left[:, 1]) / math.sqrt(2.0), 0.0)   # per coordinate
+        return suspects, excess
+
     def _sigma(self, match: _Match) -> np.ndarray:
-        """Expected centroid noise (2, 5), px, floored (a perfect image is never perfect)."""
-        return np.maximum(match.sigma_px, self.config.min_centroid_sigma_px)
+        """Expected centroid error (2, 5), px: the noise, floored (a perfect image is never perfect),
+        with a suspect centre's excess."""
+        sigma = np.maximum(match.sigma_px, self.config.min_centroid_sigma_px)
+        if match.excess_px is not None:
+            sigma = np.hypot(sigma, match.excess_px)
+        return sigma
 
     def _residuals(self, R, p1, match: _Match) -> np.ndarray:
         """Residual vectors (2, 5, 2), projected minus measured centre, px (NaN if hidden)."""

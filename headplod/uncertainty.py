@@ -88,6 +88,10 @@ class CovarianceInput:
     rig_version : int
         Changes whenever the rig used changes (a refinement step): the
         residuals then jump by the change, which is not image noise.
+    excess_px : (2, 5), optional
+        Error of a suspect centre beyond its noise (a glint fused with the
+        marker), px, 0 for the others: added to its variance, and kept out
+        of the noise model's learning.
     """
 
     images: tuple
@@ -108,6 +112,7 @@ class CovarianceInput:
     rig_rows: np.ndarray = None
     rig_cov: np.ndarray = None
     rig_version: int = 0
+    excess_px: np.ndarray = None
 
 
 def with_rig_uncertainty(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray,
@@ -195,14 +200,24 @@ class FirstOrder:
         return v_bg, v_shot
 
     def variances(self, x: CovarianceInput) -> np.ndarray:
-        """Variance of each centre's x and y (2, 5, 2), px², under the current noise model."""
+        """Variance of each centre's x and y (2, 5, 2), px², under the current noise model,
+        with a suspect centre's excess."""
+        return self._with_excess(self._noise_variances(x), x)
+
+    def _noise_variances(self, x: CovarianceInput) -> np.ndarray:
         v_bg, v_shot = self._terms(x)
         a, kappa = self.coefficients[:, 0, None, None], self.coefficients[:, 1, None, None]
         return a * v_bg + kappa * v_shot
 
+    @staticmethod
+    def _with_excess(variance: np.ndarray, x: CovarianceInput) -> np.ndarray:
+        if x.excess_px is None:
+            return variance
+        return variance + np.nan_to_num(x.excess_px)[..., None] ** 2
+
     def __call__(self, x: CovarianceInput) -> np.ndarray:
         self._update(x)
-        variance = self.variances(x)
+        variance = self._noise_variances(x)
         if self.smoothing_frames:
             # Smooth each centre's noise (it changes slowly with the pose),
             # not the covariance: the Jacobian stays this frame's, so the
@@ -215,6 +230,8 @@ class FirstOrder:
                 known = np.isfinite(variance) & np.isfinite(self._smoothed)
                 self._smoothed = np.where(known, (1 - rate) * self._smoothed + rate * variance, variance)
             variance = self._smoothed
+        # A glint is this frame's, not to be smoothed into the next ones.
+        variance = self._with_excess(variance, x)
         seen = x.visible & np.isfinite(variance).all(axis=2)
         rows = x.jacobian_rows[seen]                                  # (m, 2, 6)
         variance = np.maximum(variance[seen], 1e-10)                  # (m, 2)
@@ -231,7 +248,11 @@ class FirstOrder:
 
     def _update(self, x: CovarianceInput) -> None:
         v_bg, v_shot = self._terms(x)
-        current = (x.residual_vectors_px, v_bg, v_shot, x.t, x.rig_version)
+        vectors = x.residual_vectors_px
+        if x.excess_px is not None:
+            # A suspect centre's change is its glint's, not noise.
+            vectors = np.where((np.nan_to_num(x.excess_px) > 0)[..., None], np.nan, vectors)
+        current = (vectors, v_bg, v_shot, x.t, x.rig_version)
         previous, self._previous = self._previous, current
         if previous is None:
             return
@@ -240,7 +261,7 @@ class FirstOrder:
             return          # the rig changed between the frames: their residuals differ by that, not by noise
         if x.t is not None and prev_t is not None and not 0 < x.t - prev_t < 0.25:
             return
-        diff = x.residual_vectors_px - prev_vec
+        diff = vectors - prev_vec
         seen = np.isfinite(diff).all(axis=2)
         count = int(seen.sum())
         if count < 4:
@@ -255,13 +276,21 @@ class FirstOrder:
             e = energy[cam][seen[cam]].reshape(-1)
             d = design[cam][seen[cam]].reshape(-1, 2)
             expected = d @ np.maximum(self.coefficients[cam], 1e-6)
+            if len(e) == 0:
+                continue
             if self.frames > 10:
                 # A glint that comes and goes is not noise, and must not teach
                 # the model that it is: a change beyond what χ² with 1 dof
-                # reaches once in 100 (×6.6) counts as that, no more.
-                e = np.minimum(e, 6.6 * expected)
-            if len(e) == 0:
-                continue
+                # reaches once in 100 (×6.6) is left out. "Expected" is
+                # rescaled to what the frame's quieter centres show (its 30th
+                # percentile against χ²₁'s, 0.148), so a model already
+                # inflated by glints cannot keep the glints in.
+                ratio = e / np.maximum(expected, 1e-12)
+                level = max(float(np.percentile(ratio, 30)) / 0.148, 1e-3)
+                keep = ratio <= 6.6 * level
+                e, d, expected = e[keep], d[keep], expected[keep]
+                if len(e) == 0:
+                    continue
             # Relative errors, each frame weighing the same in the average.
             scale2 = 1.0 / np.maximum(expected, 1e-8) ** 2
             scale2 /= scale2.mean()

@@ -134,7 +134,8 @@ class RigRefineConfig:
         A parameter is refined only when the chunk's information on it is at
         least this fraction of the prior's.
     inconsistency : float
-        A chunk whose mean squared standardized residual exceeds this is
+        A chunk whose noise scale (the median centre's standardized χ²,
+        per degree of freedom: robust to the few glints) exceeds this is
         tested for a change of the rig (a bump).
     bump_evidence : float
         Fall of the chunk's cost (χ², 8 dof) that re-solving with the
@@ -358,7 +359,7 @@ class RigRefiner:
         self.dropped_chunks = 0
         self.held_chunks = 0          # chunks of a still head, not used
         self.refined = np.zeros(N_RIG, bool)    # parameters refined at least once
-        self.last_chi2 = float("nan")
+        self.last_noise_scale = float("nan")
 
     def widen(self, t: float | None) -> None:
         """The rig changed (frames agree only with the unrefined uncertainty): re-converge from here."""
@@ -495,22 +496,21 @@ class RigRefiner:
         if solution is None:
             self.dropped_chunks += 1
             return False
-        increment, posterior, chi2, used = solution
-        mean_chi2 = chi2 / max(used, 1)
-        if mean_chi2 > self.config.inconsistency:
+        increment, posterior, chi2, used, noise_scale = solution
+        if noise_scale > self.config.inconsistency:
             # The chunk disagrees with the rig: did the rig change (a bump)?
             wide = prior + self.prior
             retry = self._solve(chunk, wide)
             if retry is not None and chi2 - retry[2] > self.config.bump_evidence \
-                    and retry[2] / max(retry[3], 1) <= self.config.inconsistency:
-                increment, posterior, chi2, used = retry
+                    and retry[4] <= self.config.inconsistency:
+                increment, posterior, chi2, used, noise_scale = retry
                 self.bumps.append(chunk[0].t)
             else:
                 self.dropped_chunks += 1
                 return False
         self.state.apply(increment)
         self.P = posterior
-        self.last_chi2 = chi2 / max(used, 1)
+        self.last_noise_scale = noise_scale
         self.updates += 1
         self._last_update_t = chunk[-1].t
         return True
@@ -533,6 +533,7 @@ class RigRefiner:
             H = np.zeros((6 * n + N_RIG, 6 * n + N_RIG))
             g = np.zeros(6 * n + N_RIG)
             chi2, rows_used = 0.0, 0
+            centre_r2 = []
             state = self.state.moved(rig)
             K2 = state.K2()
             for k, f in enumerate(chunk):
@@ -558,6 +559,7 @@ class RigRefiner:
                 g[6 * n:] += Jr.T @ (ws * r)
                 chi2 += float((ws * r * r).sum())
                 rows_used += len(r)
+                centre_r2.append((zs ** 2).sum(axis=1))
             H[6 * n:, :6 * n] = H[:6 * n, 6 * n:].T
             if observable is None:
                 # What can this chunk teach? The data's information on the rig (poses
@@ -593,13 +595,17 @@ class RigRefiner:
             cov = np.linalg.inv(full_H)[6 * n:, 6 * n:]
         except np.linalg.LinAlgError:
             return None
-        # An honest posterior: residuals larger than their σ say the noise is larger.
+        # An honest posterior: residuals larger than their σ say the noise is
+        # larger. Measured robustly (the median centre's χ² with 2 dof, whose
+        # median is 1.386, per degree of freedom left), so the few glints the
+        # Cauchy weights already discount do not inflate it.
         dof = max(rows_used - 6 * n - observable.shape[1], 1)
-        scale = max(1.0, chi2 / dof)
-        posterior = cov * scale
+        r2 = np.concatenate(centre_r2) if centre_r2 else np.zeros(1)
+        noise_scale = float(np.median(r2)) / 1.386 * rows_used / dof
+        posterior = cov * max(1.0, noise_scale)
         moved = np.diag(confine @ prior @ confine.T) / np.diag(prior)
         self.refined |= moved > 0.5
-        return rig, 0.5 * (posterior + posterior.T), chi2, rows_used
+        return rig, 0.5 * (posterior + posterior.T), chi2, rows_used, noise_scale
 
     def _frame_terms(self, f: _Frame, pose: np.ndarray, state: RigState, K2: np.ndarray):
         """Residuals (2, 5, 2) px, ∂/∂pose (2, 5, 2, 6), ∂/∂rig (2, 5, 2, 8), σ (2, 5, 2) of one frame."""
