@@ -29,7 +29,7 @@ from . import geometry as geo
 from .detect import Blobs, DetectionParams, centroids_near, detect_blobs, estimate_background, shot_variance
 from .identify import ModelRule, find_hypotheses
 from .tracking.rig_refine import RigErrorModel, RigRefineConfig, RigRefiner, rig_jacobian_rows
-from .uncertainty import DEFAULT_COVARIANCE, CovarianceInput, make_covariance_estimator
+from .uncertainty import DEFAULT_COVARIANCE, CovarianceInput, make_covariance_estimator, rig_residual_rows
 
 ESTIMATORS = ("paper", "rigid", "reproj")
 # Read-only constants of the tracking path (copied before any change).
@@ -142,7 +142,7 @@ class TrackerConfig:
     outlier_sigma: float = 10.0
     outlier_floor_px: float = 0.3
     outlier_min_sigma_px: float = 0.03
-    robust_suspect_sigma: float = 4.0
+    robust_suspect_sigma: float = 3.5
     robust_cauchy_sigma: float = 3.0
     robust_iterations: int = 10
     robust_max_suspects: int = 4
@@ -522,11 +522,9 @@ class Tracker:
     def _rig_after_fit(pose_rows, rig_rows, visible, sigma_px):
         """(I − H) J_r (2m, 8), what a rig change leaves in the residuals after the pose fit (px per unit),
         and the fit's weights 1/σ² (2m,), over the visible centres."""
-        Jp = pose_rows[visible].reshape(-1, 6)
-        Jr = rig_rows[visible].reshape(-1, rig_rows.shape[-1])
         w = np.repeat(1.0 / np.square(sigma_px[visible]), 2)
-        A = Jp.T @ (Jp * w[:, None])
-        return Jr - Jp @ np.linalg.solve(A, Jp.T @ (Jr * w[:, None])), w
+        return rig_residual_rows(pose_rows[visible].reshape(-1, 6),
+                                 rig_rows[visible].reshape(-1, rig_rows.shape[-1]), w), w
 
     def _rig_explains(self, pose_rows, vectors, rig_rows, P, match) -> bool:
         """Whether one change of the rig (within P) explains the residuals down to the image noise.

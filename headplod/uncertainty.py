@@ -115,6 +115,17 @@ class CovarianceInput:
     excess_px: np.ndarray = None
 
 
+def rig_residual_rows(pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(I − H) J_r (n, 8): what a rig change leaves in the residuals after the weighted pose fit.
+
+    ``pose_rows`` (n, 6) and ``rig_rows`` (n, 8), px per unit, of the n
+    visible centre coordinates; ``weights`` (n,) = 1/σ²; H the fit's hat
+    matrix.
+    """
+    A = pose_rows.T @ (pose_rows * weights[:, None])
+    return rig_rows - pose_rows @ np.linalg.solve(A, pose_rows.T @ (rig_rows * weights[:, None]))
+
+
 def with_rig_uncertainty(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray,
                          rig_cov: np.ndarray) -> np.ndarray:
     """The pose's information (6, 6) once the rig's own uncertainty is marginalized.
