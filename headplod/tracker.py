@@ -320,7 +320,8 @@ class Tracker:
         self._prev_size = None         # (2, 5) Gaussian σ of each marker's blob, px
         self._prev_flux = None
         self._tracked_flux = self._tracked_size = None
-        self._history = []            # [(t, R_world_G, p1)] last two accepted poses
+        self._history = []            # [(t, R_world_G, p1)] last three accepted poses
+        self._history_rigs = []       # the rig version each of them was fitted with
         self._prev_pose = None
         self._uncompensated = False
         self._last_right = None        # (image, t, t_right) of the previous frame's right camera
@@ -486,9 +487,10 @@ class Tracker:
 
     def _head_velocity(self):
         """(ω rad/s, v mm/s) of the head in the world frame from the last two accepted poses, or None."""
-        if len(self._history) < 2:
+        pair = self._motion_pair()
+        if pair is None:
             return None
-        (ta, Ra, pa), (tb, Rb, pb) = self._history[-2:]
+        (ta, Ra, pa), (tb, Rb, pb) = pair
         dt = tb - ta
         if not dt > 0:
             return None
@@ -573,6 +575,15 @@ class Tracker:
         offset = (declared - t) if (declared is not None and t is not None) else 0.0
         if refiner.add_frame(t, offset, match.centers, match.visible, sigma, R, p1):
             self._apply_rig(refiner.state.rig())
+            # The recent poses, refitted with the new rig by the update itself:
+            # the velocity and prediction go on without a jump.
+            version = self._rig_version()
+            for i, (t_k, _, _) in enumerate(self._history):
+                if t_k in refiner.refit_poses:
+                    self._history[i] = (t_k, *refiner.refit_poses[t_k])
+                    self._history_rigs[i] = version
+            if self._history and self._history_rigs[-1] == version:
+                self._prev_pose = self._history[-1][1:]
 
     def _rig_version(self) -> int:
         return 0 if self.refiner is None else self.refiner.updates + len(self.refiner.bumps)
@@ -684,10 +695,21 @@ class Tracker:
     def _predicted_pose(self):
         """This frame's pose by constant velocity from the last two (the last one if unknown)."""
         R, p = self._prev_pose
-        if len(self._history) == 2 and self._history[-1][1] is R:
-            (_, Ra, pa), (_, Rb, pb) = self._history
+        if len(self._history) >= 2 and self._history[-1][1] is R and self._history_rigs[-1] == self._history_rigs[-2]:
+            (_, Ra, pa), (_, Rb, pb) = self._history[-2:]
             return (Rb @ Ra.T) @ Rb, 2 * pb - pa
         return R, p
+
+    def _motion_pair(self):
+        """The last two accepted poses fitted with one rig, ((t, R, p1), (t, R, p1)), or None.
+
+        Poses fitted with different rigs differ by the rig's change as well
+        as the motion: a refinement step must not look like a head jump.
+        """
+        for i in range(len(self._history) - 1, 0, -1):
+            if self._history_rigs[i] == self._history_rigs[i - 1]:
+                return self._history[i - 1], self._history[i]
+        return None
 
     def _match_from_centers(self, centers, visible, index) -> _Match | None:
         """Triangulate labeled centres and fit the model; None if they break the checks."""
@@ -1019,15 +1041,17 @@ class Tracker:
         """World-frame motion (rvec, tvec) of the head from t to t_right.
 
         The velocity comes from the last accepted pose and ``current`` (this
-        frame's pose, R and p1) when given, else from the last two poses.
+        frame's pose, R and p1) when given and both were fitted with the
+        same rig (a refined rig moves the poses: that is no motion), else
+        from the last two poses fitted with one rig.
         None when the cameras are synchronous or there is no recent history.
         """
         if t is None or t_right is None or t_right == t or not self._history:
             return None
-        if current is not None:
+        if current is not None and self._history_rigs[-1] == self._rig_version():
             (ta, Ra, pa), (tb, Rb, pb) = self._history[-1], (t, *current)
-        elif len(self._history) >= 2:
-            (ta, Ra, pa), (tb, Rb, pb) = self._history[-2:]
+        elif (pair := self._motion_pair()) is not None:
+            (ta, Ra, pa), (tb, Rb, pb) = pair
         else:
             return None
         dt = tb - ta
@@ -1063,4 +1087,5 @@ class Tracker:
             if blobs[cam] is not None and len(blobs[cam]):
                 self._prev_threshold[cam] = blobs[cam].threshold_dn
         if t is not None:
-            self._history = (self._history + [(t, R, p1)])[-2:]
+            self._history = (self._history + [(t, R, p1)])[-3:]
+            self._history_rigs = (self._history_rigs + [self._rig_version()])[-3:]

@@ -360,6 +360,8 @@ class RigRefiner:
         self.held_chunks = 0          # chunks of a still head, not used
         self.refined = np.zeros(N_RIG, bool)    # parameters refined at least once
         self.last_noise_scale = float("nan")
+        # {t: (R_world_G, p1)} of the last update's frames, fitted with the rig it gave.
+        self.refit_poses = {}
 
     def widen(self, t: float | None) -> None:
         """The rig changed (frames agree only with the unrefined uncertainty): re-converge from here."""
@@ -496,19 +498,20 @@ class RigRefiner:
         if solution is None:
             self.dropped_chunks += 1
             return False
-        increment, posterior, chi2, used, noise_scale = solution
+        increment, posterior, chi2, used, noise_scale, refit = solution
         if noise_scale > self.config.inconsistency:
             # The chunk disagrees with the rig: did the rig change (a bump)?
             wide = prior + self.prior
             retry = self._solve(chunk, wide)
             if retry is not None and chi2 - retry[2] > self.config.bump_evidence \
                     and retry[4] <= self.config.inconsistency:
-                increment, posterior, chi2, used, noise_scale = retry
+                increment, posterior, chi2, used, noise_scale, refit = retry
                 self.bumps.append(chunk[0].t)
             else:
                 self.dropped_chunks += 1
                 return False
         self.state.apply(increment)
+        self.refit_poses = refit
         self.P = posterior
         self.last_noise_scale = noise_scale
         self.updates += 1
@@ -605,7 +608,8 @@ class RigRefiner:
         posterior = cov * max(1.0, noise_scale)
         moved = np.diag(confine @ prior @ confine.T) / np.diag(prior)
         self.refined |= moved > 0.5
-        return rig, 0.5 * (posterior + posterior.T), chi2, rows_used, noise_scale
+        refit = {f.t: (cv2.Rodrigues(poses[k, :3])[0] @ f.R, f.p1 + poses[k, 3:]) for k, f in enumerate(chunk)}
+        return rig, 0.5 * (posterior + posterior.T), chi2, rows_used, noise_scale, refit
 
     def _frame_terms(self, f: _Frame, pose: np.ndarray, state: RigState, K2: np.ndarray):
         """Residuals (2, 5, 2) px, ∂/∂pose (2, 5, 2, 6), ∂/∂rig (2, 5, 2, 8), σ (2, 5, 2) of one frame."""
