@@ -453,7 +453,7 @@ def _report_rig(args, tracker, tracked: int, log) -> int:
               file=sys.stderr)
         return 1
     try:
-        _write_rig_atomically(args.save_rig, refiner.state.rig())
+        _write_rig_atomically(args.save_rig, refiner.estimate.rig())   # the best estimate, not only what was in use
     except (OSError, ValueError) as exc:
         print(f"headplod: --save-rig {args.save_rig}: {exc}", file=sys.stderr)
         return 1

@@ -306,7 +306,8 @@ class Tracker:
         """Covariance (8, 8) of the rig's error state now (None before the first frame)."""
         if self.refiner is None:
             return None
-        return self.refiner.P + self.refiner.prior if wide else self.refiner.P
+        P = self.refiner.cov()
+        return P + self.refiner.prior if wide else P
 
     def reset(self) -> None:
         """Forget the previous frames (e.g. after a seek)."""
@@ -586,7 +587,7 @@ class Tracker:
                 self._prev_pose = self._history[-1][1:]
 
     def _rig_version(self) -> int:
-        return 0 if self.refiner is None else self.refiner.updates + len(self.refiner.bumps)
+        return 0 if self.refiner is None else self.refiner.versions
 
     def _rig_status(self):
         return None if self.refiner is None else self.refiner.status()

@@ -137,6 +137,9 @@ class RigRefineConfig:
         A chunk whose noise scale (the median centre's standardized χ²,
         per degree of freedom: robust to the few glints) exceeds this is
         tested for a change of the rig (a bump).
+    publish_sigma : float
+        The rig in use follows the refinement's estimate when they differ by
+        more than this many σ of the estimate along some direction.
     bump_evidence : float
         Fall of the chunk's cost (χ², 8 dof) that re-solving with the
         widened prior must bring to accept a change of the rig.
@@ -166,6 +169,7 @@ class RigRefineConfig:
     drift_offset_s_per_sqrt_s: float = 2e-4
     observable_fraction: float = 0.05
     inconsistency: float = 4.0
+    publish_sigma: float = 3.0
     bump_evidence: float = 60.0
     max_gap_frames: float = 2.5
     recalibrate_turn_deg: float = 1.0
@@ -230,6 +234,16 @@ class RigState:
         K[0, 0] *= math.exp(self.log_focal)
         K[1, 1] *= math.exp(self.log_focal)
         return K
+
+    def error_from(self, other: "RigState") -> np.ndarray:
+        """The error-state increment (8,) that moves ``other`` onto this estimate."""
+        turn = cv2.Rodrigues(self.R @ other.R.T)[0].ravel()
+        out = np.zeros(N_RIG)
+        out[_TURN] = turn
+        out[_SHIFT] = self.T - cv2.Rodrigues(turn)[0] @ other.T
+        out[_FOCAL] = self.log_focal - other.log_focal
+        out[_OFFSET] = self.offset_s - other.offset_s
+        return out
 
     def moved(self, increment: np.ndarray) -> "RigState":
         """A copy moved by an error-state increment (8,); this estimate is left as it is."""
@@ -349,8 +363,14 @@ class RigRefiner:
 
     def reset(self) -> None:
         """Back to ``rig.yaml`` and its error model."""
+        # The filter's estimate moves with every update; the rig in use
+        # (``state``) follows it only when they differ by more than the
+        # estimate's noise, so a still head or a perfect rig does not shake
+        # the poses with the refinement's own noise.
         self.state = RigState(self.calibrated)
+        self._estimate = RigState(self.calibrated)
         self.P = self.prior.copy()
+        self.versions = 0           # changes of the rig in use
         self._pending: list[_Frame] = []
         self._recent: deque = deque(maxlen=3)   # last frames, for velocities across chunks
         self._last_update_t = None
@@ -371,8 +391,8 @@ class RigRefiner:
 
     # ---------------------------------------------------------------- queries
     def sigma(self) -> np.ndarray:
-        """1σ of the error state (8,): rad ×3, mm ×3, log focal, s."""
-        return np.sqrt(np.maximum(np.diag(self.P), 0.0))
+        """1σ of the error of the rig in use (8,): rad ×3, mm ×3, log focal, s."""
+        return np.sqrt(np.maximum(np.diag(self.cov()), 0.0))
 
     def converged(self) -> bool:
         """The turn and shift are known to a tenth of their prior σ."""
@@ -499,6 +519,7 @@ class RigRefiner:
             self.dropped_chunks += 1
             return False
         increment, posterior, chi2, used, noise_scale, refit = solution
+        bumped = False
         if noise_scale > self.config.inconsistency:
             # The chunk disagrees with the rig: did the rig change (a bump)?
             wide = prior + self.prior
@@ -507,16 +528,41 @@ class RigRefiner:
                     and retry[4] <= self.config.inconsistency:
                 increment, posterior, chi2, used, noise_scale, refit = retry
                 self.bumps.append(chunk[0].t)
+                bumped = True
             else:
                 self.dropped_chunks += 1
                 return False
-        self.state.apply(increment)
-        self.refit_poses = refit
+        self._estimate.apply(increment)
         self.P = posterior
         self.last_noise_scale = noise_scale
         self.updates += 1
         self._last_update_t = chunk[-1].t
+        if not (bumped or self._departs()):
+            return False
+        self.state = copy.copy(self._estimate)
+        self.versions += 1
+        self.refit_poses = refit
         return True
+
+    def _departs(self) -> bool:
+        """The estimate differs from the rig in use by more than ``publish_sigma`` σ along some
+        direction (eigenvectors of P, in units of the prior)."""
+        d = self._estimate.error_from(self.state)
+        L_inv = np.linalg.inv(np.linalg.cholesky(self.prior))
+        lam, U = np.linalg.eigh(L_inv @ self.P @ L_inv.T)
+        z = (U.T @ (L_inv @ d)) / np.sqrt(np.maximum(lam, 1e-30))
+        return bool(np.abs(z).max() > self.config.publish_sigma)
+
+    @property
+    def estimate(self) -> RigState:
+        """The refinement's current estimate of the rig (``state`` is the rig in use, which follows it
+        only when they differ by more than the estimate's noise)."""
+        return self._estimate
+
+    def cov(self) -> np.ndarray:
+        """Covariance (8, 8) of the error of the rig in use: the estimate's, and how far it is from it."""
+        d = self._estimate.error_from(self.state)
+        return self.P + np.outer(d, d)
 
     def _solve(self, chunk: list[_Frame], prior: np.ndarray):
         """Gauss-Newton with Cauchy reweighting over the chunk's poses and the rig.
@@ -537,7 +583,7 @@ class RigRefiner:
             g = np.zeros(6 * n + N_RIG)
             chi2, rows_used = 0.0, 0
             centre_r2 = []
-            state = self.state.moved(rig)
+            state = self._estimate.moved(rig)
             K2 = state.K2()
             for k, f in enumerate(chunk):
                 res, J_pose, J_rig, sig = self._frame_terms(f, poses[k], state, K2)
