@@ -371,6 +371,7 @@ class RigRefiner:
         self._estimate = RigState(self.calibrated)
         self.P = self.prior.copy()
         self.versions = 0           # changes of the rig in use
+        self._cov = None            # cov(), until P or either rig changes
         self._pending: list[_Frame] = []
         self._recent: deque = deque(maxlen=3)   # last frames, for velocities across chunks
         self._last_update_t = None
@@ -386,6 +387,7 @@ class RigRefiner:
     def widen(self, t: float | None) -> None:
         """The rig changed (frames agree only with the unrefined uncertainty): re-converge from here."""
         self.P = self.P + self.prior
+        self._cov = None
         self._pending = []
         self.bumps.append(float(t) if t is not None else float("nan"))
 
@@ -534,12 +536,14 @@ class RigRefiner:
                 return False
         self._estimate.apply(increment)
         self.P = posterior
+        self._cov = None
         self.last_noise_scale = noise_scale
         self.updates += 1
         self._last_update_t = chunk[-1].t
         if not (bumped or self._departs()):
             return False
         self.state = copy.copy(self._estimate)
+        self._cov = None
         self.versions += 1
         self.refit_poses = refit
         return True
@@ -560,9 +564,13 @@ class RigRefiner:
         return self._estimate
 
     def cov(self) -> np.ndarray:
-        """Covariance (8, 8) of the error of the rig in use: the estimate's, and how far it is from it."""
-        d = self._estimate.error_from(self.state)
-        return self.P + np.outer(d, d)
+        """Covariance (8, 8) of the error of the rig in use: the estimate's, and how far it is from it.
+
+        Computed once per change (the tracker asks for it several times a frame)."""
+        if self._cov is None:
+            d = self._estimate.error_from(self.state)
+            self._cov = self.P + np.outer(d, d)
+        return self._cov
 
     def _solve(self, chunk: list[_Frame], prior: np.ndarray):
         """Gauss-Newton with Cauchy reweighting over the chunk's poses and the rig.
