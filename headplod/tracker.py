@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+import scipy.linalg
 from scipy.stats import chi2
 
 from . import geometry as geo
@@ -118,6 +119,10 @@ class TrackerConfig:
     rig_errors : RigErrorModel
         How far the real rig may be from ``rig.yaml`` before any refinement
         (1σ): with the calibration's own σ, the prior of the refinement.
+    extrapolate_velocity : bool
+        The head's velocity for the right image's exposure offset is
+        extrapolated at constant acceleration from three poses (else the
+        last two poses' difference, half a frame old).
     rig_gate_sigma : float
         The consistency checks (epipolar, model fit, reprojection, outlier)
         allow this many σ of the image displacement the rig's remaining
@@ -149,6 +154,7 @@ class TrackerConfig:
     rig_refine: RigRefineConfig = field(default_factory=RigRefineConfig)
     rig_errors: RigErrorModel = field(default_factory=RigErrorModel)
     rig_gate_sigma: float = 3.0
+    extrapolate_velocity: bool = True
 
     def __post_init__(self):
         if self.estimator not in ESTIMATORS:
@@ -323,6 +329,7 @@ class Tracker:
         self._tracked_flux = self._tracked_size = None
         self._history = []            # [(t, R_world_G, p1)] last three accepted poses
         self._history_rigs = []       # the rig version each of them was fitted with
+        self._history_covs = []       # their first-order covariances (6, 6), rad and mm (None if unknown)
         self._prev_pose = None
         self._uncompensated = False
         self._last_right = None        # (image, t, t_right) of the previous frame's right camera
@@ -425,7 +432,9 @@ class Tracker:
             return TrackResult(False, reason, centers_px=match.centers, residuals_px=residuals, mode=mode,
                                timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
                                rig=self._rig_status(), rig_message=self._rig_message())
-        self._remember(match, t, R, p1, blobs, mode)
+        pose_cov = _inverse(JtJ)
+        motion_cov = self._motion_cov(t, t_right, (R, p1), pose_cov)
+        self._remember(match, t, R, p1, blobs, mode, pose_cov)
         timings["mean_pose"] = time.perf_counter() - start
 
         # The uncertainty of V is its own stage (the mean pose is done).
@@ -433,6 +442,18 @@ class Tracker:
         if pose_rows is None:
             rig_rows, _, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match,
                                                      spread=False)
+        if motion_cov is not None:
+            # The right image's model was moved by the head's velocity over
+            # the exposure offset, a difference of noisy poses: its error
+            # moves the right centres as a pose error of the right view
+            # alone would, another nuisance beside the rig's.
+            right_rows = np.zeros_like(pose_rows)
+            right_rows[1] = pose_rows[1]
+            if rig_rows is None or rig_cov is None:
+                rig_rows, rig_cov = right_rows, motion_cov
+            else:
+                rig_rows = np.concatenate([rig_rows, right_rows], axis=-1)
+                rig_cov = scipy.linalg.block_diag(rig_cov, motion_cov)
         axes = self.axes_G @ R.T
         if match.shot_var is None:      # the tracking path leaves the shot-noise term to this stage
             match.shot_var = shot_variance(images, match.centers, self._tracked_sizes, self._prev_background)
@@ -1044,30 +1065,85 @@ class Tracker:
         The velocity comes from the last accepted pose and ``current`` (this
         frame's pose, R and p1) when given and both were fitted with the
         same rig (a refined rig moves the poses: that is no motion), else
-        from the last two poses fitted with one rig.
+        from the last two poses fitted with one rig. With a third pose
+        before them (same rig), it is extrapolated at constant acceleration
+        to the middle of [t, t_right]: a difference's velocity is half a
+        frame old, which at a head's turning point is most of the motion
+        over a few ms.
         None when the cameras are synchronous or there is no recent history.
         """
         if t is None or t_right is None or t_right == t or not self._history:
             return None
-        if current is not None and self._history_rigs[-1] == self._rig_version():
-            (ta, Ra, pa), (tb, Rb, pb) = self._history[-1], (t, *current)
-        elif (pair := self._motion_pair()) is not None:
-            (ta, Ra, pa), (tb, Rb, pb) = pair
-        else:
+        seq = self._motion_sequence(t, current)
+        if seq is None:
             return None
+        (ta, Ra, pa), (tb, Rb, pb) = seq[-2:]
         dt = tb - ta
         if dt <= 0 or t - ta > 4 * dt or (current is None and t - tb > 3 * dt):
             return None
-        scale = (t_right - t) / dt
-        omega = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() * scale
+        w = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt             # rad/s, at (ta + tb) / 2
+        v = (pb - pa) / dt                                         # mm/s
+        if len(seq) == 3 and self.config.extrapolate_velocity:
+            tz, Rz, pz = seq[0]
+            dz = ta - tz
+            if 0 < dz <= 2 * dt:
+                k = (t + 0.5 * (t_right - t) - 0.5 * (ta + tb)) / (0.5 * (tb - tz))
+                w = w + (w - cv2.Rodrigues(Ra @ Rz.T)[0].ravel() / dz) * k
+                v = v + (v - (pa - pz) / dz) * k
+        step = t_right - t
+        omega = w * step
         dR = cv2.Rodrigues(omega)[0]
         # Rotation about P1 plus P1's displacement: X → dR (X − p1) + p1 + v·δt.
         p_now = pb + (pb - pa) * ((t - tb) / dt)
-        shift = (pb - pa) * scale
-        tvec = p_now - dR @ p_now + shift
+        tvec = p_now - dR @ p_now + v * step
         return omega, tvec
 
-    def _remember(self, match: _Match, t, R, p1, blobs, mode) -> None:
+    def _motion_sequence(self, t, current):
+        """The last two or three poses (t, R, p1), oldest first, fitted with one rig, for a velocity:
+        the recent history and ``current`` when it was fitted with the rig of the last one, else the
+        history alone; None if no two poses share a rig."""
+        history, versions = self._history, self._history_rigs
+        if current is not None and versions[-1] == self._rig_version():
+            poses, rigs = history + [(t, *current)], versions + [versions[-1]]
+        else:
+            poses, rigs = list(history), list(versions)
+        end = next((i for i in range(len(poses) - 1, 0, -1) if rigs[i] == rigs[i - 1]), None)
+        if end is None:
+            return None
+        start = end - 1
+        if start > 0 and rigs[start - 1] == rigs[end]:
+            start -= 1
+        return poses[start:end + 1]
+
+    def _motion_cov(self, t, t_right, current, current_cov):
+        """Covariance (6, 6) of the motion (δ rad, ε mm) the right image's model was moved by
+        (:meth:`_right_motion`'s second pass), from the covariances (6, 6) of the poses it was
+        taken from; None when no motion was applied."""
+        if (not self.config.compensate_offset or t is None or t_right is None or t_right == t
+                or not self._history or current_cov is None):
+            return None
+        seq = self._motion_sequence(t, current)
+        if seq is None or seq[-1][0] != t:
+            return None
+        covs = self._history_covs[len(self._history) - (len(seq) - 1):] + [current_cov]
+        if any(c is None for c in covs):
+            return None
+        times = [p[0] for p in seq]
+        dt = times[-1] - times[-2]
+        if not dt > 0:
+            return None
+        # The velocity as a combination Σ α_i pose_i of the poses used.
+        alpha = [-1.0 / dt, 1.0 / dt]
+        if len(seq) == 3 and self.config.extrapolate_velocity:
+            dz = times[1] - times[0]
+            if 0 < dz <= 2 * dt:
+                k = (t + 0.5 * (t_right - t) - 0.5 * (times[1] + times[2])) / (0.5 * (times[2] - times[0]))
+                alpha = [k / dz, -(1 + k) / dt - k / dz, (1 + k) / dt]
+        alpha = alpha[-len(seq):] if len(alpha) == len(seq) else [0.0] * (len(seq) - 2) + alpha
+        step = t_right - t
+        return step ** 2 * sum(a * a * c for a, c in zip(alpha, covs))
+
+    def _remember(self, match: _Match, t, R, p1, blobs, mode, pose_cov=None) -> None:
         self._prev_pose = (R, p1)
         if not match.visible.all():
             self._prev_centers = self._prev2_centers = None    # re-identify while a marker is hidden
@@ -1090,3 +1166,12 @@ class Tracker:
         if t is not None:
             self._history = (self._history + [(t, R, p1)])[-3:]
             self._history_rigs = (self._history_rigs + [self._rig_version()])[-3:]
+            self._history_covs = (self._history_covs + [pose_cov])[-3:]
+
+
+def _inverse(info: np.ndarray):
+    """The inverse of an information matrix, or None if it is singular."""
+    try:
+        return np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        return None

@@ -36,13 +36,11 @@ def _turn_error_deg(R, segment):
 
 @pytest.mark.parametrize("faults", [
     dict(rotation_deg=0.5), dict(baseline_scale=1.02), dict(offset_s=0.008),
-    pytest.param(dict(rotation_deg=0.3, baseline_scale=1.02, offset_s=0.008), marks=pytest.mark.xfail(
-        strict=True, reason="known shortfall: with a turn, a scale and an offset together, slow reading motion "
-                            "leaves the offset at 6.2 of 8 ms after 5 s, 3 times its reported σ"))])
+    dict(rotation_deg=0.3, baseline_scale=1.02, offset_s=0.008)])
 def test_refinement_recovers_the_rig(faults):
     ds, truth, tracker, results, _ = _track(faults, 150)
     seg = truth["segments"][0]
-    state = tracker.refiner.state
+    state = tracker.refiner.estimate            # what the refinement recovered (the rig in use follows it within 3σ)
     turn = _turn_error_deg(state.R, seg)
     scale = np.linalg.norm(state.T) / np.linalg.norm(seg["T"])
     before = _turn_error_deg(np.asarray(ds.rig.R), seg)

@@ -467,6 +467,12 @@ class RigRefiner:
         chunk, self._pending = self._pending, []
         self._velocities(chunk)
         changed = self._update(chunk)
+        if changed:
+            # The next frames are tracked with the new rig: the frames kept for
+            # their velocities must be too (a rig change is not motion).
+            self._recent.clear()
+            for f in chunk[-2:]:
+                f.R, f.p1 = self.refit_poses.get(f.t, (f.R, f.p1))
         self._recent.extend(chunk[-2:])
         return changed
 
