@@ -270,7 +270,8 @@ class StereoCameras:
 def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm: np.ndarray,
                         obs_left_px: np.ndarray, obs_right_px: np.ndarray,
                         visible_left: np.ndarray, visible_right: np.ndarray, rig,
-                        iterations: int = 5, right_motion=None, sigma_px=None, cameras=None):
+                        iterations: int = 5, right_motion=None, sigma_px=None, cameras=None,
+                        right_gain: float = 0.0):
     """Refine a head pose by Gauss-Newton on the reprojection error in both images.
 
     The pose is updated as R ← exp([δ]×) R, p1 ← p1 + ε (δ a rotation vector
@@ -301,6 +302,13 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
         (maximum likelihood for independent Gaussian centroid errors).
     cameras : StereoCameras, optional
         ``StereoCameras(rig)`` computed once by the caller.
+    right_gain : float
+        When ``right_motion`` is itself taken from this pose (a velocity
+        from the last pose to this one, times the offset), a change of the
+        pose moves the right view's model (1 + ``right_gain``) times as
+        much: the right rows of the Jacobian are scaled by that, which makes
+        the fit, at a fixed ``right_motion`` near its own, the maximum
+        likelihood one and ``info`` its information.
 
     Returns
     -------
@@ -329,8 +337,11 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
     R = np.asarray(R_world_G, dtype=np.float64)
     p1 = np.asarray(p1_world_mm, dtype=np.float64).ravel()
     selection = None if everything else visible
+    right_rows = slice(2 * counts[0], None)
     for _ in range(iterations + 1):
         res, J = _residuals_and_jacobian(R, p1, model, selection, cams, R_cams, obs)
+        if right_gain:
+            J[right_rows] *= 1.0 + right_gain
         Jw = J * weight[:, None]
         ok, step = cv2.solve(Jw.T @ Jw, -(Jw.T @ (res * weight))[:, None], flags=cv2.DECOMP_CHOLESKY)
         if not ok:
@@ -352,6 +363,8 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
             break
     else:
         res, J = _residuals_and_jacobian(R, p1, model, selection, cams, R_cams, obs)
+        if right_gain:
+            J[right_rows] *= 1.0 + right_gain
     # Products of rotations drift off SO(3) by rounding; frames chain them.
     R = cv2.Rodrigues(cv2.Rodrigues(R)[0])[0]
     vectors = np.full((2, len(model), 2), np.nan)

@@ -432,9 +432,8 @@ class Tracker:
             return TrackResult(False, reason, centers_px=match.centers, residuals_px=residuals, mode=mode,
                                timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
                                rig=self._rig_status(), rig_message=self._rig_message())
-        pose_cov = _inverse(JtJ)
-        motion_cov = self._motion_cov(t, t_right, (R, p1), pose_cov)
-        self._remember(match, t, R, p1, blobs, mode, pose_cov)
+        motion_gain, motion_cov = self._motion_terms(t, t_right, (R, p1))
+        self._remember(match, t, R, p1, blobs, mode, _inverse(JtJ))
         timings["mean_pose"] = time.perf_counter() - start
 
         # The uncertainty of V is its own stage (the mean pose is done).
@@ -442,13 +441,15 @@ class Tracker:
         if pose_rows is None:
             rig_rows, _, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match,
                                                      spread=False)
+        right_rows = np.zeros_like(pose_rows)
+        right_rows[1] = pose_rows[1]
+        if motion_gain:
+            # The right view's model follows this pose (1 + gain) times (the
+            # velocity that moved it was taken from this pose).
+            pose_rows = pose_rows + motion_gain * right_rows
         if motion_cov is not None:
-            # The right image's model was moved by the head's velocity over
-            # the exposure offset, a difference of noisy poses: its error
-            # moves the right centres as a pose error of the right view
-            # alone would, another nuisance beside the rig's.
-            right_rows = np.zeros_like(pose_rows)
-            right_rows[1] = pose_rows[1]
+            # ... and the earlier poses' errors move it too: as a pose error of
+            # the right view alone, another nuisance beside the rig's.
             if rig_rows is None or rig_cov is None:
                 rig_rows, rig_cov = right_rows, motion_cov
             else:
@@ -947,11 +948,15 @@ class Tracker:
         if self.config.compensate_offset and t_right is not None and t_right != t:
             # Second pass: the velocity from the last pose to this one lags by
             # half a frame instead of one and a half.
+            # The velocity is taken from this pose too: the fit's right rows
+            # carry that gain, which makes it the maximum-likelihood fit
+            # (more passes change nothing measurable).
             motion = self._right_motion(t, t_right, current=fit[:2])
             if motion is not None:
+                gain, _ = self._motion_terms(t, t_right, fit[:2])
                 fit = geo.refine_reprojection(fit[0], fit[1], self.model_mm, match.centers[0], match.centers[1],
                                               match.visible[0], match.visible[1], self.rig, right_motion=motion,
-                                              sigma_px=sigma, cameras=self._cameras)
+                                              sigma_px=sigma, cameras=self._cameras, right_gain=gain)
         return fit
 
     def _outlier(self, residuals, match: _Match, rig_sd=None):
@@ -1115,33 +1120,41 @@ class Tracker:
             start -= 1
         return poses[start:end + 1]
 
-    def _motion_cov(self, t, t_right, current, current_cov):
-        """Covariance (6, 6) of the motion (δ rad, ε mm) the right image's model was moved by
-        (:meth:`_right_motion`'s second pass), from the covariances (6, 6) of the poses it was
-        taken from; None when no motion was applied."""
+    def _motion_terms(self, t, t_right, current):
+        """How the motion compensation (:meth:`_right_motion`'s second pass) ties the right view to
+        the poses: (gain, cov). The right view's model is this pose moved by the velocity, itself
+        Σ α_i pose_i over the poses used (this one last), times the offset δ: a change of this pose
+        moves it (1 + α δ) times as much (``gain`` = α δ), and the earlier poses' errors move it by
+        their α_i δ (``cov`` (6, 6), rad and mm, from their first-order covariances). (0, None)
+        when no motion is applied."""
         if (not self.config.compensate_offset or t is None or t_right is None or t_right == t
-                or not self._history or current_cov is None):
-            return None
+                or not self._history):
+            return 0.0, None
         seq = self._motion_sequence(t, current)
         if seq is None or seq[-1][0] != t:
-            return None
-        covs = self._history_covs[len(self._history) - (len(seq) - 1):] + [current_cov]
-        if any(c is None for c in covs):
-            return None
+            return 0.0, None
+        covs = self._history_covs[len(self._history) - (len(seq) - 1):]
         times = [p[0] for p in seq]
         dt = times[-1] - times[-2]
-        if not dt > 0:
-            return None
-        # The velocity as a combination Σ α_i pose_i of the poses used.
-        alpha = [-1.0 / dt, 1.0 / dt]
+        if not dt > 0 or any(c is None for c in covs):
+            return 0.0, None
+        alpha = [0.0] * (len(seq) - 2) + [-1.0 / dt, 1.0 / dt]
+        step = t_right - t
+        model = np.zeros((6, 6))
         if len(seq) == 3 and self.config.extrapolate_velocity:
             dz = times[1] - times[0]
             if 0 < dz <= 2 * dt:
                 k = (t + 0.5 * (t_right - t) - 0.5 * (times[1] + times[2])) / (0.5 * (times[2] - times[0]))
                 alpha = [k / dz, -(1 + k) / dt - k / dz, (1 + k) / dt]
-        alpha = alpha[-len(seq):] if len(alpha) == len(seq) else [0.0] * (len(seq) - 2) + alpha
-        step = t_right - t
-        return step ** 2 * sum(a * a * c for a, c in zip(alpha, covs))
+                # The extrapolation is a model of the motion (constant
+                # acceleration): its error is taken to be as large as its
+                # correction.
+                (_, Rz, pz), (_, Ra, pa), (_, Rb, pb) = seq
+                correction = k * step * np.concatenate([
+                    cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt - cv2.Rodrigues(Ra @ Rz.T)[0].ravel() / dz,
+                    (pb - pa) / dt - (pa - pz) / dz])
+                model = np.outer(correction, correction)
+        return alpha[-1] * step, step ** 2 * sum(a * a * c for a, c in zip(alpha[:-1], covs)) + model
 
     def _remember(self, match: _Match, t, R, p1, blobs, mode, pose_cov=None) -> None:
         self._prev_pose = (R, p1)
