@@ -329,7 +329,7 @@ class Tracker:
         self._tracked_flux = self._tracked_size = None
         self._history = []            # [(t, R_world_G, p1)] last three accepted poses
         self._history_rigs = []       # the rig version each of them was fitted with
-        self._history_covs = []       # their first-order covariances (6, 6), rad and mm (None if unknown)
+        self._history_infos = []      # their information JᵀΣ⁻¹J (6, 6), per rad and mm (None if unknown)
         self._prev_pose = None
         self._uncompensated = False
         self._last_right = None        # (image, t, t_right) of the previous frame's right camera
@@ -433,7 +433,7 @@ class Tracker:
                                timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
                                rig=self._rig_status(), rig_message=self._rig_message())
         motion_gain, motion_cov = self._motion_terms(t, t_right, (R, p1))
-        self._remember(match, t, R, p1, blobs, mode, _inverse(JtJ))
+        self._remember(match, t, R, p1, blobs, mode, JtJ)
         timings["mean_pose"] = time.perf_counter() - start
 
         # The uncertainty of V is its own stage (the mean pose is done).
@@ -989,6 +989,8 @@ class Tracker:
         noise (floored at ``outlier_min_sigma_px``)."""
         if match.sigma_px is None or self._uncompensated:
             return False
+        if not np.fmax.reduce(residuals, axis=None) > self.config.robust_suspect_sigma * self.config.outlier_min_sigma_px:
+            return False                      # the usual case: every residual within the floor's 3.5σ
         expected = np.maximum(self._sigma(match), self.config.outlier_min_sigma_px)
         return bool(np.nanmax(residuals / expected) > self.config.robust_suspect_sigma)
 
@@ -1133,7 +1135,7 @@ class Tracker:
         seq = self._motion_sequence(t, current)
         if seq is None or seq[-1][0] != t:
             return 0.0, None
-        covs = self._history_covs[len(self._history) - (len(seq) - 1):]
+        covs = [None if i is None else _inverse(i) for i in self._history_infos[len(self._history) - (len(seq) - 1):]]
         times = [p[0] for p in seq]
         dt = times[-1] - times[-2]
         if not dt > 0 or any(c is None for c in covs):
@@ -1156,7 +1158,7 @@ class Tracker:
                 model = np.outer(correction, correction)
         return alpha[-1] * step, step ** 2 * sum(a * a * c for a, c in zip(alpha[:-1], covs)) + model
 
-    def _remember(self, match: _Match, t, R, p1, blobs, mode, pose_cov=None) -> None:
+    def _remember(self, match: _Match, t, R, p1, blobs, mode, info=None) -> None:
         self._prev_pose = (R, p1)
         if not match.visible.all():
             self._prev_centers = self._prev2_centers = None    # re-identify while a marker is hidden
@@ -1179,7 +1181,7 @@ class Tracker:
         if t is not None:
             self._history = (self._history + [(t, R, p1)])[-3:]
             self._history_rigs = (self._history_rigs + [self._rig_version()])[-3:]
-            self._history_covs = (self._history_covs + [pose_cov])[-3:]
+            self._history_infos = (self._history_infos + [info])[-3:]
 
 
 def _inverse(info: np.ndarray):
