@@ -109,7 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
                                     "chart goes beside it as FILE_rig.png (in its place when only they run)")
     bt.add_argument("--quick", action="store_true", help="fewer frames (a smoke run)")
     bt.add_argument("--sets", help="comma-separated names of the sets to run (default: all); "
-                                   "see headplod.bench.TRACK_SETS and headplod.bench_rig.RIG_SETS")
+                                   "see headplod.bench.track.TRACK_SETS and headplod.bench.track.rig.RIG_SETS")
 
     bu = bench_sub.add_parser("uncertainty", help="calibration (NEES), stability and cost of the covariance of V")
     bu.add_argument("--json", help="write the results as JSON")
@@ -174,10 +174,10 @@ def main(argv=None) -> int:
         if args.command == "track":
             return _cmd_track(args)
         if args.command == "bench" and args.bench == "plod":
-            from . import bench_plod
+            from .bench import plod as bench_plod
             return bench_plod.run_plod_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
         if args.command == "bench" and args.bench == "live":
-            from . import bench_live
+            from .bench import live as bench_live
             return bench_live.run_live_bench(args.dataset, json_path=args.json, repeats=args.repeats)
         if args.command == "demo":
             from .demo.cli import run_demo
@@ -187,11 +187,11 @@ def main(argv=None) -> int:
         if args.command == "calibrate":
             return _cmd_calibrate(args)
         if args.command == "bench" and args.bench == "uncertainty":
-            from . import bench_uncertainty
+            from .bench import uncertainty as bench_uncertainty
             return bench_uncertainty.run_uncertainty_bench(json_path=args.json, chart_path=args.chart,
                                                            quick=args.quick)
         if args.command == "bench":
-            from . import bench
+            from .bench import track as bench
             sets = [x.strip() for x in args.sets.split(",")] if args.sets else None
             return bench.run_track_bench(json_path=args.json, chart_path=args.chart, quick=args.quick, sets=sets)
         if args.command == "synth":
@@ -211,7 +211,7 @@ def _open_track_source(args):
     """The frame source of ``headplod track``, the rig and whether it is live."""
     from . import io
     from .capture import open_source
-    from .sequences import DEFAULT_SEQUENCE, ensure_dataset
+    from .capture.synthetic import DEFAULT_SEQUENCE, ensure_dataset
 
     rig = io.read_rig(args.calib) if args.calib else None
     if args.camera:
@@ -219,7 +219,7 @@ def _open_track_source(args):
             raise _Usage("--camera needs --calib rig.yaml (the calibration of these cameras; "
                          "'headplod calibrate' makes one)")
         if args.camera == ["auto"]:
-            from .cameras import list_cameras, resolve_rig_cameras
+            from .capture.usb import list_cameras, resolve_rig_cameras
             left, right = resolve_rig_cameras(rig, list_cameras())
             print(f"cameras from {args.calib}: left {left}, right {right}", file=sys.stderr)
         elif len(args.camera) == 2:
@@ -249,16 +249,17 @@ def _device(text: str):
 
 
 def _cmd_track(args) -> int:
-    from . import evaluate, io
-    from .detect import DetectionParams
-    from .live import make_tracker, run_source
-    from .pipeline import Progress
-    from .tracker import TrackerConfig
+    from .bench import evaluate
+    from . import io
+    from .tracking.detect import DetectionParams
+    from .live.loop import make_tracker, run_source
+    from .live.pipeline import Progress
+    from .tracking.tracker import TrackerConfig
 
     detection = DetectionParams.paper() if args.paper_detection else DetectionParams(threshold_dn=args.threshold)
     if args.paper_detection and args.threshold is not None:
         detection = DetectionParams(threshold_dn=args.threshold, smooth_px=9, subtract_background=False)
-    from .uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
+    from .tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
     if args.uncertainty is not None and args.uncertainty not in COVARIANCE_ESTIMATORS:
         print(f"headplod: --uncertainty must be one of {', '.join(COVARIANCE_ESTIMATORS)}, got {args.uncertainty!r}",
               file=sys.stderr)
@@ -269,7 +270,7 @@ def _cmd_track(args) -> int:
                            rig_refine=RigRefineConfig(enabled=args.refine_rig == "on"))
     pose_filter = None
     if args.filter:
-        from .filters import PoseFilter
+        from .tracking.filters import PoseFilter
         try:
             min_cutoff, beta = (float(v) for v in args.filter.split(","))
             pose_filter = PoseFilter(min_cutoff_hz=min_cutoff, beta=beta)
@@ -331,14 +332,14 @@ def _cmd_track(args) -> int:
     try:
         writer = io.PoseWriter(args.out) if args.out else None
         if args.udp:
-            from .output import OpentrackSender, parse_host_port
+            from .live.output import OpentrackSender, parse_host_port
             sender = OpentrackSender(*parse_host_port(args.udp))
         if args.record:
             from .capture import DatasetRecorder
             recorder = DatasetRecorder(args.record, rig, markers=markers or source.markers,
                                        screen=screen or source.screen)
         if args.status or (live and not args.quiet):
-            from .output import StatusLine
+            from .live.output import StatusLine
             status = StatusLine(stream=log)
         tracker = make_tracker(source, config, rig=rig, markers=markers)
         stats = run_source(source, screen=screen, on_record=on_record, recorder=recorder, sender=sender,
@@ -484,7 +485,7 @@ def _write_rig_atomically(path, rig) -> None:
 
 
 def _cmd_cameras(args) -> int:
-    from .cameras import LibusbMissingError, format_cameras, list_cameras, store_rig_cameras
+    from .capture.usb import LibusbMissingError, format_cameras, list_cameras, store_rig_cameras
 
     if bool(args.store) != bool(args.rig):
         print("headplod: --store LEFT RIGHT and --rig rig.yaml go together", file=sys.stderr)
@@ -507,7 +508,7 @@ def _cmd_cameras(args) -> int:
 
 
 def _cmd_calibrate(args) -> int:
-    from .calibrate import BoardSpec, CalibrationError, calibrate_folder, format_report
+    from .calibration.calibrate import BoardSpec, CalibrationError, calibrate_folder, format_report
 
     try:
         spec = BoardSpec(kind=args.board, cols=args.cols, rows=args.rows, square_mm=args.square_mm,
@@ -527,7 +528,7 @@ def _cmd_calibrate(args) -> int:
     if not folder:
         print("headplod: calibrate needs FOLDER (image pairs) or --camera LEFT RIGHT", file=sys.stderr)
         return 2
-    from .pipeline import Progress
+    from .live.pipeline import Progress
     progress = Progress(0, "detect board")
 
     def step(done, total):
@@ -548,7 +549,7 @@ def _capture_calibration_pairs(args, spec, folder: Path) -> int:
     """Live: keep board pairs seen by both cameras, with a guide to the poses still missing."""
     import cv2
 
-    from .calibrate import coverage_guide, detect_board
+    from .calibration.calibrate import coverage_guide, detect_board
     from .capture import V4L2StereoSource
 
     if len(args.camera) != 2:
@@ -612,7 +613,7 @@ def _cmd_render(args) -> int:
 
 
 def _cmd_synth(args) -> int:
-    from .sequences import _progress
+    from .capture.synthetic import _progress
     from synthetic import dataset as synth_dataset
     from synthetic import scenes
 

@@ -1,7 +1,7 @@
 """Synthetic stereo views of a planar calibration board (chessboard, ChArUco).
 
 Independent of ``headplod`` (never imports it): the calibration tests compare
-what ``headplod.calibrate`` recovers against the rig these images were made
+what ``headplod.calibration.calibrate`` recovers against the rig these images were made
 with.
 
 Board frame B

@@ -2,7 +2,7 @@
 import pytest
 
 from headplod import io
-from headplod.sequences import ensure_dataset
+from headplod.capture.synthetic import ensure_dataset
 
 
 @pytest.fixture(scope="session")

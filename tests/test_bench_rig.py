@@ -6,8 +6,8 @@ are the faults themselves) and are consistent with one another.
 """
 import numpy as np
 
-from headplod import bench_rig, evaluate
-from headplod.bench import run_track_bench
+from headplod.bench import rig as bench_rig, evaluate
+from headplod.bench.track import run_track_bench
 
 
 def test_rig_set_numbers_match_the_truth(synth, tmp_path):

@@ -1,4 +1,4 @@
-"""Tests of stereo calibration (headplod.calibrate) on synthetic board images.
+"""Tests of stereo calibration (headplod.calibration.calibrate) on synthetic board images.
 
 The images come from ``synthetic.boards`` (which never imports headplod):
 a board rendered through the full OpenCV camera model of a known rig, with
@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 import pytest
 
-from headplod import calibrate as cal
+from headplod.calibration import calibrate as cal
 from headplod import io
 from synthetic.boards import Board, BoardRenderOptions, write_calibration_set
 from synthetic.render import project_points, rig_cameras

@@ -20,7 +20,7 @@ import usb.backend.libusb1
 import usb.backend.openusb
 import usb.core
 
-from headplod import cameras as hc
+from headplod.capture import usb as hc
 from headplod import io
 
 PCI = "devices/pci0000:00/0000:00:14.0/usb1"

@@ -11,18 +11,7 @@ import numpy as np
 import pytest
 
 from headplod import io
-from headplod.capture import (
-    CaptureFrame,
-    DatasetRecorder,
-    DatasetSource,
-    FrameSource,
-    SourceOpenError,
-    SyntheticSource,
-    V4L2StereoSource,
-    VideoSource,
-    open_source,
-    record,
-)
+from headplod.capture import CaptureFrame, DatasetRecorder, DatasetSource, FrameSource, SourceOpenError, SyntheticSource, V4L2StereoSource, VideoSource, open_source, record
 
 W, H = 64, 48
 

@@ -119,7 +119,7 @@ def test_levels_follow_the_poi(scene, renderer, screen):
 
 def test_tracker_failure_keeps_running_on_the_last_pose(tmp_path_factory, scene, renderer):
     """The real tracker on the synthetic sequence, two frames blanked mid-run."""
-    from headplod.sequences import ensure_dataset
+    from headplod.capture.synthetic import ensure_dataset
 
     root = tmp_path_factory.mktemp("demo_synth")
     folder = root / "blanked"

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from headplod.filters import OneEuroFilter, PoseFilter, smoothing_factor
-from headplod.output import axes_from_opentrack
+from headplod.tracking.filters import OneEuroFilter, PoseFilter, smoothing_factor
+from headplod.live.output import axes_from_opentrack
 
 
 def run(f, values, times):

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from headplod import geometry as geo
-from headplod.identify import ModelRule, find_hypotheses
+from headplod.tracking import geometry as geo
+from headplod.tracking.identify import ModelRule, find_hypotheses
 from headplod.io import default_marker_model, read_rig
 
 from pathlib import Path

@@ -12,29 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from headplod.io import (
-    ContractError,
-    Dataset,
-    Frame,
-    MarkerModel,
-    PoseWriter,
-    Rig,
-    Screen,
-    default_marker_model,
-    pose_record,
-    read_markers,
-    read_poses,
-    read_rig,
-    read_screen,
-    read_times,
-    read_truth,
-    rig_calibration_std,
-    write_markers,
-    write_rig,
-    write_screen,
-    write_times,
-    write_truth,
-)
+from headplod.io import ContractError, Dataset, Frame, MarkerModel, PoseWriter, Rig, Screen, default_marker_model, pose_record, read_markers, read_poses, read_rig, read_screen, read_times, read_truth, rig_calibration_std, write_markers, write_rig, write_screen, write_times, write_truth
 
 SWEEP12 = Path(__file__).parent / "data" / "sweep12"
 

@@ -10,7 +10,7 @@ import pytest
 
 from headplod import io
 from headplod.cli import main as cli_main
-from headplod.output import decode_opentrack, opentrack_values
+from headplod.live.output import decode_opentrack, opentrack_values
 
 DATA = Path(__file__).parent / "data"
 

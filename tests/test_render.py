@@ -9,16 +9,7 @@ import numpy as np
 import pytest
 
 from headplod.io import Screen
-from headplod.render import (
-    PALETTE,
-    SceneTransform,
-    TerrainRenderer,
-    create_context,
-    off_axis_projection,
-    overlay_poi,
-    scene_to_world,
-    screen_frame,
-)
+from headplod.render import PALETTE, SceneTransform, TerrainRenderer, create_context, off_axis_projection, overlay_poi, scene_to_world, screen_frame
 
 W, H = 320, 180  # screen and render size, px (1:1 so screen pixel = image pixel)
 

@@ -10,9 +10,10 @@ import cv2
 import numpy as np
 import pytest
 
-from headplod import evaluate, io
-from headplod.sequences import ensure_dataset
-from headplod.tracker import Tracker, TrackerConfig
+from headplod.bench import evaluate
+from headplod import io
+from headplod.capture.synthetic import ensure_dataset
+from headplod.tracking.tracker import Tracker, TrackerConfig
 from headplod.tracking.rig_refine import RigRefineConfig
 
 

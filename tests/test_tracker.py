@@ -13,11 +13,12 @@ import cv2
 import numpy as np
 import pytest
 
-from headplod import evaluate, io
+from headplod.bench import evaluate
+from headplod import io
 from headplod.cli import main as cli_main
-from headplod.detect import DetectionParams
-from headplod.pipeline import track_dataset
-from headplod.tracker import Tracker, TrackerConfig
+from headplod.tracking.detect import DetectionParams
+from headplod.live.pipeline import track_dataset
+from headplod.tracking.tracker import Tracker, TrackerConfig
 
 DATA = Path(__file__).parent / "data"
 

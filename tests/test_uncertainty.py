@@ -1,9 +1,9 @@
 """Covariance of V against ground truth and against its physics."""
 import numpy as np
 
-from headplod.bench_uncertainty import nees
-from headplod.tracker import Tracker, TrackerConfig
-from headplod.uncertainty import COVARIANCE_ESTIMATORS, PaperPixelClouds, make_covariance_estimator
+from headplod.bench.uncertainty import nees
+from headplod.tracking.tracker import Tracker, TrackerConfig
+from headplod.tracking.uncertainty import COVARIANCE_ESTIMATORS, PaperPixelClouds, make_covariance_estimator
 
 
 def covariances(dataset, name="first_order_smoothed", config=None):

@@ -19,8 +19,8 @@ record
 """
 from . import record as _record
 from . import sources as _sources
-from .record import *  # noqa: F401,F403  (the names in record.__all__)
-from .sources import *  # noqa: F401,F403  (the names in sources.__all__)
+from .record import *
+from .sources import *
 from .v4l2 import CameraSetting, V4L2StereoSource
 
 # The modules' own lists, so a name is exported from one place.

@@ -481,7 +481,7 @@ class SyntheticSource(DatasetSource):
     root : Path, optional
         Cache folder (default ``$HEADPLOD_CACHE`` or ``~/.cache/headplod``).
     **preset_options
-        Passed to :func:`headplod.sequences.ensure_dataset` (e.g.
+        Passed to :func:`headplod.capture.synthetic.ensure_dataset` (e.g.
         ``distance_mm`` for ``static``).
 
     Raises
@@ -495,7 +495,7 @@ class SyntheticSource(DatasetSource):
     def __init__(self, preset: str | None = None, frames: int | None = None, seed: int = 0,
                  realtime: bool = False, skew_bound_ms: float | None = None,
                  root: str | Path | None = None, **preset_options: Any):
-        from ..sequences import DEFAULT_SEQUENCE, ensure_dataset
+        from .synthetic import DEFAULT_SEQUENCE, ensure_dataset
 
         self.preset = preset or DEFAULT_SEQUENCE
         folder = ensure_dataset(self.preset, frames=frames, seed=seed,

@@ -40,15 +40,7 @@ import cv2
 import numpy as np
 
 from .. import io
-from .sources import (
-    GAP_PERIODS,
-    CaptureFrame,
-    FrameSource,
-    SourceOpenError,
-    _size_error,
-    _skew_flag,
-    to_gray,
-)
+from .sources import GAP_PERIODS, CaptureFrame, FrameSource, SourceOpenError, _size_error, _skew_flag, to_gray
 
 __all__ = ["V4L2StereoSource", "CameraSetting", "default_opener", "DEVICE_TIME_WINDOW_S"]
 

@@ -201,7 +201,7 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
     """
     import cv2
 
-    from ..pipeline import Progress
+    from ..live.pipeline import Progress
     from ..plod.still import TerrainScene
     from ..render import TerrainRenderer, create_context
 

@@ -177,7 +177,7 @@ class TrackerPoses(PoseSource):
                  **open_options):
         from .. import io
         from ..capture import open_source
-        from ..tracker import Tracker, TrackerConfig
+        from ..tracking.tracker import Tracker, TrackerConfig
 
         self._spec = source if isinstance(source, str) else None
         self._open_options = open_options

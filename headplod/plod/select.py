@@ -284,7 +284,7 @@ class LevelSelector:
         screen, whichever is larger) is a real movement: the filters and the
         hysteresis restart, so the levels follow within the frame.
         """
-        from ..filters import OneEuroFilter
+        from ..tracking.filters import OneEuroFilter
 
         eye = np.asarray(view.eye_mm, dtype=np.float64)
         poi = np.asarray(view.poi_px, dtype=np.float64)

@@ -83,7 +83,7 @@ def _screen_of(dataset):
 
 def _dataset(frames: int, distance_mm: float, seed: int, root=None):
     from .. import io
-    from ..sequences import ensure_dataset
+    from ..capture.synthetic import ensure_dataset
 
     return io.Dataset(ensure_dataset("static", frames=frames, seed=seed, root=root, quiet=True,
                                      distance_mm=float(distance_mm)))
@@ -100,7 +100,7 @@ def still_head_views(frames: int = 60, distance_mm: float = 600.0, seed: int = 0
     cache folder (default ``$HEADPLOD_CACHE``).
     """
     from .. import io
-    from ..tracker import Tracker, TrackerConfig
+    from ..tracking.tracker import Tracker, TrackerConfig
 
     dataset = _dataset(frames, distance_mm, seed, root)
     screen = _screen_of(dataset)

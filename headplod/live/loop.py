@@ -21,9 +21,9 @@ from typing import Callable
 
 import numpy as np
 
-from . import io
+from .. import io
 from .pipeline import result_record
-from .tracker import Tracker, TrackerConfig
+from ..tracking.tracker import Tracker, TrackerConfig
 
 
 @dataclass
@@ -91,10 +91,10 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         Called with each finished record (writing, printing).
     recorder : headplod.capture.DatasetRecorder, optional
         Every frame is recorded as read (its images, not the pose).
-    sender : headplod.output.OpentrackSender, optional
-    pose_filter : headplod.filters.PoseFilter, optional
+    sender : headplod.live.loop.output.OpentrackSender, optional
+    pose_filter : headplod.tracking.filters.PoseFilter, optional
         Applied to the record before it is sent and written.
-    status : headplod.output.StatusLine, optional
+    status : headplod.live.loop.output.StatusLine, optional
     max_frames : int, optional
     timeout_s : float
         How long a live source may wait for a pair before it reports a stall.

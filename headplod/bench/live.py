@@ -1,7 +1,7 @@
 """``headplod bench live``: the live pipeline's rate, latency and capture-layer cost on a replayed recording.
 
 A recording is replayed through the same :class:`~headplod.capture.FrameSource`
-interface and the same loop (:func:`headplod.live.run_source`) that live
+interface and the same loop (:func:`headplod.live.loop.run_source`) that live
 cameras use, as fast as it goes, three ways in the same run:
 
 - ``replay``: read + track + records;
@@ -28,11 +28,11 @@ import numpy as np
 def run_live_bench(dataset=None, json_path=None, repeats: int = 3) -> int:
     import cv2
 
-    from .capture import DatasetRecorder, DatasetSource
-    from .filters import PoseFilter
-    from .live import run_source
-    from .output import OpentrackSender
-    from .sequences import DEFAULT_SEQUENCE, ensure_dataset
+    from ..capture import DatasetRecorder, DatasetSource
+    from ..tracking.filters import PoseFilter
+    from ..live.loop import run_source
+    from ..live.output import OpentrackSender
+    from ..capture.synthetic import DEFAULT_SEQUENCE, ensure_dataset
 
     cv2.setNumThreads(1)
     folder = Path(dataset) if dataset else ensure_dataset(DEFAULT_SEQUENCE)

@@ -37,9 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .plod import perception as pc
-from .plod.select import MODES, UNCERTAINTY_MODES, View
-from .plod.still import TerrainScene, _px_per_deg, default_head
+from ..plod import perception as pc
+from ..plod.select import MODES, UNCERTAINTY_MODES, View
+from ..plod.still import TerrainScene, _px_per_deg, default_head
 
 SIZE = (1280, 720)
 #: The CSF forms compared (perception.CSF_MODELS); the default is chosen from them.
@@ -77,8 +77,8 @@ class _Bench:
     def __init__(self, frames: int = 3):
         from calib import DEFAULT_SCREEN
 
-        from . import io
-        from .render import TerrainRenderer, create_context, off_axis_projection
+        from .. import io
+        from ..render import TerrainRenderer, create_context, off_axis_projection
 
         self.screen = io.read_screen(DEFAULT_SCREEN)
         self.scene = TerrainScene.build(self.screen)
@@ -96,7 +96,7 @@ class _Bench:
 
     def run(self, selector, view_mode="shaded", contrast_from_readback=False):
         """Steady-state frame of a selector at the default view: (image, stats)."""
-        from .plod.contrast import project_to_screen_px, readback_contrast
+        from ..plod.contrast import project_to_screen_px, readback_contrast
 
         scene, r = self.scene, self.renderer
         scene.mesh.clear()
@@ -227,7 +227,7 @@ def velocity_sweep(b: _Bench, speeds=SWEEP_SPEEDS_DEG_S, frames: int = 60) -> di
     frames at 60 Hz, the POI fixed at the centre; the triangles of the last
     frame and the median angular speed of the visible base triangles.
     """
-    from .render import screen_frame
+    from ..render import screen_frame
 
     right, _, _, _ = screen_frame(b.screen)
     probe = b.scene.selector("full", "none")
@@ -253,7 +253,7 @@ def velocity_sweep(b: _Bench, speeds=SWEEP_SPEEDS_DEG_S, frames: int = 60) -> di
 
 def ellipse_coverage(b: _Bench, sigma_deg=ELLIPSE_SIGMA_DEG, out_dir: Path | None = None) -> dict:
     """Part 4: base triangles inside the POI's 2σ ellipse kept at full detail, none against fixed."""
-    from .render import overlay_poi
+    from ..render import overlay_poi
 
     cov = np.diag(np.square(sigma_deg))
     res = {"sigma_deg": list(sigma_deg)}
@@ -295,7 +295,7 @@ def _write_png(path: Path, image_rgb: np.ndarray) -> None:
 def stability(b: _Bench, frames: int) -> dict | None:
     """Part 5: level changes per frame for a still head through the real tracker."""
     try:
-        from .plod import stability as st
+        from ..plod import stability as st
     except ImportError:          # pragma: no cover
         return None
     views = st.track_still_head(frames=frames)

@@ -1,6 +1,6 @@
 """``headplod bench uncertainty``: which covariance of V to trust, and at what cost.
 
-For every set and estimator (:mod:`headplod.uncertainty`):
+For every set and estimator (:mod:`headplod.tracking.uncertainty`):
 
 - calibration: the mean NEES, eᵀ cov⁻¹ e with e the (φ, θ) of the true V in
   the reported head frame; 2 for a calibrated estimator (the issue asks the
@@ -25,12 +25,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from . import io
-from .pipeline import Progress
-from .sequences import ensure_dataset
-from .tracker import Tracker, TrackerConfig
-from .uncertainty import (COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE, PaperPixelClouds, make_covariance_estimator,
-                          view_angles_deg)
+from .. import io
+from ..live.pipeline import Progress
+from ..capture.synthetic import ensure_dataset
+from ..tracking.tracker import Tracker, TrackerConfig
+from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE, PaperPixelClouds, make_covariance_estimator, view_angles_deg
 
 # (set, preset, frames full/quick, options, still head?)
 UNCERTAINTY_SETS = [

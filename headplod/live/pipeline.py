@@ -5,8 +5,8 @@ import sys
 import time
 from typing import Callable
 
-from . import io
-from .tracker import TrackerConfig, TrackResult
+from .. import io
+from ..tracking.tracker import TrackerConfig, TrackResult
 
 
 def result_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen | None = None,
@@ -34,7 +34,7 @@ def track_dataset(dataset: io.Dataset, config: TrackerConfig = TrackerConfig(),
 
     A frame that cannot be loaded becomes an ``ok: false`` record with the
     loader's reason; the other frames are still processed. This is
-    :func:`headplod.live.run_source` over the dataset's folder, so a dataset
+    :func:`headplod.live.loop.run_source` over the dataset's folder, so a dataset
     and a live session give the same records.
 
     Parameters
@@ -48,8 +48,8 @@ def track_dataset(dataset: io.Dataset, config: TrackerConfig = TrackerConfig(),
     -------
     list of pose records (dicts)
     """
-    from .capture import DatasetSource
-    from .live import run_source
+    from ..capture import DatasetSource
+    from .loop import run_source
 
     records = []
 

@@ -56,7 +56,7 @@ from typing import Any, Callable, Iterable, Optional, Sequence
 import cv2
 import numpy as np
 
-from . import io
+from .. import io
 
 __all__ = [
     "BoardSpec",

@@ -8,7 +8,7 @@ on what else the machine is doing. Times per pair are taken around
 ``Tracker.process`` (everything from two images to a verified mean pose, the
 covariance included).
 
-The imperfect-rig sets (:mod:`headplod.bench_rig`: ``rig.yaml`` wrong, the
+The imperfect-rig sets (:mod:`headplod.bench.track.rig`: ``rig.yaml`` wrong, the
 rig refined online) run with the default estimator only and are reported in
 a table, goals and chart of their own.
 """
@@ -22,10 +22,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from . import evaluate, io
-from .pipeline import Progress, result_record
-from .sequences import ensure_dataset
-from .tracker import ESTIMATORS, Tracker, TrackerConfig
+from . import evaluate
+from .. import io
+from ..live.pipeline import Progress, result_record
+from ..capture.synthetic import ensure_dataset
+from ..tracking.tracker import ESTIMATORS, Tracker, TrackerConfig
 
 # (set name, synthetic preset, frames in full / quick runs, what the goals say about it)
 TRACK_SETS = [
@@ -125,7 +126,7 @@ def _rejoin(pieces: list[str], known: set[str]) -> set[str]:
 def run_track_bench(json_path=None, chart_path=None, quick: bool = False, sets=None) -> int:
     """Run every set with every estimator, and the imperfect-rig sets with the default one;
     print tables, check the goals, write JSON and charts."""
-    from . import bench_rig
+    from . import rig as bench_rig
 
     cv2.setNumThreads(1)
     wanted = None if sets is None else _rejoin([_set_key(n) for n in sets],

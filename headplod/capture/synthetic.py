@@ -79,7 +79,7 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
 
 
 def _progress(total: int, label: str):
-    from .pipeline import Progress
+    from ..live.pipeline import Progress
 
     bar = Progress(total, f"render {label}")
     return lambda *args, **kwargs: bar.step()

@@ -15,7 +15,7 @@ Estimators, all fed the same :class:`CovarianceInput` by the tracker:
   fixed draw of combinations): the paper blames its LOD jitter on random
   sampling.
 - ``first_order``: the noise of each centre (from the image noise, blob
-  size, shape and flux: :mod:`headplod.detect`) propagated through the
+  size, shape and flux: :mod:`headplod.tracking.detect`) propagated through the
   reprojection fit to (φ, θ); the noise model's two coefficients (pixel
   noise, shot noise) are fitted to the residuals' frame-to-frame changes, so
   it follows the physics of the images rather than one renderer's settings

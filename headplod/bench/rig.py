@@ -20,9 +20,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from . import evaluate, io
-from .bench_uncertainty import nees
-from .tracker import Tracker, TrackerConfig
+from . import evaluate
+from .. import io
+from .uncertainty import nees
+from ..tracking.tracker import Tracker, TrackerConfig
 
 #: Seconds of refinement before the "settled" errors are measured (full runs;
 #: quick runs are 2 s long and use QUICK_SETTLE_S).
@@ -125,7 +126,7 @@ def run_rig_set(folder, settle_s: float = SETTLE_S, estimator: str | None = None
     offset, timestamps included, minus the true one), turn_sd_deg (largest 1σ
     of the turn), offset_sd_ms, mean_pose_ms, refine_ms.
     """
-    from .bench import threshold_baseline_s
+    from .track import threshold_baseline_s
 
     dataset = io.Dataset(folder)
     rig_truth = load_rig_truth(folder)
@@ -222,7 +223,7 @@ def _summarize(series: dict, settle_s: float) -> dict:
 
 def run_rig_sets(chosen, quick: bool, progress=None) -> dict:
     """Run RIG_SETS entries; {name: run_rig_set output}."""
-    from .sequences import ensure_dataset
+    from ..capture.synthetic import ensure_dataset
 
     settle = QUICK_SETTLE_S if quick else SETTLE_S
     results = {}

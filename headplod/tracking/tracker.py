@@ -2,16 +2,16 @@
 
 Stages (each timed per frame in ``TrackResult.timings_s``):
 
-1. ``detect``: blobs in both images (:mod:`headplod.detect`). While tracking,
+1. ``detect``: blobs in both images (:mod:`headplod.tracking.detect`). While tracking,
    only a region around the previous frame's markers is searched and the
    previous labels are carried over by nearest neighbour; the whole image and
    a fresh identification are used when that fails.
-2. ``identify``: labelings P0..P4 per image (:mod:`headplod.identify`), then
+2. ``identify``: labelings P0..P4 per image (:mod:`headplod.tracking.identify`), then
    the left/right pair that best satisfies the epipolar constraint and the
    marker model's geometry (rigid fit with the model's true size). When no
    pair of full labelings works, a marker hidden in one view is tried: the
    other view's blobs are matched to the labeled view through the same checks.
-3. ``triangulate`` and ``pose``: one of the estimators of :mod:`headplod.geometry`.
+3. ``triangulate`` and ``pose``: one of the estimators of :mod:`headplod.tracking.geometry`.
 4. ``verify``: reprojection residuals in both images and the rigid-fit error;
    a pose that fails them is not reported (``ok`` False with a reason).
 """
@@ -29,7 +29,7 @@ from scipy.stats import chi2
 from . import geometry as geo
 from .detect import Blobs, DetectionParams, centroids_near, detect_blobs, estimate_background, shot_variance
 from .identify import ModelRule, find_hypotheses
-from .tracking.rig_refine import RigErrorModel, RigRefineConfig, RigRefiner, rig_jacobian_rows
+from .rig_refine import RigErrorModel, RigRefineConfig, RigRefiner, rig_jacobian_rows
 from .uncertainty import DEFAULT_COVARIANCE, CovarianceInput, make_covariance_estimator, rig_residual_rows
 
 ESTIMATORS = ("paper", "rigid", "reproj")
@@ -50,7 +50,7 @@ class TrackerConfig:
     Attributes
     ----------
     estimator : {'reproj', 'rigid', 'paper'}
-        Pose estimator (see :mod:`headplod.geometry`); 'reproj' is the default
+        Pose estimator (see :mod:`headplod.tracking.geometry`); 'reproj' is the default
         because it was the most accurate in ``headplod bench track`` at a cost
         well inside the speed goal.
     detection : DetectionParams
@@ -78,7 +78,7 @@ class TrackerConfig:
         (times.csv's t_right), move the model by the head's velocity over that
         offset before the right camera sees it (reproj estimator).
     uncertainty : str
-        Estimator of the covariance of V (:mod:`headplod.uncertainty`);
+        Estimator of the covariance of V (:mod:`headplod.tracking.uncertainty`);
         the default was chosen by ``headplod bench uncertainty``.
     min_centroid_sigma_px : float
         Floor of the expected centroid noise, px.

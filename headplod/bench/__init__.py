@@ -1,0 +1,8 @@
+"""Benchmarks: accuracy against speed for every method (``headplod bench ...``).
+
+- :mod:`.track`: the pose estimators on synthetic sets; :mod:`.rig`: the imperfect-rig sets.
+- :mod:`.uncertainty`: the covariance of V (NEES, stability, cost).
+- :mod:`.live`: the live pipeline's rate and latency on a replayed recording.
+- :mod:`.plod`: speed against image error of every LOD mode.
+- :mod:`.evaluate`: accuracy of poses against a dataset's truth.
+"""

@@ -1,0 +1,1 @@
+"""Stereo calibration of the two cameras from board images (``headplod calibrate``)."""
