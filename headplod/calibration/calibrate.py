@@ -12,6 +12,11 @@ both cameras. Pairs that cannot be used, or whose reprojection error is an
 outlier, are set aside with a reason (:attr:`CalibrationResult.rejected`)
 and the others are calibrated again without them.
 
+This module solves; the board and its detection (:mod:`.board`), the pairs
+of a folder (:mod:`.pairs`), the advice while capturing (:mod:`.guide`) and
+the report (:mod:`.report`) are their own modules, and their public names
+are re-exported here (``__all__``), the calibration's one entry point.
+
 Conventions (``spec/conventions.md``)
 -------------------------------------
 - Pixels: OpenCV's, (0, 0) is the centre of the top-left pixel; every corner
@@ -46,17 +51,19 @@ folder without pairs or with unmatched files.
 
 from __future__ import annotations
 
-import functools
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import cv2
 import numpy as np
 
 from .. import io
+from .board import MIN_CHARUCO_CORNERS, BoardDetection, BoardSpec, _as_gray, _charuco, detect_board
+from .guide import coverage_guide
+from .pairs import IMAGE_EXTENSIONS, MIN_PAIRS, find_pairs
+from .report import _size_str, format_report
 
 __all__ = [
     "BoardSpec",
@@ -73,12 +80,6 @@ __all__ = [
     "IMAGE_EXTENSIONS",
 ]
 
-#: Fewest usable pairs :func:`calibrate_stereo` accepts.
-MIN_PAIRS = 6
-#: Fewest ChArUco corners a view (and a pair, in common) must have.
-MIN_CHARUCO_CORNERS = 6
-#: File name endings :func:`find_pairs` takes as images (case-insensitive).
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 #: A pair is an outlier when its reprojection error exceeds this many times
 #: the median of the pairs...
 OUTLIER_FACTOR = 3.0
@@ -91,18 +92,7 @@ OUTLIER_FLOOR_PX = 0.5
 #: predicts the other image to a few tenths of a px only, hence the margin).
 GROSS_FACTOR = 3.0
 GROSS_FLOOR_PX = 3.0
-#: A view counts as tilted for :func:`coverage_guide` beyond this angle.
-TILT_DEG = 20.0
-#: Views tilted about each axis (up/down, left/right) coverage_guide asks for.
-MIN_TILTED_VIEWS = 2
-#: The board should span at least this fraction of the image (the larger of
-#: its bounding box's width and height fractions) in most views.
-MIN_FILL = 0.25
-
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
-_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-3)
-_CELL_NAMES = ("top-left", "top", "top-right", "left", "centre", "right",
-               "bottom-left", "bottom", "bottom-right")
 
 
 class CalibrationError(ValueError):
@@ -117,356 +107,6 @@ class CalibrationError(ValueError):
     def __init__(self, message: str, rejected: Sequence[tuple[str, str]] = ()):
         super().__init__(message)
         self.rejected = list(rejected)
-
-
-# --------------------------------------------------------------------------
-# board
-# --------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class BoardSpec:
-    """A printed calibration board.
-
-    Parameters
-    ----------
-    kind : {'chessboard', 'charuco'}
-    cols, rows : int
-        Inner corners along a row and along a column (a 10 x 7 squares
-        chessboard has 9 x 6 inner corners). Use different numbers, one odd
-        and one even, for a chessboard: its orientation is then unambiguous.
-    square_mm : float
-        Side of a square as printed, mm (measure it: printers scale).
-    marker_mm : float, optional
-        Side of an ArUco marker (ChArUco only), mm; default 0.7 square.
-    dictionary : str
-        cv2.aruco predefined dictionary (ChArUco only), e.g. 'DICT_5X5_100'.
-    legacy_pattern : bool
-        ChArUco boards with an even number of rows of squares printed by
-        OpenCV before 4.6 use the old layout (ChArUco only).
-    """
-
-    kind: str = "chessboard"
-    cols: int = 9
-    rows: int = 6
-    square_mm: float = 25.0
-    marker_mm: Optional[float] = None
-    dictionary: str = "DICT_5X5_100"
-    legacy_pattern: bool = False
-
-    def __post_init__(self) -> None:
-        if self.kind not in ("chessboard", "charuco"):
-            raise ValueError(f"BoardSpec.kind is {self.kind!r}, expected 'chessboard' or 'charuco'")
-        for key in ("cols", "rows"):
-            v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 2:
-                raise ValueError(f"BoardSpec.{key} is {v!r}, expected an integer >= 2 (inner corners)")
-            object.__setattr__(self, key, int(v))
-        if not (isinstance(self.square_mm, (int, float, np.number)) and math.isfinite(self.square_mm)
-                and self.square_mm > 0):
-            raise ValueError(f"BoardSpec.square_mm is {self.square_mm!r}, expected a length > 0 in mm")
-        object.__setattr__(self, "square_mm", float(self.square_mm))
-        if self.kind == "chessboard" and self.cols == self.rows:
-            raise ValueError(
-                f"BoardSpec: a chessboard with {self.cols}x{self.rows} inner corners looks the same "
-                "turned by 90 degrees, so the two cameras may number its corners differently; "
-                "use a board with different numbers of inner corners (e.g. 9x6)")
-        if self.kind == "charuco":
-            if self.marker_mm is not None:
-                if not (math.isfinite(self.marker_mm) and 0 < self.marker_mm < self.square_mm):
-                    raise ValueError(f"BoardSpec.marker_mm is {self.marker_mm!r}, expected 0 < marker_mm "
-                                     f"< square_mm ({self.square_mm})")
-                object.__setattr__(self, "marker_mm", float(self.marker_mm))
-            if not hasattr(cv2.aruco, self.dictionary) or not self.dictionary.startswith("DICT_"):
-                raise ValueError(f"BoardSpec.dictionary is {self.dictionary!r}, expected a cv2.aruco "
-                                 "predefined dictionary such as 'DICT_5X5_100'")
-
-    @property
-    def marker(self) -> float:
-        """ArUco marker side, mm (ChArUco)."""
-        return 0.7 * self.square_mm if self.marker_mm is None else float(self.marker_mm)
-
-    @property
-    def n_corners(self) -> int:
-        """Number of inner corners."""
-        return self.cols * self.rows
-
-    def object_points(self) -> np.ndarray:
-        """(cols*rows, 3) float32 inner corners in the board frame B, mm, by id."""
-        j, i = np.meshgrid(np.arange(self.cols), np.arange(self.rows))
-        xy = np.stack([j.ravel() + 1, i.ravel() + 1], axis=1) * self.square_mm
-        return np.column_stack([xy, np.zeros(len(xy))]).astype(np.float32)
-
-    def describe(self) -> str:
-        """One line, e.g. 'chessboard 9x6 inner corners, 25 mm squares'."""
-        text = f"{self.kind} {self.cols}x{self.rows} inner corners, {self.square_mm:g} mm squares"
-        if self.kind == "charuco":
-            text += f", {self.marker:g} mm markers, {self.dictionary}"
-            if self.legacy_pattern:
-                text += ", legacy pattern"
-        return text
-
-
-@functools.lru_cache(maxsize=8)
-def _charuco(spec: BoardSpec):
-    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, spec.dictionary))
-    board = cv2.aruco.CharucoBoard((spec.cols + 1, spec.rows + 1), spec.square_mm, spec.marker, dictionary)
-    if spec.legacy_pattern:
-        board.setLegacyPattern(True)
-    return board, cv2.aruco.CharucoDetector(board)
-
-
-@dataclass(frozen=True)
-class BoardDetection:
-    """The inner corners of a board found in one image, or why not.
-
-    Falsy when the board was not found; ``reason`` then says why. Unpacks
-    as ``corners, ids = detection``.
-
-    Attributes
-    ----------
-    corners : (N, 2) float32 ndarray or None
-        Corner positions, px.
-    ids : (N,) int32 ndarray or None
-        Corner ids (k = row * cols + column), increasing.
-    object_mm : (N, 3) float32 ndarray or None
-        The corners in the board frame, mm.
-    reason : str or None
-        Why the board was not found (None when it was).
-    """
-
-    corners: Optional[np.ndarray]
-    ids: Optional[np.ndarray]
-    object_mm: Optional[np.ndarray] = None
-    reason: Optional[str] = None
-
-    def __bool__(self) -> bool:
-        return self.corners is not None
-
-    def __iter__(self):
-        yield self.corners
-        yield self.ids
-
-    def __len__(self) -> int:
-        return 2
-
-    @classmethod
-    def failed(cls, reason: str) -> "BoardDetection":
-        return cls(None, None, None, reason)
-
-
-def _as_gray(image: Any, what: str = "image") -> np.ndarray:
-    if not isinstance(image, np.ndarray):
-        raise TypeError(f"{what}: expected a numpy array, got {type(image).__name__}")
-    if image.ndim == 3 and image.shape[2] in (3, 4):
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
-    elif image.ndim == 3 and image.shape[2] == 1:
-        image = image[:, :, 0]
-    if image.ndim != 2:
-        raise ValueError(f"{what}: expected a (height, width) gray image, got shape {image.shape}")
-    if image.dtype != np.uint8:
-        if image.dtype == np.uint16:
-            image = (image >> 8).astype(np.uint8)
-        else:
-            raise ValueError(f"{what}: expected uint8 (or uint16) pixels, got {image.dtype}")
-    return np.ascontiguousarray(image)
-
-
-def _sample(gray: np.ndarray, pt: np.ndarray, half: int) -> float:
-    patch = cv2.getRectSubPix(gray, (2 * half + 1, 2 * half + 1), (float(pt[0]), float(pt[1])))
-    return float(patch.mean())
-
-
-def _orient_chessboard(gray: np.ndarray, corners: np.ndarray, spec: BoardSpec) -> np.ndarray:
-    """Number the corners as the board frame B does (see module notes).
-
-    A detector may return the grid mirrored or turned by 180 degrees. The
-    grid's handedness fixes a mirror (seen from its front, B's x and y axes
-    appear clockwise in the image), the colours of the squares at corner 0
-    fix the turn: the square diagonally inward from it (B's square (1, 1))
-    is black, its neighbour across the row (square (0, 1)) is white. With
-    cols + rows even both ends look alike; corner 0 is then taken nearer the
-    image's top left, which two upright cameras agree on.
-    """
-    g = corners.reshape(spec.rows, spec.cols, 2).astype(np.float64)
-    ex = g[0, 1] - g[0, 0]
-    ey = g[1, 0] - g[0, 0]
-    if ex[0] * ey[1] - ex[1] * ey[0] < 0:  # mirrored: flip the columns
-        g = g[:, ::-1]
-    if (spec.cols + spec.rows) % 2 == 1:
-        ex = g[0, 1] - g[0, 0]
-        ey = g[1, 0] - g[0, 0]
-        half = int(max(1, min(4, 0.15 * min(np.hypot(*ex), np.hypot(*ey)))))
-        dark = _sample(gray, g[0, 0] + 0.5 * (ex + ey), half)
-        light = _sample(gray, g[0, 0] + 0.5 * (ex - ey), half)
-        if dark > light:
-            g = g[::-1, ::-1]
-    else:
-        if g[-1, -1].sum() < g[0, 0].sum():
-            g = g[::-1, ::-1]
-    return g.reshape(-1, 2).astype(np.float32)
-
-
-def _subpix(gray: np.ndarray, corners: np.ndarray, spec: BoardSpec) -> np.ndarray:
-    g = corners.reshape(spec.rows, spec.cols, 2)
-    d = min(np.linalg.norm(np.diff(g, axis=1), axis=2).min(), np.linalg.norm(np.diff(g, axis=0), axis=2).min())
-    win = int(max(2, min(6, 0.4 * d)))
-    c = corners.reshape(-1, 1, 2).astype(np.float32).copy()
-    return cv2.cornerSubPix(gray, c, (win, win), (-1, -1), _SUBPIX_CRITERIA).reshape(-1, 2)
-
-
-def detect_board(gray: np.ndarray, spec: BoardSpec) -> BoardDetection:
-    """Find the board's inner corners in one image.
-
-    Chessboard: ``cv2.findChessboardCorners`` (falling back to
-    ``cv2.findChessboardCornersSB``), refined with ``cv2.cornerSubPix`` and
-    numbered as the board frame (see :func:`_orient_chessboard`); the whole
-    board must be visible. ChArUco: ``cv2.aruco.CharucoDetector``; any
-    :data:`MIN_CHARUCO_CORNERS` or more corners not all on one line will do.
-
-    Parameters
-    ----------
-    gray : (H, W) uint8 ndarray
-        The image (BGR and uint16 images are converted).
-    spec : BoardSpec
-
-    Returns
-    -------
-    BoardDetection
-        Falsy with a ``reason`` when the board was not found.
-    """
-    gray = _as_gray(gray)
-    if spec.kind == "chessboard":
-        size = (spec.cols, spec.rows)
-        # the classic detector is fast (a few ms) and, refined by cornerSubPix,
-        # accurate; the sector-based one finds boards the classic one misses
-        found, corners = cv2.findChessboardCorners(
-            gray, size, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-            | cv2.CALIB_CB_FAST_CHECK)
-        if not found:
-            found, corners = cv2.findChessboardCornersSB(
-                gray, size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
-        if not found or corners is None or len(corners) != spec.n_corners:
-            return BoardDetection.failed(
-                f"no {spec.cols}x{spec.rows} chessboard found (the whole board and its white "
-                "margin must be in the image, sharp and evenly lit)")
-        corners = _subpix(gray, corners.reshape(-1, 2), spec)
-        corners = _orient_chessboard(gray, corners, spec)
-        ids = np.arange(spec.n_corners, dtype=np.int32)
-        return BoardDetection(corners, ids, spec.object_points())
-    board, detector = _charuco(spec)
-    ch_corners, ch_ids, marker_corners, _ = detector.detectBoard(gray)
-    n_markers = 0 if marker_corners is None else len(marker_corners)
-    if ch_ids is None or len(ch_ids) < MIN_CHARUCO_CORNERS:
-        n = 0 if ch_ids is None else len(ch_ids)
-        return BoardDetection.failed(
-            f"{n} ChArUco corners found ({n_markers} markers), at least {MIN_CHARUCO_CORNERS} needed "
-            f"(is it a {spec.describe()} board? is it sharp and large enough?)")
-    ids = ch_ids.reshape(-1).astype(np.int32)
-    order = np.argsort(ids)
-    ids = ids[order]
-    corners = ch_corners.reshape(-1, 2)[order].astype(np.float32)
-    if board.checkCharucoCornersCollinear(ids.reshape(-1, 1)):
-        return BoardDetection.failed(f"the {len(ids)} ChArUco corners found are all on one line")
-    obj = np.asarray(board.getChessboardCorners(), np.float32).reshape(-1, 3)[ids]
-    return BoardDetection(corners, ids, obj)
-
-
-# --------------------------------------------------------------------------
-# pairs in a folder
-# --------------------------------------------------------------------------
-
-
-def _natural_key(name: str):
-    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
-
-
-def _images_in(folder: Path) -> list[Path]:
-    return sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS),
-                  key=lambda p: _natural_key(p.name))
-
-
-def _list(names: list[str], limit: int = 8) -> str:
-    shown = ", ".join(names[:limit])
-    return shown + (f", ... ({len(names)} in all)" if len(names) > limit else "")
-
-
-_SIDE_NAME = re.compile(r"^(left|right)[_\-.]?(.*)$", re.IGNORECASE)
-
-
-def find_pairs(folder: str | Path) -> list[tuple[str, Path, Path]]:
-    """The stereo pairs of a calibration folder.
-
-    Two layouts are recognised:
-
-    - ``left/`` and ``right/`` subfolders holding images with the same
-      names (the extension may differ): ``left/07.png`` + ``right/07.png``;
-      the pair's name is the file's stem.
-    - side by side, as OpenCV's samples: ``left07.jpg`` + ``right07.jpg``
-      (also ``left_07``, ``Left-07``); the name is what follows the side.
-
-    Parameters
-    ----------
-    folder : str or Path
-
-    Returns
-    -------
-    list of (name, left_path, right_path), in natural order of the names.
-
-    Raises
-    ------
-    headplod.io.ContractError
-        The folder does not exist, holds no pairs, or has images without a
-        partner (all of them listed).
-    """
-    root = Path(folder)
-    if not root.exists():
-        raise io.ContractError(f"{root}: folder not found. Hint: give the folder of the calibration "
-                               "image pairs", root)
-    if not root.is_dir():
-        raise io.ContractError(f"{root}: is a file, expected a folder of calibration image pairs", root)
-    hint = ("expected left/ and right/ subfolders with images of the same names (left/00.png, "
-            "right/00.png, ...) or side-by-side files leftNN.png and rightNN.png")
-    sub_l, sub_r = root / "left", root / "right"
-    if sub_l.is_dir() or sub_r.is_dir():
-        if not (sub_l.is_dir() and sub_r.is_dir()):
-            have, missing = (sub_l, sub_r) if sub_l.is_dir() else (sub_r, sub_l)
-            raise io.ContractError(f"{root}: has {have.name}/ but no {missing.name}/ subfolder. "
-                                   f"Hint: {hint}", root)
-        left = {p.stem: p for p in _images_in(sub_l)}
-        right = {p.stem: p for p in _images_in(sub_r)}
-        where = (f"{sub_l}", f"{sub_r}")
-    else:
-        left, right = {}, {}
-        for p in _images_in(root):
-            m = _SIDE_NAME.match(p.stem)
-            if m:
-                (left if m.group(1).lower() == "left" else right)[m.group(2)] = p
-        where = (f"{root}/left*", f"{root}/right*")
-    if not left and not right:
-        raise io.ContractError(f"{root}: no calibration images found. Hint: {hint} "
-                               f"(image types: {', '.join(IMAGE_EXTENSIONS)})", root)
-    only_l = sorted(set(left) - set(right), key=_natural_key)
-    only_r = sorted(set(right) - set(left), key=_natural_key)
-    if only_l or only_r:
-        parts = []
-        if only_l:
-            parts.append(f"{len(only_l)} left image(s) without a right one: "
-                         f"{_list([left[k].name for k in only_l])}")
-        if only_r:
-            parts.append(f"{len(only_r)} right image(s) without a left one: "
-                         f"{_list([right[k].name for k in only_r])}")
-        raise io.ContractError(
-            f"{root}: unmatched images; " + "; ".join(parts)
-            + f". Hint: every image in {where[0]} needs a partner of the same name in {where[1]}; "
-            "delete or rename the odd ones", root)
-    names = sorted(left, key=_natural_key)
-    return [(n, left[n], right[n]) for n in names]
-
-
-# --------------------------------------------------------------------------
-# calibration
-# --------------------------------------------------------------------------
 
 
 @dataclass
@@ -545,10 +185,6 @@ def _load(item: Any, what: str) -> tuple[Optional[np.ndarray], Optional[str]]:
         return _as_gray(img, f"{what} {p}"), None
     except (TypeError, ValueError) as exc:
         return None, str(exc)
-
-
-def _size_str(size) -> str:
-    return f"{size[0]}x{size[1]}"
 
 
 @dataclass
@@ -997,164 +633,3 @@ def calibrate_folder(folder: str | Path, spec: BoardSpec, out: str | Path | None
         io.write_rig(out, result.rig)
     return result
 
-
-# --------------------------------------------------------------------------
-# coverage
-# --------------------------------------------------------------------------
-
-
-def _corners_of(det: Any) -> tuple[Optional[np.ndarray], Optional[np.ndarray]]:
-    """(corners (N, 2), object (N, 3) or None) of a detection-like item."""
-    if det is None:
-        return None, None
-    if isinstance(det, BoardDetection):
-        return (det.corners, det.object_mm) if det else (None, None)
-    if isinstance(det, np.ndarray):
-        return det.reshape(-1, 2), None
-    if isinstance(det, (tuple, list)) and len(det) >= 1:
-        c = det[0]
-        return (None, None) if c is None else (np.asarray(c).reshape(-1, 2), None)
-    raise TypeError(f"expected a BoardDetection, an (N, 2) array or None, got {type(det).__name__}")
-
-
-def _tilt(corners: np.ndarray, obj: np.ndarray) -> tuple[float, np.ndarray]:
-    """Tilt of the board from the affine map board -> image (weak perspective).
-
-    Returns (angle in degrees, unit image direction along which the board is
-    foreshortened)."""
-    A = np.column_stack([obj[:, :2], np.ones(len(obj))])
-    M, *_ = np.linalg.lstsq(A, corners.astype(np.float64), rcond=None)
-    J = M[:2].T  # image = J @ board + c
-    U, s, _ = np.linalg.svd(J)
-    ratio = float(np.clip(s[1] / s[0], 0.0, 1.0)) if s[0] > 0 else 1.0
-    return math.degrees(math.acos(ratio)), U[:, 1]
-
-
-def coverage_guide(detections_left: Iterable[Any], image_size, min_views: int = MIN_PAIRS) -> list[str]:
-    """What poses a calibration still lacks, for a live guide.
-
-    Checks, over the views the board was found in: every ninth of the image
-    (3 x 3 grid) has had board corners in it; at least
-    :data:`MIN_TILTED_VIEWS` views tilted by more than :data:`TILT_DEG`
-    up/down and as many left/right (needs ``BoardDetection`` items, which
-    carry the board coordinates); the board spans at least :data:`MIN_FILL`
-    of the image in half of the views; there are ``min_views`` views.
-
-    Parameters
-    ----------
-    detections_left : iterable
-        One camera's detections: :class:`BoardDetection` (falsy ones are
-        skipped), (N, 2) corner arrays (px), ``(corners, ids)`` tuples or None.
-    image_size : (width, height), px.
-    min_views : int
-
-    Returns
-    -------
-    list of str
-        One sentence per missing kind of pose; empty when coverage is good.
-    """
-    w, h = int(image_size[0]), int(image_size[1])
-    views = [cv for cv in (_corners_of(d) for d in detections_left) if cv[0] is not None and len(cv[0])]
-    if not views:
-        return ["no board found yet: hold the whole board in view of both cameras"]
-    advice = []
-    hit = np.zeros(9, bool)
-    fills = []
-    tilt_ud = tilt_lr = 0
-    n_tilt_known = 0
-    for corners, obj in views:
-        gx = np.clip((corners[:, 0] + 0.5) * 3 // w, 0, 2).astype(int)
-        gy = np.clip((corners[:, 1] + 0.5) * 3 // h, 0, 2).astype(int)
-        hit[gy * 3 + gx] = True
-        span = corners.max(axis=0) - corners.min(axis=0)
-        fills.append(max(span[0] / w, span[1] / h))
-        if obj is not None and len(obj) >= 4:
-            n_tilt_known += 1
-            angle, direction = _tilt(corners, obj)
-            if angle > TILT_DEG:
-                if abs(direction[1]) > 0.5:
-                    tilt_ud += 1
-                if abs(direction[0]) > 0.5:
-                    tilt_lr += 1
-    if len(views) < min_views:
-        advice.append(f"{len(views)} view(s) with the board so far, at least {min_views} needed "
-                      "(10-20 recommended)")
-    missing = [_CELL_NAMES[i] for i in range(9) if not hit[i]]
-    if missing:
-        advice.append(f"no board corners yet in the {', '.join(missing)} of the image: move the board "
-                      "there (keeping it whole in both views)")
-    if n_tilt_known:
-        if tilt_ud < MIN_TILTED_VIEWS:
-            advice.append(f"{tilt_ud} view(s) tilted up/down by more than {TILT_DEG:g} degrees, "
-                          f"{MIN_TILTED_VIEWS} needed: turn the board about its horizontal axis by 20-40 degrees")
-        if tilt_lr < MIN_TILTED_VIEWS:
-            advice.append(f"{tilt_lr} view(s) tilted left/right by more than {TILT_DEG:g} degrees, "
-                          f"{MIN_TILTED_VIEWS} needed: turn the board about its vertical axis by 20-40 degrees")
-    big = sum(f >= MIN_FILL for f in fills)
-    if 2 * big < len(fills):
-        advice.append(f"the board is small in the images (it spans {100 * float(np.median(fills)):.0f}% of the "
-                      f"image in a typical view): bring it closer, or use a bigger board, so that it spans "
-                      f"{100 * MIN_FILL:.0f}-60%")
-    return advice
-
-
-# --------------------------------------------------------------------------
-# report
-# --------------------------------------------------------------------------
-
-
-def _convergence_deg(R: np.ndarray) -> float:
-    """Angle between the two optical axes, degrees."""
-    z_right_in_left = R.T @ np.array([0.0, 0.0, 1.0])
-    return math.degrees(math.acos(float(np.clip(z_right_in_left[2], -1.0, 1.0))))
-
-
-def _std_line(result: CalibrationResult) -> str:
-    """One line with the 1-sigma values written to rig.yaml as the tracker's prior."""
-    def vec(v) -> str:
-        return "n/a" if v is None else " ".join(f"{float(x):.3g}" for x in np.ravel(v))
-
-    parts = []
-    for side in ("left", "right"):
-        sd = result.std_px.get(side)
-        parts.append(f"{side} fx fy cx cy {vec(None if not sd else [sd[k] for k in ('fx', 'fy', 'cx', 'cy')])} px")
-    parts.append(f"rotation vector {vec(result.std_rotation_deg)} deg")
-    parts.append(f"T {vec(result.std_translation_mm)} mm")
-    return "calibration 1-sigma (written to rig.yaml): " + "; ".join(parts)
-
-
-def format_report(result: CalibrationResult) -> str:
-    """A human-readable summary of a calibration, for the command line."""
-    rig = result.rig
-    lines = [f"board: {result.spec.describe()}",
-             f"pairs: {len(result.used)} used, {len(result.rejected)} rejected"]
-    for name, reason in result.rejected:
-        lines.append(f"  rejected {name}: {reason}")
-    lines.append(f"image size: {_size_str(rig.image_size)} px")
-    for side, K, D in (("left", rig.K1, rig.D1), ("right", rig.K2, rig.D2)):
-        sd = result.std_px.get(side, {})
-        lines.append(
-            f"{side:5s} camera: fx {K[0, 0]:.1f} ± {sd.get('fx', float('nan')):.1f}, "
-            f"fy {K[1, 1]:.1f} ± {sd.get('fy', float('nan')):.1f}, "
-            f"cx {K[0, 2]:.1f} ± {sd.get('cx', float('nan')):.1f}, "
-            f"cy {K[1, 2]:.1f} ± {sd.get('cy', float('nan')):.1f} px; "
-            f"distortion {' '.join(f'{v:+.4f}' for v in D)}")
-    c = rig.right_center_mm
-    lines.append(f"baseline: {rig.baseline_mm:.1f} mm; right camera at ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f}) mm "
-                 f"in the left camera's frame; optical axes converge by {_convergence_deg(rig.R):.1f} deg")
-    lines.append(f"reprojection RMS: left {result.rms_left_px:.3f} px, right {result.rms_right_px:.3f} px, "
-                 f"stereo {result.rms_stereo_px:.3f} px (single-camera calibrations: "
-                 f"{result.rms_zhang_px[0]:.3f}, {result.rms_zhang_px[1]:.3f} px)")
-    lines.append(_std_line(result))
-    worst = sorted(result.pair_errors_px.items(), key=lambda kv: -max(kv[1]))[:3]
-    if worst:
-        lines.append("worst pairs: " + ", ".join(f"{n} ({max(e):.2f} px)" for n, e in worst))
-    if result.rms_stereo_px > 1.0:
-        lines.append("WARNING: stereo RMS over 1 px: check the board's square size, that it is flat, and "
-                     "that the two images of a pair were taken at the same moment")
-    elif result.rms_stereo_px > 0.5:
-        lines.append("note: stereo RMS over 0.5 px; a sharp, flat board usually gives 0.1-0.4 px")
-    if result.coverage:
-        lines.append("coverage: the poses could be better:")
-        lines += [f"  {m}" for m in result.coverage]
-    return "\n".join(lines)
