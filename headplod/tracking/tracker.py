@@ -21,7 +21,6 @@ import math
 import time
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 import scipy.linalg
 from scipy.stats import chi2
@@ -29,6 +28,7 @@ from scipy.stats import chi2
 from . import geometry as geo
 from .detect import Blobs, DetectionParams, centroids_near, detect_blobs, estimate_background, shot_variance
 from .identify import ModelRule, find_hypotheses
+from .motion import PoseHistory
 from .rig_refine import RigErrorModel, RigRefineConfig, RigRefiner, rig_jacobian_rows
 from .uncertainty import DEFAULT_COVARIANCE, CovarianceInput, make_covariance_estimator, rig_residual_rows
 
@@ -327,9 +327,7 @@ class Tracker:
         self._prev_size = None         # (2, 5) Gaussian σ of each marker's blob, px
         self._prev_flux = None
         self._tracked_flux = self._tracked_size = None
-        self._history = []            # [(t, R_world_G, p1)] last three accepted poses
-        self._history_rigs = []       # the rig version each of them was fitted with
-        self._history_infos = []      # their information JᵀΣ⁻¹J (6, 6), per rad and mm (None if unknown)
+        self._motion = PoseHistory(self.config.extrapolate_velocity)   # the last accepted poses
         self._prev_pose = None
         self._uncompensated = False
         self._last_right = None        # (image, t, t_right) of the previous frame's right camera
@@ -388,9 +386,9 @@ class Tracker:
         t_pose = time.perf_counter()
         self._uncompensated = (t_right is not None and t is not None and t_right != t
                                and self._right_motion(t, t_right) is None
-                               and (not self._history or t - self._history[-1][0] > 0.2))
+                               and (not self._motion or t - self._motion.last_time() > 0.2))
         R, p1, residuals, JtJ, vectors = self._estimate(match, t, t_right)
-        velocity = self._head_velocity()
+        velocity = self._motion.velocity()
         rig_rows = rig_sd = pose_rows = None
         # The rig's share only widens the checks: a frame that passes them on
         # image noise alone (the usual case) needs no rig terms before its covariance.
@@ -508,17 +506,6 @@ class Tracker:
             return (left, right), self._declared_right + offset
         return (left, right), (t_right if t_right is not None else t) + offset
 
-    def _head_velocity(self):
-        """(ω rad/s, v mm/s) of the head in the world frame from the last two accepted poses, or None."""
-        pair = self._motion_pair()
-        if pair is None:
-            return None
-        (ta, Ra, pa), (tb, Rb, pb) = pair
-        dt = tb - ta
-        if not dt > 0:
-            return None
-        return cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt, (pb - pa) / dt
-
     def _rig_terms(self, R, p1, t, t_right, velocity, P, match, spread: bool = True):
         """Rig Jacobian rows (2, 5, 2, 8) at the pose, each centre's 1σ residual from the rig (2, 5), px
         (None unless ``spread``), and the pose's own Jacobian rows (2, 5, 2, 6)
@@ -601,12 +588,10 @@ class Tracker:
             # The recent poses, refitted with the new rig by the update itself:
             # the velocity and prediction go on without a jump.
             version = self._rig_version()
-            for i, (t_k, _, _) in enumerate(self._history):
-                if t_k in refiner.refit_poses:
-                    self._history[i] = (t_k, *refiner.refit_poses[t_k])
-                    self._history_rigs[i] = version
-            if self._history and self._history_rigs[-1] == version:
-                self._prev_pose = self._history[-1][1:]
+            self._motion.refit(refiner.refit_poses, version)
+            last = self._motion.last_pose(version)
+            if last is not None:
+                self._prev_pose = last
 
     def _rig_version(self) -> int:
         return 0 if self.refiner is None else self.refiner.versions
@@ -717,22 +702,7 @@ class Tracker:
 
     def _predicted_pose(self):
         """This frame's pose by constant velocity from the last two (the last one if unknown)."""
-        R, p = self._prev_pose
-        if len(self._history) >= 2 and self._history[-1][1] is R and self._history_rigs[-1] == self._history_rigs[-2]:
-            (_, Ra, pa), (_, Rb, pb) = self._history[-2:]
-            return (Rb @ Ra.T) @ Rb, 2 * pb - pa
-        return R, p
-
-    def _motion_pair(self):
-        """The last two accepted poses fitted with one rig, ((t, R, p1), (t, R, p1)), or None.
-
-        Poses fitted with different rigs differ by the rig's change as well
-        as the motion: a refinement step must not look like a head jump.
-        """
-        for i in range(len(self._history) - 1, 0, -1):
-            if self._history_rigs[i] == self._history_rigs[i - 1]:
-                return self._history[i - 1], self._history[i]
-        return None
+        return self._motion.predicted(*self._prev_pose)
 
     def _match_from_centers(self, centers, visible, index) -> _Match | None:
         """Triangulate labeled centres and fit the model; None if they break the checks."""
@@ -1067,96 +1037,14 @@ class Tracker:
         return res
 
     def _right_motion(self, t, t_right, current=None):
-        """World-frame motion (rvec, tvec) of the head from t to t_right.
-
-        The velocity comes from the last accepted pose and ``current`` (this
-        frame's pose, R and p1) when given and both were fitted with the
-        same rig (a refined rig moves the poses: that is no motion), else
-        from the last two poses fitted with one rig. With a third pose
-        before them (same rig), it is extrapolated at constant acceleration
-        to the middle of [t, t_right]: a difference's velocity is half a
-        frame old, which at a head's turning point is most of the motion
-        over a few ms.
-        None when the cameras are synchronous or there is no recent history.
-        """
-        if t is None or t_right is None or t_right == t or not self._history:
-            return None
-        seq = self._motion_sequence(t, current)
-        if seq is None:
-            return None
-        (ta, Ra, pa), (tb, Rb, pb) = seq[-2:]
-        dt = tb - ta
-        if dt <= 0 or t - ta > 4 * dt or (current is None and t - tb > 3 * dt):
-            return None
-        w = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt             # rad/s, at (ta + tb) / 2
-        v = (pb - pa) / dt                                         # mm/s
-        if len(seq) == 3 and self.config.extrapolate_velocity:
-            tz, Rz, pz = seq[0]
-            dz = ta - tz
-            if 0 < dz <= 2 * dt:
-                k = (t + 0.5 * (t_right - t) - 0.5 * (ta + tb)) / (0.5 * (tb - tz))
-                w = w + (w - cv2.Rodrigues(Ra @ Rz.T)[0].ravel() / dz) * k
-                v = v + (v - (pa - pz) / dz) * k
-        step = t_right - t
-        omega = w * step
-        dR = cv2.Rodrigues(omega)[0]
-        # Rotation about P1 plus P1's displacement: X → dR (X − p1) + p1 + v·δt.
-        p_now = pb + (pb - pa) * ((t - tb) / dt)
-        tvec = p_now - dR @ p_now + v * step
-        return omega, tvec
-
-    def _motion_sequence(self, t, current):
-        """The last two or three poses (t, R, p1), oldest first, fitted with one rig, for a velocity:
-        the recent history and ``current`` when it was fitted with the rig of the last one, else the
-        history alone; None if no two poses share a rig."""
-        history, versions = self._history, self._history_rigs
-        if current is not None and versions[-1] == self._rig_version():
-            poses, rigs = history + [(t, *current)], versions + [versions[-1]]
-        else:
-            poses, rigs = list(history), list(versions)
-        end = next((i for i in range(len(poses) - 1, 0, -1) if rigs[i] == rigs[i - 1]), None)
-        if end is None:
-            return None
-        start = end - 1
-        if start > 0 and rigs[start - 1] == rigs[end]:
-            start -= 1
-        return poses[start:end + 1]
+        """The head's motion over the right image's exposure offset (:meth:`PoseHistory.right_motion`)."""
+        return self._motion.right_motion(t, t_right, self._rig_version(), current)
 
     def _motion_terms(self, t, t_right, current):
-        """How the motion compensation (:meth:`_right_motion`'s second pass) ties the right view to
-        the poses: (gain, cov). The right view's model is this pose moved by the velocity, itself
-        Σ α_i pose_i over the poses used (this one last), times the offset δ: a change of this pose
-        moves it (1 + α δ) times as much (``gain`` = α δ), and the earlier poses' errors move it by
-        their α_i δ (``cov`` (6, 6), rad and mm, from their first-order covariances). (0, None)
-        when no motion is applied."""
-        if (not self.config.compensate_offset or t is None or t_right is None or t_right == t
-                or not self._history):
+        """(gain, cov) of the motion compensation (:meth:`PoseHistory.motion_terms`); (0, None) if off."""
+        if not self.config.compensate_offset:
             return 0.0, None
-        seq = self._motion_sequence(t, current)
-        if seq is None or seq[-1][0] != t:
-            return 0.0, None
-        covs = [None if i is None else _inverse(i) for i in self._history_infos[len(self._history) - (len(seq) - 1):]]
-        times = [p[0] for p in seq]
-        dt = times[-1] - times[-2]
-        if not dt > 0 or any(c is None for c in covs):
-            return 0.0, None
-        alpha = [0.0] * (len(seq) - 2) + [-1.0 / dt, 1.0 / dt]
-        step = t_right - t
-        model = np.zeros((6, 6))
-        if len(seq) == 3 and self.config.extrapolate_velocity:
-            dz = times[1] - times[0]
-            if 0 < dz <= 2 * dt:
-                k = (t + 0.5 * (t_right - t) - 0.5 * (times[1] + times[2])) / (0.5 * (times[2] - times[0]))
-                alpha = [k / dz, -(1 + k) / dt - k / dz, (1 + k) / dt]
-                # The extrapolation is a model of the motion (constant
-                # acceleration): its error is taken to be as large as its
-                # correction.
-                (_, Rz, pz), (_, Ra, pa), (_, Rb, pb) = seq
-                correction = k * step * np.concatenate([
-                    cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt - cv2.Rodrigues(Ra @ Rz.T)[0].ravel() / dz,
-                    (pb - pa) / dt - (pa - pz) / dz])
-                model = np.outer(correction, correction)
-        return alpha[-1] * step, step ** 2 * sum(a * a * c for a, c in zip(alpha[:-1], covs)) + model
+        return self._motion.motion_terms(t, t_right, self._rig_version(), current)
 
     def _remember(self, match: _Match, t, R, p1, blobs, mode, info=None) -> None:
         self._prev_pose = (R, p1)
@@ -1179,14 +1067,5 @@ class Tracker:
             if blobs[cam] is not None and len(blobs[cam]):
                 self._prev_threshold[cam] = blobs[cam].threshold_dn
         if t is not None:
-            self._history = (self._history + [(t, R, p1)])[-3:]
-            self._history_rigs = (self._history_rigs + [self._rig_version()])[-3:]
-            self._history_infos = (self._history_infos + [info])[-3:]
+            self._motion.add(t, R, p1, self._rig_version(), info)
 
-
-def _inverse(info: np.ndarray):
-    """The inverse of an information matrix, or None if it is singular."""
-    try:
-        return np.linalg.inv(info)
-    except np.linalg.LinAlgError:
-        return None
