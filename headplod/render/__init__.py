@@ -1,8 +1,16 @@
-"""Offscreen rendering of the terrain demo with head-coupled perspective.
+"""Offscreen rendering of the terrain with head-coupled perspective.
 
-See :mod:`headplod.render.gl` for frames, units and the matrix convention
-(column vectors, ``p_clip = proj @ view @ model @ [p, 1]``, uploaded to GL as
-``M.T.tobytes()``).
+- :mod:`.context`: a headless OpenGL context (EGL).
+- :mod:`.projection`: frames, units, the matrix convention (column vectors,
+  ``p_clip = proj @ view @ model @ [p, 1]``, uploaded to GL as
+  ``M.T.tobytes()``), the off-axis projection and the scene's placement.
+- :mod:`.gl`: the terrain renderer (shaders, :class:`TerrainRenderer`).
+- :mod:`.overlay`: the point of interest and its uncertainty ellipse.
 """
-from .gl import __all__
-from .gl import *
+from .context import EGL_PACKAGES, create_context
+from .gl import PALETTE, VIEW_MODES, TerrainRenderer
+from .overlay import overlay_poi
+from .projection import SceneTransform, off_axis_projection, scene_to_world, screen_frame
+
+__all__ = ["create_context", "EGL_PACKAGES", "screen_frame", "off_axis_projection", "SceneTransform",
+           "scene_to_world", "TerrainRenderer", "PALETTE", "VIEW_MODES", "overlay_poi"]
