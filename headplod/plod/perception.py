@@ -33,7 +33,9 @@ which one was used:
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import lambertw
+
+from .csf import (CSF_MODELS, ECC_SLOPE, MIN_SPEED_DEG_S, csf_coefficients, gp_cutoff_cpd,  # noqa: F401 (re-exported)
+                  max_visible_freq_cpd, sensitivity, _ecc_factor)
 
 __all__ = [
     "CSF_MODELS", "MIN_SPEED_DEG_S", "ECC_SLOPE",
@@ -46,188 +48,6 @@ __all__ = [
     "sse_level", "velocity_baseline_level",
     "Hysteresis",
 ]
-
-CSF_MODELS = ("paper", "kelly", "daly", "kelly_scaled")
-
-MIN_SPEED_DEG_S = 0.1
-"""Speed floor (deg/s) of every CSF: Kelly's G is 0 at v = 0 (no stabilized image)."""
-
-ECC_SLOPE = 0.29
-"""Rovamo & Virsu's cortical-magnification slope, 1/deg: M(e) ∝ 1 / (1 + 0.29 e)."""
-
-# Daly (1998) constants of the spatio-velocity CSF.
-_DALY_C0, _DALY_C1, _DALY_C2 = 1.14, 0.67, 1.7
-
-
-# ---------------------------------------------------------------------------
-# Contrast sensitivity
-# ---------------------------------------------------------------------------
-
-def _check_model(model):
-    if model not in CSF_MODELS:
-        raise ValueError(f"unknown CSF model {model!r}; expected one of {CSF_MODELS}")
-
-
-def csf_coefficients(speed_deg_s, model="kelly_scaled"):
-    """The foveal CSF written as ``S(f) = A f^2 exp(-b f)`` (f in cpd).
-
-    Parameters
-    ----------
-    speed_deg_s : array_like
-        Retinal speed, deg/s, any shape; its absolute value is floored at
-        :data:`MIN_SPEED_DEG_S` (0.1 deg/s).
-    model : {"paper", "kelly", "daly", "kelly_scaled"}
-        ``"kelly"`` and ``"kelly_scaled"`` share these coefficients (they
-        differ only in how eccentricity enters).
-
-    Returns
-    -------
-    A : ndarray
-        Amplitude, cpd^-2, shape of ``speed_deg_s``.
-    b : ndarray
-        Decay, 1/cpd (deg per cycle), same shape.
-
-    Notes
-    -----
-    - ``"paper"``, Martinez eq. 3 as printed:
-      A = (250.1 + 299.3 |log10(v/3)|^3) v, b = 5.5 ln(10) (v + 2) / 45.9.
-    - ``"kelly"``, Kelly (1979): G = (6.1 + 7.3 |log10(v/3)|^3) v (2πf)^2
-      exp(-2 (2πf)(v + 2)/45.9), so A = 4π^2 (6.1 + 7.3 |log10(v/3)|^3) v,
-      b = 4π (v + 2)/45.9. The paper's 250.1, 299.3 are 41 x (6.1, 7.3), with
-      41.0 for 4π^2 = 39.48, and its 5.5 stands for 4π/ln 10 = 5.4575.
-    - ``"daly"``, Daly (1998), c0 = 1.14, c1 = 0.67, c2 = 1.7:
-      A = (6.1 + 7.3 |log10(c2 v/3)|^3) c0 c2 v (2π c1)^2,
-      b = 4π c1 (c2 v + 2)/45.9.
-    """
-    _check_model(model)
-    v = np.maximum(np.abs(np.asarray(speed_deg_s, dtype=float)), MIN_SPEED_DEG_S)
-    if model == "paper":
-        k = 250.1 + 299.3 * np.abs(np.log10(v / 3.0)) ** 3
-        return k * v, 5.5 * np.log(10.0) * (v + 2.0) / 45.9
-    if model == "daly":
-        c0, c1, c2 = _DALY_C0, _DALY_C1, _DALY_C2
-        k = 6.1 + 7.3 * np.abs(np.log10(c2 * v / 3.0)) ** 3
-        return (k * c0 * c2 * v * (2.0 * np.pi * c1) ** 2,
-                4.0 * np.pi * c1 * (c2 * v + 2.0) / 45.9)
-    k = 6.1 + 7.3 * np.abs(np.log10(v / 3.0)) ** 3
-    return k * v * (2.0 * np.pi) ** 2, 4.0 * np.pi * (v + 2.0) / 45.9
-
-
-def _ecc_factor(ecc_deg):
-    """1 + 0.29 |e| (dimensionless)."""
-    return 1.0 + ECC_SLOPE * np.abs(np.asarray(ecc_deg, dtype=float))
-
-
-def sensitivity(freq_cpd, speed_deg_s, ecc_deg, model="kelly_scaled"):
-    """Contrast sensitivity S(f, v, e) (1 / threshold contrast).
-
-    Parameters
-    ----------
-    freq_cpd : array_like
-        Spatial frequency f, cpd (>= 0).
-    speed_deg_s : array_like
-        Retinal speed v, deg/s; floored at 0.1 deg/s.
-    ecc_deg : array_like
-        Eccentricity e, deg (its absolute value is used).
-    model : {"paper", "kelly", "daly", "kelly_scaled"}
-        ``"paper"``, ``"kelly"``, ``"daly"``: the foveal CSF (see
-        :func:`csf_coefficients`) divided by (1 + 0.29 e), as Martinez eq. 3
-        does. ``"kelly_scaled"``: Kelly's CSF with the frequency scaled by the
-        cortical magnification, S(f (1 + 0.29 e), v), no division; this is
-        how Rovamo & Virsu's 0.29 is meant, and it cuts the periphery far
-        more (f_max falls as 1 / (1 + 0.29 e) instead of logarithmically).
-
-    Returns
-    -------
-    ndarray
-        Sensitivity, dimensionless, the broadcast shape of the inputs.
-    """
-    _check_model(model)
-    f = np.asarray(freq_cpd, dtype=float)
-    A, b = csf_coefficients(speed_deg_s, model)
-    m = _ecc_factor(ecc_deg)
-    if model == "kelly_scaled":
-        fs = f * m
-        return A * fs ** 2 * np.exp(-b * fs)
-    return A * f ** 2 * np.exp(-b * f) / m
-
-
-def max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model="kelly_scaled"):
-    """Highest spatial frequency visible at a contrast: max f with C S(f) >= 1.
-
-    With S = A f^2 exp(-b f) (eccentricity folded into A or f), C S(f) = 1 is
-    solved in closed form by the lower branch of Lambert's W:
-    ``f_max = -(2/b) W_{-1}(-(b/2) / sqrt(A C))``. When
-    (b/2)/sqrt(A C) > 1/e the peak of C S(f) is below 1 and nothing is
-    visible: 0 is returned (also for C <= 0).
-
-    Parameters
-    ----------
-    contrast : array_like
-        Michelson contrast C (dimensionless).
-    speed_deg_s : array_like
-        Retinal speed v, deg/s (floored at 0.1 deg/s).
-    ecc_deg : array_like
-        Eccentricity e, deg.
-    model : {"paper", "kelly", "daly", "kelly_scaled"}
-        See :func:`sensitivity`. For ``"kelly_scaled"`` the foveal f_max is
-        divided by (1 + 0.29 e).
-
-    Returns
-    -------
-    ndarray
-        f_max, cpd, the broadcast shape of the inputs; 0 where nothing is
-        visible. For Kelly at C = 1: 18.1 cpd at 0.15 deg/s, 13.1 at 1,
-        3.1 at 10 (Kelly's foveal cutoff is below real acuity, 40-60 cpd).
-    """
-    _check_model(model)
-    C = np.asarray(contrast, dtype=float)
-    A, b = csf_coefficients(speed_deg_s, model)
-    m = _ecc_factor(ecc_deg)
-    C, A, b, m = np.broadcast_arrays(C, A, b, m)
-    if model != "kelly_scaled":
-        A = A / m
-    AC = A * C
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(AC > 0, 0.5 * b / np.sqrt(np.where(AC > 0, AC, 1.0)), np.inf)
-    visible = z <= np.exp(-1.0)
-    zv = np.where(visible, z, 0.1)            # any point inside the domain
-    w = lambertw(-zv, -1).real                # <= -1
-    f = np.where(visible, -2.0 / b * w, 0.0)
-    if model == "kelly_scaled":
-        f = f / m
-    return f
-
-
-def gp_cutoff_cpd(contrast, ecc_deg, ct0=1.0 / 64.0, alpha=0.106, e2=2.3):
-    """Geisler-Perry cutoff frequency (Murphy et al. 2009, eq. 1-2).
-
-    From CT(f, e) = CT0 exp(α f (e + e2)/e2) = C:
-    ``f_c = e2 ln(C / CT0) / (α (e + e2))``.
-
-    Parameters
-    ----------
-    contrast : array_like
-        Contrast C (dimensionless); C = 1 gives the usual resolution map.
-    ecc_deg : array_like
-        Eccentricity e, deg (absolute value used).
-    ct0 : float
-        Minimum contrast threshold (1/64).
-    alpha : float
-        Spatial-frequency decay constant, deg per cycle (0.106).
-    e2 : float
-        Half-resolution eccentricity, deg (2.3).
-
-    Returns
-    -------
-    ndarray
-        f_c, cpd; 39.2 cpd at the fovea for C = 1; 0 where C <= CT0.
-    """
-    C = np.asarray(contrast, dtype=float)
-    e = np.abs(np.asarray(ecc_deg, dtype=float))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lr = np.log(np.where(C > ct0, C, ct0) / ct0)
-    return np.where(C > ct0, e2 * lr / (alpha * (e + e2)), 0.0)
 
 
 # ---------------------------------------------------------------------------
@@ -898,3 +718,4 @@ class Hysteresis:
         switch = (x < lo - m) | (x > hi + m)          # False for NaN: keep
         self.levels = np.where(switch, nominal, cur).astype(int)
         return self.levels.copy()
+
