@@ -132,6 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "10x10 window read back from a first frame")
     render.add_argument("--out", required=True, help="output image (PNG)")
     render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
+    render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
+                                                         "scene metres, faces coloured by level)")
 
     bl = bench_sub.add_parser("live", help="rate, latency and capture-layer cost of tracking a replayed recording")
     bl.add_argument("dataset", nargs="?", help="a recording (dataset folder); default: the built-in sequence")
@@ -604,11 +606,19 @@ def _cmd_render(args) -> int:
             print(f"headplod: --cov {args.cov} is not positive definite", file=sys.stderr)
             return 2
     size = tuple(int(v) for v in args.size)
+    if args.export is not None:
+        from .plod.export import check_export_path
+        try:
+            check_export_path(args.export)
+        except ValueError as exc:
+            print(f"headplod: --export {exc}", file=sys.stderr)
+            return 2
     _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
                             poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
-                            stats_path=args.stats, contrast=args.contrast)
+                            stats_path=args.stats, contrast=args.contrast, export=args.export)
     print(f"{stats['triangles']} triangles; select {stats['select_ms']:.1f} ms, build {stats['build_ms']:.1f} ms, "
-          f"render {stats['render_ms']:.1f} ms; image: {args.out}", file=sys.stderr)
+          f"render {stats['render_ms']:.1f} ms; image: {args.out}"
+          + (f"; mesh: {args.export}" if args.export else ""), file=sys.stderr)
     return 0
 
 

@@ -83,6 +83,20 @@ def _face_areas_xy(base) -> np.ndarray:
     a, b, c = (base.vertices[base.faces[:, k], :2] for k in range(3))
     return 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
 
+#: Colours of the levels, RGB uint8, (8, 3); level k uses ``LEVEL_PALETTE[k % 8]``
+#: (the renderer's "levels" view and the exported meshes).
+LEVEL_PALETTE = np.array([
+    [230, 25, 75],    # red
+    [60, 180, 75],    # green
+    [0, 130, 200],    # blue
+    [255, 225, 25],   # yellow
+    [145, 30, 180],   # purple
+    [70, 240, 240],   # cyan
+    [245, 130, 48],   # orange
+    [240, 50, 230],   # magenta
+], dtype=np.uint8)
+
+
 
 class BaseMesh:
     """A triangle mesh with its edge topology.

@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .export import check_export_path, export_mesh
 from .mesh import AdaptiveMesh, BaseMesh
 from .select import LevelSelector, View
 from .terrain import Terrain
@@ -61,8 +62,12 @@ def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
 
 def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_px=None, cov_deg2=None,
                  size=(1280, 720), view_mode="shaded", out=None, stats_path=None, scene=None, renderer=None,
-                 contrast="shading"):
+                 contrast="shading", export=None):
     """Render one frame and return (image (H, W, 3) uint8 RGB, stats dict).
+
+    ``export``: also write the frame's mesh to this file (:mod:`.export`:
+    ``.glb``, ``.ply``, ``.obj``, ``.stl``); its ending and folder are
+    checked before anything is rendered.
 
     ``contrast="readback"``: the paper's way (eq. 2): a first frame with the
     shading contrast is read back, each base triangle's contrast is taken
@@ -72,6 +77,8 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     """
     from ..render import TerrainRenderer, create_context, off_axis_projection, overlay_poi
 
+    if export is not None:
+        export = check_export_path(export)
     scene = scene or TerrainScene.build(screen)
     head = default_head(screen) if head_mm is None else np.asarray(head_mm, dtype=np.float64)
     poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
@@ -83,14 +90,15 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
 
     def frame(render_mode):
-        """Select, build, upload and render; (image, levels per triangle, select s, build s)."""
+        """Select, build, upload and render; (image, levels per triangle, select s, build s, levels per face)."""
         t0 = time.perf_counter()
         levels, _ = selector.select(View(head, poi, cov_deg2, 0.0))
         t1 = time.perf_counter()
         positions, normals, tri_levels = scene.mesh.update(levels)
         t2 = time.perf_counter()
         renderer.upload(positions, normals, tri_levels)
-        return renderer.render(view, proj, scene.model, view_mode=render_mode), tri_levels, t1 - t0, t2 - t1
+        image = renderer.render(view, proj, scene.model, view_mode=render_mode)
+        return image, tri_levels, t1 - t0, t2 - t1, levels
 
     readback_ms = None
     if contrast == "readback":
@@ -101,7 +109,7 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
         centroids_px = project_to_screen_px(selector.centroids_mm, head, screen)
         selector.contrast = readback_contrast(shaded, centroids_px, screen.size_px, fallback=scene.mesh.contrast)
         readback_ms = renderer.last_readback_ms + (time.perf_counter() - t3) * 1e3
-    image, tri_levels, select_s, build_s = frame(view_mode)
+    image, tri_levels, select_s, build_s, face_levels = frame(view_mode)
     if cov_deg2 is not None or view_mode == "levels":
         px_per_deg = _px_per_deg(screen, head, size)
         scaled_poi = poi * np.array(size) / np.array(screen.size_px)
@@ -120,6 +128,8 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     if stats_path:
         Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
         Path(stats_path).write_text(json.dumps(stats, indent=2))
+    if export is not None:
+        export_mesh(scene.mesh, face_levels, export)
     return image, stats
 
 

@@ -17,6 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..plod.mesh import LEVEL_PALETTE
 from .context import EGL_PACKAGES, create_context, moderngl
 from .overlay import overlay_poi
 from .projection import SceneTransform, off_axis_projection, scene_to_world, screen_frame
@@ -37,16 +38,7 @@ __all__ = [
 
 #: Colours of the "levels" view, RGB uint8, (8, 3); level k uses
 #: ``PALETTE[k % 8]`` (modulated by the same Lambert shading as "shaded").
-PALETTE = np.array([
-    [230, 25, 75],    # red
-    [60, 180, 75],    # green
-    [0, 130, 200],    # blue
-    [255, 225, 25],   # yellow
-    [145, 30, 180],   # purple
-    [70, 240, 240],   # cyan
-    [245, 130, 48],   # orange
-    [240, 50, 230],   # magenta
-], dtype=np.uint8)
+PALETTE = LEVEL_PALETTE
 
 #: Accepted values of ``view_mode`` (each has its own shader program).
 VIEW_MODES = {"shaded": 0, "wire": 1, "levels": 2}
