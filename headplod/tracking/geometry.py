@@ -23,8 +23,11 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-# Triangles whose normals define V (conventions.md), as marker indices.
-VIEW_TRIANGLES = np.array([[0, 1, 3], [1, 2, 4], [1, 3, 4]])
+from .. import io
+
+# Triangles whose normals define V (conventions.md), as marker indices: the
+# triples of headplod.io.VIEW_TRIANGLES as a (3, 3) int index array.
+VIEW_TRIANGLES = np.array(io.VIEW_TRIANGLES)
 
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
 
