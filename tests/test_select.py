@@ -4,7 +4,7 @@ import pytest
 
 from calib import DEFAULT_SCREEN
 from headplod.io import read_screen
-from headplod.plod.select import MODES, LevelSelector, View
+from headplod.plod.select import MODES, LevelSelector, SelectorConfig, View
 
 MAX_LEVEL = 5
 
@@ -34,8 +34,8 @@ def field():
 
 def make(field, mode="csf", uncertainty="adaptive", hysteresis=True):
     screen, centroids, edge_len, error, contrast, eye, px = field
-    return LevelSelector(centroids, edge_len, error, contrast, np.eye(4), screen, mode=mode,
-                         uncertainty=uncertainty, hysteresis=hysteresis)
+    return LevelSelector(centroids, edge_len, error, contrast, np.eye(4), screen,
+                         SelectorConfig(mode=mode, uncertainty=uncertainty, hysteresis=hysteresis))
 
 
 def test_levels_follow_the_poi(field):
@@ -102,8 +102,8 @@ def test_fixed_uncertainty_gives_the_2_sigma_ellipse_full_detail(field):
     assert np.all(levels[inside] == MAX_LEVEL)
     # Eq. 1 (the paper's shift) keeps 86% of the offset at 2σ and does not cover it.
     screen, centroids, edge_len, error, contrast, _, _ = field
-    eq1 = LevelSelector(centroids, edge_len, error, contrast, np.eye(4), screen, mode="csf",
-                        uncertainty="fixed", hysteresis=False, shift="eq1")
+    eq1 = LevelSelector(centroids, edge_len, error, contrast, np.eye(4), screen,
+                        SelectorConfig(mode="csf", uncertainty="fixed", hysteresis=False, shift="eq1"))
     eq1_levels, _ = eq1.select(view)
     assert np.mean(eq1_levels[inside] == MAX_LEVEL) < 1.0
 

@@ -19,10 +19,14 @@ level (for hysteresis) and returns integer levels in [0, max_level]:
 - ``sse``: screen-space geometric error with Wakatsuki's micro-motion
   tolerance; ``ipv`` and ``dpv`` their velocity baselines on top of it.
 - ``distance``: classic LOD by distance; ``full``: everything at max_level.
+
+Every setting of the selection is a field of :class:`SelectorConfig` (key,
+unit, default, allowed range); :class:`LevelSelector` takes one.
 """
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,7 +34,124 @@ import numpy as np
 from . import perception as pc
 
 MODES = ("csf", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full")
+"""The level-selection criteria (:attr:`SelectorConfig.mode`), in the order the tools list them."""
 UNCERTAINTY_MODES = ("none", "fixed", "adaptive", "smoothed")
+"""Which covariance the selection uses (:attr:`SelectorConfig.uncertainty`, :class:`UncertaintyPolicy`)."""
+
+
+@dataclass(frozen=True)
+class SelectorConfig:
+    """Level-selection settings, each with its unit.
+
+    Attributes
+    ----------
+    mode : one of MODES
+        The criterion (module notes); default ``"csf"``.
+    uncertainty : one of UNCERTAINTY_MODES
+        Which covariance of the viewing direction the selection uses
+        (:class:`UncertaintyPolicy`); default ``"adaptive"``.
+    uncertainty_smoothing_frames : float
+        Time constant of the ``"smoothed"`` covariance, frames (15): each
+        frame's covariance enters with weight 1/15. At least 1.
+    shift : one of perception.SHIFT_FORMS
+        How the uncertainty moves eccentricities toward the POI: ``"ellipse"``
+        (default: the ``ellipse_sigma`` ellipse is at zero eccentricity, so
+        its triangles get full detail) or ``"eq1"`` (Martinez eq. 1,
+        corrected; see :func:`perception.uncertainty_shift` for why it falls
+        short of that).
+    ellipse_sigma : float
+        Size of that ellipse, standard deviations (2.0); ``"ellipse"`` only.
+    csf_model : one of perception.CSF_MODELS
+        The CSF of mode ``"csf"`` (``"kelly_scaled"``).
+    level_bias : float
+        Added to every continuous level before rounding, levels (0.0): the one
+        knob that trades triangles for image error in every mode alike, for
+        the quality curves of ``headplod bench plod``.
+    sse_tolerance_px : float
+        Largest screen-space geometric error of modes ``sse``, ``ipv`` and
+        ``dpv``, px (1.0; :func:`perception.sse_level`).
+    frame_s : float
+        Frame time Δt of Wakatsuki's micro-motion tolerance (mode ``sse``),
+        s (1/60): the movement within one frame is unrecognizable.
+    velocity_ref_deg_s : float
+        v_ref of the velocity baselines ``ipv`` and ``dpv``, deg/s (10.0;
+        :func:`perception.velocity_baseline_level`).
+    distance_ref_mm : float
+        Mode ``distance``: the eye distance that gets the finest level, mm
+        (700.0); one level coarser per doubling beyond it.
+    hysteresis : bool
+        Keep a triangle's level while its continuous level stays within
+        ``hysteresis_margin`` of the level's interval (True).
+    hysteresis_margin : float
+        That dead band, levels (0.35; :class:`perception.Hysteresis`).
+    smoothing_s : float
+        Time constant at rest of the One Euro filters on the eye and the POI,
+        s (0.25): their minimum cutoff is 1 / (2π · smoothing_s).
+    eye_beta : float
+        Cutoff increase of the eye's filter per unit of its speed,
+        Hz per mm/s (0.05; :class:`headplod.tracking.filters.OneEuroFilter`).
+    poi_beta : float
+        The same for the POI's filter, Hz per px/s (0.02).
+    jump_eye_mm : float
+        An eye movement from one frame to the next larger than this is a
+        real movement, not noise: the filters and the hysteresis restart, mm
+        (20.0).
+    jump_poi_px : float
+        The same for the POI, screen px (30.0); raised to ``jump_poi_sigma``
+        of the tracker's σ of V on the screen when that is larger.
+    jump_poi_sigma : float
+        That multiple of the σ of V, standard deviations (5.0).
+    cull_margin_edges : float
+        Frustum culling: a base triangle whose centroid projects farther
+        outside the screen than this many of its level-0 edge lengths is
+        culled (level 0, criterion not evaluated), level-0 edges (1.5).
+    """
+
+    mode: str = "csf"
+    uncertainty: str = "adaptive"
+    uncertainty_smoothing_frames: float = 15
+    shift: str = "ellipse"
+    ellipse_sigma: float = 2.0
+    csf_model: str = "kelly_scaled"
+    level_bias: float = 0.0
+    sse_tolerance_px: float = 1.0
+    frame_s: float = 1 / 60
+    velocity_ref_deg_s: float = 10.0
+    distance_ref_mm: float = 700.0
+    hysteresis: bool = True
+    hysteresis_margin: float = 0.35
+    smoothing_s: float = 0.25
+    eye_beta: float = 0.05
+    poi_beta: float = 0.02
+    jump_eye_mm: float = 20.0
+    jump_poi_px: float = 30.0
+    jump_poi_sigma: float = 5.0
+    cull_margin_edges: float = 1.5
+
+    def __post_init__(self):
+        for name, choices in (("mode", MODES), ("uncertainty", UNCERTAINTY_MODES), ("shift", pc.SHIFT_FORMS),
+                              ("csf_model", pc.CSF_MODELS)):
+            if getattr(self, name) not in choices:
+                raise ValueError(f"SelectorConfig.{name} must be one of {choices}, got {getattr(self, name)!r}")
+        if not isinstance(self.hysteresis, (bool, np.bool_)):
+            raise ValueError(f"SelectorConfig.hysteresis must be True or False, got {self.hysteresis!r}")
+        # (field, lower bound, bound allowed, unit)
+        for name, low, closed, unit in (
+                ("uncertainty_smoothing_frames", 1.0, True, "frames"), ("ellipse_sigma", 0.0, True, "sigma"),
+                ("level_bias", -math.inf, False, "levels"), ("sse_tolerance_px", 0.0, True, "px"),
+                ("frame_s", 0.0, False, "s"), ("velocity_ref_deg_s", 0.0, False, "deg/s"),
+                ("distance_ref_mm", 0.0, False, "mm"), ("hysteresis_margin", 0.0, True, "levels"),
+                ("smoothing_s", 0.0, False, "s"), ("eye_beta", 0.0, True, "Hz per mm/s"),
+                ("poi_beta", 0.0, True, "Hz per px/s"), ("jump_eye_mm", 0.0, False, "mm"),
+                ("jump_poi_px", 0.0, False, "px"), ("jump_poi_sigma", 0.0, True, "sigma"),
+                ("cull_margin_edges", 0.0, True, "level-0 edges")):
+            value = getattr(self, name)
+            ok = (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+                  and math.isfinite(value) and (value >= low if closed else value > low))
+            if not ok:
+                bound = ("any finite number" if low == -math.inf
+                         else f"a finite number {'>=' if closed else '>'} {low:g}")
+                raise ValueError(f"SelectorConfig.{name} must be {bound} ({unit}), got {value!r}")
 
 
 @dataclass
@@ -58,7 +179,7 @@ class View:
 class UncertaintyPolicy:
     """Which covariance the selection uses: none, the largest seen (fixed), this frame's, or smoothed."""
 
-    def __init__(self, mode: str = "adaptive", smoothing_frames: int = 15):
+    def __init__(self, mode: str = "adaptive", smoothing_frames: float = 15):
         if mode not in UNCERTAINTY_MODES:
             raise ValueError(f"uncertainty mode must be one of {UNCERTAINTY_MODES}, got {mode!r}")
         self.mode, self.smoothing_frames = mode, smoothing_frames
@@ -92,37 +213,20 @@ class LevelSelector:
     model : (4, 4)
         Scene → world (mm) transform.
     screen : headplod.io.Screen
-    mode : one of MODES
-    uncertainty : one of UNCERTAINTY_MODES
-    csf_model : one of perception.CSF_MODELS
-    hysteresis : bool
-    shift : one of perception.SHIFT_FORMS
-        How the uncertainty moves eccentricities toward the POI: ``"ellipse"``
-        (default: the 2σ ellipse is at zero eccentricity, so its triangles
-        get full detail) or ``"eq1"`` (Martinez eq. 1, corrected; see
-        :func:`perception.uncertainty_shift` for why it falls short of that).
+    config : SelectorConfig
+        Every setting of the selection (the defaults: ``SelectorConfig()``).
     corners_scene : (F, 3, 3), optional
         The base triangles' corners, scene units. With them a triangle's
         angular size is the diameter of its projection seen from the eye
         (the largest angle between two corners: the paper's definition,
         foreshortening included); without, its longest edge seen face-on.
-    level_bias : float
-        Added to every continuous level before rounding (0 by default): the
-        one knob that trades triangles for image error in every mode alike,
-        for the quality curves of ``headplod bench plod``.
     """
 
     def __init__(self, centroids_scene, edge_len_scene, geometric_error_scene, contrast, model, screen,
-                 mode="csf", uncertainty="adaptive", csf_model="kelly_scaled", hysteresis=True,
-                 sse_tolerance_px=1.0, distance_ref_mm=700.0, frame_s=1 / 60, smoothing_s=0.25,
-                 level_bias=0.0, shift="ellipse", corners_scene=None):
-        if mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-        self.mode, self.csf_model = mode, csf_model
-        self.level_bias = float(level_bias)
-        if shift not in pc.SHIFT_FORMS:
-            raise ValueError(f"shift must be one of {pc.SHIFT_FORMS}, got {shift!r}")
-        self.shift = shift
+                 config: SelectorConfig = SelectorConfig(), *, corners_scene=None):
+        if not isinstance(config, SelectorConfig):
+            raise TypeError(f"LevelSelector: config must be a SelectorConfig, got {type(config).__name__}")
+        self.config = config
         self.max_level = edge_len_scene.shape[1] - 1
         model = np.asarray(model, dtype=np.float64)
         self.scale_mm = float(np.cbrt(abs(np.linalg.det(model[:3, :3]))))
@@ -141,16 +245,15 @@ class LevelSelector:
         self.screen = screen
         width, height = screen.size_px
         self.px_per_mm = width / float(np.linalg.norm(np.asarray(screen.top_right) - screen.top_left))
-        self.policy = UncertaintyPolicy(uncertainty)
+        self.policy = UncertaintyPolicy(config.uncertainty, config.uncertainty_smoothing_frames)
         # Eq. 4 and the screen-space error round up; Ohshima's eq. 6 takes the
         # finest level whose edges are long enough, which rounds down.
-        self.rounding = "floor" if mode == "acuity" else "ceil"
-        self.hysteresis = pc.Hysteresis(len(centroids_scene), rounding=self.rounding) if hysteresis else None
-        self.sse_tolerance_px, self.distance_ref_mm, self.frame_s = sse_tolerance_px, distance_ref_mm, frame_s
+        self.rounding = "floor" if config.mode == "acuity" else "ceil"
+        self.hysteresis = (pc.Hysteresis(len(centroids_scene), margin=config.hysteresis_margin,
+                                         rounding=self.rounding) if config.hysteresis else None)
         self._previous = None          # (t, eye_mm, directions (F, 3))
         self._foveal_fmax = None       # (contrast, seen, speed, foveal f_max) of the last frame
         self._smooth = None            # the eye and POI filters and the last raw eye and POI
-        self.smoothing_s = smoothing_s
 
     def head_axes(self, view: View) -> np.ndarray:
         """Rows Ξ, Ψ, V of the head frame looking from the eye at the POI (Ξ along the screen's rows)."""
@@ -168,7 +271,8 @@ class LevelSelector:
         The features are NaN for base triangles outside the view (frustum-culled: level 0).
         ``full`` computes nothing: every base triangle at the finest level, features NaN.
         """
-        if self.mode == "full":       # no criterion to evaluate (and no culling: the reference mesh)
+        cfg = self.config
+        if cfg.mode == "full":        # no criterion to evaluate (and no culling: the reference mesh)
             n = len(self.centroids_mm)
             nan = np.full(n, np.nan)
             return (np.full(n, self.max_level, dtype=np.int64),
@@ -182,7 +286,7 @@ class LevelSelector:
         axes = self.head_axes(view)
         offsets = pc.view_offsets_deg(self.centroids_mm, eye, axes)
         cov = self.policy(view.cov_deg2)
-        shifted = pc.uncertainty_shift(offsets, cov, self.shift) if cov is not None else offsets
+        shifted = pc.uncertainty_shift(offsets, cov, cfg.shift, cfg.ellipse_sigma) if cov is not None else offsets
         speed = self._angular_speed(view.t, eye, directions)
         # Frustum culling (the paper's renderer culled too): a base triangle
         # wholly outside the screen as seen from the eye gets the coarsest
@@ -211,7 +315,7 @@ class LevelSelector:
         freq = 1.0 / np.maximum(angular_deg, 1e-9)
         continuous = np.zeros(len(rel))
         continuous[seen] = self._continuous(freq, distance[seen], ecc[seen], speed[seen], angular_deg,
-                                            seen) + self.level_bias
+                                            seen) + float(cfg.level_bias)
         if self.hysteresis is not None:
             levels = self.hysteresis.update(continuous, self.max_level)
         else:
@@ -222,39 +326,40 @@ class LevelSelector:
 
     def _continuous(self, freq, distance, ecc, speed, angular_deg, seen):
         """Continuous levels of the base triangles ``seen`` (indices); the other arguments are theirs."""
-        L = self.max_level
-        if self.mode == "distance":
+        L, cfg = self.max_level, self.config
+        if cfg.mode == "distance":
             # One level coarser per doubling of distance beyond the reference.
-            return L - np.log2(np.maximum(distance / self.distance_ref_mm, 1e-9))
-        if self.mode in ("csf", "gp"):
-            if self.mode == "csf" and self.csf_model == "kelly_scaled":
+            return L - np.log2(np.maximum(distance / cfg.distance_ref_mm, 1e-9))
+        if cfg.mode in ("csf", "gp"):
+            if cfg.mode == "csf" and cfg.csf_model == "kelly_scaled":
                 # Eccentricity scales the frequency: f_max(C, v, e) = f_max(C, v, 0) / (1 + 0.29 e),
                 # and the foveal part (Lambert's W) changes only with the contrast and the speed:
                 # for a still head (speed at its floor) it is reused from the last frame.
                 cache = self._foveal_fmax
                 if (cache is None or cache[0] is not self.contrast or not np.array_equal(cache[1], seen)
                         or not np.array_equal(cache[2], speed)):
-                    fmax0 = pc.max_visible_freq_cpd(self.contrast[seen], speed, 0.0, model=self.csf_model)
+                    fmax0 = pc.max_visible_freq_cpd(self.contrast[seen], speed, 0.0, model=cfg.csf_model)
                     self._foveal_fmax = cache = (self.contrast, seen, speed, fmax0)
                 fmax = cache[3] / pc._ecc_factor(ecc)
-            elif self.mode == "csf":
-                fmax = pc.max_visible_freq_cpd(self.contrast[seen], speed, ecc, model=self.csf_model)
+            elif cfg.mode == "csf":
+                fmax = pc.max_visible_freq_cpd(self.contrast[seen], speed, ecc, model=cfg.csf_model)
             else:
                 fmax = pc.gp_cutoff_cpd(self.contrast[seen], ecc)
             with np.errstate(divide="ignore"):
                 return np.log2(np.maximum(fmax, 1e-12) / freq[:, 0])
-        if self.mode == "acuity":
+        if cfg.mode == "acuity":
             radius = 0.5 * angular_deg[:, 0]
             k1, k2, k3 = pc.acuity_factors(ecc, radius, speed, np.zeros_like(ecc))
             a0 = pc.display_acuity_a0(1.0 / self.px_per_mm, float(np.median(distance)))
             return pc.acuity_level(k1, k2, k3, a0, distance, self.edge_len_mm[seen], return_continuous=True)[1]
         pixels_per_radian = self.px_per_mm * float(np.median(distance))
-        if self.mode == "sse":
-            return pc.sse_level(self.error_mm[seen], distance, pixels_per_radian, self.sse_tolerance_px,
-                                speed_deg_s=speed, frame_s=self.frame_s, return_continuous=True)[1]
-        base = pc.sse_level(self.error_mm[seen], distance, pixels_per_radian, self.sse_tolerance_px,
+        if cfg.mode == "sse":
+            return pc.sse_level(self.error_mm[seen], distance, pixels_per_radian, cfg.sse_tolerance_px,
+                                speed_deg_s=speed, frame_s=cfg.frame_s, return_continuous=True)[1]
+        base = pc.sse_level(self.error_mm[seen], distance, pixels_per_radian, cfg.sse_tolerance_px,
                             return_continuous=True)[1]
-        return pc.velocity_baseline_level(base, speed, mode=self.mode, max_level=L, return_continuous=True)[1]
+        return pc.velocity_baseline_level(base, speed, mode=cfg.mode, v_ref=cfg.velocity_ref_deg_s, max_level=L,
+                                          return_continuous=True)[1]
 
     def _outside_screen(self, eye) -> np.ndarray:
         """(F,) bool: the base triangle projects wholly outside the screen rectangle (or lies behind the eye)."""
@@ -263,7 +368,7 @@ class LevelSelector:
         xy = project_to_screen_px(self.centroids_mm, eye, self.screen)
         width, height = self.screen.size_px
         # Margin: the triangle's size at level 0 on the screen, generously.
-        margin = 1.5 * self.edge_len_mm[:, 0] * self.px_per_mm
+        margin = self.config.cull_margin_edges * self.edge_len_mm[:, 0] * self.px_per_mm
         with np.errstate(invalid="ignore"):
             inside = ((xy[:, 0] >= -margin) & (xy[:, 0] <= width + margin)
                       & (xy[:, 1] >= -margin) & (xy[:, 1] <= height + margin))
@@ -279,10 +384,11 @@ class LevelSelector:
         exponential average would lag a moving head by speed x time constant
         (190 mm at 750 mm/s with 0.25 s): the One Euro filter raises its
         cutoff with the speed, so a steady movement passes with little lag.
-        A jump from one frame to the next larger than the noise (20 mm for
-        the eye; for the POI 30 px or five of the tracker's σ of V on the
-        screen, whichever is larger) is a real movement: the filters and the
-        hysteresis restart, so the levels follow within the frame.
+        A jump from one frame to the next larger than the noise (by default
+        20 mm for the eye; for the POI 30 px or five of the tracker's σ of V
+        on the screen, whichever is larger: ``SelectorConfig.jump_*``) is a
+        real movement: the filters and the hysteresis restart, so the levels
+        follow within the frame.
         """
         from ..tracking.filters import OneEuroFilter
 
@@ -290,20 +396,21 @@ class LevelSelector:
         poi = np.asarray(view.poi_px, dtype=np.float64)
         if view.t is None:
             return view
+        cfg = self.config
         if self._smooth is None:
-            cutoff = 1.0 / (2 * math.pi * self.smoothing_s)
-            self._smooth = {"eye": OneEuroFilter(cutoff, beta=0.05), "poi": OneEuroFilter(cutoff, beta=0.02),
-                            "raw": None}
+            cutoff = 1.0 / (2 * math.pi * cfg.smoothing_s)
+            self._smooth = {"eye": OneEuroFilter(cutoff, beta=cfg.eye_beta),
+                            "poi": OneEuroFilter(cutoff, beta=cfg.poi_beta), "raw": None}
         raw = self._smooth["raw"]
         self._smooth["raw"] = (eye, poi)
         if raw is not None:
-            poi_noise_px = 30.0
+            poi_noise_px = cfg.jump_poi_px
             if view.cov_deg2 is not None:
                 lam = float(np.linalg.eigvalsh(np.asarray(view.cov_deg2, dtype=np.float64))[-1])
                 reach_mm = float(np.linalg.norm(self.screen.pixel_to_world(poi) - eye))
-                poi_noise_px = max(poi_noise_px, 5.0 * reach_mm * math.tan(math.radians(math.sqrt(max(lam, 0.0))))
-                                   * self.px_per_mm)
-            if np.linalg.norm(poi - raw[1]) > poi_noise_px or np.linalg.norm(eye - raw[0]) > 20.0:
+                poi_noise_px = max(poi_noise_px, cfg.jump_poi_sigma * reach_mm
+                                   * math.tan(math.radians(math.sqrt(max(lam, 0.0)))) * self.px_per_mm)
+            if np.linalg.norm(poi - raw[1]) > poi_noise_px or np.linalg.norm(eye - raw[0]) > cfg.jump_eye_mm:
                 self._smooth["eye"].reset()
                 self._smooth["poi"].reset()
                 if self.hysteresis is not None:

@@ -1,6 +1,7 @@
 """One PLOD frame: select levels for a view, build the mesh, render it (``headplod render``)."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from dataclasses import dataclass
@@ -11,7 +12,7 @@ import numpy as np
 
 from .export import check_export_path, export_mesh
 from .mesh import AdaptiveMesh, BaseMesh
-from .select import LevelSelector, View
+from .select import LevelSelector, SelectorConfig, View
 from .terrain import Terrain
 
 # Where the terrain sits: its centre 250 mm behind the screen, 30 km shown as
@@ -43,10 +44,19 @@ class TerrainScene:
                                           pitch_deg=PITCH_DEG).matrix, dtype=np.float64)
         return cls(terrain, mesh, model, screen)
 
-    def selector(self, mode: str, uncertainty: str, **options) -> LevelSelector:
+    def selector(self, mode: str, uncertainty: str, config: SelectorConfig | None = None,
+                 **settings) -> LevelSelector:
+        """A level selector for this scene's mesh.
+
+        ``mode``, ``uncertainty`` and the keyword ``settings`` (any other
+        :class:`SelectorConfig` field, e.g. ``hysteresis=False``) replace
+        those of ``config`` (default ``SelectorConfig()``).
+        """
+        config = SelectorConfig() if config is None else config
+        config = dataclasses.replace(config, mode=mode, uncertainty=uncertainty, **settings)
         m = self.mesh
         return LevelSelector(m.centroids, m.edge_length, m.geometric_error, m.contrast, self.model, self.screen,
-                             mode=mode, uncertainty=uncertainty, corners_scene=m.corners, **options)
+                             config, corners_scene=m.corners)
 
 
 def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
