@@ -22,18 +22,17 @@ import sys
 import tempfile
 from pathlib import Path
 
+import cv2
 import numpy as np
+
+from ..capture import DatasetRecorder, DatasetSource
+from ..capture.synthetic import DEFAULT_SEQUENCE, ensure_dataset
+from ..live.loop import run_source
+from ..live.output import OpentrackSender
+from ..tracking.filters import PoseFilter
 
 
 def run_live_bench(dataset=None, json_path=None, repeats: int = 3) -> int:
-    import cv2
-
-    from ..capture import DatasetRecorder, DatasetSource
-    from ..tracking.filters import PoseFilter
-    from ..live.loop import run_source
-    from ..live.output import OpentrackSender
-    from ..capture.synthetic import DEFAULT_SEQUENCE, ensure_dataset
-
     cv2.setNumThreads(1)
     folder = Path(dataset) if dataset else ensure_dataset(DEFAULT_SEQUENCE)
     receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

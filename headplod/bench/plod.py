@@ -24,7 +24,7 @@ render of the same view:
    ``none`` and ``fixed``; level-colour pictures with the ellipse.
 5. **Stability.** A still head through the real tracker on noisy synthetic
    frames: level changes per frame after the first 10, per uncertainty mode
-   (:mod:`headplod.plod.stability`).
+   (:mod:`headplod.bench.stability`).
 
 Writes JSON, a 2x3 chart and the level-colour pictures beside the chart.
 """
@@ -35,11 +35,19 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
+import flip_evaluator
 import numpy as np
 
+from calib import DEFAULT_SCREEN
+
+from . import stability as still_head
+from .. import io
 from ..plod import perception as pc
+from ..plod.contrast import project_to_screen_px, readback_contrast
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
-from ..plod.still import TerrainScene, _px_per_deg, default_head
+from ..render import TerrainRenderer, create_context, off_axis_projection, overlay_poi, screen_frame
+from ..render.still import TerrainScene, _px_per_deg, default_head
 
 SIZE = (1280, 720)
 #: The CSF forms compared (perception.CSF_MODELS); the default is chosen from them.
@@ -61,8 +69,6 @@ def psnr_db(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> flo
 
 def flip_error(reference: np.ndarray, test: np.ndarray, px_per_deg: float) -> float:
     """Mean FLIP error (0 identical … 1) of two 8-bit sRGB images (H, W, 3) seen at ``px_per_deg``."""
-    import flip_evaluator
-
     if np.array_equal(reference, test):
         return 0.0
     ref = reference.astype(np.float32) / 255.0
@@ -75,11 +81,6 @@ class _Bench:
     """The scene, renderer and default view shared by the parts of the benchmark."""
 
     def __init__(self, frames: int = 3):
-        from calib import DEFAULT_SCREEN
-
-        from .. import io
-        from ..render import TerrainRenderer, create_context, off_axis_projection
-
         self.screen = io.read_screen(DEFAULT_SCREEN)
         self.scene = TerrainScene.build(self.screen)
         self.renderer = TerrainRenderer(create_context(), size=SIZE)
@@ -96,8 +97,6 @@ class _Bench:
 
     def run(self, selector, view_mode="shaded", contrast_from_readback=False):
         """Steady-state frame of a selector at the default view: (image, stats)."""
-        from ..plod.contrast import project_to_screen_px, readback_contrast
-
         scene, r = self.scene, self.renderer
         scene.mesh.clear()
         steady, image = [], None
@@ -227,8 +226,6 @@ def velocity_sweep(b: _Bench, speeds=SWEEP_SPEEDS_DEG_S, frames: int = 60) -> di
     frames at 60 Hz, the POI fixed at the centre; the triangles of the last
     frame and the median angular speed of the visible base triangles.
     """
-    from ..render import screen_frame
-
     right, _, _, _ = screen_frame(b.screen)
     probe = b.scene.selector("full", "none")
     distance = float(np.median(np.linalg.norm(probe.centroids_mm - b.head, axis=1)))   # eye to the terrain, mm
@@ -253,8 +250,6 @@ def velocity_sweep(b: _Bench, speeds=SWEEP_SPEEDS_DEG_S, frames: int = 60) -> di
 
 def ellipse_coverage(b: _Bench, sigma_deg=ELLIPSE_SIGMA_DEG, out_dir: Path | None = None) -> dict:
     """Part 4: base triangles inside the POI's 2σ ellipse kept at full detail, none against fixed."""
-    from ..render import overlay_poi
-
     cov = np.diag(np.square(sigma_deg))
     res = {"sigma_deg": list(sigma_deg)}
     for name, unc, shift in (("none", "none", "ellipse"), ("fixed_eq1", "fixed", "eq1"),
@@ -286,24 +281,18 @@ def ellipse_coverage(b: _Bench, sigma_deg=ELLIPSE_SIGMA_DEG, out_dir: Path | Non
 
 
 def _write_png(path: Path, image_rgb: np.ndarray) -> None:
-    import cv2
-
     path.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(path), cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR))
 
 
 def stability(b: _Bench, frames: int) -> dict | None:
     """Part 5: level changes per frame for a still head through the real tracker."""
-    try:
-        from ..plod import stability as st
-    except ImportError:          # pragma: no cover
-        return None
-    views = st.track_still_head(frames=frames)
+    views = still_head.track_still_head(frames=frames)
     out = {}
     for hysteresis in (True, False):
         for unc in UNCERTAINTY_MODES:
             key = unc if hysteresis else f"{unc}, no hysteresis"
-            out[key] = st.level_changes(b.scene, views, mode="csf", uncertainty=unc, hysteresis=hysteresis)
+            out[key] = still_head.level_changes(b.scene, views, mode="csf", uncertainty=unc, hysteresis=hysteresis)
     _progress("stability")
     return out
 
@@ -374,7 +363,8 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
 
 
 def _chart(report, path):
-    import matplotlib
+    import matplotlib  # imported only when a chart is drawn (slow to import)
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

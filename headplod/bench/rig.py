@@ -22,8 +22,10 @@ import numpy as np
 
 from . import evaluate
 from .. import io
-from .uncertainty import nees
+from ..capture.synthetic import ensure_dataset
 from ..tracking.tracker import Tracker, TrackerConfig
+from .baseline import threshold_baseline_s
+from .uncertainty import nees
 
 #: Seconds of refinement before the "settled" errors are measured (full runs;
 #: quick runs are 2 s long and use QUICK_SETTLE_S).
@@ -126,8 +128,6 @@ def run_rig_set(folder, settle_s: float = SETTLE_S, estimator: str | None = None
     offset, timestamps included, minus the true one), turn_sd_deg (largest 1σ
     of the turn), offset_sd_ms, mean_pose_ms, refine_ms.
     """
-    from .track import threshold_baseline_s
-
     dataset = io.Dataset(folder)
     rig_truth = load_rig_truth(folder)
     if rig_truth is None:
@@ -223,8 +223,6 @@ def _summarize(series: dict, settle_s: float) -> dict:
 
 def run_rig_sets(chosen, quick: bool, progress=None) -> dict:
     """Run RIG_SETS entries; {name: run_rig_set output}."""
-    from ..capture.synthetic import ensure_dataset
-
     settle = QUICK_SETTLE_S if quick else SETTLE_S
     results = {}
     for entry in chosen:
@@ -338,7 +336,7 @@ def rig_report(results: dict, quick: bool = False) -> dict:
 # ----------------------------------------------------------------------- chart
 def rig_chart(results: dict, path) -> None:
     """Per set a column of three panels: errors of V and P1, NEES, the refined rig's errors (one PNG)."""
-    import matplotlib
+    import matplotlib  # imported only when a chart is drawn (slow to import)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

@@ -8,7 +8,7 @@ on what else the machine is doing. Times per pair are taken around
 ``Tracker.process`` (everything from two images to a verified mean pose, the
 covariance included).
 
-The imperfect-rig sets (:mod:`headplod.bench.track.rig`: ``rig.yaml`` wrong, the
+The imperfect-rig sets (:mod:`headplod.bench.rig`: ``rig.yaml`` wrong, the
 rig refined online) run with the default estimator only and are reported in
 a table, goals and chart of their own.
 """
@@ -16,17 +16,19 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from . import evaluate
+from . import rig as bench_rig
 from .. import io
-from ..live.pipeline import Progress, result_record
 from ..capture.synthetic import ensure_dataset
+from ..live.loop import result_record
+from ..progress import Progress
 from ..tracking.tracker import ESTIMATORS, Tracker, TrackerConfig
+from .baseline import threshold_baseline_s
 
 # (set name, synthetic preset, frames in full / quick runs, what the goals say about it)
 TRACK_SETS = [
@@ -58,18 +60,6 @@ GOALS = [
     ("zero wrong identifications (V off by > 5°)", [s[0] for s in TRACK_SETS], "wrong_identifications", 0),
 ]
 RATIO_GOAL = 30.0
-
-
-def threshold_baseline_s(left: np.ndarray, right: np.ndarray, repeats: int = 15) -> float:
-    """Median time of one cv2.threshold pass over both images, s."""
-    out_l, out_r = np.empty_like(left), np.empty_like(right)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        cv2.threshold(left, 100, 255, cv2.THRESH_BINARY, dst=out_l)
-        cv2.threshold(right, 100, 255, cv2.THRESH_BINARY, dst=out_r)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def run_estimator(frames, dataset: io.Dataset, estimator: str) -> dict:
@@ -126,8 +116,6 @@ def _rejoin(pieces: list[str], known: set[str]) -> set[str]:
 def run_track_bench(json_path=None, chart_path=None, quick: bool = False, sets=None) -> int:
     """Run every set with every estimator, and the imperfect-rig sets with the default one;
     print tables, check the goals, write JSON and charts."""
-    from . import rig as bench_rig
-
     cv2.setNumThreads(1)
     wanted = None if sets is None else _rejoin([_set_key(n) for n in sets],
                                                 {_set_key(s[0]) for s in TRACK_SETS + bench_rig.RIG_SETS})
@@ -214,7 +202,7 @@ def _report(results: dict) -> dict:
 
 
 def _chart(results: dict, path: str) -> None:
-    import matplotlib
+    import matplotlib  # imported only when a chart is drawn (slow to import)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

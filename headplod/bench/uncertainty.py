@@ -26,8 +26,8 @@ import cv2
 import numpy as np
 
 from .. import io
-from ..live.pipeline import Progress
 from ..capture.synthetic import ensure_dataset
+from ..progress import Progress
 from ..tracking.tracker import Tracker, TrackerConfig
 from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE, PaperPixelClouds, make_covariance_estimator, view_angles_deg
 
@@ -175,7 +175,7 @@ def _report(results: dict):
 
 
 def _charts(results: dict, curves: dict, chart_path: str) -> None:
-    import matplotlib
+    import matplotlib  # imported only when a chart is drawn (slow to import)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

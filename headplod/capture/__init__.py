@@ -8,20 +8,26 @@ dataset layout (``spec/conventions.md``).
 
 Modules
 -------
+base
+    The interface: :class:`CaptureFrame`, :class:`SourceStatus`,
+    :class:`FrameSource`; it imports nothing else from ``capture/``.
 sources
-    :class:`CaptureFrame`, :class:`SourceStatus`, :class:`FrameSource`, the
-    replay sources and the registry (:func:`open_source`).
+    The replay sources and the registry (:func:`open_source`).
+synthetic
+    The built-in synthetic sequences, rendered once and cached.
 v4l2
     :class:`V4L2StereoSource`: two cameras, synchronised grabs, skew and
     dropped-frame accounting, stall and reconnect handling.
 record
     :class:`DatasetRecorder` and :func:`record`.
 """
+from . import base as _base
 from . import record as _record
 from . import sources as _sources
+from .base import *
 from .record import *
 from .sources import *
 from .v4l2 import CameraSetting, V4L2StereoSource
 
 # The modules' own lists, so a name is exported from one place.
-__all__ = [*_sources.__all__, "V4L2StereoSource", "CameraSetting", *_record.__all__]
+__all__ = [*_base.__all__, *_sources.__all__, "V4L2StereoSource", "CameraSetting", *_record.__all__]

@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 from .. import io
-from .sources import FrameSource
+from .base import FrameSource
 
 __all__ = ["DatasetRecorder", "RecordingSummary", "record"]
 

@@ -7,10 +7,15 @@ reads it like any recording. Renders are cached under ``$HEADPLOD_CACHE``
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import sys
 from pathlib import Path
+
+import synthetic
+
+from ..progress import Progress
 
 #: The sequence ``headplod track`` runs without a dataset.
 DEFAULT_SEQUENCE = "looking_around"
@@ -22,10 +27,6 @@ _NOT_IN_DATASETS = {"boards.py", "__main__.py"}
 
 def _renderer_version() -> str:
     """Hash of the synthetic package's source: a changed renderer never reuses stale renders."""
-    import hashlib
-
-    import synthetic
-
     digest = hashlib.sha256()
     for path in sorted(Path(synthetic.__file__).parent.glob("*.py")):
         if path.name not in _NOT_IN_DATASETS:
@@ -56,6 +57,7 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
     **options
         Preset options (e.g. ``distance_mm`` for ``static``), part of the cache key.
     """
+    # Imported on use: the renderer pulls in scipy.special (~0.6 s), which live tracking never needs.
     from synthetic import dataset as synth_dataset
     from synthetic import scenes
 
@@ -79,7 +81,5 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
 
 
 def _progress(total: int, label: str):
-    from ..live.pipeline import Progress
-
     bar = Progress(total, f"render {label}")
     return lambda *args, **kwargs: bar.step()

@@ -33,6 +33,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import usb.backend.libusb0 as libusb0
+import usb.backend.libusb1 as libusb1
+import usb.backend.openusb as openusb
 import usb.core
 import usb.util
 
@@ -183,10 +186,6 @@ def libusb_available(backend: Any = None) -> tuple[bool, str]:
     except usb.core.USBError as exc:
         return False, f"libusb is installed but cannot enumerate USB devices: {exc}"
     if backend is None:
-        import usb.backend.libusb0 as libusb0
-        import usb.backend.libusb1 as libusb1
-        import usb.backend.openusb as openusb
-
         name = next(
             (m.__name__ for m in (libusb1, openusb, libusb0) if m.get_backend() is not None),
             "unknown",

@@ -1,4 +1,4 @@
-"""Two live V4L2 cameras as one stereo :class:`~headplod.capture.sources.FrameSource`.
+"""Two live V4L2 cameras as one stereo :class:`~headplod.capture.base.FrameSource`.
 
 One capture thread per camera. The threads meet at a rendezvous before
 every ``grab()`` so that both cameras are asked for a frame at the same
@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 
 from .. import io
-from .sources import GAP_PERIODS, CaptureFrame, FrameSource, SourceOpenError, _size_error, _skew_flag, to_gray
+from .base import GAP_PERIODS, CaptureFrame, FrameSource, SourceOpenError, _size_error, _skew_flag, to_gray
 
 __all__ = ["V4L2StereoSource", "CameraSetting", "default_opener", "DEVICE_TIME_WINDOW_S"]
 

@@ -7,12 +7,15 @@ loop
     headless run; the pose sources (:class:`TrackerPoses`,
     :class:`MousePoses`, :class:`DropoutPoses`) and the failure handling
     (:class:`PoseHold`).
+poses
+    ``make_poses``: the pose source the command's options ask for.
 viewpoints
     The paper's three test views as named model matrices.
 hud
     The heads-up display, composed with OpenCV.
 window
-    The moderngl-window app (imported lazily) and the key mapping.
+    The moderngl-window app (moderngl-window is imported only when a window
+    opens) and the key mapping.
 cli
     ``add_demo_arguments``, ``run_demo`` and the headless run.
 """

@@ -21,10 +21,18 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from .. import io
+from ..plod.select import MODES
+from ..progress import Progress
+from ..render import TerrainRenderer, create_context
+from ..render.still import TerrainScene
 from . import loop as lp
+from .poses import make_poses
 from .viewpoints import VIEWPOINTS
+from .window import run_window
 
 #: Frames written per run (as fractions of the run: the middle and the last).
 _PNG_AT = (0.5, 1.0)
@@ -63,8 +71,6 @@ def _span(text: str) -> range:
 
 def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the ``demo`` options to a (sub)parser; returns it."""
-    from ..plod.select import MODES
-
     parser.description = (
         "Head-coupled perceptual level of detail on the Jacksboro terrain, driven by the tracker "
         "(live cameras, a recording, the built-in synthetic sequence) or the mouse. Window keys: "
@@ -113,65 +119,6 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
 # --------------------------------------------------------------------------
 
 
-def scripted_path(screen, frames: int, fps: float = 30.0):
-    """A POI path (callable(k, t) -> screen px): a slow Lissajous (≤ ~35°/s) with one saccade halfway.
-
-    At frame ``frames // 2`` the POI jumps by 40% of the screen width over
-    two frames (several hundred deg/s): the saccade rule keeps the levels.
-    """
-    w, h = screen.size_px
-    jump = frames // 2
-
-    def path(k, t):
-        x = 0.5 * w + 0.3 * w * np.sin(2 * np.pi * t / 5.0)
-        y = 0.5 * h + 0.3 * h * np.sin(4 * np.pi * t / 5.0 + 0.7)
-        x += 0.4 * w * np.clip((k - jump + 2) / 2.0, 0.0, 1.0) - 0.2 * w
-        return np.array([x, y])
-    return path
-
-
-def make_poses(args, screen=None, frames: int | None = None) -> lp.PoseSource:
-    """The pose source the options ask for (a fresh one per run)."""
-    if args.mouse:
-        screen = screen or lp.default_screen()
-        n = frames or args.frames
-        poses = lp.MousePoses(screen, path=scripted_path(screen, n) if args.headless else None,
-                              clock=None if args.headless else time.monotonic)
-        if args.headless:
-            poses = _Limit(poses, n)
-    else:
-        live = args.source.lower().startswith("v4l2")
-        options = {} if args.headless or live else {"realtime": True}
-        if getattr(args, "calib", None):
-            options["rig"] = args.calib
-        elif live:
-            raise ValueError("--source v4l2:... needs --calib rig.yaml (the calibration of these cameras)")
-        poses = lp.TrackerPoses(args.source, screen=screen, loop=not args.headless, max_frames=frames,
-                                **options)
-    if args.dropout is not None:
-        poses = lp.DropoutPoses(poses, args.dropout)
-    if not args.mouse:
-        poses = lp.PrefetchPoses(poses)       # tracking on its own thread, as a live tracker runs
-    return poses
-
-
-class _Limit(lp.PoseSource):
-    """At most ``n`` poses of another source."""
-
-    def __init__(self, inner, n):
-        self.inner, self.n, self.count = inner, n, 0
-        self.screen, self.name = inner.screen, inner.name
-
-    def read(self):
-        if self.count >= self.n:
-            return None
-        self.count += 1
-        return self.inner.read()
-
-    def close(self):
-        self.inner.close()
-
-
 def _interleaved(demos, frames: int):
     """Step the loops one frame each in turn, up to ``frames`` each; yields (loop index, FrameResult).
 
@@ -199,12 +146,6 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
     ``args.size``) may be passed in to reuse them (tests); they are made here
     otherwise.
     """
-    import cv2
-
-    from ..live.pipeline import Progress
-    from ..plod.still import TerrainScene
-    from ..render import TerrainRenderer, create_context
-
     start = time.perf_counter()
     folder = Path(args.out)
     (folder / "frames").mkdir(parents=True, exist_ok=True)
@@ -331,7 +272,7 @@ def print_table(summary: dict, out=sys.stdout) -> None:
 
 def write_chart(runs, viewpoints, path, title="") -> None:
     """summary.png: frame time and triangles per frame, per viewpoint, one line per run."""
-    import matplotlib
+    import matplotlib  # imported only when a chart is drawn (slow to import)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -369,8 +310,6 @@ def write_chart(runs, viewpoints, path, title="") -> None:
 
 def run_demo(args) -> int:
     """Run ``headplod demo`` from parsed arguments; the exit status."""
-    from .. import io
-
     if args.frames < 1:
         print("headplod demo: --frames must be at least 1", file=sys.stderr)
         return 2
@@ -378,8 +317,6 @@ def run_demo(args) -> int:
         if args.headless:
             run_headless(args)
             return 0
-        from .window import run_window
-
         return run_window(args)
     except (io.ContractError, OSError, ValueError, RuntimeError) as exc:
         print(f"headplod demo: {exc}", file=sys.stderr)

@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from ..render import PALETTE, overlay_poi
+
 #: Key help, one line (see :func:`headplod.demo.window.action_for_key`).
 KEY_HELP = "keys: 1-6 criterion (csf gp acuity sse distance full)  N/F/A/S scenario  V/W/L view  C viewpoint  " \
            "H hud  Esc quit"
@@ -95,8 +97,6 @@ def _status_line(info: HudInfo):
 
 def draw_poi(image, info: HudInfo) -> np.ndarray:
     """The POI crosshair and the covariance's 2σ ellipse (in place)."""
-    from ..render import overlay_poi
-
     if info.poi_image_px is None:
         return image
     arm = max(6, image.shape[0] // 60)
@@ -144,8 +144,6 @@ def draw_cameras(image, info: HudInfo) -> np.ndarray:
 
 def draw_legend(image, max_level: int, origin=None) -> np.ndarray:
     """Level colour swatches L0..L{max_level} (the "levels" view's palette), bottom left (in place)."""
-    from ..render import PALETTE
-
     scale = _scale(image)
     box = max(8, int(22 * scale))
     H = image.shape[0]

@@ -40,6 +40,8 @@ from __future__ import annotations
 import abc
 import dataclasses
 import math
+import queue
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -47,8 +49,15 @@ from typing import Callable
 
 import numpy as np
 
-from ..plod.select import UNCERTAINTY_MODES, View
+from calib import DEFAULT_SCREEN
+
+from .. import io
+from ..capture import open_source
+from ..plod.select import MODES, UNCERTAINTY_MODES, View
+from ..render import TerrainRenderer, create_context, off_axis_projection
+from ..render.still import _px_per_deg, default_head
 from . import viewpoints as vps
+from .hud import HudInfo, draw_hud, draw_picture_overlay
 
 #: Criteria the demo switches between (keys 1-6).
 DEMO_MODES = ("csf", "gp", "acuity", "sse", "distance", "full")
@@ -146,10 +155,6 @@ class PoseSource(abc.ABC):
 
 def default_screen():
     """The embedded 24-inch screen (``calib/screen.yaml``)."""
-    from calib import DEFAULT_SCREEN
-
-    from .. import io
-
     return io.read_screen(DEFAULT_SCREEN)
 
 
@@ -175,8 +180,7 @@ class TrackerPoses(PoseSource):
 
     def __init__(self, source, screen=None, config=None, loop: bool = False, max_frames: int | None = None,
                  **open_options):
-        from .. import io
-        from ..capture import open_source
+        # Imported on use: it pulls in scipy.stats (~0.5 s), and headplod/cli.py imports this module at every start.
         from ..tracking.tracker import Tracker, TrackerConfig
 
         self._spec = source if isinstance(source, str) else None
@@ -198,8 +202,6 @@ class TrackerPoses(PoseSource):
         self._period = 1 / 30
 
     def read(self) -> Pose | None:
-        from ..capture import open_source
-
         if self.max_frames is not None and self.count >= self.max_frames:
             return None
         t0 = time.perf_counter()
@@ -267,8 +269,6 @@ class MousePoses(PoseSource):
 
     def __init__(self, screen=None, path=None, eye_mm=None, cov_deg2=np.diag([0.25, 0.25]), fps: float = 30.0,
                  clock: Callable[[], float] | None = None):
-        from ..plod.still import default_head
-
         self.screen = screen or default_screen()
         self.eye_mm = default_head(self.screen) if eye_mm is None else np.asarray(eye_mm, dtype=np.float64)
         self.path = path if (path is None or callable(path)) else np.asarray(path, dtype=np.float64)
@@ -386,9 +386,6 @@ class PrefetchPoses(PoseSource):
     """
 
     def __init__(self, inner: PoseSource, depth: int = 2):
-        import queue
-        import threading
-
         if depth < 1:
             raise ValueError(f"PrefetchPoses: depth must be ≥ 1, got {depth}")
         self.inner, self.screen, self.name = inner, inner.screen, inner.name
@@ -399,8 +396,6 @@ class PrefetchPoses(PoseSource):
         self._thread.start()
 
     def _run(self) -> None:
-        import queue
-
         while not self._stop.is_set():
             try:
                 item = self.inner.read()
@@ -599,7 +594,7 @@ class DemoLoop:
 
     Parameters
     ----------
-    scene : headplod.plod.still.TerrainScene
+    scene : headplod.render.still.TerrainScene
         Built once; viewpoints only change its model matrix. The loop builds
         its meshes in its own :meth:`AdaptiveMesh.share` of ``scene.mesh``.
     poses : PoseSource
@@ -626,9 +621,6 @@ class DemoLoop:
     def __init__(self, scene, poses: PoseSource, renderer=None, *, size=(1280, 720), mode="csf",
                  uncertainty="adaptive", viewpoint="overview", view_mode="shaded", hud=True,
                  saccade_deg_s=SACCADE_DEG_S, growth_deg2_per_s=GROWTH_DEG2_PER_S, selector_options=None):
-        from ..plod.select import MODES
-        from ..plod.still import default_head
-
         # Its own build state over the scene's shared tables: loops run side by side (the
         # headless demo interleaves them) each rebuild only what their own selection changes.
         self.base_scene = dataclasses.replace(scene, mesh=scene.mesh.share())
@@ -640,8 +632,6 @@ class DemoLoop:
                              "; build the scene for the source's screen")
         self.poses = poses
         if renderer is None:
-            from ..render import TerrainRenderer, create_context
-
             renderer = TerrainRenderer(create_context(), size=tuple(int(v) for v in size))
         self.renderer = renderer
         self._modes = MODES
@@ -721,8 +711,6 @@ class DemoLoop:
 
     def step(self) -> FrameResult | None:
         """Run one frame; None when the pose source has ended."""
-        from ..render import off_axis_projection
-
         t0 = time.perf_counter()
         raw = self.poses.read()
         if raw is None:
@@ -760,8 +748,6 @@ class DemoLoop:
         result = FrameResult(self.index, pose.t, image, self._levels, int(len(tri_levels)), stage,
                              (t5 - t0) * 1e3, pose, bool(skipped), float(speed))
         if self.hud:
-            from .hud import draw_hud
-
             result.image = draw_hud(image, self.hud_info(result), inplace=True,
                                     max_level=self.base_scene.mesh.max_level)
             t6 = time.perf_counter()
@@ -775,9 +761,6 @@ class DemoLoop:
 
     def hud_info(self, result: FrameResult):
         """The HUD's content for a frame."""
-        from ..plod.still import _px_per_deg
-        from .hud import HudInfo
-
         w, h = self.renderer.size
         pose = result.pose
         scale = np.array([w, h], dtype=np.float64) / np.array(self.screen.size_px, dtype=np.float64)
@@ -800,9 +783,6 @@ class DemoLoop:
         -------
         (H, W, 3) uint8 RGB
         """
-        from ..render import off_axis_projection
-        from .hud import draw_picture_overlay
-
         if self.last is None:
             raise RuntimeError("DemoLoop.picture: no frame has been run yet")
         pose = self.last.pose

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..render import scene_to_world
+
 
 @dataclass(frozen=True)
 class Viewpoint:
@@ -55,8 +57,6 @@ class Viewpoint:
 
     def model(self, terrain, screen) -> np.ndarray:
         """``T_world_scene``, (4, 4) float64: terrain metres → world mm, for ``screen``."""
-        from ..render import scene_to_world
-
         x0, x1, y0, y1 = terrain.extent
         fx, fy = self.centre_frac
         cx, cy = x0 + fx * (x1 - x0), y0 + fy * (y1 - y0)

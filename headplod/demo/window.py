@@ -16,7 +16,10 @@ import weakref
 
 import numpy as np
 
-from .loop import DEMO_MODES
+from ..render import TerrainRenderer
+from ..render.still import TerrainScene
+from .loop import DEMO_MODES, DemoLoop
+from .poses import make_poses
 
 #: Key → action. Keys are single characters (digits, lower-case letters) or "escape".
 KEYMAP = {
@@ -96,7 +99,7 @@ def _key_names(keys) -> dict:
 
 def make_window_class():
     """The WindowConfig subclass (imports moderngl_window)."""
-    import moderngl_window as mglw
+    import moderngl_window as mglw  # optional: only a window needs it (headless runs and tests do not)
 
     class DemoWindow(mglw.WindowConfig):
         gl_version = (3, 3)
@@ -108,11 +111,6 @@ def make_window_class():
 
         def __init__(self, demo_args=None, **kwargs):
             super().__init__(**kwargs)
-            from ..plod.still import TerrainScene
-            from ..render import TerrainRenderer
-            from .cli import make_poses
-            from .loop import DemoLoop
-
             args = demo_args
             self.poses = make_poses(args)
             print("building the terrain mesh ...", file=sys.stderr)
@@ -168,7 +166,7 @@ def run_window(args, window: str | None = None) -> int:
         default: moderngl-window's default (pyglet).
     """
     try:
-        import moderngl_window as mglw
+        import moderngl_window as mglw  # optional: only a window needs it (headless runs and tests do not)
     except ImportError:
         print("headplod demo: the window needs moderngl-window ('pip install moderngl-window'); "
               "'headplod demo --headless' runs without it", file=sys.stderr)

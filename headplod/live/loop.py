@@ -22,8 +22,7 @@ from typing import Callable
 import numpy as np
 
 from .. import io
-from .pipeline import result_record
-from ..tracking.tracker import Tracker, TrackerConfig
+from ..tracking.tracker import Tracker, TrackerConfig, TrackResult
 
 
 @dataclass
@@ -52,6 +51,25 @@ class LiveStats:
             "output_ms_mean": 1e3 * float(np.mean(self.output_s)) if self.output_s else None,
             "capture_over_tracking": float(np.sum(self.read_s)) / track if track > 0 else None,
         }
+
+
+def result_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen | None = None,
+                  extras: bool = True) -> dict:
+    """The contract's pose record for one frame (conventions.md), with diagnostics.
+
+    A frame the dataset could not load (``frame.error``) gives ``ok: false``
+    with that error as the reason.
+    """
+    if result is None:
+        return io.pose_record(frame.index, frame.t, False, reason=frame.error or "frame not processed")
+    more = result.record_extras() if extras else {}
+    if not result.ok:
+        return io.pose_record(frame.index, frame.t, False, reason=result.reason, **more)
+    if screen is not None:
+        poi = screen.intersect_ray(result.position_mm, result.axes[2])
+        more["poi_px"] = None if poi is None else [round(float(c), 2) for c in poi]
+    return io.pose_record(frame.index, frame.t, True, position=result.position_mm, axes=result.axes,
+                          cov=result.cov_deg2, reason=None, **more)
 
 
 def make_tracker(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig | None = None,

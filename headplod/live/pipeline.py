@@ -1,31 +1,16 @@
-"""Running the tracker over a dataset folder and writing pose records."""
+"""Running the tracker over a dataset folder: the live loop over a :class:`DatasetSource`."""
 from __future__ import annotations
 
-import sys
-import time
 from typing import Callable
 
 from .. import io
+from ..capture import DatasetSource
+from ..progress import Progress
 from ..tracking.tracker import TrackerConfig, TrackResult
+from .loop import run_source
 
-
-def result_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen | None = None,
-                  extras: bool = True) -> dict:
-    """The contract's pose record for one frame (conventions.md), with diagnostics.
-
-    A frame the dataset could not load (``frame.error``) gives ``ok: false``
-    with that error as the reason.
-    """
-    if result is None:
-        return io.pose_record(frame.index, frame.t, False, reason=frame.error or "frame not processed")
-    more = result.record_extras() if extras else {}
-    if not result.ok:
-        return io.pose_record(frame.index, frame.t, False, reason=result.reason, **more)
-    if screen is not None:
-        poi = screen.intersect_ray(result.position_mm, result.axes[2])
-        more["poi_px"] = None if poi is None else [round(float(c), 2) for c in poi]
-    return io.pose_record(frame.index, frame.t, True, position=result.position_mm, axes=result.axes,
-                          cov=result.cov_deg2, reason=None, **more)
+# Progress moved to headplod.progress; re-exported because headplod/cli.py imports it from here.
+__all__ = ["track_dataset", "Progress"]
 
 
 def track_dataset(dataset: io.Dataset, config: TrackerConfig = TrackerConfig(),
@@ -48,9 +33,6 @@ def track_dataset(dataset: io.Dataset, config: TrackerConfig = TrackerConfig(),
     -------
     list of pose records (dicts)
     """
-    from ..capture import DatasetSource
-    from .loop import run_source
-
     records = []
 
     def collect(record, result):
@@ -65,31 +47,3 @@ def track_dataset(dataset: io.Dataset, config: TrackerConfig = TrackerConfig(),
     finally:
         source.close()
     return records
-
-
-class Progress:
-    """A one-line progress display on a terminal, plain lines otherwise."""
-
-    def __init__(self, total: int, label: str, stream=sys.stderr, every_s: float = 0.5):
-        self.total, self.label, self.stream = total, label, stream
-        self.every_s = every_s
-        self.count = 0
-        self.start = time.perf_counter()
-        self._last = 0.0
-        self._tty = hasattr(stream, "isatty") and stream.isatty()
-
-    def step(self, note: str = "") -> None:
-        self.count += 1
-        now = time.perf_counter()
-        if now - self._last < self.every_s and self.count < self.total:
-            return
-        self._last = now
-        rate = self.count / max(now - self.start, 1e-9)
-        text = f"{self.label}: {self.count}/{self.total} ({rate:.0f}/s) {note}"
-        if self._tty:
-            self.stream.write("\r" + text[:150].ljust(150))
-            if self.count >= self.total:
-                self.stream.write("\n")
-        else:
-            self.stream.write(text + "\n")
-        self.stream.flush()

@@ -57,6 +57,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .. import io
+
 PARAMETERS = ("turn_x_rad", "turn_y_rad", "turn_z_rad", "shift_x_mm", "shift_y_mm", "shift_z_mm",
               "log_focal_right", "time_offset_s")
 N_RIG = len(PARAMETERS)
@@ -253,8 +255,6 @@ class RigState:
 
     def rig(self):
         """This estimate as a :class:`headplod.io.Rig` (intrinsics of the left camera and distortions unchanged)."""
-        from .. import io
-
         cal = self.calibrated
         extra = dict(cal.extra)
         extra["refined_time_offset_ms"] = round(self.offset_s * 1e3, 4)

@@ -1,0 +1,153 @@
+"""One PLOD frame: select levels for a view, build the mesh, render it (``headplod render``).
+
+The terrain scene (:class:`TerrainScene`) and the one-frame renderer sit here,
+on top of ``headplod.plod`` (selection and meshes, pure numpy) and
+:mod:`headplod.render.gl` (GL).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..plod.contrast import project_to_screen_px, readback_contrast
+from ..plod.export import check_export_path, export_mesh
+from ..plod.mesh import AdaptiveMesh, BaseMesh
+from ..plod.select import LevelSelector, SelectorConfig, View
+from ..plod.terrain import Terrain
+from .gl import TerrainRenderer, create_context, off_axis_projection, overlay_poi, scene_to_world
+
+# Where the terrain sits: its centre 250 mm behind the screen, 30 km shown as
+# about 600 mm, seen from above at 35° (pitch 55° from the "window" pose).
+SCALE_MM_PER_M = 0.02
+DEPTH_MM = 250.0
+PITCH_DEG = 55.0
+
+
+@dataclass
+class TerrainScene:
+    """The terrain, its base mesh and adaptive mesh, placed behind a screen."""
+
+    terrain: Terrain
+    mesh: AdaptiveMesh
+    model: np.ndarray           # (4, 4) scene (m) → world (mm)
+    screen: object
+
+    @classmethod
+    def build(cls, screen, max_level: int = 5) -> "TerrainScene":
+        terrain = Terrain.jacksboro()
+        base = BaseMesh.grid(terrain)
+        mesh = AdaptiveMesh(base, terrain, max_level=max_level)
+        x0, x1, y0, y1 = terrain.extent
+        centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, float(np.median(terrain.dem_z_m))])
+        model = np.asarray(scene_to_world(SCALE_MM_PER_M, centre, screen, depth_mm=DEPTH_MM,
+                                          pitch_deg=PITCH_DEG).matrix, dtype=np.float64)
+        return cls(terrain, mesh, model, screen)
+
+    def selector(self, mode: str, uncertainty: str, config: SelectorConfig | None = None,
+                 **settings) -> LevelSelector:
+        """A level selector for this scene's mesh.
+
+        ``mode``, ``uncertainty`` and the keyword ``settings`` (any other
+        :class:`SelectorConfig` field, e.g. ``hysteresis=False``) replace
+        those of ``config`` (default ``SelectorConfig()``).
+        """
+        config = SelectorConfig() if config is None else config
+        config = dataclasses.replace(config, mode=mode, uncertainty=uncertainty, **settings)
+        m = self.mesh
+        return LevelSelector(m.centroids, m.edge_length, m.geometric_error, m.contrast, self.model, self.screen,
+                             config, corners_scene=m.corners)
+
+
+def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
+    """The eye 600 mm in front of the screen centre, on the viewer's side (away from the scene)."""
+    centre = screen.pixel_to_world(np.array(screen.size_px, dtype=np.float64) / 2.0)
+    normal = np.cross(np.asarray(screen.top_right) - screen.top_left, np.asarray(screen.bottom_left) - screen.top_left)
+    normal /= np.linalg.norm(normal)
+    # The cameras (world origin) are on the viewer's side of the screen.
+    if normal @ (np.zeros(3) - centre) < 0:
+        normal = -normal
+    return centre + distance_mm * normal
+
+
+def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_px=None, cov_deg2=None,
+                 size=(1280, 720), view_mode="shaded", out=None, stats_path=None, scene=None, renderer=None,
+                 contrast="shading", export=None):
+    """Render one frame and return (image (H, W, 3) uint8 RGB, stats dict).
+
+    ``export``: also write the frame's mesh to this file (:mod:`.export`:
+    ``.glb``, ``.ply``, ``.obj``, ``.stl``); its ending and folder are
+    checked before anything is rendered.
+
+    ``contrast="readback"``: the paper's way (eq. 2): a first frame with the
+    shading contrast is read back, each base triangle's contrast is taken
+    from a 10x10 window of its luminance around the triangle's projected
+    centroid, and the frame is selected and rendered again with it
+    (``readback_ms`` in the stats: the read-back and the filters).
+    """
+    if export is not None:
+        export = check_export_path(export)
+    scene = scene or TerrainScene.build(screen)
+    head = default_head(screen) if head_mm is None else np.asarray(head_mm, dtype=np.float64)
+    poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
+    if contrast not in ("shading", "readback"):
+        raise ValueError(f"render_still: contrast must be 'shading' or 'readback', got {contrast!r}")
+    selector = scene.selector(mode, uncertainty, hysteresis=False)
+    if renderer is None:
+        renderer = TerrainRenderer(create_context(), size=tuple(size))
+    view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
+
+    def frame(render_mode):
+        """Select, build, upload and render; (image, levels per triangle, select s, build s, levels per face)."""
+        t0 = time.perf_counter()
+        levels, _ = selector.select(View(head, poi, cov_deg2, 0.0))
+        t1 = time.perf_counter()
+        positions, normals, tri_levels = scene.mesh.update(levels)
+        t2 = time.perf_counter()
+        renderer.upload(positions, normals, tri_levels)
+        image = renderer.render(view, proj, scene.model, view_mode=render_mode)
+        return image, tri_levels, t1 - t0, t2 - t1, levels
+
+    readback_ms = None
+    if contrast == "readback":
+        shaded = frame("shaded")[0]
+        t3 = time.perf_counter()
+        centroids_px = project_to_screen_px(selector.centroids_mm, head, screen)
+        selector.contrast = readback_contrast(shaded, centroids_px, screen.size_px, fallback=scene.mesh.contrast)
+        readback_ms = renderer.last_readback_ms + (time.perf_counter() - t3) * 1e3
+    image, tri_levels, select_s, build_s, face_levels = frame(view_mode)
+    if cov_deg2 is not None or view_mode == "levels":
+        px_per_deg = _px_per_deg(screen, head, size)
+        scaled_poi = poi * np.array(size) / np.array(screen.size_px)
+        image = overlay_poi(image, scaled_poi, cov_deg2, px_per_deg)
+    counts = np.bincount(tri_levels, minlength=scene.mesh.max_level + 1)
+    stats = {"mode": mode, "uncertainty": uncertainty, "view": view_mode, "size": list(size),
+             "head_mm": head.round(2).tolist(), "poi_px": poi.round(2).tolist(),
+             "triangles": int(len(tri_levels)), "select_ms": select_s * 1e3, "build_ms": build_s * 1e3,
+             "render_ms": renderer.last_render_ms, "triangles_per_level": counts.tolist(),
+             "contrast": contrast}
+    if readback_ms is not None:
+        stats["readback_ms"] = readback_ms
+    if out:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    if stats_path:
+        Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
+        Path(stats_path).write_text(json.dumps(stats, indent=2))
+    if export is not None:
+        export_mesh(scene.mesh, face_levels, export)
+    return image, stats
+
+
+def _px_per_deg(screen, head, size) -> float:
+    """Image pixels per degree of visual angle at the screen centre, seen from the head."""
+    centre = screen.pixel_to_world(np.array(screen.size_px, dtype=np.float64) / 2.0)
+    width_mm = float(np.linalg.norm(np.asarray(screen.top_right) - screen.top_left))
+    distance = float(np.linalg.norm(centre - head))
+    mm_per_deg = distance * np.tan(np.radians(1.0))
+    return mm_per_deg * size[0] / width_mm
