@@ -13,7 +13,7 @@ import numpy as np
 from scipy.special import lambertw
 
 __all__ = ["CSF_MODELS", "MIN_SPEED_DEG_S", "ECC_SLOPE",
-           "sensitivity", "csf_coefficients", "max_visible_freq_cpd", "gp_cutoff_cpd"]
+           "sensitivity", "csf_coefficients", "max_visible_freq_cpd", "gp_cutoff_cpd", "eccentricity_factor"]
 
 CSF_MODELS = ("paper", "kelly", "daly", "kelly_scaled")
 
@@ -83,8 +83,8 @@ def csf_coefficients(speed_deg_s, model="kelly_scaled"):
     return k * v * (2.0 * np.pi) ** 2, 4.0 * np.pi * (v + 2.0) / 45.9
 
 
-def _ecc_factor(ecc_deg):
-    """1 + 0.29 |e| (dimensionless)."""
+def eccentricity_factor(ecc_deg):
+    """Cortical-magnification fall-off 1 + 0.29 |e| (dimensionless; e in deg): frequencies scale by its inverse."""
     return 1.0 + ECC_SLOPE * np.abs(np.asarray(ecc_deg, dtype=float))
 
 
@@ -115,7 +115,7 @@ def sensitivity(freq_cpd, speed_deg_s, ecc_deg, model="kelly_scaled"):
     _check_model(model)
     f = np.asarray(freq_cpd, dtype=float)
     A, b = csf_coefficients(speed_deg_s, model)
-    m = _ecc_factor(ecc_deg)
+    m = eccentricity_factor(ecc_deg)
     if model == "kelly_scaled":
         fs = f * m
         return A * fs ** 2 * np.exp(-b * fs)
@@ -153,7 +153,7 @@ def max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model="kelly_scaled"):
     _check_model(model)
     C = np.asarray(contrast, dtype=float)
     A, b = csf_coefficients(speed_deg_s, model)
-    m = _ecc_factor(ecc_deg)
+    m = eccentricity_factor(ecc_deg)
     C, A, b, m = np.broadcast_arrays(C, A, b, m)
     if model != "kelly_scaled":
         A = A / m

@@ -35,11 +35,11 @@ from __future__ import annotations
 import numpy as np
 
 from .csf import (CSF_MODELS, ECC_SLOPE, MIN_SPEED_DEG_S, csf_coefficients, gp_cutoff_cpd,  # noqa: F401 (re-exported)
-                  max_visible_freq_cpd, sensitivity, _ecc_factor)
+                  eccentricity_factor, max_visible_freq_cpd, sensitivity)
 
 __all__ = [
     "CSF_MODELS", "MIN_SPEED_DEG_S", "ECC_SLOPE",
-    "sensitivity", "csf_coefficients", "max_visible_freq_cpd", "gp_cutoff_cpd",
+    "sensitivity", "csf_coefficients", "max_visible_freq_cpd", "gp_cutoff_cpd", "eccentricity_factor",
     "lod_continuous", "lod_from_frequency",
     "triangle_frequency_cpd", "view_offsets_deg", "eccentricity_deg",
     "uncertainty_shift",

@@ -340,7 +340,7 @@ class LevelSelector:
                         or not np.array_equal(cache[2], speed)):
                     fmax0 = pc.max_visible_freq_cpd(self.contrast[seen], speed, 0.0, model=cfg.csf_model)
                     self._foveal_fmax = cache = (self.contrast, seen, speed, fmax0)
-                fmax = cache[3] / pc._ecc_factor(ecc)
+                fmax = cache[3] / pc.eccentricity_factor(ecc)
             elif cfg.mode == "csf":
                 fmax = pc.max_visible_freq_cpd(self.contrast[seen], speed, ecc, model=cfg.csf_model)
             else:

@@ -14,6 +14,14 @@ Stages (each timed per frame in ``TrackResult.timings_s``):
 3. ``triangulate`` and ``pose``: one of the estimators of :mod:`headplod.tracking.geometry`.
 4. ``verify``: reprojection residuals in both images and the rigid-fit error;
    a pose that fails them is not reported (``ok`` False with a reason).
+
+Why this module is long (about 1,100 lines): :class:`Tracker` is one state
+machine over a stereo stream, and its stages share that state (the last
+centres and their windows, the rig in use and its refinement, the noise
+tolerances the rig widens, the suspects of a frame). What has no state of
+its own lives elsewhere: detection, identification, geometry, the head's
+recent motion (:mod:`.motion`), the covariance (:mod:`.uncertainty`) and
+the rig's refinement (:mod:`.rig_refine`).
 """
 from __future__ import annotations
 
