@@ -23,6 +23,7 @@ import numpy as np
 from . import evaluate
 from .. import io
 from ..capture.synthetic import ensure_dataset
+from ..live.loop import track_frames
 from ..tracking.tracker import Tracker, TrackerConfig
 from .baseline import threshold_baseline_s
 from .uncertainty import nees
@@ -137,17 +138,14 @@ def run_rig_set(folder, settle_s: float = SETTLE_S, estimator: str | None = None
     series = {k: [] for k in SERIES_KEYS}
     baselines = []
     t0 = None
-    for frame in dataset:
+    for frame, result in track_frames(dataset, tracker):
         row = dict.fromkeys(SERIES_KEYS, float("nan"))
         row["frame"], row["ok"] = frame.index, False
         if frame.t is not None:
             t0 = frame.t if t0 is None else t0
             row["t"] = frame.t - t0
-        if frame.error is not None:
-            tracker.reset()
-        else:
+        if result is not None:                 # None: an error frame (the tracker was reset)
             baselines.append(threshold_baseline_s(frame.left, frame.right))
-            result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
             row["ok"] = bool(result.ok)
             if "mean_pose" in result.timings_s:
                 row["mean_pose_ms"] = result.timings_s["mean_pose"] * 1e3

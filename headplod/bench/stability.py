@@ -43,6 +43,7 @@ from calib import DEFAULT_SCREEN
 
 from .. import io
 from ..capture.synthetic import ensure_dataset
+from ..live.loop import track_frames
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
 from ..render.still import TerrainScene
 from ..tracking.tracker import Tracker, TrackerConfig
@@ -103,12 +104,7 @@ def still_head_views(frames: int = 60, distance_mm: float = 600.0, seed: int = 0
     tracker = Tracker(dataset.rig, dataset.markers, config or TrackerConfig(),
                       calibration_std=io.rig_calibration_std(dataset.rig))
     views, lost, indices = [], [], []
-    for frame in dataset:
-        result = None
-        if frame.error is None:
-            result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
-        else:
-            tracker.reset()
+    for frame, result in track_frames(dataset, tracker):     # result None: an error frame
         view = None
         if result is not None and result.ok and result.cov_deg2 is not None:
             position = np.asarray(result.position_mm, dtype=np.float64)

@@ -25,7 +25,7 @@ from . import evaluate
 from . import rig as bench_rig
 from .. import io
 from ..capture.synthetic import ensure_dataset
-from ..live.loop import result_record
+from ..live.loop import result_record, track_frames
 from ..progress import Progress
 from ..tracking.tracker import ESTIMATORS, Tracker, TrackerConfig
 from .baseline import threshold_baseline_s
@@ -66,13 +66,11 @@ def run_estimator(frames, dataset: io.Dataset, estimator: str) -> dict:
     """Track preloaded frames with one estimator; accuracy, stage times and the baseline ratio."""
     tracker = Tracker(dataset.rig, dataset.markers, TrackerConfig(estimator=estimator))
     records, totals, baselines, stages, by_mode = [], [], [], {}, {"track": [], "acquire": []}
-    for frame in frames:
-        if frame.error is not None:
-            tracker.reset()
+    for frame, result in track_frames(frames, tracker):
+        if result is None:                     # an error frame (the tracker was reset)
             records.append(result_record(frame, None))
             continue
         baselines.append(threshold_baseline_s(frame.left, frame.right))
-        result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
         # The mean pose: everything but the covariance of V (its own benchmark).
         totals.append(result.timings_s.get("mean_pose", result.timings_s["total"]))
         by_mode[result.mode].append(totals[-1])

@@ -27,6 +27,7 @@ import numpy as np
 
 from .. import io
 from ..capture.synthetic import ensure_dataset
+from ..live.loop import track_frames
 from ..progress import Progress
 from ..tracking.tracker import Tracker, TrackerConfig
 from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE, PaperPixelClouds, make_covariance_estimator, view_angles_deg
@@ -61,13 +62,9 @@ def run_set(dataset: io.Dataset, estimators) -> dict:
            for name in estimators}
     out = {name: {"nees": [], "trace": [], "time": []} for name in estimators}
     pose_times, input_times = [], []
-    for frame in dataset:
-        if frame.error is not None:
-            tracker.reset()
-            continue
-        result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
-        if not result.ok or dataset.truth is None or frame.index not in dataset.truth:
-            continue
+    for frame, result in track_frames(dataset, tracker):
+        if result is None or not result.ok or dataset.truth is None or frame.index not in dataset.truth:
+            continue                           # result None: an error frame (the tracker was reset)
         pose_times.append(result.timings_s["mean_pose"])
         # What every estimator needs first (Jacobian rows, shot-noise terms).
         input_times.append(result.timings_s["covariance_input"])
@@ -102,9 +99,8 @@ def fig17(dataset: io.Dataset, ratios=(0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0), fram
     """Variance of φ and θ of the paper's estimator against the sub-sampling ratio (its Fig. 17)."""
     tracker = Tracker(dataset.rig, dataset.markers, TrackerConfig())
     inputs = []
-    for frame in list(dataset)[:frames]:
-        result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
-        if result.ok:
+    for _, result in track_frames(dataset, tracker, max_frames=frames):
+        if result is not None and result.ok:
             inputs.append(result.cov_input)
     curves = {"ratio": list(ratios), "var_phi_deg2": [], "var_theta_deg2": []}
     gaps = None

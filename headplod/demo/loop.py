@@ -161,6 +161,12 @@ def default_screen():
 class TrackerPoses(PoseSource):
     """Poses from the real tracker on a frame source (live cameras, a recording, the synthetic sequence).
 
+    The frames are read and tracked by :func:`headplod.live.loop.track_frames`,
+    the loop ``headplod track`` and the benchmarks use, with its error policy:
+    a frame with an ``error`` (a stalled camera, an unreadable image) gives a
+    pose with ``ok`` false and that error as the reason, and resets the
+    tracker.
+
     Parameters
     ----------
     source : FrameSource or str
@@ -180,7 +186,8 @@ class TrackerPoses(PoseSource):
 
     def __init__(self, source, screen=None, config=None, loop: bool = False, max_frames: int | None = None,
                  **open_options):
-        # Imported on use: it pulls in scipy.stats (~0.5 s), and headplod/cli.py imports this module at every start.
+        # Imported on use: they pull in scipy.stats (~0.5 s), and headplod/cli.py imports this module at every start.
+        from ..live.loop import FrameTimes, track_frames
         from ..tracking.tracker import Tracker, TrackerConfig
 
         self._spec = source if isinstance(source, str) else None
@@ -200,33 +207,45 @@ class TrackerPoses(PoseSource):
         self._t_offset = 0.0
         self._last_t = None
         self._period = 1 / 30
+        self._times = FrameTimes()
+        self._tracked = track_frames(self._frames(), self.tracker, max_frames=max_frames, times=self._times)
+
+    def _frames(self):
+        """The source's frames on the pose clock: replayed again at the end when looping, times continuing.
+
+        A frame is yielded with ``t`` (and ``t_right``) moved by the time
+        offset of the current replay; a frame without a time gets one from
+        the measured frame period.
+        """
+        while True:
+            frame = self.source.read()
+            if frame is None and self.loop:
+                self.source.close()
+                self.source = open_source(self._spec, **self._open_options)
+                self.tracker.reset()
+                self._t_offset = (self._last_t or 0.0) + self._period
+                frame = self.source.read()
+            if frame is None:
+                return
+            self.count += 1
+            t_frame = frame.t if frame.t is not None else (self.count - 1) * self._period
+            t = self._t_offset + t_frame
+            if self._last_t is not None and t > self._last_t:
+                self._period = 0.9 * self._period + 0.1 * min(t - self._last_t, 1.0)
+            self._last_t = t
+            t_right = None if frame.t_right is None else self._t_offset + frame.t_right
+            yield dataclasses.replace(frame, t=t, t_right=t_right)
 
     def read(self) -> Pose | None:
-        if self.max_frames is not None and self.count >= self.max_frames:
+        item = next(self._tracked, None)
+        if item is None:
             return None
-        t0 = time.perf_counter()
-        frame = self.source.read()
-        if frame is None and self.loop:
-            self.source.close()
-            self.source = open_source(self._spec, **self._open_options)
-            self.tracker.reset()
-            self._t_offset = (self._last_t or 0.0) + self._period
-            frame = self.source.read()
-        if frame is None:
-            return None
-        t1 = time.perf_counter()
-        self.count += 1
-        t_frame = frame.t if frame.t is not None else (self.count - 1) * self._period
-        t = self._t_offset + t_frame
-        if self._last_t is not None and t > self._last_t:
-            self._period = 0.9 * self._period + 0.1 * min(t - self._last_t, 1.0)
-        self._last_t = t
-        timings = {"capture": (t1 - t0) * 1e3}
-        if frame.error:
+        frame, result = item
+        t, times = frame.t, self._times
+        timings = {"capture": times.read_s * 1e3}
+        if result is None:
             return Pose(t, False, reason=frame.error, timings_ms=timings)
-        t_right = None if frame.t_right is None else self._t_offset + frame.t_right
-        result = self.tracker.process(frame.left, frame.right, t, t_right)
-        timings["track"] = (time.perf_counter() - t1) * 1e3
+        timings["track"] = times.track_s * 1e3
         images = (frame.left, frame.right)
         markers = np.asarray(result.centers_px, dtype=np.float64)
         if not result.ok:

@@ -1,10 +1,18 @@
 """Tracking any frame source: live cameras, recordings, videos, the synthetic renderer.
 
-One loop (:func:`run_source`) serves ``headplod track`` for every source, so
-a replayed recording goes through exactly the code the cameras did. Per
-frame: read (the capture layer), track, build the contract's pose record,
-optionally filter it (One Euro; off by default), send it to opentrack over
-UDP, write it, record the frame, and update the status line.
+One generator, :func:`track_frames`, reads frames (from a capture source or
+any iterable of frames, e.g. an :class:`io.Dataset <headplod.io.Dataset>`),
+tracks them and applies the per-frame error policy; it yields
+``(frame, result)``. Everything that tracks a sequence consumes it:
+:func:`run_source` (``headplod track``, ``bench live``), the benchmarks
+(``bench track`` and its imperfect-rig sets, ``bench uncertainty``), the
+still-head stability run and the demo's tracker poses. So a replayed
+recording goes through exactly the code the cameras did.
+
+:func:`run_source`, per frame: read and track (:func:`track_frames`), record
+the frame, build the contract's pose record, optionally filter it (One Euro;
+off by default), send it to opentrack over UDP, write it, and update the
+status line.
 
 Records from a capture source carry, beyond the contract's keys:
 ``skew_ms`` (left/right capture-time difference), ``dropped`` (pairs lost
@@ -15,9 +23,10 @@ frame was read for replay, to the finished record).
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -32,7 +41,7 @@ class LiveStats:
     frames: int = 0
     ok: int = 0
     read_s: list = field(default_factory=list)       # capture layer: source.read()
-    track_s: list = field(default_factory=list)      # tracker.process()
+    track_s: list = field(default_factory=list)      # tracker.process() (tracker.reset() for an error frame)
     output_s: list = field(default_factory=list)     # record, filter, UDP, writing, recording
     latency_ms: list = field(default_factory=list)
     wall_s: float = 0.0
@@ -51,6 +60,124 @@ class LiveStats:
             "output_ms_mean": 1e3 * float(np.mean(self.output_s)) if self.output_s else None,
             "capture_over_tracking": float(np.sum(self.read_s)) / track if track > 0 else None,
         }
+
+
+@dataclass
+class FrameTimes:
+    """When the frame that :func:`track_frames` has just yielded was read and tracked.
+
+    Pass one to :func:`track_frames` as ``times``; it is overwritten before
+    each ``(frame, result)`` is yielded, so read it inside the loop.
+
+    Attributes
+    ----------
+    read_start, read_end : float
+        ``time.perf_counter()`` just before and just after reading the frame
+        (``source.read()`` or the next item of the iterable), s.
+    read_end_monotonic : float
+        ``time.monotonic()`` just after reading it, s: the clock of a live
+        frame's ``t_monotonic_left``, for latencies.
+    track_end : float
+        ``time.perf_counter()`` just after ``tracker.process()`` returned (or
+        ``tracker.reset()``, for an error frame), s.
+    """
+
+    read_start: float = math.nan
+    read_end: float = math.nan
+    read_end_monotonic: float = math.nan
+    track_end: float = math.nan
+
+    @property
+    def read_s(self) -> float:
+        """Time spent reading the frame, s."""
+        return self.read_end - self.read_start
+
+    @property
+    def track_s(self) -> float:
+        """Time spent tracking it (the tracker's call, nothing else), s."""
+        return self.track_end - self.read_end
+
+
+def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: int | None = None,
+                 stop: Callable[[], bool] | None = None, timeout_s: float = 1.0,
+                 times: FrameTimes | None = None) -> Iterator[tuple[io.Frame, TrackResult | None]]:
+    """Read and track frames one by one: the one loop of everything that tracks a sequence.
+
+    Parameters
+    ----------
+    frames : headplod.capture.FrameSource, or iterable of io.Frame
+        A source (anything with ``read(timeout_s=...)`` returning a frame, or
+        ``None`` once it has ended), read with ``timeout_s``; or any iterable
+        of :class:`io.Frame <headplod.io.Frame>` (an ``io.Dataset``, a list of
+        preloaded frames, a generator), read in its order until it ends.
+    tracker : Tracker
+        Called as ``tracker.process(frame.left, frame.right, frame.t,
+        frame.t_right)``; its state carries from frame to frame.
+    max_frames : int, optional
+        End after this many frames (error frames count); nothing more is read.
+    stop : callable() -> bool, optional
+        Polled before each frame is read, the first one included; the
+        generator ends when it returns true.
+    timeout_s : float
+        How long a live source may wait for a pair, s, before it returns an
+        error frame that says which camera is late (a stall). Replay and
+        iterables ignore it.
+    times : FrameTimes, optional
+        Filled in for every frame before it is yielded (read and tracking
+        times), for callers that measure.
+
+    Yields
+    ------
+    frame : io.Frame (a CaptureFrame for capture sources)
+        As read.
+    result : TrackResult or None
+        The tracker's result for the pair; ``None`` when the frame has an
+        ``error``.
+
+    Notes
+    -----
+    The per-frame policy, the same for every caller:
+
+    - a frame with ``error`` set (an image missing, unreadable or of the
+      wrong size; a camera that stalled past ``timeout_s`` or was lost) is
+      not tracked: the tracker is reset (the next pair is acquired afresh,
+      not tracked from before the gap) and ``(frame, None)`` is yielded;
+    - a tracked pair without a pose is a result with ``ok`` false and a
+      ``reason`` (the tracker's own; it does not reset the tracker);
+    - exceptions (a broken file, a programming error) are not caught.
+
+    The generator ends when the source or the iterable ends, at
+    ``max_frames``, or when ``stop()`` is true.
+    """
+    read = getattr(frames, "read", None)
+    if callable(read):
+        def next_frame():
+            return read(timeout_s=timeout_s)
+    else:
+        iterator = iter(frames)
+
+        def next_frame():
+            return next(iterator, None)
+    count = 0
+    while max_frames is None or count < max_frames:
+        if stop is not None and stop():
+            return
+        t_read = time.perf_counter()
+        frame = next_frame()
+        t_got = time.perf_counter()
+        if frame is None:
+            return
+        read_mono = time.monotonic()
+        result = None
+        if frame.error is None:
+            result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
+        else:
+            tracker.reset()
+        if times is not None:
+            times.read_start, times.read_end, times.read_end_monotonic = t_read, t_got, read_mono
+            times.track_end = time.perf_counter()
+        count += 1
+        yield frame, result
 
 
 def result_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen | None = None,
@@ -99,6 +226,10 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
                tracker: Tracker | None = None) -> LiveStats:
     """Track every frame of a source until it ends (or ``max_frames``, or ``stop()``).
 
+    The frames are read and tracked by :func:`track_frames` (its error
+    policy: an error frame resets the tracker and gives an ``ok: false``
+    record with the frame's error as the reason); this adds the outputs.
+
     Parameters
     ----------
     source : headplod.capture.FrameSource
@@ -131,22 +262,10 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
     if tracker is None:
         tracker = make_tracker(source, config, rig=rig, markers=markers)
     stats = LiveStats()
+    times = FrameTimes()
     start = time.perf_counter()
-    while max_frames is None or stats.frames < max_frames:
-        if stop is not None and stop():
-            break
-        t_read = time.perf_counter()
-        frame = source.read(timeout_s=timeout_s)
-        t_got = time.perf_counter()
-        if frame is None:
-            break
-        read_mono = time.monotonic()
-        result = None
-        if frame.error is None:
-            result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
-        else:
-            tracker.reset()
-        t_tracked = time.perf_counter()
+    for frame, result in track_frames(source, tracker, max_frames=max_frames, stop=stop, timeout_s=timeout_s,
+                                      times=times):
         if recorder is not None and frame.error is None:
             recorder.write(frame)
         record = result_record(frame, result, screen)
@@ -162,8 +281,8 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         if sender is not None:
             sender.send(record)
         now_mono = time.monotonic()
-        latency = 1e3 * (now_mono - (captured if captured is not None else read_mono))
-        latency += 1e3 * (t_got - t_read) if captured is None else 0.0
+        latency = 1e3 * (now_mono - (captured if captured is not None else times.read_end_monotonic))
+        latency += 1e3 * times.read_s if captured is None else 0.0
         record["latency_ms"] = round(latency, 3)
         if on_record is not None:
             on_record(record, result)
@@ -172,9 +291,9 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         t_done = time.perf_counter()
         stats.frames += 1
         stats.ok += bool(record["ok"])
-        stats.read_s.append(t_got - t_read)
-        stats.track_s.append(t_tracked - t_got)
-        stats.output_s.append(t_done - t_tracked)
+        stats.read_s.append(times.read_s)
+        stats.track_s.append(times.track_s)
+        stats.output_s.append(t_done - times.track_end)
         stats.latency_ms.append(latency)
     stats.wall_s = time.perf_counter() - start
     return stats
