@@ -1,8 +1,107 @@
-"""Shared fixtures."""
+"""Fixtures shared by the test modules.
+
+Each fixture is defined here once; a test module that needs a variant builds
+it from these (e.g. ``small_rig(rms_px=0.3)``) rather than copying them.
+
+- ``sweep12_dir``: the shared sample dataset (tests/data/sweep12, rendered by
+  independent code), read only; ``sample``: a writable copy of it.
+- ``small_rig``, ``make_dataset``: a tiny 64x48 rig and contract dataset
+  folders built on it, for tests of files and sources that need no markers.
+- ``synth``: synthetic presets rendered once per session.
+- ``default_screen``, ``terrain_scene``: the embedded screen and the PLOD terrain behind it.
+- ``gl_context``: a headless OpenGL context per module, or a skip that says why.
+"""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
 import pytest
 
 from headplod import io
 from headplod.capture.synthetic import ensure_dataset
+
+DATA = Path(__file__).parent / "data"
+
+
+# ---------------------------------------------------------------------------
+# the shared sample dataset
+# ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="session")
+def sweep12_dir() -> Path:
+    """tests/data/sweep12: 12 frames, 640x480, with times.csv and truth.csv. Read only: copy it (``sample``)
+    before changing anything."""
+    return DATA / "sweep12"
+
+
+@pytest.fixture(scope="session")
+def sweep12_rig(sweep12_dir) -> io.Rig:
+    """The sample dataset's rig.yaml."""
+    return io.read_rig(sweep12_dir / "rig.yaml")
+
+
+@pytest.fixture
+def sample(tmp_path, sweep12_dir) -> Path:
+    """A writable copy of the sample dataset at ``tmp_path / "ds"``."""
+    dst = tmp_path / "ds"
+    shutil.copytree(sweep12_dir, dst)
+    return dst
+
+
+# ---------------------------------------------------------------------------
+# a tiny rig and datasets on it
+# ---------------------------------------------------------------------------
+
+SMALL_SIZE = (64, 48)        # px, width x height
+
+
+def _small_rig(**extra) -> io.Rig:
+    K1 = np.array([[60.0, 0, 32], [0, 61, 24], [0, 0, 1]])
+    K2 = np.array([[62.0, 0, 31], [0, 63, 23], [0, 0, 1]])
+    D1 = np.array([0.1, -0.05, 0.001, 0.002, 0.01])
+    R = cv2.Rodrigues(np.array([0.01, 0.15, -0.02]))[0]
+    T = np.array([-350.0, -4.0, 27.0])
+    return io.Rig(SMALL_SIZE, K1, D1, K2, np.zeros(5), R, T, extra=extra)
+
+
+@pytest.fixture
+def small_rig():
+    """``small_rig(**extra) -> io.Rig``: a valid 64x48 rig (350 mm baseline, some distortion on the
+    left camera) with ``extra`` as its extra keys; a new object on every call."""
+    return _small_rig
+
+
+@pytest.fixture
+def make_dataset():
+    """``make_dataset(folder, n=5, times=None) -> folder``: a valid contract dataset of ``n`` 64x48
+    frames on ``small_rig()``, each image different (uniform noise, fixed seed), with ``times.csv``
+    written from ``times`` (any form :func:`io.write_times` takes) when given."""
+
+    def make(folder: Path, n: int = 5, times: dict | None = None) -> Path:
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        io.write_rig(folder / "rig.yaml", _small_rig())
+        rng = np.random.default_rng(0)
+        w, h = SMALL_SIZE
+        for side in ("left", "right"):
+            (folder / side).mkdir(exist_ok=True)
+        for i in range(n):
+            for side in ("left", "right"):
+                assert cv2.imwrite(str(folder / side / f"{i:06d}.png"), rng.integers(0, 256, (h, w), dtype=np.uint8))
+        if times is not None:
+            io.write_times(folder / "times.csv", times)
+        return folder
+
+    return make
+
+
+# ---------------------------------------------------------------------------
+# synthetic presets
+# ---------------------------------------------------------------------------
 
 
 @pytest.fixture(scope="session")
@@ -13,3 +112,44 @@ def synth(tmp_path_factory):
     def make(preset, frames, **options):
         return io.Dataset(ensure_dataset(preset, frames=frames, root=root, quiet=True, **options))
     return make
+
+
+# ---------------------------------------------------------------------------
+# the screen and the terrain
+# ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="session")
+def default_screen() -> io.Screen:
+    """The embedded 24-inch screen (calib/screen.yaml), 1920x1080."""
+    from calib import DEFAULT_SCREEN
+
+    return io.read_screen(DEFAULT_SCREEN)
+
+
+@pytest.fixture(scope="module")
+def terrain_scene(default_screen):
+    """The PLOD terrain scene (Jacksboro DEM, 2048 base faces up to level 5) behind the default screen.
+    Built once per module (a few seconds): the modules do not share its mesh state."""
+    from headplod.plod.still import TerrainScene
+
+    return TerrainScene.build(default_screen)
+
+
+# ---------------------------------------------------------------------------
+# OpenGL
+# ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def gl_context():
+    """A headless (EGL) OpenGL context for one test module, released after it; the module's GL tests
+    skip, saying why, on a machine without EGL / Mesa."""
+    from headplod.render import create_context
+
+    try:
+        ctx = create_context()
+    except RuntimeError as exc:
+        pytest.skip(f"no headless OpenGL: {exc}")
+    yield ctx
+    ctx.release()

@@ -241,34 +241,30 @@ def _touch_png(path: Path) -> None:
     cv2.imwrite(str(path), np.zeros((4, 4), np.uint8))
 
 
-def test_find_pairs_errors(tmp_path):
-    with pytest.raises(io.ContractError, match="folder not found"):
-        cal.find_pairs(tmp_path / "nowhere")
-    empty = tmp_path / "empty"
-    empty.mkdir()
-    with pytest.raises(io.ContractError, match="no calibration images") as info:
-        cal.find_pairs(empty)
-    assert str(empty) in str(info.value) and "left/" in str(info.value)
+# (images to create under the folder, or None for no folder; fragments the ContractError must hold,
+#  "{folder}" standing for the folder's path)
+BAD_PAIR_FOLDERS = [
+    pytest.param(None, ["folder not found"], id="no-folder"),
+    pytest.param([], ["no calibration images", "{folder}", "left/"], id="empty-folder"),
+    pytest.param(["left/00.png", "right/00.png", "left/01.png", "right/02.png", "left/10.png"],
+                 ["2 left image(s) without a right one: 01.png, 10.png",
+                  "1 right image(s) without a left one: 02.png"], id="subfolders-unpaired"),
+    pytest.param(["left01.jpg", "right01.jpg", "left02.jpg"], ["left02.jpg"], id="side-by-side-unpaired"),
+    pytest.param(["left/00.png"], ["no right/ subfolder"], id="only-left-subfolder"),
+]
 
-    sub = tmp_path / "sub"
-    for name in ("left/00.png", "right/00.png", "left/01.png", "right/02.png", "left/10.png"):
-        _touch_png(sub / name)
+
+@pytest.mark.parametrize("images, fragments", BAD_PAIR_FOLDERS)
+def test_find_pairs_errors(tmp_path, images, fragments):
+    folder = tmp_path / "pairs"
+    if images is not None:
+        folder.mkdir()
+        for name in images:
+            _touch_png(folder / name)
     with pytest.raises(io.ContractError) as info:
-        cal.find_pairs(sub)
-    msg = str(info.value)
-    assert "2 left image(s) without a right one: 01.png, 10.png" in msg
-    assert "1 right image(s) without a left one: 02.png" in msg
-
-    side = tmp_path / "side"
-    for name in ("left01.jpg", "right01.jpg", "left02.jpg"):
-        _touch_png(side / name)
-    with pytest.raises(io.ContractError, match="left02.jpg"):
-        cal.find_pairs(side)
-
-    only_left = tmp_path / "only_left"
-    _touch_png(only_left / "left" / "00.png")
-    with pytest.raises(io.ContractError, match="no right/ subfolder"):
-        cal.find_pairs(only_left)
+        cal.find_pairs(folder)
+    for fragment in fragments:
+        assert fragment.format(folder=folder) in str(info.value), (fragment, str(info.value))
 
 
 def test_find_pairs_natural_order(tmp_path):
@@ -327,17 +323,20 @@ def test_detect_board_failure_is_a_value():
         cal.detect_board(np.zeros((4, 4, 2), np.uint8), CHESS_SPEC)
 
 
-def test_board_spec_checks():
-    with pytest.raises(ValueError, match="90 degrees"):
-        cal.BoardSpec("chessboard", 7, 7, 20.0)
-    with pytest.raises(ValueError, match="kind"):
-        cal.BoardSpec("circles", 7, 5, 20.0)
-    with pytest.raises(ValueError, match="marker_mm"):
-        cal.BoardSpec("charuco", 7, 5, 20.0, marker_mm=25.0)
-    with pytest.raises(ValueError, match="dictionary"):
-        cal.BoardSpec("charuco", 7, 5, 20.0, dictionary="DICT_NOPE")
-    with pytest.raises(ValueError, match="square_mm"):
-        cal.BoardSpec("chessboard", 9, 6, 0.0)
+@pytest.mark.parametrize("args, kwargs, match", [
+    (("chessboard", 7, 7, 20.0), {}, "90 degrees"),
+    (("circles", 7, 5, 20.0), {}, "kind"),
+    (("charuco", 7, 5, 20.0), dict(marker_mm=25.0), "marker_mm"),
+    (("charuco", 7, 5, 20.0), dict(dictionary="DICT_NOPE"), "dictionary"),
+    (("chessboard", 9, 6, 0.0), {}, "square_mm"),
+], ids=["square-board-is-ambiguous", "unknown-kind", "marker-larger-than-square", "unknown-dictionary",
+        "zero-square"])
+def test_board_spec_checks(args, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        cal.BoardSpec(*args, **kwargs)
+
+
+def test_board_spec_describe():
     assert CHARUCO_SPEC.describe() == "charuco 7x5 inner corners, 36 mm squares, 28 mm markers, DICT_5X5_100"
 
 

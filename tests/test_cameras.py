@@ -12,7 +12,6 @@ import os
 from pathlib import Path
 from types import SimpleNamespace
 
-import numpy as np
 import pytest
 import usb.backend
 import usb.backend.libusb0
@@ -142,12 +141,6 @@ def usb_devices(*cams: dict, **changes) -> list[dict]:
     return [hub] + [{**c, **changes} for c in cams]
 
 
-def small_rig() -> io.Rig:
-    K = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
-    return io.Rig((640, 480), K, np.zeros(5), K, np.zeros(5), np.eye(3), [-60.0, 0.0, 0.0],
-                  extra={"rms_px": 0.3})
-
-
 @pytest.fixture
 def boot1(tmp_path):
     """First boot: left camera on /dev/video0 (+video1), right on /dev/video2 (+video3)."""
@@ -216,11 +209,11 @@ def test_identity_and_match(boot1):
         hc.match_camera({"product_id": "0825"}, cams)
 
 
-def test_swapped_device_numbers_keep_the_calibration(boot1, tmp_path):
+def test_swapped_device_numbers_keep_the_calibration(boot1, tmp_path, small_rig):
     sys_root, dev_root, backend = boot1
     left, right, _ = hc.list_cameras(sys_root, dev_root, backend=backend)
     path = tmp_path / "rig.yaml"
-    io.write_rig(path, hc.rig_with_cameras(small_rig(), left, right))
+    io.write_rig(path, hc.rig_with_cameras(small_rig(rms_px=0.3), left, right))   # rms_px: kept
     text = path.read_text()
     assert 'left_camera:' in text and 'product_id: "0825"' in text
     rig = io.read_rig(path)
@@ -238,7 +231,7 @@ def test_swapped_device_numbers_keep_the_calibration(boot1, tmp_path):
 
 
 @pytest.mark.parametrize("serial", ["0001", None], ids=["shared-serial", "no-serial"])
-def test_duplicate_or_missing_serials_fall_back_to_port_path(tmp_path, serial):
+def test_duplicate_or_missing_serials_fall_back_to_port_path(tmp_path, serial, small_rig):
     a, b = dict(LEFT, serial=serial), dict(RIGHT, serial=serial)
     s1, d1 = make_sysfs(tmp_path / "b1", [dict(a, videos=(0, 1)), dict(b, videos=(2, 3))])
     left, right = hc.list_cameras(s1, d1, backend=FakeBackend(usb_devices(a, b)))
@@ -262,7 +255,7 @@ def test_duplicate_or_missing_serials_fall_back_to_port_path(tmp_path, serial):
     assert f"{d3}/video0" in str(err.value) and "port 1-2" in str(err.value)
 
 
-def test_missing_camera_names_what_is_present(boot1):
+def test_missing_camera_names_what_is_present(boot1, small_rig):
     sys_root, dev_root, backend = boot1
     left, right, loop = hc.list_cameras(sys_root, dev_root, backend=backend)
     rig = hc.rig_with_cameras(small_rig(), left, right)
@@ -350,7 +343,7 @@ def test_libusb_available_on_this_machine():
         assert "apt-get install libusb-1.0-0" in msg or "cannot enumerate" in msg
 
 
-def test_hand_written_identities(boot1, tmp_path):
+def test_hand_written_identities(boot1, tmp_path, small_rig):
     sys_root, dev_root, backend = boot1
     left, right, loop = hc.list_cameras(sys_root, dev_root, backend=backend)
     # No serial key: the port path decides. An unquoted numeric serial is text.
@@ -377,11 +370,11 @@ def test_address_reused_by_another_device_is_noted(tmp_path):
     assert cam.usb_id == "046d:0825" and "pyusb sees 1234:5678" in cam.note
 
 
-def test_store_identities_in_a_rig_then_auto_resolves_after_a_swap(boot1, tmp_path):
+def test_store_identities_in_a_rig_then_auto_resolves_after_a_swap(boot1, tmp_path, small_rig):
     sys_root, dev_root, backend = boot1
     cams = hc.list_cameras(sys_root, dev_root, backend=backend)
     path = tmp_path / "rig.yaml"
-    io.write_rig(path, small_rig())
+    io.write_rig(path, small_rig(rms_px=0.3))
     rig = hc.store_rig_cameras(path, "0", f"{dev_root}/video2", cams)   # a number or a device path
     assert io.read_rig(path).extra["left_camera"] == rig.extra["left_camera"] == hc.identity_of(cams[0])
     assert io.read_rig(path).extra["rms_px"] == pytest.approx(0.3)        # the rest of the rig is kept

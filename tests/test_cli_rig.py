@@ -15,19 +15,11 @@ from headplod.live.output import StatusLine, short_rig_message
 from headplod.tracking.tracker import TrackerConfig
 from headplod.tracking.rig_refine import RigRefineConfig
 
-DATA = Path(__file__).parent / "data"
 TIMING_KEYS = ("timings_ms", "latency_ms")
 CAL_STD = {"calibration_std_left": np.array([[0.6, 0.6, 0.5, 0.5]]),
            "calibration_std_right": np.array([[0.7, 0.7, 0.5, 0.5]]),
            "calibration_std_rotation_deg": np.array([[0.05, 0.08, 0.02]]),
            "calibration_std_translation_mm": np.array([[0.4, 0.3, 1.5]])}
-
-
-@pytest.fixture
-def sample(tmp_path):
-    dst = tmp_path / "ds"
-    shutil.copytree(DATA / "sweep12", dst)
-    return dst
 
 
 def _with_calibration_std(folder: Path) -> io.Rig:

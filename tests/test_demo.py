@@ -22,26 +22,12 @@ BACKGROUND = np.round(np.array([0.62, 0.72, 0.82]) * 255)
 
 
 @pytest.fixture(scope="module")
-def screen():
-    return lp.default_screen()
+def renderer(gl_context):
+    from headplod.render import TerrainRenderer
 
-
-@pytest.fixture(scope="module")
-def scene(screen):
-    from headplod.plod.still import TerrainScene
-
-    return TerrainScene.build(screen)
-
-
-@pytest.fixture(scope="module")
-def renderer():
-    from headplod.render import TerrainRenderer, create_context
-
-    try:
-        ctx = create_context()
-    except RuntimeError as exc:           # no EGL / Mesa here: say so instead of failing
-        pytest.skip(f"no headless OpenGL: {exc}")
-    return TerrainRenderer(ctx, size=SIZE)
+    r = TerrainRenderer(gl_context, size=SIZE)
+    yield r
+    r.release()
 
 
 def _run(loop, n):
@@ -59,7 +45,7 @@ def _terrain_fraction(image):
     return float(np.mean(np.abs(image.astype(float) - BACKGROUND).sum(axis=2) > 6))
 
 
-def test_headless_run_writes_frames_and_summary(tmp_path, scene, renderer):
+def test_headless_run_writes_frames_and_summary(tmp_path, terrain_scene, renderer):
     from headplod.demo.cli import add_demo_arguments, run_headless
 
     parser = add_demo_arguments(argparse.ArgumentParser())
@@ -67,7 +53,7 @@ def test_headless_run_writes_frames_and_summary(tmp_path, scene, renderer):
                               "--size", "320,180", "--viewpoints", "overview", "--scenarios", "none,adaptive"])
     out = tmp_path / "table.txt"
     with open(out, "w") as stream:
-        summary = run_headless(args, out=stream, err=stream, scene=scene, renderer=renderer)
+        summary = run_headless(args, out=stream, err=stream, scene=terrain_scene, renderer=renderer)
     text = out.read_text()
     folder = tmp_path / "demo"
     on_disk = json.loads((folder / "summary.json").read_text())
@@ -95,16 +81,16 @@ def test_headless_run_writes_frames_and_summary(tmp_path, scene, renderer):
     assert "overview" in text and "x full" in text and "picture overview" in text
 
 
-def test_levels_follow_the_poi(scene, renderer, screen):
+def test_levels_follow_the_poi(terrain_scene, renderer, default_screen):
     from headplod.plod.contrast import project_to_screen_px
 
-    w, h = screen.size_px
+    w, h = default_screen.size_px
     path = [(0.25 * w, 0.5 * h)] * 4 + [(0.75 * w, 0.5 * h)] * 4
-    poses = lp.MousePoses(screen, path=path, cov_deg2=None)
-    loop = lp.DemoLoop(scene, poses, renderer, mode="csf", uncertainty="none", viewpoint="overview", hud=False)
+    poses = lp.MousePoses(default_screen, path=path, cov_deg2=None)
+    loop = lp.DemoLoop(terrain_scene, poses, renderer, mode="csf", uncertainty="none", viewpoint="overview", hud=False)
     results = _run(loop, 8)
     assert len(results) == 8
-    centroids_px = project_to_screen_px(loop.selector().centroids_mm, poses.eye_mm, screen)
+    centroids_px = project_to_screen_px(loop.selector().centroids_mm, poses.eye_mm, default_screen)
 
     def finest_x(levels):
         finest = levels == levels.max()
@@ -117,7 +103,7 @@ def test_levels_follow_the_poi(scene, renderer, screen):
     assert not results[7].saccade_skipped
 
 
-def test_tracker_failure_keeps_running_on_the_last_pose(tmp_path_factory, scene, renderer):
+def test_tracker_failure_keeps_running_on_the_last_pose(tmp_path_factory, terrain_scene, renderer):
     """The real tracker on the synthetic sequence, two frames blanked mid-run."""
     from headplod.capture.synthetic import ensure_dataset
 
@@ -128,7 +114,7 @@ def test_tracker_failure_keeps_running_on_the_last_pose(tmp_path_factory, scene,
         path = folder / "left" / f"{k:06d}.png"
         cv2.imwrite(str(path), np.zeros_like(cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)))
     poses = lp.TrackerPoses(str(folder))
-    loop = lp.DemoLoop(scene, poses, renderer, viewpoint="overview", hud=True)
+    loop = lp.DemoLoop(terrain_scene, poses, renderer, viewpoint="overview", hud=True)
     results = _run(loop, 20)
     assert len(results) == 8                               # ran to the end
     held = [r.pose.held for r in results]
@@ -150,14 +136,14 @@ def test_tracker_failure_keeps_running_on_the_last_pose(tmp_path_factory, scene,
     assert results[6].pose.images[0].shape == results[0].pose.images[0].shape
 
 
-def test_saccade_rule_keeps_levels(scene, renderer, screen):
-    w, h = screen.size_px
+def test_saccade_rule_keeps_levels(terrain_scene, renderer, default_screen):
+    w, h = default_screen.size_px
     # 30 fps; 1920 px over 531 mm at 600 mm: 300 px per frame is ~240 deg/s, 2 px per frame ~1.6 deg/s.
     slow = [(0.2 * w + 2 * k, 0.5 * h) for k in range(4)]
     fast = [(slow[-1][0] + 300 * (k + 1), 0.5 * h) for k in range(3)]
     still = [fast[-1]] * 2
-    poses = lp.MousePoses(screen, path=slow + fast + still, cov_deg2=None)
-    loop = lp.DemoLoop(scene, poses, renderer, mode="csf", uncertainty="none", viewpoint="overview", hud=False)
+    poses = lp.MousePoses(default_screen, path=slow + fast + still, cov_deg2=None)
+    loop = lp.DemoLoop(terrain_scene, poses, renderer, mode="csf", uncertainty="none", viewpoint="overview", hud=False)
     results = _run(loop, 9)
     speeds = [r.poi_speed_deg_s for r in results]
     assert max(speeds[1:4]) < 5 and min(speeds[4:7]) > lp.SACCADE_DEG_S
@@ -169,22 +155,22 @@ def test_saccade_rule_keeps_levels(scene, renderer, screen):
     assert loop.stats.saccade_skipped == 3
 
 
-def test_viewpoints_differ_and_render(scene, renderer, screen):
-    models = {name: place(scene, name).model for name in VIEWPOINTS}
+def test_viewpoints_differ_and_render(terrain_scene, renderer, default_screen):
+    models = {name: place(terrain_scene, name).model for name in VIEWPOINTS}
     assert set(models) == {"overview", "mountains", "plains"}
     names = list(models)
     for i in range(len(names)):
         for j in range(i + 1, len(names)):
             assert not np.allclose(models[names[i]], models[names[j]])
     for name in names:
-        loop = lp.DemoLoop(scene, lp.MousePoses(screen, path=[(960, 540)]), renderer, viewpoint=name,
+        loop = lp.DemoLoop(terrain_scene, lp.MousePoses(default_screen, path=[(960, 540)]), renderer, viewpoint=name,
                            hud=False)
         result = loop.step()
         assert result.triangles > 2048
         assert _terrain_fraction(result.image) > 0.3, name
 
 
-def test_key_mapping_and_apply(scene, renderer, screen):
+def test_key_mapping_and_apply(terrain_scene, renderer, default_screen):
     assert [action_for_key(str(k)) for k in range(1, 7)] == [("mode", m) for m in lp.DEMO_MODES]
     assert action_for_key("N") == action_for_key("n") == ("uncertainty", "none")
     assert action_for_key("f") == ("uncertainty", "fixed")
@@ -197,7 +183,7 @@ def test_key_mapping_and_apply(scene, renderer, screen):
     assert action_for_key("c") == ("viewpoint", "next")
     assert action_for_key("escape") == ("quit", None)
     assert action_for_key("x") is None and action_for_key("") is None
-    loop = lp.DemoLoop(scene, lp.MousePoses(screen, path=[(960, 540)] * 3), renderer, hud=True)
+    loop = lp.DemoLoop(terrain_scene, lp.MousePoses(default_screen, path=[(960, 540)] * 3), renderer, hud=True)
     assert loop.apply(action_for_key("6")) and loop.settings["mode"] == "full"
     assert loop.apply(action_for_key("c")) and loop.settings["viewpoint"] == "mountains"
     assert loop.apply(action_for_key("l")) and loop.settings["view_mode"] == "levels"
@@ -331,12 +317,12 @@ def test_tee_gives_every_consumer_every_pose_and_reads_each_once():
         tee.consumer(3)
 
 
-def test_loops_side_by_side_keep_their_own_mesh_state(scene, renderer, screen):
+def test_loops_side_by_side_keep_their_own_mesh_state(terrain_scene, renderer, default_screen):
     """Two loops interleaved on one scene each rebuild only what their own selection changes."""
-    fine = scene.mesh.share()
-    coarse = scene.mesh.share()
-    assert fine.vertex_positions is scene.mesh.vertex_positions          # the tables are shared
-    n = scene.mesh.n_faces
+    fine = terrain_scene.mesh.share()
+    coarse = terrain_scene.mesh.share()
+    assert fine.vertex_positions is terrain_scene.mesh.vertex_positions          # the tables are shared
+    n = terrain_scene.mesh.n_faces
     fine.update_indices(np.full(n, 3))
     coarse.update_indices(np.zeros(n, int))
     idx, lv = fine.update_indices(np.full(n, 3))

@@ -6,17 +6,15 @@ from hypothesis import given, settings, strategies as st
 
 from headplod.tracking import geometry as geo
 from headplod.tracking.identify import ModelRule, find_hypotheses
-from headplod.io import default_marker_model, read_rig
+from headplod.io import default_marker_model
 
-from pathlib import Path
-
-DATA = Path(__file__).parent / "data"
 MODEL = default_marker_model().points_mm
 
 
 @pytest.fixture(scope="module")
-def rig():
-    return read_rig(DATA / "sweep12" / "rig.yaml")
+def rig(sweep12_rig):
+    """The sample dataset's rig (640x480, ≈350 mm baseline, real distortion)."""
+    return sweep12_rig
 
 
 def random_pose(rng, distance_mm=600.0):
@@ -121,10 +119,10 @@ def test_covariance_is_spd_and_scales_with_noise(rig):
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 100_000))
-def test_identification_rule_labels_projected_markers(seed):
+def test_identification_rule_labels_projected_markers(sweep12_rig, seed):
     """The model-derived rule labels the projection of any front-facing pose, with distractors shuffled in."""
     rng = np.random.default_rng(seed)
-    rig = read_rig(DATA / "sweep12" / "rig.yaml")
+    rig = sweep12_rig
     R, p1 = random_pose(rng, rng.uniform(450, 1400))
     _, left, _ = project_both(rig, R, p1)
     extra = rng.uniform([0, 0], [640, 480], (rng.integers(0, 3), 2))

@@ -14,11 +14,9 @@ from hypothesis import given, settings, strategies as st
 
 from headplod.io import ContractError, Dataset, Frame, MarkerModel, PoseWriter, Rig, Screen, default_marker_model, pose_record, read_markers, read_poses, read_rig, read_screen, read_times, read_truth, rig_calibration_std, write_markers, write_rig, write_screen, write_times, write_truth
 
-SWEEP12 = Path(__file__).parent / "data" / "sweep12"
-
 
 # ---------------------------------------------------------------------------
-# helpers
+# helpers (the rig and dataset fixtures are in conftest.py)
 # ---------------------------------------------------------------------------
 
 
@@ -34,37 +32,15 @@ def raw_yaml(path: Path, **entries) -> Path:
     return path
 
 
-def good_rig_entries(**changes):
+def rig_entries(rig: Rig, **changes):
+    """The rig.yaml entries of ``rig`` in the contract's layout (T 3x1, D 1xN), with changes (None: drop)."""
     e = dict(
-        image_width=64,
-        image_height=48,
-        K1=np.array([[60.0, 0, 32], [0, 61, 24], [0, 0, 1]]),
-        D1=np.array([[0.1, -0.05, 0.001, 0.002, 0.01]]),
-        K2=np.array([[62.0, 0, 31], [0, 63, 23], [0, 0, 1]]),
-        D2=np.array([[0.0, 0.0, 0.0, 0.0, 0.0]]),
-        R=cv2.Rodrigues(np.array([0.01, 0.15, -0.02]))[0],
-        T=np.array([[-350.0], [-4.0], [27.0]]),
+        image_width=rig.image_size[0],
+        image_height=rig.image_size[1],
+        K1=rig.K1, D1=rig.D1[None, :], K2=rig.K2, D2=rig.D2[None, :], R=rig.R, T=rig.T[:, None],
     )
     e.update(changes)
     return {k: v for k, v in e.items() if v is not None}
-
-
-def small_rig(**extra) -> Rig:
-    e = good_rig_entries()
-    return Rig((64, 48), e["K1"], e["D1"], e["K2"], e["D2"], e["R"], e["T"], extra=extra)
-
-
-def make_dataset(folder: Path, n: int = 6, size=(64, 48)) -> Path:
-    """A tiny valid dataset: rig 64x48, n frames of a gradient image."""
-    folder.mkdir(parents=True, exist_ok=True)
-    write_rig(folder / "rig.yaml", small_rig())
-    w, h = size
-    img = (np.arange(w * h) % 251).astype(np.uint8).reshape(h, w)
-    for side in ("left", "right"):
-        (folder / side).mkdir(exist_ok=True)
-        for i in range(n):
-            assert cv2.imwrite(str(folder / side / f"{i:06d}.png"), img)
-    return folder
 
 
 def assert_contract_error(excinfo, path: Path, *fragments: str):
@@ -82,9 +58,9 @@ def assert_contract_error(excinfo, path: Path, *fragments: str):
 # ---------------------------------------------------------------------------
 
 
-def test_sweep12_rig_equals_yaml():
-    rig = read_rig(SWEEP12 / "rig.yaml")
-    fs = cv2.FileStorage(str(SWEEP12 / "rig.yaml"), cv2.FILE_STORAGE_READ)
+def test_sweep12_rig_equals_yaml(sweep12_dir):
+    rig = read_rig(sweep12_dir / "rig.yaml")
+    fs = cv2.FileStorage(str(sweep12_dir / "rig.yaml"), cv2.FILE_STORAGE_READ)
     for key in ("K1", "K2", "R"):
         np.testing.assert_array_equal(getattr(rig, key), fs.getNode(key).mat())
     for key in ("D1", "D2"):
@@ -100,14 +76,14 @@ def test_sweep12_rig_equals_yaml():
     np.testing.assert_array_equal(
         rig.T, [-348.87800301163929, -4.3824756796778503, 27.687699482567155])
     assert rig.extra == {}
-    assert rig.path == str(SWEEP12 / "rig.yaml")
+    assert rig.path == str(sweep12_dir / "rig.yaml")
     assert rig.baseline_mm == pytest.approx(np.linalg.norm(rig.T))
     # the right camera centre maps to the right camera's origin
     np.testing.assert_allclose(rig.R @ rig.right_center_mm + rig.T, 0, atol=1e-9)
 
 
-def test_sweep12_frames():
-    ds = Dataset(SWEEP12)
+def test_sweep12_frames(sweep12_dir):
+    ds = Dataset(sweep12_dir)
     assert len(ds) == 12
     assert ds.indices == list(range(12))
     assert ds.warnings == []
@@ -121,19 +97,19 @@ def test_sweep12_frames():
         assert f.right.shape == (480, 640) and f.right.dtype == np.uint8
     # images are the files' content
     np.testing.assert_array_equal(
-        frames[3].right, cv2.imread(str(SWEEP12 / "right" / "000003.png"), cv2.IMREAD_UNCHANGED))
+        frames[3].right, cv2.imread(str(sweep12_dir / "right" / "000003.png"), cv2.IMREAD_UNCHANGED))
 
 
-def test_sweep12_times():
-    ds = Dataset(SWEEP12)
+def test_sweep12_times(sweep12_dir):
+    ds = Dataset(sweep12_dir)
     assert ds.times == {i: (pytest.approx(0.1 * i), None) for i in range(12)}
     for f in ds:
         assert f.t == pytest.approx(0.1 * f.index, abs=1e-12)
         assert f.t_right is None
 
 
-def test_sweep12_truth_axes():
-    truth = read_truth(SWEEP12 / "truth.csv")
+def test_sweep12_truth_axes(sweep12_dir):
+    truth = read_truth(sweep12_dir / "truth.csv")
     assert sorted(truth) == list(range(12))
     pos, axes = truth[0]
     np.testing.assert_array_equal(pos, [128.147301, -4.763876, 634.213003])
@@ -144,16 +120,16 @@ def test_sweep12_truth_axes():
         np.testing.assert_allclose(axes @ axes.T, np.eye(3), atol=1e-5)
         assert np.linalg.det(axes) == pytest.approx(1.0, abs=1e-5)
         np.testing.assert_allclose(np.cross(v, xi), psi, atol=1e-5)
-    assert Dataset(SWEEP12).truth.keys() == truth.keys()
+    assert Dataset(sweep12_dir).truth.keys() == truth.keys()
 
 
-def test_dataset_without_times_uses_30_fps(tmp_path):
+def test_dataset_without_times_uses_30_fps(tmp_path, make_dataset):
     ds = Dataset(make_dataset(tmp_path / "d", n=4))
     assert ds.times is None and ds.truth is None
     assert [f.t for f in ds] == [i / 30 for i in range(4)]
 
 
-def test_dataset_times_missing_row_is_interpolated(tmp_path):
+def test_dataset_times_missing_row_is_interpolated(tmp_path, make_dataset):
     folder = make_dataset(tmp_path / "d", n=4)
     write_times(folder / "times.csv", {0: 0.0, 1: 0.1, 3: 0.3})
     ds = Dataset(folder)
@@ -168,7 +144,7 @@ def test_dataset_times_missing_row_is_interpolated(tmp_path):
 # ---------------------------------------------------------------------------
 
 
-def test_rig_round_trip_keeps_values_and_extras(tmp_path):
+def test_rig_round_trip_keeps_values_and_extras(tmp_path, small_rig):
     rig = small_rig(camera1_serial="A1B2", camera2_serial="007", rms=0.213,
                     n_views=31, E=np.arange(9.0).reshape(3, 3), tags=["ir", 850])
     path = tmp_path / "rig.yaml"
@@ -186,8 +162,8 @@ def test_rig_round_trip_keeps_values_and_extras(tmp_path):
     fs.release()
 
 
-def test_rig_accepts_other_orientations(tmp_path):
-    e = good_rig_entries(T=np.array([[-350.0, -4.0, 27.0]]), D1=np.array([[0.1], [-0.05], [0.0], [0.0]]))
+def test_rig_accepts_other_orientations(tmp_path, small_rig):
+    e = rig_entries(small_rig(), T=np.array([[-350.0, -4.0, 27.0]]), D1=np.array([[0.1], [-0.05], [0.0], [0.0]]))
     rig = read_rig(raw_yaml(tmp_path / "rig.yaml", **e))
     np.testing.assert_array_equal(rig.T, [-350.0, -4.0, 27.0])
     np.testing.assert_array_equal(rig.D1, [0.1, -0.05, 0.0, 0.0])
@@ -223,8 +199,8 @@ def test_screen_round_trip(tmp_path):
     assert back.size_px == (1920, 1200)
 
 
-def test_truth_round_trip(tmp_path):
-    truth = read_truth(SWEEP12 / "truth.csv")
+def test_truth_round_trip(tmp_path, sweep12_dir):
+    truth = read_truth(sweep12_dir / "truth.csv")
     write_truth(tmp_path / "truth.csv", truth)
     back = read_truth(tmp_path / "truth.csv")
     assert back.keys() == truth.keys()
@@ -311,15 +287,15 @@ def test_pose_record_rejects_bad_pose(kwargs, fragment):
     assert fragment in str(e.value)
 
 
-def test_pose_record_failure_rules():
-    with pytest.raises(ValueError, match="reason"):
-        pose_record(3, 0.1, False)
-    with pytest.raises(ValueError, match="reason"):
-        pose_record(3, 0.1, False, reason="  ")
-    with pytest.raises(ValueError, match="no pose"):
-        pose_record(3, 0.1, False, position=[1, 2, 3], reason="x")
-    with pytest.raises(ValueError, match="t is"):
-        pose_record(3, float("nan"), False, reason="x")
+@pytest.mark.parametrize("t, kwargs, match", [
+    (0.1, dict(), "reason"),
+    (0.1, dict(reason="  "), "reason"),
+    (0.1, dict(position=[1, 2, 3], reason="x"), "no pose"),
+    (float("nan"), dict(reason="x"), "t is"),
+], ids=["no-reason", "blank-reason", "failure-with-a-pose", "nan-time"])
+def test_pose_record_failure_rules(t, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        pose_record(3, t, False, **kwargs)
 
 
 def test_pose_writer_needs_increasing_frames(tmp_path):
@@ -330,21 +306,20 @@ def test_pose_writer_needs_increasing_frames(tmp_path):
     assert len(read_poses(tmp_path / "p.jsonl")) == 1
 
 
-def test_read_poses_bad_line_names_file_and_line(tmp_path):
+GOOD_POSE_LINE = json.dumps(pose_record(0, 0.0, False, reason="x"))
+
+
+@pytest.mark.parametrize("second_line, fragments", [
+    ('{"frame": 1, "t": NaN, "ok": false}', ["line 2", "invalid JSON"]),
+    ('{"frame": 1, "t": 0.1, "ok": false, "reason": "x"}', ["line 2", "missing", "position"]),
+    (GOOD_POSE_LINE, ["line 2", "frame 0 after frame 0"]),
+], ids=["nan-is-not-json", "missing-key", "repeated-frame"])
+def test_read_poses_bad_line_names_file_and_line(tmp_path, second_line, fragments):
     path = tmp_path / "poses.jsonl"
-    good = json.dumps(pose_record(0, 0.0, False, reason="x"))
-    path.write_text(good + "\n" + '{"frame": 1, "t": NaN, "ok": false}\n')
+    path.write_text(GOOD_POSE_LINE + "\n" + second_line + "\n")
     with pytest.raises(ContractError) as e:
         read_poses(path)
-    assert_contract_error(e, path, "line 2", "invalid JSON")
-    path.write_text(good + "\n" + '{"frame": 1, "t": 0.1, "ok": false, "reason": "x"}\n')
-    with pytest.raises(ContractError) as e:
-        read_poses(path)
-    assert_contract_error(e, path, "line 2", "missing", "position")
-    path.write_text(good + "\n" + good + "\n")
-    with pytest.raises(ContractError) as e:
-        read_poses(path)
-    assert_contract_error(e, path, "line 2", "frame 0 after frame 0")
+    assert_contract_error(e, path, *fragments)
 
 
 # ---------------------------------------------------------------------------
@@ -413,29 +388,70 @@ def test_screen_intersect_ray():
 # ---------------------------------------------------------------------------
 
 
-def test_malformed_yaml(tmp_path):
-    path = tmp_path / "rig.yaml"
-    path.write_text("%YAML:1.0\nK1: [1, 2\nT: }\n")
-    with pytest.raises(ContractError) as e:
-        read_rig(path)
-    assert_contract_error(e, path, "cannot be parsed")
+def _text(text):
+    """A writer of the file's text as given."""
+    return lambda path, rig: path.write_text(text)
 
 
-def test_missing_and_empty_file(tmp_path):
-    with pytest.raises(ContractError) as e:
-        read_rig(tmp_path / "rig.yaml")
-    assert_contract_error(e, tmp_path / "rig.yaml", "not found")
-    (tmp_path / "screen.yaml").write_text("")
-    with pytest.raises(ContractError) as e:
-        read_screen(tmp_path / "screen.yaml")
-    assert_contract_error(e, tmp_path / "screen.yaml", "empty")
+def _screen_yaml(**changes):
+    """A writer of screen.yaml for screen_example() with changed entries."""
+    scr = screen_example()
+    entries = dict(size_px=np.array([[1920.0, 1200.0]]), top_left=scr.top_left, top_right=scr.top_right,
+                   bottom_left=scr.bottom_left)
+    entries.update(changes)
+    return lambda path, rig: raw_yaml(path, **entries)
 
 
-def test_missing_key(tmp_path):
-    path = raw_yaml(tmp_path / "rig.yaml", **good_rig_entries(T=None))
+def _truth_with_a_stretched_axis(path, rig):
+    """truth.csv of two frames whose second row's Ξ is (0.5, 0, 0): no longer a unit vector."""
+    write_truth(path, {0: ([0.0, 0.0, 600.0], np.eye(3)), 1: ([10.0, 0.0, 600.0], np.eye(3))})
+    header, first, second = path.read_text().splitlines()
+    row = second.split(",")
+    assert header.split(",")[4] == "xi_x"
+    row[4] = "0.5"
+    path.write_text("\n".join([header, first, ",".join(row)]) + "\n")
+
+
+_SCREEN = screen_example()
+
+# (file name, reader, writer(path, rig) or None for no file, fragments the message must hold)
+BAD_FILES = [
+    pytest.param("rig.yaml", read_rig, _text("%YAML:1.0\nK1: [1, 2\nT: }\n"), ["cannot be parsed"],
+                 id="rig-malformed-yaml"),
+    pytest.param("rig.yaml", read_rig, None, ["not found"], id="rig-missing"),
+    pytest.param("rig.yaml", read_rig, lambda path, rig: raw_yaml(path, **rig_entries(rig, T=None)),
+                 ["key 'T' is missing", "image_width"], id="rig-missing-key"),
+    pytest.param("screen.yaml", read_screen, _text(""), ["empty"], id="screen-empty"),
+    pytest.param("screen.yaml", read_screen, _screen_yaml(size_px=np.array([[1920.0, 1200.5]])),
+                 ["size_px", "positive integer"], id="screen-fractional-size"),
+    pytest.param("screen.yaml", read_screen,
+                 _screen_yaml(bottom_left=2 * _SCREEN.top_right - _SCREEN.top_left),
+                 ["do not span a plane"], id="screen-corners-on-a-line"),
+    pytest.param("markers.yaml", read_markers,
+                 lambda path, rig: raw_yaml(path, markers=default_marker_model().points_mm, diamter=4.0),
+                 ["unknown key", "diamter"], id="markers-unknown-key"),
+    pytest.param("markers.yaml", read_markers,
+                 lambda path, rig: raw_yaml(path, markers=default_marker_model().points_mm, diameter=0.0),
+                 ["diameter"], id="markers-zero-diameter"),
+    pytest.param("times.csv", read_times, _text("frame,time\n0,0.0\n"), ["header is 'frame,time'", "'frame,t'"],
+                 id="times-header"),
+    pytest.param("times.csv", read_times, _text("frame,t\n0,0.0\n1,abc\n"), ["line 3", "'abc'"],
+                 id="times-not-a-number"),
+    pytest.param("times.csv", read_times, _text("frame,t\n0,0.0\n0,0.1\n"), ["frame 0 appears twice"],
+                 id="times-repeated-frame"),
+    pytest.param("truth.csv", read_truth, _truth_with_a_stretched_axis, ["line 3 (frame 1)", "not orthonormal"],
+                 id="truth-not-orthonormal"),
+]
+
+
+@pytest.mark.parametrize("name, reader, write, fragments", BAD_FILES)
+def test_bad_file_is_a_contract_error_naming_it(tmp_path, small_rig, name, reader, write, fragments):
+    path = tmp_path / name
+    if write is not None:
+        write(path, small_rig())
     with pytest.raises(ContractError) as e:
-        read_rig(path)
-    assert_contract_error(e, path, "key 'T' is missing", "image_width")
+        reader(path)
+    assert_contract_error(e, path, *fragments)
 
 
 @pytest.mark.parametrize("key, value, fragments", [
@@ -454,17 +470,17 @@ def test_missing_key(tmp_path):
     ("image_width", 64.5, ["key 'image_width' is 64.5, expected a positive integer"]),
     ("image_height", "tall", ["key 'image_height' is the string 'tall'"]),
 ])
-def test_bad_rig_values(tmp_path, key, value, fragments):
-    path = raw_yaml(tmp_path / "rig.yaml", **good_rig_entries(**{key: value}))
+def test_bad_rig_values(tmp_path, key, value, fragments, small_rig):
+    path = raw_yaml(tmp_path / "rig.yaml", **rig_entries(small_rig(), **{key: value}))
     with pytest.raises(ContractError) as e:
         read_rig(path)
     assert_contract_error(e, path, *fragments)
 
 
-def test_rig_constructor_validates():
-    e = good_rig_entries()
+def test_rig_constructor_validates(small_rig):
+    r = small_rig()
     with pytest.raises(ContractError, match="Rig: field 'R' is not a rotation"):
-        Rig((64, 48), e["K1"], e["D1"], e["K2"], e["D2"], 2 * e["R"], e["T"])
+        Rig(r.image_size, r.K1, r.D1, r.K2, r.D2, 2 * r.R, r.T)
 
 
 # ---------------------------------------------------------------------------
@@ -479,7 +495,7 @@ CAL_STD = dict(
 )
 
 
-def test_rig_calibration_std_round_trip(tmp_path):
+def test_rig_calibration_std_round_trip(tmp_path, small_rig):
     assert rig_calibration_std(small_rig()) is None
     assert rig_calibration_std(small_rig(rms=0.2)) is None
     rig = small_rig(**CAL_STD)
@@ -507,8 +523,8 @@ def test_rig_calibration_std_round_trip(tmp_path):
     ("calibration_std_translation_mm", "small", ["the string 'small', expected 3 numbers"]),
     ("calibration_std_rotation_deg", 0.1, ["has shape a scalar"]),
 ])
-def test_bad_rig_calibration_std(tmp_path, key, value, fragments):
-    path = raw_yaml(tmp_path / "rig.yaml", **good_rig_entries(), **{key: value})
+def test_bad_rig_calibration_std(tmp_path, key, value, fragments, small_rig):
+    path = raw_yaml(tmp_path / "rig.yaml", **rig_entries(small_rig()), **{key: value})
     rig = read_rig(path)  # extra keys are free for read_rig ...
     with pytest.raises(ContractError) as e:
         rig_calibration_std(rig)  # ... the helper checks them
@@ -532,78 +548,28 @@ def test_bad_markers(tmp_path, change, fragments):
     assert_contract_error(e, path, *fragments)
 
 
-def test_markers_unknown_key_and_bad_diameter(tmp_path):
-    P = default_marker_model().points_mm
-    path = raw_yaml(tmp_path / "markers.yaml", markers=P, diamter=4.0)
-    with pytest.raises(ContractError) as e:
-        read_markers(path)
-    assert_contract_error(e, path, "unknown key", "diamter")
-    path = raw_yaml(tmp_path / "markers.yaml", markers=P, diameter=0.0)
-    with pytest.raises(ContractError) as e:
-        read_markers(path)
-    assert_contract_error(e, path, "diameter")
-
-
-def test_bad_screen(tmp_path):
-    scr = screen_example()
-    path = raw_yaml(tmp_path / "screen.yaml", size_px=np.array([[1920.0, 1200.5]]),
-                    top_left=scr.top_left, top_right=scr.top_right, bottom_left=scr.bottom_left)
-    with pytest.raises(ContractError) as e:
-        read_screen(path)
-    assert_contract_error(e, path, "size_px", "positive integer")
-    path = raw_yaml(tmp_path / "screen.yaml", size_px=np.array([[1920.0, 1200.0]]),
-                    top_left=scr.top_left, top_right=scr.top_right, bottom_left=2 * scr.top_right - scr.top_left)
-    with pytest.raises(ContractError) as e:
-        read_screen(path)
-    assert_contract_error(e, path, "do not span a plane")
-
-
-def test_bad_csv_files(tmp_path):
-    path = tmp_path / "times.csv"
-    path.write_text("frame,time\n0,0.0\n")
-    with pytest.raises(ContractError) as e:
-        read_times(path)
-    assert_contract_error(e, path, "header is 'frame,time'", "'frame,t'")
-    path.write_text("frame,t\n0,0.0\n1,abc\n")
-    with pytest.raises(ContractError) as e:
-        read_times(path)
-    assert_contract_error(e, path, "line 3", "'abc'")
-    path.write_text("frame,t\n0,0.0\n0,0.1\n")
-    with pytest.raises(ContractError) as e:
-        read_times(path)
-    assert_contract_error(e, path, "frame 0 appears twice")
-    truth = tmp_path / "truth.csv"
-    text = (SWEEP12 / "truth.csv").read_text().splitlines()
-    row = text[2].split(",")
-    row[4] = "0.5"  # Ξ no longer a unit vector
-    truth.write_text("\n".join([text[0], text[1], ",".join(row)]) + "\n")
-    with pytest.raises(ContractError) as e:
-        read_truth(truth)
-    assert_contract_error(e, truth, "line 3 (frame 1)", "not orthonormal")
-
-
 # ---------------------------------------------------------------------------
 # bad datasets
 # ---------------------------------------------------------------------------
 
 
-def test_missing_frame_directory(tmp_path):
+@pytest.mark.parametrize("remove, fragment", [
+    ("right", "'right/' is missing"),
+    ("rig.yaml", "not found"),
+], ids=["frame-directory", "rig"])
+def test_dataset_missing_part_names_it(tmp_path, make_dataset, remove, fragment):
     folder = make_dataset(tmp_path / "d", n=2)
-    shutil.rmtree(folder / "right")
+    target = folder / remove
+    if target.is_dir():
+        shutil.rmtree(target)
+    else:
+        target.unlink()
     with pytest.raises(ContractError) as e:
         Dataset(folder)
-    assert_contract_error(e, folder / "right", "'right/' is missing")
+    assert_contract_error(e, target, fragment)
 
 
-def test_missing_rig_in_dataset(tmp_path):
-    folder = make_dataset(tmp_path / "d", n=2)
-    (folder / "rig.yaml").unlink()
-    with pytest.raises(ContractError) as e:
-        Dataset(folder)
-    assert_contract_error(e, folder / "rig.yaml", "not found")
-
-
-def test_bad_frames_do_not_stop_the_others(tmp_path):
+def test_bad_frames_do_not_stop_the_others(tmp_path, make_dataset):
     folder = make_dataset(tmp_path / "d", n=8)
     (folder / "right" / "000005.png").unlink()                                   # missing
     data = (folder / "left" / "000002.png").read_bytes()
@@ -636,7 +602,7 @@ def test_bad_frames_do_not_stop_the_others(tmp_path):
     assert frames[0].warning is None
 
 
-def test_frame_lookup(tmp_path):
+def test_frame_lookup(tmp_path, make_dataset):
     ds = Dataset(make_dataset(tmp_path / "d", n=3))
     f = ds.frame(1)
     assert isinstance(f, Frame) and f.index == 1 and f.t == pytest.approx(1 / 30)
@@ -644,7 +610,7 @@ def test_frame_lookup(tmp_path):
         ds.frame(3)
 
 
-def test_dataset_optional_files(tmp_path):
+def test_dataset_optional_files(tmp_path, make_dataset):
     folder = make_dataset(tmp_path / "d", n=2)
     P = default_marker_model().points_mm.copy()
     P[3, 2] = P[4, 2] = -8.0

@@ -1,25 +1,13 @@
 """The live loop through the command line: recording and replay, opentrack UDP, the pose filter, bench live."""
 import json
-import shutil
 import socket
 import threading
-from pathlib import Path
 
 import numpy as np
-import pytest
 
 from headplod import io
 from headplod.cli import main as cli_main
 from headplod.live.output import decode_opentrack, opentrack_values
-
-DATA = Path(__file__).parent / "data"
-
-
-@pytest.fixture
-def sample(tmp_path):
-    dst = tmp_path / "ds"
-    shutil.copytree(DATA / "sweep12", dst)
-    return dst
 
 
 def test_record_while_tracking_then_replay_gives_the_same_records(sample, tmp_path):

@@ -90,12 +90,16 @@ def test_encode_decode():
     assert len(data) == OPENTRACK_PACKET_BYTES == 48
     assert data == struct.pack("<6d", *vals)  # little-endian doubles, TX first
     assert decode_opentrack(data) == vals
-    with pytest.raises(ValueError, match="6 values"):
-        encode_opentrack(vals[:5])
-    with pytest.raises(ValueError, match="finite"):
-        encode_opentrack((math.nan,) + vals[1:])
-    with pytest.raises(ValueError, match="48 bytes"):
-        decode_opentrack(data[:40])
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: encode_opentrack((1.5, -2.25, 60.0, 10.0, -5.0)), "6 values"),
+    (lambda: encode_opentrack((math.nan, -2.25, 60.0, 10.0, -5.0, 3.0)), "finite"),
+    (lambda: decode_opentrack(struct.pack("<6d", 1.5, -2.25, 60.0, 10.0, -5.0, 3.0)[:40]), "48 bytes"),
+], ids=["five-values", "nan", "short-datagram"])
+def test_encode_decode_reject_bad_input(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
 
 
 @pytest.fixture
@@ -142,16 +146,18 @@ def test_parse_host_port():
     assert parse_host_port("gamepc") == ("gamepc", 4242)
     assert parse_host_port("[::1]:4243") == ("::1", 4243)
     assert parse_host_port("::1") == ("::1", 4242)
-    with pytest.raises(ValueError, match="empty host"):
-        parse_host_port(":4242")
-    with pytest.raises(ValueError, match="empty host"):
-        parse_host_port("")
-    with pytest.raises(ValueError, match="integer"):
-        parse_host_port("host:abc")
-    with pytest.raises(ValueError, match="1..65535"):
-        parse_host_port("host:70000")
-    with pytest.raises(ValueError, match="1..65535"):
-        parse_host_port("host:0")
+
+
+@pytest.mark.parametrize("text, match", [
+    (":4242", "empty host"),
+    ("", "empty host"),
+    ("host:abc", "integer"),
+    ("host:70000", "1..65535"),
+    ("host:0", "1..65535"),
+], ids=["port-only", "empty", "port-not-a-number", "port-too-large", "port-zero"])
+def test_parse_host_port_rejects(text, match):
+    with pytest.raises(ValueError, match=match):
+        parse_host_port(text)
 
 
 def test_status_line_rate_and_stats():

@@ -1,7 +1,7 @@
 """Tests of headplod.render: head-coupled projection (analytic) and the offscreen renderer.
 
-The GL tests need a headless EGL context (Mesa llvmpipe is enough) and skip,
-saying why, when there is none.
+The GL tests need a headless EGL context (Mesa llvmpipe is enough; the
+``gl_context`` fixture in conftest.py) and skip, saying why, when there is none.
 """
 import math
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from headplod.io import Screen
-from headplod.render import PALETTE, SceneTransform, TerrainRenderer, create_context, off_axis_projection, overlay_poi, scene_to_world, screen_frame
+from headplod.render import PALETTE, SceneTransform, TerrainRenderer, off_axis_projection, overlay_poi, scene_to_world, screen_frame
 
 W, H = 320, 180  # screen and render size, px (1:1 so screen pixel = image pixel)
 
@@ -122,15 +122,16 @@ def test_frustum_is_symmetric_on_the_central_axis_and_depth_maps_near_far():
     assert abs(proj2[0, 2]) > 0.1
 
 
-def test_projection_rejects_bad_input():
+@pytest.mark.parametrize("eye, near, match", [
+    (lambda center, toward: center - 100 * toward, 10, "behind"),
+    (lambda center, toward: center + 100 * toward, 0, "near"),
+    (lambda center, toward: [0, 0], 10, "eye_mm"),
+], ids=["eye-behind-the-screen", "zero-near-plane", "eye-not-3d"])
+def test_projection_rejects_bad_input(eye, near, match):
     screen = make_screen()
     right, up, toward, center = screen_frame(screen)
-    with pytest.raises(ValueError, match="behind"):
-        off_axis_projection(center - 100 * toward, screen, 10, 1000)
-    with pytest.raises(ValueError, match="near"):
-        off_axis_projection(center + 100 * toward, screen, 0, 1000)
-    with pytest.raises(ValueError, match="eye_mm"):
-        off_axis_projection([0, 0], screen, 10, 1000)
+    with pytest.raises(ValueError, match=match):
+        off_axis_projection(eye(center, toward), screen, near, 1000)
 
 
 def test_scene_to_world_places_the_terrain():
@@ -175,18 +176,8 @@ def test_overlay_poi_draws_crosshair_and_2_sigma_ellipse():
 
 
 @pytest.fixture(scope="module")
-def ctx():
-    try:
-        c = create_context()
-    except RuntimeError as exc:
-        pytest.skip(f"no headless OpenGL: {exc}")
-    yield c
-    c.release()
-
-
-@pytest.fixture(scope="module")
-def renderer(ctx):
-    r = TerrainRenderer(ctx, (W, H))
+def renderer(gl_context):
+    r = TerrainRenderer(gl_context, (W, H))
     yield r
     r.release()
 
@@ -258,10 +249,10 @@ def test_render_is_deterministic_and_indexed_equals_soup(renderer, scene):
         np.testing.assert_array_equal(x, y)
 
 
-def test_set_indices_draws_a_new_selection_over_the_uploaded_vertices(ctx, scene):
+def test_set_indices_draws_a_new_selection_over_the_uploaded_vertices(gl_context, scene):
     screen, model, view, proj = scene
     pos, nrm, levels, P, tri = grid_mesh(n=20)
-    fresh = TerrainRenderer(ctx, (W, H))
+    fresh = TerrainRenderer(gl_context, (W, H))
     try:
         with pytest.raises(ValueError, match="upload the vertices first"):
             fresh.set_indices(tri)
@@ -283,21 +274,24 @@ def test_set_indices_draws_a_new_selection_over_the_uploaded_vertices(ctx, scene
         fresh.release()
 
 
-def test_upload_rejects_bad_meshes(renderer):
+@pytest.mark.parametrize("bad_upload, match", [
+    (lambda pos, nrm, levels: (pos[:-1], nrm[:-1]), "multiple of 3"),
+    (lambda pos, nrm, levels: (pos, nrm, levels[:-1]), "levels"),
+    (lambda pos, nrm, levels: (pos, nrm[:3]), "normals"),
+    (lambda pos, nrm, levels: (pos, nrm, None, np.array([[0, 1, len(pos)]])), "indices"),
+    (lambda pos, nrm, levels: (pos[:6], nrm[:6], np.arange(2), np.array([[0, 1, 2]]).repeat(3, 0)), "levels"),
+], ids=["soup-not-triangles", "levels-per-triangle", "normals-per-vertex", "index-out-of-range",
+        "levels-per-indexed-triangle"])
+def test_upload_rejects_bad_meshes(renderer, bad_upload, match):
     pos, nrm, levels, *_ = grid_mesh(n=2)
     renderer.upload(pos, nrm, levels)
     before = (renderer.n_triangles, renderer.n_vertices, renderer.indexed)
-    with pytest.raises(ValueError, match="multiple of 3"):
-        renderer.upload(pos[:-1], nrm[:-1])
-    with pytest.raises(ValueError, match="levels"):
-        renderer.upload(pos, nrm, levels[:-1])
-    with pytest.raises(ValueError, match="normals"):
-        renderer.upload(pos, nrm[:3])
-    with pytest.raises(ValueError, match="indices"):
-        renderer.upload(pos, nrm, None, np.array([[0, 1, len(pos)]]))
-    with pytest.raises(ValueError, match="levels"):
-        renderer.upload(pos[:6], nrm[:6], np.arange(2), np.array([[0, 1, 2]]).repeat(3, 0))
+    with pytest.raises(ValueError, match=match):
+        renderer.upload(*bad_upload(pos, nrm, levels))
     assert (renderer.n_triangles, renderer.n_vertices, renderer.indexed) == before   # refused: nothing lost
+
+
+def test_render_rejects_an_unknown_view_mode(renderer):
     with pytest.raises(ValueError, match="view_mode"):
         renderer.render(np.eye(4), np.eye(4), None, "xray")
 
@@ -340,10 +334,10 @@ def test_point_on_the_screen_stays_put_when_the_head_moves(renderer):
     assert shift[0] > 5 and shift[1] > 2  # moves with the eye: right, and down the screen (eye went down)
 
 
-def test_msaa_option_renders(ctx, scene):
+def test_msaa_option_renders(gl_context, scene):
     screen, model, view, proj = scene
     pos, nrm, levels, *_ = grid_mesh(n=6)
-    with TerrainRenderer(ctx, (W, H), samples=min(4, ctx.max_samples)) as r:
+    with TerrainRenderer(gl_context, (W, H), samples=min(4, gl_context.max_samples)) as r:
         r.upload(pos, nrm, levels)
         img = r.render(view, proj, model, "wire")
     assert img.shape == (H, W, 3) and img.std() > 5

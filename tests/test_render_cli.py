@@ -3,22 +3,14 @@ import json
 
 import pytest
 
-from calib import DEFAULT_SCREEN
 from headplod.cli import main as cli_main
-from headplod.io import read_screen
 
-render = pytest.importorskip("headplod.render")
-
-
-@pytest.fixture(scope="module")
-def egl():
-    try:
-        render.create_context()
-    except Exception as exc:           # no EGL / Mesa on this machine
-        pytest.skip(f"offscreen OpenGL unavailable: {exc}")
+# The GL tests make their own contexts: ``gl_context`` only skips them on a machine without one.
+needs_gl = pytest.mark.usefixtures("gl_context")
 
 
-def test_render_writes_image_and_stats(egl, tmp_path):
+@needs_gl
+def test_render_writes_image_and_stats(tmp_path):
     out, stats = tmp_path / "csf.png", tmp_path / "csf.json"
     assert cli_main(["render", "--mode", "csf", "--view", "levels", "--size", "320,180", "--cov", "1,0,1",
                      "--out", str(out), "--stats", str(stats)]) == 0
@@ -29,13 +21,12 @@ def test_render_writes_image_and_stats(egl, tmp_path):
     assert out.stat().st_size > 1000
 
 
-def test_csf_keeps_full_detail_at_the_poi_and_far_fewer_triangles(egl):
-    from headplod.plod.still import TerrainScene, render_still
+@needs_gl
+def test_csf_keeps_full_detail_at_the_poi_and_far_fewer_triangles(default_screen, terrain_scene):
+    from headplod.plod.still import render_still
 
-    screen = read_screen(DEFAULT_SCREEN)
-    scene = TerrainScene.build(screen)
-    _, csf = render_still(screen, mode="csf", size=(320, 180), scene=scene)
-    _, full = render_still(screen, mode="full", size=(320, 180), scene=scene)
+    _, csf = render_still(default_screen, mode="csf", size=(320, 180), scene=terrain_scene)
+    _, full = render_still(default_screen, mode="full", size=(320, 180), scene=terrain_scene)
     assert full["triangles"] >= 2_000_000
     assert csf["triangles"] < full["triangles"] / 5
     assert csf["triangles_per_level"][-1] > 0           # the finest level is used near the POI
@@ -46,7 +37,8 @@ def test_bad_cov_is_refused(tmp_path, capsys):
     assert "positive definite" in capsys.readouterr().err
 
 
-def test_readback_contrast_variant_renders_and_reports_its_cost(egl, tmp_path):
+@needs_gl
+def test_readback_contrast_variant_renders_and_reports_its_cost(tmp_path):
     out, stats = tmp_path / "rb.png", tmp_path / "rb.json"
     assert cli_main(["render", "--mode", "csf", "--size", "320,180", "--contrast", "readback",
                      "--out", str(out), "--stats", str(stats)]) == 0

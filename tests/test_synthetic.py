@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import ast
 import csv
-import time
 from pathlib import Path
 
 import cv2
@@ -443,19 +442,6 @@ def test_random_preset_heads_look_at_screen_and_stay_visible():
         assert (v @ n) * ((s.top_left - p1) @ n) > 0  # V points toward the screen plane
         dist = abs((p1 - s.top_left) @ n)
         assert 330 < dist < 1600
-
-
-def test_render_speed():
-    s = default_setup()
-    pf = _pose(s, (0, -80, 650), (10, 5, 0))
-    rng = np.random.default_rng(0)
-    render_pair(s, DEFAULT_MARKERS_MM, 6.0, pf, 0.0, RenderOptions(), rng)
-    dts = []
-    for _ in range(5):
-        t0 = time.perf_counter()
-        render_pair(s, DEFAULT_MARKERS_MM, 6.0, pf, 0.0, RenderOptions(), rng)
-        dts.append(time.perf_counter() - t0)
-    assert np.median(dts) < 0.1  # typically ≈ 15-20 ms
 
 
 # ----------------------------------------------------------------------------

@@ -6,8 +6,6 @@ assert what the physics of the rendered images allows with margin, and above
 all that no pose is more than 5° off (a wrong identification).
 """
 import json
-import shutil
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -20,17 +18,15 @@ from headplod.tracking.detect import DetectionParams
 from headplod.live.pipeline import track_dataset
 from headplod.tracking.tracker import Tracker, TrackerConfig
 
-DATA = Path(__file__).parent / "data"
-
 
 def summary_of(dataset, config=TrackerConfig()):
     records = track_dataset(dataset, config)
     return records, evaluate.summarize(records, dataset.truth)
 
 
-def test_shared_sample_matches_its_truth():
+def test_shared_sample_matches_its_truth(sweep12_dir):
     """sweep12 was rendered by independent code: the contract is read the same way on both sides."""
-    records, s = summary_of(io.Dataset(DATA / "sweep12"))
+    records, s = summary_of(io.Dataset(sweep12_dir))
     assert s["ok"] == 12
     assert s["v_err_deg_median"] <= 0.1 and s["v_err_deg_p95"] <= 0.4
     assert s["pos_err_mm_median"] <= 0.2
@@ -103,8 +99,8 @@ def test_paper_threshold_fails_cleanly_on_dim_ir(synth):
     assert failed and all("marker blobs" in r["reason"] or "layout" in r["reason"] for r in failed)
 
 
-def test_every_blob_count_gets_a_reason():
-    ds = io.Dataset(DATA / "sweep12")
+def test_every_blob_count_gets_a_reason(sweep12_dir):
+    ds = io.Dataset(sweep12_dir)
     frame = ds.frame(0)
     tracker = Tracker(ds.rig, ds.markers)
     blank = np.full_like(frame.left, 12)
@@ -123,21 +119,15 @@ def test_every_blob_count_gets_a_reason():
         assert result.reason
 
 
-def test_wrong_image_size_and_nan_free_records(tmp_path):
-    ds = io.Dataset(DATA / "sweep12")
+def test_wrong_image_size_and_nan_free_records(tmp_path, sweep12_dir):
+    ds = io.Dataset(sweep12_dir)
     frame = ds.frame(0)
     result = Tracker(ds.rig, ds.markers).process(cv2.resize(frame.left, (320, 240)), frame.right)
     assert not result.ok and "320x240" in result.reason and "640x480" in result.reason
 
 
-def copy_sample(tmp_path):
-    dst = tmp_path / "ds"
-    shutil.copytree(DATA / "sweep12", dst)
-    return dst
-
-
-def test_cli_writes_contract_records_and_survives_bad_frames(tmp_path, capsys):
-    ds = copy_sample(tmp_path)
+def test_cli_writes_contract_records_and_survives_bad_frames(tmp_path, capsys, sample):
+    ds = sample
     (ds / "right" / "000004.png").unlink()                          # missing frame
     (ds / "left" / "000007.png").write_bytes(b"not a png")          # unreadable frame
     cv2.imwrite(str(ds / "left" / "000009.png"), np.zeros((240, 320), np.uint8))   # wrong size
@@ -153,8 +143,8 @@ def test_cli_writes_contract_records_and_survives_bad_frames(tmp_path, capsys):
     assert s["ok"] == 9 and s["v_err_deg_median"] <= 0.1
 
 
-def test_cli_stdout_and_malformed_rig(tmp_path, capsys):
-    ds = copy_sample(tmp_path)
+def test_cli_stdout_and_malformed_rig(capsys, sample):
+    ds = sample
     assert cli_main(["track", str(ds), "--out", "-", "-q"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert len(lines) == 12 and json.loads(lines[0])["ok"] is True
@@ -164,8 +154,8 @@ def test_cli_stdout_and_malformed_rig(tmp_path, capsys):
     assert "rig.yaml" in err
 
 
-def test_cli_malformed_markers_names_the_file(tmp_path, capsys):
-    ds = copy_sample(tmp_path)
+def test_cli_malformed_markers_names_the_file(capsys, sample):
+    ds = sample
     (ds / "markers.yaml").write_text("%YAML:1.0\n---\nmarkers: !!opencv-matrix\n   rows: 4\n   cols: 3\n"
                                      "   dt: d\n   data: [ 65, 0, 0, 0, 0, 0, -65, 0, 0, 40, -30, 0 ]\n")
     assert cli_main(["track", str(ds), "-q"]) == 1
@@ -173,8 +163,8 @@ def test_cli_malformed_markers_names_the_file(tmp_path, capsys):
     assert "markers.yaml" in err and "5" in err
 
 
-def test_left_right_count_mismatch_processes_the_rest(tmp_path):
-    ds = copy_sample(tmp_path)
+def test_left_right_count_mismatch_processes_the_rest(sample):
+    ds = sample
     for k in (10, 11):
         (ds / "right" / f"{k:06d}.png").unlink()
     dataset = io.Dataset(ds)
