@@ -28,7 +28,7 @@ def screen():
 
 @pytest.fixture(scope="module")
 def scene(screen):
-    from headplod.plod.still import TerrainScene
+    from headplod.render.still import TerrainScene
 
     return TerrainScene.build(screen)
 

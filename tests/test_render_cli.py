@@ -30,7 +30,7 @@ def test_render_writes_image_and_stats(egl, tmp_path):
 
 
 def test_csf_keeps_full_detail_at_the_poi_and_far_fewer_triangles(egl):
-    from headplod.plod.still import TerrainScene, render_still
+    from headplod.render.still import TerrainScene, render_still
 
     screen = read_screen(DEFAULT_SCREEN)
     scene = TerrainScene.build(screen)
