@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from headplod.bench import evaluate
+from headplod.tracking import evaluate
 from headplod import io
 from headplod.cli import main as cli_main
 from headplod.tracking.detect import DetectionParams

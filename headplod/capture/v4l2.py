@@ -501,6 +501,11 @@ class V4L2StereoSource(FrameSource):
                                           daemon=True)
             cam.thread.start()
 
+    @property
+    def devices(self) -> tuple[int | str, int | str]:
+        """The (left, right) devices as opened (``/dev/videoN`` or an index)."""
+        return self._cameras[0].device, self._cameras[1].device
+
     # -- construction helpers ------------------------------------------------
 
     @staticmethod
