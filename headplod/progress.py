@@ -43,8 +43,8 @@ class Progress:
         :attr:`total`).
     label : str
         What is being done (``render looking_around``, ``demo``).
-    stream : text stream
-        Where to write (default standard error). On a terminal one line
+    stream : text stream, optional
+        Where to write (default: standard error as it is when the display starts). On a terminal one line
         redraws itself; otherwise (a pipe, a log file) each update is a line.
     every_s : float
         Least time between two updates, s.
@@ -54,8 +54,9 @@ class Progress:
         Show nothing (``--quiet``).
     """
 
-    def __init__(self, total: int | None, label: str, stream=sys.stderr, every_s: float = 0.5,
+    def __init__(self, total: int | None, label: str, stream=None, every_s: float = 0.5,
                  unit: str = "it", disable: bool = False):
+        stream = sys.stderr if stream is None else stream      # the stderr of the moment (tests capture it)
         tty = hasattr(stream, "isatty") and stream.isatty()
         self._bar = tqdm(total=total or None, desc=label, unit=unit, file=stream if tty else _Lines(stream),
                          mininterval=every_s, maxinterval=max(every_s, 10.0), dynamic_ncols=tty,

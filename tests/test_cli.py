@@ -256,3 +256,30 @@ def test_track_quiet_prints_only_the_summary(sample, capsys):
     err = capsys.readouterr().err
     assert "frame " not in err and "it/s" not in err and "%|" not in err
     assert f"{Path(sample).name}: 12/12 frames tracked" in err
+
+
+def test_calibrate_runs_from_its_package_with_progress(tmp_path, capsys):
+    from headplod import io
+    from synthetic.boards import Board, write_calibration_set
+    rig = io.read_rig(ROOT / "calib" / "rig.yaml")
+    write_calibration_set(tmp_path / "pairs", rig, Board("chessboard", 9, 6, 25.0), n_pairs=8, seed=0,
+                          layout="subfolders")
+    out = tmp_path / "rig.yaml"
+    assert cli_main(["calibrate", str(tmp_path / "pairs"), "--cols", "9", "--rows", "6", "--square-mm", "25",
+                     "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert out.exists() and f"rig: {out}" in err
+    progress = [l for l in err.splitlines() if l.startswith("detect board:")]
+    assert progress and "8/8" in progress[-1] and "pair/s" in progress[-1]
+    with pytest.raises(SystemExit) as stop:
+        cli_main(["calibrate", "--board", "hexagons", "--cols", "9", "--rows", "6", "--square-mm", "25",
+                  "--out", str(out)])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and "'hexagons'" in err and all(repr(k) in err for k in BOARD_KINDS)
+
+
+def test_v4l2_auto_needs_the_rig_that_names_the_cameras():
+    from headplod.capture import open_source, source_kind
+    assert source_kind("v4l2:auto") == "v4l2"
+    with pytest.raises(ValueError, match="--calib"):
+        open_source("v4l2:auto")

@@ -80,7 +80,8 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     src = parser.add_argument_group("poses")
     src.add_argument("--source", default="synthetic", metavar="SPEC",
                      help="frame source tracked live: 'synthetic' (default: the built-in sequence), a dataset "
-                          "folder, 'v4l2:/dev/video0,/dev/video2', or LEFT.avi,RIGHT.avi")
+                          "folder, 'v4l2:/dev/video0,/dev/video2' or 'v4l2:auto' (the cameras --calib names), "
+                          "or LEFT.avi,RIGHT.avi")
     src.add_argument("--calib", metavar="RIG.YAML", help="rig.yaml of live cameras (with --source v4l2:...)")
     src.add_argument("--mouse", action="store_true",
                      help="no tracker: the POI follows the mouse (headless: a scripted path with one saccade), "
