@@ -11,7 +11,7 @@ render      : image formation (``render_pair``).
 scenes      : trajectories and presets (``make_scene``, ``PRESETS``).
 dataset     : contract dataset folders (``write_dataset``).
 
-Command line: ``python -m synthetic render PRESET OUT_DIR [--frames N] [--seed S]``.
+Command line: ``python -m synthetic render PRESET OUT_DIR [--frames N] [--seed S] [-q]`` (:mod:`.cli`; also ``headplod synth``).
 """
 import importlib
 

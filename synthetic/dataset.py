@@ -16,7 +16,6 @@
 from __future__ import annotations
 
 import json
-import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -129,15 +128,3 @@ def _rig_truth(scene: Scene, n: int, offset: float):
                              "K1": np.asarray(rig.K1, float).tolist(), "K2": np.asarray(rig.K2, float).tolist()})
             last = rig
     return {"segments": segments, "time_offset_s": offset}
-
-
-def _print_progress(prefix: str = "") -> Callable[[int, int], None]:
-    t0 = time.perf_counter()
-
-    def cb(done: int, total: int) -> None:
-        if done == total or done % 10 == 0 or done == 1:
-            dt = time.perf_counter() - t0
-            print(f"\r{prefix}{done}/{total} frames  {dt:6.1f} s  ({1000 * dt / done:5.1f} ms/frame)",
-                  end="\n" if done == total else "", flush=True)
-
-    return cb

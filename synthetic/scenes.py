@@ -31,6 +31,7 @@ __all__ = [
     "NECK_PIVOT_HEAD_MM",
     "make_pose_fn",
     "make_scene",
+    "preset_name",
     "PRESETS",
     "markers_visible",
 ]
@@ -557,6 +558,21 @@ ALIASES: Dict[str, str] = {
 }
 
 
+def preset_name(name: str) -> str:
+    """The key of :data:`PRESETS` that ``name`` stands for (an alias, ``-`` for ``_``, any case).
+
+    Raises
+    ------
+    KeyError
+        For an unknown name; the message lists the presets.
+    """
+    key = name.replace("-", "_").lower()
+    key = ALIASES.get(key, key)
+    if key not in PRESETS:
+        raise KeyError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
+    return key
+
+
 def make_scene(name: str, n_frames: Optional[int] = None, seed: int = 0, **kwargs) -> Scene:
     """Build a preset scene.
 
@@ -569,10 +585,7 @@ def make_scene(name: str, n_frames: Optional[int] = None, seed: int = 0, **kwarg
         pattern); the per-frame noise is seeded by ``write_dataset``.
     kwargs : preset-specific options (e.g. ``distance_mm`` for ``static``).
     """
-    key = name.replace("-", "_").lower()
-    key = ALIASES.get(key, key)
-    if key not in PRESETS:
-        raise KeyError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
+    key = preset_name(name)
     if n_frames is not None:
         kwargs["n_frames"] = int(n_frames)
     return PRESETS[key](seed=seed, **kwargs)

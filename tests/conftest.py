@@ -131,7 +131,7 @@ def default_screen() -> io.Screen:
 def terrain_scene(default_screen):
     """The PLOD terrain scene (Jacksboro DEM, 2048 base faces up to level 5) behind the default screen.
     Built once per module (a few seconds): the modules do not share its mesh state."""
-    from headplod.plod.still import TerrainScene
+    from headplod.render.still import TerrainScene
 
     return TerrainScene.build(default_screen)
 

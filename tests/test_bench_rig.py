@@ -6,7 +6,8 @@ are the faults themselves) and are consistent with one another.
 """
 import numpy as np
 
-from headplod.bench import rig as bench_rig, evaluate
+from headplod.bench import rig as bench_rig
+from headplod.tracking import evaluate
 from headplod.bench.track import run_track_bench
 
 

@@ -35,14 +35,14 @@ def _untimed(records):
 
 def test_refine_rig_option_is_validated_and_reaches_the_tracker(sample, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
-        cli_main(["track", str(sample), "--refine-rig", "maybe", "-q"])
+        cli_main(["track", "--source", str(sample), "--refine-rig", "maybe", "-q"])
     assert exc.value.code == 2
     assert "--refine-rig" in capsys.readouterr().err
     on, off = tmp_path / "on.jsonl", tmp_path / "off.jsonl"
-    assert cli_main(["track", str(sample), "--out", str(on), "-q"]) == 0          # default: on
+    assert cli_main(["track", "--source", str(sample), "--out", str(on), "-q"]) == 0          # default: on
     err = capsys.readouterr().err
     assert "rig.yaml: right camera turned" in err                                 # the final describe()
-    assert cli_main(["track", str(sample), "--out", str(off), "--refine-rig", "off", "-q"]) == 0
+    assert cli_main(["track", "--source", str(sample), "--out", str(off), "--refine-rig", "off", "-q"]) == 0
     r_on, r_off = io.read_poses(on), io.read_poses(off)
     assert r_on[-1]["rig"]["updates"] >= 1
     assert all(r.get("rig", {}).get("updates", 0) == 0 for r in r_off)
@@ -54,7 +54,7 @@ def test_save_rig_writes_the_refined_rig_atomically(sample, tmp_path, capsys):
     before = (sample / "rig.yaml").read_bytes()
     out = tmp_path / "refined.yaml"
     out.write_text("old content\n")                                                # replaced whole
-    assert cli_main(["track", str(sample), "--save-rig", str(out), "-q"]) == 0
+    assert cli_main(["track", "--source", str(sample), "--save-rig", str(out), "-q"]) == 0
     assert f"refined rig: {out}" in capsys.readouterr().err
     refined = io.read_rig(out)
     assert refined.image_size == rig.image_size
@@ -82,7 +82,7 @@ def test_save_rig_refusals_write_nothing(sample, tmp_path, capsys, target, extra
     fill = {"ds": sample, "tmp": tmp_path}
     before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
     out = tmp_path / "poses.jsonl"
-    argv = ["track", str(sample), "--out", str(out), "-q", "--save-rig", target.format(**fill)]
+    argv = ["track", "--source", str(sample), "--out", str(out), "-q", "--save-rig", target.format(**fill)]
     assert cli_main(argv + [a.format(**fill) for a in extra]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
@@ -100,10 +100,10 @@ def test_save_rig_without_a_tracked_frame_writes_nothing(sample, tmp_path, capsy
         for side in ("left", "right"):
             cv2.imwrite(str(black / side / f"{i:06d}.png"), np.zeros((480, 640), np.uint8))
     out = tmp_path / "refined.yaml"
-    assert cli_main(["track", str(black), "--save-rig", str(out), "-q"]) == 1
+    assert cli_main(["track", "--source", str(black), "--save-rig", str(out), "-q"]) == 1
     assert "no frame was tracked" in capsys.readouterr().err
     assert not out.exists()
-    assert cli_main(["track", str(sample), "--save-rig", str(out), "--frames", "0", "-q"]) == 1
+    assert cli_main(["track", "--source", str(sample), "--save-rig", str(out), "--frames", "0", "-q"]) == 1
     assert not out.exists()
 
 
@@ -111,10 +111,10 @@ def test_recording_keeps_the_rig_given_and_its_replay_refines_the_same_way(sampl
     rig = _with_calibration_std(sample)
     rec = tmp_path / "rec"
     first, second = tmp_path / "first.jsonl", tmp_path / "second.jsonl"
-    assert cli_main(["track", str(sample), "--record", str(rec), "--out", str(first), "-q",
+    assert cli_main(["track", "--source", str(sample), "--record", str(rec), "--out", str(first), "-q",
                      "--save-rig", str(tmp_path / "refined.yaml")]) == 0
     assert io.read_rig(rec / "rig.yaml") == rig                                   # not the refined one
-    assert cli_main(["track", str(rec), "--out", str(second), "-q"]) == 0
+    assert cli_main(["track", "--source", str(rec), "--out", str(second), "-q"]) == 0
     r1, r2 = io.read_poses(first), io.read_poses(second)
     assert r1[-1]["rig"]["updates"] >= 1
     assert _untimed(r1) == _untimed(r2)

@@ -40,21 +40,13 @@ ABOVE_PLOD = ("headplod.render", "headplod.tracking", "headplod.demo")
 #: this branch, as (importing module, imported package or module): why. Each
 #: must still occur (``test_plod_exceptions_are_still_needed``): delete an
 #: entry once its import is gone.
-PLOD_EXCEPTIONS = {
-    ("headplod.plod.select", "headplod.tracking"):
-        "LevelSelector's eye/POI smoothing imports OneEuroFilter from headplod.tracking.filters "
-        "(numpy only); plod/select.py is being reworked on another branch",
-    ("headplod.plod.still", "headplod.render"):
-        "alias of headplod.render.still, where the GL one-frame renderer moved; kept because "
-        "headplod/cli.py (being rewritten on another branch) and existing tests import it",
-    ("headplod.plod.stability", "headplod.bench"):
-        "alias of headplod.bench.stability, where the still-head experiment (it runs the tracker) "
-        "moved; kept because existing tests import it",
-}
+PLOD_EXCEPTIONS: dict[tuple[str, str], str] = {}
 
-#: Modules kept only so that old imports work; nothing in the package but
-#: ``headplod/cli.py`` (which this branch may not edit) may import them.
-ALIASES = {"headplod.plod.still": "headplod.render.still", "headplod.plod.stability": "headplod.bench.stability"}
+#: Modules kept only so that old imports work, as alias: new home; nothing in the
+#: package but ``headplod/cli.py`` may import them. None at present: the aliases
+#: ``headplod.plod.still`` and ``headplod.plod.stability`` are gone (their homes
+#: are ``headplod.render.still`` and ``headplod.bench.stability``).
+ALIASES: dict[str, str] = {}
 
 
 @dataclass(frozen=True)

@@ -13,13 +13,13 @@ from headplod.live.output import decode_opentrack, opentrack_values
 def test_record_while_tracking_then_replay_gives_the_same_records(sample, tmp_path):
     rec = tmp_path / "rec"
     first, second = tmp_path / "first.jsonl", tmp_path / "second.jsonl"
-    assert cli_main(["track", str(sample), "--record", str(rec), "--out", str(first), "-q"]) == 0
+    assert cli_main(["track", "--source", str(sample), "--record", str(rec), "--out", str(first), "-q"]) == 0
     replay = io.Dataset(rec)                        # the recording is a contract dataset folder
     original = io.Dataset(sample)
     assert len(replay) == len(original) == 12
     for a, b in zip(replay, original):
         assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right) and a.t == b.t
-    assert cli_main(["track", str(rec), "--out", str(second), "-q"]) == 0
+    assert cli_main(["track", "--source", str(rec), "--out", str(second), "-q"]) == 0
     r1, r2 = io.read_poses(first), io.read_poses(second)
     keys = ("frame", "t", "ok", "position", "axes", "cov", "reason")
     assert [{k: r[k] for k in keys} for r in r1] == [{k: r[k] for k in keys} for r in r2]
@@ -44,7 +44,7 @@ def test_udp_output_reaches_a_receiver(sample, tmp_path):
     thread = threading.Thread(target=listen, daemon=True)
     thread.start()
     out = tmp_path / "poses.jsonl"
-    assert cli_main(["track", str(sample), "--udp", f"127.0.0.1:{port}", "--out", str(out), "-q"]) == 0
+    assert cli_main(["track", "--source", str(sample), "--udp", f"127.0.0.1:{port}", "--out", str(out), "-q"]) == 0
     thread.join(timeout=10)
     receiver.close()
     records = [r for r in io.read_poses(out) if r["ok"]]
@@ -57,8 +57,8 @@ def test_udp_output_reaches_a_receiver(sample, tmp_path):
 
 def test_filter_smooths_the_records_but_keeps_cov(sample, tmp_path):
     raw, smooth = tmp_path / "raw.jsonl", tmp_path / "smooth.jsonl"
-    assert cli_main(["track", str(sample), "--out", str(raw), "-q"]) == 0
-    assert cli_main(["track", str(sample), "--out", str(smooth), "--filter", "0.5,0.0", "-q"]) == 0
+    assert cli_main(["track", "--source", str(sample), "--out", str(raw), "-q"]) == 0
+    assert cli_main(["track", "--source", str(sample), "--out", str(smooth), "--filter", "0.5,0.0", "-q"]) == 0
     a, b = io.read_poses(raw), io.read_poses(smooth)
     assert a[0]["position"] == b[0]["position"]                      # the first pose passes through
     moved = [np.linalg.norm(np.subtract(x["position"], y["position"])) for x, y in zip(a[1:], b[1:])]
@@ -76,7 +76,7 @@ def test_camera_needs_calibration(capsys):
 
 def test_bench_live_reports_rate_latency_and_capture_ratio(sample, tmp_path, capsys):
     out = tmp_path / "live.json"
-    assert cli_main(["bench", "live", str(sample), "--repeats", "1", "--json", str(out)]) == 0
+    assert cli_main(["bench", "live", "--source", str(sample), "--repeats", "1", "--json", str(out)]) == 0
     report = json.loads(out.read_text())
     for variant in ("replay", "replay + outputs", "replay + recording"):
         r = report["results"][variant]

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from headplod.plod.select import View
-from headplod.plod.stability import level_changes, levels_sequence, plot_stability, stability_report, still_head_views
-from headplod.plod.still import TerrainScene
+from headplod.bench.stability import level_changes, levels_sequence, plot_stability, stability_report, still_head_views
+from headplod.render.still import TerrainScene
 
 FRAMES = 40
 WARMUP = 10

@@ -23,7 +23,7 @@ def test_render_writes_image_and_stats(tmp_path):
 
 @needs_gl
 def test_csf_keeps_full_detail_at_the_poi_and_far_fewer_triangles(default_screen, terrain_scene):
-    from headplod.plod.still import render_still
+    from headplod.render.still import render_still
 
     _, csf = render_still(default_screen, mode="csf", size=(320, 180), scene=terrain_scene)
     _, full = render_still(default_screen, mode="full", size=(320, 180), scene=terrain_scene)

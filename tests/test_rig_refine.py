@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from headplod.bench import evaluate
+from headplod.tracking import evaluate
 from headplod import io
 from headplod.capture.synthetic import ensure_dataset
 from headplod.tracking.tracker import Tracker, TrackerConfig

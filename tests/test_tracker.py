@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from headplod.bench import evaluate
+from headplod.tracking import evaluate
 from headplod import io
 from headplod.cli import main as cli_main
 from headplod.tracking.detect import DetectionParams
@@ -132,7 +132,7 @@ def test_cli_writes_contract_records_and_survives_bad_frames(tmp_path, capsys, s
     (ds / "left" / "000007.png").write_bytes(b"not a png")          # unreadable frame
     cv2.imwrite(str(ds / "left" / "000009.png"), np.zeros((240, 320), np.uint8))   # wrong size
     out = tmp_path / "poses.jsonl"
-    assert cli_main(["track", str(ds), "--out", str(out), "-q"]) == 0
+    assert cli_main(["track", "--source", str(ds), "--out", str(out), "-q"]) == 0
     records = io.read_poses(out)
     assert [r["frame"] for r in records] == list(range(12))
     bad = {r["frame"]: r["reason"] for r in records if not r["ok"]}
@@ -145,11 +145,11 @@ def test_cli_writes_contract_records_and_survives_bad_frames(tmp_path, capsys, s
 
 def test_cli_stdout_and_malformed_rig(capsys, sample):
     ds = sample
-    assert cli_main(["track", str(ds), "--out", "-", "-q"]) == 0
+    assert cli_main(["track", "--source", str(ds), "--out", "-", "-q"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert len(lines) == 12 and json.loads(lines[0])["ok"] is True
     (ds / "rig.yaml").write_text("%YAML:1.0\n---\nimage_width: 640\nK1: [1, 2\n")
-    assert cli_main(["track", str(ds), "-q"]) == 1
+    assert cli_main(["track", "--source", str(ds), "-q"]) == 1
     err = capsys.readouterr().err
     assert "rig.yaml" in err
 
@@ -158,7 +158,7 @@ def test_cli_malformed_markers_names_the_file(capsys, sample):
     ds = sample
     (ds / "markers.yaml").write_text("%YAML:1.0\n---\nmarkers: !!opencv-matrix\n   rows: 4\n   cols: 3\n"
                                      "   dt: d\n   data: [ 65, 0, 0, 0, 0, 0, -65, 0, 0, 40, -30, 0 ]\n")
-    assert cli_main(["track", str(ds), "-q"]) == 1
+    assert cli_main(["track", "--source", str(ds), "-q"]) == 1
     err = capsys.readouterr().err
     assert "markers.yaml" in err and "5" in err
 

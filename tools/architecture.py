@@ -52,7 +52,7 @@ REGENERATE = "python tools/architecture.py"
 PLACES = {
     "synthetic": (0, 1), "capture": (1, 1), "tracking": (2, 1), "live": (3, 1),
     "plod": (4, 1), "render": (5, 1), "demo": (6, 1),
-    "calibration": (1, 0), "io": (3, 0), "calib": (5, 0),
+    "calibration": (1, 0), "progress": (2, 0), "io": (3, 0), "filters": (4, 0), "calib": (5, 0),
     "bench": (2, 2), "cli": (4, 2),
 }
 ROW_NAMES = {2: "commands", 1: "data flow", 0: "contracts", -1: "other"}

@@ -4,5 +4,7 @@
 - :mod:`.uncertainty`: the covariance of V (NEES, stability, cost).
 - :mod:`.live`: the live pipeline's rate and latency on a replayed recording.
 - :mod:`.plod`: speed against image error of every LOD mode.
-- :mod:`.evaluate`: accuracy of poses against a dataset's truth.
+- :mod:`.command`: ``headplod bench``'s arguments and dispatch.
+
+Accuracy against a dataset's truth is :mod:`headplod.tracking.evaluate` (``headplod track`` reports it too).
 """

@@ -44,14 +44,15 @@ from calib import DEFAULT_SCREEN
 from . import stability as still_head
 from .. import io
 from ..plod import perception as pc
+from ..plod.csf import CSF_MODELS
 from ..plod.contrast import project_to_screen_px, readback_contrast
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
 from ..render import TerrainRenderer, create_context, off_axis_projection, overlay_poi, screen_frame
 from ..render.still import TerrainScene, _px_per_deg, default_head
 
 SIZE = (1280, 720)
-#: The CSF forms compared (perception.CSF_MODELS); the default is chosen from them.
-CSF_FORMS = ("paper", "kelly", "daly", "kelly_scaled")
+#: The CSF forms compared: every model of :data:`headplod.plod.csf.CSF_MODELS`; the default is chosen from them.
+CSF_FORMS = CSF_MODELS
 BIASES = (-1.5, -1.0, -0.5, 0.0, 0.5, 1.0)
 SWEEP_MODES = ("sse", "ipv", "dpv", "csf")
 SWEEP_SPEEDS_DEG_S = (0.0, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0)

@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from . import evaluate
+from ..tracking import evaluate
 from .. import io
 from ..capture.synthetic import ensure_dataset
 from ..live.loop import track_frames

@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from . import evaluate
+from ..tracking import evaluate
 from . import rig as bench_rig
 from .. import io
 from ..capture.synthetic import ensure_dataset

@@ -18,6 +18,8 @@ import numpy as np
 
 #: Fewest ChArUco corners a view (and a pair, in common) must have.
 MIN_CHARUCO_CORNERS = 6
+#: Kinds of board (``BoardSpec.kind``, ``headplod calibrate --board``).
+BOARD_KINDS = ("chessboard", "charuco")
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-3)
 
 
@@ -52,8 +54,8 @@ class BoardSpec:
     legacy_pattern: bool = False
 
     def __post_init__(self) -> None:
-        if self.kind not in ("chessboard", "charuco"):
-            raise ValueError(f"BoardSpec.kind is {self.kind!r}, expected 'chessboard' or 'charuco'")
+        if self.kind not in BOARD_KINDS:
+            raise ValueError(f"BoardSpec.kind is {self.kind!r}, expected one of {', '.join(BOARD_KINDS)}")
         for key in ("cols", "rows"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 2:

@@ -20,6 +20,10 @@ v4l2
     dropped-frame accounting, stall and reconnect handling.
 record
     :class:`DatasetRecorder` and :func:`record`.
+usb
+    Camera identity over USB (``v4l2:auto``).
+command
+    ``headplod cameras``.
 """
 from . import base as _base
 from . import record as _record

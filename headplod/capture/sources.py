@@ -40,6 +40,7 @@ import numpy as np
 from .. import io
 from .base import CaptureFrame, FrameSource, SourceOpenError, _size_error, _skew_flag, to_gray
 from .synthetic import DEFAULT_SEQUENCE, ensure_dataset
+from .usb import list_cameras, resolve_rig_cameras
 from .v4l2 import V4L2StereoSource
 
 __all__ = [
@@ -49,6 +50,8 @@ __all__ = [
     "open_source",
     "register_source",
     "source_forms",
+    "source_kind",
+    "synthetic_preset",
 ]
 
 
@@ -416,7 +419,9 @@ def open_source(spec: str | os.PathLike, **options: Any) -> FrameSource:
           (:class:`SyntheticSource`);
         - ``v4l2:/dev/video0,/dev/video2`` or ``v4l2:0,2``, or just two
           integers ``0,2``: two V4L2 cameras, left first
-          (:class:`~headplod.capture.v4l2.V4L2StereoSource`);
+          (:class:`~headplod.capture.v4l2.V4L2StereoSource`); ``v4l2:auto``:
+          the two cameras the ``rig`` option names by USB identity
+          (``headplod cameras --store``);
         - an existing folder: a dataset folder (:class:`DatasetSource`);
         - ``LEFT.avi,RIGHT.avi``: two video files (:class:`VideoSource`).
     **options
@@ -444,6 +449,20 @@ def open_source(spec: str | os.PathLike, **options: Any) -> FrameSource:
     raise ValueError(f"cannot open source {text!r} ({why}). Accepted forms:\n  {forms}")
 
 
+def source_kind(spec: str | os.PathLike) -> str | None:
+    """The kind of source :func:`open_source` would open for ``spec`` (``'v4l2'``, ``'dataset'``, ...), or None."""
+    text = os.fspath(spec).strip()
+    return next((entry.kind for entry in _REGISTRY if entry.accepts(text)), None)
+
+
+def synthetic_preset(spec: str | os.PathLike) -> str | None:
+    """The preset a ``synthetic`` or ``synthetic:PRESET`` spec names (the default sequence for the former), or None."""
+    text = os.fspath(spec).strip()
+    if not _accepts_synthetic(text):
+        return None
+    return text.partition(":")[2].strip() or DEFAULT_SEQUENCE
+
+
 def _two_parts(text: str) -> list[str] | None:
     parts = [p.strip() for p in text.split(",")]
     return parts if len(parts) == 2 and all(parts) else None
@@ -462,6 +481,15 @@ def _accepts_v4l2(text: str) -> bool:
 
 def _open_v4l2(text: str, **options: Any) -> FrameSource:
     body = text[5:] if text.lower().startswith("v4l2:") else text
+    if body.strip().lower() == "auto":
+        rig = options.get("rig")
+        if rig is None:
+            raise ValueError(f"cannot open source {text!r}: v4l2:auto finds the cameras the rig names by USB "
+                             "identity; give the rig (--calib rig.yaml, stored with 'headplod cameras --store')")
+        if isinstance(rig, (str, os.PathLike)):
+            rig = options["rig"] = io.read_rig(Path(rig))
+        left, right = resolve_rig_cameras(rig, list_cameras())
+        return V4L2StereoSource(left, right, **options)
     parts = _two_parts(body)
     if parts is None:
         raise ValueError(f"cannot open source {text!r}: expected two devices, left first, "
@@ -491,7 +519,8 @@ def _open_video(text: str, **options: Any) -> FrameSource:
 
 register_source("synthetic", "synthetic or synthetic:PRESET (the built-in renderer, e.g. synthetic:static)",
                 _accepts_synthetic, _open_synthetic)
-register_source("v4l2", "v4l2:/dev/video0,/dev/video2 or v4l2:0,2 or 0,2 (two V4L2 cameras, left first)",
+register_source("v4l2", "v4l2:/dev/video0,/dev/video2 or v4l2:0,2 or 0,2 (two V4L2 cameras, left first), "
+                "or v4l2:auto (the cameras the rig names)",
                 _accepts_v4l2, _open_v4l2)
 register_source("dataset", "DATASET_FOLDER (an existing folder with rig.yaml, left/, right/)",
                 lambda text: Path(text).is_dir(), lambda text, **o: DatasetSource(text, **o))

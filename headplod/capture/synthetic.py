@@ -22,7 +22,7 @@ DEFAULT_SEQUENCE = "looking_around"
 
 
 #: Modules of ``synthetic`` that do not take part in rendering the marker datasets.
-_NOT_IN_DATASETS = {"boards.py", "__main__.py"}
+_NOT_IN_DATASETS = {"boards.py", "__main__.py", "cli.py"}
 
 
 def _renderer_version() -> str:
@@ -81,5 +81,5 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
 
 
 def _progress(total: int, label: str):
-    bar = Progress(total, f"render {label}")
+    bar = Progress(total, f"render {label}", unit="frame")
     return lambda *args, **kwargs: bar.step()

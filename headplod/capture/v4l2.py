@@ -42,7 +42,7 @@ import numpy as np
 from .. import io
 from .base import GAP_PERIODS, CaptureFrame, FrameSource, SourceOpenError, _size_error, _skew_flag, to_gray
 
-__all__ = ["V4L2StereoSource", "CameraSetting", "default_opener", "DEVICE_TIME_WINDOW_S"]
+__all__ = ["V4L2StereoSource", "CameraSetting", "default_opener", "DEVICE_TIME_WINDOW_S", "FOURCCS"]
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,8 @@ MAX_GRAB_FAILURES = 3
 #: (counted) when the reader is slower than the cameras.
 QUEUE_LENGTH = 4
 
-_FOURCCS = ("GREY", "YUYV", "MJPG")
+#: Pixel formats a camera may be asked for (``fourcc``, ``headplod track --fourcc``).
+FOURCCS = ("GREY", "YUYV", "MJPG")
 
 
 def default_opener(device: int | str) -> Any:
@@ -500,6 +501,11 @@ class V4L2StereoSource(FrameSource):
                                           daemon=True)
             cam.thread.start()
 
+    @property
+    def devices(self) -> tuple[int | str, int | str]:
+        """The (left, right) devices as opened (``/dev/videoN`` or an index)."""
+        return self._cameras[0].device, self._cameras[1].device
+
     # -- construction helpers ------------------------------------------------
 
     @staticmethod
@@ -507,8 +513,8 @@ class V4L2StereoSource(FrameSource):
         req: dict[str, Any] = {}
         if fourcc is not None:
             code = str(fourcc).upper()
-            if code not in _FOURCCS:
-                raise ValueError(f"fourcc is {fourcc!r}, expected one of {', '.join(_FOURCCS)}")
+            if code not in FOURCCS:
+                raise ValueError(f"fourcc is {fourcc!r}, expected one of {', '.join(FOURCCS)}")
             req["fourcc"] = code
         for name, value in (("width", width), ("height", height), ("fps", fps),
                             ("buffer_size", buffer_size)):

@@ -13,9 +13,11 @@ viewpoints
     The paper's three test views as named model matrices.
 hud
     The heads-up display, composed with OpenCV.
+keys
+    The window's keys (``KEYMAP``), the actions and the key help made from it.
 window
     The moderngl-window app (moderngl-window is imported only when a window
-    opens) and the key mapping.
+    opens).
 cli
     ``add_demo_arguments``, ``run_demo`` and the headless run.
 """

@@ -30,6 +30,7 @@ from ..progress import Progress
 from ..render import TerrainRenderer, create_context
 from ..render.still import TerrainScene
 from . import loop as lp
+from .keys import key_help
 from .poses import make_poses
 from .viewpoints import VIEWPOINTS
 from .window import run_window
@@ -74,13 +75,13 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     parser.description = (
         "Head-coupled perceptual level of detail on the Jacksboro terrain, driven by the tracker "
         "(live cameras, a recording, the built-in synthetic sequence) or the mouse. Window keys: "
-        "1-6 criterion (csf, gp, acuity, sse, distance, full); N/F/A/S uncertainty scenario (none, fixed, "
-        "adaptive, smoothed); V shaded, W wireframe, L level colours; C next viewpoint; H heads-up display; "
-        "Esc or Q quit. Without a tracker (--mouse) the mouse moves the point of interest.")
+        + key_help(values=("mode", "uncertainty", "view_mode"), sep="; ")
+        + ". Without a tracker (--mouse) the mouse moves the point of interest.")
     src = parser.add_argument_group("poses")
     src.add_argument("--source", default="synthetic", metavar="SPEC",
                      help="frame source tracked live: 'synthetic' (default: the built-in sequence), a dataset "
-                          "folder, 'v4l2:/dev/video0,/dev/video2', or LEFT.avi,RIGHT.avi")
+                          "folder, 'v4l2:/dev/video0,/dev/video2' or 'v4l2:auto' (the cameras --calib names), "
+                          "or LEFT.avi,RIGHT.avi")
     src.add_argument("--calib", metavar="RIG.YAML", help="rig.yaml of live cameras (with --source v4l2:...)")
     src.add_argument("--mouse", action="store_true",
                      help="no tracker: the POI follows the mouse (headless: a scripted path with one saccade), "

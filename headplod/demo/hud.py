@@ -16,10 +16,10 @@ import cv2
 import numpy as np
 
 from ..render import PALETTE, overlay_poi
+from .keys import key_help
 
-#: Key help, one line (see :func:`headplod.demo.window.action_for_key`).
-KEY_HELP = "keys: 1-6 criterion (csf gp acuity sse distance full)  N/F/A/S scenario  V/W/L view  C viewpoint  " \
-           "H hud  Esc quit"
+#: Key help, one line, made from :data:`headplod.demo.keys.KEYMAP`.
+KEY_HELP = "keys: " + key_help()
 
 _WHITE = (255, 255, 255)
 _GREEN = (110, 235, 110)

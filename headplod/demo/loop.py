@@ -55,16 +55,16 @@ from .. import io
 from ..capture import open_source
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
 from ..render import TerrainRenderer, create_context, off_axis_projection
+from ..render.gl import VIEW_MODES as _GL_VIEW_MODES
 from ..render.still import _px_per_deg, default_head
 from . import viewpoints as vps
 from .hud import HudInfo, draw_hud, draw_picture_overlay
+from .keys import DEMO_MODES
 
-#: Criteria the demo switches between (keys 1-6).
-DEMO_MODES = ("csf", "gp", "acuity", "sse", "distance", "full")
 #: Uncertainty scenarios: the paper's three (none, fixed, adaptive) and smoothed.
 SCENARIOS = tuple(UNCERTAINTY_MODES)
-#: Views of the terrain.
-VIEW_MODES = ("shaded", "wire", "levels")
+#: Views of the terrain: the renderer's (:data:`headplod.render.gl.VIEW_MODES`).
+VIEW_MODES = tuple(_GL_VIEW_MODES)
 #: Ohshima et al.: above this POI speed the eye is in a saccade and sees no detail.
 SACCADE_DEG_S = 180.0
 #: Growth of the covariance's diagonal while tracking is lost, deg²/s (σ reaches 2° after 1 s).

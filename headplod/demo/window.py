@@ -1,8 +1,8 @@
 """The demo window: a thin moderngl-window app over :class:`headplod.demo.loop.DemoLoop`.
 
 moderngl-window is imported only when a window is opened, so this module
-(and its key mapping, :func:`action_for_key`) imports without it and without
-a display.
+(and its key mapping, :func:`action_for_key`, from :mod:`.keys`) imports
+without it and without a display.
 
 Each frame the loop renders the terrain offscreen on the window's own GL
 context, composes the HUD with OpenCV, and the window draws the image as
@@ -18,45 +18,9 @@ import numpy as np
 
 from ..render import TerrainRenderer
 from ..render.still import TerrainScene
-from .loop import DEMO_MODES, DemoLoop
+from .keys import KEYMAP, action_for_key  # noqa: F401 (the window's keys; importable from here as before)
+from .loop import DemoLoop
 from .poses import make_poses
-
-#: Key → action. Keys are single characters (digits, lower-case letters) or "escape".
-KEYMAP = {
-    **{str(i + 1): ("mode", m) for i, m in enumerate(DEMO_MODES)},
-    "n": ("uncertainty", "none"),
-    "f": ("uncertainty", "fixed"),
-    "a": ("uncertainty", "adaptive"),
-    "s": ("uncertainty", "smoothed"),
-    "v": ("view_mode", "shaded"),
-    "w": ("view_mode", "wire"),
-    "l": ("view_mode", "levels"),
-    "h": ("hud", "toggle"),
-    "c": ("viewpoint", "next"),
-    "escape": ("quit", None),
-    "q": ("quit", None),
-}
-
-
-def action_for_key(name: str):
-    """The action of a key, or None.
-
-    Parameters
-    ----------
-    name : str
-        ``"1"``-``"6"``, a letter (either case) or ``"escape"``.
-
-    Returns
-    -------
-    tuple (setting, value) or None
-        ``("mode", "csf")`` … ``("mode", "full")`` for 1-6,
-        ``("uncertainty", ...)`` for N/F/A/S, ``("view_mode", ...)`` for
-        V (shaded), W (wire), L (levels), ``("hud", "toggle")`` for H,
-        ``("viewpoint", "next")`` for C, ``("quit", None)`` for Esc and Q;
-        :meth:`DemoLoop.apply` takes it.
-    """
-    return KEYMAP.get(str(name).lower())
-
 
 _VERTEX = """
 #version 330

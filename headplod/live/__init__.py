@@ -4,4 +4,5 @@
   the pose record of a frame.
 - :mod:`.pipeline`: the same loop over a dataset folder.
 - :mod:`.output`: opentrack's UDP protocol and the live status line.
+- :mod:`.command`: ``headplod track``'s arguments and run.
 """

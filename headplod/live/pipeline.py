@@ -5,12 +5,10 @@ from typing import Callable
 
 from .. import io
 from ..capture import DatasetSource
-from ..progress import Progress
 from ..tracking.tracker import TrackerConfig, TrackResult
 from .loop import run_source
 
-# Progress moved to headplod.progress; re-exported because headplod/cli.py imports it from here.
-__all__ = ["track_dataset", "Progress"]
+__all__ = ["track_dataset"]
 
 
 def track_dataset(dataset: io.Dataset, config: TrackerConfig = TrackerConfig(),

@@ -17,8 +17,6 @@ __all__ = ["CSF_MODELS", "MIN_SPEED_DEG_S", "ECC_SLOPE",
 
 CSF_MODELS = ("paper", "kelly", "daly", "kelly_scaled")
 
-CSF_MODELS = ("paper", "kelly", "daly", "kelly_scaled")
-
 MIN_SPEED_DEG_S = 0.1
 """Speed floor (deg/s) of every CSF: Kelly's G is 0 at v = 0 (no stabilized image)."""
 

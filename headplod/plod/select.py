@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..filters import OneEuroFilter
 from . import perception as pc
 
 MODES = ("csf", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full")
@@ -89,7 +90,7 @@ class SelectorConfig:
         s (0.25): their minimum cutoff is 1 / (2π · smoothing_s).
     eye_beta : float
         Cutoff increase of the eye's filter per unit of its speed,
-        Hz per mm/s (0.05; :class:`headplod.tracking.filters.OneEuroFilter`).
+        Hz per mm/s (0.05; :class:`headplod.filters.OneEuroFilter`).
     poi_beta : float
         The same for the POI's filter, Hz per px/s (0.02).
     jump_eye_mm : float
@@ -390,8 +391,6 @@ class LevelSelector:
         real movement: the filters and the hysteresis restart, so the levels
         follow within the frame.
         """
-        from ..tracking.filters import OneEuroFilter
-
         eye = np.asarray(view.eye_mm, dtype=np.float64)
         poi = np.asarray(view.poi_px, dtype=np.float64)
         if view.t is None:

@@ -6,6 +6,7 @@
   ``M.T.tobytes()``), the off-axis projection and the scene's placement.
 - :mod:`.gl`: the terrain renderer (shaders, :class:`TerrainRenderer`).
 - :mod:`.overlay`: the point of interest and its uncertainty ellipse.
+- :mod:`.still`: the terrain scene and one PLOD frame; :mod:`.command`: ``headplod render``.
 """
 from .context import EGL_PACKAGES, create_context
 from .gl import PALETTE, VIEW_MODES, TerrainRenderer

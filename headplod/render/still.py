@@ -28,6 +28,10 @@ SCALE_MM_PER_M = 0.02
 DEPTH_MM = 250.0
 PITCH_DEG = 55.0
 
+#: Where a triangle's contrast comes from (``render_still(contrast=...)``, ``headplod render --contrast``):
+#: the shading, or the paper's window read back from a first frame.
+CONTRAST_SOURCES = ("shading", "readback")
+
 
 @dataclass
 class TerrainScene:
@@ -95,8 +99,8 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     scene = scene or TerrainScene.build(screen)
     head = default_head(screen) if head_mm is None else np.asarray(head_mm, dtype=np.float64)
     poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
-    if contrast not in ("shading", "readback"):
-        raise ValueError(f"render_still: contrast must be 'shading' or 'readback', got {contrast!r}")
+    if contrast not in CONTRAST_SOURCES:
+        raise ValueError(f"render_still: contrast must be one of {', '.join(CONTRAST_SOURCES)}, got {contrast!r}")
     selector = scene.selector(mode, uncertainty, hysteresis=False)
     if renderer is None:
         renderer = TerrainRenderer(create_context(), size=tuple(size))

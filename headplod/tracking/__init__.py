@@ -6,5 +6,6 @@
 - :mod:`.tracker`: the stages together, two images in, a verified pose out.
 - :mod:`.uncertainty`: the covariance of the viewing direction.
 - :mod:`.rig_refine`: the rig's error model and online refinement.
-- :mod:`.filters`: smoothing of the pose (One Euro).
+- :mod:`.filters`: smoothing of the pose (One Euro, :mod:`headplod.filters`).
+- :mod:`.evaluate`: accuracy of tracked poses against a dataset's truth.
 """

@@ -25,6 +25,9 @@ import numpy as np
 
 from .. import io
 
+#: The pose estimators above, by name (``TrackerConfig.estimator``, ``headplod track --estimator``).
+ESTIMATORS = ("paper", "rigid", "reproj")
+
 # Triangles whose normals define V (conventions.md), as marker indices: the
 # triples of headplod.io.VIEW_TRIANGLES as a (3, 3) int index array.
 VIEW_TRIANGLES = np.array(io.VIEW_TRIANGLES)

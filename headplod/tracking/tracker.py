@@ -34,13 +34,13 @@ import scipy.linalg
 from scipy.stats import chi2
 
 from . import geometry as geo
+from .geometry import ESTIMATORS
 from .detect import Blobs, DetectionParams, centroids_near, detect_blobs, estimate_background, shot_variance
 from .identify import ModelRule, find_hypotheses
 from .motion import PoseHistory
 from .rig_refine import RigErrorModel, RigRefineConfig, RigRefiner, rig_jacobian_rows
 from .uncertainty import DEFAULT_COVARIANCE, CovarianceInput, make_covariance_estimator, rig_residual_rows
 
-ESTIMATORS = ("paper", "rigid", "reproj")
 # Read-only constants of the tracking path (copied before any change).
 _ALL_VISIBLE = np.ones((2, 5), bool)
 _NO_BLOB = np.full((2, 5), -1)

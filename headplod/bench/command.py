@@ -1,0 +1,104 @@
+"""``headplod bench``: its subcommands' arguments (:func:`add_bench_arguments`) and dispatch (:func:`run_bench`).
+
+    headplod bench track [--json FILE] [--chart FILE.png] [--quick] [--sets A,B]
+    headplod bench uncertainty [--json FILE] [--chart FILE.png] [--quick]
+    headplod bench plod [--json FILE] [--chart FILE.png] [--quick]
+    headplod bench live [--source SPEC] [--json FILE] [--repeats N]
+
+Each benchmark is a module of this package; this one only parses and
+dispatches. ``bench live`` names its recording as every command names a
+source (``--source``: a dataset folder or ``synthetic[:PRESET]``); the old
+positional RECORDING still works for one release, with a note.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ..capture import source_kind, synthetic_preset
+from ..capture.synthetic import ensure_dataset
+from ..live.command import note_old_spelling
+
+__all__ = ["add_bench_arguments", "run_bench", "BENCHMARKS"]
+
+
+def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the ``bench`` subcommands and their options to a (sub)parser; returns it."""
+    bench_sub = bench.add_subparsers(dest="bench", required=True)
+    bt = bench_sub.add_parser("track", help="tracker accuracy and per-stage time on synthetic sets")
+    bt.add_argument("--json", help="write the results as JSON")
+    bt.add_argument("--chart", help="write the accuracy-against-time chart (PNG); the imperfect-rig sets' "
+                                    "chart goes beside it as FILE_rig.png (in its place when only they run)")
+    bt.add_argument("--quick", action="store_true", help="fewer frames (a smoke run)")
+    bt.add_argument("--sets", help="comma-separated names of the sets to run (default: all); "
+                                   "see headplod.bench.track.TRACK_SETS and headplod.bench.track.rig.RIG_SETS")
+
+    bu = bench_sub.add_parser("uncertainty", help="calibration (NEES), stability and cost of the covariance of V")
+    bu.add_argument("--json", help="write the results as JSON")
+    bu.add_argument("--chart", help="write the NEES/stability chart (PNG; a second chart *_paper.png "
+                                    "reproduces the paper's Fig. 10 and 17)")
+    bu.add_argument("--quick", action="store_true", help="fewer frames (a smoke run)")
+
+    bl = bench_sub.add_parser("live", help="rate, latency and capture-layer cost of tracking a replayed recording")
+    bl.add_argument("--source", metavar="SPEC",
+                    help="the recording to replay: a dataset folder or 'synthetic[:PRESET]' (default: the "
+                         "built-in sequence)")
+    bl.add_argument("dataset", nargs="?", metavar="RECORDING",
+                    help="old spelling of --source RECORDING (goes in the next release)")
+    bl.add_argument("--json", help="write the results as JSON")
+    bl.add_argument("--repeats", type=int, default=3, help="passes over the recording (default 3)")
+
+    bp = bench_sub.add_parser("plod", help="speed and image quality of the LOD modes against full (1280x720)")
+    bp.add_argument("--json", help="write the results as JSON")
+    bp.add_argument("--chart", help="write the chart (PNG); the level-colour pictures go beside it")
+    bp.add_argument("--quick", action="store_true", help="fewer points on the curves and sweeps (a smoke run)")
+    return bench
+
+
+# The benchmark modules are imported on use: they pull in the tracker (scipy.stats) and matplotlib,
+# and `headplod --help` imports this module.
+
+def _track(args) -> int:
+    from . import track
+    sets = [x.strip() for x in args.sets.split(",")] if args.sets else None
+    return track.run_track_bench(json_path=args.json, chart_path=args.chart, quick=args.quick, sets=sets)
+
+
+def _uncertainty(args) -> int:
+    from . import uncertainty
+    return uncertainty.run_uncertainty_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
+
+
+def _plod(args) -> int:
+    from . import plod
+    return plod.run_plod_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
+
+
+def _live(args) -> int:
+    from . import live
+    if args.source and args.dataset:
+        print("headplod: the recording is named twice (--source and RECORDING); give it once, as --source SPEC",
+              file=sys.stderr)
+        return 2
+    spec = args.source
+    if args.dataset:
+        note_old_spelling(f"'headplod bench live {args.dataset}'", f"'headplod bench live --source {args.dataset}'")
+        spec = args.dataset
+    if spec is not None:
+        preset = synthetic_preset(spec)
+        if preset is not None:
+            spec = str(ensure_dataset(preset))
+        elif source_kind(spec) in ("v4l2", "video"):
+            print(f"headplod: bench live replays a recording several times: --source must be a dataset folder or "
+                  f"synthetic[:PRESET], got {spec!r}", file=sys.stderr)
+            return 2
+    return live.run_live_bench(spec, json_path=args.json, repeats=args.repeats)
+
+
+#: ``headplod bench NAME`` → its run(args) -> exit status.
+BENCHMARKS = {"track": _track, "uncertainty": _uncertainty, "live": _live, "plod": _plod}
+
+
+def run_bench(args) -> int:
+    """Run ``headplod bench NAME`` from parsed arguments; the exit status."""
+    return BENCHMARKS[args.bench](args)

@@ -1,0 +1,387 @@
+"""``headplod track``: its arguments (:func:`add_track_arguments`) and its run (:func:`run_track`).
+
+    headplod track [--source SPEC] [--out FILE|-] [--estimator reproj|rigid|paper] ...
+
+The source is named as everywhere else (:func:`headplod.capture.open_source`):
+a dataset folder, ``LEFT.avi,RIGHT.avi``, ``synthetic[:PRESET]`` (the
+default: the built-in sequence, rendered on first use) or
+``v4l2:/dev/video0,/dev/video2`` / ``v4l2:auto`` with ``--calib``. The old
+spellings, a positional ``DATASET`` and ``--camera LEFT RIGHT|auto``, still
+work for one release and print a note with the new one.
+
+Exit status: 0 on success, 1 when the run failed (bad files, no frame
+tracked for ``--save-rig``), 2 on bad usage (nothing is written then).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .. import io
+from ..capture import DatasetRecorder, open_source, source_kind, synthetic_preset
+from ..capture.synthetic import ensure_dataset
+from ..capture.v4l2 import FOURCCS
+from ..tracking import evaluate
+from ..tracking.detect import DetectionParams
+from ..tracking.filters import PoseFilter
+from ..tracking.geometry import ESTIMATORS
+from ..tracking.rig_refine import RigRefineConfig
+from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
+from .output import OpentrackSender, StatusLine, parse_host_port
+
+__all__ = ["add_track_arguments", "run_track", "track_source_spec", "note_old_spelling"]
+
+
+def note_old_spelling(old: str, new: str, err=None) -> None:
+    """The one-line note for an old spelling that still works: what to write instead, and that it goes."""
+    print(f"note: {old} is now {new}; the old spelling goes in the next release", file=err or sys.stderr)
+
+
+class _Usage(Exception):
+    """A command-line mistake: the message says what to do; exit status 2."""
+
+
+def _threshold_arg(text: str):
+    if text == "adaptive":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"threshold must be 'adaptive' or a number of DN, got {text!r}")
+    if not 0 < value < 255:
+        raise argparse.ArgumentTypeError(f"threshold must lie between 0 and 255 DN, got {value}")
+    return value
+
+
+def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add ``track``'s options to a (sub)parser; returns it."""
+    track.add_argument("--source", metavar="SPEC",
+                       help="what to track: a dataset folder (conventions.md), LEFT.avi,RIGHT.avi, "
+                            "'synthetic[:PRESET]' (default: the built-in synthetic sequence, rendered on first "
+                            "use), or live cameras 'v4l2:/dev/video0,/dev/video2' or 'v4l2:auto' (the cameras "
+                            "named in --calib, found by USB identity; see 'headplod cameras') with --calib")
+    track.add_argument("dataset", nargs="?", metavar="DATASET",
+                       help="old spelling of --source DATASET (goes in the next release)")
+    track.add_argument("--out", help="pose records, JSON Lines ('-' for standard output)")
+    track.add_argument("--estimator", choices=ESTIMATORS, default="reproj",
+                       help="pose estimator (default reproj, the most accurate in 'headplod bench track')")
+    track.add_argument("--threshold", type=_threshold_arg, default=None, metavar="DN|adaptive",
+                       help="blob threshold in DN (the paper: 100) or 'adaptive' (default)")
+    track.add_argument("--paper-detection", action="store_true",
+                       help="the paper's detection: threshold 100, 9x9 smoothing, raw intensity weights")
+    track.add_argument("--uncertainty", choices=COVARIANCE_ESTIMATORS, default=DEFAULT_COVARIANCE, metavar="NAME",
+                       help=f"estimator of the covariance of V: {DEFAULT_COVARIANCE} (default), "
+                            + ", ".join(n for n in COVARIANCE_ESTIMATORS if n != DEFAULT_COVARIANCE))
+    track.add_argument("--no-tracking", action="store_true",
+                       help="detect and identify from scratch in every frame")
+    track.add_argument("--quiet", "-q", action="store_true",
+                       help="no per-frame lines and no progress (the summary at the end is still printed)")
+    track.add_argument("--refine-rig", choices=("on", "off"), default="on",
+                       help="refine the rig online from the tracked glasses (right camera's turn and shift, "
+                            "baseline scale, right focal length, exposure offset); rig.yaml is never "
+                            "overwritten (default on)")
+    track.add_argument("--save-rig", metavar="FILE",
+                       help="at the end of the run, write the refined rig to FILE (a new rig.yaml; not the "
+                            "rig.yaml being read, nor inside the dataset or --record folder). Nothing is "
+                            "written, and the exit status is 1, when no frame was tracked")
+    live = track.add_argument_group("live cameras, recording and outputs")
+    live.add_argument("--camera", nargs="+", metavar="DEV",
+                      help="old spelling of --source v4l2:LEFT,RIGHT (or --source v4l2:auto for 'auto'); goes in "
+                           "the next release")
+    live.add_argument("--calib", help="rig.yaml of the cameras (required with --source v4l2:...)")
+    live.add_argument("--markers", help="markers.yaml (default: the dataset's, else the default model)")
+    live.add_argument("--screen", help="screen.yaml, for the POI in the records (default: the dataset's)")
+    live.add_argument("--fps", type=float, default=60.0, help="camera frame rate to request (default 60)")
+    live.add_argument("--fourcc", type=str.upper, choices=FOURCCS,
+                      help="camera pixel format to request (default: the camera's)")
+    live.add_argument("--exposure", type=float, help="manual exposure (V4L2 units; auto exposure is then off)")
+    live.add_argument("--gain", type=float, help="camera gain (V4L2 units)")
+    live.add_argument("--record", metavar="DIR", help="write the frames as a dataset folder while tracking")
+    live.add_argument("--udp", metavar="HOST[:PORT]",
+                      help="send each pose to opentrack's UDP input (six float64: x, y, z cm, yaw, pitch, "
+                           "roll deg; default port 4242)")
+    live.add_argument("--filter", nargs="?", const="1.0,0.02", metavar="MIN_CUTOFF,BETA",
+                      help="One Euro filter on the recorded/sent poses (default off; 1.0 Hz, 0.02 when given "
+                           "without values)")
+    live.add_argument("--status", action="store_true",
+                      help="a status line (rate, latency, skew, drops); on by default with live cameras")
+    live.add_argument("--frames", type=int, help="stop after N frames")
+    return track
+
+
+def track_source_spec(args, err=None) -> str:
+    """The source ``track`` reads, as an :func:`~headplod.capture.open_source` SPEC.
+
+    From ``--source``, or from an old spelling (a positional DATASET,
+    ``--camera LEFT RIGHT``, ``--camera auto``), for which a one-line note on
+    ``err`` gives the new spelling. Raises _Usage when the source is named
+    twice or ``--camera`` has the wrong number of devices.
+    """
+    given = [name for name, value in (("--source", args.source), ("DATASET", args.dataset),
+                                      ("--camera", args.camera)) if value]
+    if len(given) > 1:
+        raise _Usage(f"the source is named twice ({' and '.join(given)}); give it once, as --source SPEC")
+    if args.camera:
+        if args.camera == ["auto"]:
+            spec = "v4l2:auto"
+        elif len(args.camera) == 2:
+            spec = "v4l2:{},{}".format(*args.camera)
+        else:
+            raise _Usage("--camera takes LEFT RIGHT (two devices) or 'auto'; it is now --source v4l2:LEFT,RIGHT "
+                         "or --source v4l2:auto")
+        note_old_spelling(f"--camera {' '.join(args.camera)}", f"--source {spec}", err)
+        return spec
+    if args.dataset:
+        note_old_spelling(f"'headplod track {args.dataset}'", f"'headplod track --source {args.dataset}'", err)
+        return args.dataset
+    return args.source or "synthetic"
+
+
+def _open_track_source(args, spec: str):
+    """The frame source of ``headplod track``, the rig and whether it is live."""
+    rig = io.read_rig(args.calib) if args.calib else None
+    if source_kind(spec) == "v4l2":
+        if rig is None:
+            raise _Usage(f"--source {spec} needs --calib rig.yaml (the calibration of these cameras; "
+                         "'headplod calibrate' makes one)")
+        width, height = rig.image_size
+        source = open_source(spec, width=width, height=height, fps=args.fps, fourcc=args.fourcc,
+                             exposure=args.exposure, gain=args.gain, rig=rig)
+        if spec.partition(":")[2].strip().lower() == "auto":
+            left, right = source.devices
+            print(f"cameras from {args.calib}: left {left}, right {right}", file=sys.stderr)
+        print(source.settings_report(text=True), file=sys.stderr)
+        return source, rig, True
+    preset = synthetic_preset(spec)
+    if preset is not None:
+        spec = str(ensure_dataset(preset, quiet=args.quiet))
+        print(f"tracking the built-in synthetic sequence: {spec}", file=sys.stderr)
+    source = open_source(spec)
+    return source, rig or source.rig, False
+
+
+def run_track(args) -> int:
+    """Run ``headplod track`` from parsed arguments; the exit status."""
+    # Imported on use: the tracker pulls in scipy.stats (~0.4 s), and `headplod --help` imports this module.
+    from ..tracking.tracker import TrackerConfig
+    from .loop import make_tracker, run_source
+
+    detection = DetectionParams.paper() if args.paper_detection else DetectionParams(threshold_dn=args.threshold)
+    if args.paper_detection and args.threshold is not None:
+        detection = DetectionParams(threshold_dn=args.threshold, smooth_px=9, subtract_background=False)
+    config = TrackerConfig(estimator=args.estimator, detection=detection, track=not args.no_tracking,
+                           uncertainty=args.uncertainty,
+                           rig_refine=RigRefineConfig(enabled=args.refine_rig == "on"))
+    pose_filter = None
+    if args.filter:
+        try:
+            min_cutoff, beta = (float(v) for v in args.filter.split(","))
+            pose_filter = PoseFilter(min_cutoff_hz=min_cutoff, beta=beta)
+        except ValueError as exc:
+            print(f"headplod: --filter expects MIN_CUTOFF_HZ,BETA such as 1.0,0.02 ({exc})", file=sys.stderr)
+            return 2
+    udp = None
+    if args.udp:
+        try:
+            udp = parse_host_port(args.udp)
+        except ValueError as exc:
+            print(f"headplod: {exc}", file=sys.stderr)
+            return 2
+    try:
+        spec = track_source_spec(args)
+        _check_save_rig(args, spec=spec)                # what can be checked before opening the source
+        source, rig, live = _open_track_source(args, spec)
+    except _Usage as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
+    except (ValueError, OSError, LookupError) as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 1
+    try:
+        _check_save_rig(args, source=source, rig=rig)   # the rig.yaml and dataset folder the source read
+    except _Usage as exc:
+        source.close()
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
+    for warning in source.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    markers = io.read_markers(args.markers) if args.markers else None
+    screen = io.read_screen(args.screen) if args.screen else None
+    truth = getattr(getattr(source, "dataset", None), "truth", None) or {}
+    log = sys.stderr
+    writer = sender = recorder = status = tracker = None
+    records = []
+
+    def on_record(record, result):
+        records.append(record)
+        if writer is not None:
+            writer.write(record)
+        if args.quiet or status is not None:
+            return
+        line = f"frame {record['frame']:6d} "
+        if record["ok"]:
+            p, v = record["position"], record["axes"][2]
+            line += (f"ok   P1 ({p[0]:7.1f},{p[1]:7.1f},{p[2]:7.1f}) mm  "
+                     f"V ({v[0]:+.3f},{v[1]:+.3f},{v[2]:+.3f})")
+            if record["frame"] in truth:
+                tp, ta = truth[record["frame"]]
+                verr = float(evaluate.angle_deg(np.asarray(v), ta[2]))
+                line += f"  err V {verr:6.3f}° P1 {np.linalg.norm(np.asarray(p) - tp):6.3f} mm"
+            if result is not None:
+                line += f"  {result.timings_s.get('total', 0) * 1e3:5.2f} ms [{result.mode}]"
+        else:
+            line += f"no pose: {record['reason']}"
+        if record.get("flags"):
+            line += "  [" + "; ".join(record["flags"]) + "]"
+        print(line, file=log)
+
+    try:
+        writer = io.PoseWriter(args.out) if args.out else None
+        if udp is not None:
+            sender = OpentrackSender(*udp)
+        if args.record:
+            recorder = DatasetRecorder(args.record, rig, markers=markers or source.markers,
+                                       screen=screen or source.screen)
+        if args.status or (live and not args.quiet):
+            status = StatusLine(stream=log)
+        tracker = make_tracker(source, config, rig=rig, markers=markers)
+        stats = run_source(source, screen=screen, on_record=on_record, recorder=recorder, sender=sender,
+                           pose_filter=pose_filter, status=status, max_frames=args.frames, tracker=tracker)
+    except (ValueError, OSError) as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("headplod: stopped (Ctrl-C); everything up to here is kept", file=sys.stderr)
+        stats = None
+    finally:
+        for thing in (status, recorder, sender, writer, source):
+            if thing is not None:
+                thing.close()
+    summary = evaluate.summarize(records, truth or None)
+    name = source.name if live else Path(str(source.name)).name
+    print(evaluate.format_summary(name, summary), file=log)
+    if stats is not None and (live or args.status):
+        s = stats.summary()
+        print(f"rate {s['rate_hz'] or 0:.1f} Hz, latency p50 {s['latency_ms_p50'] or 0:.1f} ms, "
+              f"p95 {s['latency_ms_p95'] or 0:.1f} ms", file=log)
+    code = _report_rig(args, tracker, tracked=sum(bool(r["ok"]) for r in records), log=log)
+    if args.record:
+        print(f"recording: {args.record} (replay: headplod track --source {args.record})", file=log)
+    if args.out and args.out != "-":
+        print(f"pose records: {args.out}", file=log)
+    return code
+
+
+def _check_save_rig(args, source=None, rig=None, spec=None) -> None:
+    """Refuse a ``--save-rig FILE`` that would overwrite what is read (raises _Usage); nothing is written.
+
+    Without ``source``: what the command line alone tells (the folder of FILE
+    exists; FILE is not --calib, --out, a dataset folder given as the source
+    ``spec`` or --record's folder, nor inside them). With it: not the rig.yaml
+    the source read, nor inside its dataset folder.
+    """
+    if not args.save_rig:
+        return
+    target = Path(args.save_rig).expanduser()
+    resolved = target.resolve()
+    if source is None:
+        if args.refine_rig == "off":
+            raise _Usage("--save-rig needs the rig refinement (--refine-rig on): there is nothing to save")
+        if target.is_dir():
+            raise _Usage(f"--save-rig {args.save_rig}: is a folder; give the file to write, e.g. "
+                         f"{target / 'rig_refined.yaml'}")
+        if not resolved.parent.is_dir():
+            raise _Usage(f"--save-rig {args.save_rig}: the folder {target.parent} does not exist")
+    files, folders = [], []
+    if source is None:
+        if args.calib:
+            files.append(("the rig being read (--calib)", args.calib))
+        if args.out and args.out != "-":
+            files.append(("the pose records (--out)", args.out))
+        if spec and Path(spec).is_dir():
+            files.append(("the rig being read (the dataset's)", Path(spec) / "rig.yaml"))
+            folders.append(("the dataset folder being read", spec))
+        if args.record:
+            folders.append(("the --record folder (a recording keeps the rig it was tracked with)", args.record))
+    else:
+        for r in (rig, getattr(source, "rig", None)):
+            if r is not None and getattr(r, "path", None):
+                files.append(("the rig being read", r.path))
+        dataset = getattr(source, "dataset", None)
+        if dataset is not None:
+            folders.append(("the dataset folder being read", dataset.folder))
+    for what, path in files:
+        if _same_file(resolved, Path(path)):
+            raise _Usage(f"--save-rig {args.save_rig}: is {what}, which is never overwritten; "
+                         "give another file name")
+    for what, folder in folders:
+        folder = Path(folder).expanduser().resolve()
+        if resolved == folder or folder in resolved.parents:
+            raise _Usage(f"--save-rig {args.save_rig}: lies inside {what} ({folder}); "
+                         "write the refined rig elsewhere")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    b = Path(b).expanduser()
+    if a == b.resolve():
+        return True
+    try:
+        return a.exists() and b.exists() and a.samefile(b)
+    except OSError:
+        return False
+
+
+def _report_rig(args, tracker, tracked: int, log) -> int:
+    """After ``track``: how the refined rig differs from rig.yaml, advice, and ``--save-rig``. The exit status.
+
+    ``--save-rig`` with no tracked frame writes nothing and gives exit status
+    1 (the records and the rest of the run are kept): a script that expects
+    the file learns that it is not there.
+    """
+    refiner = getattr(tracker, "refiner", None)
+    if refiner is not None and args.refine_rig == "on":
+        refiner.flush()                                 # the frames short of a full chunk at the end
+        line = ""
+        if refiner.updates or refiner.bumps:
+            line = refiner.describe()
+            print(line, file=log)
+        else:
+            print("rig.yaml: not refined (too few tracked frames); used as it is", file=log)
+        advice = refiner.advice()
+        if advice and advice not in line:
+            print(advice, file=log)
+    if not args.save_rig:
+        return 0
+    if refiner is None or tracked == 0:
+        print(f"headplod: --save-rig: no frame was tracked, so nothing was refined; {args.save_rig} not written",
+              file=sys.stderr)
+        return 1
+    try:
+        _write_rig_atomically(args.save_rig, refiner.estimate.rig())   # the best estimate, not only what was in use
+    except (OSError, ValueError) as exc:
+        print(f"headplod: --save-rig {args.save_rig}: {exc}", file=sys.stderr)
+        return 1
+    note = "" if refiner.updates else " (no update from the tracked frames: rig.yaml's values)"
+    print(f"refined rig: {args.save_rig}{note}", file=log)
+    return 0
+
+
+def _write_rig_atomically(path, rig) -> None:
+    """io.write_rig to a temporary name in the same folder, then os.replace: FILE is whole or untouched."""
+    target = Path(path).expanduser()
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp.yaml", dir=target.resolve().parent)
+    os.close(fd)
+    try:
+        io.write_rig(tmp, rig)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)                   # mkstemp's 0600 -> what a plain write would give
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

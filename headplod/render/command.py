@@ -1,0 +1,84 @@
+"""``headplod render``: its arguments (:func:`add_render_arguments`) and its run (:func:`run_render`).
+
+    headplod render --mode MODE [--uncertainty U] [--head X,Y,Z] [--poi X,Y] [--cov PP,PT,TT]
+                    [--size W,H] [--view shaded|wire|levels] --out IMAGE.png [--stats STATS.json]
+                    [--export MESH.glb|.ply|.obj|.stl]
+
+Exit status: 0 on success, 1 on a broken input file, 2 on bad usage.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from calib import DEFAULT_SCREEN
+
+from .. import io
+from ..plod.export import check_export_path
+from ..plod.select import MODES, UNCERTAINTY_MODES
+from .gl import VIEW_MODES
+from .still import CONTRAST_SOURCES, render_still
+
+__all__ = ["add_render_arguments", "run_render", "floats"]
+
+
+def floats(n: int):
+    """An argparse type: ``n`` comma-separated finite numbers, as a tuple."""
+    def parse(text: str):
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {n} comma-separated numbers, got {text!r}")
+        if len(values) != n or not all(np.isfinite(values)):
+            raise argparse.ArgumentTypeError(f"expected {n} comma-separated finite numbers, got {text!r}")
+        return tuple(values)
+    return parse
+
+
+def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add ``render``'s options to a (sub)parser; returns it."""
+    render.add_argument("--mode", default="csf", choices=MODES)
+    render.add_argument("--uncertainty", default="adaptive", choices=UNCERTAINTY_MODES)
+    render.add_argument("--head", type=floats(3), help="eye position X,Y,Z in the world frame, mm "
+                                                         "(default: 600 mm in front of the screen centre)")
+    render.add_argument("--poi", type=floats(2), help="point of interest X,Y in screen pixels (default: centre)")
+    render.add_argument("--cov", type=floats(3), help="covariance of (φ, θ) as PP,PT,TT in deg²")
+    render.add_argument("--size", type=floats(2), default=(1280, 720), help="image size W,H (default 1280,720)")
+    render.add_argument("--view", default="shaded", choices=tuple(VIEW_MODES))
+    render.add_argument("--screen", help="screen.yaml (default: the embedded 24-inch screen)")
+    render.add_argument("--contrast", choices=CONTRAST_SOURCES, default="shading",
+                        help="triangle contrast: from the shading, no read-back (default), or the paper's "
+                             "10x10 window read back from a first frame")
+    render.add_argument("--out", required=True, help="output image (PNG)")
+    render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
+    render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
+                                                         "scene metres, faces coloured by level)")
+    return render
+
+
+def run_render(args) -> int:
+    """Run ``headplod render`` from parsed arguments; the exit status."""
+    screen = io.read_screen(args.screen or DEFAULT_SCREEN)
+    cov = None
+    if args.cov is not None:
+        pp, pt, tt = args.cov
+        cov = np.array([[pp, pt], [pt, tt]])
+        if np.any(np.linalg.eigvalsh(cov) <= 0):
+            print(f"headplod: --cov {args.cov} is not positive definite", file=sys.stderr)
+            return 2
+    size = tuple(int(v) for v in args.size)
+    if args.export is not None:
+        try:
+            check_export_path(args.export)
+        except ValueError as exc:
+            print(f"headplod: --export {exc}", file=sys.stderr)
+            return 2
+    _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
+                            poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
+                            stats_path=args.stats, contrast=args.contrast, export=args.export)
+    print(f"{stats['triangles']} triangles; select {stats['select_ms']:.1f} ms, build {stats['build_ms']:.1f} ms, "
+          f"render {stats['render_ms']:.1f} ms; image: {args.out}"
+          + (f"; mesh: {args.export}" if args.export else ""), file=sys.stderr)
+    return 0
