@@ -153,3 +153,38 @@ def gl_context():
         pytest.skip(f"no headless OpenGL: {exc}")
     yield ctx
     ctx.release()
+
+
+@pytest.fixture(scope="session")
+def screen_plane_field():
+    """:func:`_screen_plane_field`, for tests that lay base triangles on the screen's plane."""
+    return _screen_plane_field
+
+
+def _screen_plane_field(u, v, contrast, max_level=5, edge0_mm=14.0):
+    """Base triangles on the default screen's plane (scene = world, mm), ``edge0_mm`` wide at level 0.
+
+    ``u``, ``v``: fractions of the screen's width and height of the triangle
+    centroids (a grid of them); ``contrast``: a value or one per triangle.
+    The eye is 600 mm in front of the screen's centre, on the side the
+    cameras see the head from. Returns (screen, centroids (n, 3) mm, edge
+    lengths (n, L+1) mm, geometric errors (n, L+1) mm, contrast (n,), eye
+    (3,) mm, centroids' screen pixels (n, 2)).
+    """
+    from calib import DEFAULT_SCREEN
+
+    screen = io.read_screen(DEFAULT_SCREEN)
+    uu, vv = np.meshgrid(u, v)
+    px = np.stack([uu.ravel() * screen.size_px[0], vv.ravel() * screen.size_px[1]], axis=1)
+    centroids = screen.pixel_to_world(px)
+    edge = edge0_mm / 2.0 ** np.arange(max_level + 1)
+    edge_len = np.tile(edge, (len(centroids), 1))
+    error = np.tile(0.5 * edge ** 2 / edge0_mm, (len(centroids), 1))
+    error[:, -1] = 0.0
+    contrast = np.broadcast_to(np.asarray(contrast, np.float64), (len(centroids),)).copy()
+    normal = np.cross(np.asarray(screen.top_right) - screen.top_left, np.asarray(screen.bottom_left) - screen.top_left)
+    normal /= np.linalg.norm(normal)
+    centre = screen.pixel_to_world(np.array(screen.size_px) / 2.0)
+    # The viewer faces the screen from its front: the side the cameras see the head on.
+    eye = centre + 600.0 * normal * np.sign(normal @ (np.zeros(3) - centre) or 1.0)
+    return screen, centroids, edge_len, error, contrast, eye, px

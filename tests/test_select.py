@@ -2,34 +2,15 @@
 import numpy as np
 import pytest
 
-from calib import DEFAULT_SCREEN
-from headplod.io import read_screen
 from headplod.plod.select import MODES, LevelSelector, SelectorConfig, View
 
 MAX_LEVEL = 5
 
 
 @pytest.fixture(scope="module")
-def field():
+def field(screen_plane_field):
     """A 40x24 grid of base triangles on the screen plane (scene = world, mm), 14 mm wide at level 0."""
-    screen = read_screen(DEFAULT_SCREEN)
-    u = np.linspace(0.02, 0.98, 40)
-    v = np.linspace(0.02, 0.98, 24)
-    uu, vv = np.meshgrid(u, v)
-    px = np.stack([uu.ravel() * screen.size_px[0], vv.ravel() * screen.size_px[1]], axis=1)
-    centroids = screen.pixel_to_world(px)
-    edge0 = 14.0
-    edge = edge0 / 2.0 ** np.arange(MAX_LEVEL + 1)
-    edge_len = np.tile(edge, (len(centroids), 1))
-    error = np.tile(0.5 * edge ** 2 / edge0, (len(centroids), 1))
-    error[:, -1] = 0.0
-    contrast = np.full(len(centroids), 0.3)
-    normal = np.cross(np.asarray(screen.top_right) - screen.top_left, np.asarray(screen.bottom_left) - screen.top_left)
-    normal /= np.linalg.norm(normal)
-    centre = screen.pixel_to_world(np.array(screen.size_px) / 2.0)
-    # The viewer faces the screen from its front: the side the cameras see the head on.
-    eye = centre + 600.0 * normal * np.sign(normal @ (np.zeros(3) - centre) or 1.0)
-    return screen, centroids, edge_len, error, contrast, eye, px
+    return screen_plane_field(np.linspace(0.02, 0.98, 40), np.linspace(0.02, 0.98, 24), 0.3, MAX_LEVEL)
 
 
 def make(field, mode="csf", uncertainty="adaptive", hysteresis=True):

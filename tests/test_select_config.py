@@ -6,8 +6,6 @@ import math
 import numpy as np
 import pytest
 
-from calib import DEFAULT_SCREEN
-from headplod.io import read_screen
 from headplod.plod import perception as pc
 from headplod.plod.select import MODES, UNCERTAINTY_MODES, LevelSelector, SelectorConfig, View
 
@@ -25,30 +23,16 @@ PREVIOUS = {
 
 
 @pytest.fixture(scope="module")
-def field():
+def field(screen_plane_field):
     """Base triangles on the screen plane (scene = world, mm), 14 mm wide at level 0, the eye 600 mm in front.
 
     Besides a grid over the screen, a row and a column just outside it (within
     the default culling margin of 1.5 level-0 edges, about 76 px) and one far
     outside (culled whatever the margin).
     """
-    screen = read_screen(DEFAULT_SCREEN)
     u = np.concatenate([[-0.3, -0.02], np.linspace(0.02, 0.98, 30), [1.02]])
     v = np.concatenate([[-0.03], np.linspace(0.02, 0.98, 18), [1.3]])
-    uu, vv = np.meshgrid(u, v)
-    px = np.stack([uu.ravel() * screen.size_px[0], vv.ravel() * screen.size_px[1]], axis=1)
-    centroids = screen.pixel_to_world(px)
-    edge0 = 14.0
-    edge = edge0 / 2.0 ** np.arange(MAX_LEVEL + 1)
-    edge_len = np.tile(edge, (len(centroids), 1))
-    error = np.tile(0.5 * edge ** 2 / edge0, (len(centroids), 1))
-    error[:, -1] = 0.0
-    contrast = np.linspace(0.05, 0.6, len(centroids))
-    normal = np.cross(np.asarray(screen.top_right) - screen.top_left, np.asarray(screen.bottom_left) - screen.top_left)
-    normal /= np.linalg.norm(normal)
-    centre = screen.pixel_to_world(np.array(screen.size_px) / 2.0)
-    eye = centre + 600.0 * normal * np.sign(normal @ (np.zeros(3) - centre) or 1.0)
-    return screen, centroids, edge_len, error, contrast, eye, px
+    return screen_plane_field(u, v, np.linspace(0.05, 0.6, len(u) * len(v)), MAX_LEVEL)
 
 
 def make(field, config=SelectorConfig()):
