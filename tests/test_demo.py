@@ -14,7 +14,7 @@ import pytest
 
 from headplod.demo import loop as lp
 from headplod.demo.viewpoints import VIEWPOINTS, place
-from headplod.demo.window import action_for_key
+from headplod.demo.keys import DEMO_MODES, action_for_key
 
 SIZE = (320, 180)
 #: The renderer's clear colour in 8 bits (TerrainRenderer's default background).
@@ -171,7 +171,7 @@ def test_viewpoints_differ_and_render(terrain_scene, renderer, default_screen):
 
 
 def test_key_mapping_and_apply(terrain_scene, renderer, default_screen):
-    assert [action_for_key(str(k)) for k in range(1, 7)] == [("mode", m) for m in lp.DEMO_MODES]
+    assert [action_for_key(str(k)) for k in range(1, 7)] == [("mode", m) for m in DEMO_MODES]
     assert action_for_key("N") == action_for_key("n") == ("uncertainty", "none")
     assert action_for_key("f") == ("uncertainty", "fixed")
     assert action_for_key("a") == ("uncertainty", "adaptive")

@@ -48,7 +48,7 @@ from ..plod.csf import CSF_MODELS
 from ..plod.contrast import project_to_screen_px, readback_contrast
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
 from ..render import TerrainRenderer, create_context, off_axis_projection, overlay_poi, screen_frame
-from ..render.still import TerrainScene, _px_per_deg, default_head
+from ..render.still import TerrainScene, px_per_deg_at, default_head
 
 SIZE = (1280, 720)
 #: The CSF forms compared: every model of :data:`headplod.plod.csf.CSF_MODELS`; the default is chosen from them.
@@ -89,7 +89,7 @@ class _Bench:
         self.poi = np.array(self.screen.size_px, dtype=np.float64) / 2
         self.view_m, self.proj = off_axis_projection(self.head, self.screen, near_mm=50.0, far_mm=5000.0)
         self.frames = frames
-        self.px_per_deg = _px_per_deg(self.screen, self.head, SIZE)
+        self.px_per_deg = px_per_deg_at(self.screen, self.head, SIZE)
         yy, xx = np.mgrid[0:SIZE[1], 0:SIZE[0]]
         centre = self.poi * np.array(SIZE) / np.array(self.screen.size_px)
         self.disc = np.hypot(xx - centre[0], yy - centre[1]) <= 5 * self.px_per_deg

@@ -21,7 +21,8 @@ window
 cli
     ``add_demo_arguments``, ``run_demo`` and the headless run.
 """
-from .loop import DEMO_MODES, SACCADE_DEG_S, SCENARIOS, VIEW_MODES, DemoLoop, DropoutPoses, FrameResult, MousePoses, Pose, PoseHold, PoseSource, TrackerPoses
+from .keys import DEMO_MODES
+from .loop import SACCADE_DEG_S, SCENARIOS, VIEW_MODES, DemoLoop, DropoutPoses, FrameResult, MousePoses, Pose, PoseHold, PoseSource, TrackerPoses
 from .viewpoints import VIEWPOINTS, Viewpoint, place
 
 __all__ = ["DemoLoop", "FrameResult", "Pose", "PoseSource", "TrackerPoses", "MousePoses", "DropoutPoses",

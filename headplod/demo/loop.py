@@ -56,10 +56,9 @@ from ..capture import open_source
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
 from ..render import TerrainRenderer, create_context, off_axis_projection
 from ..render.gl import VIEW_MODES as _GL_VIEW_MODES
-from ..render.still import _px_per_deg, default_head
+from ..render.still import px_per_deg_at, default_head
 from . import viewpoints as vps
 from .hud import HudInfo, draw_hud, draw_picture_overlay
-from .keys import DEMO_MODES
 
 #: Uncertainty scenarios: the paper's three (none, fixed, adaptive) and smoothed.
 SCENARIOS = tuple(UNCERTAINTY_MODES)
@@ -789,7 +788,7 @@ class DemoLoop:
                        uncertainty=self.settings["uncertainty"], viewpoint=self.settings["viewpoint"],
                        view_mode=self.settings["view_mode"], source=self.poses.name,
                        poi_image_px=pose.poi_px * scale, cov_deg2=pose.cov_deg2,
-                       px_per_deg=_px_per_deg(self.screen, pose.eye_mm, (w, h)),
+                       px_per_deg=px_per_deg_at(self.screen, pose.eye_mm, (w, h)),
                        tracking_lost=result.tracking_lost, lost_s=pose.lost_s,
                        saccade=result.saccade_skipped, poi_speed_deg_s=result.poi_speed_deg_s,
                        images=pose.images, markers_px=pose.markers_px,

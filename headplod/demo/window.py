@@ -12,7 +12,6 @@ ms; the same pixels as the headless PNGs).
 from __future__ import annotations
 
 import sys
-import weakref
 
 import numpy as np
 
@@ -146,6 +145,6 @@ def run_window(args, window: str | None = None) -> int:
         return 1
     mglw.activate_context(window=wnd)
     config = cls(demo_args=args, ctx=wnd.ctx, wnd=wnd, timer=mglw.Timer())
-    wnd._config = weakref.ref(config)   # as moderngl_window.create_window_config_instance does
+    wnd.config = config       # the public setter; it assigns the callbacks again, as __init__ did (idempotent)
     mglw.run_window_config_instance(config)
     return 0

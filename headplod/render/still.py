@@ -126,7 +126,7 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
         readback_ms = renderer.last_readback_ms + (time.perf_counter() - t3) * 1e3
     image, tri_levels, select_s, build_s, face_levels = frame(view_mode)
     if cov_deg2 is not None or view_mode == "levels":
-        px_per_deg = _px_per_deg(screen, head, size)
+        px_per_deg = px_per_deg_at(screen, head, size)
         scaled_poi = poi * np.array(size) / np.array(screen.size_px)
         image = overlay_poi(image, scaled_poi, cov_deg2, px_per_deg)
     counts = np.bincount(tri_levels, minlength=scene.mesh.max_level + 1)
@@ -148,7 +148,7 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     return image, stats
 
 
-def _px_per_deg(screen, head, size) -> float:
+def px_per_deg_at(screen, head, size) -> float:
     """Image pixels per degree of visual angle at the screen centre, seen from the head."""
     centre = screen.pixel_to_world(np.array(screen.size_px, dtype=np.float64) / 2.0)
     width_mm = float(np.linalg.norm(np.asarray(screen.top_right) - screen.top_left))
