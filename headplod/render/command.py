@@ -51,6 +51,10 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     render.add_argument("--contrast", choices=CONTRAST_SOURCES, default="shading",
                         help="triangle contrast: from the shading, no read-back (default), or the paper's "
                              "10x10 window read back from a first frame")
+    render.add_argument("--foveate", action="store_true",
+                        help="draw the frame as nested resolution layers around the POI, each as dense as the CSF "
+                             "needs there (experimental: on llvmpipe the layers' extra geometry passes cost more "
+                             "than the pixels they save)")
     render.add_argument("--out", required=True, help="output image (PNG)")
     render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
     render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
@@ -77,7 +81,8 @@ def run_render(args) -> int:
             return 2
     _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
                             poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
-                            stats_path=args.stats, contrast=args.contrast, export=args.export)
+                            stats_path=args.stats, contrast=args.contrast, export=args.export,
+                            foveate=args.foveate)
     print(f"{stats['triangles']} triangles; select {stats['select_ms']:.1f} ms, build {stats['build_ms']:.1f} ms, "
           f"render {stats['render_ms']:.1f} ms; image: {args.out}"
           + (f"; mesh: {args.export}" if args.export else ""), file=sys.stderr)

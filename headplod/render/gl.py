@@ -431,6 +431,54 @@ class TerrainRenderer:
 
     # -- drawing -------------------------------------------------------------
 
+    def prepare(self, view: Any, proj: Any, model: Any = None, view_mode: str = "shaded",
+                light_dir: Any = (0.4, -0.3, 0.85), *, ambient: float = 0.25,
+                wire_px: float = 1.0, wire_color: tuple[float, float, float] = (0.08, 0.08, 0.08)) -> None:
+        """Check the matrices and set the program's uniforms for :meth:`draw` (arguments as :meth:`render`)."""
+        if view_mode not in VIEW_MODES:
+            raise ValueError(f"render: view_mode is {view_mode!r}, expected one of {sorted(VIEW_MODES)}")
+        mats = []
+        for name, m in (("view", view), ("proj", proj), ("model", np.eye(4) if model is None else model)):
+            a = np.asarray(m, dtype=np.float64)
+            if a.shape != (4, 4) or not np.isfinite(a).all():
+                raise ValueError(f"render: {name} must be a finite (4, 4) matrix, got shape {a.shape}")
+            mats.append(a)
+        mvp = mats[1] @ mats[0] @ mats[2]
+        light = np.asarray(light_dir, dtype=np.float64).reshape(-1)
+        if light.shape != (3,) or not np.isfinite(light).all() or np.linalg.norm(light) == 0:
+            raise ValueError(f"render: light_dir must be a non-zero 3-vector, got {light_dir!r}")
+        light /= np.linalg.norm(light)
+        prog = self.programs[view_mode]
+        prog["u_mvp"].write(np.ascontiguousarray(mvp.T, dtype="f4").tobytes())  # column-major
+        prog["u_light"].value = tuple(light)
+        prog["u_ambient"].value = float(ambient)
+        if view_mode != "levels":      # the levels view does not use heights (the uniform is compiled out)
+            prog["u_height_range"].value = tuple(float(v) for v in self.height_range)
+        if view_mode == "wire":
+            prog["u_wire_px"].value = float(wire_px)
+            prog["u_wire_color"].value = tuple(float(c) for c in wire_color)
+
+    def draw(self, fbo, viewport: tuple[int, int, int, int], view_mode: str = "shaded", scissor=None) -> None:
+        """Clear ``fbo`` and draw the uploaded mesh into it with the uniforms of :meth:`prepare`.
+
+        ``viewport`` (x, y, w, h) px of ``fbo``: where the screen's visible
+        area is mapped (a smaller framebuffer draws the same view at a lower
+        resolution); ``scissor`` (x, y, w, h) px, optional: only that
+        rectangle is cleared and shaded.
+        """
+        ctx = self.ctx
+        fbo.use()
+        fbo.viewport = tuple(int(v) for v in viewport)
+        fbo.scissor = None if scissor is None else tuple(int(v) for v in scissor)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        fbo.clear(*self.background, 1.0, depth=1.0)
+        if self.n_triangles:
+            if view_mode == "levels":
+                self._level_texture.use(0)
+            self._vaos[view_mode, self.indexed].render(moderngl.TRIANGLES, vertices=3 * self.n_triangles)
+        fbo.scissor = None
+
     def render(self, view: Any, proj: Any, model: Any = None, view_mode: str = "shaded",
                light_dir: Any = (0.4, -0.3, 0.85), *, ambient: float = 0.25,
                wire_px: float = 1.0, wire_color: tuple[float, float, float] = (0.08, 0.08, 0.08)
@@ -465,43 +513,12 @@ class TerrainRenderer:
         ndarray, shape (H, W, 3), uint8
             RGB, row 0 at the top of the screen.
         """
-        if view_mode not in VIEW_MODES:
-            raise ValueError(f"render: view_mode is {view_mode!r}, expected one of {sorted(VIEW_MODES)}")
-        mats = []
-        for name, m in (("view", view), ("proj", proj), ("model", np.eye(4) if model is None else model)):
-            a = np.asarray(m, dtype=np.float64)
-            if a.shape != (4, 4) or not np.isfinite(a).all():
-                raise ValueError(f"render: {name} must be a finite (4, 4) matrix, got shape {a.shape}")
-            mats.append(a)
-        mvp = mats[1] @ mats[0] @ mats[2]
-        light = np.asarray(light_dir, dtype=np.float64).reshape(-1)
-        if light.shape != (3,) or not np.isfinite(light).all() or np.linalg.norm(light) == 0:
-            raise ValueError(f"render: light_dir must be a non-zero 3-vector, got {light_dir!r}")
-        light /= np.linalg.norm(light)
-
-        wire = view_mode == "wire"
-        prog = self.programs[view_mode]
-        prog["u_mvp"].write(np.ascontiguousarray(mvp.T, dtype="f4").tobytes())  # column-major
-        prog["u_light"].value = tuple(light)
-        prog["u_ambient"].value = float(ambient)
-        if view_mode != "levels":      # the levels view does not use heights (the uniform is compiled out)
-            prog["u_height_range"].value = tuple(float(v) for v in self.height_range)
-        if wire:
-            prog["u_wire_px"].value = float(wire_px)
-            prog["u_wire_color"].value = tuple(float(c) for c in wire_color)
-
         ctx = self.ctx
+        self.prepare(view, proj, model, view_mode, light_dir, ambient=ambient, wire_px=wire_px,
+                     wire_color=wire_color)
         ctx.finish()  # uploads and earlier work are not part of the timing
         t0 = time.perf_counter()
-        self._fbo.use()
-        self._fbo.viewport = (0, 0, *self.size)
-        ctx.enable(moderngl.DEPTH_TEST)
-        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-        self._fbo.clear(*self.background, 1.0, depth=1.0)
-        if self.n_triangles:
-            if view_mode == "levels":
-                self._level_texture.use(0)
-            self._vaos[view_mode, self.indexed].render(moderngl.TRIANGLES, vertices=3 * self.n_triangles)
+        self.draw(self._fbo, (0, 0, *self.size), view_mode)
         if self.samples:
             ctx.copy_framebuffer(self._resolve, self._fbo)
         ctx.finish()

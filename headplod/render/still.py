@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +21,7 @@ from ..plod.export import check_export_path, export_mesh
 from ..plod.mesh import AdaptiveMesh, BaseMesh
 from ..plod.select import LevelSelector, SelectorConfig, View
 from ..plod.terrain import Terrain
+from .foveate import FoveatedRenderer
 from .gl import TerrainRenderer, create_context, off_axis_projection, overlay_poi, scene_to_world
 
 # Where the terrain sits: its centre 250 mm behind the screen, 30 km shown as
@@ -81,8 +83,12 @@ def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
 
 def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_px=None, cov_deg2=None,
                  size=(1280, 720), view_mode="shaded", out=None, stats_path=None, scene=None, renderer=None,
-                 contrast="shading", export=None):
+                 contrast="shading", export=None, foveate=False):
     """Render one frame and return (image (H, W, 3) uint8 RGB, stats dict).
+
+    ``foveate``: draw the frame as foveated resolution layers around the POI
+    (:mod:`headplod.render.foveate`); the stats then give the layers and
+    ``render_ms`` is theirs, composite included.
 
     ``export``: also write the frame's mesh to this file (:mod:`.export`:
     ``.glb``, ``.ply``, ``.obj``, ``.stl``); its ending and folder are
@@ -125,6 +131,16 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
         selector.contrast = readback_contrast(shaded, centroids_px, screen.size_px, fallback=scene.mesh.contrast)
         readback_ms = renderer.last_readback_ms + (time.perf_counter() - t3) * 1e3
     image, tri_levels, select_s, build_s, face_levels = frame(view_mode)
+    render_ms = renderer.last_render_ms
+    layers = None
+    if foveate:
+        foveated = FoveatedRenderer(renderer)
+        try:
+            image = foveated.render(view, proj, scene.model, poi * np.array(size) / np.array(screen.size_px),
+                                    px_per_deg_at(screen, head, size), cov_deg2, view_mode=view_mode)
+            render_ms, layers = foveated.last_render_ms, foveated.last_layers
+        finally:
+            foveated.release()
     if cov_deg2 is not None or view_mode == "levels":
         px_per_deg = px_per_deg_at(screen, head, size)
         scaled_poi = poi * np.array(size) / np.array(screen.size_px)
@@ -133,8 +149,12 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     stats = {"mode": mode, "uncertainty": uncertainty, "view": view_mode, "size": list(size),
              "head_mm": head.round(2).tolist(), "poi_px": poi.round(2).tolist(),
              "triangles": int(len(tri_levels)), "select_ms": select_s * 1e3, "build_ms": build_s * 1e3,
-             "render_ms": renderer.last_render_ms, "triangles_per_level": counts.tolist(),
+             "render_ms": render_ms, "triangles_per_level": counts.tolist(),
              "contrast": contrast}
+    if layers is not None:
+        stats["foveate_layers"] = [{"scale": l.scale, "inner_deg": round(l.inner_deg, 3),
+                                    "outer_deg": None if math.isinf(l.outer_deg) else round(l.outer_deg, 3)}
+                                   for l in layers]
     if readback_ms is not None:
         stats["readback_ms"] = readback_ms
     if out:
