@@ -95,24 +95,18 @@ class PoseHistory:
         motion over a few ms.
         None when the cameras are synchronous or there is no recent history.
         """
-        if t is None or t_right is None or t_right == t or not self.poses:
+        plan = self._plan(t, t_right, rig_version, current)
+        if plan is None:
             return None
-        seq = self._sequence(t, current, rig_version)
-        if seq is None:
-            return None
+        seq, k, dz = plan
         (ta, Ra, pa), (tb, Rb, pb) = seq[-2:]
         dt = tb - ta
-        if dt <= 0 or t - ta > 4 * dt or (current is None and t - tb > 3 * dt):
-            return None
         w = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt             # rad/s, at (ta + tb) / 2
         v = (pb - pa) / dt                                         # mm/s
-        if len(seq) == 3 and self.extrapolate:
-            tz, Rz, pz = seq[0]
-            dz = ta - tz
-            if 0 < dz <= 2 * dt:
-                k = (t + 0.5 * (t_right - t) - 0.5 * (ta + tb)) / (0.5 * (tb - tz))
-                w = w + (w - cv2.Rodrigues(Ra @ Rz.T)[0].ravel() / dz) * k
-                v = v + (v - (pa - pz) / dz) * k
+        if k is not None:
+            _, Rz, pz = seq[0]
+            w = w + (w - cv2.Rodrigues(Ra @ Rz.T)[0].ravel() / dz) * k
+            v = v + (v - (pa - pz) / dz) * k
         step = t_right - t
         omega = w * step
         dR = cv2.Rodrigues(omega)[0]
@@ -121,7 +115,7 @@ class PoseHistory:
         tvec = p_now - dR @ p_now + v * step
         return omega, tvec
 
-    def motion_terms(self, t, t_right, rig_version: int, current):
+    def motion_terms(self, t, t_right, rig_version: int, current, covariance: bool = True):
         """How the motion compensation (:meth:`right_motion` with ``current``) ties the right view to
         the poses: (gain, cov).
 
@@ -131,32 +125,53 @@ class PoseHistory:
         = α δ), and the earlier poses' errors move it by their α_i δ (``cov``
         (6, 6), rad and mm, from their first-order covariances), plus the
         extrapolation's own error, taken to be as large as its correction.
-        (0, None) when no motion is applied.
+        (0, None) when no motion is applied; ``cov`` None without
+        ``covariance`` (the fit needs only the gain).
         """
-        if t is None or t_right is None or t_right == t or not self.poses:
+        plan = self._plan(t, t_right, rig_version, current)
+        if plan is None or plan[0][-1][0] != t:
             return 0.0, None
-        seq = self._sequence(t, current, rig_version)
-        if seq is None or seq[-1][0] != t:
-            return 0.0, None
-        covs = [None if i is None else _inverse(i) for i in self.infos[len(self.poses) - (len(seq) - 1):]]
-        times = [p[0] for p in seq]
-        dt = times[-1] - times[-2]
-        if not dt > 0 or any(c is None for c in covs):
-            return 0.0, None
+        seq, k, dz = plan
+        (ta, Ra, pa), (tb, Rb, pb) = seq[-2:]
+        dt = tb - ta
         alpha = [0.0] * (len(seq) - 2) + [-1.0 / dt, 1.0 / dt]
+        if k is not None:
+            alpha = [k / dz, -(1 + k) / dt - k / dz, (1 + k) / dt]
         step = t_right - t
+        gain = alpha[-1] * step
+        if not covariance:
+            return gain, None
+        covs = [None if i is None else _inverse(i) for i in self.infos[len(self.poses) - (len(seq) - 1):]]
+        if any(c is None for c in covs):
+            return 0.0, None
         model = np.zeros((6, 6))
+        if k is not None:
+            _, Rz, pz = seq[0]
+            correction = k * step * np.concatenate([
+                cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt - cv2.Rodrigues(Ra @ Rz.T)[0].ravel() / dz,
+                (pb - pa) / dt - (pa - pz) / dz])
+            model = np.outer(correction, correction)
+        return gain, step ** 2 * sum(a * a * c for a, c in zip(alpha[:-1], covs)) + model
+
+    def _plan(self, t, t_right, rig_version: int, current):
+        """The poses a velocity over [t, t_right] comes from, and its extrapolation: (poses oldest first,
+        k, dz) with k, dz None when it is not extrapolated; None when no motion applies (synchronous
+        cameras, no two poses of one rig, or poses too old)."""
+        if t is None or t_right is None or t_right == t or not self.poses:
+            return None
+        seq = self._sequence(t, current, rig_version)
+        if seq is None:
+            return None
+        (ta, _, _), (tb, _, _) = seq[-2:]
+        dt = tb - ta
+        if dt <= 0 or t - ta > 4 * dt or (current is None and t - tb > 3 * dt):
+            return None
         if len(seq) == 3 and self.extrapolate:
-            dz = times[1] - times[0]
+            dz = ta - seq[0][0]
             if 0 < dz <= 2 * dt:
-                k = (t + 0.5 * (t_right - t) - 0.5 * (times[1] + times[2])) / (0.5 * (times[2] - times[0]))
-                alpha = [k / dz, -(1 + k) / dt - k / dz, (1 + k) / dt]
-                (_, Rz, pz), (_, Ra, pa), (_, Rb, pb) = seq
-                correction = k * step * np.concatenate([
-                    cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt - cv2.Rodrigues(Ra @ Rz.T)[0].ravel() / dz,
-                    (pb - pa) / dt - (pa - pz) / dz])
-                model = np.outer(correction, correction)
-        return alpha[-1] * step, step ** 2 * sum(a * a * c for a, c in zip(alpha[:-1], covs)) + model
+                # To the middle of [t, t_right], from the two velocities' times.
+                return seq, (t + 0.5 * (t_right - t) - 0.5 * (ta + tb)) / (0.5 * (tb - seq[0][0])), dz
+        return seq, None, None
 
     def _pair(self):
         """The last two poses fitted with one rig, ((t, R, p1), (t, R, p1)), or None."""

@@ -41,7 +41,11 @@ where the motion left it, and costs one small dense solve per chunk.
 
 - Parameters the chunk's motion does not make observable (their
   information from the chunk below ``observable_fraction`` of the prior's)
-  are held, not refined: a still head does not drift the rig.
+  are held, not refined.
+- The rig in use (:attr:`RigRefiner.state`) follows the filter's estimate
+  only when the two differ by more than ``publish_sigma`` σ of the
+  estimate: a still head or a right rig does not shake the poses with the
+  refinement's own noise.
 - A chunk inconsistent with the prior (its residuals far beyond the noise)
   is re-solved with the prior widened to the calibration's error model; if
   that explains it, the rig changed (a bump) and the filter re-converges
@@ -150,14 +154,6 @@ class RigRefineConfig:
         many frame periods apart.
     recalibrate_turn_deg, recalibrate_scale, recalibrate_offset_s : float
         Beyond these, the status recommends recalibrating.
-    still_turn_deg, still_shift_mm : float
-        A chunk over which the head turns less than this and moves less
-        than this is a still head: one pose cannot separate the camera's
-        turn from its shift (they move the five markers' images alike), so
-        the rig is held rather than let drift along that ambiguity.
-        Off by default (0): holding also keeps the rig's prior in the
-        covariance of a still head, which made it 4x too conservative on a
-        perfect rig; the drift along the ambiguity moves no image.
     """
 
     enabled: bool = True
@@ -177,8 +173,6 @@ class RigRefineConfig:
     recalibrate_turn_deg: float = 1.0
     recalibrate_scale: float = 0.03
     recalibrate_offset_s: float = 0.02
-    still_turn_deg: float = 0.0
-    still_shift_mm: float = 0.0
 
 
 @dataclass
@@ -377,10 +371,7 @@ class RigRefiner:
         self._last_update_t = None
         self.updates = 0
         self.bumps = []             # times (s) of detected changes of the rig
-        self.dropped_chunks = 0
-        self.held_chunks = 0          # chunks of a still head, not used
         self.refined = np.zeros(N_RIG, bool)    # parameters refined at least once
-        self.last_noise_scale = float("nan")
         # {t: (R_world_G, p1)} of the last update's frames, fitted with the rig it gave.
         self.refit_poses = {}
 
@@ -447,7 +438,7 @@ class RigRefiner:
     # ----------------------------------------------------------------- update
     def add_frame(self, t: float | None, declared_offset_s: float, centers: np.ndarray, visible: np.ndarray,
                   sigma_px: np.ndarray, R_world_G: np.ndarray, p1_mm: np.ndarray) -> bool:
-        """Take one tracked frame; True when the rig estimate changed.
+        """Take one tracked frame; True when the rig in use changed (:attr:`state`, :attr:`refit_poses`).
 
         ``centers`` (2, 5, 2) px, ``visible`` (2, 5), ``sigma_px`` (2, 5, 2)
         or (2, 5): each centre's noise, px; the pose is the tracker's.
@@ -508,23 +499,12 @@ class RigRefiner:
                      + [c.drift_focal_per_sqrt_s, c.drift_offset_s_per_sqrt_s]) ** 2 * elapsed
         return np.diag(q)
 
-    def _still(self, chunk: list[_Frame]) -> bool:
-        """The head barely moved over the chunk (see ``still_turn_deg``)."""
-        p = np.array([f.p1 for f in chunk])
-        turn = max(np.linalg.norm(cv2.Rodrigues(f.R @ chunk[0].R.T)[0]) for f in chunk)
-        return (math.degrees(turn) < self.config.still_turn_deg
-                and float(np.ptp(p, axis=0).max()) < self.config.still_shift_mm)
-
     def _update(self, chunk: list[_Frame]) -> bool:
-        if self._still(chunk):
-            self.held_chunks += 1
-            return False
         prior = self.P + self._process_noise(chunk[-1].t)
         # Unobservable parameters must not grow without bound while the head is still.
         np.fill_diagonal(prior, np.minimum(np.diag(prior), np.diag(self.prior)))
         solution = self._solve(chunk, prior)
         if solution is None:
-            self.dropped_chunks += 1
             return False
         increment, posterior, chi2, used, noise_scale, refit = solution
         bumped = False
@@ -538,12 +518,10 @@ class RigRefiner:
                 self.bumps.append(chunk[0].t)
                 bumped = True
             else:
-                self.dropped_chunks += 1
                 return False
         self._estimate.apply(increment)
         self.P = posterior
         self._cov = None
-        self.last_noise_scale = noise_scale
         self.updates += 1
         self._last_update_t = chunk[-1].t
         if not (bumped or self._departs()):
@@ -582,7 +560,9 @@ class RigRefiner:
         """Gauss-Newton with Cauchy reweighting over the chunk's poses and the rig.
 
         Returns (rig increment (8,), posterior covariance (8, 8), χ² of the
-        data rows, number of data rows), or None when nothing is observable.
+        data rows, number of data rows, noise scale (the median centre's χ²
+        per degree of freedom), {t: (R, p1)} of the chunk's poses refitted
+        with the increment), or None when nothing is observable.
         """
         c = self.config
         n = len(chunk)

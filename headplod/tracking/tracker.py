@@ -100,10 +100,8 @@ class TrackerConfig:
         (from its flux, size and the image noise).
     outlier_sigma, outlier_floor_px : float
         A centre whose residual exceeds both ``outlier_sigma`` times its
-        expected noise and ``outlier_floor_px`` is an outlier (a glint fused
-        with the marker, a partial occlusion): the pose is refitted with a
-        robust loss, and the centres that stay outliers are down-weighted
-        (their variance gets the excess), if the others agree.
+        expected error (with a suspect's excess, see ``robust_suspect_sigma``)
+        and ``outlier_floor_px`` is an outlier: the frame gets no pose.
     outlier_min_sigma_px : float
         Floor of the expected centroid noise in that test, px: the noise
         model leaves out shot noise, so a bright blob's σ is not trusted
@@ -405,7 +403,6 @@ class Tracker:
         if suspect or outlier is not None or self._verify(R, p1, residuals, None, match) is not None:
             rig_rows, rig_sd, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
             outlier = self._outlier(residuals, match, rig_sd)
-        suspects = None
         if suspect and self.config.estimator == "reproj":
             # Centres that disagree with the others beyond what the rig's
             # uncertainty explains (glints fused with markers, partial
@@ -931,7 +928,7 @@ class Tracker:
             # (more passes change nothing measurable).
             motion = self._right_motion(t, t_right, current=fit[:2])
             if motion is not None:
-                gain, _ = self._motion_terms(t, t_right, fit[:2])
+                gain, _ = self._motion_terms(t, t_right, fit[:2], covariance=False)
                 fit = geo.refine_reprojection(fit[0], fit[1], self.model_mm, match.centers[0], match.centers[1],
                                               match.visible[0], match.visible[1], self.rig, right_motion=motion,
                                               sigma_px=sigma, cameras=self._cameras, right_gain=gain)
@@ -1048,11 +1045,11 @@ class Tracker:
         """The head's motion over the right image's exposure offset (:meth:`PoseHistory.right_motion`)."""
         return self._motion.right_motion(t, t_right, self._rig_version(), current)
 
-    def _motion_terms(self, t, t_right, current):
+    def _motion_terms(self, t, t_right, current, covariance: bool = True):
         """(gain, cov) of the motion compensation (:meth:`PoseHistory.motion_terms`); (0, None) if off."""
         if not self.config.compensate_offset:
             return 0.0, None
-        return self._motion.motion_terms(t, t_right, self._rig_version(), current)
+        return self._motion.motion_terms(t, t_right, self._rig_version(), current, covariance)
 
     def _remember(self, match: _Match, t, R, p1, blobs, mode, info=None) -> None:
         self._prev_pose = (R, p1)
