@@ -79,12 +79,15 @@ class CovarianceInput:
         (pixel variance κ·I), px²/DN; NaN where unknown.
     jacobian_rows : (2, 5, 2, 6)
         ∂(projected centre)/∂(δ, ε) of each marker image at the fitted pose.
-    rig_rows : (2, 5, 2, 8), optional
-        ∂(projected centre)/∂(rig error state) (:mod:`headplod.tracking.rig_refine`).
-    rig_cov : (8, 8), optional
-        Covariance of the rig's error state: how far the rig used may be from
-        the true one (the calibration's uncertainty, its drift, the time
-        offset), as the online refinement knows it.
+    rig_rows : (2, 5, 2, k), optional
+        ∂(projected centre)/∂(nuisance parameters): the rig's error state
+        (8, :mod:`headplod.tracking.rig_refine`) and, when the right view
+        was moved to its exposure time, that motion's error (6 more: a pose
+        error of the right view alone).
+    rig_cov : (k, k), optional
+        Their covariance: how far the rig used may be from the true one (the
+        calibration's uncertainty, its drift, the time offset), as the
+        online refinement knows it, and the motion's (:mod:`.motion`).
     rig_version : int
         Changes whenever the rig used changes (a refinement step): the
         residuals then jump by the change, which is not image noise.
@@ -116,9 +119,9 @@ class CovarianceInput:
 
 
 def rig_residual_rows(pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """(I − H) J_r (n, 8): what a rig change leaves in the residuals after the weighted pose fit.
+    """(I − H) J_r (n, k): what a rig change leaves in the residuals after the weighted pose fit.
 
-    ``pose_rows`` (n, 6) and ``rig_rows`` (n, 8), px per unit, of the n
+    ``pose_rows`` (n, 6) and ``rig_rows`` (n, k), px per unit, of the n
     visible centre coordinates; ``weights`` (n,) = 1/σ²; H the fit's hat
     matrix.
     """
@@ -135,7 +138,8 @@ def with_rig_uncertainty(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.n
     beside the pose (prior information P⁻¹), the pose's information is the
     Schur complement I_pp − I_pr (I_rr + P⁻¹)⁻¹ I_rp, which equals
     Jᵀ (Σ + J_r P J_rᵀ)⁻¹ J. ``pose_rows`` (m, 2, 6), ``rig_rows``
-    (m, 2, 8), ``weights`` (m, 2) = 1/σ² of each centre coordinate.
+    (m, 2, k) (any nuisance parameters, ``rig_cov`` (k, k)), ``weights``
+    (m, 2) = 1/σ² of each centre coordinate.
     """
     i_pr = np.einsum("mij,mik,mi->jk", pose_rows, rig_rows, weights)
     i_rr = np.einsum("mij,mik,mi->jk", rig_rows, rig_rows, weights)
