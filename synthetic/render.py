@@ -62,7 +62,6 @@ from typing import Callable, FrozenSet, Iterable, Optional, Sequence, Tuple, Uni
 
 import cv2
 import numpy as np
-from scipy.special import erf, ndtri
 
 from .conventions import cross3, read_matrix_yaml
 
@@ -572,6 +571,8 @@ def _ambient(width: int, height: int, mean: float, variation: float, seed: int, 
 def _normal_table() -> np.ndarray:
     # 2^16 equiprobable normal quantiles: an exact sample of a normal law
     # quantized to 2^-16 in probability (tails at ±4.3 sigma).
+    from scipy.special import ndtri   # on use: scipy.special costs 0.2 s to import, which parsing need not pay
+
     return ndtri((np.arange(65536, dtype=np.float64) + 0.5) / 65536.0).astype(np.float32)
 
 
@@ -602,6 +603,8 @@ def _std_normal(rng: np.random.Generator, shape, out: Optional[np.ndarray] = Non
 
 def _add_spot(layer: np.ndarray, u: float, v: float, sigma: float, peak: float) -> None:
     """Pixel-integrated isotropic Gaussian spot of continuous peak ``peak`` at (u, v)."""
+    from scipy.special import erf     # on use, as in _normal_table
+
     h, w = layer.shape
     r = int(np.ceil(4 * sigma)) + 1
     x0, x1 = max(int(np.floor(u)) - r, 0), min(int(np.ceil(u)) + r, w - 1)

@@ -11,10 +11,12 @@ their tolerances). It imports no other module of the package.
 from __future__ import annotations
 
 import math
+import os
 import re
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import cv2
 import numpy as np
@@ -334,3 +336,26 @@ def _check_axes(axes: np.ndarray, tol: float) -> str | None:
     if det < 0:
         return f"axes are left-handed: det = {det:.6g}, expected +1 (Ψ must be V × Ξ)"
     return None
+
+
+def write_atomically(path, write: Callable[[str], None], suffix: str = "") -> Path:
+    """Call ``write(name)`` on a temporary name in ``path``'s folder, then rename it to ``path``.
+
+    ``path`` is whole or untouched: an interrupted or failed write leaves no
+    partial file (the temporary one is removed). ``suffix`` ends the
+    temporary name (a writer that picks its format from the ending needs
+    it). The file gets the permissions a plain write would give.
+    """
+    target = Path(path).expanduser()
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=suffix, dir=target.resolve().parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)          # mkstemp's 0600 is for the temporary name only
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return target

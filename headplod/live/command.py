@@ -15,9 +15,7 @@ tracked for ``--save-rig``), 2 on bad usage (nothing is written then).
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -362,26 +360,11 @@ def _report_rig(args, tracker, tracked: int, log) -> int:
               file=sys.stderr)
         return 1
     try:
-        _write_rig_atomically(args.save_rig, refiner.estimate.rig())   # the best estimate, not only what was in use
+        # The best estimate, not only what was in use; FILE is whole or untouched.
+        io.write_atomically(args.save_rig, lambda name: io.write_rig(name, refiner.estimate.rig()), suffix=".tmp.yaml")
     except (OSError, ValueError) as exc:
         print(f"headplod: --save-rig {args.save_rig}: {exc}", file=sys.stderr)
         return 1
     note = "" if refiner.updates else " (no update from the tracked frames: rig.yaml's values)"
     print(f"refined rig: {args.save_rig}{note}", file=log)
     return 0
-
-
-def _write_rig_atomically(path, rig) -> None:
-    """io.write_rig to a temporary name in the same folder, then os.replace: FILE is whole or untouched."""
-    target = Path(path).expanduser()
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp.yaml", dir=target.resolve().parent)
-    os.close(fd)
-    try:
-        io.write_rig(tmp, rig)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)                   # mkstemp's 0600 -> what a plain write would give
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

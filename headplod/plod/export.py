@@ -10,13 +10,11 @@ OBJ with its material; STL has none).
 """
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
+from .. import io
 from .mesh import LEVEL_PALETTE, AdaptiveMesh
 
 #: File endings :func:`export_mesh` writes (trimesh's exporters).
@@ -35,8 +33,11 @@ def check_export_path(path) -> Path:
     return path
 
 
-def selected_mesh(mesh: AdaptiveMesh, levels) -> trimesh.Trimesh:
-    """The triangles of per-face ``levels`` (F,) as a trimesh (only the vertices they use), faces coloured by level."""
+def selected_mesh(mesh: AdaptiveMesh, levels):
+    """The triangles of per-face ``levels`` (F,) as a ``trimesh.Trimesh`` (only the vertices they use), faces
+    coloured by level."""
+    import trimesh   # on use: it takes a third of a second to import, which every command would pay
+
     indices, tri_levels = mesh.update_indices(levels)
     used, faces = np.unique(np.asarray(indices, dtype=np.int64), return_inverse=True)
     colours = np.empty((len(tri_levels), 4), np.uint8)
@@ -54,15 +55,6 @@ def export_mesh(mesh: AdaptiveMesh, levels, path) -> Path:
     """
     path = check_export_path(path)
     tm = selected_mesh(mesh, levels)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        tm.export(tmp, file_type=path.suffix.lower().lstrip("."))
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)          # mkstemp's 0600 is for the temporary name only
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    io.write_atomically(path, lambda name: tm.export(name, file_type=path.suffix.lower().lstrip(".")),
+                        suffix=path.suffix)
     return path
