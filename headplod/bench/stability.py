@@ -43,10 +43,10 @@ from calib import DEFAULT_SCREEN
 
 from .. import io
 from ..capture.synthetic import ensure_dataset
-from ..live.loop import track_frames
+from ..live.loop import make_tracker, track_frames
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
 from ..render.still import TerrainScene
-from ..tracking.tracker import Tracker, TrackerConfig
+from ..tracking.tracker import TrackerConfig
 
 __all__ = ["ViewList", "track_still_head", "still_head_views", "level_changes", "levels_sequence",
            "stability_report", "format_table", "plot_stability"]
@@ -101,8 +101,7 @@ def still_head_views(frames: int = 60, distance_mm: float = 600.0, seed: int = 0
     """
     dataset = _dataset(frames, distance_mm, seed, root)
     screen = _screen_of(dataset)
-    tracker = Tracker(dataset.rig, dataset.markers, config or TrackerConfig(),
-                      calibration_std=io.rig_calibration_std(dataset.rig))
+    tracker = make_tracker(dataset, config or TrackerConfig())
     views, lost, indices = [], [], []
     for frame, result in track_frames(dataset, tracker):     # result None: an error frame
         view = None

@@ -186,8 +186,8 @@ class TrackerPoses(PoseSource):
     def __init__(self, source, screen=None, config=None, loop: bool = False, max_frames: int | None = None,
                  **open_options):
         # Imported on use: they pull in scipy.stats (~0.5 s), and headplod/cli.py imports this module at every start.
-        from ..live.loop import FrameTimes, track_frames
-        from ..tracking.tracker import Tracker, TrackerConfig
+        from ..live.loop import FrameTimes, make_tracker, track_frames
+        from ..tracking.tracker import TrackerConfig
 
         self._spec = source if isinstance(source, str) else None
         self._open_options = open_options
@@ -197,11 +197,8 @@ class TrackerPoses(PoseSource):
                              "the tracker needs one")
         self.name = f"tracker on {self.source.name}"
         self.screen = screen or self.source.screen or default_screen()
-        self.tracker = Tracker(self.source.rig, self.source.markers or io.default_marker_model(),
-                               config or TrackerConfig(),
-                               calibration_std=io.rig_calibration_std(self.source.rig))
+        self.tracker = make_tracker(self.source, config or TrackerConfig())
         self.loop = loop and self._spec is not None
-        self.max_frames = max_frames
         self.count = 0
         self._t_offset = 0.0
         self._last_t = None

@@ -7,8 +7,8 @@ starts at eccentricity e needs twice the highest visible frequency there
 (Nyquist), ``2 f_max(e)`` pixels per degree; the display gives ``ppd`` at
 full resolution, so the layer is drawn at the linear scale
 ``min(1, 2 f_max(e) / ppd)``. Scales are powers of two (1, 1/2, 1/4, ...):
-layer k covers the eccentricities from where the scale 2^-(k-1) would no
-longer suffice to where 2^-k would. Every border is pushed out by the POI's
+layer k (scale 2^-k) covers the eccentricities from where 2^-k suffices to
+where 2^-(k+1) does. Every border is pushed out by the POI's
 uncertainty (``n_sigma`` σ of its covariance's larger axis), as the mesh's
 eccentricity is, so a noisy tracker does not leave the viewer looking at a
 coarse layer.
@@ -26,11 +26,11 @@ import math
 import time
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from ..plod.csf import CSF_MODELS, max_visible_freq_cpd
 from .context import moderngl
+from .gl import read_rgb
 
 __all__ = ["FoveationConfig", "Layer", "layer_plan", "FoveatedRenderer"]
 
@@ -106,8 +106,8 @@ def _ecc_for_frequency(freq_cpd: float, config: FoveationConfig) -> float:
 def layer_plan(px_per_deg: float, cov_deg2=None, config: FoveationConfig = FoveationConfig()) -> list[Layer]:
     """The layers for a display of ``px_per_deg`` (px/deg at full resolution) and a POI covariance (2, 2) deg².
 
-    Layer k (scale 2^-k) starts where 2 f_max(e) = 2^-(k-1) ppd, i.e. where
-    the finer layer is no longer needed, plus the uncertainty's shift. The
+    Layer k (scale 2^-k) starts where 2 f_max(e) = 2^-k ppd, i.e. where the
+    finer layer is no longer needed, plus the uncertainty's shift. The
     last layer reaches to infinity; a layer no frequency needs is empty
     (``inner_deg == outer_deg``) and costs nothing but its disc.
     """
@@ -235,8 +235,7 @@ class FoveatedRenderer:
         self._vao.render(moderngl.TRIANGLES, vertices=3)
         ctx.finish()
         t1 = time.perf_counter()
-        self._output.read_into(self._rgba, components=4)
-        image = cv2.cvtColor(self._rgba[::-1], cv2.COLOR_RGBA2RGB)
+        image = read_rgb(self._output, self._rgba)
         self.last_render_ms = (t1 - t0) * 1e3
         self.last_readback_ms = (time.perf_counter() - t1) * 1e3
         return image

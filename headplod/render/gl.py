@@ -18,23 +18,9 @@ import cv2
 import numpy as np
 
 from ..plod.mesh import LEVEL_PALETTE
-from .context import EGL_PACKAGES, create_context, moderngl
-from .overlay import overlay_poi
-from .projection import SceneTransform, off_axis_projection, scene_to_world, screen_frame
+from .context import moderngl
 
-# The names of the renderer's neighbours stay importable from here, where they lived.
-__all__ = [
-    "create_context",
-    "screen_frame",
-    "off_axis_projection",
-    "SceneTransform",
-    "scene_to_world",
-    "TerrainRenderer",
-    "overlay_poi",
-    "PALETTE",
-    "VIEW_MODES",
-    "EGL_PACKAGES",
-]
+__all__ = ["TerrainRenderer", "PALETTE", "VIEW_MODES", "read_rgb"]
 
 #: Colours of the "levels" view, RGB uint8, (8, 3); level k uses
 #: ``PALETTE[k % 8]`` (modulated by the same Lambert shading as "shaded").
@@ -172,6 +158,16 @@ def _as_array(name: str, value: Any, dtype, shape_tail: tuple[int, ...]) -> np.n
         want = "(N, " + ", ".join(map(str, shape_tail)) + ")" if shape_tail else "(N,)"
         raise ValueError(f"TerrainRenderer.upload: {name} has shape {a.shape}, expected {want}")
     return np.ascontiguousarray(a, dtype=dtype)
+
+
+def read_rgb(framebuffer, rgba: np.ndarray) -> np.ndarray:
+    """A framebuffer's image as (H, W, 3) uint8 RGB, row 0 at the top, read through ``rgba`` (H, W, 4) uint8.
+
+    RGBA is GL's native layout: reading it is ~10x faster on llvmpipe than
+    RGB; one cvtColor drops alpha and (reading the rows bottom-up) flips.
+    """
+    framebuffer.read_into(rgba, components=4)
+    return cv2.cvtColor(rgba[::-1], cv2.COLOR_RGBA2RGB)
 
 
 class TerrainRenderer:
@@ -524,12 +520,9 @@ class TerrainRenderer:
         ctx.finish()
         t1 = time.perf_counter()
         w, h = self.size
-        # RGBA is GL's native layout here: reading it is ~10x faster on llvmpipe than RGB;
-        # one cvtColor drops alpha and (reading the rows bottom-up) flips.
         if self._rgba is None:
             self._rgba = np.empty((h, w, 4), np.uint8)
-        self._resolve.read_into(self._rgba, components=4)
-        image = cv2.cvtColor(self._rgba[::-1], cv2.COLOR_RGBA2RGB)
+        image = read_rgb(self._resolve, self._rgba)
         self.last_render_ms = (t1 - t0) * 1e3
         self.last_readback_ms = (time.perf_counter() - t1) * 1e3
         return image

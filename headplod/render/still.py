@@ -22,7 +22,10 @@ from ..plod.mesh import AdaptiveMesh, BaseMesh
 from ..plod.select import LevelSelector, SelectorConfig, View
 from ..plod.terrain import Terrain
 from .foveate import FoveatedRenderer
-from .gl import TerrainRenderer, create_context, off_axis_projection, overlay_poi, scene_to_world
+from .context import create_context
+from .gl import TerrainRenderer
+from .overlay import overlay_poi
+from .projection import off_axis_projection, scene_to_world
 
 # Where the terrain sits: its centre 250 mm behind the screen, 30 km shown as
 # about 600 mm, seen from above at 35° (pitch 55° from the "window" pose).
@@ -90,7 +93,7 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     (:mod:`headplod.render.foveate`); the stats then give the layers and
     ``render_ms`` is theirs, composite included.
 
-    ``export``: also write the frame's mesh to this file (:mod:`.export`:
+    ``export``: also write the frame's mesh to this file (:mod:`headplod.plod.export`:
     ``.glb``, ``.ply``, ``.obj``, ``.stl``); its ending and folder are
     checked before anything is rendered.
 
@@ -112,15 +115,19 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
         renderer = TerrainRenderer(create_context(), size=tuple(size))
     view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
 
-    def frame(render_mode):
-        """Select, build, upload and render; (image, levels per triangle, select s, build s, levels per face)."""
+    poi_image = poi * np.array(size) / np.array(screen.size_px)     # the POI in image pixels
+    px_per_deg = px_per_deg_at(screen, head, size)
+
+    def frame(render_mode, draw=True):
+        """Select, build, upload and (with ``draw``) render; (image or None, levels per triangle, select s,
+        build s, levels per face)."""
         t0 = time.perf_counter()
         levels, _ = selector.select(View(head, poi, cov_deg2, 0.0))
         t1 = time.perf_counter()
         positions, normals, tri_levels = scene.mesh.update(levels)
         t2 = time.perf_counter()
         renderer.upload(positions, normals, tri_levels)
-        image = renderer.render(view, proj, scene.model, view_mode=render_mode)
+        image = renderer.render(view, proj, scene.model, view_mode=render_mode) if draw else None
         return image, tri_levels, t1 - t0, t2 - t1, levels
 
     readback_ms = None
@@ -130,21 +137,19 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
         centroids_px = project_to_screen_px(selector.centroids_mm, head, screen)
         selector.contrast = readback_contrast(shaded, centroids_px, screen.size_px, fallback=scene.mesh.contrast)
         readback_ms = renderer.last_readback_ms + (time.perf_counter() - t3) * 1e3
-    image, tri_levels, select_s, build_s, face_levels = frame(view_mode)
-    render_ms = renderer.last_render_ms
+    image, tri_levels, select_s, build_s, face_levels = frame(view_mode, draw=not foveate)
     layers = None
     if foveate:
         foveated = FoveatedRenderer(renderer)
         try:
-            image = foveated.render(view, proj, scene.model, poi * np.array(size) / np.array(screen.size_px),
-                                    px_per_deg_at(screen, head, size), cov_deg2, view_mode=view_mode)
+            image = foveated.render(view, proj, scene.model, poi_image, px_per_deg, cov_deg2, view_mode=view_mode)
             render_ms, layers = foveated.last_render_ms, foveated.last_layers
         finally:
             foveated.release()
+    else:
+        render_ms = renderer.last_render_ms
     if cov_deg2 is not None or view_mode == "levels":
-        px_per_deg = px_per_deg_at(screen, head, size)
-        scaled_poi = poi * np.array(size) / np.array(screen.size_px)
-        image = overlay_poi(image, scaled_poi, cov_deg2, px_per_deg)
+        image = overlay_poi(image, poi_image, cov_deg2, px_per_deg)
     counts = np.bincount(tri_levels, minlength=scene.mesh.max_level + 1)
     stats = {"mode": mode, "uncertainty": uncertainty, "view": view_mode, "size": list(size),
              "head_mm": head.round(2).tolist(), "poi_px": poi.round(2).tolist(),
