@@ -63,10 +63,6 @@ class Progress:
                          ncols=None if tty else 100, disable=disable, leave=True)
 
     @property
-    def count(self) -> int:
-        return self._bar.n
-
-    @property
     def total(self) -> int | None:
         return self._bar.total
 
@@ -88,8 +84,3 @@ class Progress:
         """End the display (its final state and a newline); idempotent."""
         self._bar.close()
 
-    def __enter__(self) -> "Progress":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from headplod.tracking.filters import OneEuroFilter, PoseFilter, smoothing_factor
+from headplod.filters import OneEuroFilter, smoothing_factor
+from headplod.tracking.filters import PoseFilter
 from headplod.live.output import axes_from_opentrack
 
 

@@ -16,8 +16,7 @@ The tests:
 - ``headplod/plod/`` imports neither ``headplod.render`` nor
   ``headplod.tracking`` nor ``headplod.demo``, directly or through other
   modules (PLOD is pure numpy: the tracker and the GL renderer sit on top of
-  it, not under it), but for the listed exceptions that this branch cannot
-  remove (``PLOD_EXCEPTIONS``);
+  it, not under it);
 - ``synthetic/`` imports nothing from ``headplod`` (the test data is made by
   separate code).
 
@@ -35,19 +34,6 @@ PACKAGE = "headplod"
 
 #: What ``headplod/plod/`` must not reach, directly or through other modules.
 ABOVE_PLOD = ("headplod.render", "headplod.tracking", "headplod.demo")
-
-#: Imports from ``headplod/plod/`` that break that rule and cannot be removed on
-#: this branch, as (importing module, imported package or module): why. Each
-#: must still occur (``test_plod_exceptions_are_still_needed``): delete an
-#: entry once its import is gone.
-PLOD_EXCEPTIONS: dict[tuple[str, str], str] = {}
-
-#: Modules kept only so that old imports work, as alias: new home; nothing in the
-#: package but ``headplod/cli.py`` may import them. None at present: the aliases
-#: ``headplod.plod.still`` and ``headplod.plod.stability`` are gone (their homes
-#: are ``headplod.render.still`` and ``headplod.bench.stability``).
-ALIASES: dict[str, str] = {}
-
 
 @dataclass(frozen=True)
 class Edge:
@@ -311,17 +297,12 @@ def _within(name: str, package: str) -> bool:
     return name == package or name.startswith(package + ".")
 
 
-def _excepted(edge: Edge) -> bool:
-    return any(edge.source == source and _within(edge.target, target) for source, target in PLOD_EXCEPTIONS)
-
-
 def test_plod_is_below_render_tracking_and_demo():
     """No module of plod/ reaches render, tracking or demo, directly or through any chain of imports."""
     files, edges = import_edges()
     graph = {}
     for e in edges:
-        if not _excepted(e):
-            graph.setdefault(e.source, []).append(e)
+        graph.setdefault(e.source, []).append(e)
     bad, reported = [], set()
     for start in (m for m in files if _within(m, "headplod.plod")):
         # Breadth first, so the chain reported is a shortest one.
@@ -343,20 +324,6 @@ def test_plod_is_below_render_tracking_and_demo():
                     queue.append(e.target)
     assert not bad, (f"headplod/plod/ must not import {', '.join(ABOVE_PLOD)} (PLOD is pure numpy: they sit "
                      "on top of it); move the code up, or the shared piece down:\n" + "\n\n".join(bad))
-
-
-def test_plod_exceptions_are_still_needed():
-    _, edges = import_edges()
-    stale = [f"{a} -> {b}" for a, b in PLOD_EXCEPTIONS
-             if not any(e.source == a and _within(e.target, b) for e in edges)]
-    assert not stale, "remove from PLOD_EXCEPTIONS, these imports are gone: " + ", ".join(stale)
-
-
-def test_the_aliases_are_not_used_inside_the_package():
-    _, edges = import_edges()
-    users = [f"    {e}  (use {ALIASES[e.target]})" for e in edges
-             if e.target in ALIASES and e.source != "headplod.cli"]
-    assert not users, "modules kept only for old imports are imported:\n" + "\n".join(users)
 
 
 def test_synthetic_imports_nothing_from_headplod():

@@ -304,7 +304,7 @@ def draw(boxes: dict[str, Box], edges: list[Edge], out: Path, stamp: str) -> Non
     ax.axis("off")
 
     # Columns spread over the width, rows over the height below the title; a
-    # box is 72% of its cell's width and 52% of its height, which leaves the
+    # box is 72% of its cell's width and 55% of its height, which leaves the
     # gaps the arrows are routed through.
     left, right, top, bottom = 0.55, 0.1, 0.8, 0.15
     cell_w = (width - left - right) / columns

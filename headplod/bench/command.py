@@ -31,7 +31,7 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
                                     "chart goes beside it as FILE_rig.png (in its place when only they run)")
     bt.add_argument("--quick", action="store_true", help="fewer frames (a smoke run)")
     bt.add_argument("--sets", help="comma-separated names of the sets to run (default: all); "
-                                   "see headplod.bench.track.TRACK_SETS and headplod.bench.track.rig.RIG_SETS")
+                                   "see headplod.bench.track.TRACK_SETS and headplod.bench.rig.RIG_SETS")
 
     bu = bench_sub.add_parser("uncertainty", help="calibration (NEES), stability and cost of the covariance of V")
     bu.add_argument("--json", help="write the results as JSON")

@@ -12,25 +12,14 @@ import sys
 from pathlib import Path
 
 import cv2
-import numpy as np
 
+from ..argtypes import floats
 from ..capture import V4L2StereoSource
 from ..progress import Progress
 from .board import BOARD_KINDS
 from .calibrate import BoardSpec, CalibrationError, calibrate_folder, coverage_guide, detect_board, format_report
 
 __all__ = ["add_calibrate_arguments", "run_calibrate"]
-
-
-def _size(text: str):
-    """W,H: two comma-separated finite numbers."""
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected 2 comma-separated numbers, got {text!r}")
-    if len(values) != 2 or not all(np.isfinite(values)):
-        raise argparse.ArgumentTypeError(f"expected 2 comma-separated finite numbers, got {text!r}")
-    return tuple(values)
 
 
 def add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -49,7 +38,7 @@ def add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> argparse.Argu
     calibrate.add_argument("--out", required=True, help="rig.yaml to write")
     calibrate.add_argument("--save", help="live: folder for the captured pairs (default: beside --out)")
     calibrate.add_argument("--pairs", type=int, default=20, help="live: pairs to capture (default 20)")
-    calibrate.add_argument("--size", type=_size, help="live: camera image size W,H (default 640,480)")
+    calibrate.add_argument("--size", type=floats(2), help="live: camera image size W,H (default 640,480)")
     return calibrate
 
 
@@ -105,7 +94,7 @@ def _capture_calibration_pairs(args, spec, folder: Path) -> int:
     (folder / "right").mkdir(parents=True, exist_ok=True)
     kept, last_kept = [], None
     with V4L2StereoSource(_device(args.camera[0]), _device(args.camera[1]), width=width, height=height,
-                          fps=15, fourcc=args.fourcc if hasattr(args, "fourcc") else None) as source:
+                          fps=15, fourcc=None) as source:
         print(source.settings_report(text=True), file=sys.stderr)
         print(f"show the board to both cameras; {args.pairs} pairs are kept, at least 1 s apart "
               "(Ctrl-C to stop early)", file=sys.stderr)

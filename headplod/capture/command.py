@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .usb import LibusbMissingError, format_cameras, list_cameras, store_rig_cameras
+from .usb import format_cameras, list_cameras, store_rig_cameras
 
 __all__ = ["add_cameras_arguments", "run_cameras"]
 
@@ -39,10 +39,7 @@ def run_cameras(args) -> int:
             print(f"{args.rig}: left camera {rig.extra['left_camera']}, right camera {rig.extra['right_camera']}",
                   file=sys.stderr)
             return 0
-    except LibusbMissingError as exc:
-        print(f"headplod: {exc}", file=sys.stderr)
-        return 1
-    except (LookupError, ValueError) as exc:
+    except (LookupError, ValueError) as exc:       # LibusbMissingError is a ValueError
         print(f"headplod: {exc}", file=sys.stderr)
         return 1
     print(format_cameras(cams))

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..render import TerrainRenderer
 from ..render.still import TerrainScene
-from .keys import KEYMAP, action_for_key  # noqa: F401 (the window's keys; importable from here as before)
+from .keys import action_for_key
 from .loop import DemoLoop
 from .poses import make_poses
 

@@ -35,9 +35,10 @@ from .output import OpentrackSender, StatusLine, parse_host_port
 __all__ = ["add_track_arguments", "run_track", "track_source_spec", "note_old_spelling"]
 
 
-def note_old_spelling(old: str, new: str, err=None) -> None:
-    """The one-line note for an old spelling that still works: what to write instead, and that it goes."""
-    print(f"note: {old} is now {new}; the old spelling goes in the next release", file=err or sys.stderr)
+def note_old_spelling(old: str, new: str) -> None:
+    """The one-line note (standard error) for an old spelling that still works: what to write instead, and
+    that it goes."""
+    print(f"note: {old} is now {new}; the old spelling goes in the next release", file=sys.stderr)
 
 
 class _Usage(Exception):
@@ -112,12 +113,12 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
     return track
 
 
-def track_source_spec(args, err=None) -> str:
+def track_source_spec(args) -> str:
     """The source ``track`` reads, as an :func:`~headplod.capture.open_source` SPEC.
 
     From ``--source``, or from an old spelling (a positional DATASET,
     ``--camera LEFT RIGHT``, ``--camera auto``), for which a one-line note on
-    ``err`` gives the new spelling. Raises _Usage when the source is named
+    standard error gives the new spelling. Raises _Usage when the source is named
     twice or ``--camera`` has the wrong number of devices.
     """
     given = [name for name, value in (("--source", args.source), ("DATASET", args.dataset),
@@ -132,10 +133,10 @@ def track_source_spec(args, err=None) -> str:
         else:
             raise _Usage("--camera takes LEFT RIGHT (two devices) or 'auto'; it is now --source v4l2:LEFT,RIGHT "
                          "or --source v4l2:auto")
-        note_old_spelling(f"--camera {' '.join(args.camera)}", f"--source {spec}", err)
+        note_old_spelling(f"--camera {' '.join(args.camera)}", f"--source {spec}")
         return spec
     if args.dataset:
-        note_old_spelling(f"'headplod track {args.dataset}'", f"'headplod track --source {args.dataset}'", err)
+        note_old_spelling(f"'headplod track {args.dataset}'", f"'headplod track --source {args.dataset}'")
         return args.dataset
     return args.source or "synthetic"
 

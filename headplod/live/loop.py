@@ -240,10 +240,10 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         Called with each finished record (writing, printing).
     recorder : headplod.capture.DatasetRecorder, optional
         Every frame is recorded as read (its images, not the pose).
-    sender : headplod.live.loop.output.OpentrackSender, optional
+    sender : headplod.live.output.OpentrackSender, optional
     pose_filter : headplod.tracking.filters.PoseFilter, optional
         Applied to the record before it is sent and written.
-    status : headplod.live.loop.output.StatusLine, optional
+    status : headplod.live.output.StatusLine, optional
     max_frames : int, optional
     timeout_s : float
         How long a live source may wait for a pair before it reports a stall.

@@ -17,24 +17,12 @@ from calib import DEFAULT_SCREEN
 
 from .. import io
 from ..plod.export import check_export_path
+from ..argtypes import floats
 from ..plod.select import MODES, UNCERTAINTY_MODES
 from .gl import VIEW_MODES
 from .still import CONTRAST_SOURCES, render_still
 
-__all__ = ["add_render_arguments", "run_render", "floats"]
-
-
-def floats(n: int):
-    """An argparse type: ``n`` comma-separated finite numbers, as a tuple."""
-    def parse(text: str):
-        try:
-            values = [float(v) for v in text.split(",")]
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {n} comma-separated numbers, got {text!r}")
-        if len(values) != n or not all(np.isfinite(values)):
-            raise argparse.ArgumentTypeError(f"expected {n} comma-separated finite numbers, got {text!r}")
-        return tuple(values)
-    return parse
+__all__ = ["add_render_arguments", "run_render"]
 
 
 def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentParser:

@@ -2,7 +2,7 @@
 
 The filter itself, and how to tune ``min_cutoff_hz`` and ``beta`` for head
 tracking, is :mod:`headplod.filters` (pure numpy, shared with the PLOD level
-selector); its names stay importable from here.
+selector).
 
 :class:`PoseFilter` uses ``beta`` for the position and ``beta * lever_mm``
 (``lever_mm`` = 100 mm: the speed of a point 10 cm along the direction) for
@@ -14,9 +14,9 @@ from typing import Mapping
 
 import numpy as np
 
-from ..filters import OneEuroFilter, smoothing_factor
+from ..filters import OneEuroFilter
 
-__all__ = ["PoseFilter", "OneEuroFilter", "smoothing_factor"]
+__all__ = ["PoseFilter"]
 
 
 class PoseFilter:

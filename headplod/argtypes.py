@@ -1,0 +1,20 @@
+"""Value types of the command line's options, shared by the commands (argparse ``type=``)."""
+from __future__ import annotations
+
+import argparse
+import math
+
+__all__ = ["floats"]
+
+
+def floats(n: int):
+    """An argparse type: ``n`` comma-separated finite numbers, as a tuple of floats."""
+    def parse(text: str):
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {n} comma-separated numbers, got {text!r}")
+        if len(values) != n or not all(math.isfinite(v) for v in values):
+            raise argparse.ArgumentTypeError(f"expected {n} comma-separated finite numbers, got {text!r}")
+        return tuple(values)
+    return parse
