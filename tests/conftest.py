@@ -172,6 +172,7 @@ def _screen_plane_field(u, v, contrast, max_level=5, edge0_mm=14.0):
     (3,) mm, centroids' screen pixels (n, 2)).
     """
     from calib import DEFAULT_SCREEN
+    from headplod.render.still import default_head
 
     screen = io.read_screen(DEFAULT_SCREEN)
     uu, vv = np.meshgrid(u, v)
@@ -182,9 +183,4 @@ def _screen_plane_field(u, v, contrast, max_level=5, edge0_mm=14.0):
     error = np.tile(0.5 * edge ** 2 / edge0_mm, (len(centroids), 1))
     error[:, -1] = 0.0
     contrast = np.broadcast_to(np.asarray(contrast, np.float64), (len(centroids),)).copy()
-    normal = np.cross(np.asarray(screen.top_right) - screen.top_left, np.asarray(screen.bottom_left) - screen.top_left)
-    normal /= np.linalg.norm(normal)
-    centre = screen.pixel_to_world(np.array(screen.size_px) / 2.0)
-    # The viewer faces the screen from its front: the side the cameras see the head on.
-    eye = centre + 600.0 * normal * np.sign(normal @ (np.zeros(3) - centre) or 1.0)
-    return screen, centroids, edge_len, error, contrast, eye, px
+    return screen, centroids, edge_len, error, contrast, default_head(screen), px
