@@ -105,3 +105,40 @@ def test_steady_head_motion_passes_the_smoothing(field):
     sin = np.linalg.norm(np.cross(rel / distance[:, None], right), axis=1)
     expected = np.degrees(speed_mm_s * sin / distance)
     np.testing.assert_allclose(np.median(info["speed_deg_s"] / expected), 1.0, atol=0.1)
+
+
+def test_a_steady_pursuit_is_not_taken_for_jumps(field):
+    """The head drifting 2 mm and the POI gliding about 33 px a frame (the 30 px jump size), with noise.
+
+    Measured from the last sample, every other frame was a jump and both
+    filters restarted: the filtered eye leapt by its lag, which read as a
+    burst of angular speed, and half the triangles coarsened for a frame.
+    """
+    from headplod.bench.paper_tables import level_statistics
+
+    screen, centroids, *_, eye, px = field
+    right = np.asarray(screen.top_right, float) - screen.top_left
+    right /= np.linalg.norm(right)
+    rng = np.random.default_rng(0)
+    sel = make(field, hysteresis=False)
+    levels = []
+    for k in range(40):
+        # Steps of 25 to 41 px (a real pursuit's unevenness around 33 px a frame).
+        poi = np.array([300.0 + 33.0 * k + 24.0 * np.sin(k / 3), 540.0]) + rng.normal(0, 1.0, 2)
+        head = eye + right * 2.0 * k + rng.normal(0, 0.1, 3)
+        levels.append(sel.select(View(head, poi, np.diag([0.003, 0.003]), k / 30))[0])
+    stats = level_statistics(np.array(levels), warmup=5)
+    assert stats["changes"] > 0                              # the levels do follow the moving POI
+    # Before: every triangle changed on some frames (max 960 of 960), 107 reversals a frame.
+    assert stats["changes_max"] < 0.25 * len(centroids), stats
+    assert stats["flicker"] < 0.05 * len(centroids), stats
+
+
+def test_level_statistics_counts_reversals_not_progress():
+    from headplod.bench.paper_tables import level_statistics
+
+    progress = np.array([[0, 0], [1, 0], [2, 1], [3, 2], [4, 3]])        # every triangle refines steadily
+    assert level_statistics(progress, warmup=0) == {"changes": 1.75, "changes_max": 2, "flicker": 0.0}
+    pingpong = np.array([[0, 5], [1, 5], [0, 5], [1, 5], [1, 4], [1, 5]])   # A-B-A twice, then B-A... back
+    stats = level_statistics(pingpong, warmup=0)
+    assert stats["changes"] == 1.0 and stats["flicker"] == pytest.approx(3 / 5)

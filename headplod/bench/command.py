@@ -4,6 +4,7 @@
     headplod bench uncertainty [--json FILE] [--chart FILE.png] [--quick]
     headplod bench plod [--json FILE] [--chart FILE.png] [--quick]
     headplod bench live [--source SPEC] [--json FILE] [--repeats N]
+    headplod bench paper [--json FILE] [--chart FILE.png] [--quick] [--noise-deg S]
 
 Each benchmark is a module of this package; this one only parses and
 dispatches. ``bench live`` names its recording as every command names a
@@ -52,7 +53,25 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bp.add_argument("--json", help="write the results as JSON")
     bp.add_argument("--chart", help="write the chart (PNG); the level-colour pictures go beside it")
     bp.add_argument("--quick", action="store_true", help="fewer points on the curves and sweeps (a smoke run)")
+
+    bpa = bench_sub.add_parser("paper", help="Martinez et al.'s Tables 1-4 (uncertainty scenarios) under the "
+                                             "paper's tracker conditions")
+    bpa.add_argument("--json", help="write the results as JSON")
+    bpa.add_argument("--chart", help="write the chart (PNG)")
+    bpa.add_argument("--quick", action="store_true", help="one viewpoint, 30 frames (a smoke run)")
+    bpa.add_argument("--noise-deg", type=_non_negative, default=0.5, metavar="S",
+                     help="sigma per angle of the 'paper_noise' tracker's jitter of V, deg (default 0.5)")
     return bench
+
+
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (value >= 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return value
 
 
 # The benchmark modules are imported on use: they pull in the tracker (scipy.stats) and matplotlib,
@@ -72,6 +91,12 @@ def _uncertainty(args) -> int:
 def _plod(args) -> int:
     from . import plod
     return plod.run_plod_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
+
+
+def _paper(args) -> int:
+    from . import paper_tables
+    return paper_tables.run_paper_bench(json_path=args.json, chart_path=args.chart, quick=args.quick,
+                                        noise_deg=args.noise_deg)
 
 
 def _live(args) -> int:
@@ -96,7 +121,7 @@ def _live(args) -> int:
 
 
 #: ``headplod bench NAME`` → its run(args) -> exit status.
-BENCHMARKS = {"track": _track, "uncertainty": _uncertainty, "live": _live, "plod": _plod}
+BENCHMARKS = {"track": _track, "uncertainty": _uncertainty, "live": _live, "plod": _plod, "paper": _paper}
 
 
 def run_bench(args) -> int:

@@ -101,7 +101,8 @@ class SelectorConfig:
         The same for the POI, screen px (30.0); raised to ``jump_poi_sigma``
         of the tracker's σ of V on the screen when that is larger.
     jump_poi_sigma : float
-        That multiple of the σ of V, standard deviations (5.0).
+        That multiple of the noise of the POI's prediction (√6 σ of V: see
+        ``LevelSelector._smoothed_view``), standard deviations (5.0).
     cull_margin_edges : float
         Frustum culling: a base triangle whose centroid projects farther
         outside the screen than this many of its level-0 edge lengths is
@@ -385,11 +386,16 @@ class LevelSelector:
         exponential average would lag a moving head by speed x time constant
         (190 mm at 750 mm/s with 0.25 s): the One Euro filter raises its
         cutoff with the speed, so a steady movement passes with little lag.
-        A jump from one frame to the next larger than the noise (by default
-        20 mm for the eye; for the POI 30 px or five of the tracker's σ of V
-        on the screen, whichever is larger: ``SelectorConfig.jump_*``) is a
-        real movement: the filters and the hysteresis restart, so the levels
-        follow within the frame.
+        A jump larger than the noise (by default 20 mm for the eye; for the
+        POI 30 px or five of the tracker's σ of V on the screen, whichever is
+        larger: ``SelectorConfig.jump_*``) is a real movement: its filter
+        and the hysteresis restart, so the levels follow within the frame.
+        The jump is measured from where the last two raw samples were heading
+        (constant velocity), not from the last sample: a steady pursuit of
+        30-40 px per frame is not a jump, whereas measured from the last
+        sample it restarted the filters on every other frame, and the levels
+        alternated between the raw and the filtered POI (170 reversals per
+        frame on the mountains view, ``headplod bench paper``).
         """
         eye = np.asarray(view.eye_mm, dtype=np.float64)
         poi = np.asarray(view.poi_px, dtype=np.float64)
@@ -399,19 +405,34 @@ class LevelSelector:
         if self._smooth is None:
             cutoff = 1.0 / (2 * math.pi * cfg.smoothing_s)
             self._smooth = {"eye": OneEuroFilter(cutoff, beta=cfg.eye_beta),
-                            "poi": OneEuroFilter(cutoff, beta=cfg.poi_beta), "raw": None}
-        raw = self._smooth["raw"]
-        self._smooth["raw"] = (eye, poi)
+                            "poi": OneEuroFilter(cutoff, beta=cfg.poi_beta), "raw": None, "velocity": None}
+        raw, velocity = self._smooth["raw"], self._smooth["velocity"]
+        self._smooth["raw"] = (view.t, eye, poi)
         if raw is not None:
+            dt = view.t - raw[0]
+            predicted_eye, predicted_poi = raw[1], raw[2]
+            if velocity is not None and 0 < dt < 0.5:
+                predicted_eye = predicted_eye + velocity[0] * dt
+                predicted_poi = predicted_poi + velocity[1] * dt
+            self._smooth["velocity"] = ((eye - raw[1]) / dt, (poi - raw[2]) / dt) if dt > 0 else None
+            # The prediction from two noisy samples has sqrt(1 + 4 + 1) times their noise.
             poi_noise_px = cfg.jump_poi_px
             if view.cov_deg2 is not None:
                 lam = float(np.linalg.eigvalsh(np.asarray(view.cov_deg2, dtype=np.float64))[-1])
                 reach_mm = float(np.linalg.norm(self.screen.pixel_to_world(poi) - eye))
-                poi_noise_px = max(poi_noise_px, cfg.jump_poi_sigma * reach_mm
+                poi_noise_px = max(poi_noise_px, cfg.jump_poi_sigma * math.sqrt(6.0) * reach_mm
                                    * math.tan(math.radians(math.sqrt(max(lam, 0.0)))) * self.px_per_mm)
-            if np.linalg.norm(poi - raw[1]) > poi_noise_px or np.linalg.norm(eye - raw[0]) > cfg.jump_eye_mm:
-                self._smooth["eye"].reset()
-                self._smooth["poi"].reset()
+            # Each filter restarts on its own jump only: restarting the eye's on a saccade of the
+            # POI would move the filtered eye by its lag at once, a speed spike that coarsened
+            # half the terrain for a frame.
+            jumped = False
+            for name, value, predicted, limit in (("eye", eye, predicted_eye, cfg.jump_eye_mm),
+                                                  ("poi", poi, predicted_poi, poi_noise_px)):
+                if np.linalg.norm(value - predicted) > limit:
+                    self._smooth[name].reset()
+                    jumped = True
+            if jumped:
+                self._smooth["velocity"] = None       # a jump's step is not a velocity to extrapolate
                 if self.hysteresis is not None:
                     self.hysteresis.reset()
         eye = self._smooth["eye"](eye, view.t)
