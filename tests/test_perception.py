@@ -398,3 +398,16 @@ def test_ellipse_shift_zero_inside_2_sigma_then_offset_less_2_sigma(ang, s1, s2,
 def test_unknown_shift_form():
     with pytest.raises(ValueError, match="form must be one of"):
         p.uncertainty_shift(np.ones((3, 2)), np.eye(2), form="eq2")
+
+
+def test_eager_hysteresis_refines_at_once_and_coarsens_past_the_band():
+    from headplod.plod.perception import Hysteresis
+
+    h = Hysteresis(2, margin=0.35, rounding="ceil")
+    assert h.update([2.9, 2.9], 5).tolist() == [3, 3]
+    # Just past the level's interval (2, 3]: only the eager triangle refines.
+    assert h.update([3.1, 3.1], 5, eager=[True, False]).tolist() == [4, 3]
+    # Back down within the band below its new interval (3, 4]: both keep their levels.
+    assert h.update([2.8, 2.8], 5, eager=[True, False]).tolist() == [4, 3]
+    # Past the band: the eager one coarsens too.
+    assert h.update([2.6, 2.6], 5, eager=[True, False]).tolist() == [3, 3]

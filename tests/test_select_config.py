@@ -19,6 +19,8 @@ PREVIOUS = {
     "frame_s": 1 / 60, "velocity_ref_deg_s": 10.0, "distance_ref_mm": 700.0, "hysteresis": True,
     "hysteresis_margin": 0.35, "smoothing_s": 0.25, "eye_beta": 0.05, "poi_beta": 0.02, "jump_eye_mm": 20.0,
     "jump_poi_px": 30.0, "jump_poi_sigma": 5.0, "cull_margin_edges": 1.5,
+    # Added since (issue 13's paper-conditions run): eager refinement near a moving POI.
+    "hysteresis_eager_deg": 5.0, "hysteresis_eager_deg_s": 3.0,
 }
 
 
@@ -154,6 +156,7 @@ WIRING = [
     ("csf", "hysteresis", False), ("csf", "hysteresis_margin", 0.0), ("csf", "smoothing_s", 0.05),
     ("csf", "eye_beta", 1.0), ("csf", "poi_beta", 1.0), ("csf", "jump_eye_mm", 200.0),
     ("csf", "jump_poi_px", 2.0), ("csf", "jump_poi_sigma", 0.0), ("csf", "cull_margin_edges", 0.0),
+    ("csf", "hysteresis_eager_deg", 0.0), ("csf", "hysteresis_eager_deg_s", 1000.0),
 ]
 
 
@@ -194,7 +197,8 @@ BAD = [
     ("velocity_ref_deg_s", 0), ("distance_ref_mm", -700.0), ("hysteresis_margin", -0.01),
     ("smoothing_s", math.inf), ("smoothing_s", 0.0), ("eye_beta", -0.05), ("poi_beta", None),
     ("jump_eye_mm", 0.0), ("jump_poi_px", -30.0), ("jump_poi_sigma", -5.0), ("cull_margin_edges", True),
-    ("cull_margin_edges", -1.5),
+    ("cull_margin_edges", -1.5), ("hysteresis_eager_deg", -1.0), ("hysteresis_eager_deg", math.nan),
+    ("hysteresis_eager_deg_s", -3.0),
 ]
 
 

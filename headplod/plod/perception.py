@@ -681,7 +681,7 @@ class Hysteresis:
         """Forget the state: the next update takes the rounded levels."""
         self.levels = None
 
-    def update(self, continuous_level, max_level):
+    def update(self, continuous_level, max_level, eager=None):
         """Levels for this frame.
 
         Parameters
@@ -691,6 +691,10 @@ class Hysteresis:
             current level, or gives 0 on the first frame).
         max_level : int
             Finest level available.
+        eager : (n,) array_like of bool, optional
+            Triangles that refine as soon as their continuous level asks
+            (the dead band holds only their coarsening): the ones near the
+            POI, where a level held too coarse is seen.
 
         Returns
         -------
@@ -715,7 +719,12 @@ class Hysteresis:
         lo = np.where(cur == 0, -np.inf, lo)
         hi = np.where(cur == max_level, np.inf, hi)
         m = self.margin
-        switch = (x < lo - m) | (x > hi + m)          # False for NaN: keep
+        # Where ``eager``, refine at once and coarsen only past the dead band: the level is never
+        # held coarser than the criterion asks (the POI moving in gets its detail in the same
+        # frame), and noise smaller than the band, having refined a triangle once, cannot
+        # coarsen it again. Elsewhere the band is symmetric (fewer triangles kept fine).
+        up = hi + m if eager is None else np.where(np.asarray(eager, dtype=bool), hi, hi + m)
+        switch = (x < lo - m) | (x > up)              # False for NaN: keep
         self.levels = np.where(switch, nominal, cur).astype(int)
         return self.levels.copy()
 
