@@ -23,10 +23,14 @@ Construction (the paper's, with the project's CSF forms and uncertainty):
    ``r_{k+1} = r_k + n(r_k)`` (every integer up to the first threshold, every
    second to the next, ..., as the paper builds it) until the farthest image
    corner is passed.
-3. **Rotation.** Every ring gets the same ``M`` samples, ``M = ceil(2π
-   r_last / n_last)``: the angular step is the separation of the two
-   outermost entries, as the paper rotates its array. Consecutive rings and
-   angles form quads (quad strips around the POI).
+3. **Rotation.** Every ring gets the same ``M`` samples, as the paper
+   rotates its array by one angular step. The paper's step is the
+   separation of the two outermost entries; here it is the smallest
+   ``n_k / r_k`` over the rings, ``M = ceil(2π max_k r_k / n_k)``, so that
+   no ring is sparser along its circle than across (the outermost pair's
+   step leaves the middle bands up to 1.4x too sparse, the spacing growing
+   more slowly than the radius). Consecutive rings and angles form quads
+   (quad strips around the POI).
 4. **Uncertainty.** The radii are eccentricities *after* the shift of
    :func:`headplod.plod.perception.uncertainty_shift` (``form="ellipse"``),
    the one ``csf`` uses: a point at offset ``P`` from the POI is treated as
@@ -385,9 +389,11 @@ def build_ray_mask(screen, eye_mm, poi_px, size, px_per_deg: float, cov_deg2=Non
     max_ecc = float(corner_ecc.max()) + config.max_spacing_px / ppd
     r_fill, rings, steps = radii_deg(ppd, max_ecc, config)
 
-    # Angles: the step is the separation of the two outermost entries (the paper's rotation).
-    outer_px = rings[-1] * ppd
-    n_angles = max(8, int(math.ceil(2 * math.pi * outer_px / max(int(steps[-1]), 1))))
+    # Angles: one step for every ring, the smallest n / r over them (the paper takes the outermost
+    # pair's separation, which leaves the rings in between sparser along the ring than the CSF asks
+    # wherever the spacing grows more slowly than the radius).
+    ratio = rings * ppd / np.maximum(steps, 1)
+    n_angles = max(8, int(math.ceil(2 * math.pi * float(ratio.max()))))
     psi = 2 * math.pi * np.arange(n_angles) / n_angles
     # Shifted offsets P' = (φ', θ') at eccentricity e exactly: tan θ' = tan e cos ψ, tan φ' = tan e sin ψ.
     te = np.tan(np.radians(rings))[:, None]

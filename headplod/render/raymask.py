@@ -51,7 +51,7 @@ import time
 
 import numpy as np
 
-from ..plod.raymask import HeightGrid, RayMask, RayMaskConfig, height_grid
+from ..plod.raymask import HeightGrid, RayMask, RayMaskConfig, build_ray_mask, height_grid
 from .context import moderngl
 from .gl import read_rgb
 
@@ -291,6 +291,8 @@ class RayMaskRenderer:
         (numpy), ``raster_ms`` (mesh + fill + silhouettes, GL finished),
         ``render_ms`` (all of them; excludes the final read-back),
         ``readback_ms``.
+    last_silhouette_quads : (S,) int64
+        After :meth:`render`: the silhouette quads, as rows of the mask's ``quads``.
     """
 
     def __init__(self, ctx, mesh, size=(1280, 720), *, background=(0.62, 0.72, 0.82),
@@ -331,6 +333,9 @@ class RayMaskRenderer:
         self._rgba = np.empty((h, w, 4), np.uint8)
         self._empty_vao = ctx.vertex_array(self._progs["samples"], [])
         self._mask = None          # the RayMask the buffers below hold
+        self._mask_key = None      # inputs of the last mask built by mask()
+        self._last_mask = None
+        self.last_mask_ms = float("nan")
         self._buffers = {}
         self.last_stats: dict = {}
 
@@ -465,6 +470,7 @@ class RayMaskRenderer:
         t1 = time.perf_counter()
         # 2. classify
         drawn, sil = classify_quads(self._quads, hits, config.depth_ratio)
+        self.last_silhouette_quads = sil
         q = self._quads
         tri_drawn = q[drawn][:, [0, 1, 2, 0, 2, 3]].reshape(-1, 3)
         if config.silhouettes:
@@ -503,6 +509,26 @@ class RayMaskRenderer:
             "drawn_quads": int(len(drawn)), "cast_ms": (t1 - t0) * 1e3, "classify_ms": (t2 - t1) * 1e3,
             "raster_ms": (t3 - t2) * 1e3, "render_ms": (t3 - t0) * 1e3, "readback_ms": (t4 - t3) * 1e3}
         return image
+
+    def mask(self, screen, eye_mm, poi_px, px_per_deg: float, cov_deg2=None,
+             config: RayMaskConfig = RayMaskConfig()) -> RayMask:
+        """The ray mask of a view, built by :func:`build_ray_mask` or reused when the view is unchanged.
+
+        The last mask is kept with its inputs (eye, POI, covariance, px/deg,
+        config; compared exactly): a still head and POI reuse it, so their
+        frames are identical. ``last_mask_ms``: the build time, 0 when reused.
+        """
+        key = (tuple(np.asarray(eye_mm, float).ravel()), tuple(np.asarray(poi_px, float).ravel()),
+               None if cov_deg2 is None else tuple(np.asarray(cov_deg2, float).ravel()), float(px_per_deg),
+               config, id(screen))
+        if self._mask_key != key:
+            t0 = time.perf_counter()
+            self._last_mask = build_ray_mask(screen, eye_mm, poi_px, self.size, px_per_deg, cov_deg2, config)
+            self._mask_key = key
+            self.last_mask_ms = (time.perf_counter() - t0) * 1e3
+        else:
+            self.last_mask_ms = 0.0
+        return self._last_mask
 
     def release(self) -> None:
         """Free the GL objects (the context stays)."""
