@@ -87,6 +87,10 @@ def test_the_uncertainty_widens_the_full_density_region_to_the_2_sigma_ellipse(d
     filled[(wide.fill_px[:, 1] * size[0] + wide.fill_px[:, 0])] = True
     inside = m2 <= 4.0
     assert inside.sum() > 5000
+    # The fill is exactly the pixels csf's shifted eccentricity puts within r_fill.
+    from headplod.plod import perception as pc
+    shifted_ecc = pc.eccentricity_deg(pc.uncertainty_shift(off, cov, "ellipse", 2.0))
+    assert np.array_equal(filled, shifted_ecc <= wide.r_fill_deg)
     assert filled[inside].all()                                 # the whole 2σ ellipse is at full density
     # ... and the fill is the ellipse dilated by the fill radius: along θ (horizontal) it reaches
     # r_fill + 2σ_θ, along φ r_fill + 2σ_φ (to a pixel).

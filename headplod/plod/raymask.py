@@ -54,6 +54,7 @@ import math
 import numbers
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from . import perception as pc
@@ -406,33 +407,40 @@ def build_ray_mask(screen, eye_mm, poi_px, size, px_per_deg: float, cov_deg2=Non
     offsets = shifted + r_ell[None, :, None] * u
     ring_xy = offsets_to_pixels(offsets, screen, eye, axes, size)      # (R, M, 2)
 
-    # Quads (k, m), (k, m+1), (k+1, m+1), (k+1, m); keep those whose bounding box touches the image.
+    # Quads (k, m), (k, m+1), (k+1, m+1), (k+1, m); kept when a corner lies within a quad's size of the
+    # image (so every quad over an image pixel is kept).
     R, M = len(rings), n_angles
+    flat = ring_xy.reshape(-1, 2)
+    reach = np.repeat(np.maximum(steps, 1) * 2.0 + 2.0, M)          # px: a generous quad size
+    near = ((flat[:, 0] >= -0.5 - reach) & (flat[:, 0] <= w - 0.5 + reach)
+            & (flat[:, 1] >= -0.5 - reach) & (flat[:, 1] <= h - 0.5 + reach))
     k, m = np.meshgrid(np.arange(R - 1), np.arange(M), indexing="ij")
     m1 = (m + 1) % M
     quads = np.stack([k * M + m, k * M + m1, (k + 1) * M + m1, (k + 1) * M + m], axis=-1).reshape(-1, 4)
-    flat = ring_xy.reshape(-1, 2)
-    qxy = flat[quads]
-    lo, hi = qxy.min(axis=1), qxy.max(axis=1)
-    touch = (hi[:, 0] >= -0.5) & (lo[:, 0] <= w - 0.5) & (hi[:, 1] >= -0.5) & (lo[:, 1] <= h - 0.5)
-    quads = quads[touch]
+    quads = quads[near[quads].any(axis=1)]
     used = np.zeros(R * M, bool)
     used[quads.ravel()] = True
-    used[:M] |= ((flat[:M, 0] >= -0.5) & (flat[:M, 0] <= w - 0.5)
-                 & (flat[:M, 1] >= -0.5) & (flat[:M, 1] <= h - 0.5))      # ring 0 borders the fill
+    used[:M] |= near[:M]                                                  # ring 0 borders the fill
     keep = np.flatnonzero(used)
 
-    # The filled inset: every pixel centre whose shifted eccentricity is <= r_fill, searched in
-    # the bounding box of ring 0 (which bounds it: the shifted eccentricity grows along every ray).
-    r0 = ring_xy[0]
-    x0, y0 = np.floor(r0.min(axis=0)).astype(int) - 1
-    x1, y1 = np.ceil(r0.max(axis=0)).astype(int) + 1
-    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w - 1), min(y1, h - 1)
-    if x1 >= x0 and y1 >= y0:
-        yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
-        pix = np.stack([xx.ravel(), yy.ravel()], axis=-1).astype(np.float64)
+    # The filled inset: every pixel centre whose shifted eccentricity is <= r_fill. Ring 0 (at r_fill,
+    # its chords within 0.01 px of the curve) is rasterised; the pixels within a pixel of its outline
+    # are decided exactly.
+    fill_mask = np.zeros((h, w), np.uint8)
+    if np.isfinite(ring_xy[0]).all():
+        poly = np.round(ring_xy[0] * 256).astype(np.int32)              # cv2: pixel centres at integers; 8 bits of sub-pixel
+        cv2.fillPoly(fill_mask, [poly], 1, lineType=cv2.LINE_8, shift=8)
+        kernel = np.ones((3, 3), np.uint8)
+        inner = cv2.erode(fill_mask, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+        band = cv2.dilate(fill_mask, kernel).astype(bool) & ~inner
+        by, bx = np.nonzero(band)
+        pix = np.stack([bx, by], axis=-1).astype(np.float64)
         ecc = _shifted_ecc(pixel_offsets_deg(pix, screen, eye, axes, size), cov_deg2, config.n_sigma)
-        fill = pix[ecc <= r_fill]
+        fy, fx = np.nonzero(inner)
+        take = ecc <= r_fill
+        fill = np.concatenate([np.stack([fx, fy], axis=-1), pix[take].astype(np.int64)]).astype(np.float64)
+        order = np.lexsort((fill[:, 0], fill[:, 1]))                     # row by row
+        fill = fill[order]
     else:
         fill = np.zeros((0, 2))
     n_fill = len(fill)

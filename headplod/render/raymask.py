@@ -47,6 +47,7 @@ scene units): scene x = origin_x + column * dx, y likewise.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -74,7 +75,7 @@ uniform vec3 u_background;
 uniform int u_max_steps;
 
 const float EPS = 1e-3;        // step past a node's exit, cells
-const float TOL = 1e-5;        // barycentric tolerance of the triangle test
+const float TOL = 5e-4;        // tolerance of the triangle test, cells (float32 error of the hit ~1e-4)
 const int START_DROP = 4;      // rays start this many levels below the top (they ascend when they need to)
 
 int level_offset(int k) { return k == 0 ? 0 : 2 * u_n - ((2 * u_n) >> k); }
@@ -93,7 +94,11 @@ vec4 cast_ray(vec2 pix) {
     float tin = max(max(tlo.x, tlo.y), max(tlo.z, 0.0));
     float tout = min(min(thi.x, thi.y), thi.z);
     if (tin > tout) return vec4(u_background, -1.0);
-    float t = tin;
+    // Restart the ray where it enters the grid's box: coordinates there are <= N, so the cell tests
+    // below lose less to float32 than from an eye thousands of cells away.
+    o += d * tin;
+    tout -= tin;
+    float t = 0.0;
     int level = max(u_top - START_DROP, 0);
     vec2 dirstep = step(0.0, d.xy);
     for (int it = 0; it < u_max_steps; ++it) {
@@ -333,7 +338,7 @@ class RayMaskRenderer:
         self._rgba = np.empty((h, w, 4), np.uint8)
         self._empty_vao = ctx.vertex_array(self._progs["samples"], [])
         self._mask = None          # the RayMask the buffers below hold
-        self._mask_key = None      # inputs of the last mask built by mask()
+        self._mask_cache = {}      # the masks mask() built, by their inputs, oldest first
         self._last_mask = None
         self.last_mask_ms = float("nan")
         self._buffers = {}
@@ -514,21 +519,27 @@ class RayMaskRenderer:
              config: RayMaskConfig = RayMaskConfig()) -> RayMask:
         """The ray mask of a view, built by :func:`build_ray_mask` or reused when the view is unchanged.
 
-        The last mask is kept with its inputs (eye, POI, covariance, px/deg,
-        config; compared exactly): a still head and POI reuse it, so their
-        frames are identical. ``last_mask_ms``: the build time, 0 when reused.
+        The last few masks (8) are kept with their inputs (eye, POI,
+        covariance, px/deg, and the config's mask settings; compared
+        exactly): a still head and POI reuse theirs, so their frames are
+        identical. ``last_mask_ms``: the build time, 0 when reused.
         """
+        mask_settings = dataclasses.replace(config, silhouettes=True, depth_ratio=RayMaskConfig.depth_ratio)
         key = (tuple(np.asarray(eye_mm, float).ravel()), tuple(np.asarray(poi_px, float).ravel()),
                None if cov_deg2 is None else tuple(np.asarray(cov_deg2, float).ravel()), float(px_per_deg),
-               config, id(screen))
-        if self._mask_key != key:
+               mask_settings, id(screen))
+        mask = self._mask_cache.pop(key, None)
+        if mask is None:
             t0 = time.perf_counter()
-            self._last_mask = build_ray_mask(screen, eye_mm, poi_px, self.size, px_per_deg, cov_deg2, config)
-            self._mask_key = key
+            mask = build_ray_mask(screen, eye_mm, poi_px, self.size, px_per_deg, cov_deg2, config)
             self.last_mask_ms = (time.perf_counter() - t0) * 1e3
         else:
             self.last_mask_ms = 0.0
-        return self._last_mask
+        self._mask_cache[key] = mask                   # most recent last
+        while len(self._mask_cache) > 8:
+            self._mask_cache.pop(next(iter(self._mask_cache)))
+        self._last_mask = mask
+        return mask
 
     def release(self) -> None:
         """Free the GL objects (the context stays)."""
