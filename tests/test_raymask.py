@@ -189,7 +189,7 @@ def test_silhouette_quads_are_where_the_terrain_meets_the_sky(raymask_setup, ter
     assert ring_edge.sum() > 500                                 # the view has a long horizon in the rings
     assert covered[ring_edge].mean() >= 0.99                     # found wherever the truth has one
     # ... and the silhouette quads hold the truth's edge (or a nearer-ridge depth jump): each mixed quad does.
-    hits = rr._hits.reshape(-1, 4)[:len(mask.samples_px) - mask.n_fill, 3] > 0
+    hits = rr.last_hits[:, 3] > 0
     mixed = ~(hits[sil - mask.n_fill].all(axis=1))
     edge_u8 = cv2.dilate(edge.astype(np.uint8), np.ones((3, 3), np.uint8))
     corners = mask.samples_px[sil[mixed]]

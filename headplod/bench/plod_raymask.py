@@ -48,7 +48,7 @@ from ..render.still import TerrainScene, default_head, px_per_deg_at
 from ..demo.viewpoints import place, viewpoint_names
 from .plod import flip_error, psnr_db
 
-__all__ = ["raymask_report", "silhouette_displacement_px", "chart_raymask"]
+__all__ = ["raymask_report", "silhouette_displacement_px", "chart_raymask", "raymask_picture"]
 
 SIZE = (1280, 720)
 INSETS_DEG = (2.0, 5.0, 10.0, 15.0)
@@ -89,9 +89,34 @@ def silhouette_displacement_px(image: np.ndarray, reference: np.ndarray, backgro
     return {"max_px": float(d.max()), "p999_px": float(np.percentile(d, 99.9)), "pixels": int(b.sum())}
 
 
+def raymask_picture(image: np.ndarray, mask, silhouette_quads: np.ndarray, poi_image, cov_deg2,
+                    px_per_deg: float) -> np.ndarray:
+    """The frame with its ray mask drawn on it, (H, W, 3) uint8 RGB.
+
+    Every ring sample as a dark dot, the filled inset's outline (ring 0) in
+    yellow, the silhouette quads outlined in magenta, the POI and its 2σ
+    ellipse (:func:`headplod.render.overlay_poi`) in red.
+    """
+    from ..render import overlay_poi
+
+    out = image.copy()
+    h, w = out.shape[:2]
+    ring = np.round(mask.samples_px[mask.n_fill:]).astype(int)
+    ok = (ring[:, 0] >= 0) & (ring[:, 0] < w) & (ring[:, 1] >= 0) & (ring[:, 1] < h)
+    out[ring[ok, 1], ring[ok, 0]] = (out[ring[ok, 1], ring[ok, 0]] * 0.35).astype(np.uint8)
+    sil = mask.samples_px[mask.quads[silhouette_quads]]
+    cv2.polylines(out, list(np.round(sil * 16).astype(np.int32)), True, (230, 40, 230), 1, cv2.LINE_AA, shift=4)
+    ring0 = mask.samples_px[mask.n_fill:][mask.ring_of[mask.n_fill:] == 0]
+    if len(ring0):
+        order = np.argsort(np.arctan2(ring0[:, 1] - poi_image[1], ring0[:, 0] - poi_image[0]))
+        cv2.polylines(out, [np.round(ring0[order] * 16).astype(np.int32)], True, (250, 220, 40), 1, cv2.LINE_AA,
+                      shift=4)
+    return overlay_poi(out, poi_image, cov_deg2, px_per_deg, n_sigma=2.0)
+
+
 def raymask_report(viewpoints=None, rounds: int = 5, contrasts=(1.0, 0.3), insets_deg=INSETS_DEG,
                    sweep_contrasts=(1.0, 0.05), sweep_viewpoint: str = "mountains", flip: bool = True,
-                   size=SIZE) -> dict:
+                   size=SIZE, picture_dir=None, picture_cov_deg2=((1.0, 0.0), (0.0, 1.0))) -> dict:
     """Measure ``raymask`` against ``full`` and ``csf`` (module notes); returns a JSON-ready dict.
 
     Parameters
@@ -109,6 +134,12 @@ def raymask_report(viewpoints=None, rounds: int = 5, contrasts=(1.0, 0.3), inset
         The inset sweep: diameters, deg; contrasts; on which viewpoint.
     flip : bool
         Compute FLIP (about a second per image on one core).
+    picture_dir : path, optional
+        Write ``raymask_<viewpoint>.png`` there: the default raymask frame
+        with its mask (:func:`raymask_picture`), drawn with the covariance
+        ``picture_cov_deg2`` (deg²; σ = 1° by default, so the 2σ ellipse and
+        the fill it widens are visible; the timed frames use the tracker's
+        σ = 0.05°).
 
     Returns
     -------
@@ -196,6 +227,14 @@ def raymask_report(viewpoints=None, rounds: int = 5, contrasts=(1.0, 0.3), inset
             if m != "full":
                 res[m].update(quality(images[m], images["full"]))
         report["viewpoints"][name] = res
+        if picture_dir is not None:
+            cfg = RayMaskConfig(contrast=contrasts[0])
+            pcov = np.asarray(picture_cov_deg2, dtype=np.float64)
+            mask = rr.mask(screen, head, poi, ppd, pcov, cfg)
+            image = rr.render(mask, view_m, proj, scene.model, cfg)
+            pic = raymask_picture(image, mask, rr.last_silhouette_quads, centre, pcov, ppd)
+            Path(picture_dir).mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(Path(picture_dir) / f"raymask_{name}.png"), cv2.cvtColor(pic, cv2.COLOR_RGB2BGR))
         _progress(f"{name}: full {res['full']['frame_ms']:.0f} ms, csf {res['csf']['frame_ms']:.0f} ms, "
                   + ", ".join(f"{m} {res[m]['frame_ms']:.0f} ms" for m in configs))
 
@@ -282,6 +321,6 @@ if __name__ == "__main__":  # pragma: no cover - a manual run: python -m headplo
     import json
 
     out = Path(sys.argv[1] if len(sys.argv) > 1 else "raymask_report.json")
-    rep = raymask_report()
+    rep = raymask_report(picture_dir=out.parent)
     out.write_text(json.dumps(rep, indent=2))
     chart_raymask(rep, out.with_suffix(".png"))

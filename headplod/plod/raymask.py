@@ -309,6 +309,8 @@ class RayMask:
         (ring k+1, angle m): counter-clockwise seen on the image (y down).
     ring_of : (N,) int64
         Ring of each sample, -1 for the fill.
+    angle_of : (N,) int64
+        Angle index (0..n_angles-1) of each sample, -1 for the fill.
     spacing_of : (N,) int64
         The CSF spacing at each sample, px (1 in the fill).
     r_fill_deg : float
@@ -329,6 +331,7 @@ class RayMask:
     n_fill: int
     quads: np.ndarray
     ring_of: np.ndarray
+    angle_of: np.ndarray
     spacing_of: np.ndarray
     r_fill_deg: float
     rings_deg: np.ndarray
@@ -449,9 +452,10 @@ def build_ray_mask(screen, eye_mm, poi_px, size, px_per_deg: float, cov_deg2=Non
     remap[keep] = n_fill + np.arange(len(keep))
     samples = np.concatenate([fill, flat[keep]])
     ring_of = np.concatenate([np.full(n_fill, -1, np.int64), keep // M])
+    angle_of = np.concatenate([np.full(n_fill, -1, np.int64), keep % M])
     spacing_of = np.concatenate([np.ones(n_fill, np.int64), steps[keep // M]])
     ellipse = r_ell[:, None] * u0
-    return RayMask(samples_px=samples, n_fill=n_fill, quads=remap[quads], ring_of=ring_of,
+    return RayMask(samples_px=samples, n_fill=n_fill, quads=remap[quads], ring_of=ring_of, angle_of=angle_of,
                    spacing_of=spacing_of, r_fill_deg=float(r_fill), rings_deg=rings,
                    ring_spacing_px=steps, n_angles=M, ellipse_deg=ellipse, px_per_deg=ppd)
 
