@@ -201,3 +201,21 @@ def test_silhouette_quads_are_where_the_terrain_meets_the_sky(raymask_setup, ter
     # With silhouettes cast per pixel, the sky/terrain boundary is full's to a pixel.
     ours = np.all(image == np.round(np.array(r.background) * 255).astype(np.uint8), axis=2)
     assert (ours != sky)[ring_edge].mean() <= 0.02
+
+
+def test_render_command_draws_raymask_and_refuses_what_it_cannot(tmp_path, gl_context, capsys):
+    import json
+
+    from headplod.cli import main as cli_main
+
+    out, stats = tmp_path / "ray.png", tmp_path / "ray.json"
+    assert cli_main(["render", "--mode", "raymask", "--size", "320,180", "--inset-deg", "10", "--no-silhouettes",
+                     "--out", str(out), "--stats", str(stats)]) == 0
+    s = json.loads(stats.read_text())
+    assert s["mode"] == "raymask" and s["raymask"]["inset_deg"] == 10 and s["raymask"]["silhouettes"] is False
+    assert s["raymask"]["rays"] == s["raymask"]["fill_rays"] + s["raymask"]["ring_rays"]   # none per pixel
+    assert 0 < s["raymask"]["rays"] < 320 * 180 * 2 and s["render_ms"] > 0
+    assert out.stat().st_size > 1000
+    assert cli_main(["render", "--mode", "raymask", "--inset-deg", "31", "--out", str(out)]) == 2
+    assert cli_main(["render", "--mode", "raymask", "--foveate", "--out", str(out)]) == 2
+    assert "does not take --foveate" in capsys.readouterr().err

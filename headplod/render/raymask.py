@@ -385,7 +385,7 @@ class RayMaskRenderer:
         b["sample_tex"].filter = (moderngl.NEAREST, moderngl.NEAREST)
         b["hit_tex"] = ctx.texture((width, rows), 4, dtype="f4")
         b["hit_fbo"] = ctx.framebuffer(color_attachments=[b["hit_tex"]])
-        b["ring_px"] = ctx.buffer(ring_px.tobytes())
+        b["ring_px"] = ctx.buffer(ring_px.tobytes() if n_ring else bytes(8))      # GL buffers cannot be empty
         b["ring_hit"] = ctx.buffer(reserve=max(n_ring, 1) * 16)
         # The fill: a mask texture and the rectangle around it (two triangles, image px).
         fill = mask.fill_px
