@@ -17,7 +17,7 @@ from headplod.capture.v4l2 import FOURCCS
 from headplod.cli import main as cli_main
 from headplod.plod.select import MODES, UNCERTAINTY_MODES
 from headplod.render.gl import VIEW_MODES
-from headplod.render.still import CONTRAST_SOURCES
+from headplod.render.still import CONTRAST_SOURCES, RENDER_MODES
 from headplod.tracking.tracker import ESTIMATORS
 from headplod.tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
 
@@ -70,7 +70,7 @@ def test_cli_keeps_no_function_local_imports():
     (["track"], "--estimator", ESTIMATORS),
     (["track"], "--uncertainty", COVARIANCE_ESTIMATORS),
     (["track"], "--fourcc", FOURCCS),
-    (["render"], "--mode", MODES),
+    (["render"], "--mode", RENDER_MODES),
     (["render"], "--uncertainty", UNCERTAINTY_MODES),
     (["render"], "--view", tuple(VIEW_MODES)),
     (["render"], "--contrast", CONTRAST_SOURCES),

@@ -1,6 +1,6 @@
 """``headplod render``: its arguments (:func:`add_render_arguments`) and its run (:func:`run_render`).
 
-    headplod render --mode MODE [--uncertainty U] [--head X,Y,Z] [--poi X,Y] [--cov PP,PT,TT]
+    headplod render --mode MODE|raymask [--inset-deg D] [--no-silhouettes] [--uncertainty U] [--head X,Y,Z] [--poi X,Y] [--cov PP,PT,TT]
                     [--size W,H] [--view shaded|wire|levels] --out IMAGE.png [--stats STATS.json]
                     [--export MESH.glb|.ply|.obj|.stl]
 
@@ -18,16 +18,18 @@ from calib import DEFAULT_SCREEN
 from .. import io
 from ..plod.export import check_export_path
 from ..argtypes import floats
-from ..plod.select import MODES, UNCERTAINTY_MODES
+from ..plod.raymask import RayMaskConfig
+from ..plod.select import UNCERTAINTY_MODES
 from .gl import VIEW_MODES
-from .still import CONTRAST_SOURCES, render_still
+from .still import CONTRAST_SOURCES, RENDER_MODES, render_still
 
 __all__ = ["add_render_arguments", "run_render"]
 
 
 def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add ``render``'s options to a (sub)parser; returns it."""
-    render.add_argument("--mode", default="csf", choices=MODES)
+    render.add_argument("--mode", default="csf", choices=RENDER_MODES,
+                        help="a level-selection mode, or raymask: Murphy & Duchowski's rays through a CSF ray mask")
     render.add_argument("--uncertainty", default="adaptive", choices=UNCERTAINTY_MODES)
     render.add_argument("--head", type=floats(3), help="eye position X,Y,Z in the world frame, mm "
                                                          "(default: 600 mm in front of the screen centre)")
@@ -43,6 +45,11 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
                         help="draw the frame as nested resolution layers around the POI, each as dense as the CSF "
                              "needs there (experimental: on llvmpipe the layers' extra geometry passes cost more "
                              "than the pixels they save)")
+    render.add_argument("--inset-deg", type=float, default=RayMaskConfig.inset_deg,
+                        help="raymask: diameter of the full-resolution inset around the POI, deg (default 5, 0..30)")
+    render.add_argument("--no-silhouettes", action="store_true",
+                        help="raymask: rasterise the quads that straddle a silhouette instead of casting "
+                             "every pixel in them")
     render.add_argument("--out", required=True, help="output image (PNG)")
     render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
     render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
@@ -67,10 +74,29 @@ def run_render(args) -> int:
         except ValueError as exc:
             print(f"headplod: --export {exc}", file=sys.stderr)
             return 2
+    raymask = None
+    if args.mode == "raymask":
+        bad = [name for name, on in (("--foveate", args.foveate), ("--export", args.export is not None),
+                                     ("--contrast readback", args.contrast != "shading"),
+                                     (f"--view {args.view}", args.view != "shaded")) if on]
+        if bad:
+            print(f"headplod: --mode raymask does not take {', '.join(bad)}", file=sys.stderr)
+            return 2
+        try:
+            raymask = RayMaskConfig(inset_deg=args.inset_deg, silhouettes=not args.no_silhouettes)
+        except ValueError as exc:
+            print(f"headplod: --inset-deg: {exc}", file=sys.stderr)
+            return 2
     _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
                             poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
                             stats_path=args.stats, contrast=args.contrast, export=args.export,
-                            foveate=args.foveate)
+                            foveate=args.foveate, raymask=raymask)
+    if "raymask" in stats:
+        r = stats["raymask"]
+        print(f"{r['rays']} rays ({r['fill_rays']} inset, {r['ring_rays']} rings, {r['silhouette_rays']} in "
+              f"{r['silhouette_quads']} silhouette quads), {stats['triangles']} triangles; mask "
+              f"{stats['select_ms']:.1f} ms, render {stats['render_ms']:.1f} ms; image: {args.out}", file=sys.stderr)
+        return 0
     print(f"{stats['triangles']} triangles; select {stats['select_ms']:.1f} ms, build {stats['build_ms']:.1f} ms, "
           f"render {stats['render_ms']:.1f} ms; image: {args.out}"
           + (f"; mesh: {args.export}" if args.export else ""), file=sys.stderr)

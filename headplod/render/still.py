@@ -19,7 +19,8 @@ import numpy as np
 from ..plod.contrast import project_to_screen_px, readback_contrast
 from ..plod.export import check_export_path, export_mesh
 from ..plod.mesh import AdaptiveMesh, BaseMesh
-from ..plod.select import LevelSelector, SelectorConfig, View
+from ..plod.raymask import RayMaskConfig
+from ..plod.select import MODES, LevelSelector, SelectorConfig, View
 from ..plod.terrain import Terrain
 from .foveate import FoveatedRenderer
 from .context import create_context
@@ -32,6 +33,13 @@ from .projection import off_axis_projection, scene_to_world
 SCALE_MM_PER_M = 0.02
 DEPTH_MM = 250.0
 PITCH_DEG = 55.0
+
+#: What ``render_still(mode=...)`` and ``headplod render --mode`` draw: the level-selection modes of
+#: :data:`headplod.plod.select.MODES` (a mesh per frame), and ``raymask``, Murphy & Duchowski's hybrid
+#: renderer (:mod:`headplod.render.raymask`: rays through a CSF ray mask, no level selection). ``raymask``
+#: is not a selector mode: it selects no levels, so the selectors, their config and the benches that
+#: iterate over ``MODES`` stay as they are.
+RENDER_MODES = MODES + ("raymask",)
 
 #: Where a triangle's contrast comes from (``render_still(contrast=...)``, ``headplod render --contrast``):
 #: the shading, or the paper's window read back from a first frame.
@@ -86,8 +94,20 @@ def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
 
 def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_px=None, cov_deg2=None,
                  size=(1280, 720), view_mode="shaded", out=None, stats_path=None, scene=None, renderer=None,
-                 contrast="shading", export=None, foveate=False):
+                 contrast="shading", export=None, foveate=False, raymask: RayMaskConfig | None = None,
+                 raymask_renderer=None):
     """Render one frame and return (image (H, W, 3) uint8 RGB, stats dict).
+
+    ``mode="raymask"``: Murphy & Duchowski's hybrid renderer
+    (:mod:`headplod.render.raymask`) with the settings ``raymask``
+    (default ``RayMaskConfig()``); ``raymask_renderer`` (a
+    :class:`headplod.render.raymask.RayMaskRenderer` of this scene's mesh
+    and ``size``) is reused when given, so its height field and last ray
+    mask are not rebuilt. Only the shaded view; no ``foveate``, read-back
+    contrast or ``export`` (there is no mesh). Its stats give ``rays`` (and
+    per pass), ``triangles`` (of the intermediate mesh), ``select_ms`` (the
+    ray mask, 0 when reused for the same view), ``build_ms`` 0 and
+    ``render_ms`` (cast, classify, rasterise).
 
     ``foveate``: draw the frame as foveated resolution layers around the POI
     (:mod:`headplod.render.foveate`); the stats then give the layers and
@@ -110,6 +130,11 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
     if contrast not in CONTRAST_SOURCES:
         raise ValueError(f"render_still: contrast must be one of {', '.join(CONTRAST_SOURCES)}, got {contrast!r}")
+    if mode not in RENDER_MODES:
+        raise ValueError(f"render_still: mode must be one of {', '.join(RENDER_MODES)}, got {mode!r}")
+    if mode == "raymask":
+        return _render_raymask(screen, scene, head, poi, cov_deg2, size, view_mode, out, stats_path, renderer,
+                               contrast, export, foveate, raymask or RayMaskConfig(), raymask_renderer)
     selector = scene.selector(mode, uncertainty, hysteresis=False)
     if renderer is None:
         renderer = TerrainRenderer(create_context(), size=tuple(size))
@@ -170,6 +195,48 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
         Path(stats_path).write_text(json.dumps(stats, indent=2))
     if export is not None:
         export_mesh(scene.mesh, face_levels, export)
+    return image, stats
+
+
+def _render_raymask(screen, scene, head, poi, cov_deg2, size, view_mode, out, stats_path, renderer, contrast,
+                    export, foveate, config, raymask_renderer):
+    """``render_still``'s ``raymask`` mode (arguments checked and defaulted by it)."""
+    from .raymask import RayMaskRenderer
+
+    for bad, text in ((view_mode != "shaded", f"view_mode {view_mode!r} (only 'shaded')"),
+                      (foveate, "foveate"), (contrast != "shading", f"contrast {contrast!r}"),
+                      (export is not None, "export (there is no mesh)")):
+        if bad:
+            raise ValueError(f"render_still: mode 'raymask' does not support {text}")
+    rr = raymask_renderer
+    if rr is None:
+        ctx = renderer.ctx if renderer is not None else create_context()
+        rr = RayMaskRenderer(ctx, scene.mesh, size=tuple(size))
+    elif tuple(rr.size) != tuple(int(v) for v in size):
+        raise ValueError(f"render_still: raymask_renderer is {rr.size}, the image {tuple(size)}")
+    view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
+    px_per_deg = px_per_deg_at(screen, head, size)
+    mask = rr.mask(screen, head, poi, px_per_deg, cov_deg2, config)
+    image = rr.render(mask, view, proj, scene.model, config)
+    poi_image = poi * np.array(size) / np.array(screen.size_px)
+    if cov_deg2 is not None:
+        image = overlay_poi(image, poi_image, cov_deg2, px_per_deg)
+    st = rr.last_stats
+    stats = {"mode": "raymask", "uncertainty": None, "view": view_mode, "size": list(size),
+             "head_mm": head.round(2).tolist(), "poi_px": poi.round(2).tolist(),
+             "triangles": 2 * st["drawn_quads"], "select_ms": rr.last_mask_ms, "build_ms": 0.0,
+             "render_ms": st["render_ms"], "contrast": contrast,
+             "raymask": {**{k: v for k, v in st.items() if k != "render_ms"},
+                         "inset_deg": config.inset_deg, "csf_model": config.csf_model,
+                         "mask_contrast": config.contrast, "silhouettes": bool(config.silhouettes),
+                         "fill_radius_deg": round(mask.r_fill_deg, 3), "rings": int(len(mask.rings_deg)),
+                         "angles": int(mask.n_angles)}}
+    if out:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    if stats_path:
+        Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
+        Path(stats_path).write_text(json.dumps(stats, indent=2))
     return image, stats
 
 
