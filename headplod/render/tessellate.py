@@ -1,0 +1,600 @@
+"""PLOD on the GPU: a terrain of patches tessellated from a height texture, the CSF in the control shader.
+
+The second PLOD back end (issue 14), beside the CPU one (``LevelSelector`` +
+``AdaptiveMesh`` + :class:`headplod.render.gl.TerrainRenderer`):
+
+- The terrain is a :class:`headplod.plod.patches.PatchGrid`: an ``N x N``
+  height grid (an R32F texture, mipmapped for the normals of coarse levels)
+  cut into patches of ``patch_samples`` sample spacings, drawn as one
+  ``GL_PATCHES`` call of one control point per patch (no vertex buffer: a
+  patch is known by ``gl_PrimitiveID``).
+- The tessellation control shader (one invocation per patch) evaluates the
+  ``csf`` criterion of :mod:`headplod.plod.select` in closed form, as
+  :func:`headplod.plod.patches.patch_levels` does in numpy: the patch's inner
+  level from its corners, each outer (edge) level from the edge alone
+  (endpoints, midpoint, and the larger contrast of the two patches sharing
+  it), so both patches sharing an edge compute the same factor: no cracks.
+  Level L is the tessellation factor 2^L (``equal_spacing``); the finest
+  level puts one vertex per height sample. The highest visible frequency
+  (Lambert's W_{-1}) is solved by Newton's method in log form. Patches
+  whose bounding box (corners' x, y; the patch's height range) is outside
+  the view frustum get outer factors 0 and are dropped.
+- The evaluation shader places every vertex on a height sample (the tess
+  coordinate rounded to the sample grid, so shared edge vertices are
+  bit-identical) and shades it as ``gl.py``'s terrain shader does (Lambert
+  + ambient times the height colour, per vertex), with the normal from
+  central differences of the height texture: at full detail over the
+  neighbouring samples (as :func:`headplod.plod.patches.grid_normals`); at a
+  coarser level over the level's vertex spacing in the matching mip level
+  (the normals of the surface that level can show).
+
+The CPU's share per frame is a handful of uniforms: it does not grow with
+the terrain (``headplod bench plod --scale``). Not here (yet): hysteresis
+(per-patch state), the read-back contrast, the levels and wire views.
+
+Frames and units: scene metres → world mm by ``model``; matrices as in
+:mod:`headplod.render.projection`; images as :mod:`headplod.render.gl`'s.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..plod import perception as pc
+from ..plod.patches import PatchGrid, max_level_for
+from .context import moderngl
+from .gl import _FRAGMENT_SHADER, read_rgb
+
+__all__ = ["TessellationConfig", "TessellationRenderer", "TESS_MODES", "REQUIRED_GL"]
+
+#: What the control shader computes: the CSF's levels, or every patch at the finest level (the reference).
+TESS_MODES = ("csf", "full")
+
+#: OpenGL version the back end needs: 4.0 for tessellation shaders; 4.3 for the storage buffers of the tests.
+REQUIRED_GL = 400
+
+_SHIFT_FORMS = {None: 0, "ellipse": 1, "eq1": 2}
+
+
+@dataclass(frozen=True)
+class TessellationConfig:
+    """Settings of the tessellation back end, each with its unit.
+
+    Attributes
+    ----------
+    patch_samples : int
+        Patch side, height-sample spacings (64): at the finest level a patch
+        has ``patch_samples`` segments per side, one per sample. A power of
+        two, 1..max_tess_level.
+    max_tess_level : int
+        Largest tessellation factor used, segments per patch side (64, GL's
+        minimum ``GL_MAX_TESS_GEN_LEVEL``). A power of two.
+    level_bias : float
+        Added to every continuous level, levels (0.0; ``SelectorConfig.level_bias``).
+    shift : {"ellipse", "eq1"}
+        The uncertainty shift's form (``SelectorConfig.shift``).
+    ellipse_sigma : float
+        Size of its ellipse, standard deviations (2.0).
+    cull : bool
+        Drop patches outside the view frustum in the control shader (True).
+    smooth_normals : bool
+        Normals of a coarse level from the matching mip level (True); False:
+        every vertex's normal from its neighbouring samples.
+    """
+
+    patch_samples: int = 64
+    max_tess_level: int = 64
+    level_bias: float = 0.0
+    shift: str = "ellipse"
+    ellipse_sigma: float = 2.0
+    cull: bool = True
+    smooth_normals: bool = True
+
+    def __post_init__(self):
+        for name in ("patch_samples", "max_tess_level"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1 or v & (v - 1):
+                raise ValueError(f"TessellationConfig.{name} must be a power of two >= 1, got {v!r}")
+        if self.shift not in ("ellipse", "eq1"):
+            raise ValueError(f"TessellationConfig.shift must be 'ellipse' or 'eq1', got {self.shift!r}")
+        for name in ("level_bias", "ellipse_sigma"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)) or (name == "ellipse_sigma" and v < 0):
+                raise ValueError(f"TessellationConfig.{name} must be a finite number"
+                                 f"{' >= 0' if name == 'ellipse_sigma' else ''}, got {v!r}")
+
+    @property
+    def max_level(self) -> int:
+        """Finest level: 2^max_level segments per patch side."""
+        return max_level_for(self.patch_samples, self.max_tess_level)
+
+
+# --------------------------------------------------------------------------
+# shaders
+# --------------------------------------------------------------------------
+
+_VERTEX = """
+#version 430
+void main() { }   // a patch is known by gl_PrimitiveID; no attributes
+"""
+
+_COMMON = """
+uniform sampler2D u_height;       // R32F, texel (j, i) = height of sample [i, j], metres
+uniform sampler2D u_patch;        // RGBA32F (n, n): z_min, z_max (m), contrast of patch (pj, pi)
+uniform int u_patches;            // patches per side, n
+uniform int u_patch_samples;      // P
+uniform vec2 u_origin_m;          // scene (x, y) of sample [0, 0]
+uniform vec2 u_spacing_m;         // (dx, dy)
+uniform mat4 u_mvp;               // T_clip_scene
+
+ivec2 patch_of(int id) { return ivec2(id % u_patches, id / u_patches); }     // (column, row)
+
+vec3 sample_point(ivec2 s) {      // scene position of sample (column, row)
+    return vec3(u_origin_m + vec2(s) * u_spacing_m, texelFetch(u_height, s, 0).r);
+}
+"""
+
+_CONTROL = """
+#version 430
+layout(vertices = 1) out;
+""" + _COMMON + """
+uniform mat4 u_model;             // T_world_scene (mm per m)
+uniform vec3 u_eye_mm;            // eye, world frame
+uniform vec3 u_eye_prev_mm;       // eye at the last frame (speed), world frame
+uniform float u_dt_s;             // time since then, s; 0: speed at its floor
+uniform mat3 u_axes;              // columns Ξ, Ψ, V (world frame)
+uniform mat2 u_cov_inv;           // Σ⁻¹ of the viewing direction's (φ, θ), 1/deg²
+uniform int u_shift_form;         // 0 none, 1 ellipse, 2 eq1
+uniform float u_ellipse_sigma;
+uniform float u_level_bias;
+uniform int u_max_level;
+uniform int u_full;               // 1: every patch at u_max_level
+uniform int u_cull;
+uniform vec4 u_region_ndc;        // patches whose box misses this NDC rectangle (x0, y0, x1, y1) are dropped
+
+#ifdef LEVELS_OUT
+layout(std430, binding = 0) buffer Levels { float levels[]; };   // 6 per patch: inner, outer W S E N, culled
+#endif
+
+const float PI = 3.14159265358979;
+const float MIN_SPEED = 0.1;      // deg/s
+const float ECC_SLOPE = 0.29;     // 1/deg
+
+vec3 world(vec3 p) { return (u_model * vec4(p, 1.0)).xyz; }
+
+float angle_deg(vec3 u, vec3 v) { return degrees(2.0 * asin(min(length(u - v) * 0.5, 1.0))); }
+
+// (φ, θ) of a world point about the viewing direction, deg (perception.view_offsets_deg).
+vec2 offsets_deg(vec3 p) {
+    vec3 loc = transpose(u_axes) * (p - u_eye_mm);
+    return vec2(degrees(atan(loc.y, loc.z)), degrees(atan(loc.x, loc.z)));
+}
+
+// perception.uncertainty_shift
+vec2 shift(vec2 P) {
+    if (u_shift_form == 0) return P;
+    float q = dot(P, u_cov_inv * P);
+    float f = u_shift_form == 1 ? max(1.0 - u_ellipse_sigma / sqrt(q), 0.0) : 1.0 - exp(-0.5 * q);
+    if (q == 0.0) f = 0.0;
+    return f * P;
+}
+
+float eccentricity_deg(vec2 P) { vec2 t = tan(radians(P)); return degrees(atan(length(t))); }
+
+// csf.max_visible_freq_cpd, kelly_scaled: f_max = 2 t / b / (1 + 0.29 e), t = -W_{-1}(-z),
+// z = (b/2) / sqrt(A C); in log form t - ln t = L := 0.5 ln(A C) - ln(b / 2), visible iff L >= 1.
+float fmax_cpd(float contrast, float speed, float ecc) {
+    float v = max(abs(speed), MIN_SPEED);
+    float lg = abs(log(v / 3.0) / log(10.0));
+    float A = 4.0 * PI * PI * (6.1 + 7.3 * lg * lg * lg) * v;
+    float b = 4.0 * PI * (v + 2.0) / 45.9;
+    if (!(contrast > 0.0)) return 0.0;
+    float L = 0.5 * log(A * contrast) - log(0.5 * b);
+    if (L < 1.0) return 0.0;
+    float d = L - 1.0;
+    float t = max(1.0 + sqrt(2.0 * d) + 2.0 * d / 3.0, L + log(L));     // start at or right of the root
+    for (int k = 0; k < 8; ++k) {
+        float g = t - log(t) - L, dg = 1.0 - 1.0 / t;
+        if (dg < 1e-6) break;
+        t = max(t - g / dg, 1.0);
+    }
+    return 2.0 * t / b / (1.0 + ECC_SLOPE * ecc);
+}
+
+// Continuous level log2(f_max · diameter) of pieces centred at world point c, reaching reach_deg from it.
+float level_at(vec3 c, float reach_deg, float diameter_deg, float contrast) {
+    float ecc = max(eccentricity_deg(shift(offsets_deg(c))) - reach_deg, 0.0);
+    float speed = MIN_SPEED;
+    if (u_dt_s > 0.0)
+        speed = max(angle_deg(normalize(c - u_eye_prev_mm), normalize(c - u_eye_mm)) / u_dt_s, MIN_SPEED);
+    float f = fmax_cpd(contrast, speed, ecc);
+    if (f <= 0.0) return -1e30;
+    return log2(f * max(diameter_deg, 1e-9)) + u_level_bias;
+}
+
+float factor(float level) {       // ceil, clamped to [0, max level], as 2^L (perception.round_level)
+    float l = clamp(ceil(clamp(level, -1.0, float(u_max_level) + 1.0)), 0.0, float(u_max_level));
+    return exp2(u_full == 1 ? float(u_max_level) : l);
+}
+
+bool outside(vec3 lo, vec3 hi) {   // the box is wholly outside one frustum plane, or misses the region
+    vec4 c[8];
+    for (int k = 0; k < 8; ++k)
+        c[k] = u_mvp * vec4((k & 1) == 0 ? lo.x : hi.x, (k & 2) == 0 ? lo.y : hi.y, (k & 4) == 0 ? lo.z : hi.z, 1.0);
+    for (int axis = 0; axis < 3; ++axis) {
+        bool below = true, above = true;
+        for (int k = 0; k < 8; ++k) {
+            below = below && c[k][axis] < -c[k].w;
+            above = above && c[k][axis] > c[k].w;
+        }
+        if (below || above) return true;
+    }
+    bool in_front = true;
+    vec2 mn = vec2(1e30), mx = vec2(-1e30);
+    for (int k = 0; k < 8; ++k) {
+        in_front = in_front && c[k].w > 0.0;
+        vec2 ndc = c[k].xy / c[k].w;
+        mn = min(mn, ndc); mx = max(mx, ndc);
+    }
+    return in_front && (mx.x < u_region_ndc.x || mn.x > u_region_ndc.z || mx.y < u_region_ndc.y || mn.y > u_region_ndc.w);
+}
+
+void main() {
+    int id = gl_PrimitiveID;
+    ivec2 pq = patch_of(id);
+    int P = u_patch_samples;
+    ivec2 s0 = pq * P;
+    vec4 info = texelFetch(u_patch, pq, 0);
+    // Corners SW, SE, NE, NW (scene, then world).
+    vec3 cs[4] = vec3[4](sample_point(s0), sample_point(s0 + ivec2(P, 0)), sample_point(s0 + ivec2(P, P)),
+                         sample_point(s0 + ivec2(0, P)));
+    bool culled = false;
+    if (u_cull == 1) {
+        vec2 lo = u_origin_m + vec2(s0) * u_spacing_m, hi = u_origin_m + vec2(s0 + P) * u_spacing_m;
+        culled = outside(vec3(lo, info.x), vec3(hi, info.y));
+    }
+    vec3 c[4], d[4];
+    for (int k = 0; k < 4; ++k) { c[k] = world(cs[k]); d[k] = normalize(c[k] - u_eye_mm); }
+    // Inner: the patch's centre, diameter (largest angle between corners) and reach (to the farthest corner).
+    vec3 centre = 0.25 * (c[0] + c[1] + c[2] + c[3]);
+    vec3 cd = normalize(centre - u_eye_mm);
+    float diameter = max(max(max(angle_deg(d[0], d[1]), angle_deg(d[1], d[2])), max(angle_deg(d[2], d[3]),
+                         angle_deg(d[3], d[0]))), max(angle_deg(d[0], d[2]), angle_deg(d[1], d[3])));
+    float reach = max(max(angle_deg(cd, d[0]), angle_deg(cd, d[1])), max(angle_deg(cd, d[2]), angle_deg(cd, d[3])));
+    float inner = level_at(centre, reach, diameter, info.z);
+    // Edges W, S, E, N from their endpoints alone, ordered west to east and south to north.
+    ivec2 ends[4] = ivec2[4](ivec2(0, 3), ivec2(0, 1), ivec2(1, 2), ivec2(3, 2));
+    ivec2 step[4] = ivec2[4](ivec2(-1, 0), ivec2(0, -1), ivec2(1, 0), ivec2(0, 1));
+    float outer[4];
+    for (int e = 0; e < 4; ++e) {
+        vec3 a = c[ends[e].x], b = c[ends[e].y];
+        vec3 da = d[ends[e].x], db = d[ends[e].y];
+        vec3 mid = 0.5 * (a + b);
+        vec3 md = normalize(mid - u_eye_mm);
+        ivec2 nb = clamp(pq + step[e], ivec2(0), ivec2(u_patches - 1));
+        float contrast = max(info.z, texelFetch(u_patch, nb, 0).z);
+        outer[e] = level_at(mid, max(angle_deg(md, da), angle_deg(md, db)), angle_deg(da, db), contrast);
+    }
+#ifdef LEVELS_OUT
+    levels[6 * id] = inner;
+    for (int e = 0; e < 4; ++e) levels[6 * id + 1 + e] = outer[e];
+    levels[6 * id + 5] = culled ? 1.0 : 0.0;
+#endif
+    for (int e = 0; e < 4; ++e) gl_TessLevelOuter[e] = culled ? 0.0 : factor(outer[e]);
+    gl_TessLevelInner[0] = gl_TessLevelInner[1] = factor(inner);
+}
+"""
+
+_EVALUATION = """
+#version 430
+layout(quads, equal_spacing, ccw) in;
+""" + _COMMON + """
+uniform vec3 u_light;             // unit vector toward the light, scene frame
+uniform float u_ambient;
+uniform vec2 u_height_range;      // scene z of the low and high colour
+uniform int u_smooth_normals;
+out vec3 v_color;
+#ifdef SAMPLES_OUT
+out vec2 t_sample;                // the vertex's sample (column, row), for the watertightness test
+#endif
+
+const vec3 LOW = vec3(0.30, 0.42, 0.26);   // as gl.py's terrain shader
+const vec3 MID = vec3(0.52, 0.56, 0.40);
+const vec3 HIGH = vec3(0.80, 0.80, 0.76);
+
+float h(ivec2 s) { return texelFetch(u_height, s, 0).r; }
+
+void main() {
+    int P = u_patch_samples;
+    ivec2 pq = patch_of(gl_PrimitiveID);
+    vec2 uv = gl_TessCoord.xy;
+    ivec2 s = pq * P + ivec2(round(uv * float(P)));     // on the sample grid: shared vertices are identical
+    vec3 pos = sample_point(s);
+    // Vertex spacing of the level that made this vertex: an edge's factor on an edge (the same in both
+    // patches), the inner factor inside; at a corner (shared by four patches' different edges) full detail.
+    bool eu = uv.x == 0.0 || uv.x == 1.0, ev = uv.y == 0.0 || uv.y == 1.0;
+    float tf = gl_TessLevelInner[0];
+    if (eu && !ev) tf = uv.x == 0.0 ? gl_TessLevelOuter[0] : gl_TessLevelOuter[2];
+    if (ev && !eu) tf = uv.y == 0.0 ? gl_TessLevelOuter[1] : gl_TessLevelOuter[3];
+    if (eu && ev) tf = float(P);
+    int n = textureSize(u_height, 0).x;
+    vec2 grad;
+    float spacing = float(P) / tf;       // samples between vertices, a power of two
+    if (u_smooth_normals == 0 || spacing <= 1.0) {
+        // np.gradient: central differences, one-sided at the border.
+        ivec2 lo = max(s - 1, ivec2(0)), hi = min(s + 1, ivec2(n - 1));
+        grad = vec2((h(ivec2(hi.x, s.y)) - h(ivec2(lo.x, s.y))) / (float(hi.x - lo.x) * u_spacing_m.x),
+                    (h(ivec2(s.x, hi.y)) - h(ivec2(s.x, lo.y))) / (float(hi.y - lo.y) * u_spacing_m.y));
+    } else {
+        float lod = log2(spacing);
+        vec2 c = (vec2(s) + 0.5) / float(n), dx = vec2(spacing / float(n), 0.0), dy = vec2(0.0, spacing / float(n));
+        grad = vec2(textureLod(u_height, c + dx, lod).r - textureLod(u_height, c - dx, lod).r,
+                    textureLod(u_height, c + dy, lod).r - textureLod(u_height, c - dy, lod).r)
+               / (2.0 * spacing * u_spacing_m);
+    }
+    vec3 nrm = normalize(vec3(-grad, 1.0));
+    gl_Position = u_mvp * vec4(pos, 1.0);
+    float shade = u_ambient + (1.0 - u_ambient) * max(dot(nrm, u_light), 0.0);
+    float span = max(u_height_range.y - u_height_range.x, 1e-20);
+    float t = clamp((pos.z - u_height_range.x) / span, 0.0, 1.0);
+    vec3 base = t < 0.5 ? mix(LOW, MID, 2.0 * t) : mix(MID, HIGH, 2.0 * t - 1.0);
+    v_color = base * shade;
+#ifdef SAMPLES_OUT
+    t_sample = vec2(s);
+#endif
+}
+"""
+
+# The watertightness test's pass: every generated triangle's three samples into a storage buffer.
+_GEOMETRY_SAMPLES = """
+#version 430
+layout(triangles) in;
+layout(points, max_vertices = 1) out;
+in vec2 t_sample[];
+layout(std430, binding = 1) buffer Triangles { uint count; uint capacity; uint pad0; uint pad1; vec2 corners[]; };
+void main() {
+    uint k = atomicAdd(count, 1u);
+    if (k < capacity)
+        for (int i = 0; i < 3; ++i) corners[3u * k + uint(i)] = t_sample[i];
+}
+"""
+
+
+def _variant(source: str, *defines: str) -> str:
+    head, rest = source.lstrip().split("\n", 1)
+    return head + "\n" + "".join(f"#define {d} 1\n" for d in defines) + rest
+
+
+class TessellationRenderer:
+    """Draw a :class:`PatchGrid` with per-patch CSF tessellation, offscreen.
+
+    Parameters
+    ----------
+    ctx : moderngl.Context
+        OpenGL >= 4.0 (``create_context(require=400)``; 4.3 for :meth:`levels`
+        and :meth:`triangle_samples`).
+    grid : PatchGrid
+        The terrain; its ``patch_samples`` must equal ``config.patch_samples``.
+    size : (width, height)
+        Image size, px.
+    config : TessellationConfig
+    background : RGB in [0, 1]
+        Clear colour (``TerrainRenderer``'s).
+
+    Attributes
+    ----------
+    last_render_ms : float
+        Clear + draw + ``ctx.finish()`` of the last :meth:`render`, ms (no read-back).
+    last_setup_ms : float
+        CPU time of the last frame's uniforms (the selection's CPU share), ms.
+    last_triangles : int
+        Triangles the last :meth:`render` generated (``GL_PRIMITIVES_GENERATED``).
+    height_range : (2,) float
+        Scene z of the low and high terrain colours: the grid's range.
+    """
+
+    def __init__(self, ctx, grid: PatchGrid, size=(1280, 720), config: TessellationConfig = TessellationConfig(),
+                 background=(0.62, 0.72, 0.82)):
+        if not isinstance(config, TessellationConfig):
+            raise TypeError(f"TessellationRenderer: config must be a TessellationConfig, got {type(config).__name__}")
+        if ctx.version_code < REQUIRED_GL:
+            raise RuntimeError(f"TessellationRenderer: needs OpenGL {REQUIRED_GL // 100}.{REQUIRED_GL % 100 // 10}, "
+                               f"the context has {ctx.version_code}")
+        if grid.patch_samples != config.patch_samples:
+            raise ValueError(f"TessellationRenderer: grid has patches of {grid.patch_samples} samples, "
+                             f"config.patch_samples is {config.patch_samples}")
+        w, h = (int(v) for v in size)
+        if w <= 0 or h <= 0:
+            raise ValueError(f"TessellationRenderer: size must be positive (width, height), got {size!r}")
+        self.ctx, self.grid, self.config, self.size = ctx, grid, config, (w, h)
+        self.background = tuple(float(c) for c in background)
+        self.last_render_ms = self.last_setup_ms = float("nan")
+        self.last_triangles = 0
+        z = grid.heights_m
+        self.height_range = (float(z.min()), float(z.max()))
+        n = z.shape[0]
+        self._height = ctx.texture((n, n), 1, np.ascontiguousarray(z, np.float32).tobytes(), dtype="f4")
+        if config.smooth_normals:
+            self._height.build_mipmaps()
+            self._height.filter = (moderngl.LINEAR_MIPMAP_NEAREST, moderngl.LINEAR)
+        else:
+            self._height.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self._height.repeat_x = self._height.repeat_y = False
+        info = np.stack([grid.z_min_m, grid.z_max_m, grid.contrast, np.zeros_like(grid.contrast)], axis=-1)
+        self._patch = ctx.texture((grid.n_patches, grid.n_patches), 4, info.astype(np.float32).tobytes(), dtype="f4")
+        self._patch.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self._programs = {}
+        self._vaos = {}
+        self._fbo = ctx.framebuffer(color_attachments=[ctx.renderbuffer((w, h), components=4)],
+                                    depth_attachment=ctx.depth_renderbuffer((w, h)))
+        self._rgba = np.empty((h, w, 4), np.uint8)
+        self._query = ctx.query(primitives=True)
+        self._prev = None        # (eye_mm, t) of the last frame, for the angular speed
+
+    # -- programs --------------------------------------------------------------
+
+    def _program(self, kind: str):
+        """``draw`` (image), ``levels`` (control shader's levels into a buffer), ``samples`` (triangles' samples)."""
+        if kind not in self._programs:
+            control = _variant(_CONTROL, "LEVELS_OUT") if kind == "levels" else _CONTROL
+            evaluation = _variant(_EVALUATION, "SAMPLES_OUT") if kind == "samples" else _EVALUATION
+            prog = self.ctx.program(vertex_shader=_VERTEX, tess_control_shader=control,
+                                    tess_evaluation_shader=evaluation,
+                                    geometry_shader=_GEOMETRY_SAMPLES if kind == "samples" else None,
+                                    fragment_shader=_FRAGMENT_SHADER)
+            self._programs[kind] = prog
+            self._vaos[kind] = self.ctx.vertex_array(prog, [])
+        return self._programs[kind]
+
+    def _set_uniforms(self, prog, view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc,
+                      light_dir=(0.4, -0.3, 0.85), ambient=0.25):
+        """Every uniform of the frame (the CPU's whole share of the selection)."""
+        g, cfg = self.grid, self.config
+        model = np.asarray(model, np.float64)
+        mvp = np.asarray(proj, np.float64) @ np.asarray(view, np.float64) @ model
+        values = {
+            "u_height": 0, "u_patch": 1, "u_patches": g.n_patches, "u_patch_samples": g.patch_samples,
+            "u_origin_m": g.origin_m, "u_spacing_m": (g.dx_m, g.dy_m),
+            "u_model": model.T.astype("f4").tobytes(), "u_mvp": mvp.T.astype("f4").tobytes(),
+            "u_eye_mm": tuple(np.asarray(eye_mm, float)), "u_axes": np.asarray(axes, "f4").tobytes(),
+            "u_level_bias": float(cfg.level_bias), "u_max_level": cfg.max_level, "u_full": int(mode == "full"),
+            "u_cull": int(cfg.cull), "u_ellipse_sigma": float(cfg.ellipse_sigma),
+            "u_region_ndc": tuple(region_ndc) if region_ndc is not None else (-2.0, -2.0, 2.0, 2.0),
+            "u_smooth_normals": int(cfg.smooth_normals), "u_ambient": float(ambient),
+            "u_height_range": self.height_range,
+        }
+        light = np.asarray(light_dir, np.float64)
+        values["u_light"] = tuple(light / np.linalg.norm(light))
+        # Σ⁻¹ for the shift (None or all-zero: no shift). u_axes: the rows Ξ, Ψ, V written row-major are the
+        # columns of the GLSL mat3, so transpose(u_axes) * d = (Ξ·d, Ψ·d, V·d).
+        form, cov_inv = 0, np.eye(2)
+        if cov_deg2 is not None and np.any(np.asarray(cov_deg2) != 0):
+            form, cov_inv = _SHIFT_FORMS[cfg.shift], np.linalg.inv(np.asarray(cov_deg2, np.float64))
+        values["u_shift_form"], values["u_cov_inv"] = form, cov_inv.astype("f4").tobytes()
+        prev, dt = np.asarray(eye_mm, float), 0.0
+        if t is not None and self._prev is not None and self._prev[1] is not None and t > self._prev[1]:
+            prev, dt = self._prev[0], t - self._prev[1]
+        values["u_eye_prev_mm"], values["u_dt_s"] = tuple(prev), float(dt)
+        for name, value in values.items():
+            if name in prog:
+                if isinstance(value, bytes):
+                    prog[name].write(value)
+                else:
+                    prog[name].value = value
+
+    def _bind(self):
+        self._height.use(0)
+        self._patch.use(1)
+        self.ctx.patch_vertices = 1
+
+    # -- frames ----------------------------------------------------------------
+
+    def render(self, view, proj, model, eye_mm, axes, cov_deg2=None, *, mode: str = "csf", t: float | None = None,
+               region_ndc=None) -> np.ndarray:
+        """Draw one frame and read it back: (H, W, 3) uint8 RGB, row 0 at the top.
+
+        Parameters
+        ----------
+        view, proj : (4, 4)
+            ``T_eye_world`` and ``T_clip_eye`` (:func:`off_axis_projection`).
+        model : (4, 4)
+            ``T_world_scene``.
+        eye_mm : (3,)
+            Eye, world frame, mm.
+        axes : (3, 3)
+            Rows Ξ, Ψ, V of the head frame looking at the POI (:meth:`LevelSelector.head_axes`).
+        cov_deg2 : (2, 2) or None
+            Covariance of the viewing direction, deg² (the uncertainty shift).
+        mode : {"csf", "full"}
+            ``full``: every patch at the finest level (the reference).
+        t : float or None
+            Time, s: with the last frame's, the patches' angular speed; None: the speed floor.
+        region_ndc : (4,) or None
+            (x0, y0, x1, y1) in NDC: only patches whose box reaches it are drawn (a reference of a region).
+        """
+        if mode not in TESS_MODES:
+            raise ValueError(f"TessellationRenderer.render: mode must be one of {TESS_MODES}, got {mode!r}")
+        ctx = self.ctx
+        t0 = time.perf_counter()
+        prog = self._program("draw")
+        self._set_uniforms(prog, view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc)
+        self._prev = (np.asarray(eye_mm, float).copy(), t)
+        self.last_setup_ms = (time.perf_counter() - t0) * 1e3
+        self._bind()
+        ctx.finish()
+        t1 = time.perf_counter()
+        self._fbo.use()
+        self._fbo.viewport = (0, 0, *self.size)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        self._fbo.clear(*self.background, 1.0, depth=1.0)
+        with self._query:
+            self._vaos["draw"].render(moderngl.PATCHES, vertices=self.grid.n_patches ** 2)
+        ctx.finish()
+        self.last_render_ms = (time.perf_counter() - t1) * 1e3
+        self.last_triangles = int(self._query.primitives)
+        return read_rgb(self._fbo, self._rgba)
+
+    def levels(self, view, proj, model, eye_mm, axes, cov_deg2=None, *, t: float | None = None):
+        """The control shader's continuous levels (needs GL 4.3: a storage buffer; nothing is drawn).
+
+        Returns
+        -------
+        inner : (n, n) float32
+            Each patch's level (row pi, column pj; -1e30 where nothing is visible).
+        outer : (n, n, 4) float32
+            Its edges' levels, W, S, E, N.
+        culled : (n, n) bool
+            Patches dropped by the frustum test.
+        """
+        n = self.grid.n_patches
+        prog = self._program("levels")
+        self._set_uniforms(prog, view, proj, model, eye_mm, axes, cov_deg2, "csf", t, None)
+        buf = self.ctx.buffer(reserve=6 * 4 * n * n)
+        try:
+            buf.bind_to_storage_buffer(0)
+            self._bind()
+            # Not under RASTERIZER_DISCARD: llvmpipe then skips the tessellation stages (the buffer stays 0).
+            self._fbo.use()
+            self._vaos["levels"].render(moderngl.PATCHES, vertices=n * n)
+            self.ctx.memory_barrier()
+            out = np.frombuffer(buf.read(), np.float32).reshape(n, n, 6)
+        finally:
+            buf.release()
+        return out[..., 0], out[..., 1:5], out[..., 5] > 0.5
+
+    def triangle_samples(self, view, proj, model, eye_mm, axes, cov_deg2=None, *, mode: str = "csf",
+                         capacity: int = 1 << 20) -> np.ndarray:
+        """Every generated triangle as its three vertices' samples (T, 3, 2) int64 (column, row); GL 4.3."""
+        prog = self._program("samples")
+        self._set_uniforms(prog, view, proj, model, eye_mm, axes, cov_deg2, mode, None, None)
+        buf = self.ctx.buffer(np.array([0, capacity, 0, 0], np.uint32).tobytes() + bytes(24 * capacity))
+        try:
+            buf.bind_to_storage_buffer(1)
+            self._bind()
+            self._fbo.use()                  # (not under RASTERIZER_DISCARD: see levels)
+            self._vaos["samples"].render(moderngl.PATCHES, vertices=self.grid.n_patches ** 2)
+            self.ctx.memory_barrier()
+            raw = buf.read()
+        finally:
+            buf.release()
+        count = int(np.frombuffer(raw[:4], np.uint32)[0])
+        if count > capacity:
+            raise ValueError(f"triangle_samples: {count} triangles, more than capacity={capacity}")
+        return np.frombuffer(raw[16:16 + 24 * count], np.float32).reshape(count, 3, 2).round().astype(np.int64)
+
+    def release(self) -> None:
+        """Free the GL objects (the context stays)."""
+        for obj in [*self._vaos.values(), *self._programs.values(), self._height, self._patch, self._fbo,
+                    self._query]:
+            obj.release()
+        self._vaos, self._programs = {}, {}
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
