@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..plod import perception as pc
-from ..plod.patches import PatchGrid, max_level_for
+from ..plod.patches import PatchGrid, max_level_for, tess_factors
 from .context import moderngl
 from .gl import _FRAGMENT_SHADER, read_rgb
 
@@ -57,6 +57,9 @@ TESS_MODES = ("csf", "full")
 REQUIRED_GL = 400
 
 _SHIFT_FORMS = {None: 0, "ellipse": 1, "eq1": 2}
+
+#: Most vertices one draw call may tessellate: llvmpipe indexes them with 16 bits (``_draw_ranges``).
+VERTICES_PER_DRAW = 65536
 
 
 @dataclass(frozen=True)
@@ -140,6 +143,7 @@ vec3 sample_point(ivec2 s) {      // scene position of sample (column, row)
 _CONTROL = """
 #version 430
 layout(vertices = 1) out;
+patch out int p_id;               // the patch (gl_PrimitiveID in the evaluation shader is not it on llvmpipe)
 """ + _COMMON + """
 uniform mat4 u_model;             // T_world_scene (mm per m)
 uniform vec3 u_eye_mm;            // eye, world frame
@@ -153,6 +157,7 @@ uniform float u_level_bias;
 uniform int u_max_level;
 uniform int u_full;               // 1: every patch at u_max_level
 uniform int u_cull;
+uniform int u_first_patch;        // the draw call's first patch
 uniform vec4 u_region_ndc;        // patches whose box misses this NDC rectangle (x0, y0, x1, y1) are dropped
 
 #ifdef LEVELS_OUT
@@ -243,7 +248,8 @@ bool outside(vec3 lo, vec3 hi) {   // the box is wholly outside one frustum plan
 }
 
 void main() {
-    int id = gl_PrimitiveID;
+    int id = u_first_patch + gl_PrimitiveID;     // gl_PrimitiveID counts from 0 in every draw call
+    p_id = id;
     ivec2 pq = patch_of(id);
     int P = u_patch_samples;
     ivec2 s0 = pq * P;
@@ -282,6 +288,9 @@ void main() {
     levels[6 * id] = inner;
     for (int e = 0; e < 4; ++e) levels[6 * id + 1 + e] = outer[e];
     levels[6 * id + 5] = culled ? 1.0 : 0.0;
+    for (int e = 0; e < 4; ++e) gl_TessLevelOuter[e] = 0.0;      // levels only: nothing is generated
+    gl_TessLevelInner[0] = gl_TessLevelInner[1] = 0.0;
+    return;
 #endif
     for (int e = 0; e < 4; ++e) gl_TessLevelOuter[e] = culled ? 0.0 : factor(outer[e]);
     gl_TessLevelInner[0] = gl_TessLevelInner[1] = factor(inner);
@@ -291,6 +300,7 @@ void main() {
 _EVALUATION = """
 #version 430
 layout(quads, equal_spacing, ccw) in;
+patch in int p_id;
 """ + _COMMON + """
 uniform vec3 u_light;             // unit vector toward the light, scene frame
 uniform float u_ambient;
@@ -309,7 +319,7 @@ float h(ivec2 s) { return texelFetch(u_height, s, 0).r; }
 
 void main() {
     int P = u_patch_samples;
-    ivec2 pq = patch_of(gl_PrimitiveID);
+    ivec2 pq = patch_of(p_id);
     vec2 uv = gl_TessCoord.xy;
     ivec2 s = pq * P + ivec2(round(uv * float(P)));     // on the sample grid: shared vertices are identical
     vec3 pos = sample_point(s);
@@ -354,6 +364,7 @@ _GEOMETRY_SAMPLES = """
 layout(triangles) in;
 layout(points, max_vertices = 1) out;
 in vec2 t_sample[];
+out vec3 v_color;                 // (nothing is emitted)
 layout(std430, binding = 1) buffer Triangles { uint count; uint capacity; uint pad0; uint pad1; vec2 corners[]; };
 void main() {
     uint k = atomicAdd(count, 1u);
@@ -433,6 +444,8 @@ class TessellationRenderer:
         self._rgba = np.empty((h, w, 4), np.uint8)
         self._query = ctx.query(primitives=True)
         self._prev = None        # (eye_mm, t) of the last frame, for the angular speed
+        self._levels_buffer = None
+        self.last_draw_calls = 0
 
     # -- programs --------------------------------------------------------------
 
@@ -461,7 +474,7 @@ class TessellationRenderer:
             "u_model": model.T.astype("f4").tobytes(), "u_mvp": mvp.T.astype("f4").tobytes(),
             "u_eye_mm": tuple(np.asarray(eye_mm, float)), "u_axes": np.asarray(axes, "f4").tobytes(),
             "u_level_bias": float(cfg.level_bias), "u_max_level": cfg.max_level, "u_full": int(mode == "full"),
-            "u_cull": int(cfg.cull), "u_ellipse_sigma": float(cfg.ellipse_sigma),
+            "u_cull": int(cfg.cull), "u_first_patch": 0, "u_ellipse_sigma": float(cfg.ellipse_sigma),
             "u_region_ndc": tuple(region_ndc) if region_ndc is not None else (-2.0, -2.0, 2.0, 2.0),
             "u_smooth_normals": int(cfg.smooth_normals), "u_ambient": float(ambient),
             "u_height_range": self.height_range,
@@ -519,6 +532,7 @@ class TessellationRenderer:
             raise ValueError(f"TessellationRenderer.render: mode must be one of {TESS_MODES}, got {mode!r}")
         ctx = self.ctx
         t0 = time.perf_counter()
+        ranges = self._draw_ranges(view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc)
         prog = self._program("draw")
         self._set_uniforms(prog, view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc)
         self._prev = (np.asarray(eye_mm, float).copy(), t)
@@ -532,14 +546,61 @@ class TessellationRenderer:
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         self._fbo.clear(*self.background, 1.0, depth=1.0)
         with self._query:
-            self._vaos["draw"].render(moderngl.PATCHES, vertices=self.grid.n_patches ** 2)
+            for first, count in ranges:
+                prog["u_first_patch"].value = first
+                self._vaos["draw"].render(moderngl.PATCHES, vertices=count, first=first)
         ctx.finish()
         self.last_render_ms = (time.perf_counter() - t1) * 1e3
         self.last_triangles = int(self._query.primitives)
+        self.last_draw_calls = len(ranges)
         return read_rgb(self._fbo, self._rgba)
 
+    def _levels_pass(self, view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc) -> np.ndarray:
+        """(n, n, 6) float32: the control shader's inner, outer W S E N levels and culled flag of every patch."""
+        n = self.grid.n_patches
+        prog = self._program("levels")
+        self._set_uniforms(prog, view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc)
+        if self._levels_buffer is None:
+            self._levels_buffer = self.ctx.buffer(reserve=6 * 4 * n * n)
+        self._levels_buffer.bind_to_storage_buffer(0)
+        self._bind()
+        # Not under RASTERIZER_DISCARD: llvmpipe then skips the tessellation stages (the buffer stays 0).
+        self._fbo.use()
+        self._vaos["levels"].render(moderngl.PATCHES, vertices=n * n)
+        self.ctx.memory_barrier()
+        return np.frombuffer(self._levels_buffer.read(), np.float32).reshape(n, n, 6)
+
+    def _draw_ranges(self, view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc) -> list:
+        """Draw calls ``(first patch, patches)`` that each generate fewer than 65536 vertices.
+
+        llvmpipe numbers a draw call's tessellated vertices with 16 bits: past
+        65536 its triangles join vertices of different patches (measured:
+        patches of 33² vertices, 61 per call). So the levels are computed
+        first (one control-shader pass, read back: 24 bytes per patch), and
+        the patches split into calls of at most :data:`VERTICES_PER_DRAW`
+        vertices; culled patches cost nothing.
+        """
+        lv = self._levels_pass(view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc).reshape(-1, 6)
+        top = self.config.max_level
+        if mode == "full":
+            inner = np.full(len(lv), 2 ** top)
+            outer = np.full((len(lv), 4), 2 ** top)
+        else:
+            inner, outer = tess_factors(lv[:, 0], top), tess_factors(lv[:, 1:5], top)
+        counts = np.where(lv[:, 5] > 0.5, 0, (inner + 1) ** 2 + (outer + 1).sum(axis=1))   # bound on vertices
+        most = (2 ** top + 1) ** 2 + 4 * (2 ** top + 1)
+        group = (np.cumsum(counts) - counts) // (VERTICES_PER_DRAW - most)   # each group < VERTICES_PER_DRAW
+        nz = np.flatnonzero(counts)
+        if not len(nz):
+            return []
+        g = group[nz]
+        cut = np.flatnonzero(np.diff(g)) + 1
+        firsts = nz[np.r_[0, cut]]
+        lasts = nz[np.r_[cut - 1, len(nz) - 1]]
+        return [(int(a), int(b - a + 1)) for a, b in zip(firsts, lasts)]
+
     def levels(self, view, proj, model, eye_mm, axes, cov_deg2=None, *, t: float | None = None):
-        """The control shader's continuous levels (needs GL 4.3: a storage buffer; nothing is drawn).
+        """The control shader's continuous levels (nothing is drawn).
 
         Returns
         -------
@@ -550,33 +611,23 @@ class TessellationRenderer:
         culled : (n, n) bool
             Patches dropped by the frustum test.
         """
-        n = self.grid.n_patches
-        prog = self._program("levels")
-        self._set_uniforms(prog, view, proj, model, eye_mm, axes, cov_deg2, "csf", t, None)
-        buf = self.ctx.buffer(reserve=6 * 4 * n * n)
-        try:
-            buf.bind_to_storage_buffer(0)
-            self._bind()
-            # Not under RASTERIZER_DISCARD: llvmpipe then skips the tessellation stages (the buffer stays 0).
-            self._fbo.use()
-            self._vaos["levels"].render(moderngl.PATCHES, vertices=n * n)
-            self.ctx.memory_barrier()
-            out = np.frombuffer(buf.read(), np.float32).reshape(n, n, 6)
-        finally:
-            buf.release()
+        out = self._levels_pass(view, proj, model, eye_mm, axes, cov_deg2, "csf", t, None).copy()
         return out[..., 0], out[..., 1:5], out[..., 5] > 0.5
 
     def triangle_samples(self, view, proj, model, eye_mm, axes, cov_deg2=None, *, mode: str = "csf",
                          capacity: int = 1 << 20) -> np.ndarray:
         """Every generated triangle as its three vertices' samples (T, 3, 2) int64 (column, row); GL 4.3."""
+        ranges = self._draw_ranges(view, proj, model, eye_mm, axes, cov_deg2, mode, None, None)
         prog = self._program("samples")
         self._set_uniforms(prog, view, proj, model, eye_mm, axes, cov_deg2, mode, None, None)
         buf = self.ctx.buffer(np.array([0, capacity, 0, 0], np.uint32).tobytes() + bytes(24 * capacity))
         try:
             buf.bind_to_storage_buffer(1)
             self._bind()
-            self._fbo.use()                  # (not under RASTERIZER_DISCARD: see levels)
-            self._vaos["samples"].render(moderngl.PATCHES, vertices=self.grid.n_patches ** 2)
+            self._fbo.use()                  # (not under RASTERIZER_DISCARD: see _levels_pass)
+            for first, count in ranges:
+                prog["u_first_patch"].value = first
+                self._vaos["samples"].render(moderngl.PATCHES, vertices=count, first=first)
             self.ctx.memory_barrier()
             raw = buf.read()
         finally:
@@ -589,8 +640,9 @@ class TessellationRenderer:
     def release(self) -> None:
         """Free the GL objects (the context stays)."""
         for obj in [*self._vaos.values(), *self._programs.values(), self._height, self._patch, self._fbo,
-                    self._query]:
-            obj.release()
+                    self._query, self._levels_buffer]:
+            if obj is not None:
+                obj.release()
         self._vaos, self._programs = {}, {}
 
     def __enter__(self):
