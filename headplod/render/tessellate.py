@@ -48,7 +48,8 @@ from ..plod.patches import PatchGrid, max_level_for, tess_factors
 from .context import moderngl
 from .gl import _FRAGMENT_SHADER, read_rgb
 
-__all__ = ["TessellationConfig", "TessellationRenderer", "TESS_MODES", "REQUIRED_GL"]
+__all__ = ["TessellationConfig", "TessellationRenderer", "TESS_MODES", "REQUIRED_GL", "grid_model", "head_axes",
+           "render_frame"]
 
 #: What the control shader computes: the CSF's levels, or every patch at the finest level (the reference).
 TESS_MODES = ("csf", "full")
@@ -640,7 +641,7 @@ class TessellationRenderer:
     def release(self) -> None:
         """Free the GL objects (the context stays)."""
         for obj in [*self._vaos.values(), *self._programs.values(), self._height, self._patch, self._fbo,
-                    self._query, self._levels_buffer]:
+                    self._levels_buffer]:
             if obj is not None:
                 obj.release()
         self._vaos, self._programs = {}, {}
@@ -650,3 +651,56 @@ class TessellationRenderer:
 
     def __exit__(self, *exc):
         self.release()
+
+
+# --------------------------------------------------------------------------
+# one frame
+# --------------------------------------------------------------------------
+
+
+def grid_model(grid: PatchGrid, screen, centre_z_m: float | None = None) -> np.ndarray:
+    """(4, 4) scene (m) → world (mm) of a grid placed as the built-in scene (:class:`TerrainScene`).
+
+    The grid's centre (at height ``centre_z_m``, default the median height)
+    250 mm behind the screen, 0.02 mm per m, pitched 55°.
+    """
+    from .projection import scene_to_world
+    from .still import DEPTH_MM, PITCH_DEG, SCALE_MM_PER_M
+
+    x0, x1, y0, y1 = grid.extent
+    cz = float(np.median(grid.heights_m[::8, ::8])) if centre_z_m is None else float(centre_z_m)
+    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, cz])
+    return np.asarray(scene_to_world(SCALE_MM_PER_M, centre, screen, depth_mm=DEPTH_MM, pitch_deg=PITCH_DEG).matrix,
+                      dtype=np.float64)
+
+
+def head_axes(screen, eye_mm, poi_px) -> np.ndarray:
+    """(3, 3) rows Ξ, Ψ, V of the head frame looking from the eye at the POI: :meth:`LevelSelector.head_axes`."""
+    eye = np.asarray(eye_mm, np.float64)
+    v = screen.pixel_to_world(np.asarray(poi_px, dtype=np.float64)) - eye
+    v /= np.linalg.norm(v)
+    right = np.asarray(screen.top_right, float) - np.asarray(screen.top_left, float)
+    xi = right - v * (right @ v)
+    xi /= np.linalg.norm(xi)
+    return np.stack([xi, np.cross(v, xi), v])
+
+
+def render_frame(renderer: TessellationRenderer, screen, model, head_mm=None, poi_px=None, cov_deg2=None, *,
+                 mode: str = "csf", t: float | None = None, region_ndc=None):
+    """One frame of a :class:`TessellationRenderer` from a head and a POI: (image (H, W, 3) uint8, stats dict).
+
+    ``head_mm`` (3,) world mm (default :func:`default_head`), ``poi_px`` (2,)
+    screen px (default the centre), ``cov_deg2`` (2, 2) deg². The stats:
+    ``triangles`` (generated), ``select_ms`` (the CPU's share: uniforms, the
+    levels pass and its read-back), ``render_ms``, ``draw_calls``.
+    """
+    from .projection import off_axis_projection
+    from .still import default_head
+
+    head = default_head(screen) if head_mm is None else np.asarray(head_mm, np.float64)
+    poi = np.array(screen.size_px, np.float64) / 2 if poi_px is None else np.asarray(poi_px, np.float64)
+    view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
+    image = renderer.render(view, proj, model, head, head_axes(screen, head, poi), cov_deg2, mode=mode, t=t,
+                            region_ndc=region_ndc)
+    return image, {"mode": mode, "triangles": renderer.last_triangles, "select_ms": renderer.last_setup_ms,
+                   "render_ms": renderer.last_render_ms, "draw_calls": renderer.last_draw_calls}
