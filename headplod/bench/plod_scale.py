@@ -7,7 +7,7 @@ detail: the built-in DEM (``Terrain.jacksboro()``) with its synthetic
 detail, sampled on grids of 1025², 2049², 4097² and 8193² samples (the
 detail's shortest wavelength 2.5 sample spacings, so every grid has detail
 down to its own resolution; :func:`headplod.plod.patches.height_grid`).
-Grids are cached under ``$HEADPLOD_CACHE/scale`` (``~/.cache/headplod``).
+Grids are cached (:func:`headplod.plod.patches.jacksboro_grid`).
 
 Back ends:
 
@@ -32,7 +32,6 @@ fit).
 from __future__ import annotations
 
 import json
-import os
 import resource
 import subprocess
 import sys
@@ -47,8 +46,6 @@ QUICK_SAMPLES = (1025, 2049)
 BACKENDS = ("tessellation", "full")
 #: Largest grid the ``full`` back end is run on by default (samples per side).
 FULL_MAX_SAMPLES = 2049
-#: The detail's shortest wavelength, sample spacings.
-DETAIL_MIN_WAVELENGTH_SPACINGS = 2.5
 PATCH_SAMPLES = 64
 DISC_DEG = 5.0
 COV_DEG2 = np.diag([0.05 ** 2, 0.05 ** 2])
@@ -56,36 +53,6 @@ GOAL_FPS = 15.0
 GOAL_RSS_MB = 2048.0
 GOAL_SELECT_GROWTH = 2.0
 GOAL_PSNR_DB = 45.0
-
-
-def _cache_dir() -> Path:
-    root = Path(os.environ.get("HEADPLOD_CACHE", Path.home() / ".cache" / "headplod"))
-    return root / "scale"
-
-
-def terrain_grid(n_samples: int, cache_dir: Path | None = None):
-    """The built-in terrain on an ``n x n`` grid, cached: (heights (n, n) float32 m, dx_m, dy_m, origin_m (2,))."""
-    from ..plod.patches import height_grid
-    from ..plod.terrain import Terrain
-
-    cache = Path(cache_dir) if cache_dir is not None else _cache_dir()
-    path, meta_path = cache / f"jacksboro_{n_samples}.npy", cache / f"jacksboro_{n_samples}.json"
-    if path.exists() and meta_path.exists():
-        meta = json.loads(meta_path.read_text())
-        return np.load(path), meta["dx_m"], meta["dy_m"], tuple(meta["origin_m"])
-    base = Terrain.jacksboro(detail=False)
-    x0, x1, y0, y1 = base.extent
-    spacing = max(x1 - x0, y1 - y0) / (n_samples - 1)
-    terrain = Terrain.jacksboro(detail_min_wavelength_m=DETAIL_MIN_WAVELENGTH_SPACINGS * spacing)
-    z, dx, dy = height_grid(terrain, n_samples)
-    cache.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npy")
-    np.save(tmp, z)
-    tmp.replace(path)
-    meta_path.write_text(json.dumps({"dx_m": dx, "dy_m": dy, "origin_m": [x0, y0],
-                                     "detail_min_wavelength_m": terrain.detail_min_wavelength_m,
-                                     "centre_z_m": float(np.median(terrain.dem_z_m))}))
-    return z, dx, dy, (x0, y0)
 
 
 def _disc_region(screen, head, size):
@@ -107,7 +74,7 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     from calib import DEFAULT_SCREEN
 
     from .. import io
-    from ..plod.patches import PatchGrid, grid_normals
+    from ..plod.patches import PatchGrid, grid_normals, jacksboro_grid
     from ..render import TerrainRenderer, create_context, off_axis_projection
     from ..render.still import default_head
     from ..render.tessellate import TessellationConfig, TessellationRenderer, grid_model, head_axes, render_frame
@@ -116,7 +83,7 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     if backend not in BACKENDS:
         raise ValueError(f"run_case: backend must be one of {BACKENDS}, got {backend!r}")
     t_start = time.perf_counter()
-    z, dx, dy, origin = terrain_grid(n_samples, cache_dir)
+    z, dx, dy, origin = jacksboro_grid(n_samples, cache_dir)
     screen = io.read_screen(DEFAULT_SCREEN)
     head = default_head(screen)
     poi = np.array(screen.size_px, float) / 2
@@ -197,8 +164,8 @@ def scale_report(samples=SCALE_SAMPLES, frames: int = 5, full_max_samples: int =
     say = progress or (lambda text: None)
     for n in samples:                         # make the grids first: their generation is not any case's memory
         say(f"terrain grid {n}x{n}")
-        subprocess.run([sys.executable, "-c", f"from headplod.bench.plod_scale import terrain_grid; "
-                        f"terrain_grid({n}, {repr(str(cache_dir)) if cache_dir else None})"], check=True)
+        subprocess.run([sys.executable, "-c", f"from headplod.plod.patches import jacksboro_grid; "
+                        f"jacksboro_grid({n}, {repr(str(cache_dir)) if cache_dir else None})"], check=True)
     cases = []
     for n in samples:
         for backend in BACKENDS:

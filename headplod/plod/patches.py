@@ -28,8 +28,11 @@ Edges of a patch, in the order of GL's quad outer tessellation levels
 """
 from __future__ import annotations
 
+import json
 import math
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy import ndimage as ndi
@@ -37,7 +40,11 @@ from scipy import ndimage as ndi
 from . import perception as pc
 from .terrain import Terrain, _bspline_weights
 
-__all__ = ["height_grid", "grid_normals", "PatchGrid", "patch_levels", "EDGE_NAMES"]
+__all__ = ["height_grid", "jacksboro_grid", "grid_normals", "PatchGrid", "patch_levels", "tess_factors", "EDGE_NAMES"]
+
+#: The detail's shortest wavelength on :func:`jacksboro_grid`'s grids, sample spacings: each grid has detail
+#: down to its own resolution.
+DETAIL_MIN_WAVELENGTH_SPACINGS = 2.5
 
 EDGE_NAMES = ("west", "south", "east", "north")
 """Patch edges in the order of ``gl_TessLevelOuter`` for quads (module notes)."""
@@ -107,6 +114,40 @@ def height_grid(terrain: Terrain, n_samples: int) -> tuple[np.ndarray, float, fl
         waves *= env
         z += waves
     return z, float(dx), float(dy)
+
+
+def jacksboro_grid(n_samples: int, cache_dir=None):
+    """The built-in terrain (DEM + detail down to 2.5 spacings) on an ``n x n`` grid, cached as .npy.
+
+    Cached under ``cache_dir`` (default ``$HEADPLOD_CACHE/scale``, ``~/.cache/headplod/scale``).
+
+    Returns
+    -------
+    z : (n, n) float32
+        Heights, metres (:func:`height_grid`).
+    dx_m, dy_m : float
+        Sample spacing, metres.
+    origin_m : (2,) tuple
+        Scene (x, y) of sample [0, 0].
+    """
+    root = Path(os.environ.get("HEADPLOD_CACHE", Path.home() / ".cache" / "headplod")) / "scale"
+    cache = Path(cache_dir) if cache_dir is not None else root
+    path, meta_path = cache / f"jacksboro_{n_samples}.npy", cache / f"jacksboro_{n_samples}.json"
+    if path.exists() and meta_path.exists():
+        meta = json.loads(meta_path.read_text())
+        return np.load(path), meta["dx_m"], meta["dy_m"], tuple(meta["origin_m"])
+    base = Terrain.jacksboro(detail=False)
+    x0, x1, y0, y1 = base.extent
+    spacing = max(x1 - x0, y1 - y0) / (n_samples - 1)
+    terrain = Terrain.jacksboro(detail_min_wavelength_m=DETAIL_MIN_WAVELENGTH_SPACINGS * spacing)
+    z, dx, dy = height_grid(terrain, n_samples)
+    cache.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npy")
+    np.save(tmp, z)
+    tmp.replace(path)
+    meta_path.write_text(json.dumps({"dx_m": dx, "dy_m": dy, "origin_m": [x0, y0],
+                                     "detail_min_wavelength_m": terrain.detail_min_wavelength_m}))
+    return z, dx, dy, (x0, y0)
 
 
 def grid_normals(z: np.ndarray, dx_m: float, dy_m: float) -> np.ndarray:

@@ -50,6 +50,13 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     render.add_argument("--no-silhouettes", action="store_true",
                         help="raymask: rasterise the quads that straddle a silhouette instead of casting "
                              "every pixel in them")
+    render.add_argument("--backend", choices=("mesh", "tessellation"), default="mesh",
+                        help="mesh: levels selected on the CPU, an adaptive mesh (default); tessellation: the "
+                             "built-in terrain as a height texture, per-patch CSF levels in the tessellation "
+                             "control shader (GL 4.3; --mode csf or full, shaded view only)")
+    render.add_argument("--grid-samples", type=int, default=1025,
+                        help="tessellation: samples per side of the terrain's height grid, 2^k + 1 (default 1025: "
+                             "2M triangles at full detail; 8193: 134M)")
     render.add_argument("--out", required=True, help="output image (PNG)")
     render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
     render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
@@ -74,6 +81,8 @@ def run_render(args) -> int:
         except ValueError as exc:
             print(f"headplod: --export {exc}", file=sys.stderr)
             return 2
+    if args.backend == "tessellation":
+        return _run_tessellation(args, screen, cov, size)
     raymask = None
     if args.mode == "raymask":
         bad = [name for name, on in (("--foveate", args.foveate), ("--export", args.export is not None),
@@ -100,4 +109,43 @@ def run_render(args) -> int:
     print(f"{stats['triangles']} triangles; select {stats['select_ms']:.1f} ms, build {stats['build_ms']:.1f} ms, "
           f"render {stats['render_ms']:.1f} ms; image: {args.out}"
           + (f"; mesh: {args.export}" if args.export else ""), file=sys.stderr)
+    return 0
+
+
+def _run_tessellation(args, screen, cov, size) -> int:
+    """``headplod render --backend tessellation``: one frame of :mod:`headplod.render.tessellate`."""
+    from pathlib import Path
+
+    import cv2
+
+    from ..plod.patches import PatchGrid, jacksboro_grid
+    from .context import create_context
+    from .tessellate import TESS_MODES, TessellationConfig, TessellationRenderer, grid_model, render_frame
+
+    bad = [name for name, on in (("--foveate", args.foveate), ("--export", args.export is not None),
+                                 ("--contrast readback", args.contrast != "shading"),
+                                 (f"--view {args.view}", args.view != "shaded"),
+                                 (f"--mode {args.mode}", args.mode not in TESS_MODES)) if on]
+    if bad:
+        print(f"headplod: --backend tessellation does not take {', '.join(bad)} (modes: {', '.join(TESS_MODES)})",
+              file=sys.stderr)
+        return 2
+    config = TessellationConfig()
+    n = args.grid_samples
+    if n < config.patch_samples + 1 or (n - 1) % config.patch_samples:
+        print(f"headplod: --grid-samples must be 1 + a multiple of {config.patch_samples}, got {n}", file=sys.stderr)
+        return 2
+    z, dx, dy, origin = jacksboro_grid(n)
+    grid = PatchGrid.build(z, dx, dy, config.patch_samples, origin_m=origin)
+    with TessellationRenderer(create_context(require=430), grid, size=size, config=config) as renderer:
+        image, stats = render_frame(renderer, screen, grid_model(grid, screen), args.head, args.poi, cov,
+                                    mode=args.mode)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(args.out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    if args.stats:
+        import json
+        Path(args.stats).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.stats).write_text(json.dumps({**stats, "grid_samples": n, "size": list(size)}, indent=2))
+    print(f"{stats['triangles']} triangles ({grid.full_triangles} at full detail); select {stats['select_ms']:.1f} ms, "
+          f"render {stats['render_ms']:.1f} ms; image: {args.out}", file=sys.stderr)
     return 0
