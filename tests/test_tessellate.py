@@ -91,21 +91,22 @@ def test_config_validation():
     assert TessellationConfig().max_level == 6
     assert TessellationConfig(patch_samples=16).max_level == 4
     for bad in ({"patch_samples": 48}, {"max_tess_level": 0}, {"shift": "eq3"}, {"ellipse_sigma": -1.0},
-                {"level_bias": float("nan")}):
+                {"level_bias": float("nan")}, {"csf_stage": "fragment"}):
         with pytest.raises(ValueError):
             TessellationConfig(**bad)
 
 
-@pytest.mark.parametrize("cov_deg2, shift, bias", [
-    (np.diag([0.05 ** 2, 0.05 ** 2]), "ellipse", 0.0),     # the bench's tracker σ
-    (np.array([[2.0, 0.6], [0.6, 0.8]]), "ellipse", 0.0),  # a wide, tilted ellipse
-    (np.array([[2.0, 0.6], [0.6, 0.8]]), "eq1", 0.5),
-    (None, "ellipse", -1.0),
+@pytest.mark.parametrize("cov_deg2, shift, bias, stage", [
+    (np.diag([0.05 ** 2, 0.05 ** 2]), "ellipse", 0.0, "vertex"),     # the bench's tracker σ
+    (np.diag([0.05 ** 2, 0.05 ** 2]), "ellipse", 0.0, "control"),    # the CSF in the tessellation control shader
+    (np.array([[2.0, 0.6], [0.6, 0.8]]), "ellipse", 0.0, "control"),  # a wide, tilted ellipse
+    (np.array([[2.0, 0.6], [0.6, 0.8]]), "eq1", 0.5, "vertex"),
+    (None, "ellipse", -1.0, "control"),
 ])
-def test_shader_csf_equals_perception(ctx430, grid, default_screen, cov_deg2, shift, bias):
+def test_shader_csf_equals_perception(ctx430, grid, default_screen, cov_deg2, shift, bias, stage):
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer
 
-    cfg = TessellationConfig(patch_samples=PATCH, shift=shift, level_bias=bias)
+    cfg = TessellationConfig(patch_samples=PATCH, shift=shift, level_bias=bias, csf_stage=stage)
     view, proj, model, head, axes = _view(default_screen, grid, poi_px=(700.0, 500.0))
     with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg) as r:
         inner, outer, culled = r.levels(view, proj, model, head, axes, cov_deg2)
@@ -139,13 +140,14 @@ def _edges_and_area(tri):
     return key, area
 
 
-@pytest.mark.parametrize("mode, poi_px", [("csf", (700.0, 500.0)), ("csf", (100.0, 900.0)), ("full", None)])
-def test_patches_are_watertight(ctx430, grid, default_screen, mode, poi_px):
+@pytest.mark.parametrize("mode, poi_px, stage", [("csf", (700.0, 500.0), "vertex"), ("csf", (100.0, 900.0), "control"),
+                                                 ("full", None, "vertex")])
+def test_patches_are_watertight(ctx430, grid, default_screen, mode, poi_px, stage):
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer
 
     # No culling: every patch and every neighbour pair is generated. "full" makes 66049 vertices,
     # more than one draw call may hold on llvmpipe: the split into calls is checked too.
-    cfg = TessellationConfig(patch_samples=PATCH, cull=False)
+    cfg = TessellationConfig(patch_samples=PATCH, cull=False, csf_stage=stage)
     view, proj, model, head, axes = _view(default_screen, grid, poi_px=poi_px)
     with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg) as r:
         tri = r.triangle_samples(view, proj, model, head, axes, np.diag([0.05 ** 2] * 2), mode=mode)
@@ -174,3 +176,29 @@ def test_still_view_gives_identical_frames(ctx430, grid, default_screen):
     assert sa["triangles"] == sb["triangles"] > 0
     assert np.array_equal(a, b)
     assert (a != np.array([158, 184, 209], np.uint8)).any(axis=-1).mean() > 0.3    # the terrain is in view
+
+
+def test_many_patches_keep_their_ids(ctx430, default_screen):
+    """16384 patches in one draw: on llvmpipe gl_PrimitiveID restarts within such a draw (it gave the
+    control shader other patches' levels); the patch is known by its vertex instead. Both stages agree,
+    and the surface stays watertight."""
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer
+
+    terrain = Terrain.jacksboro(detail_min_wavelength_m=40.0)
+    z, dx, dy = height_grid(terrain, 2049)
+    big = PatchGrid.build(z, dx, dy, 16, origin_m=terrain.extent[::2])
+    view, proj, model, head, axes = _view(default_screen, big, poi_px=(700.0, 500.0))
+    cov = np.diag([0.05 ** 2] * 2)
+    levels = {}
+    for stage in ("vertex", "control"):
+        with TessellationRenderer(ctx430, big, size=(64, 36),
+                                  config=TessellationConfig(patch_samples=16, cull=False, csf_stage=stage)) as r:
+            levels[stage] = r.levels(view, proj, model, head, axes, cov)
+            if stage == "control":
+                tri = r.triangle_samples(view, proj, model, head, axes, cov, capacity=1 << 22)
+    for a, b in zip(levels["vertex"], levels["control"]):
+        np.testing.assert_allclose(a, b, atol=LEVEL_ATOL)
+    key, area = _edges_and_area(tri)
+    assert area.sum() == pytest.approx(2048.0 ** 2, abs=1e-3)
+    _, counts = np.unique(key, axis=0, return_counts=True)
+    assert counts.max() == 2

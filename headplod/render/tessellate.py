@@ -87,6 +87,12 @@ class TessellationConfig:
     smooth_normals : bool
         Normals of a coarse level from the matching mip level (True); False:
         every vertex's normal from its neighbouring samples.
+    csf_stage : {"vertex", "control"}
+        Where the levels pass evaluates the CSF: a vertex shader, one vertex
+        per patch (default: llvmpipe runs it 8 patches at a time), or the
+        tessellation control shader (one patch at a time on llvmpipe, and
+        again in the draw). Both write the same storage buffer; the draw's
+        control shader turns its levels into factors.
     """
 
     patch_samples: int = 64
@@ -96,12 +102,15 @@ class TessellationConfig:
     ellipse_sigma: float = 2.0
     cull: bool = True
     smooth_normals: bool = True
+    csf_stage: str = "vertex"
 
     def __post_init__(self):
         for name in ("patch_samples", "max_tess_level"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1 or v & (v - 1):
                 raise ValueError(f"TessellationConfig.{name} must be a power of two >= 1, got {v!r}")
+        if self.csf_stage not in ("vertex", "control"):
+            raise ValueError(f"TessellationConfig.csf_stage must be 'vertex' or 'control', got {self.csf_stage!r}")
         if self.shift not in ("ellipse", "eq1"):
             raise ValueError(f"TessellationConfig.shift must be 'ellipse' or 'eq1', got {self.shift!r}")
         for name in ("level_bias", "ellipse_sigma"):
@@ -122,7 +131,10 @@ class TessellationConfig:
 
 _VERTEX = """
 #version 430
-void main() { }   // a patch is known by gl_PrimitiveID; no attributes
+flat out int v_patch;
+// A patch is known by its vertex's number (no attributes; gl_VertexID counts from the draw's first):
+// llvmpipe's gl_PrimitiveID in the control shader restarts within large draws (measured on 16384 patches).
+void main() { v_patch = gl_VertexID; }
 """
 
 _COMMON = """
@@ -141,11 +153,8 @@ vec3 sample_point(ivec2 s) {      // scene position of sample (column, row)
 }
 """
 
-_CONTROL = """
-#version 430
-layout(vertices = 1) out;
-patch out int p_id;               // the patch (gl_PrimitiveID in the evaluation shader is not it on llvmpipe)
-""" + _COMMON + """
+_CSF = """
+
 uniform mat4 u_model;             // T_world_scene (mm per m)
 uniform vec3 u_eye_mm;            // eye, world frame
 uniform vec3 u_eye_prev_mm;       // eye at the last frame (speed), world frame
@@ -158,12 +167,9 @@ uniform float u_level_bias;
 uniform int u_max_level;
 uniform int u_full;               // 1: every patch at u_max_level
 uniform int u_cull;
-uniform int u_first_patch;        // the draw call's first patch
 uniform vec4 u_region_ndc;        // patches whose box misses this NDC rectangle (x0, y0, x1, y1) are dropped
 
-#ifdef LEVELS_OUT
 layout(std430, binding = 0) buffer Levels { float levels[]; };   // 6 per patch: inner, outer W S E N, culled
-#endif
 
 const float PI = 3.14159265358979;
 const float MIN_SPEED = 0.1;      // deg/s
@@ -248,9 +254,8 @@ bool outside(vec3 lo, vec3 hi) {   // the box is wholly outside one frustum plan
     return in_front && (mx.x < u_region_ndc.x || mn.x > u_region_ndc.z || mx.y < u_region_ndc.y || mn.y > u_region_ndc.w);
 }
 
-void main() {
-    int id = u_first_patch + gl_PrimitiveID;     // gl_PrimitiveID counts from 0 in every draw call
-    p_id = id;
+// The levels of patch id (row-major): continuous inner and outer (W, S, E, N) levels; culled by the frustum.
+void patch_levels(int id, out float inner, out float outer[4], out bool culled) {
     ivec2 pq = patch_of(id);
     int P = u_patch_samples;
     ivec2 s0 = pq * P;
@@ -258,7 +263,7 @@ void main() {
     // Corners SW, SE, NE, NW (scene, then world).
     vec3 cs[4] = vec3[4](sample_point(s0), sample_point(s0 + ivec2(P, 0)), sample_point(s0 + ivec2(P, P)),
                          sample_point(s0 + ivec2(0, P)));
-    bool culled = false;
+    culled = false;
     if (u_cull == 1) {
         vec2 lo = u_origin_m + vec2(s0) * u_spacing_m, hi = u_origin_m + vec2(s0 + P) * u_spacing_m;
         culled = outside(vec3(lo, info.x), vec3(hi, info.y));
@@ -271,11 +276,10 @@ void main() {
     float diameter = max(max(max(angle_deg(d[0], d[1]), angle_deg(d[1], d[2])), max(angle_deg(d[2], d[3]),
                          angle_deg(d[3], d[0]))), max(angle_deg(d[0], d[2]), angle_deg(d[1], d[3])));
     float reach = max(max(angle_deg(cd, d[0]), angle_deg(cd, d[1])), max(angle_deg(cd, d[2]), angle_deg(cd, d[3])));
-    float inner = level_at(centre, reach, diameter, info.z);
+    inner = level_at(centre, reach, diameter, info.z);
     // Edges W, S, E, N from their endpoints alone, ordered west to east and south to north.
     ivec2 ends[4] = ivec2[4](ivec2(0, 3), ivec2(0, 1), ivec2(1, 2), ivec2(3, 2));
     ivec2 step[4] = ivec2[4](ivec2(-1, 0), ivec2(0, -1), ivec2(1, 0), ivec2(0, 1));
-    float outer[4];
     for (int e = 0; e < 4; ++e) {
         vec3 a = c[ends[e].x], b = c[ends[e].y];
         vec3 da = d[ends[e].x], db = d[ends[e].y];
@@ -285,10 +289,52 @@ void main() {
         float contrast = max(info.z, texelFetch(u_patch, nb, 0).z);
         outer[e] = level_at(mid, max(angle_deg(md, da), angle_deg(md, db)), angle_deg(da, db), contrast);
     }
-#ifdef LEVELS_OUT
+}
+
+void write_levels(int id, float inner, float outer[4], bool culled) {
     levels[6 * id] = inner;
     for (int e = 0; e < 4; ++e) levels[6 * id + 1 + e] = outer[e];
     levels[6 * id + 5] = culled ? 1.0 : 0.0;
+}
+"""
+
+# The levels pass in a vertex shader: one vertex per patch (gl_VertexID), levels into the storage buffer.
+# llvmpipe runs vertex shaders 8 lanes wide; a control shader of one output vertex runs one patch at a time.
+_LEVELS_VERTEX = """
+#version 430
+""" + _COMMON + _CSF + """
+void main() {
+    float inner, outer[4];
+    bool culled;
+    patch_levels(gl_VertexID, inner, outer, culled);
+    write_levels(gl_VertexID, inner, outer, culled);
+    gl_Position = vec4(2.0, 2.0, 2.0, 1.0);     // outside the clip volume: nothing is drawn
+    gl_PointSize = 1.0;
+}
+"""
+
+# The control shader: the levels computed here (CSF_HERE), or read from the levels pass's buffer;
+# LEVELS_OUT: write them and generate nothing (the levels pass of ``csf_stage="control"``).
+_CONTROL = """
+#version 430
+layout(vertices = 1) out;
+flat in int v_patch[];
+patch out int p_id;               // the patch (gl_PrimitiveID in the evaluation shader is not it on llvmpipe)
+""" + _COMMON + _CSF + """
+void main() {
+    int id = v_patch[0];
+    p_id = id;
+    float inner, outer[4];
+    bool culled;
+#if defined(CSF_HERE) || defined(LEVELS_OUT)
+    patch_levels(id, inner, outer, culled);
+#else
+    inner = levels[6 * id];
+    for (int e = 0; e < 4; ++e) outer[e] = levels[6 * id + 1 + e];
+    culled = levels[6 * id + 5] > 0.5;
+#endif
+#ifdef LEVELS_OUT
+    write_levels(id, inner, outer, culled);
     for (int e = 0; e < 4; ++e) gl_TessLevelOuter[e] = 0.0;      // levels only: nothing is generated
     gl_TessLevelInner[0] = gl_TessLevelInner[1] = 0.0;
     return;
@@ -375,6 +421,13 @@ void main() {
 """
 
 
+_NO_FRAGMENT = """
+#version 430
+out vec4 f_color;
+void main() { f_color = vec4(0.0); }
+"""
+
+
 def _variant(source: str, *defines: str) -> str:
     head, rest = source.lstrip().split("\n", 1)
     return head + "\n" + "".join(f"#define {d} 1\n" for d in defines) + rest
@@ -451,14 +504,18 @@ class TessellationRenderer:
     # -- programs --------------------------------------------------------------
 
     def _program(self, kind: str):
-        """``draw`` (image), ``levels`` (control shader's levels into a buffer), ``samples`` (triangles' samples)."""
+        """``draw`` (image), ``levels`` (the levels pass: levels into the buffer), ``samples`` (triangles' samples)."""
         if kind not in self._programs:
-            control = _variant(_CONTROL, "LEVELS_OUT") if kind == "levels" else _CONTROL
-            evaluation = _variant(_EVALUATION, "SAMPLES_OUT") if kind == "samples" else _EVALUATION
-            prog = self.ctx.program(vertex_shader=_VERTEX, tess_control_shader=control,
-                                    tess_evaluation_shader=evaluation,
-                                    geometry_shader=_GEOMETRY_SAMPLES if kind == "samples" else None,
-                                    fragment_shader=_FRAGMENT_SHADER)
+            here = ("CSF_HERE",) if self.config.csf_stage == "control" else ()
+            if kind == "levels" and self.config.csf_stage == "vertex":
+                prog = self.ctx.program(vertex_shader=_LEVELS_VERTEX, fragment_shader=_NO_FRAGMENT)
+            else:
+                control = _variant(_CONTROL, "LEVELS_OUT") if kind == "levels" else _variant(_CONTROL, *here)
+                evaluation = _variant(_EVALUATION, "SAMPLES_OUT") if kind == "samples" else _EVALUATION
+                prog = self.ctx.program(vertex_shader=_VERTEX, tess_control_shader=control,
+                                        tess_evaluation_shader=evaluation,
+                                        geometry_shader=_GEOMETRY_SAMPLES if kind == "samples" else None,
+                                        fragment_shader=_FRAGMENT_SHADER)
             self._programs[kind] = prog
             self._vaos[kind] = self.ctx.vertex_array(prog, [])
         return self._programs[kind]
@@ -475,7 +532,7 @@ class TessellationRenderer:
             "u_model": model.T.astype("f4").tobytes(), "u_mvp": mvp.T.astype("f4").tobytes(),
             "u_eye_mm": tuple(np.asarray(eye_mm, float)), "u_axes": np.asarray(axes, "f4").tobytes(),
             "u_level_bias": float(cfg.level_bias), "u_max_level": cfg.max_level, "u_full": int(mode == "full"),
-            "u_cull": int(cfg.cull), "u_first_patch": 0, "u_ellipse_sigma": float(cfg.ellipse_sigma),
+            "u_cull": int(cfg.cull), "u_ellipse_sigma": float(cfg.ellipse_sigma),
             "u_region_ndc": tuple(region_ndc) if region_ndc is not None else (-2.0, -2.0, 2.0, 2.0),
             "u_smooth_normals": int(cfg.smooth_normals), "u_ambient": float(ambient),
             "u_height_range": self.height_range,
@@ -539,6 +596,7 @@ class TessellationRenderer:
         self._prev = (np.asarray(eye_mm, float).copy(), t)
         self.last_setup_ms = (time.perf_counter() - t0) * 1e3
         self._bind()
+        self._levels_buffer.bind_to_storage_buffer(0)     # the levels pass's levels, read by the control shader
         ctx.finish()
         t1 = time.perf_counter()
         self._fbo.use()
@@ -548,7 +606,6 @@ class TessellationRenderer:
         self._fbo.clear(*self.background, 1.0, depth=1.0)
         with self._query:
             for first, count in ranges:
-                prog["u_first_patch"].value = first
                 self._vaos["draw"].render(moderngl.PATCHES, vertices=count, first=first)
         ctx.finish()
         self.last_render_ms = (time.perf_counter() - t1) * 1e3
@@ -567,7 +624,10 @@ class TessellationRenderer:
         self._bind()
         # Not under RASTERIZER_DISCARD: llvmpipe then skips the tessellation stages (the buffer stays 0).
         self._fbo.use()
-        self._vaos["levels"].render(moderngl.PATCHES, vertices=n * n)
+        if self.config.csf_stage == "vertex":
+            self._vaos["levels"].render(moderngl.POINTS, vertices=n * n)
+        else:
+            self._vaos["levels"].render(moderngl.PATCHES, vertices=n * n)
         self.ctx.memory_barrier()
         return np.frombuffer(self._levels_buffer.read(), np.float32).reshape(n, n, 6)
 
@@ -624,10 +684,10 @@ class TessellationRenderer:
         buf = self.ctx.buffer(np.array([0, capacity, 0, 0], np.uint32).tobytes() + bytes(24 * capacity))
         try:
             buf.bind_to_storage_buffer(1)
+            self._levels_buffer.bind_to_storage_buffer(0)
             self._bind()
             self._fbo.use()                  # (not under RASTERIZER_DISCARD: see _levels_pass)
             for first, count in ranges:
-                prog["u_first_patch"].value = first
                 self._vaos["samples"].render(moderngl.PATCHES, vertices=count, first=first)
             self.ctx.memory_barrier()
             raw = buf.read()
