@@ -49,6 +49,8 @@ FULL_MAX_SAMPLES = 2049
 PATCH_SAMPLES = 64
 DISC_DEG = 5.0
 COV_DEG2 = np.diag([0.05 ** 2, 0.05 ** 2])
+#: The second reference: the same full-detail region drawn at 4x4 the pixels and averaged down.
+SUPERSAMPLE = 4
 GOAL_FPS = 15.0
 GOAL_RSS_MB = 2048.0
 GOAL_SELECT_GROWTH = 2.0
@@ -69,7 +71,7 @@ def _disc_region(screen, head, size):
     return disc, (-rx, -ry, rx, ry), ppd
 
 
-def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir=None) -> dict:
+def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir=None, level_bias: float = 0.0) -> dict:
     """One (back end, terrain) measured in this process; the result dict (see the module notes)."""
     from calib import DEFAULT_SCREEN
 
@@ -93,12 +95,15 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     grid = PatchGrid.build(z, dx, dy, PATCH_SAMPLES, origin_m=origin)
     del z
     model = grid_model(grid, screen)
-    tess = TessellationRenderer(ctx, grid, size=size, config=TessellationConfig(patch_samples=PATCH_SAMPLES))
+    tess = TessellationRenderer(ctx, grid, size=size,
+                                config=TessellationConfig(patch_samples=PATCH_SAMPLES, level_bias=level_bias))
     setup_s = time.perf_counter() - t_start
     # The reference: every patch reaching the disc's box at the finest level.
     t0 = time.perf_counter()
     reference, ref_stats = render_frame(tess, screen, model, head, poi, COV_DEG2, mode="full", region_ndc=region)
     reference_s = time.perf_counter() - t0
+    reference_ss, _ = render_frame(tess, screen, model, head, poi, COV_DEG2, mode="full", region_ndc=region,
+                                   supersample=SUPERSAMPLE)
     steady = []
     if backend == "tessellation":
         for k in range(frames + 1):
@@ -132,11 +137,12 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
                 steady.append((0.0, mesh.last_render_ms, int(query.primitives), 1))
     select_ms, render_ms = (float(np.median([s[j] for s in steady])) for j in range(2))
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    out = {"backend": backend, "samples": n_samples, "full_triangles": grid.full_triangles,
+    out = {"backend": backend, "samples": n_samples, "level_bias": level_bias, "full_triangles": grid.full_triangles,
            "patches": grid.n_patches ** 2, "frames": frames,
            "frame_ms": select_ms + render_ms, "select_ms": select_ms, "render_ms": render_ms,
            "fps": 1e3 / (select_ms + render_ms), "triangles": int(steady[-1][2]), "draw_calls": int(steady[-1][3]),
            "rss_mb": rss_mb, "psnr_disc_5deg_db": psnr_db(image, reference, disc),
+           "psnr_disc_5deg_ssaa_db": psnr_db(image, reference_ss, disc),
            "reference_triangles": ref_stats["triangles"], "reference_s": reference_s, "setup_s": setup_s,
            "select_ms_all": [s[0] for s in steady], "render_ms_all": [s[1] for s in steady]}
     if backend == "full":
@@ -261,7 +267,8 @@ def run_scale_bench(json_path=None, chart_path=None, quick: bool = False) -> int
     return 0
 
 
-if __name__ == "__main__":      # one case, for scale_report's subprocesses: BACKEND SAMPLES FRAMES [CACHE_DIR]
+if __name__ == "__main__":      # one case, for scale_report's subprocesses: BACKEND SAMPLES FRAMES [CACHE_DIR [BIAS]]
     _backend, _n, _frames = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
-    _result = run_case(_backend, _n, _frames, cache_dir=sys.argv[4] if len(sys.argv) > 4 else None)
+    _cache = sys.argv[4] if len(sys.argv) > 4 and sys.argv[4] != "-" else None
+    _result = run_case(_backend, _n, _frames, cache_dir=_cache, level_bias=float(sys.argv[5]) if len(sys.argv) > 5 else 0.0)
     print(json.dumps(_result))

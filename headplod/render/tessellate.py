@@ -41,6 +41,7 @@ import math
 import time
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..plod import perception as pc
@@ -564,7 +565,7 @@ class TessellationRenderer:
     # -- frames ----------------------------------------------------------------
 
     def render(self, view, proj, model, eye_mm, axes, cov_deg2=None, *, mode: str = "csf", t: float | None = None,
-               region_ndc=None) -> np.ndarray:
+               region_ndc=None, supersample: int = 1) -> np.ndarray:
         """Draw one frame and read it back: (H, W, 3) uint8 RGB, row 0 at the top.
 
         Parameters
@@ -585,6 +586,9 @@ class TessellationRenderer:
             Time, s: with the last frame's, the patches' angular speed; None: the speed floor.
         region_ndc : (4,) or None
             (x0, y0, x1, y1) in NDC: only patches whose box reaches it are drawn (a reference of a region).
+        supersample : int
+            Draw at this many times the size per axis and average down (``cv2.INTER_AREA``): a reference
+            whose triangles are smaller than a pixel, without aliasing. 1: the image's own size.
         """
         if mode not in TESS_MODES:
             raise ValueError(f"TessellationRenderer.render: mode must be one of {TESS_MODES}, got {mode!r}")
@@ -599,11 +603,20 @@ class TessellationRenderer:
         self._levels_buffer.bind_to_storage_buffer(0)     # the levels pass's levels, read by the control shader
         ctx.finish()
         t1 = time.perf_counter()
-        self._fbo.use()
-        self._fbo.viewport = (0, 0, *self.size)
+        k = int(supersample)
+        if k < 1:
+            raise ValueError(f"TessellationRenderer.render: supersample must be >= 1, got {supersample!r}")
+        fbo, rgba = self._fbo, self._rgba
+        if k > 1:
+            w, h = self.size[0] * k, self.size[1] * k
+            fbo = ctx.framebuffer(color_attachments=[ctx.renderbuffer((w, h), components=4)],
+                                  depth_attachment=ctx.depth_renderbuffer((w, h)))
+            rgba = np.empty((h, w, 4), np.uint8)
+        fbo.use()
+        fbo.viewport = (0, 0, fbo.width, fbo.height)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-        self._fbo.clear(*self.background, 1.0, depth=1.0)
+        fbo.clear(*self.background, 1.0, depth=1.0)
         with self._query:
             for first, count in ranges:
                 self._vaos["draw"].render(moderngl.PATCHES, vertices=count, first=first)
@@ -611,7 +624,13 @@ class TessellationRenderer:
         self.last_render_ms = (time.perf_counter() - t1) * 1e3
         self.last_triangles = int(self._query.primitives)
         self.last_draw_calls = len(ranges)
-        return read_rgb(self._fbo, self._rgba)
+        image = read_rgb(fbo, rgba)
+        if k > 1:
+            for attachment in (*fbo.color_attachments, fbo.depth_attachment):
+                attachment.release()
+            fbo.release()
+            image = cv2.resize(image, self.size, interpolation=cv2.INTER_AREA)
+        return image
 
     def _levels_pass(self, view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc) -> np.ndarray:
         """(n, n, 6) float32: the control shader's inner, outer W S E N levels and culled flag of every patch."""
@@ -746,7 +765,7 @@ def head_axes(screen, eye_mm, poi_px) -> np.ndarray:
 
 
 def render_frame(renderer: TessellationRenderer, screen, model, head_mm=None, poi_px=None, cov_deg2=None, *,
-                 mode: str = "csf", t: float | None = None, region_ndc=None):
+                 mode: str = "csf", t: float | None = None, region_ndc=None, supersample: int = 1):
     """One frame of a :class:`TessellationRenderer` from a head and a POI: (image (H, W, 3) uint8, stats dict).
 
     ``head_mm`` (3,) world mm (default :func:`default_head`), ``poi_px`` (2,)
@@ -761,6 +780,6 @@ def render_frame(renderer: TessellationRenderer, screen, model, head_mm=None, po
     poi = np.array(screen.size_px, np.float64) / 2 if poi_px is None else np.asarray(poi_px, np.float64)
     view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
     image = renderer.render(view, proj, model, head, head_axes(screen, head, poi), cov_deg2, mode=mode, t=t,
-                            region_ndc=region_ndc)
+                            region_ndc=region_ndc, supersample=supersample)
     return image, {"mode": mode, "triangles": renderer.last_triangles, "select_ms": renderer.last_setup_ms,
                    "render_ms": renderer.last_render_ms, "draw_calls": renderer.last_draw_calls}
