@@ -1,24 +1,37 @@
-"""PLOD on the GPU: a terrain of patches tessellated from a height texture, the CSF in the control shader.
+"""PLOD on the GPU: a terrain of patches tessellated from a height texture, per-patch CSF levels as factors.
 
 The second PLOD back end (issue 14), beside the CPU one (``LevelSelector`` +
 ``AdaptiveMesh`` + :class:`headplod.render.gl.TerrainRenderer`):
 
 - The terrain is a :class:`headplod.plod.patches.PatchGrid`: an ``N x N``
   height grid (an R32F texture, mipmapped for the normals of coarse levels)
-  cut into patches of ``patch_samples`` sample spacings, drawn as one
-  ``GL_PATCHES`` call of one control point per patch (no vertex buffer: a
-  patch is known by ``gl_PrimitiveID``).
-- The tessellation control shader (one invocation per patch) evaluates the
-  ``csf`` criterion of :mod:`headplod.plod.select` in closed form, as
-  :func:`headplod.plod.patches.patch_levels` does in numpy: the patch's inner
-  level from its corners, each outer (edge) level from the edge alone
-  (endpoints, midpoint, and the larger contrast of the two patches sharing
-  it), so both patches sharing an edge compute the same factor: no cracks.
-  Level L is the tessellation factor 2^L (``equal_spacing``); the finest
-  level puts one vertex per height sample. The highest visible frequency
-  (Lambert's W_{-1}) is solved by Newton's method in log form. Patches
-  whose bounding box (corners' x, y; the patch's height range) is outside
-  the view frustum get outer factors 0 and are dropped.
+  cut into patches of ``patch_samples`` sample spacings, drawn as
+  ``GL_PATCHES`` of one control point per patch (no vertex buffer: a
+  patch is known by its ``gl_VertexID``).
+- The CSF levels: a levels pass evaluates the ``csf`` criterion of
+  :mod:`headplod.plod.select` in closed form per patch, as
+  :func:`headplod.plod.patches.patch_levels` does in numpy (tested equal):
+  the patch's inner level from its corners, each outer (edge) level from
+  the edge alone (endpoints, midpoint, and the larger contrast of the two
+  patches sharing it), so both patches sharing an edge compute the same
+  factor: no cracks. Level L is the tessellation factor 2^L
+  (``equal_spacing``); the finest level puts one vertex per height sample.
+  The highest visible frequency (Lambert's W_{-1}) is solved by Newton's
+  method in log form. Patches whose bounding box (corners' x, y; the
+  patch's height range) is outside the view frustum are culled. The same
+  GLSL runs in the tessellation control shader (``csf_stage="control"``)
+  or, by default, in a vertex shader of one vertex per patch
+  (``"vertex"``): llvmpipe runs a control shader of one output vertex one
+  patch at a time and a vertex shader 8 at a time (16384 patches: 19 ms
+  against 66 ms). Either writes the levels to a storage buffer; the draw's
+  control shader turns them into tessellation factors.
+- Two llvmpipe limits shape the draw. It numbers a draw call's tessellated
+  vertices with 16 bits (past 65536, triangles join vertices of other
+  patches), so the levels are read back (24 bytes per patch) and the
+  patches split into draw calls of fewer than 65536 vertices. And its
+  ``gl_PrimitiveID`` restarts within large draws, so a patch is known by
+  its vertex's ``gl_VertexID``. Both are tested (watertightness over
+  16384 patches, and at full detail across several draw calls).
 - The evaluation shader places every vertex on a height sample (the tess
   coordinate rounded to the sample grid, so shared edge vertices are
   bit-identical) and shades it as ``gl.py``'s terrain shader does (Lambert
@@ -28,9 +41,10 @@ The second PLOD back end (issue 14), beside the CPU one (``LevelSelector`` +
   coarser level over the level's vertex spacing in the matching mip level
   (the normals of the surface that level can show).
 
-The CPU's share per frame is a handful of uniforms: it does not grow with
-the terrain (``headplod bench plod --scale``). Not here (yet): hysteresis
-(per-patch state), the read-back contrast, the levels and wire views.
+The CPU's share per frame is the uniforms, the read-back of the levels and
+the split into draw calls (``headplod bench plod --scale``). Not here (yet):
+hysteresis (per-patch state), the read-back contrast, the levels and wire
+views.
 
 Frames and units: scene metres → world mm by ``model``; matrices as in
 :mod:`headplod.render.projection`; images as :mod:`headplod.render.gl`'s.
