@@ -72,14 +72,18 @@ def _disc_region(screen, head, size):
 
 
 def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir=None, level_bias: float = 0.0) -> dict:
-    """One (back end, terrain) measured in this process; the result dict (see the module notes)."""
+    """One (back end, terrain) measured in this process; the result dict (see the module notes).
+
+    The frames come first and the peak memory is read after them; the references (drawn by the
+    tessellation back end, the supersampled one in a 4x4 larger framebuffer) come after.
+    """
     from calib import DEFAULT_SCREEN
 
     from .. import io
     from ..plod.patches import PatchGrid, grid_normals, jacksboro_grid
     from ..render import TerrainRenderer, create_context, off_axis_projection
     from ..render.still import default_head
-    from ..render.tessellate import TessellationConfig, TessellationRenderer, grid_model, head_axes, render_frame
+    from ..render.tessellate import TessellationConfig, TessellationRenderer, grid_model, render_frame
     from .plod import psnr_db
 
     if backend not in BACKENDS:
@@ -95,25 +99,17 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     grid = PatchGrid.build(z, dx, dy, PATCH_SAMPLES, origin_m=origin)
     del z
     model = grid_model(grid, screen)
-    tess = TessellationRenderer(ctx, grid, size=size,
-                                config=TessellationConfig(patch_samples=PATCH_SAMPLES, level_bias=level_bias))
-    setup_s = time.perf_counter() - t_start
-    # The reference: every patch reaching the disc's box at the finest level.
-    t0 = time.perf_counter()
-    reference, ref_stats = render_frame(tess, screen, model, head, poi, COV_DEG2, mode="full", region_ndc=region)
-    reference_s = time.perf_counter() - t0
-    reference_ss, _ = render_frame(tess, screen, model, head, poi, COV_DEG2, mode="full", region_ndc=region,
-                                   supersample=SUPERSAMPLE)
-    steady = []
+    config = TessellationConfig(patch_samples=PATCH_SAMPLES, level_bias=level_bias)
+    steady, extra = [], {}
     if backend == "tessellation":
+        tess = TessellationRenderer(ctx, grid, size=size, config=config)
+        extra["setup_s"] = time.perf_counter() - t_start
         for k in range(frames + 1):
             image, st = render_frame(tess, screen, model, head, poi, COV_DEG2, t=k / 60)
             if k:
                 steady.append((st["select_ms"], st["render_ms"], st["triangles"], st["draw_calls"]))
     else:
-        tess.release()                       # the mesh alone: the texture and patches are not part of `full`
         n = grid.heights_m.shape[0]
-        t0 = time.perf_counter()
         xs = grid.origin_m[0] + np.arange(n, dtype=np.float64) * grid.dx_m
         ys = grid.origin_m[1] + np.arange(n, dtype=np.float64) * grid.dy_m
         positions = np.empty((n, n, 3), np.float32)
@@ -126,28 +122,34 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
         del i
         mesh = TerrainRenderer(ctx, size=size)
         mesh.upload(positions.reshape(-1, 3), normals.reshape(-1, 3), indices=indices.reshape(-1, 3))
-        mesh.height_range = tess.height_range
+        mesh.height_range = (float(grid.heights_m.min()), float(grid.heights_m.max()))     # as the tessellation's
         del positions, normals, indices
-        build_s = time.perf_counter() - t0
+        extra["setup_s"] = time.perf_counter() - t_start
         query = ctx.query(primitives=True)
         for k in range(frames + 1):
             with query:
                 image = mesh.render(view, proj, model)
             if k:
                 steady.append((0.0, mesh.last_render_ms, int(query.primitives), 1))
-    select_ms, render_ms = (float(np.median([s[j] for s in steady])) for j in range(2))
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    out = {"backend": backend, "samples": n_samples, "level_bias": level_bias, "full_triangles": grid.full_triangles,
-           "patches": grid.n_patches ** 2, "frames": frames,
-           "frame_ms": select_ms + render_ms, "select_ms": select_ms, "render_ms": render_ms,
-           "fps": 1e3 / (select_ms + render_ms), "triangles": int(steady[-1][2]), "draw_calls": int(steady[-1][3]),
-           "rss_mb": rss_mb, "psnr_disc_5deg_db": psnr_db(image, reference, disc),
-           "psnr_disc_5deg_ssaa_db": psnr_db(image, reference_ss, disc),
-           "reference_triangles": ref_stats["triangles"], "reference_s": reference_s, "setup_s": setup_s,
-           "select_ms_all": [s[0] for s in steady], "render_ms_all": [s[1] for s in steady]}
     if backend == "full":
-        out["build_s"] = build_s
-    return out
+        mesh.release()
+        tess = TessellationRenderer(ctx, grid, size=size, config=config)
+    # The references: every patch reaching the disc's box at the finest level, at 1 and 4x4 samples per pixel.
+    t0 = time.perf_counter()
+    reference, ref_stats = render_frame(tess, screen, model, head, poi, COV_DEG2, mode="full", region_ndc=region)
+    extra["reference_s"] = time.perf_counter() - t0
+    reference_ss, _ = render_frame(tess, screen, model, head, poi, COV_DEG2, mode="full", region_ndc=region,
+                                   supersample=SUPERSAMPLE)
+    select_ms, render_ms = (float(np.median([s[j] for s in steady])) for j in range(2))
+    return {"backend": backend, "samples": n_samples, "level_bias": level_bias, "full_triangles": grid.full_triangles,
+            "patches": grid.n_patches ** 2, "frames": frames,
+            "frame_ms": select_ms + render_ms, "select_ms": select_ms, "render_ms": render_ms,
+            "fps": 1e3 / (select_ms + render_ms), "triangles": int(steady[-1][2]), "draw_calls": int(steady[-1][3]),
+            "rss_mb": rss_mb, "psnr_disc_5deg_db": psnr_db(image, reference, disc),
+            "psnr_disc_5deg_ssaa_db": psnr_db(image, reference_ss, disc),
+            "reference_triangles": ref_stats["triangles"], **extra,
+            "select_ms_all": [s[0] for s in steady], "render_ms_all": [s[1] for s in steady]}
 
 
 def _run_in_subprocess(backend: str, n_samples: int, frames: int, cache_dir) -> dict:
@@ -161,7 +163,7 @@ def _run_in_subprocess(backend: str, n_samples: int, frames: int, cache_dir) -> 
     return {**json.loads(proc.stdout.strip().splitlines()[-1]), "ok": True}
 
 
-def scale_report(samples=SCALE_SAMPLES, frames: int = 5, full_max_samples: int = FULL_MAX_SAMPLES,
+def scale_report(samples=SCALE_SAMPLES, frames: int = 9, full_max_samples: int = FULL_MAX_SAMPLES,
                  cache_dir=None, progress=None) -> dict:
     """Measure every (back end, terrain) in its own process; the report (cases and goals).
 
@@ -197,8 +199,11 @@ def _goals(cases, samples) -> list:
                    "met": bool(c["fps"] >= GOAL_FPS)},
                   {"goal": f"process under {GOAL_RSS_MB:g} MB on the largest terrain", "value": c["rss_mb"],
                    "met": bool(c["rss_mb"] < GOAL_RSS_MB)},
-                  {"goal": f"PSNR within 5 deg >= {GOAL_PSNR_DB:g} dB on the largest terrain",
-                   "value": c["psnr_disc_5deg_db"], "met": bool(c["psnr_disc_5deg_db"] >= GOAL_PSNR_DB)}]
+                  {"goal": f"PSNR within 5 deg >= {GOAL_PSNR_DB:g} dB on the largest terrain (1-spp reference)",
+                   "value": c["psnr_disc_5deg_db"], "met": bool(c["psnr_disc_5deg_db"] >= GOAL_PSNR_DB)},
+                  {"goal": f"PSNR within 5 deg >= {GOAL_PSNR_DB:g} dB on the largest terrain (4x4-supersampled "
+                           f"reference)", "value": c["psnr_disc_5deg_ssaa_db"],
+                   "met": bool(c["psnr_disc_5deg_ssaa_db"] >= GOAL_PSNR_DB)}]
     if big in tess and small in tess:
         growth = tess[big]["select_ms"] / max(tess[small]["select_ms"], 1e-9)
         goals.append({"goal": f"selection grows <= {GOAL_SELECT_GROWTH:g}x from the smallest to the largest terrain",
@@ -210,7 +215,8 @@ def _row(c) -> str:
     if not c.get("ok"):
         return f"{c['backend']:13s} {c['samples']:5d}  -- {c.get('reason')}"
     return (f"{c['backend']:13s} {c['samples']:5d} {c['full_triangles'] / 1e6:7.1f}M {c['frame_ms']:9.1f} "
-            f"{c['select_ms']:8.2f} {c['rss_mb']:8.0f} {c['triangles']:10d} {c['psnr_disc_5deg_db']:7.1f}")
+            f"{c['select_ms']:8.2f} {c['rss_mb']:8.0f} {c['triangles']:10d} {c['psnr_disc_5deg_db']:7.1f} "
+            f"{c['psnr_disc_5deg_ssaa_db']:7.1f}")
 
 
 def _chart(report, path) -> None:
@@ -237,6 +243,11 @@ def _chart(report, path) -> None:
         ax.set_xlabel("terrain triangles at full detail")
         ax.grid(True, which="both", alpha=0.3)
     axs[0, 2].axhline(GOAL_RSS_MB, color="r", lw=0.8, ls=":")
+    cs = [c for c in report["cases"] if c["backend"] == "tessellation" and c.get("ok")]
+    if cs:
+        axs[1, 1].plot([c["full_triangles"] for c in cs], [c["psnr_disc_5deg_ssaa_db"] for c in cs], "o:",
+                       label="tessellation against the 4x4-supersampled reference")
+        axs[1, 1].legend(fontsize=8)
     axs[1, 1].axhline(GOAL_PSNR_DB, color="r", lw=0.8, ls=":")
     axs[1, 2].axhline(GOAL_FPS, color="r", lw=0.8, ls=":")
     axs[0, 0].legend()
@@ -252,9 +263,9 @@ def run_scale_bench(json_path=None, chart_path=None, quick: bool = False) -> int
     def say(text):
         print(text, file=sys.stderr, flush=True)
 
-    report = scale_report(samples=QUICK_SAMPLES if quick else SCALE_SAMPLES, frames=2 if quick else 5, progress=say)
+    report = scale_report(samples=QUICK_SAMPLES if quick else SCALE_SAMPLES, frames=2 if quick else 9, progress=say)
     print(f"{'back end':13s} {'grid':>5s} {'terrain':>8s} {'frame ms':>9s} {'sel ms':>8s} {'RSS MB':>8s} "
-          f"{'triangles':>10s} {'PSNR 5°':>7s}")
+          f"{'triangles':>10s} {'PSNR 5°':>7s} {'4x4 ref':>7s}")
     for c in report["cases"]:
         print(_row(c))
     for g in report["goals"]:
