@@ -12,7 +12,9 @@ Grids are cached (:func:`headplod.plod.patches.jacksboro_grid`).
 Back ends:
 
 - ``tessellation`` (:mod:`headplod.render.tessellate`): patches of 64 samples,
-  the ``csf`` levels computed per patch in the tessellation control shader.
+  the ``csf`` levels computed per patch on the GPU; on the largest terrain
+  also with patches of 128, 256 and 512 samples (``patch_sweep``: fewer
+  patches to select and draw, more triangles).
 - ``full``: the whole grid as one indexed mesh (``TerrainRenderer``, 24 bytes
   per vertex and 12 per triangle), where it fits (by default up to 2049²:
   4097² needs about 1.6 GB of buffers before llvmpipe's copies).
@@ -46,7 +48,13 @@ QUICK_SAMPLES = (1025, 2049)
 BACKENDS = ("tessellation", "full")
 #: Largest grid the ``full`` back end is run on by default (samples per side).
 FULL_MAX_SAMPLES = 2049
-PATCH_SAMPLES = 64
+#: Patch size of the scale runs, samples: the finest level has a vertex per sample.
+MIN_PATCH_SAMPLES = 64
+#: Patch sizes tried on the largest terrain: larger patches mean fewer patches for the levels pass and the
+#: draw (each drawn patch costs ~2.4 µs on llvmpipe beside its triangles; the levels pass ~0.3 µs a patch),
+#: but coarser adaptation (a patch's inner level is its nearest point's), so more triangles. The finest level
+#: of a patch of P samples has a vertex every P / 64 samples (8193²: 0.18 px per sample here).
+SWEEP_PATCH_SAMPLES = (64, 128, 256, 512)
 DISC_DEG = 5.0
 COV_DEG2 = np.diag([0.05 ** 2, 0.05 ** 2])
 #: The second reference: the same full-detail region drawn at 4x4 the pixels and averaged down.
@@ -71,7 +79,8 @@ def _disc_region(screen, head, size):
     return disc, (-rx, -ry, rx, ry), ppd
 
 
-def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir=None, level_bias: float = 0.0) -> dict:
+def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir=None, level_bias: float = 0.0,
+             patch_samples: int | None = None) -> dict:
     """One (back end, terrain) measured in this process; the result dict (see the module notes).
 
     The frames come first and the peak memory is read after them; the references (drawn by the
@@ -96,10 +105,10 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
     disc, region, _ = _disc_region(screen, head, size)
     ctx = create_context(require=430)
-    grid = PatchGrid.build(z, dx, dy, PATCH_SAMPLES, origin_m=origin)
-    del z
+    p = MIN_PATCH_SAMPLES if patch_samples is None else int(patch_samples)
+    grid = PatchGrid.build(z, dx, dy, p, origin_m=origin)
     model = grid_model(grid, screen)
-    config = TessellationConfig(patch_samples=PATCH_SAMPLES, level_bias=level_bias)
+    config = TessellationConfig(patch_samples=p, level_bias=level_bias)
     steady, extra = [], {}
     if backend == "tessellation":
         tess = TessellationRenderer(ctx, grid, size=size, config=config)
@@ -134,7 +143,11 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     if backend == "full":
         mesh.release()
-        tess = TessellationRenderer(ctx, grid, size=size, config=config)
+    if backend == "full" or p != MIN_PATCH_SAMPLES:      # the reference needs patches of one vertex per sample
+        if backend == "tessellation":
+            tess.release()
+        fine = PatchGrid.build(z, dx, dy, MIN_PATCH_SAMPLES, origin_m=origin)
+        tess = TessellationRenderer(ctx, fine, size=size, config=TessellationConfig(patch_samples=MIN_PATCH_SAMPLES))
     # The references: every patch reaching the disc's box at the finest level, at 1 and 4x4 samples per pixel.
     t0 = time.perf_counter()
     reference, ref_stats = render_frame(tess, screen, model, head, poi, COV_DEG2, mode="full", region_ndc=region)
@@ -143,7 +156,7 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
                                    supersample=SUPERSAMPLE)
     select_ms, render_ms = (float(np.median([s[j] for s in steady])) for j in range(2))
     return {"backend": backend, "samples": n_samples, "level_bias": level_bias, "full_triangles": grid.full_triangles,
-            "patches": grid.n_patches ** 2, "frames": frames,
+            "patch_samples": p, "patches": grid.n_patches ** 2, "frames": frames,
             "frame_ms": select_ms + render_ms, "select_ms": select_ms, "render_ms": render_ms,
             "fps": 1e3 / (select_ms + render_ms), "triangles": int(steady[-1][2]), "draw_calls": int(steady[-1][3]),
             "rss_mb": rss_mb, "psnr_disc_5deg_db": psnr_db(image, reference, disc),
@@ -152,10 +165,9 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
             "select_ms_all": [s[0] for s in steady], "render_ms_all": [s[1] for s in steady]}
 
 
-def _run_in_subprocess(backend: str, n_samples: int, frames: int, cache_dir) -> dict:
-    cmd = [sys.executable, "-m", "headplod.bench.plod_scale", backend, str(n_samples), str(frames)]
-    if cache_dir is not None:
-        cmd.append(str(cache_dir))
+def _run_in_subprocess(backend: str, n_samples: int, frames: int, cache_dir, patch_samples=MIN_PATCH_SAMPLES) -> dict:
+    cmd = [sys.executable, "-m", "headplod.bench.plod_scale", backend, str(n_samples), str(frames),
+           "-" if cache_dir is None else str(cache_dir), "0", str(patch_samples)]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         return {"backend": backend, "samples": n_samples, "ok": False,
@@ -164,10 +176,12 @@ def _run_in_subprocess(backend: str, n_samples: int, frames: int, cache_dir) -> 
 
 
 def scale_report(samples=SCALE_SAMPLES, frames: int = 9, full_max_samples: int = FULL_MAX_SAMPLES,
-                 cache_dir=None, progress=None) -> dict:
-    """Measure every (back end, terrain) in its own process; the report (cases and goals).
+                 cache_dir=None, progress=None, patch_sweep: bool = True) -> dict:
+    """Measure every (back end, terrain) in its own process; the report (cases, patch sweep, goals).
 
     ``full`` runs on the grids up to ``full_max_samples`` per side; larger ones are listed as not run.
+    ``patch_sweep``: also the tessellation on the largest terrain with the larger patches of
+    :data:`SWEEP_PATCH_SAMPLES` (the trade between selection and draw).
     """
     say = progress or (lambda text: None)
     for n in samples:                         # make the grids first: their generation is not any case's memory
@@ -185,8 +199,15 @@ def scale_report(samples=SCALE_SAMPLES, frames: int = 9, full_max_samples: int =
             say(f"{backend} on {n}x{n}")
             cases.append(_run_in_subprocess(backend, n, frames, cache_dir))
             say("  " + _row(cases[-1]))
-    return {"size": list(SIZE), "patch_samples": PATCH_SAMPLES, "cov_deg2": COV_DEG2.tolist(), "cases": cases,
-            "goals": _goals(cases, samples)}
+    sweep = []
+    if patch_sweep:
+        for p in SWEEP_PATCH_SAMPLES:
+            if p != MIN_PATCH_SAMPLES and (max(samples) - 1) % p == 0:
+                say(f"tessellation on {max(samples)}x{max(samples)}, patches of {p} samples")
+                sweep.append(_run_in_subprocess("tessellation", max(samples), frames, cache_dir, p))
+                say("  " + _row(sweep[-1]))
+    return {"size": list(SIZE), "patch_samples": MIN_PATCH_SAMPLES, "cov_deg2": COV_DEG2.tolist(), "cases": cases,
+            "patch_sweep": sweep, "goals": _goals(cases, samples)}
 
 
 def _goals(cases, samples) -> list:
@@ -214,7 +235,8 @@ def _goals(cases, samples) -> list:
 def _row(c) -> str:
     if not c.get("ok"):
         return f"{c['backend']:13s} {c['samples']:5d}  -- {c.get('reason')}"
-    return (f"{c['backend']:13s} {c['samples']:5d} {c['full_triangles'] / 1e6:7.1f}M {c['frame_ms']:9.1f} "
+    name = c["backend"] if c.get("patch_samples", MIN_PATCH_SAMPLES) == MIN_PATCH_SAMPLES else f"tess P={c['patch_samples']}"
+    return (f"{name:13s} {c['samples']:5d} {c['full_triangles'] / 1e6:7.1f}M {c['frame_ms']:9.1f} "
             f"{c['select_ms']:8.2f} {c['rss_mb']:8.0f} {c['triangles']:10d} {c['psnr_disc_5deg_db']:7.1f} "
             f"{c['psnr_disc_5deg_ssaa_db']:7.1f}")
 
@@ -263,10 +285,11 @@ def run_scale_bench(json_path=None, chart_path=None, quick: bool = False) -> int
     def say(text):
         print(text, file=sys.stderr, flush=True)
 
-    report = scale_report(samples=QUICK_SAMPLES if quick else SCALE_SAMPLES, frames=2 if quick else 9, progress=say)
+    report = scale_report(samples=QUICK_SAMPLES if quick else SCALE_SAMPLES, frames=2 if quick else 9, progress=say,
+                          patch_sweep=not quick)
     print(f"{'back end':13s} {'grid':>5s} {'terrain':>8s} {'frame ms':>9s} {'sel ms':>8s} {'RSS MB':>8s} "
           f"{'triangles':>10s} {'PSNR 5°':>7s} {'4x4 ref':>7s}")
-    for c in report["cases"]:
+    for c in report["cases"] + report["patch_sweep"]:
         print(_row(c))
     for g in report["goals"]:
         print(f"{'met    ' if g['met'] else 'NOT met'} {g['goal']}: {g['value']:.2f}")
@@ -278,8 +301,9 @@ def run_scale_bench(json_path=None, chart_path=None, quick: bool = False) -> int
     return 0
 
 
-if __name__ == "__main__":      # one case, for scale_report's subprocesses: BACKEND SAMPLES FRAMES [CACHE_DIR [BIAS]]
+if __name__ == "__main__":  # one case, for scale_report's subprocesses: BACKEND SAMPLES FRAMES [CACHE_DIR [BIAS [PATCH]]]
     _backend, _n, _frames = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
     _cache = sys.argv[4] if len(sys.argv) > 4 and sys.argv[4] != "-" else None
-    _result = run_case(_backend, _n, _frames, cache_dir=_cache, level_bias=float(sys.argv[5]) if len(sys.argv) > 5 else 0.0)
+    _result = run_case(_backend, _n, _frames, cache_dir=_cache, level_bias=float(sys.argv[5]) if len(sys.argv) > 5 else 0.0,
+                       patch_samples=int(sys.argv[6]) if len(sys.argv) > 6 else None)
     print(json.dumps(_result))

@@ -58,7 +58,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..plod import perception as pc
 from ..plod.patches import PatchGrid, max_level_for, tess_factors
 from .context import moderngl
 from .gl import _FRAGMENT_SHADER, read_rgb
