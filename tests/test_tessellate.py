@@ -202,3 +202,18 @@ def test_many_patches_keep_their_ids(ctx430, default_screen):
     assert area.sum() == pytest.approx(2048.0 ** 2, abs=1e-3)
     _, counts = np.unique(key, axis=0, return_counts=True)
     assert counts.max() == 2
+
+
+def test_render_cli_tessellation_backend(ctx430, tmp_path, monkeypatch, capsys):
+    from headplod.cli import main as cli_main
+
+    monkeypatch.setenv("HEADPLOD_CACHE", str(tmp_path / "cache"))
+    out, stats = tmp_path / "t.png", tmp_path / "t.json"
+    assert cli_main(["render", "--backend", "tessellation", "--grid-samples", "129", "--size", "160,90",
+                     "--cov", "0.01,0,0.01", "--out", str(out), "--stats", str(stats)]) == 0
+    import json
+    st = json.loads(stats.read_text())
+    assert out.exists() and st["triangles"] > 0 and st["grid_samples"] == 129
+    assert cli_main(["render", "--backend", "tessellation", "--mode", "gp", "--out", str(out)]) == 2
+    assert "does not take --mode gp" in capsys.readouterr().err
+    assert cli_main(["render", "--backend", "tessellation", "--grid-samples", "100", "--out", str(out)]) == 2
