@@ -26,13 +26,13 @@ import math
 import time
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..plod.csf import CSF_MODELS, max_visible_freq_cpd
-from .context import moderngl
-from .gl import read_rgb
 
-__all__ = ["FoveationConfig", "Layer", "layer_plan", "FoveatedRenderer"]
+__all__ = ["FoveationConfig", "Layer", "layer_plan", "layer_regions", "face_layer_span", "LayerAnchor",
+           "FoveatedRenderer"]
 
 
 @dataclass(frozen=True)
@@ -129,123 +129,426 @@ def layer_plan(px_per_deg: float, cov_deg2=None, config: FoveationConfig = Fovea
     return [Layer(2.0 ** -k, borders[k], borders[k + 1]) for k in range(config.max_layers)]
 
 
-_COMPOSITE_VS = """
-#version 330
-out vec2 v_uv;
-void main() {
-    // One triangle covering the screen.
-    vec2 p = vec2((gl_VertexID == 1) ? 3.0 : -1.0, (gl_VertexID == 2) ? 3.0 : -1.0);
-    v_uv = 0.5 * (p + 1.0);
-    gl_Position = vec4(p, 0.0, 1.0);
-}
-"""
+def layer_regions(layers: list[Layer], px_per_deg: float, blend_deg: float) -> np.ndarray:
+    """Where each layer shows in the composite: (n, 2) [lo, hi) distances from the POI, output px.
 
-def _composite_shader(n: int) -> str:
-    """The compositing fragment shader for ``n`` layers, unrolled (GLSL 330 indexes samplers by constants only)."""
-    lines = ["#version 330", "uniform float u_outer_px[%d];" % max(n - 1, 1), "uniform float u_blend_px;",
-             "uniform vec2 u_poi_px;", "uniform vec2 u_size;", "in vec2 v_uv;", "out vec4 f_color;"]
-    lines += ["uniform sampler2D u_layer%d;" % k for k in range(n)]
-    lines += ["void main() {",
-              "    float r = distance(v_uv * u_size, u_poi_px);",
-              # From the coarsest layer inwards: a finer layer covers a coarser one inside its
-              # border, fading out over u_blend_px across it.
-              "    vec3 c = texture(u_layer%d, v_uv).rgb;" % (n - 1)]
-    for k in range(n - 2, -1, -1):
-        lines.append("    c = mix(c, texture(u_layer%d, v_uv).rgb, "
-                     "1.0 - smoothstep(u_outer_px[%d] - u_blend_px, u_outer_px[%d], r));" % (k, k, k))
-    lines += ["    f_color = vec4(c, 1.0);", "}"]
-    return "\n".join(lines) + "\n"
+    Layer 0 (the fovea) shows inside ``outer_0``; layer k ≥ 1 from
+    ``outer_{k-1} - blend`` (where the finer layer starts to fade out) to
+    ``outer_k`` (inf for the last).
+    """
+    blend = blend_deg * px_per_deg
+    out = np.empty((len(layers), 2))
+    for k, layer in enumerate(layers):
+        out[k, 0] = 0.0 if k == 0 else max(layers[k - 1].outer_deg * px_per_deg - blend, 0.0)
+        out[k, 1] = layer.outer_deg * px_per_deg
+    return out
+
+
+def face_layer_span(corners, z_range, model, view, proj, size, poi_gl, regions, scales) -> np.ndarray:
+    """The layers each base face can touch: (F, 2) int (first, last), (-1, -1) for a face off screen.
+
+    Parameters
+    ----------
+    corners : (F, 3, 3) float
+        Corners of the base faces, scene units (their x, y are used).
+    z_range : (F, 2) float
+        Lowest and highest z of any vertex of the face, scene units
+        (``AdaptiveMesh.z_range``): the face lies in the prism of its base
+        triangle between them.
+    model, view, proj : (4, 4)
+        ``T_world_scene``, ``T_eye_world``, ``T_clip_eye``.
+    size : (W, H)
+        Output image, px.
+    poi_gl : (2,)
+        POI, output px, GL origin (bottom-left).
+    regions : (n, 2)
+        :func:`layer_regions`.
+    scales : (n,)
+        Linear scale of each layer; a layer's region is widened by two of its
+        pixels plus one output pixel (the bilinear upsampling reads that far).
+
+    A face's screen rectangle is the bounding box of its prism's six
+    corners' images (conservative: a perspective projection maps the
+    prism, convex, to the hull of its corners' images when all lie in front
+    of the eye); a face with a corner at or behind the eye plane touches
+    every layer. The layers are annuli about the POI, so the ones a
+    rectangle meets are contiguous: from the first whose outer edge lies
+    beyond the rectangle's nearest point to the last whose inner edge lies
+    within its farthest.
+    """
+    corners = np.asarray(corners, dtype=np.float64)
+    z_range = np.asarray(z_range, dtype=np.float64)
+    w, h = size
+    f = len(corners)
+    pts = np.empty((f, 6, 4))
+    pts[:, :3, :2] = corners[:, :, :2]
+    pts[:, 3:, :2] = corners[:, :, :2]
+    pts[:, :3, 2] = z_range[:, :1]
+    pts[:, 3:, 2] = z_range[:, 1:]
+    pts[..., 3] = 1.0
+    mvp = np.asarray(proj, dtype=np.float64) @ np.asarray(view, dtype=np.float64) @ np.asarray(model, dtype=np.float64)
+    clip = pts @ mvp.T                                                   # (F, 6, 4)
+    wc = clip[..., 3]
+    behind = (wc <= 1e-9).any(axis=1)
+    wsafe = np.where(wc > 1e-9, wc, 1.0)
+    x = (clip[..., 0] / wsafe + 1.0) * 0.5 * w
+    y = (clip[..., 1] / wsafe + 1.0) * 0.5 * h
+    xmin, xmax, ymin, ymax = x.min(axis=1), x.max(axis=1), y.min(axis=1), y.max(axis=1)
+    off = ~behind & ((xmax < -1) | (xmin > w + 1) | (ymax < -1) | (ymin > h + 1))
+    x0, x1 = np.clip(xmin, 0, w), np.clip(xmax, 0, w)
+    y0, y1 = np.clip(ymin, 0, h), np.clip(ymax, 0, h)
+    px, py = float(poi_gl[0]), float(poi_gl[1])
+    dmin = np.hypot(np.maximum(np.maximum(x0 - px, px - x1), 0), np.maximum(np.maximum(y0 - py, py - y1), 0))
+    dmax = np.hypot(np.maximum(np.abs(x0 - px), np.abs(x1 - px)), np.maximum(np.abs(y0 - py), np.abs(y1 - py)))
+    margin = 2.0 / np.asarray(scales, dtype=np.float64) + 1.0
+    lo = np.asarray(regions, dtype=np.float64)[:, 0] - margin
+    hi = np.asarray(regions, dtype=np.float64)[:, 1] + margin
+    touched = (dmin[:, None] <= hi[None, :]) & (dmax[:, None] >= lo[None, :])       # (F, n)
+    n = len(lo)
+    first = np.argmax(touched, axis=1)
+    last = n - 1 - np.argmax(touched[:, ::-1], axis=1)
+    span = np.stack([first, last], axis=1).astype(np.int64)
+    span[behind] = (0, n - 1)
+    span[off | ~(touched.any(axis=1) | behind)] = (-1, -1)
+    return span
+
+
+def _smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
+    """GLSL's smoothstep (0 below ``e0``, 1 above ``e1``, C¹ between), float32."""
+    t = np.clip((x - e0) / max(e1 - e0, 1e-6), 0.0, 1.0).astype(np.float32)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def _read_rect(fbo, rect, buffers: dict) -> np.ndarray:
+    """The pixels of ``fbo`` in ``rect`` (x, y, w, h) GL px (bottom-left origin) as (h, w, 3) uint8 RGB, top row first."""
+    x, y, rw, rh = rect
+    buf = buffers.get((rw, rh))
+    if buf is None:
+        buf = buffers[rw, rh] = np.empty((rh, rw, 4), np.uint8)
+    fbo.read_into(buf, viewport=(x, y, rw, rh), components=4)
+    return cv2.cvtColor(buf[::-1], cv2.COLOR_RGBA2RGB)
+
+
+class LayerAnchor:
+    """Holds the layers' centre and borders against small changes, so a still head gives a still frame.
+
+    The POI given is already filtered (the selector's One Euro filter); its
+    residual drift and the covariance's frame-to-frame noise would still move
+    the blends by fractions of a pixel every frame. The anchor keeps the
+    centre until the POI has moved more than ``hold_deg`` from it, and keeps
+    each border until it should grow (at once: the uncertainty rose) or
+    shrink by more than ``hold_deg``. Every border is pushed out by
+    ``hold_deg`` so the held fovea still holds the planned one.
+
+    Parameters
+    ----------
+    hold_deg : float
+        Hysteresis, deg (> 0).
+    """
+
+    def __init__(self, hold_deg: float = 0.25):
+        if not (isinstance(hold_deg, (int, float)) and math.isfinite(hold_deg) and hold_deg > 0):
+            raise ValueError(f"LayerAnchor: hold_deg must be a finite number > 0, got {hold_deg!r}")
+        self.hold_deg = float(hold_deg)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the held centre and borders (the next update takes the new ones)."""
+        self.poi_px = None
+        self.layers = None
+
+    def update(self, poi_px, layers: list[Layer], px_per_deg: float):
+        """The held (POI (2,) output px, layers) for a new filtered POI (2,) output px and layer plan."""
+        poi = np.asarray(poi_px, dtype=np.float64).reshape(2)
+        hold_px = self.hold_deg * px_per_deg
+        widened = [Layer(l.scale, l.inner_deg + (self.hold_deg if k else 0.0), l.outer_deg + self.hold_deg)
+                   for k, l in enumerate(layers)]
+        if (self.poi_px is None or self.layers is None or len(self.layers) != len(widened)
+                or np.hypot(*(poi - self.poi_px)) > hold_px):
+            self.poi_px, self.layers = poi, widened
+            return self.poi_px, self.layers
+        outer = [h.outer_deg if h.outer_deg - self.hold_deg <= w.outer_deg <= h.outer_deg else w.outer_deg
+                 for w, h in zip(widened, self.layers)]
+        self.layers = [Layer(l.scale, 0.0 if k == 0 else outer[k - 1], outer[k]) for k, l in enumerate(widened)]
+        return self.poi_px, self.layers
 
 
 class FoveatedRenderer:
     """Draws a :class:`~headplod.render.gl.TerrainRenderer`'s mesh as foveated layers and composites them.
 
+    The fovea is drawn at full resolution into the renderer's framebuffer,
+    clipped (scissor) to its disc's square; each coarser layer k into its
+    own framebuffer at scale 2^-k, clipped to its disc's square (the last
+    layer: all of it). The composite is made while reading back (the frame
+    is read back anyway): from the coarsest layer inwards, the image so far
+    is upsampled x2 (bilinear, as GL's texture filter: pixel centres at
+    half-integers) and the next layer is cross-faded in across its border
+    (``blend_deg``, a smoothstep); the fovea last, at full resolution. On
+    llvmpipe a full-screen GPU pass sampling two layers cost 9-18 ms at
+    1280x720; this costs a few ms.
+
+    With the mesh given to :meth:`set_mesh` with each triangle's base face
+    and the faces' bounding prisms, each layer draws only the triangles of
+    the faces whose screen rectangle meets the ring it shows
+    (:func:`face_layer_span`): the triangles are sorted by the range of
+    layers their face touches, so a layer is one draw call per first layer
+    over one index buffer (re-sorted only when a face's span changes). On
+    llvmpipe a small triangle costs about as much to set up as to fill, so
+    a coarse layer drawing the whole mesh costs nearly as much as the plain
+    frame.
+
     Parameters
     ----------
     renderer : TerrainRenderer
-        Its context, output size and uploaded mesh are used.
+        Its context, output size and framebuffer are used (``samples`` must be 0).
     config : FoveationConfig
+
+    Attributes
+    ----------
+    last_layers : list of Layer
+        The layers of the last frame (as drawn: after the anchor's hold, if any).
+    last_render_ms : float
+        GPU time of the last frame's layers (draws to ``ctx.finish()``), ms.
+    last_readback_ms : float
+        Read-back and composite, ms.
+    last_stage_ms : dict
+        ``layer<k>`` (draw, ms) and ``composite`` (ms).
+    last_sort_ms : float
+        Face spans and (when they changed) the re-sort and upload of the indices, ms.
+    last_triangles_per_layer : list of int
     """
 
     def __init__(self, renderer, config: FoveationConfig = FoveationConfig()):
+        if renderer.samples:
+            raise ValueError("FoveatedRenderer: the renderer must have samples=0 (the fovea is drawn in place)")
         self.renderer = renderer
         self.config = config
         ctx = renderer.ctx
         w, h = renderer.size
-        self._targets = []
-        for k in range(config.max_layers):
+        self._targets = [(None, renderer._fbo)]
+        for k in range(1, config.max_layers):
             lw, lh = max(1, int(round(w * 2.0 ** -k))), max(1, int(round(h * 2.0 ** -k)))
-            color = ctx.texture((lw, lh), 4)
-            color.filter = (moderngl.LINEAR, moderngl.LINEAR)
-            color.repeat_x = color.repeat_y = False
+            color = ctx.renderbuffer((lw, lh), components=4)
             self._targets.append((color, ctx.framebuffer(color_attachments=[color],
                                                          depth_attachment=ctx.depth_renderbuffer((lw, lh)))))
-        n = config.max_layers
-        self._program = ctx.program(vertex_shader=_COMPOSITE_VS, fragment_shader=_composite_shader(n))
-        for k in range(n):
-            self._program["u_layer%d" % k].value = k
-        self._vao = ctx.vertex_array(self._program, [])
-        self._output = ctx.framebuffer(color_attachments=[ctx.renderbuffer((w, h), components=4)])
-        self._rgba = np.empty((h, w, 4), np.uint8)
+        self._buffers: dict = {}
+        self._weights: dict = {}
+        self._mesh = None              # (indices (T, 3), levels (T,), face of each triangle (T,) or None, bounds)
+        self._order_key = None         # the face spans the uploaded order was made for
+        self._ranges = None            # per layer: (first, count) triangle ranges
         self.last_layers: list[Layer] = []
         self.last_render_ms = float("nan")
         self.last_readback_ms = float("nan")
+        self.last_sort_ms = 0.0
+        self.last_stage_ms: dict = {}
+        self.last_triangles_per_layer: list[int] = []
 
-    def render(self, view, proj, model, poi_px, px_per_deg: float, cov_deg2=None, view_mode: str = "shaded"):
-        """The foveated frame (H, W, 3) uint8 RGB, row 0 at the top; ``poi_px`` (2,) in output pixels
-        (top-left origin), ``px_per_deg`` the output's pixels per degree at full resolution."""
+    # -- the mesh ---------------------------------------------------------------
+
+    def set_mesh(self, indices, levels=None, face_per_triangle=None, bounds=None) -> None:
+        """The mesh to draw, as indices into the renderer's uploaded vertex table (uploaded here).
+
+        Parameters
+        ----------
+        indices : (3T,) or (T, 3) int
+            Triangles, rows of the renderer's vertices.
+        levels : (T,) int, optional
+            Level of each triangle (the "levels" view).
+        face_per_triangle : (T,) int, optional
+            Base face of each triangle (``AdaptiveMesh.face_per_triangle()``).
+        bounds : tuple of (F, 3, 3) and (F, 2) float, optional
+            The base faces' corners and z ranges, scene units
+            (``AdaptiveMesh.corners``, ``AdaptiveMesh.z_range``).
+
+        With ``face_per_triangle`` and ``bounds`` each layer draws a subset;
+        without, every layer draws the whole mesh.
+        """
+        idx = np.asarray(indices).reshape(-1, 3)
+        t = len(idx)
+        lv = np.zeros(t, np.uint8) if levels is None else np.asarray(levels).reshape(-1)
+        if len(lv) != t:
+            raise ValueError(f"FoveatedRenderer.set_mesh: {len(lv)} levels for {t} triangles")
+        faces = None
+        if face_per_triangle is not None and bounds is not None:
+            faces = np.asarray(face_per_triangle).reshape(-1)
+            if len(faces) != t:
+                raise ValueError(f"FoveatedRenderer.set_mesh: {len(faces)} faces for {t} triangles")
+            corners, z_range = (np.asarray(b, dtype=np.float64) for b in bounds)
+            if corners.ndim != 3 or corners.shape[1:] != (3, 3) or z_range.shape != (len(corners), 2):
+                raise ValueError(f"FoveatedRenderer.set_mesh: bounds must be (F, 3, 3) corners and (F, 2) "
+                                 f"z ranges, got {corners.shape} and {z_range.shape}")
+            if t and (faces.min() < 0 or faces.max() >= len(corners)):
+                raise ValueError(f"FoveatedRenderer.set_mesh: faces in {faces.min()}..{faces.max()}, "
+                                 f"expected 0..{len(corners) - 1}")
+            bounds = (corners, z_range)
+        self._mesh = (idx, lv, faces, bounds if faces is not None else None)
+        self._order_key = self._ranges = None
+        self.renderer.set_indices(idx, lv)
+
+    def _layer_ranges(self, span: np.ndarray, n: int):
+        """Re-sort and upload the triangles by their faces' layer span; per layer its (first, count) ranges."""
+        idx, lv, faces, _ = self._mesh
+        key = np.where(span[:, 0] < 0, 0, span[:, 0] * n + span[:, 1] + 1).astype(np.uint8)   # 0: off screen
+        tri_key = key[faces]
+        order = np.argsort(tri_key, kind="stable")
+        counts = np.bincount(tri_key, minlength=n * n + 1)
+        starts = np.concatenate([[0], np.cumsum(counts)])
+        self.renderer.set_indices(idx[order], lv[order])
+        ranges = []
+        for k in range(n):
+            # Faces spanning first..last with first <= k <= last: for each first, the keys with
+            # last >= k are the tail of its block.
+            rk = []
+            for first in range(k + 1):
+                lo, hi = starts[1 + first * n + k], starts[1 + first * n + n]
+                if hi > lo:
+                    rk.append((int(lo), int(hi - lo)))
+            ranges.append(rk)
+        return ranges
+
+    # -- drawing ----------------------------------------------------------------
+
+    def _weight(self, k: int, rect_td, layer_size, outer_px: float, blend_px: float, poi) -> np.ndarray:
+        """Weight (h, w) float32 of layer k over the coarser ones in its rectangle (top-down layer px)."""
+        key = (rect_td, layer_size, outer_px, blend_px, float(poi[0]), float(poi[1]))
+        hit = self._weights.get(k)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        (x0, y0, x1, y1), (lw, lh) = rect_td, layer_size
+        w, h = self.renderer.size
+        xs = (np.arange(x0, x1) + 0.5) * (w / lw) - poi[0]
+        ys = (np.arange(y0, y1) + 0.5) * (h / lh) - poi[1]
+        r = np.sqrt(ys[:, None] ** 2 + xs[None, :] ** 2)
+        weight = 1.0 - _smoothstep(outer_px - blend_px, outer_px, r)
+        self._weights[k] = (key, weight)
+        return weight
+
+    def render(self, view, proj, model, poi_px, px_per_deg: float, cov_deg2=None, view_mode: str = "shaded",
+               subsets: bool = True, layers: list[Layer] | None = None):
+        """The foveated frame (H, W, 3) uint8 RGB, row 0 at the top.
+
+        Parameters
+        ----------
+        view, proj, model : (4, 4)
+            As :meth:`TerrainRenderer.render`.
+        poi_px : (2,)
+            The layers' centre, output px, top-left origin.
+        px_per_deg : float
+            The output's pixels per degree at full resolution.
+        cov_deg2 : (2, 2), optional
+            The POI's covariance, deg² (widens the layers, :func:`layer_plan`).
+        view_mode : str
+        subsets : bool
+            False: every layer draws the whole mesh (the reference the subsets must match).
+        layers : list of Layer, optional
+            The layers to draw (e.g. :class:`LayerAnchor`'s); default
+            ``layer_plan(px_per_deg, cov_deg2, config)``.
+        """
         r = self.renderer
         ctx = r.ctx
         w, h = r.size
-        layers = layer_plan(px_per_deg, cov_deg2, self.config)
+        cfg = self.config
+        n = cfg.max_layers
+        if layers is None:
+            layers = layer_plan(px_per_deg, cov_deg2, cfg)
+        if len(layers) != n:
+            raise ValueError(f"FoveatedRenderer.render: {len(layers)} layers, the config has {n}")
         self.last_layers = layers
-        poi = np.asarray(poi_px, dtype=np.float64)
+        poi = np.asarray(poi_px, dtype=np.float64).reshape(-1)
+        if poi.shape != (2,) or not np.isfinite(poi).all():
+            raise ValueError(f"FoveatedRenderer.render: poi_px must be a finite (2,) point, got {poi_px!r}")
         poi_gl = (float(poi[0]), float(h - poi[1]))
-        blend_px = self.config.blend_deg * px_per_deg
+        blend_deg = max(cfg.blend_deg, 0.5 / px_per_deg)
+        blend_px = blend_deg * px_per_deg
+        regions = layer_regions(layers, px_per_deg, blend_deg)
+        scales = np.array([l.scale for l in layers])
         r.prepare(view, proj, model, view_mode)
+        ts = time.perf_counter()
+        ranges = [None] * n
+        mesh = self._mesh
+        if subsets and mesh is not None and mesh[2] is not None:
+            corners, z_range = mesh[3]
+            span = face_layer_span(corners, z_range, model, view, proj, (w, h), poi_gl, regions, scales)
+            if self._order_key is None or not np.array_equal(span, self._order_key):
+                self._ranges = self._layer_ranges(span, n)
+                self._order_key = span
+            ranges = self._ranges
+        elif mesh is not None and self._order_key is not None:
+            r.set_indices(mesh[0], mesh[1])                   # back to the mesh's own order
+            self._order_key = self._ranges = None
+        self.last_sort_ms = (time.perf_counter() - ts) * 1e3
+        self.last_triangles_per_layer = [r.n_triangles if rk is None else int(sum(c for _, c in rk))
+                                         for rk in ranges]
         ctx.finish()
         t0 = time.perf_counter()
-        outer_px = []
-        for k, layer in enumerate(layers):
-            _, fbo = self._targets[k]
-            lw, lh = fbo.size
-            scissor = None
-            if math.isfinite(layer.outer_deg):
-                radius = layer.outer_deg * px_per_deg
-                outer_px.append(radius)
-                # Only the disc this layer shows (and its blend) is shaded.
-                x0, y0 = (poi_gl[0] - radius) * lw / w, (poi_gl[1] - radius) * lh / h
-                x1, y1 = (poi_gl[0] + radius) * lw / w, (poi_gl[1] + radius) * lh / h
-                x0, y0 = max(int(math.floor(x0)) - 1, 0), max(int(math.floor(y0)) - 1, 0)
-                x1, y1 = min(int(math.ceil(x1)) + 1, lw), min(int(math.ceil(y1)) + 1, lh)
-                scissor = (x0, y0, max(x1 - x0, 0), max(y1 - y0, 0))
+        stage_ms = {}
+        rects = []
+        for k in range(n):
+            fbo = self._targets[k][1]
+            (lw, lh), s = fbo.size, scales[k]
+            hi = regions[k, 1]
+            if math.isfinite(hi):
+                # Only the square of the disc this layer shows (and its filter's reach) is shaded.
+                reach = hi + 2.0 / s + 1.0
+                x0 = max(int(math.floor((poi_gl[0] - reach) * lw / w)), 0)
+                y0 = max(int(math.floor((poi_gl[1] - reach) * lh / h)), 0)
+                x1 = min(int(math.ceil((poi_gl[0] + reach) * lw / w)), lw)
+                y1 = min(int(math.ceil((poi_gl[1] + reach) * lh / h)), lh)
+                rect = (x0, y0, max(x1 - x0, 0), max(y1 - y0, 0))
             else:
-                outer_px.append(1e9)
-            r.draw(fbo, (0, 0, lw, lh), view_mode, scissor=scissor)
-        self._output.use()
-        self._output.viewport = (0, 0, w, h)
-        ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
-        for k, (color, _) in enumerate(self._targets):
-            color.use(k)
-        prog = self._program
-        for name, value in (("u_outer_px", outer_px[:-1] or [1e9]), ("u_blend_px", float(blend_px)),
-                            ("u_poi_px", poi_gl), ("u_size", (float(w), float(h)))):
-            if name in prog:          # one layer: the compiler drops what the blend needs
-                prog[name].value = value
-        self._vao.render(moderngl.TRIANGLES, vertices=3)
-        ctx.finish()
+                rect = (0, 0, lw, lh)
+            rects.append(rect)
+            r.draw(fbo, (0, 0, lw, lh), view_mode, scissor=rect, ranges=ranges[k])
+            ctx.finish()           # a framebuffer change flushes llvmpipe's scene anyway
+            stage_ms["layer%d" % k] = (time.perf_counter() - t0) * 1e3 - sum(stage_ms.values())
         t1 = time.perf_counter()
-        image = read_rgb(self._output, self._rgba)
+        image = self._composite(rects, regions, blend_px, poi)
+        t2 = time.perf_counter()
+        stage_ms["composite"] = (t2 - t1) * 1e3
+        self.last_stage_ms = stage_ms
         self.last_render_ms = (t1 - t0) * 1e3
-        self.last_readback_ms = (time.perf_counter() - t1) * 1e3
+        self.last_readback_ms = (t2 - t1) * 1e3
         return image
+
+    def _composite(self, rects, regions, blend_px: float, poi) -> np.ndarray:
+        """Read the layers back and blend them, coarsest first; (H, W, 3) uint8 RGB, top row first."""
+        w, h = self.renderer.size
+        n = len(rects)
+        image = None
+        for k in range(n - 1, -1, -1):
+            fbo = self._targets[k][1]
+            lw, lh = fbo.size
+            x, y, rw, rh = rects[k]
+            if image is None:
+                if (x, y, rw, rh) == (0, 0, lw, lh):
+                    image = _read_rect(fbo, rects[k], self._buffers)
+                    continue
+                image = np.empty((lh, lw, 3), np.uint8)       # a finite outermost layer: background beyond
+                image[:] = np.round(np.asarray(self.renderer.background) * 255).astype(np.uint8)
+            elif image.shape[:2] != (lh, lw):
+                image = cv2.resize(image, (lw, lh), interpolation=cv2.INTER_LINEAR)
+            if rw == 0 or rh == 0:
+                continue
+            patch = _read_rect(fbo, rects[k], self._buffers)
+            td = (x, lh - (y + rh), x + rw, lh - y)                    # top-down (x0, y0, x1, y1)
+            weight = self._weight(k, td, (lw, lh), float(regions[k, 1]), blend_px, poi)
+            under = image[td[1]:td[3], td[0]:td[2]]
+            image[td[1]:td[3], td[0]:td[2]] = cv2.blendLinear(patch, under, weight, 1.0 - weight)
+        if image.shape[:2] != (h, w):
+            image = cv2.resize(image, (w, h), interpolation=cv2.INTER_LINEAR)
+        return image
+
+    def layer_image(self, k: int) -> np.ndarray:
+        """Layer k of the last frame as drawn, (h_k, w_k, 3) uint8 RGB, top row first, at its own resolution
+        (outside the layer's rectangle: whatever was there before)."""
+        if not 0 <= k < self.config.max_layers:
+            raise ValueError(f"FoveatedRenderer.layer_image: k must be in 0..{self.config.max_layers - 1}, got {k}")
+        fbo = self._targets[k][1]
+        return _read_rect(fbo, (0, 0, *fbo.size), {})
 
     def release(self) -> None:
         """Free the layers' GL objects (the renderer and its context stay)."""
-        for color, fbo in self._targets:
+        for color, fbo in self._targets[1:]:
             fbo.release()
             color.release()
-        self._output.release()
-        self._vao.release()
-        self._program.release()
         self._targets = []

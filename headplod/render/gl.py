@@ -112,6 +112,7 @@ in vec3 v_color;
 #ifdef LEVELS
 uniform usampler2D u_levels;  // level of triangle p at texel (p % width, p / width)
 uniform vec3 u_palette[8];
+uniform int u_primitive_base; // first triangle of the draw call (gl_PrimitiveID restarts at 0 per call)
 #endif
 out vec4 f_color;
 
@@ -119,7 +120,8 @@ void main() {
     vec3 color = COLOR;
 #ifdef LEVELS
     int width = textureSize(u_levels, 0).x;
-    uint level = texelFetch(u_levels, ivec2(gl_PrimitiveID % width, gl_PrimitiveID / width), 0).r;
+    int p = gl_PrimitiveID + u_primitive_base;
+    uint level = texelFetch(u_levels, ivec2(p % width, p / width), 0).r;
     color *= u_palette[level % 8u];
 #endif
 #ifdef WIRE
@@ -454,13 +456,17 @@ class TerrainRenderer:
             prog["u_wire_px"].value = float(wire_px)
             prog["u_wire_color"].value = tuple(float(c) for c in wire_color)
 
-    def draw(self, fbo, viewport: tuple[int, int, int, int], view_mode: str = "shaded", scissor=None) -> None:
+    def draw(self, fbo, viewport: tuple[int, int, int, int], view_mode: str = "shaded", scissor=None,
+             ranges=None, clear: bool = True) -> None:
         """Clear ``fbo`` and draw the uploaded mesh into it with the uniforms of :meth:`prepare`.
 
         ``viewport`` (x, y, w, h) px of ``fbo``: where the screen's visible
         area is mapped (a smaller framebuffer draws the same view at a lower
         resolution); ``scissor`` (x, y, w, h) px, optional: only that
-        rectangle is cleared and shaded.
+        rectangle is cleared and shaded. ``ranges``, optional: (first, count)
+        pairs of triangles (rows of the index buffer, or of the soup) to
+        draw, one draw call each, instead of the whole mesh. ``clear``:
+        clear colour and depth (within the scissor) first.
         """
         ctx = self.ctx
         fbo.use()
@@ -468,11 +474,22 @@ class TerrainRenderer:
         fbo.scissor = None if scissor is None else tuple(int(v) for v in scissor)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-        fbo.clear(*self.background, 1.0, depth=1.0)
+        if clear:
+            fbo.clear(*self.background, 1.0, depth=1.0)
         if self.n_triangles:
+            vao = self._vaos[view_mode, self.indexed]
             if view_mode == "levels":
                 self._level_texture.use(0)
-            self._vaos[view_mode, self.indexed].render(moderngl.TRIANGLES, vertices=3 * self.n_triangles)
+            if ranges is None:
+                ranges = ((0, self.n_triangles),)
+            levels_prog = self.programs["levels"] if view_mode == "levels" else None
+            for first, count in ranges:
+                first, count = int(first), min(int(count), self.n_triangles - int(first))
+                if count <= 0:
+                    continue
+                if levels_prog is not None:
+                    levels_prog["u_primitive_base"].value = first
+                vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first)
         fbo.scissor = None
 
     def render(self, view: Any, proj: Any, model: Any = None, view_mode: str = "shaded",
