@@ -87,5 +87,5 @@ def test_render_foveate_reports_its_layers(gl_context, tmp_path):
     out, stats = tmp_path / "fov.png", tmp_path / "fov.json"
     assert cli_main(["render", "--foveate", "--cov", "0.2,0,0.2", "--out", str(out), "--stats", str(stats)]) == 0
     layers = json.loads(stats.read_text())["foveate_layers"]
-    assert [layer["scale"] for layer in layers] == [1.0, 0.5, 0.25]
+    assert [layer["scale"] for layer in layers] == [1.0, 0.5]
     assert layers[-1]["outer_deg"] is None and out.stat().st_size > 1000

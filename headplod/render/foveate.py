@@ -43,6 +43,13 @@ class FoveationConfig:
     ----------
     max_layers : int
         Most layers, the fovea included (scales 1, 1/2, ... 2^-(max_layers-1)).
+        2 by default: on llvmpipe a layer's cost is mostly its triangles'
+        set-up, not its pixels, and the faces on a border are drawn by both
+        layers; a third layer at 1/4 (which the CSF allows beyond ~15° at
+        25 px/deg) measured slower than a single 1/2 layer for the whole
+        periphery (1280x720, medians of 9-11 interleaved frames: mountains
+        1.05-1.07 vs 0.86-0.93 of the plain frame's render + read-back,
+        overview 1.00-1.15 vs 0.79-0.99, plains 0.90-1.00 vs 0.62-0.85).
     blend_deg : float
         Width of the blend across a layer's border, deg.
     n_sigma : float
@@ -58,7 +65,7 @@ class FoveationConfig:
         One of :data:`headplod.plod.csf.CSF_MODELS`.
     """
 
-    max_layers: int = 3
+    max_layers: int = 2
     blend_deg: float = 1.0
     n_sigma: float = 2.0
     contrast: float = 1.0
@@ -144,6 +151,27 @@ def layer_regions(layers: list[Layer], px_per_deg: float, blend_deg: float) -> n
     return out
 
 
+_PRISMS: dict = {}
+
+
+def _prism_points(corners, z_range) -> np.ndarray:
+    """(6, F, 4) homogeneous corners of the faces' bounding prisms, scene units (cached per input arrays)."""
+    key = (id(corners), id(z_range))
+    hit = _PRISMS.get("last")
+    if hit is not None and hit[0] == key and hit[1] is corners and hit[2] is z_range:
+        return hit[3]
+    c = np.asarray(corners, dtype=np.float64)
+    z = np.asarray(z_range, dtype=np.float64)
+    pts = np.empty((6, len(c), 4))          # corner-major: the reductions over a face's corners run along rows
+    pts[:3, :, :2] = c[:, :, :2].transpose(1, 0, 2)
+    pts[3:, :, :2] = c[:, :, :2].transpose(1, 0, 2)
+    pts[:3, :, 2] = z[:, 0]
+    pts[3:, :, 2] = z[:, 1]
+    pts[..., 3] = 1.0
+    _PRISMS["last"] = (key, corners, z_range, pts)
+    return pts
+
+
 def face_layer_span(corners, z_range, model, view, proj, size, poi_gl, regions, scales) -> np.ndarray:
     """The layers each base face can touch: (F, 2) int (first, last), (-1, -1) for a face off screen.
 
@@ -176,24 +204,16 @@ def face_layer_span(corners, z_range, model, view, proj, size, poi_gl, regions, 
     beyond the rectangle's nearest point to the last whose inner edge lies
     within its farthest.
     """
-    corners = np.asarray(corners, dtype=np.float64)
-    z_range = np.asarray(z_range, dtype=np.float64)
+    pts = _prism_points(corners, z_range)
     w, h = size
-    f = len(corners)
-    pts = np.empty((f, 6, 4))
-    pts[:, :3, :2] = corners[:, :, :2]
-    pts[:, 3:, :2] = corners[:, :, :2]
-    pts[:, :3, 2] = z_range[:, :1]
-    pts[:, 3:, 2] = z_range[:, 1:]
-    pts[..., 3] = 1.0
     mvp = np.asarray(proj, dtype=np.float64) @ np.asarray(view, dtype=np.float64) @ np.asarray(model, dtype=np.float64)
-    clip = pts @ mvp.T                                                   # (F, 6, 4)
-    wc = clip[..., 3]
-    behind = (wc <= 1e-9).any(axis=1)
-    wsafe = np.where(wc > 1e-9, wc, 1.0)
-    x = (clip[..., 0] / wsafe + 1.0) * 0.5 * w
-    y = (clip[..., 1] / wsafe + 1.0) * 0.5 * h
-    xmin, xmax, ymin, ymax = x.min(axis=1), x.max(axis=1), y.min(axis=1), y.max(axis=1)
+    clip = pts.reshape(-1, 4) @ mvp[[0, 1, 3]].T                       # (6F, 3): x, y, w
+    wc = clip[:, 2].reshape(6, -1)
+    behind = (wc <= 1e-9).any(axis=0)
+    inv = 0.5 / np.where(wc > 1e-9, wc, 1.0)
+    x = (clip[:, 0].reshape(6, -1) * inv + 0.5) * w
+    y = (clip[:, 1].reshape(6, -1) * inv + 0.5) * h
+    xmin, xmax, ymin, ymax = x.min(axis=0), x.max(axis=0), y.min(axis=0), y.max(axis=0)
     off = ~behind & ((xmax < -1) | (xmin > w + 1) | (ymax < -1) | (ymin > h + 1))
     x0, x1 = np.clip(xmin, 0, w), np.clip(xmax, 0, w)
     y0, y1 = np.clip(ymin, 0, h), np.clip(ymax, 0, h)
@@ -227,6 +247,12 @@ def _read_rect(fbo, rect, buffers: dict) -> np.ndarray:
         buf = buffers[rw, rh] = np.empty((rh, rw, 4), np.uint8)
     fbo.read_into(buf, viewport=(x, y, rw, rh), components=4)
     return cv2.cvtColor(buf[::-1], cv2.COLOR_RGBA2RGB)
+
+
+def _covers(outer: np.ndarray, inner: np.ndarray) -> bool:
+    """Whether every span (first, last) of ``inner`` (F, 2) lies within ``outer``'s (off screen: (-1, -1), inside all)."""
+    off = inner[:, 0] < 0
+    return bool(np.all(off | ((outer[:, 0] >= 0) & (outer[:, 0] <= inner[:, 0]) & (inner[:, 1] <= outer[:, 1]))))
 
 
 class LayerAnchor:
@@ -336,6 +362,9 @@ class FoveatedRenderer:
         self._mesh = None              # (indices (T, 3), levels (T,), face of each triangle (T,) or None, bounds)
         self._order_key = None         # the face spans the uploaded order was made for
         self._ranges = None            # per layer: (first, count) triangle ranges
+        self._uploaded_plain = True    # the renderer holds the mesh in its own order
+        #: How much wider than needed (output px) the rings are when the faces are sorted.
+        self.sort_margin_px = 8.0
         self.last_layers: list[Layer] = []
         self.last_render_ms = float("nan")
         self.last_readback_ms = float("nan")
@@ -363,17 +392,20 @@ class FoveatedRenderer:
         With ``face_per_triangle`` and ``bounds`` each layer draws a subset;
         without, every layer draws the whole mesh.
         """
-        idx = np.asarray(indices).reshape(-1, 3)
+        idx = self.renderer._check_indices(indices, self.renderer.n_vertices).reshape(-1, 3)
         t = len(idx)
         lv = np.zeros(t, np.uint8) if levels is None else np.asarray(levels).reshape(-1)
         if len(lv) != t:
             raise ValueError(f"FoveatedRenderer.set_mesh: {len(lv)} levels for {t} triangles")
+        lv = self.renderer._levels_per_triangle(lv, t, idx[:, 2], self.renderer.n_vertices)
         faces = None
         if face_per_triangle is not None and bounds is not None:
             faces = np.asarray(face_per_triangle).reshape(-1)
             if len(faces) != t:
                 raise ValueError(f"FoveatedRenderer.set_mesh: {len(faces)} faces for {t} triangles")
-            corners, z_range = (np.asarray(b, dtype=np.float64) for b in bounds)
+            corners, z_range = bounds
+            if not (isinstance(corners, np.ndarray) and isinstance(z_range, np.ndarray)):
+                corners, z_range = np.asarray(corners, dtype=np.float64), np.asarray(z_range, dtype=np.float64)
             if corners.ndim != 3 or corners.shape[1:] != (3, 3) or z_range.shape != (len(corners), 2):
                 raise ValueError(f"FoveatedRenderer.set_mesh: bounds must be (F, 3, 3) corners and (F, 2) "
                                  f"z ranges, got {corners.shape} and {z_range.shape}")
@@ -383,7 +415,9 @@ class FoveatedRenderer:
             bounds = (corners, z_range)
         self._mesh = (idx, lv, faces, bounds if faces is not None else None)
         self._order_key = self._ranges = None
-        self.renderer.set_indices(idx, lv)
+        self._uploaded_plain = faces is None
+        if faces is None:
+            self.renderer._set_checked_indices(idx.reshape(-1), lv)   # with subsets, render uploads them sorted
 
     def _layer_ranges(self, span: np.ndarray, n: int):
         """Re-sort and upload the triangles by their faces' layer span; per layer its (first, count) ranges."""
@@ -393,7 +427,8 @@ class FoveatedRenderer:
         order = np.argsort(tri_key, kind="stable")
         counts = np.bincount(tri_key, minlength=n * n + 1)
         starts = np.concatenate([[0], np.cumsum(counts)])
-        self.renderer.set_indices(idx[order], lv[order])
+        self.renderer._set_checked_indices(idx[order].reshape(-1), lv[order])     # checked in set_mesh
+        self._uploaded_plain = False
         ranges = []
         for k in range(n):
             # Faces spanning first..last with first <= k <= last: for each first, the keys with
@@ -469,13 +504,21 @@ class FoveatedRenderer:
         if subsets and mesh is not None and mesh[2] is not None:
             corners, z_range = mesh[3]
             span = face_layer_span(corners, z_range, model, view, proj, (w, h), poi_gl, regions, scales)
-            if self._order_key is None or not np.array_equal(span, self._order_key):
-                self._ranges = self._layer_ranges(span, n)
-                self._order_key = span
+            old = self._order_key
+            # The order drawn stays while it still covers every face's span (each layer then
+            # draws a superset of what it needs); else the faces are sorted again by spans
+            # widened by ``sort_margin_px``, so small head motions do not re-sort every frame.
+            if old is None or not _covers(old, span):
+                wide = regions + np.array([-1.0, 1.0]) * self.sort_margin_px
+                wide[:, 0] = np.maximum(wide[:, 0], 0.0)
+                loose = face_layer_span(corners, z_range, model, view, proj, (w, h), poi_gl, wide, scales)
+                self._ranges = self._layer_ranges(loose, n)
+                self._order_key = loose
             ranges = self._ranges
-        elif mesh is not None and self._order_key is not None:
-            r.set_indices(mesh[0], mesh[1])                   # back to the mesh's own order
+        elif mesh is not None and not self._uploaded_plain:
+            r._set_checked_indices(mesh[0].reshape(-1), mesh[1])      # the mesh in its own order
             self._order_key = self._ranges = None
+            self._uploaded_plain = True
         self.last_sort_ms = (time.perf_counter() - ts) * 1e3
         self.last_triangles_per_layer = [r.n_triangles if rk is None else int(sum(c for _, c in rk))
                                          for rk in ranges]
