@@ -338,7 +338,7 @@ class FoveatedRenderer:
     last_readback_ms : float
         Read-back and composite, ms.
     last_stage_ms : dict
-        ``layer<k>`` (draw, ms) and ``composite`` (ms).
+        ``composite`` (ms), and with :attr:`profile` set ``layer<k>`` (draw, ms).
     last_sort_ms : float
         Face spans and (when they changed) the re-sort and upload of the indices, ms.
     last_triangles_per_layer : list of int
@@ -365,6 +365,11 @@ class FoveatedRenderer:
         self._uploaded_plain = True    # the renderer holds the mesh in its own order
         #: How much wider than needed (output px) the rings are when the faces are sorted.
         self.sort_margin_px = 8.0
+        #: Wait for each layer to finish and time it (``last_stage_ms``); off, the layers overlap.
+        self.profile = False
+        #: Drop the triangles outside each layer's rectangle and inside its inner disc before set-up
+        #: (clip distances; with the subsets only).
+        self.cull = True
         self.last_layers: list[Layer] = []
         self.last_render_ms = float("nan")
         self.last_readback_ms = float("nan")
@@ -525,8 +530,11 @@ class FoveatedRenderer:
         ctx.finish()
         t0 = time.perf_counter()
         stage_ms = {}
-        rects = []
-        for k in range(n):
+        rects = [None] * n
+        # Coarsest first, the fovea last, without waiting in between: llvmpipe rasterizes a
+        # layer on its threads while the main thread transforms and sets up the next one
+        # (``profile``: wait after each, for per-layer times).
+        for k in range(n - 1, -1, -1):
             fbo = self._targets[k][1]
             (lw, lh), s = fbo.size, scales[k]
             hi = regions[k, 1]
@@ -540,10 +548,21 @@ class FoveatedRenderer:
                 rect = (x0, y0, max(x1 - x0, 0), max(y1 - y0, 0))
             else:
                 rect = (0, 0, lw, lh)
-            rects.append(rect)
-            r.draw(fbo, (0, 0, lw, lh), view_mode, scissor=rect, ranges=ranges[k])
-            ctx.finish()           # a framebuffer change flushes llvmpipe's scene anyway
-            stage_ms["layer%d" % k] = (time.perf_counter() - t0) * 1e3 - sum(stage_ms.values())
+            rects[k] = rect
+            cull = None
+            if self.cull and ranges[k] is not None:
+                # Drop, before set-up, the triangles outside the rectangle (2 px beyond it, so
+                # what is clipped lies outside the scissor) or inside the finer layer's inner
+                # disc (less the filter's reach): the face subsets are coarse.
+                x0, y0, rw, rh = rect
+                drop = (regions[k, 0] - 2.0 / s - 2.0) * s
+                disc = (poi_gl[0] * lw / w, poi_gl[1] * lh / h, drop) if k > 0 and drop > 0 else None
+                cull = ((x0 - 2, y0 - 2, x0 + rw + 2, y0 + rh + 2), disc)
+            r.draw(fbo, (0, 0, lw, lh), view_mode, scissor=rect, ranges=ranges[k], cull=cull)
+            if self.profile:
+                ctx.finish()
+                stage_ms["layer%d" % k] = (time.perf_counter() - t0) * 1e3 - sum(stage_ms.values())
+        ctx.finish()
         t1 = time.perf_counter()
         image = self._composite(rects, regions, blend_px, poi)
         t2 = time.perf_counter()
