@@ -270,3 +270,30 @@ def test_foveation_settings_are_checked(gl_context):
     finally:
         fov.release()
         renderer.release()
+
+
+def test_headless_demo_runs_the_mode_again_foveated(tmp_path, gl_context, terrain_scene):
+    import argparse
+    import json
+
+    import cv2
+
+    from headplod.demo.cli import add_demo_arguments, run_headless
+    from headplod.render import TerrainRenderer
+
+    renderer = TerrainRenderer(gl_context, size=(320, 180))
+    args = add_demo_arguments(argparse.ArgumentParser()).parse_args(
+        ["--headless", "--mouse", "--frames", "3", "--out", str(tmp_path / "demo"), "--size", "320,180",
+         "--viewpoints", "mountains", "--scenarios", "adaptive", "--foveate"])
+    try:
+        with open(tmp_path / "table.txt", "w") as stream:
+            summary = run_headless(args, out=stream, err=stream, scene=terrain_scene, renderer=renderer)
+    finally:
+        renderer.release()
+    runs = {(r["mode"], r["uncertainty"], r["foveate"]) for r in summary["runs"]}
+    assert runs == {("csf", "adaptive", False), ("csf", "adaptive", True), ("full", "none", False)}
+    ratios = json.loads((tmp_path / "demo" / "summary.json").read_text())["fps_ratio_to_full"]
+    assert ratios["mountains foveate"]["mode"] == "csf --foveate" and ratios["mountains foveate"]["ratio"] > 0
+    picture = cv2.imread(summary["pictures"]["mountains foveate"])
+    assert picture.shape == (180, 320, 3)
+    assert "csf+fov" in (tmp_path / "table.txt").read_text()

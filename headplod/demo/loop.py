@@ -818,7 +818,8 @@ class DemoLoop:
         scale = np.array([w, h], dtype=np.float64) / np.array(self.screen.size_px, dtype=np.float64)
         fps = 1e3 / float(np.mean(self._frame_times)) if self._frame_times else 1e3 / result.frame_ms
         return HudInfo(fps=fps, stage_ms=dict(result.stage_ms), frame_ms=result.frame_ms,
-                       triangles=result.triangles, mode=self.settings["mode"],
+                       triangles=result.triangles,
+                       mode=self.settings["mode"] + (" +foveate" if self.foveated is not None else ""),
                        uncertainty=self.settings["uncertainty"], viewpoint=self.settings["viewpoint"],
                        view_mode=self.settings["view_mode"], source=self.poses.name,
                        poi_image_px=pose.poi_px * scale, cov_deg2=pose.cov_deg2,
