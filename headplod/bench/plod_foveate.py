@@ -2,11 +2,12 @@
 
 Parts the ``headplod bench plod`` run can call (each returns plain dicts, JSON-ready):
 
-- :func:`foveate_speed`: the demo's frame (pose → select → build → upload →
-  render → read-back, the HUD optional) for ``full``, plain ``csf`` and
-  ``csf --foveate`` on each viewpoint, stepped in turn on one tracked pose
-  sequence (interleaved: the machine's drift hits all three alike); medians
-  after the first frame, and the ratios to ``full``.
+- :func:`foveate_speed`: the demo's frame (select → build → upload → render
+  → read-back, the HUD optional) for ``full``, plain ``csf`` and ``csf
+  --foveate`` on each viewpoint, stepped in turn on one pose sequence
+  tracked beforehand (interleaved: the machine's drift hits all three
+  alike; no tracking in the frames); medians after the first frame, and
+  the ratios to ``full``.
 - :func:`viewpoint_frames`: one still frame per viewpoint at the default head,
   the POI at the screen centre: ``full``, ``csf`` and ``csf --foveate``
   images, the layers drawn, the levels view.
@@ -27,6 +28,7 @@ or degrees at the screen centre (``px_per_deg``); times in ms.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
@@ -112,31 +114,29 @@ def foveate_speed(scene=None, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20
         first.close()
         scene = TerrainScene.build(screen)
     runs = (("plain", mode, False), ("foveate", mode, True), ("full", "full", False))
+    poses = None
     renderers = [TerrainRenderer(ctx, size=tuple(size)) for _ in runs]
     out = {}
     try:
         for vp in viewpoints:
-            tee = lp.TeePoses(lp.TrackerPoses(source, screen=scene.screen, max_frames=frames), len(runs))
-            loops = [lp.DemoLoop(scene, tee.consumer(k), renderers[k], mode=m, uncertainty=uncertainty if m != "full"
-                                 else "none", viewpoint=vp, hud=hud, foveate=fov, foveation=config)
+            if poses is None:              # tracked once, before the runs: the frames time no tracking
+                poses = _tracked(source, scene.screen, frames)
+            loops = [lp.DemoLoop(scene, _Replay(poses, scene.screen), renderers[k], mode=m,
+                                 uncertainty=uncertainty if m != "full" else "none", viewpoint=vp, hud=hud,
+                                 foveate=fov, foveation=config)
                      for k, (_, m, fov) in enumerate(runs)]
             per = {name: [] for name, _, _ in runs}
             stages = {name: [] for name, _, _ in runs}
-            try:
-                for i in range(frames):
-                    order = list(range(len(runs)))
-                    order = order[i % len(order):] + order[:i % len(order)]     # each run leads in turn
-                    for k in order:
-                        result = loops[k].step()
-                        if result is None:
-                            break
-                        if i > 0:
-                            per[runs[k][0]].append(result.frame_ms)
-                            stages[runs[k][0]].append(result.stage_ms)
-                    if progress:
-                        progress(f"speed {vp} frame {i + 1}/{frames}")
-            finally:
-                tee.close()
+            for i in range(len(poses)):
+                order = list(range(len(runs)))
+                order = order[i % len(order):] + order[:i % len(order)]     # each run leads in turn
+                for k in order:
+                    result = loops[k].step()
+                    if i > 0:
+                        per[runs[k][0]].append(result.frame_ms)
+                        stages[runs[k][0]].append(result.stage_ms)
+                if progress:
+                    progress(f"speed {vp} frame {i + 1}/{len(poses)}")
             med = {name: float(np.median(v)) if v else float("nan") for name, v in per.items()}
             fov_loop = loops[1]
             out[vp] = {"full_ms": med["full"], "plain_ms": med["plain"], "foveate_ms": med["foveate"],
@@ -154,6 +154,36 @@ def foveate_speed(scene=None, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20
         for r in renderers:
             r.release()
     return out
+
+
+def _tracked(source, screen, frames: int) -> list:
+    """The first ``frames`` poses of a tracked source, as a list (images dropped)."""
+    src = lp.TrackerPoses(source, screen=screen, max_frames=frames)
+    try:
+        out = []
+        while (pose := src.read()) is not None:
+            pose.images = None
+            out.append(pose)
+    finally:
+        src.close()
+    if len(out) < 2:
+        raise ValueError(f"foveate_speed: the source {source!r} gave {len(out)} poses, need at least 2")
+    return out
+
+
+class _Replay(lp.PoseSource):
+    """A list of poses read again (copies: the loop may not change them)."""
+
+    name = "replay"
+
+    def __init__(self, poses, screen):
+        self.poses, self.screen, self.k = poses, screen, 0
+
+    def read(self):
+        if self.k >= len(self.poses):
+            return None
+        self.k += 1
+        return dataclasses.replace(self.poses[self.k - 1])
 
 
 def _layer_dict(layer) -> dict:
