@@ -190,6 +190,13 @@ def test_layer_subsets_give_the_pixels_of_the_whole_mesh(gl_context, default_scr
                 used &= r <= regions[0, 1]          # the fovea's framebuffer is only drawn in its square
             assert used.sum() > 100
             assert np.array_equal(a[used], b[used]), k
+        # The levels view reads each triangle's level at gl_PrimitiveID, which restarts with every
+        # draw call of a subset: its fovea is the plain levels frame's too.
+        plain_levels = renderer.render(view, proj, model, view_mode="levels")
+        fov_levels = fov.render(view, proj, model, poi, ppd, view_mode="levels")
+        yy, xx = np.mgrid[0:size[1], 0:size[0]]
+        inside = np.hypot(xx + 0.5 - poi[0], yy + 0.5 - poi[1]) < regions[1, 0] - 1
+        assert inside.sum() > 1000 and np.array_equal(fov_levels[inside], plain_levels[inside])
     finally:
         fov.release()
         renderer.release()
