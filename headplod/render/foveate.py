@@ -294,14 +294,16 @@ class LayerAnchor:
         self.layers = None
 
     def update(self, poi_px, layers: list[Layer], px_per_deg: float):
-        """The held (POI (2,) output px, layers) for a new filtered POI (2,) output px and layer plan."""
+        """The held (POI (2,) output px, whole pixels; layers) for a new filtered POI (2,) output px and layer plan."""
         poi = np.asarray(poi_px, dtype=np.float64).reshape(2)
         hold_px = self.hold_deg * px_per_deg
         widened = [Layer(l.scale, l.inner_deg + (self.hold_deg if k else 0.0), l.outer_deg + self.hold_deg)
                    for k, l in enumerate(layers)]
         if (self.poi_px is None or self.layers is None or len(self.layers) != len(widened)
                 or np.hypot(*(poi - self.poi_px)) > hold_px):
-            self.poi_px, self.layers = poi, widened
+            # Whole pixels (0.7 px at most, within the hold): the blend weights are then slices of
+            # one map (FoveatedRenderer._weight).
+            self.poi_px, self.layers = np.round(poi), widened
             return self.poi_px, self.layers
         outer = [h.outer_deg if h.outer_deg - self.hold_deg <= w.outer_deg <= h.outer_deg else w.outer_deg
                  for w, h in zip(widened, self.layers)]
@@ -460,19 +462,36 @@ class FoveatedRenderer:
     # -- drawing ----------------------------------------------------------------
 
     def _weight(self, k: int, rect_td, layer_size, outer_px: float, blend_px: float, poi) -> np.ndarray:
-        """Weight (h, w) float32 of layer k over the coarser ones in its rectangle (top-down layer px)."""
-        key = (rect_td, layer_size, outer_px, blend_px, float(poi[0]), float(poi[1]))
-        hit = self._weights.get(k)
-        if hit is not None and hit[0] == key:
-            return hit[1]
+        """Weight (h, w) float32 of layer k over the coarser ones in its rectangle (top-down layer px).
+
+        A pixel's weight depends on its offset from the POI only: it is sliced
+        from a map about the POI made once per (layer, border, blend, POI's
+        sub-pixel phase), so a POI moving by whole pixels (the anchor rounds
+        it) costs a slice, not a recomputation.
+        """
         (x0, y0, x1, y1), (lw, lh) = rect_td, layer_size
         w, h = self.renderer.size
-        xs = (np.arange(x0, x1) + 0.5) * (w / lw) - poi[0]
-        ys = (np.arange(y0, y1) + 0.5) * (h / lh) - poi[1]
-        r = np.sqrt(ys[:, None] ** 2 + xs[None, :] ** 2)
-        weight = 1.0 - _smoothstep(outer_px - blend_px, outer_px, r)
-        self._weights[k] = (key, weight)
-        return weight
+        fx, fy = w / lw, h / lh
+        # Pixel i's centre lies (i + 0.5) f - p from the POI: f (i - q), q = p / f - 0.5.
+        qx, qy = poi[0] / fx - 0.5, poi[1] / fy - 0.5
+        ix, iy = math.floor(qx), math.floor(qy)
+        phase = (round(qx - ix, 6), round(qy - iy, 6))
+        half = int(math.ceil((outer_px + 2.0 * max(fx, fy) + 1.0) / min(fx, fy))) + 2
+        key = (lw, lh, outer_px, blend_px, phase, half)
+        hit = self._weights.get(k)
+        if hit is None or hit[0] != key:
+            xs = fx * (np.arange(-half, half + 1) - phase[0])
+            ys = fy * (np.arange(-half, half + 1) - phase[1])
+            r = np.sqrt(ys[:, None] ** 2 + xs[None, :] ** 2)
+            hit = self._weights[k] = (key, 1.0 - _smoothstep(outer_px - blend_px, outer_px, r))
+        full = hit[1]
+        out = np.zeros((y1 - y0, x1 - x0), np.float32)          # beyond the map: past the border, 0
+        c0, c1 = max(x0 - ix + half, 0), min(x1 - ix + half, 2 * half + 1)
+        r0, r1 = max(y0 - iy + half, 0), min(y1 - iy + half, 2 * half + 1)
+        if c1 > c0 and r1 > r0:
+            out[r0 - (y0 - iy + half):r1 - (y0 - iy + half), c0 - (x0 - ix + half):c1 - (x0 - ix + half)] = \
+                full[r0:r1, c0:c1]
+        return out
 
     def render(self, view, proj, model, poi_px, px_per_deg: float, cov_deg2=None, view_mode: str = "shaded",
                subsets: bool = True, layers: list[Layer] | None = None):
