@@ -588,7 +588,8 @@ class FoveatedRenderer:
                 drop = (regions[k, 0] - 2.0 / s - 2.0) * s
                 disc = (poi_gl[0] * lw / w, poi_gl[1] * lh / h, drop) if k > 0 and drop > 0 else None
                 cull = ((x0 - 2, y0 - 2, x0 + rw + 2, y0 + rh + 2), disc)
-            r.draw(fbo, (0, 0, lw, lh), view_mode, scissor=rect, ranges=ranges[k], cull=cull)
+            r.draw(fbo, (0, 0, lw, lh), view_mode, scissor=None if rect == (0, 0, lw, lh) else rect,
+                   ranges=ranges[k], cull=cull)
             if self.profile:
                 ctx.finish()
                 stage_ms["layer%d" % k] = (time.perf_counter() - t0) * 1e3 - sum(stage_ms.values())
