@@ -409,8 +409,10 @@ def layer_pictures(frames: dict, folder) -> dict:
         text = (f"{vp}: layers " + ", ".join(f"x{l.scale:g} to {l.outer_deg:.2f} deg" if math.isfinite(l.outer_deg)
                                              else f"x{l.scale:g} beyond" for l in f["layers"])
                 + f"; POI 2-sigma ellipse (sigma {sigma:.2f} deg)")
-        cv2.putText(img, text, (10, img.shape[0] - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 2, cv2.LINE_AA)
-        cv2.putText(img, text, (10, img.shape[0] - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+        (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
+        y = img.shape[0] - 10
+        img[max(y - th - 6, 0):min(y + base + 2, img.shape[0]), 4:min(16 + tw, img.shape[1])] //= 3
+        cv2.putText(img, text, (10, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
         path = folder / f"foveate_layers_{vp}.png"
         cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
         out[vp] = str(path)
