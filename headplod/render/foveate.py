@@ -388,6 +388,12 @@ class FoveatedRenderer:
         self._uploaded_plain = True    # the renderer holds the mesh in its own order
         #: How much wider than needed (output px) the rings are when the faces are sorted.
         self.sort_margin_px = 8.0
+        #: How a layer draws its subset: "indirect" (one indirect draw of the runs of its faces'
+        #: triangles, the indices in the mesh's order) or "sorted" (the indices re-sorted by the
+        #: faces' layer spans and uploaded, a draw call per range).
+        self.subset_draw = "indirect"
+        self._indirect: list = []
+        self._blocks = None
         #: Wait for each layer to finish and time it (``last_stage_ms``); off, the layers overlap.
         self.profile = False
         #: Drop the triangles outside each layer's rectangle and inside its inner disc before set-up
@@ -443,9 +449,39 @@ class FoveatedRenderer:
             bounds = (corners, z_range)
         self._mesh = (idx, lv, faces, bounds if faces is not None else None)
         self._order_key = self._ranges = None
-        self._uploaded_plain = faces is None
-        if faces is None:
-            self.renderer._set_checked_indices(idx.reshape(-1), lv)   # with subsets, render uploads them sorted
+        self._blocks = None
+        if faces is not None and t:
+            # The mesh's triangles come in one run per base face: (first triangle, count, face) per run.
+            starts = np.flatnonzero(np.r_[True, faces[1:] != faces[:-1]])
+            self._blocks = (starts, np.diff(np.r_[starts, t]), faces[starts])
+        self._uploaded_plain = faces is None or self.subset_draw == "indirect"
+        if self._uploaded_plain:
+            self.renderer._set_checked_indices(idx.reshape(-1), lv)   # "sorted": render uploads them sorted
+
+    def _indirect_commands(self, span: np.ndarray, n: int):
+        """Per layer (indirect buffer, commands, triangles): the runs of consecutive triangles whose faces' spans
+        hold the layer, in the mesh's own order."""
+        starts, counts, block_face = self._blocks
+        first, last = span[block_face, 0], span[block_face, 1]
+        out = []
+        for k in range(n):
+            sel = (first >= 0) & (first <= k) & (last >= k)
+            edge = np.diff(np.concatenate([[0], sel.view(np.int8), [0]]))
+            run_s, run_e = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1) - 1
+            cmds = np.zeros((len(run_s), 5), np.uint32)
+            cmds[:, 0] = 3 * (starts[run_e] + counts[run_e] - starts[run_s])
+            cmds[:, 1] = 1
+            cmds[:, 2] = 3 * starts[run_s]
+            raw = cmds.tobytes()
+            if len(self._indirect) <= k:
+                self._indirect.append(self.renderer.ctx.buffer(reserve=max(len(raw), 20)))
+            buf = self._indirect[k]
+            if len(raw) > buf.size:
+                buf.orphan(len(raw))
+            if raw:
+                buf.write(raw)
+            out.append((buf, len(run_s), int(cmds[:, 0].sum()) // 3))
+        return out
 
     def _layer_ranges(self, span: np.ndarray, n: int):
         """Re-sort and upload the triangles by their faces' layer span; per layer its (first, count) ranges."""
@@ -546,8 +582,18 @@ class FoveatedRenderer:
         r.prepare(view, proj, model, view_mode)
         ts = time.perf_counter()
         ranges = [None] * n
+        indirect = [None] * n
         mesh = self._mesh
-        if subsets and mesh is not None and mesh[2] is not None:
+        use_indirect = self.subset_draw == "indirect" and view_mode != "levels"
+        if subsets and mesh is not None and mesh[2] is not None and use_indirect and self._blocks is not None:
+            if not self._uploaded_plain:
+                r._set_checked_indices(mesh[0].reshape(-1), mesh[1])
+                self._uploaded_plain = True
+            self._order_key = self._ranges = None
+            span = face_layer_span(mesh[3][0], mesh[3][1], model, view, proj, (w, h), poi_gl, regions, scales)
+            indirect = self._indirect_commands(span, n)
+            ranges = [()] * n
+        elif subsets and mesh is not None and mesh[2] is not None:
             corners, z_range = mesh[3]
             old = self._order_key
             # The order drawn stays while it still covers every face's span (each layer then
@@ -566,8 +612,9 @@ class FoveatedRenderer:
             self._order_key = self._ranges = None
             self._uploaded_plain = True
         self.last_sort_ms = (time.perf_counter() - ts) * 1e3
-        self.last_triangles_per_layer = [r.n_triangles if rk is None else int(sum(c for _, c in rk))
-                                         for rk in ranges]
+        self.last_triangles_per_layer = [
+            (r.n_triangles if rk is None else int(sum(c for _, c in rk))) if ik is None else ik[2]
+            for rk, ik in zip(ranges, indirect)]
         ctx.finish()
         t0 = time.perf_counter()
         stage_ms = {}
@@ -600,7 +647,7 @@ class FoveatedRenderer:
                 disc = (poi_gl[0] * lw / w, poi_gl[1] * lh / h, drop) if k > 0 and drop > 0 else None
                 cull = ((x0 - 2, y0 - 2, x0 + rw + 2, y0 + rh + 2), disc)
             r.draw(fbo, (0, 0, lw, lh), view_mode, scissor=None if rect == (0, 0, lw, lh) else rect,
-                   ranges=ranges[k], cull=cull)
+                   ranges=ranges[k], cull=cull, indirect=None if indirect[k] is None else indirect[k][:2])
             if self.profile:
                 ctx.finish()
                 stage_ms["layer%d" % k] = (time.perf_counter() - t0) * 1e3 - sum(stage_ms.values())
@@ -655,4 +702,6 @@ class FoveatedRenderer:
         for color, fbo in self._targets[1:]:
             fbo.release()
             color.release()
-        self._targets = []
+        for buf in self._indirect:
+            buf.release()
+        self._targets, self._indirect = [], []

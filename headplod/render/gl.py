@@ -497,7 +497,7 @@ class TerrainRenderer:
                 prog["u_wire_color"].value = tuple(float(c) for c in wire_color)
 
     def draw(self, fbo, viewport: tuple[int, int, int, int], view_mode: str = "shaded", scissor=None,
-             ranges=None, clear: bool = True, cull=None) -> None:
+             ranges=None, clear: bool = True, cull=None, indirect=None) -> None:
         """Clear ``fbo`` and draw the uploaded mesh into it with the uniforms of :meth:`prepare`.
 
         ``viewport`` (x, y, w, h) px of ``fbo``: where the screen's visible
@@ -511,7 +511,10 @@ class TerrainRenderer:
         px or None): the triangles wholly outside the rectangle or wholly
         inside the disc are dropped before set-up (clip distances); one
         crossing an edge is clipped there, so its pixels near that edge may
-        differ in the last bit from an undropped draw.
+        differ in the last bit from an undropped draw. ``indirect``, optional:
+        (buffer, n): draw the n commands of an indirect buffer (5 uint32
+        each: index count, 1, first index, 0, 0) in one call instead
+        (not for the "levels" view: gl_PrimitiveID restarts with each command).
         """
         ctx = self.ctx
         fbo.use()
@@ -539,6 +542,12 @@ class TerrainRenderer:
                 prog["u_drop_disc"].value = (0.0, 0.0, -1.0) if disc is None else tuple(float(v) for v in disc)
                 for i in range(5):
                     ctx.enable_direct(_GL_CLIP_DISTANCE0 + i)
+            if indirect is not None:
+                if view_mode == "levels":
+                    raise ValueError("draw: the levels view cannot be drawn indirect (its levels follow gl_PrimitiveID)")
+                if indirect[1] > 0:
+                    vao.render_indirect(indirect[0], moderngl.TRIANGLES, count=int(indirect[1]))
+                ranges = ()
             for first, count in ranges:
                 first, count = int(first), min(int(count), self.n_triangles - int(first))
                 if count <= 0:
