@@ -23,13 +23,13 @@ and composited on the CPU while reading back, with a smooth blend
 
 What it costs on llvmpipe (2 cores, 1280x720, the demo's frames): the
 layers' draws take less than the plain frame's on the close views
-(mountains: render 16.7 against 18.9 ms at load 2, 18-24 against 34-41 ms
-under load 5-7; overview: about the same), but the face spans and the
-re-sort of the indices on every new selection (1.5-2.5 ms) and the
-composite (about 2 ms more than a plain read-back) take most or all of it
-back. A frame there is bound by the per-triangle set-up on the main thread,
-which the layers do not reduce (the faces on a border are drawn twice); the
-pixels they save are filled by two raster threads.
+(mountains: render 16.7 against 18.9 ms at load 2, 18-38 against 34-52 ms
+under the other jobs' load 4-7; overview: about the same), but the face
+spans and indirect commands (about 1 ms more than a plain index upload per
+frame) and the composite (about 2 ms more than a plain read-back) take
+part or all of it back. A frame there is bound by the per-triangle set-up
+on the main thread, which the layers do not reduce (the faces on a border
+are drawn twice); the pixels they save are filled by two raster threads.
 """
 from __future__ import annotations
 
@@ -339,12 +339,14 @@ class FoveatedRenderer:
     With the mesh given to :meth:`set_mesh` with each triangle's base face
     and the faces' bounding prisms, each layer draws only the triangles of
     the faces whose screen rectangle meets the ring it shows
-    (:func:`face_layer_span`): the triangles are sorted by the range of
-    layers their face touches, so a layer is one draw call per first layer
-    over one index buffer (re-sorted only when a face's span changes). On
-    llvmpipe a small triangle costs about as much to set up as to fill, so
-    a coarse layer drawing the whole mesh costs nearly as much as the plain
-    frame.
+    (:func:`face_layer_span`): one indirect draw of the runs of those faces'
+    triangles in the mesh's own order (``subset_draw="indirect"``; the
+    "levels" view, whose colours follow gl_PrimitiveID, sorts the indices by
+    the faces' layer spans instead and draws ranges). Within a layer the
+    triangles wholly outside its square or inside the finer layer's inner
+    disc are dropped before set-up (clip distances, ``cull``). On llvmpipe a
+    small triangle costs about as much to set up as to fill, so a coarse
+    layer drawing the whole mesh costs nearly as much as the plain frame.
 
     Parameters
     ----------
@@ -363,7 +365,7 @@ class FoveatedRenderer:
     last_stage_ms : dict
         ``composite`` (ms), and with :attr:`profile` set ``layer<k>`` (draw, ms).
     last_sort_ms : float
-        Face spans and (when they changed) the re-sort and upload of the indices, ms.
+        Face spans and the layers' indirect commands (or re-sort and upload of the indices), ms.
     last_triangles_per_layer : list of int
     """
 
