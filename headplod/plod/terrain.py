@@ -197,6 +197,10 @@ class Terrain:
     dem_info : DemGrid or None
         Where the DEM came from (``jacksboro``: its geographic corner and
         spacing, without the elevation array); None for a grid passed in.
+    source : object or None
+        The file a terrain was read from (set by
+        :func:`headplod.plod.terrain_file.terrain_from_file`: a ``TerrainGrid``
+        without its array); None otherwise.
     """
 
     def __init__(self, elevation_m, dx_m: float, dy_m: float, *, vertical_exaggeration: float = 1.0,
@@ -213,6 +217,7 @@ class Terrain:
             raise ValueError(f"detail_min_wavelength_m must be positive, got {detail_min_wavelength_m}")
         self.vertical_exaggeration = float(vertical_exaggeration)
         self.dem_info = None
+        self.source = None
         self.dx_m, self.dy_m = float(dx_m), float(dy_m)
         ny, nx = z.shape
         self.shape = (ny, nx)
