@@ -406,10 +406,14 @@ def _read_png(path, options, notes):
 
 
 def _read_npy(path, options, notes):
+    with open(path, "rb") as f:
+        if f.read(6) != b"\x93NUMPY":
+            raise TerrainFileError(f"{path}: cannot be read as .npy (no NumPy header); save it with numpy.save")
     try:
         arr = np.load(path, mmap_mode="r", allow_pickle=False)
     except ValueError as exc:
-        raise TerrainFileError(f"{path}: not a plain numeric .npy ({str(exc).splitlines()[0]})") from None
+        raise TerrainFileError(f"{path}: not a plain numeric .npy ({str(exc).splitlines()[0].split('. ')[0]}); "
+                               "save a 2-D numeric array") from None
     except (OSError, EOFError) as exc:
         raise TerrainFileError(f"{path}: cannot be read as .npy ({str(exc).splitlines()[0] or type(exc).__name__})"
                                ) from None
