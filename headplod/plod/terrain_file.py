@@ -163,11 +163,12 @@ def check_terrain_path(path, options: TerrainFileOptions = TerrainFileOptions())
     kind = TERRAIN_FORMATS.get(path.suffix.lower())
     if kind is None:
         raise TerrainUsageError(f"{path}: unknown terrain format {path.suffix or '(no ending)'!r}; "
-                         f"use one of {', '.join(TERRAIN_FORMATS)}")
+                                f"use one of {', '.join(TERRAIN_FORMATS)}")
     if kind in ("png", "npy") and options.spacing_m is None:
-        raise TerrainUsageError(f"{path}: a {kind.upper() if kind == 'png' else '.npy'} height map has no georeferencing; "
-                         "give its sample spacing with --spacing-m (metres, DX or DX,DY) and, unless the values "
-                         "are metres, --height-scale")
+        name = "PNG" if kind == "png" else ".npy"
+        raise TerrainUsageError(f"{path}: a {name} height map has no georeferencing; give its sample spacing "
+                                "with --spacing-m (metres, DX or DX,DY) and, unless the values are metres, "
+                                "--height-scale")
     if not path.is_file():
         raise TerrainFileError(f"{path}: no such file" if not path.exists() else f"{path} is not a file")
     return path, kind

@@ -2,7 +2,8 @@
 
     headplod render --mode MODE|raymask [--inset-deg D] [--no-silhouettes] [--uncertainty U] [--head X,Y,Z] [--poi X,Y] [--cov PP,PT,TT]
                     [--size W,H] [--view shaded|wire|levels] --out IMAGE.png [--stats STATS.json]
-                    [--export MESH.glb|.ply|.obj|.stl] [--terrain FILE [--spacing-m D] [--height-scale S]]
+                    [--export MESH.glb|.ply|.obj|.stl]
+                    [--terrain DEM.tif|HEIGHTS.png|HEIGHTS.npy [--spacing-m D|DX,DY] [--height-scale S]]
 
 Exit status: 0 on success, 1 on a broken input file, 2 on bad usage.
 """
