@@ -172,9 +172,14 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
         t0 = time.perf_counter()
         levels, _ = selector.select(View(head, poi, cov_deg2, 0.0))
         t1 = time.perf_counter()
-        positions, normals, tri_levels = scene.mesh.update(levels)
-        t2 = time.perf_counter()
-        renderer.upload(positions, normals, tri_levels)
+        if draw:
+            positions, normals, tri_levels = scene.mesh.update(levels)
+            t2 = time.perf_counter()
+            renderer.upload(positions, normals, tri_levels)
+        else:                  # foveated: the vertex table and indices, for the layers' subsets
+            indices, tri_levels = scene.mesh.update_indices(levels)
+            t2 = time.perf_counter()
+            renderer.upload(scene.mesh.vertex_positions, scene.mesh.vertex_normals, tri_levels, indices)
         image = renderer.render(view, proj, scene.model, view_mode=render_mode) if draw else None
         return image, tri_levels, t1 - t0, t2 - t1, levels
 
@@ -190,6 +195,9 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     if foveate:
         foveated = FoveatedRenderer(renderer)
         try:
+            mesh = scene.mesh
+            foveated.set_mesh(mesh.update_indices(face_levels)[0], tri_levels, mesh.face_per_triangle(),
+                              (mesh.corners, mesh.z_range))
             image = foveated.render(view, proj, scene.model, poi_image, px_per_deg, cov_deg2, view_mode=view_mode)
             render_ms, layers = foveated.last_render_ms, foveated.last_layers
         finally:
