@@ -2,6 +2,7 @@
 
     headplod demo [--source SPEC | --mouse] [--mode csf] [--uncertainty adaptive] [--viewpoint overview]
     headplod demo --headless [--frames N] [--out DIR] [--size W,H] [--source SPEC | --mouse] [--foveate]
+    headplod demo ... --terrain FILE [--spacing-m D] [--height-scale S]     (your own DEM or height map)
 
 Headless, the same loop as the window runs offscreen: for each named
 viewpoint, the PLOD criterion (``--mode``, default csf) under each
@@ -28,6 +29,7 @@ import numpy as np
 
 from .. import io
 from ..plod.select import MODES
+from ..plod.terrain_file import TerrainUsageError, add_terrain_arguments, terrain_from_args
 from ..progress import Progress
 from ..render import TerrainRenderer, create_context
 from ..render.still import TerrainScene
@@ -108,6 +110,7 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
                       help="render size, px (default 1280,720)")
     view.add_argument("--saccade-deg-s", type=float, default=lp.SACCADE_DEG_S,
                       help=f"POI speed above which levels are kept (default {lp.SACCADE_DEG_S:g} deg/s, Ohshima)")
+    add_terrain_arguments(parser.add_argument_group("terrain"))
     head = parser.add_argument_group("headless run")
     head.add_argument("--headless", action="store_true", help="run offscreen and write frames and a summary")
     head.add_argument("--frames", type=int, default=30, help="frames per run (default 30)")
@@ -161,7 +164,7 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
     first.close()
     if scene is None:
         print(f"demo: building the terrain mesh; poses from {source_name}", file=err)
-    scene = scene or TerrainScene.build(screen)
+    scene = scene or TerrainScene.build(screen, terrain=getattr(args, "terrain_loaded", None))
     if renderer is None:
         renderer = TerrainRenderer(create_context(), size=tuple(args.size))
     elif tuple(renderer.size) != tuple(args.size):
@@ -332,6 +335,14 @@ def run_demo(args) -> int:
     if args.frames < 1:
         print("headplod demo: --frames must be at least 1", file=sys.stderr)
         return 2
+    try:        # the terrain file is read (and any problem reported) before anything is written
+        args.terrain_loaded = terrain_from_args(args)     # None: the built-in terrain
+    except TerrainUsageError as exc:
+        print(f"headplod demo: {exc}", file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        print(f"headplod demo: --terrain {exc}", file=sys.stderr)
+        return 1
     try:
         if args.headless:
             run_headless(args)

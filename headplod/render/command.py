@@ -3,6 +3,7 @@
     headplod render --mode MODE|raymask [--inset-deg D] [--no-silhouettes] [--uncertainty U] [--head X,Y,Z] [--poi X,Y] [--cov PP,PT,TT]
                     [--size W,H] [--view shaded|wire|levels] --out IMAGE.png [--stats STATS.json]
                     [--export MESH.glb|.ply|.obj|.stl]
+                    [--terrain DEM.tif|HEIGHTS.png|HEIGHTS.npy [--spacing-m D|DX,DY] [--height-scale S]]
 
 Exit status: 0 on success, 1 on a broken input file, 2 on bad usage.
 """
@@ -19,9 +20,10 @@ from .. import io
 from ..plod.export import check_export_path
 from ..argtypes import floats
 from ..plod.raymask import RayMaskConfig
+from ..plod.terrain_file import TerrainUsageError, add_terrain_arguments, terrain_from_args
 from ..plod.select import UNCERTAINTY_MODES
 from .gl import VIEW_MODES
-from .still import CONTRAST_SOURCES, RENDER_MODES, render_still
+from .still import CONTRAST_SOURCES, RENDER_MODES, TerrainScene, render_still
 
 __all__ = ["add_render_arguments", "run_render"]
 
@@ -54,6 +56,7 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
     render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
                                                          "scene metres, faces coloured by level)")
+    add_terrain_arguments(render)
     return render
 
 
@@ -87,10 +90,19 @@ def run_render(args) -> int:
         except ValueError as exc:
             print(f"headplod: --inset-deg: {exc}", file=sys.stderr)
             return 2
+    try:        # the terrain file is read (and any problem reported) before anything is written
+        terrain = terrain_from_args(args)
+    except TerrainUsageError as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        print(f"headplod: --terrain {exc}", file=sys.stderr)
+        return 1
+    scene = None if terrain is None else TerrainScene.build(screen, terrain=terrain)
     _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
                             poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
                             stats_path=args.stats, contrast=args.contrast, export=args.export,
-                            foveate=args.foveate, raymask=raymask)
+                            foveate=args.foveate, raymask=raymask, scene=scene)
     if "raymask" in stats:
         r = stats["raymask"]
         print(f"{r['rays']} rays ({r['fill_rays']} inset, {r['ring_rays']} rings, {r['silhouette_rays']} in "

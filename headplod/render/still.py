@@ -33,6 +33,9 @@ from .projection import off_axis_projection, scene_to_world
 SCALE_MM_PER_M = 0.02
 DEPTH_MM = 250.0
 PITCH_DEG = 55.0
+#: The span the scale and the demo's viewpoints were chosen for: the built-in terrain's longer side, m.
+#: Another terrain is scaled by ``fit = FRAME_SPAN_M / its span`` (:func:`fit_scale`) to be framed alike.
+FRAME_SPAN_M = 31_700.0
 
 #: What ``render_still(mode=...)`` and ``headplod render --mode`` draw: the level-selection modes of
 #: :data:`headplod.plod.select.MODES` (a mesh per frame), and ``raymask``, Murphy & Duchowski's hybrid
@@ -54,17 +57,24 @@ class TerrainScene:
     mesh: AdaptiveMesh
     model: np.ndarray           # (4, 4) scene (m) → world (mm)
     screen: object
+    fit: float = 1.0            # scale factor of SCALE_MM_PER_M and the viewpoints' scales (1: the built-in)
 
     @classmethod
-    def build(cls, screen, max_level: int = 5) -> "TerrainScene":
-        terrain = Terrain.jacksboro()
+    def build(cls, screen, max_level: int = 5, terrain: Terrain | None = None) -> "TerrainScene":
+        """The scene of ``terrain`` (default: the built-in Jacksboro terrain), framed by :func:`fit_scale`.
+
+        Any terrain gets the same mesh: a 32 x 32 base grid refined to
+        ``max_level`` (1025 x 1025 vertices at level 5) over its extent.
+        """
+        fit = 1.0 if terrain is None else fit_scale(terrain)
+        terrain = Terrain.jacksboro() if terrain is None else terrain
         base = BaseMesh.grid(terrain)
         mesh = AdaptiveMesh(base, terrain, max_level=max_level)
         x0, x1, y0, y1 = terrain.extent
         centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, float(np.median(terrain.dem_z_m))])
-        model = np.asarray(scene_to_world(SCALE_MM_PER_M, centre, screen, depth_mm=DEPTH_MM,
+        model = np.asarray(scene_to_world(SCALE_MM_PER_M * fit, centre, screen, depth_mm=DEPTH_MM,
                                           pitch_deg=PITCH_DEG).matrix, dtype=np.float64)
-        return cls(terrain, mesh, model, screen)
+        return cls(terrain, mesh, model, screen, fit)
 
     def selector(self, mode: str, uncertainty: str, config: SelectorConfig | None = None,
                  **settings) -> LevelSelector:
@@ -79,6 +89,19 @@ class TerrainScene:
         m = self.mesh
         return LevelSelector(m.centroids, m.edge_length, m.geometric_error, m.contrast, self.model, self.screen,
                              config, corners_scene=m.corners)
+
+
+def fit_scale(terrain) -> float:
+    """Factor on the scene scale that frames ``terrain`` as the built-in one is framed.
+
+    ``FRAME_SPAN_M`` over the larger of the terrain's width, depth and twice
+    its relief (so a small, steep height map does not reach through the
+    screen or past the far plane). The built-in scene uses 1 (not this
+    function), so its framing stays as it was.
+    """
+    x0, x1, y0, y1 = terrain.extent
+    relief = float(np.ptp(terrain.dem_z_m))
+    return FRAME_SPAN_M / max(x1 - x0, y1 - y0, 2.0 * relief)
 
 
 def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
@@ -195,6 +218,11 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
                                    for l in layers]
     if readback_ms is not None:
         stats["readback_ms"] = readback_ms
+    source = getattr(scene.terrain, "source", None)       # a --terrain file (plod.terrain_file)
+    if source is not None:
+        stats["terrain"] = {"path": source.path, "kind": source.kind, "shape": list(scene.terrain.shape),
+                            "spacing_m": [source.dx_m, source.dy_m], "filled_samples": source.filled,
+                            "fit": scene.fit}
     if out:
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
