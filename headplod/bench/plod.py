@@ -48,12 +48,12 @@ import time
 from pathlib import Path
 
 import cv2
-import flip_evaluator
 import numpy as np
 
 from calib import DEFAULT_SCREEN
 
 from . import stability as still_head
+from .image_metrics import flip_error, psnr_db
 from .. import io
 from ..plod import perception as pc
 from ..plod.csf import CSF_MODELS
@@ -69,25 +69,6 @@ BIASES = (-1.5, -1.0, -0.5, 0.0, 0.5, 1.0)
 SWEEP_MODES = ("sse", "ipv", "dpv", "csf")
 SWEEP_SPEEDS_DEG_S = (0.0, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0)
 ELLIPSE_SIGMA_DEG = (1.5, 3.0)      # (φ, θ)
-
-
-def psnr_db(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """PSNR (dB) of two 8-bit images, optionally over a boolean mask (H, W); inf when identical."""
-    diff = a.astype(np.float64) - b.astype(np.float64)
-    if mask is not None:
-        diff = diff[mask]
-    mse = float(np.mean(diff ** 2))
-    return float("inf") if mse == 0 else 10 * np.log10(255.0 ** 2 / mse)
-
-
-def flip_error(reference: np.ndarray, test: np.ndarray, px_per_deg: float) -> float:
-    """Mean FLIP error (0 identical … 1) of two 8-bit sRGB images (H, W, 3) seen at ``px_per_deg``."""
-    if np.array_equal(reference, test):
-        return 0.0
-    ref = reference.astype(np.float32) / 255.0
-    tst = test.astype(np.float32) / 255.0
-    _, mean, _ = flip_evaluator.evaluate(ref, tst, "LDR", applyMagma=False, parameters={"ppd": float(px_per_deg)})
-    return float(mean)
 
 
 class _Bench:

@@ -343,7 +343,7 @@ def quality(frames: dict) -> dict:
         Per viewpoint: ``psnr_5deg_db`` {plain, foveate}, ``flip`` {plain, foveate},
         ``psnr_5deg_foveate_vs_plain_db`` (inf: the fovea is the plain frame's pixels).
     """
-    from .plod import flip_error, psnr_db          # flip_evaluator is imported there
+    from .image_metrics import flip_error, psnr_db
 
     out = {}
     for vp, f in frames.items():
