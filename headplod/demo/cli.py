@@ -29,7 +29,7 @@ import numpy as np
 
 from .. import io
 from ..plod.select import MODES
-from ..plod.terrain_file import TerrainUsageError, add_terrain_arguments, terrain_from_args
+from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..progress import Progress
 from ..render import TerrainRenderer, create_context
 from ..render.still import TerrainScene
@@ -335,14 +335,10 @@ def run_demo(args) -> int:
     if args.frames < 1:
         print("headplod demo: --frames must be at least 1", file=sys.stderr)
         return 2
-    try:        # the terrain file is read (and any problem reported) before anything is written
-        args.terrain_loaded = terrain_from_args(args)     # None: the built-in terrain
-    except TerrainUsageError as exc:
-        print(f"headplod demo: {exc}", file=sys.stderr)
-        return 2
-    except ValueError as exc:
-        print(f"headplod demo: --terrain {exc}", file=sys.stderr)
-        return 1
+    # The terrain file is read (and any problem reported) before anything is written; None: the built-in one.
+    args.terrain_loaded, status = terrain_for_command(args, "headplod demo")
+    if status is not None:
+        return status
     try:
         if args.headless:
             run_headless(args)

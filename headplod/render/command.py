@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
+import cv2
 import numpy as np
 
 from calib import DEFAULT_SCREEN
@@ -20,7 +22,7 @@ from .. import io
 from ..plod.export import check_export_path
 from ..argtypes import floats
 from ..plod.raymask import RayMaskConfig
-from ..plod.terrain_file import TerrainUsageError, add_terrain_arguments, terrain_from_args
+from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..plod.select import UNCERTAINTY_MODES
 from .gl import VIEW_MODES
 from .still import CONTRAST_SOURCES, RENDER_MODES, TerrainScene, render_still
@@ -60,6 +62,16 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     return render
 
 
+def _output_problem(path, image: bool = False) -> str | None:
+    """Why ``path`` cannot be an output file (a folder; an image ending OpenCV cannot write), or None."""
+    p = Path(path)
+    if p.is_dir():
+        return f"{path} is a folder; name a file"
+    if image and not cv2.haveImageWriter(str(p)):
+        return f"{path}: OpenCV cannot write images ending {p.suffix or '(no ending)'!r}; use .png or .jpg"
+    return None
+
+
 def run_render(args) -> int:
     """Run ``headplod render`` from parsed arguments; the exit status."""
     screen = io.read_screen(args.screen or DEFAULT_SCREEN)
@@ -71,6 +83,13 @@ def run_render(args) -> int:
             print(f"headplod: --cov {args.cov} is not positive definite", file=sys.stderr)
             return 2
     size = tuple(int(v) for v in args.size)
+    if min(size) < 1 or max(size) > 16384 or any(v != int(v) for v in args.size):
+        print(f"headplod: --size must be two whole numbers of pixels in 1..16384, got {args.size}", file=sys.stderr)
+        return 2
+    problem = _output_problem(args.out, image=True) or (args.stats and _output_problem(args.stats))
+    if problem:
+        print(f"headplod: {problem}", file=sys.stderr)
+        return 2
     if args.export is not None:
         try:
             check_export_path(args.export)
@@ -90,19 +109,19 @@ def run_render(args) -> int:
         except ValueError as exc:
             print(f"headplod: --inset-deg: {exc}", file=sys.stderr)
             return 2
-    try:        # the terrain file is read (and any problem reported) before anything is written
-        terrain = terrain_from_args(args)
-    except TerrainUsageError as exc:
-        print(f"headplod: {exc}", file=sys.stderr)
-        return 2
-    except ValueError as exc:
-        print(f"headplod: --terrain {exc}", file=sys.stderr)
-        return 1
+    terrain, status = terrain_for_command(args, "headplod")     # read before anything is written
+    if status is not None:
+        return status
     scene = None if terrain is None else TerrainScene.build(screen, terrain=terrain)
-    _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
-                            poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
-                            stats_path=args.stats, contrast=args.contrast, export=args.export,
-                            foveate=args.foveate, raymask=raymask, scene=scene)
+    try:
+        _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
+                                poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
+                                stats_path=args.stats, contrast=args.contrast, export=args.export,
+                                foveate=args.foveate, raymask=raymask, scene=scene)
+    except OSError as exc:           # a folder that cannot be written: nothing half-written is left
+        print(f"headplod: could not write the output: {exc.strerror or exc} ({exc.filename or args.out})",
+              file=sys.stderr)
+        return 1
     if "raymask" in stats:
         r = stats["raymask"]
         print(f"{r['rays']} rays ({r['fill_rays']} inset, {r['ring_rays']} rings, {r['silhouette_rays']} in "
