@@ -623,7 +623,7 @@ class DemoLoop:
     size : (2,) int
         Image size (width, height), px, when the renderer is made here.
     mode, uncertainty, viewpoint, view_mode : str
-        Initial settings (``DEMO_MODES`` or any of ``select.MODES``,
+        Initial settings (``DEMO_MODES`` or any of ``render.still.RENDER_MODES``: ``raymask`` too,
         ``SCENARIOS``, ``viewpoints.VIEWPOINTS``, ``VIEW_MODES``).
     hud : bool
         Draw the heads-up display.
