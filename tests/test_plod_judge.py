@@ -85,6 +85,8 @@ def test_comparison_interpolates_the_best_geometric_curve_in_log_time():
               "ipv": curve([(-1, 10.0, 7.0), (0, 40.0, 9.5)]),
               "csf": curve([(-1, 20.0, 9.6), (0, 200.0, 9.9)])}
     out = pj.compare_at_equal_time(curves)
+    with pytest.raises(ValueError, match="x must be"):
+        pj.compare_at_equal_time(curves, x="render_ms")
     assert list(out) == ["csf"]
     first, second = out["csf"]
     # At 20 ms: sse halfway (in log time, log 20 is 0.301 of the decade) 8.301; ipv half of its span 8.25.

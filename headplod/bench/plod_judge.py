@@ -387,66 +387,91 @@ def judge_entries(modes=None, forms=None) -> list[tuple[str, dict]]:
 
 
 def jod_report(bench, reference_rgb: np.ndarray | None = None, modes=None, forms=None, biases=(-1.0, 0.0, 1.0),
-               metrics=("fvvdp",), settings: JudgeSettings = JudgeSettings(), progress=None) -> dict:
+               metrics=("fvvdp",), settings: JudgeSettings = JudgeSettings(), off_fixation_deg: float = 10.0,
+               progress=None) -> dict:
     """JOD and frame time per mode and CSF form, each over a level bias, at the bench's default view.
 
     ``bench`` is a :class:`headplod.bench.plod._Bench` (the scene, renderer,
     head and POI); ``reference_rgb`` its ``full`` image (rendered when None).
     Every curve point renders the mode with its level shifted by ``bias``
-    (levels) as ``bench plod``'s quality curves do and scores it with each
-    of ``metrics``. Returns a JSON-ready dict: ``display`` (geometry),
-    ``fixation_px``, ``settings``, ``full`` (frame_ms), ``curves`` {name:
-    [{bias, triangles, frame_ms, jod_<metric>, seconds_<metric>}]},
-    ``comparison`` (:func:`compare_at_equal_time` per metric) and
-    ``seconds`` per metric (median time of one JOD).
+    (levels) as ``bench plod``'s quality curves do. All points are rendered
+    and timed first, then scored with each of ``metrics``: PyTorch's worker
+    threads stay busy for a while after a JOD and would slow a render timed
+    right after it.
+
+    Returns a JSON-ready dict: ``display`` (geometry), ``px_per_deg``,
+    ``fixation_px``, ``settings``, ``full`` (frame_ms, triangles),
+    ``curves`` {name: [{bias, triangles, frame_ms, render_ms, jod_<metric>,
+    seconds_<metric>}]}, ``comparison`` {metric: {"frame_ms": ...,
+    "triangles": ...}} (:func:`compare_at_equal_time`) and ``seconds``
+    per metric (median wall time of one JOD, s).
+
+    The check that the judge looks where the viewer does: each curve's bias-0
+    point is also scored by the foveated metric with the fixation moved
+    ``off_fixation_deg`` (degrees) left of the POI (``off_fixation_px``), as
+    ``jod_<metric>_off``: a viewer looking away from where the detail is.
     """
     progress = progress or (lambda text: None)
     from .plod import SIZE
 
     geometry = display_geometry(bench.screen, bench.head, SIZE, settings.max_eye_offset_mm)
     fixation = fixation_px(bench.screen, bench.poi, SIZE)
-    judges = {m: Judge(geometry, dataclasses.replace(settings, metric=m)) for m in metrics}
+    off_px = geometry.distance_m * math.tan(math.radians(off_fixation_deg)) / geometry.width_m * SIZE[0]
+    off_fixation = fixation - np.array([off_px, 0.0])
     full_image, full_stats = bench.run(bench.scene.selector("full", "adaptive"))
     if reference_rgb is None:
         reference_rgb = full_image
-    curves, seconds = {}, {m: [] for m in metrics}
+    curves, images = {}, {}
     for name, opts in judge_entries(modes, forms):
         mode = name.split("[")[0]
         points = []
         for bias in biases:
             image, stats = bench.run(bench.scene.selector(mode, "adaptive", level_bias=float(bias), **opts))
-            point = {"bias": float(bias), "triangles": stats["triangles"], "frame_ms": stats["frame_ms"],
-                     "render_ms": stats["render_ms"]}
-            for m, judge in judges.items():
-                point[f"jod_{m}"] = judge.jod(reference_rgb, image, fixation)
-                point[f"seconds_{m}"] = judge.last_seconds
-                seconds[m].append(judge.last_seconds)
-            points.append(point)
+            points.append({"bias": float(bias), "triangles": stats["triangles"], "frame_ms": stats["frame_ms"],
+                           "render_ms": stats["render_ms"]})
+            images[name, float(bias)] = image
         curves[name] = points
-        progress(f"JOD {name}: " + ", ".join(f"{p['bias']:+g}: {p['frame_ms']:.1f} ms " +
-                                             "/".join(f"{p[f'jod_{m}']:.2f}" for m in metrics) for p in points))
+        progress(f"rendered {name}: " + ", ".join(f"{p['bias']:+g}: {p['frame_ms']:.1f} ms" for p in points))
+    seconds = {}
+    for m in metrics:
+        judge = Judge(geometry, dataclasses.replace(settings, metric=m))
+        seconds[m] = []
+        for name, points in curves.items():
+            for p in points:
+                p[f"jod_{m}"] = judge.jod(reference_rgb, images[name, p["bias"]], fixation)
+                p[f"seconds_{m}"] = judge.last_seconds
+                seconds[m].append(judge.last_seconds)
+                if judge.foveated and p["bias"] == 0.0:
+                    p[f"jod_{m}_off"] = judge.jod(reference_rgb, images[name, p["bias"]], off_fixation)
+            progress(f"{m} {name}: " + ", ".join(f"{p['bias']:+g}: {p[f'jod_{m}']:.2f}" for p in points))
+        seconds[m] = float(np.median(seconds[m])) if seconds[m] else float("nan")
     report = {"display": dataclasses.asdict(geometry), "px_per_deg": geometry.px_per_deg,
-              "fixation_px": fixation.tolist(), "settings": dataclasses.asdict(settings), "metrics": list(metrics),
-              "foveated": {m: judges[m].foveated for m in metrics},
+              "fixation_px": fixation.tolist(), "off_fixation_deg": float(off_fixation_deg),
+              "off_fixation_px": off_fixation.tolist(), "settings": dataclasses.asdict(settings), "metrics": list(metrics),
+              "foveated": {m: m == "fvvdp" for m in metrics},
               "full": {"frame_ms": full_stats["frame_ms"], "triangles": full_stats["triangles"]},
-              "curves": curves, "seconds": {m: float(np.median(s)) for m, s in seconds.items() if s}}
-    report["comparison"] = {m: compare_at_equal_time(curves, f"jod_{m}") for m in metrics}
+              "curves": curves, "seconds": seconds}
+    report["comparison"] = {m: {x: compare_at_equal_time(curves, f"jod_{m}", x) for x in ("frame_ms", "triangles")}
+                            for m in metrics}
     return report
 
 
-def compare_at_equal_time(curves: dict, key: str = "jod_fvvdp") -> dict:
-    """Each CSF-based point against the best geometric curve at the same frame time.
+def compare_at_equal_time(curves: dict, key: str = "jod_fvvdp", x: str = "frame_ms") -> dict:
+    """Each CSF-based point against the best geometric curve at the same cost ``x``.
 
-    The geometric envelope at frame time t is the highest JOD among the
-    curves of :data:`GEOMETRIC` interpolated (linearly in log frame time,
-    each curve's points sorted by time) at t; a point outside a curve's time
-    range does not count for that curve. Returns {curve name: [{bias,
-    frame_ms, jod, geometric_jod, geometric_mode, margin}]} for the curves
-    of :data:`CSF_BASED` and the CSF forms (``csf[...]``); margin = jod −
-    geometric_jod (JOD; positive: the CSF-based point is above), None where
-    no geometric curve spans t.
+    ``x`` is ``"frame_ms"`` (frame time, ms) or ``"triangles"`` (the cost
+    that does not depend on the machine's load). The geometric envelope at
+    cost c is the highest JOD among the curves of :data:`GEOMETRIC`
+    interpolated (linearly in log cost, each curve's points sorted by cost)
+    at c; a point outside a curve's cost range does not count for that
+    curve. Returns {curve name: [{bias, <x>, jod, geometric_jod,
+    geometric_mode, margin}]} for the curves of :data:`CSF_BASED` and the
+    CSF forms (``csf[...]``); margin = jod − geometric_jod (JOD; positive:
+    the CSF-based point is above), None where no geometric curve spans c.
     """
-    geometric = {n: sorted(((p["frame_ms"], p[key]) for p in pts)) for n, pts in curves.items() if n in GEOMETRIC}
+    if x not in ("frame_ms", "triangles"):
+        raise ValueError(f"x must be 'frame_ms' or 'triangles', got {x!r}")
+    geometric = {n: sorted(((p[x], p[key]) for p in pts)) for n, pts in curves.items() if n in GEOMETRIC}
     out = {}
     for name, pts in curves.items():
         if name.split("[")[0] not in CSF_BASED:
@@ -456,20 +481,20 @@ def compare_at_equal_time(curves: dict, key: str = "jod_fvvdp") -> dict:
             best, best_mode = None, None
             for g, gp in geometric.items():
                 t = np.log([q[0] for q in gp])
-                x = math.log(p["frame_ms"])
-                if len(gp) < 2 or not (t[0] <= x <= t[-1]):
+                c = math.log(p[x])
+                if len(gp) < 2 or not (t[0] <= c <= t[-1]):
                     continue
-                j = float(np.interp(x, t, [q[1] for q in gp]))
+                j = float(np.interp(c, t, [q[1] for q in gp]))
                 if best is None or j > best:
                     best, best_mode = j, g
-            rows.append({"bias": p["bias"], "frame_ms": p["frame_ms"], "jod": p[key], "geometric_jod": best,
+            rows.append({"bias": p["bias"], x: p[x], "jod": p[key], "geometric_jod": best,
                          "geometric_mode": best_mode, "margin": None if best is None else p[key] - best})
         out[name] = rows
     return out
 
 
 def jod_table(report: dict) -> str:
-    """The report as text: one line per curve point, then the comparison at equal frame time."""
+    """The report as text: one line per curve point, then the comparisons at equal frame time and triangles."""
     metrics = report["metrics"]
     head = f"{'curve':16s} {'bias':>5s} {'triangles':>9s} {'frame ms':>9s} " + " ".join(
         f"{'JOD ' + m + (' (fov)' if report['foveated'][m] else ''):>15s}" for m in metrics)
@@ -479,51 +504,58 @@ def jod_table(report: dict) -> str:
              + ", ".join(f"{m} {s:.2f} s per image" for m, s in report["seconds"].items()), head]
     for name, pts in report["curves"].items():
         for p in pts:
+            off = [f"{p[f'jod_{m}_off']:.3f}" for m in metrics if f"jod_{m}_off" in p]
             lines.append(f"{name:16s} {p['bias']:+5.1f} {p['triangles']:9d} {p['frame_ms']:9.1f} "
-                         + " ".join(f"{p[f'jod_{m}']:15.3f}" for m in metrics))
+                         + " ".join(f"{p[f'jod_{m}']:15.3f}" for m in metrics)
+                         + (f"   (fixating {report['off_fixation_deg']:g}° left of the POI: {off[0]})" if off else ""))
     for m in metrics:
-        lines.append(f"{m}: CSF-based point − best geometric curve at the same frame time (JOD):")
-        for name, rows in report["comparison"][m].items():
-            lines.append(f"  {name:14s} " + "  ".join(
-                f"{r['bias']:+g}: " + ("outside" if r["margin"] is None else f"{r['margin']:+.3f} ({r['geometric_mode']})")
-                for r in rows))
+        for x, what in (("frame_ms", "frame time"), ("triangles", "triangle count")):
+            lines.append(f"{m}: CSF-based point − best geometric curve at the same {what} (JOD):")
+            for name, rows in report["comparison"][m][x].items():
+                lines.append(f"  {name:14s} " + "  ".join(
+                    f"{r['bias']:+g}: " + ("outside" if r["margin"] is None
+                                           else f"{r['margin']:+.3f} ({r['geometric_mode']})") for r in rows))
     return "\n".join(lines)
 
 
 def jod_chart(report: dict, path) -> None:
-    """JOD against frame time, one panel per metric, every curve with its bias points (square: bias 0)."""
+    """JOD against frame time (top) and triangles (bottom), one column per metric; square: bias 0."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     metrics = report["metrics"]
-    fig, axs = plt.subplots(1, len(metrics), figsize=(8 * len(metrics), 6.5), squeeze=False)
+    fig, axs = plt.subplots(2, len(metrics), figsize=(8 * len(metrics), 12), squeeze=False)
     names = list(report["curves"])
     cmap = plt.cm.tab10
-    for ax, m in zip(axs[0], metrics):
-        for i, name in enumerate(names):
-            pts = sorted(report["curves"][name], key=lambda p: p["frame_ms"])
-            base = name.split("[")[0]
-            style = "-" if base in CSF_BASED and "[" not in name else ("--" if "[" in name else ":")
-            ax.plot([p["frame_ms"] for p in pts], [p[f"jod_{m}"] for p in pts], "o" + style, color=cmap(i % 10),
-                    label=name + (" (CSF)" if base in CSF_BASED else ""), ms=4)
-            zero = [p for p in pts if p["bias"] == 0.0]
-            if zero:
-                ax.plot(zero[0]["frame_ms"], zero[0][f"jod_{m}"], "s", color=cmap(i % 10), ms=9, mfc="none")
-        ax.axvline(report["full"]["frame_ms"], color="k", lw=1, ls="--", label="full's frame time (JOD 10)")
-        ax.set_xscale("log")
-        ax.set_xlabel("frame time: select + build + render (ms, log)")
-        fov = "foveated on the POI" if report["foveated"][m] else "not foveated (no such mode in the package)"
-        ax.set_ylabel(f"JOD against full ({m}, 10 = identical)")
-        ax.set_title(f"{'FovVideoVDP' if m == 'fvvdp' else 'ColorVideoVDP'}: {fov}")
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7)
+    for col, m in enumerate(metrics):
+        for row, (x, xlabel) in enumerate((("frame_ms", "frame time: select + build + render (ms, log)"),
+                                           ("triangles", "triangles (log)"))):
+            ax = axs[row, col]
+            for i, name in enumerate(names):
+                pts = sorted(report["curves"][name], key=lambda p: p[x])
+                base = name.split("[")[0]
+                style = "-" if base in CSF_BASED and "[" not in name else ("--" if "[" in name else ":")
+                ax.plot([p[x] for p in pts], [p[f"jod_{m}"] for p in pts], "o" + style, color=cmap(i % 10),
+                        label=name + (" (CSF)" if base in CSF_BASED else ""), ms=4,
+                        lw=2 if base in CSF_BASED and "[" not in name else 1.2)
+                zero = [p for p in pts if p["bias"] == 0.0]
+                if zero:
+                    ax.plot(zero[0][x], zero[0][f"jod_{m}"], "s", color=cmap(i % 10), ms=9, mfc="none")
+            ax.axvline(report["full"][x], color="k", lw=1, ls="--", label="full (JOD 10)")
+            ax.set_xscale("log")
+            ax.set_xlabel(xlabel)
+            fov = "foveated on the POI" if report["foveated"][m] else "not foveated (the package has no such mode)"
+            ax.set_ylabel(f"JOD against full ({m}; 10 = identical)")
+            ax.set_title(f"{'FovVideoVDP' if m == 'fvvdp' else 'ColorVideoVDP'}: {fov}")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=7)
     d = report["display"]
-    fig.suptitle(f"PLOD modes judged at 1280x720 on a {d['width_m'] * 1000:.0f}x{d['height_m'] * 1000:.0f} mm screen "
-                 f"from {d['distance_m'] * 1000:.0f} mm ({report['px_per_deg']:.1f} px/deg), "
-                 f"{report['settings']['peak_luminance_cd_m2']:g} cd/m²; solid: CSF-based, dotted: geometric, "
-                 f"dashed: CSF forms", fontsize=10)
+    fig.suptitle(f"PLOD modes, level bias −1.5 … +1 (square: 0), judged at 1280x720 on a "
+                 f"{d['width_m'] * 1000:.0f}x{d['height_m'] * 1000:.0f} mm screen from {d['distance_m'] * 1000:.0f} mm "
+                 f"({report['px_per_deg']:.1f} px/deg), {report['settings']['peak_luminance_cd_m2']:g} cd/m²\n"
+                 f"solid: CSF-based modes, dotted: geometric modes, dashed: csf with other CSF forms", fontsize=10)
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
