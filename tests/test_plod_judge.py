@@ -144,3 +144,15 @@ def test_cvvdp_scores_identical_images_10_and_ignores_fixation(small_display):
     test[20:60, 30:70] = 128
     assert judge.jod(ref, ref, (0, 0)) == pytest.approx(10.0, abs=1e-3)
     assert judge.jod(ref, test, (49.5, 39.5)) == pytest.approx(judge.jod(ref, test, (300.0, 170.0)), abs=1e-6)
+
+
+def test_bench_plod_vdp_stops_before_the_run_without_the_extra(monkeypatch, capsys):
+    from headplod.bench import plod
+    from headplod.cli import main
+
+    monkeypatch.setattr(pj, "vdp_available", lambda metric="fvvdp": False)
+    monkeypatch.setattr(plod, "_Bench", lambda *a, **k: pytest.fail("the bench ran"))
+    assert main(["bench", "plod", "--vdp"]) == 2
+    assert "pip install -e '.[vdp]'" in capsys.readouterr().err
+    monkeypatch.setattr(pj, "vdp_available", lambda metric="fvvdp": True)
+    assert main(["bench", "plod", "--vdp", "psnr"]) == 2

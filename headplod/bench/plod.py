@@ -291,7 +291,14 @@ def stability(b: _Bench, frames: int) -> dict | None:
     return out
 
 
-def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool = False) -> int:
+def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool = False, vdp=()) -> int:
+    if vdp:   # --vdp: the perceptual judge (headplod.bench.plod_judge); checked before the long run
+        from . import plod_judge
+        for metric in vdp:
+            if metric not in plod_judge.METRICS or not plod_judge.vdp_available(metric):
+                print(f"bench plod: --vdp {metric}: not one of {plod_judge.METRICS} installed; "
+                      f"pip install -e '.[vdp]'", file=sys.stderr)
+                return 2
     b = _Bench(frames=frames)
     results, images = measure_modes(b)
     curves = quality_curves(b, images["full"], biases=(-1.0, 0.0, 1.0) if quick else BIASES)
@@ -364,6 +371,12 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
     print("\n".join(lines))
     report = {"size": SIZE, "px_per_deg": b.px_per_deg, "modes": results, "curves": curves, "velocity_sweep": sweep,
               "ellipse": ellipse, "stability": stable, "foveate": fov, "raymask": ray, "goals": goals}
+    if vdp:   # --vdp: JOD against frame time per mode and CSF form (plod_judge), its table and chart
+        report["jod"] = plod_judge.jod_report(b, images["full"], biases=(-1.0, 0.0, 1.0) if quick else BIASES,
+                                              metrics=vdp, progress=_progress)
+        print(plod_judge.jod_table(report["jod"]))
+        if chart_path:
+            plod_judge.jod_chart(report["jod"], Path(chart_path).parent / "plod_jod.png")
     if json_path:
         Path(json_path).parent.mkdir(parents=True, exist_ok=True)
         Path(json_path).write_text(json.dumps(report, indent=2, default=float))
