@@ -132,6 +132,13 @@ def test_fvvdp_is_foveated_on_the_fixation_point(small_display):
     with pytest.raises(ValueError, match="uint8 sRGB of shape"):
         judge.jod(ref, ref[:, :-1], (0, 0))
     assert pj.foveated_jod(ref, test, (49.5, 39.5), small_display) == pytest.approx(on_patch, abs=1e-4)
+    with pytest.raises(ValueError, match="heatmap=True"):
+        judge.jod_map(ref, test, (49.5, 39.5))
+    q, heatmap = pj.Judge(small_display, heatmap=True).jod_map(ref, test, (49.5, 39.5))
+    assert q == pytest.approx(on_patch, abs=1e-4)
+    assert heatmap.shape == (180, 320, 3) and heatmap.dtype == np.uint8
+    # The threshold map is red where the error is visible (the patch) and blue where there is none.
+    assert heatmap[30:50, 40:60, 0].mean() > heatmap[120:170, 200:300, 0].mean() + 50
 
 
 def test_cvvdp_scores_identical_images_10_and_ignores_fixation(small_display):

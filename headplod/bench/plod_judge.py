@@ -284,8 +284,9 @@ class Judge:
     Building it loads the metric's CSF tables (about a second); reuse it.
     """
 
-    def __init__(self, display: DisplayGeometry, settings: JudgeSettings = JudgeSettings()):
+    def __init__(self, display: DisplayGeometry, settings: JudgeSettings = JudgeSettings(), heatmap: bool = False):
         self.display, self.settings = display, settings
+        heatmap = "threshold" if heatmap else None    # the metrics' visualisation: blue (invisible) … red
         import torch
 
         torch.set_num_threads(int(settings.threads))
@@ -297,14 +298,14 @@ class Judge:
             photometry = vdp.fvvdp_display_photo_eotf(s.peak_luminance_cd_m2, contrast=s.contrast, EOTF="sRGB",
                                                       E_ambient=s.ambient_lux, k_refl=s.reflectance)
             self._metric = vdp.fvvdp(display_photometry=photometry, display_geometry=geometry, foveated=True,
-                                     device=torch.device("cpu"), quiet=True)
+                                     heatmap=heatmap, device=torch.device("cpu"), quiet=True)
         else:
             geometry = vdp.vvdp_display_geometry(display.resolution_px, distance_m=display.distance_m,
                                                  fov_horizontal=display.horizontal_fov_deg)
             photometry = vdp.vvdp_display_photo_eotf(s.peak_luminance_cd_m2, contrast=s.contrast,
                                                      source_colorspace="sRGB", E_ambient=s.ambient_lux,
                                                      k_refl=s.reflectance)
-            self._metric = vdp.cvvdp(display_photometry=photometry, display_geometry=geometry,
+            self._metric = vdp.cvvdp(display_photometry=photometry, display_geometry=geometry, heatmap=heatmap,
                                      device=torch.device("cpu"), quiet=True)
         self.px_per_deg = float(geometry.get_ppd())
         self.last_seconds = float("nan")
@@ -314,6 +315,15 @@ class Judge:
         """Whether the metric uses the fixation point (only FovVideoVDP has a foveated mode)."""
         return self.settings.metric == "fvvdp"
 
+    def jod_map(self, reference_rgb: np.ndarray, test_rgb: np.ndarray, fixation: np.ndarray):
+        """(JOD, heatmap): the heatmap is sRGB uint8 (H, W, 3), the metric's threshold colour map over the
+        reference's luminance (blue: invisible, green: at threshold, red: clearly visible). Needs ``heatmap=True``."""
+        if self._metric.heatmap is None:
+            raise ValueError("this Judge was built without heatmap=True")
+        q, stats = self._predict(reference_rgb, test_rgb, fixation)
+        hm = stats["heatmap"].float().numpy()[0, :, 0]              # (3, H, W) in 0..1, display-encoded
+        return q, np.clip(np.round(np.moveaxis(hm, 0, -1) * 255), 0, 255).astype(np.uint8)
+
     def jod(self, reference_rgb: np.ndarray, test_rgb: np.ndarray, fixation: np.ndarray) -> float:
         """JOD (10 = identical) of ``test_rgb`` against ``reference_rgb``, both sRGB uint8 (H, W, 3).
 
@@ -321,6 +331,9 @@ class Judge:
         (:func:`fixation_px`); (H, W) must be the display's resolution.
         ``last_seconds`` holds the wall time of the call.
         """
+        return self._predict(reference_rgb, test_rgb, fixation)[0]
+
+    def _predict(self, reference_rgb, test_rgb, fixation):
         _check_image("reference_rgb", reference_rgb, self.display.resolution_px)
         _check_image("test_rgb", test_rgb, self.display.resolution_px)
         fix = np.asarray(fixation, dtype=np.float64).reshape(-1)
@@ -331,12 +344,12 @@ class Judge:
         t0 = time.perf_counter()
         with torch.no_grad():
             if self.foveated:
-                q, _ = self._metric.predict(test_rgb, reference_rgb, dim_order="HWC",
-                                            fixation_point=torch.tensor(fix, dtype=torch.float32))
+                q, stats = self._metric.predict(test_rgb, reference_rgb, dim_order="HWC",
+                                                fixation_point=torch.tensor(fix, dtype=torch.float32))
             else:
-                q, _ = self._metric.predict(test_rgb, reference_rgb, dim_order="HWC")
+                q, stats = self._metric.predict(test_rgb, reference_rgb, dim_order="HWC")
         self.last_seconds = time.perf_counter() - t0
-        return float(q)
+        return float(q), stats
 
 
 def _check_image(name, image, resolution_px) -> None:
@@ -562,6 +575,34 @@ def jod_chart(report: dict, path) -> None:
     plt.close(fig)
 
 
+def write_heatmaps(bench, out_dir, modes=("csf", "sse"), settings: JudgeSettings = JudgeSettings()) -> dict:
+    """The foveated metric's heatmap of each mode (bias 0) against ``full``, with the fixation marked.
+
+    Writes ``plod_jod_heatmap_<mode>.png`` (1280x720) into ``out_dir``;
+    returns {mode: JOD}.
+    """
+    import cv2
+
+    from .plod import SIZE, _write_png
+
+    geometry = display_geometry(bench.screen, bench.head, SIZE, settings.max_eye_offset_mm)
+    fixation = fixation_px(bench.screen, bench.poi, SIZE)
+    judge = Judge(geometry, settings, heatmap=True)
+    reference, _ = bench.run(bench.scene.selector("full", "adaptive"))
+    out = {}
+    for mode in modes:
+        image, _ = bench.run(bench.scene.selector(mode, "adaptive"))
+        out[mode], hm = judge.jod_map(reference, image, fixation)
+        hm = np.ascontiguousarray(hm)
+        centre = tuple(int(round(c + 0.5)) for c in fixation)
+        for deg in (2, 5, 10, 20):     # eccentricity rings around the fixation
+            cv2.circle(hm, centre, int(round(deg * geometry.px_per_deg)), (255, 255, 255), 1, cv2.LINE_AA)
+        cv2.putText(hm, f"{mode}: {out[mode]:.2f} JOD ({settings.metric}); rings 2, 5, 10, 20 deg", (10, 30),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2, cv2.LINE_AA)
+        _write_png(Path(out_dir) / f"plod_jod_heatmap_{mode}.png", hm)
+    return out
+
+
 def run_judge(json_path=None, chart_path=None, modes=None, forms=None, biases=(-1.0, 0.0, 1.0),
               metrics=("fvvdp",), frames: int = 3) -> dict:
     """Render and judge ``modes`` and ``forms`` at the bench's default view; print the table, write JSON and chart."""
@@ -579,6 +620,7 @@ def run_judge(json_path=None, chart_path=None, modes=None, forms=None, biases=(-
         Path(json_path).write_text(json.dumps(report, indent=2, default=float))
     if chart_path:
         jod_chart(report, chart_path)
+        report["heatmap_jod"] = write_heatmaps(bench, Path(chart_path).parent)
     return report
 
 
