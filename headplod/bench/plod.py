@@ -35,10 +35,13 @@ render of the same view:
    on and off, in alternation; PSNR, FLIP, the sky silhouette's largest
    displacement against ``full``'s; the inset-size sweep; a picture of the
    mask per viewpoint.
+8. **Perceptual judge** (``--vdp``, the optional extra ``.[vdp]``): JOD
+   against frame time per mode and CSF form, FovVideoVDP foveated on the POI
+   on the screen's real size and distance (:mod:`headplod.bench.plod_judge`).
 
 Writes JSON, a 2x3 chart and the level-colour pictures beside the chart,
 and parts 6 and 7's charts and pictures beside it (``foveate_*.png``,
-``plod_raymask.png``, ``raymask_*.png``).
+``plod_raymask.png``, ``raymask_*.png``); with ``--vdp`` also ``plod_jod.png``.
 """
 from __future__ import annotations
 
