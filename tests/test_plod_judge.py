@@ -163,3 +163,14 @@ def test_bench_plod_vdp_stops_before_the_run_without_the_extra(monkeypatch, caps
     assert "pip install -e '.[vdp]'" in capsys.readouterr().err
     monkeypatch.setattr(pj, "vdp_available", lambda metric="fvvdp": True)
     assert main(["bench", "plod", "--vdp", "psnr"]) == 2
+
+
+def test_plod_vdp_alone_refuses_a_missing_or_unknown_metric(monkeypatch, capsys):
+    from headplod.bench import plod_vdp
+
+    monkeypatch.setattr(plod_vdp, "_Bench", lambda *a, **k: pytest.fail("the bench ran"))
+    monkeypatch.setattr(plod_vdp, "vdp_available", lambda metric="fvvdp": False)
+    assert plod_vdp.main(["--modes", "csf"]) == 2
+    assert "pip install -e '.[vdp]'" in capsys.readouterr().err
+    monkeypatch.setattr(plod_vdp, "vdp_available", lambda metric="fvvdp": True)
+    assert plod_vdp.main(["--metrics", "psnr"]) == 2

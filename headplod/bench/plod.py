@@ -41,7 +41,8 @@ render of the same view:
 
 Writes JSON, a 2x3 chart and the level-colour pictures beside the chart,
 and parts 6 and 7's charts and pictures beside it (``foveate_*.png``,
-``plod_raymask.png``, ``raymask_*.png``); with ``--vdp`` also ``plod_jod.png``.
+``plod_raymask.png``, ``raymask_*.png``); with ``--vdp`` also ``plod_jod.png``
+and ``plod_jod_heatmap_{csf,sse}.png``.
 """
 from __future__ import annotations
 
@@ -380,6 +381,7 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
         print(plod_judge.jod_table(report["jod"]))
         if chart_path:
             plod_judge.jod_chart(report["jod"], Path(chart_path).parent / "plod_jod.png")
+            report["jod"]["heatmap_jod"] = plod_judge.write_heatmaps(b, Path(chart_path).parent)
     if json_path:
         Path(json_path).parent.mkdir(parents=True, exist_ok=True)
         Path(json_path).write_text(json.dumps(report, indent=2, default=float))

@@ -20,7 +20,9 @@ it one JOD of preference):
   declares the two operator schemas torchvision's import registers
   (``nms``, ``qnms``: unused by the metric) so the import succeeds.
 
-Both are an optional extra (``pip install -e '.[vdp]'``: PyTorch, CPU build
+``headplod bench plod --vdp`` runs it after the benchmark;
+``python -m headplod.bench.plod_vdp --modes csf,sse`` runs it alone on a
+few modes. Both are an optional extra (``pip install -e '.[vdp]'``: PyTorch, CPU build
 where the index offers it). Without it :func:`vdp_available` is False and
 ``headplod bench plod`` runs as before; the geometry and fixation helpers
 here need only numpy.
@@ -38,7 +40,6 @@ Photometry (a standard office monitor, as the metrics' ``standard_4k``):
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import sys
 import time
@@ -238,9 +239,11 @@ def _import_isolated(package: str):
     helpers are set aside and put back afterwards (each package keeps the
     module objects it bound; neither imports them again at run time).
     """
-    import importlib
     import importlib.util
     import os
+
+    if package not in ("pyfvvdp", "pycvvdp"):
+        raise ValueError(f"no metric package {package!r}")
 
     if package in sys.modules:
         return sys.modules[package]
@@ -253,7 +256,10 @@ def _import_isolated(package: str):
     aside = {n: sys.modules.pop(n) for n in list(sys.modules) if n.split(".")[0] in helpers}
     sys.path.insert(0, folder)
     try:
-        module = importlib.import_module(package)
+        if package == "pyfvvdp":
+            import pyfvvdp as module
+        else:
+            import pycvvdp as module
     finally:
         sys.path.remove(folder)
         for n in [n for n in list(sys.modules) if n.split(".")[0] in helpers]:
@@ -428,15 +434,14 @@ def jod_report(bench, reference_rgb: np.ndarray | None = None, modes=None, forms
     ``jod_<metric>_off``: a viewer looking away from where the detail is.
     """
     progress = progress or (lambda text: None)
-    from .plod import SIZE
-
-    geometry = display_geometry(bench.screen, bench.head, SIZE, settings.max_eye_offset_mm)
-    fixation = fixation_px(bench.screen, bench.poi, SIZE)
-    off_px = geometry.distance_m * math.tan(math.radians(off_fixation_deg)) / geometry.width_m * SIZE[0]
-    off_fixation = fixation - np.array([off_px, 0.0])
     full_image, full_stats = bench.run(bench.scene.selector("full", "adaptive"))
     if reference_rgb is None:
         reference_rgb = full_image
+    size = (full_image.shape[1], full_image.shape[0])       # the renderer's (w, h), px
+    geometry = display_geometry(bench.screen, bench.head, size, settings.max_eye_offset_mm)
+    fixation = fixation_px(bench.screen, bench.poi, size)
+    off_px = geometry.distance_m * math.tan(math.radians(off_fixation_deg)) / geometry.width_m * size[0]
+    off_fixation = fixation - np.array([off_px, 0.0])
     if int(timing_rounds) != timing_rounds or timing_rounds < 1:
         raise ValueError(f"timing_rounds must be a positive integer, got {timing_rounds!r}")
     entries = judge_entries(modes, forms)
@@ -599,12 +604,11 @@ def write_heatmaps(bench, out_dir, modes=("csf", "sse"), settings: JudgeSettings
     """
     import cv2
 
-    from .plod import SIZE, _write_png
-
-    geometry = display_geometry(bench.screen, bench.head, SIZE, settings.max_eye_offset_mm)
-    fixation = fixation_px(bench.screen, bench.poi, SIZE)
-    judge = Judge(geometry, settings, heatmap=True)
     reference, _ = bench.run(bench.scene.selector("full", "adaptive"))
+    size = (reference.shape[1], reference.shape[0])
+    geometry = display_geometry(bench.screen, bench.head, size, settings.max_eye_offset_mm)
+    fixation = fixation_px(bench.screen, bench.poi, size)
+    judge = Judge(geometry, settings, heatmap=True)
     out = {}
     for mode in modes:
         image, _ = bench.run(bench.scene.selector(mode, "adaptive"))
@@ -615,42 +619,7 @@ def write_heatmaps(bench, out_dir, modes=("csf", "sse"), settings: JudgeSettings
             cv2.circle(hm, centre, int(round(deg * geometry.px_per_deg)), (255, 255, 255), 1, cv2.LINE_AA)
         cv2.putText(hm, f"{mode}: {out[mode]:.2f} JOD ({settings.metric}); rings 2, 5, 10, 20 deg", (10, 30),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2, cv2.LINE_AA)
-        _write_png(Path(out_dir) / f"plod_jod_heatmap_{mode}.png", hm)
+        path = Path(out_dir) / f"plod_jod_heatmap_{mode}.png"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(path), cv2.cvtColor(hm, cv2.COLOR_RGB2BGR))
     return out
-
-
-def run_judge(json_path=None, chart_path=None, modes=None, forms=None, biases=(-1.0, 0.0, 1.0),
-              metrics=("fvvdp",), frames: int = 3) -> dict:
-    """Render and judge ``modes`` and ``forms`` at the bench's default view; print the table, write JSON and chart."""
-    from .plod import _Bench
-
-    for m in metrics:
-        if not vdp_available(m):
-            raise ValueError(f"the metric {m!r} is not installed: pip install -e '.[vdp]'")
-    bench = _Bench(frames=frames)
-    report = jod_report(bench, modes=modes, forms=forms, biases=biases, metrics=metrics,
-                        progress=lambda text: print(f"bench plod --vdp: {text}", file=sys.stderr, flush=True))
-    print(jod_table(report))
-    if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps(report, indent=2, default=float))
-    if chart_path:
-        jod_chart(report, chart_path)
-        report["heatmap_jod"] = write_heatmaps(bench, Path(chart_path).parent)
-    return report
-
-
-if __name__ == "__main__":   # python -m headplod.bench.plod_judge [--modes csf,sse] [--forms ...] [--metrics ...]
-    import argparse
-
-    ap = argparse.ArgumentParser(description="foveated JOD against frame time for the PLOD modes")
-    ap.add_argument("--modes", help="comma-separated modes (default: all but full)")
-    ap.add_argument("--forms", help="comma-separated CSF forms besides the default (default: all; '' for none)")
-    ap.add_argument("--biases", default="-1,0,1", help="comma-separated level biases (levels)")
-    ap.add_argument("--metrics", default="fvvdp", help="comma-separated, of " + ",".join(METRICS))
-    ap.add_argument("--json")
-    ap.add_argument("--chart")
-    a = ap.parse_args()
-    run_judge(a.json, a.chart, modes=a.modes.split(",") if a.modes else None,
-              forms=None if a.forms is None else [f for f in a.forms.split(",") if f],
-              biases=[float(b) for b in a.biases.split(",")], metrics=a.metrics.split(","))
