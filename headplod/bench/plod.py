@@ -377,7 +377,7 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
               "ellipse": ellipse, "stability": stable, "foveate": fov, "raymask": ray, "goals": goals}
     if vdp:   # --vdp: JOD against frame time per mode and CSF form (plod_judge), its table and chart
         report["jod"] = plod_judge.jod_report(b, images["full"], biases=(-1.0, 0.0, 1.0) if quick else BIASES,
-                                              metrics=vdp, progress=_progress)
+                                              metrics=vdp, image_side=True, progress=_progress)
         print(plod_judge.jod_table(report["jod"]))
         if chart_path:
             plod_judge.jod_chart(report["jod"], Path(chart_path).parent / "plod_jod.png")

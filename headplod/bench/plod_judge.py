@@ -54,6 +54,10 @@ METRICS = ("fvvdp", "cvvdp")
 CSF_BASED = ("csf", "gp", "acuity")
 #: The criteria whose levels come from geometry alone (screen-space error, velocity, distance).
 GEOMETRIC = ("sse", "ipv", "dpv", "distance")
+#: The image-side CSF techniques judged beside the modes: Murphy & Duchowski's ray mask (its knob: the
+#: Michelson contrast its ray spacing is chosen for) and ``csf`` drawn as foveated layers (``--foveate``).
+IMAGE_SIDE = ("raymask", "csf+foveate")
+RAYMASK_CONTRASTS = (1.0, 0.3, 0.1)
 
 
 @dataclass(frozen=True)
@@ -407,7 +411,7 @@ def judge_entries(modes=None, forms=None) -> list[tuple[str, dict]]:
 
 def jod_report(bench, reference_rgb: np.ndarray | None = None, modes=None, forms=None, biases=(-1.0, 0.0, 1.0),
                metrics=("fvvdp",), settings: JudgeSettings = JudgeSettings(), off_fixation_deg: float = 10.0,
-               timing_rounds: int = 3, progress=None) -> dict:
+               timing_rounds: int = 3, image_side: bool = False, progress=None) -> dict:
     """JOD and frame time per mode and CSF form, each over a level bias, at the bench's default view.
 
     ``bench`` is a :class:`headplod.bench.plod._Bench` (the scene, renderer,
@@ -428,6 +432,12 @@ def jod_report(bench, reference_rgb: np.ndarray | None = None, modes=None, forms
     "triangles": ...}} (:func:`compare_at_equal_time`) and ``seconds``
     per metric (median wall time of one JOD, s).
 
+    With ``image_side``, also the curves of :data:`IMAGE_SIDE`: ``raymask``
+    over :data:`RAYMASK_CONTRASTS` (``triangles`` None: it casts rays) and
+    ``csf+foveate`` over ``biases`` (:func:`_image_side_frame`). Every point
+    carries ``setting`` (``"bias +0"``, ``"C=0.3"``) and ``bias`` (NaN for
+    the ray mask).
+
     The check that the judge looks where the viewer does: each curve's bias-0
     point is also scored by the foveated metric with the fixation moved
     ``off_fixation_deg`` (degrees) left of the POI (``off_fixation_px``), as
@@ -444,39 +454,48 @@ def jod_report(bench, reference_rgb: np.ndarray | None = None, modes=None, forms
     off_fixation = fixation - np.array([off_px, 0.0])
     if int(timing_rounds) != timing_rounds or timing_rounds < 1:
         raise ValueError(f"timing_rounds must be a positive integer, got {timing_rounds!r}")
-    entries = judge_entries(modes, forms)
-    curves = {name: [] for name, _ in entries}
+    points = [(name, float(b), f"bias {b:+g}", opts) for name, opts in judge_entries(modes, forms) for b in biases]
+    if image_side:
+        points += [("raymask", float("nan"), f"C={c:g}", {"contrast": float(c)}) for c in RAYMASK_CONTRASTS]
+        points += [("csf+foveate", float(b), f"bias {b:+g}", {}) for b in biases]
+    side = _ImageSide(bench) if image_side else None
+    curves = {name: [] for name, *_ in points}
     images = {}
     full_ms = [full_stats["frame_ms"]]
     for k in range(int(timing_rounds)):
         if k > 0:
             full_ms.append(bench.run(bench.scene.selector("full", "adaptive"))[1]["frame_ms"])
-        for name, opts in entries:
-            for i, bias in enumerate(biases):
-                image, stats = bench.run(bench.scene.selector(name.split("[")[0], "adaptive", level_bias=float(bias),
+        for name, bias, setting, opts in points:
+            if name in IMAGE_SIDE:
+                image, stats = side.frame(name, bias, **opts)
+            else:
+                image, stats = bench.run(bench.scene.selector(name.split("[")[0], "adaptive", level_bias=bias,
                                                               **opts))
-                if k == 0:
-                    images[name, float(bias)] = image
-                    curves[name].append({"bias": float(bias), "triangles": stats["triangles"],
-                                         "frame_ms_rounds": [], "render_ms_rounds": []})
-                p = curves[name][i]
-                p["frame_ms_rounds"].append(stats["frame_ms"])
-                p["render_ms_rounds"].append(stats["render_ms"])
-                p["frame_ms"], p["render_ms"] = min(p["frame_ms_rounds"]), min(p["render_ms_rounds"])
+            if k == 0:
+                images[name, setting] = image
+                curves[name].append({"bias": bias, "setting": setting, "triangles": stats["triangles"],
+                                     "frame_ms_rounds": [], "render_ms_rounds": []})
+            p = next(q for q in curves[name] if q["setting"] == setting)
+            p["frame_ms_rounds"].append(stats["frame_ms"])
+            p["render_ms_rounds"].append(stats["render_ms"])
+            p["frame_ms"], p["render_ms"] = min(p["frame_ms_rounds"]), min(p["render_ms_rounds"])
         progress(f"timing round {k + 1}/{timing_rounds}: " + ", ".join(
-            f"{name} {curves[name][0]['frame_ms']:.0f}-{curves[name][-1]['frame_ms']:.0f} ms" for name, _ in entries))
+            f"{name} {min(q['frame_ms'] for q in c):.0f}-{max(q['frame_ms'] for q in c):.0f} ms"
+            for name, c in curves.items()))
+    if side is not None:
+        side.release()
     seconds = {}
     for m in metrics:
         judge = Judge(geometry, dataclasses.replace(settings, metric=m))
         seconds[m] = []
-        for name, points in curves.items():
-            for p in points:
-                p[f"jod_{m}"] = judge.jod(reference_rgb, images[name, p["bias"]], fixation)
+        for name, pts in curves.items():
+            for p in pts:
+                p[f"jod_{m}"] = judge.jod(reference_rgb, images[name, p["setting"]], fixation)
                 p[f"seconds_{m}"] = judge.last_seconds
                 seconds[m].append(judge.last_seconds)
-                if judge.foveated and p["bias"] == 0.0:
-                    p[f"jod_{m}_off"] = judge.jod(reference_rgb, images[name, p["bias"]], off_fixation)
-            progress(f"{m} {name}: " + ", ".join(f"{p['bias']:+g}: {p[f'jod_{m}']:.2f}" for p in points))
+                if judge.foveated and p["setting"] in ("bias +0", "C=1"):
+                    p[f"jod_{m}_off"] = judge.jod(reference_rgb, images[name, p["setting"]], off_fixation)
+            progress(f"{m} {name}: " + ", ".join(f"{p['setting']}: {p[f'jod_{m}']:.2f}" for p in pts))
         seconds[m] = float(np.median(seconds[m])) if seconds[m] else float("nan")
     report = {"display": dataclasses.asdict(geometry), "px_per_deg": geometry.px_per_deg,
               "fixation_px": fixation.tolist(), "off_fixation_deg": float(off_fixation_deg),
@@ -499,8 +518,8 @@ def compare_at_equal_time(curves: dict, key: str = "jod_fvvdp", x: str = "frame_
     interpolated (linearly in log cost, each curve's points sorted by cost)
     at c; a point outside a curve's cost range does not count for that
     curve. Returns {curve name: [{bias, <x>, jod, geometric_jod,
-    geometric_mode, margin}]} for the curves of :data:`CSF_BASED` and the
-    CSF forms (``csf[...]``); margin = jod − geometric_jod (JOD; positive:
+    geometric_mode, margin}]} for the curves of :data:`CSF_BASED`, the
+    CSF forms (``csf[...]``) and :data:`IMAGE_SIDE`; margin = jod − geometric_jod (JOD; positive:
     the CSF-based point is above), None where no geometric curve spans c.
     """
     if x not in ("frame_ms", "triangles"):
@@ -508,12 +527,14 @@ def compare_at_equal_time(curves: dict, key: str = "jod_fvvdp", x: str = "frame_
     geometric = {n: sorted(((p[x], p[key]) for p in pts)) for n, pts in curves.items() if n in GEOMETRIC}
     out = {}
     for name, pts in curves.items():
-        if name.split("[")[0] not in CSF_BASED:
+        if name.split("[")[0] not in CSF_BASED + IMAGE_SIDE:
             continue
         rows = []
         for p in pts:
             best, best_mode = None, None
             for g, gp in geometric.items():
+                if p[x] is None:
+                    break
                 t = np.log([q[0] for q in gp])
                 c = math.log(p[x])
                 if len(gp) < 2 or not (t[0] <= c <= t[-1]):
@@ -521,7 +542,8 @@ def compare_at_equal_time(curves: dict, key: str = "jod_fvvdp", x: str = "frame_
                 j = float(np.interp(c, t, [q[1] for q in gp]))
                 if best is None or j > best:
                     best, best_mode = j, g
-            rows.append({"bias": p["bias"], x: p[x], "jod": p[key], "geometric_jod": best,
+            rows.append({"bias": p["bias"], "setting": p.get("setting", f"bias {p['bias']:+g}"), x: p[x],
+                         "jod": p[key], "geometric_jod": best,
                          "geometric_mode": best_mode, "margin": None if best is None else p[key] - best})
         out[name] = rows
     return out
@@ -530,7 +552,7 @@ def compare_at_equal_time(curves: dict, key: str = "jod_fvvdp", x: str = "frame_
 def jod_table(report: dict) -> str:
     """The report as text: one line per curve point, then the comparisons at equal frame time and triangles."""
     metrics = report["metrics"]
-    head = f"{'curve':16s} {'bias':>5s} {'triangles':>9s} {'frame ms':>9s} " + " ".join(
+    head = f"{'curve':16s} {'setting':>8s} {'triangles':>9s} {'frame ms':>9s} " + " ".join(
         f"{'JOD ' + m + (' (fov)' if report['foveated'][m] else ''):>15s}" for m in metrics)
     lines = [f"display {report['display']['width_m'] * 1000:.0f}x{report['display']['height_m'] * 1000:.0f} mm at "
              f"{report['display']['distance_m'] * 1000:.0f} mm, {report['px_per_deg']:.1f} px/deg, fixation "
@@ -539,7 +561,8 @@ def jod_table(report: dict) -> str:
     for name, pts in report["curves"].items():
         for p in pts:
             off = [f"{p[f'jod_{m}_off']:.3f}" for m in metrics if f"jod_{m}_off" in p]
-            lines.append(f"{name:16s} {p['bias']:+5.1f} {p['triangles']:9d} {p['frame_ms']:9.1f} "
+            tri = "rays" if p["triangles"] is None else f"{p['triangles']:d}"
+            lines.append(f"{name:16s} {p['setting']:>8s} {tri:>9s} {p['frame_ms']:9.1f} "
                          + " ".join(f"{p[f'jod_{m}']:15.3f}" for m in metrics)
                          + (f"   (fixating {report['off_fixation_deg']:g}° left of the POI: {off[0]})" if off else ""))
     for m in metrics:
@@ -547,7 +570,7 @@ def jod_table(report: dict) -> str:
             lines.append(f"{m}: CSF-based point − best geometric curve at the same {what} (JOD):")
             for name, rows in report["comparison"][m][x].items():
                 lines.append(f"  {name:14s} " + "  ".join(
-                    f"{r['bias']:+g}: " + ("outside" if r["margin"] is None
+                    f"{r['setting']}: " + ("outside" if r["margin"] is None
                                            else f"{r['margin']:+.3f} ({r['geometric_mode']})") for r in rows))
     return "\n".join(lines)
 
@@ -568,13 +591,17 @@ def jod_chart(report: dict, path) -> None:
                                            ("triangles", "triangles (log)"))):
             ax = axs[row, col]
             for i, name in enumerate(names):
-                pts = sorted(report["curves"][name], key=lambda p: p[x])
+                pts = sorted((p for p in report["curves"][name] if p[x] is not None), key=lambda p: p[x])
+                if not pts:
+                    continue
                 base = name.split("[")[0]
+                if base in IMAGE_SIDE:
+                    base = "csf"           # drawn as the CSF-based curves
                 style = "-" if base in CSF_BASED and "[" not in name else ("--" if "[" in name else ":")
                 ax.plot([p[x] for p in pts], [p[f"jod_{m}"] for p in pts], "o" + style, color=cmap(i % 10),
                         label=name + (" (CSF)" if base in CSF_BASED else ""), ms=4,
                         lw=2 if base in CSF_BASED and "[" not in name else 1.2)
-                zero = [p for p in pts if p["bias"] == 0.0]
+                zero = [p for p in pts if p.get("setting") in ("bias +0", "C=1")]
                 if zero:
                     ax.plot(zero[0][x], zero[0][f"jod_{m}"], "s", color=cmap(i % 10), ms=9, mfc="none")
             ax.axvline(report["full"][x], color="k", lw=1, ls="--", label="full (JOD 10)")
@@ -594,6 +621,62 @@ def jod_chart(report: dict, path) -> None:
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+class _ImageSide:
+    """The image-side techniques at the bench's default view, one steady frame each: (image, stats).
+
+    ``raymask``: :class:`headplod.render.raymask.RayMaskRenderer` with
+    :class:`headplod.plod.raymask.RayMaskConfig` at a mask contrast; its
+    frame is the mask (reused for the still view, as ``bench plod``'s
+    raymask part counts it: the second frame's) + cast, classify and
+    rasterise. ``csf+foveate``: ``csf`` at a level bias drawn by
+    :class:`headplod.render.foveate.FoveatedRenderer`; select + build +
+    the layers' render (the steady second frame).
+    """
+
+    def __init__(self, bench):
+        from ..render.foveate import FoveatedRenderer
+        from ..render.raymask import RayMaskRenderer
+
+        self.b = bench
+        r = bench.renderer
+        self.size = tuple(r.size)
+        self.rays = RayMaskRenderer(r.ctx, bench.scene.mesh, size=self.size, background=r.background)
+        self.fov = FoveatedRenderer(r)
+        self.poi_image = bench.poi * np.array(self.size) / np.array(bench.screen.size_px)
+
+    def frame(self, name, bias, contrast=1.0):
+        b = self.b
+        if name == "raymask":
+            from ..plod.raymask import RayMaskConfig
+
+            cfg = RayMaskConfig(contrast=contrast)
+            for _ in range(2):
+                mask = self.rays.mask(b.screen, b.head, b.poi, b.px_per_deg, b.cov, cfg)
+                image = self.rays.render(mask, b.view_m, b.proj, b.scene.model, cfg)
+            st = self.rays.last_stats
+            return image, {"triangles": None, "render_ms": st["render_ms"],
+                           "frame_ms": self.rays.last_mask_ms + st["render_ms"]}
+        from ..plod.select import View
+
+        selector = b.scene.selector("csf", "adaptive", level_bias=bias)
+        b.scene.mesh.clear()
+        for k in range(2):
+            t0 = time.perf_counter()
+            levels, _ = selector.select(View(b.head, b.poi, b.cov, k / 60))
+            t1 = time.perf_counter()
+            positions, normals, tri_levels = b.scene.mesh.update(levels)
+            t2 = time.perf_counter()
+            b.renderer.upload(positions, normals, tri_levels)
+            image = self.fov.render(b.view_m, b.proj, b.scene.model, self.poi_image, b.px_per_deg, b.cov)
+        return image, {"triangles": int(len(tri_levels)), "render_ms": self.fov.last_render_ms,
+                       "frame_ms": (t1 - t0) * 1e3 + (t2 - t1) * 1e3 + self.fov.last_render_ms}
+
+    def release(self):
+        for obj in (self.fov, self.rays):
+            if hasattr(obj, "release"):
+                obj.release()
 
 
 def write_heatmaps(bench, out_dir, modes=("csf", "sse"), settings: JudgeSettings = JudgeSettings()) -> dict:
