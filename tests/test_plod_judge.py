@@ -174,3 +174,23 @@ def test_plod_vdp_alone_refuses_a_missing_or_unknown_metric(monkeypatch, capsys)
     assert "pip install -e '.[vdp]'" in capsys.readouterr().err
     monkeypatch.setattr(plod_vdp, "vdp_available", lambda metric="fvvdp": True)
     assert plod_vdp.main(["--metrics", "psnr"]) == 2
+
+
+def test_ray_mask_points_have_no_triangles_and_are_compared_by_time_only(tmp_path):
+    def pt(setting, tris, ms, jod, bias=0.0):
+        return {"bias": bias, "setting": setting, "triangles": tris, "frame_ms": ms, "jod_fvvdp": jod}
+
+    curves = {"sse": [pt("bias -1", 1e4, 10.0, 8.0, -1.0), pt("bias +0", 1e5, 100.0, 9.0)],
+              "raymask": [pt("C=1", None, 20.0, 9.5, float("nan"))]}
+    by_time = pj.compare_at_equal_time(curves, x="frame_ms")["raymask"][0]
+    assert by_time["setting"] == "C=1" and by_time["margin"] == pytest.approx(9.5 - 8.0 - math.log10(2.0))
+    assert pj.compare_at_equal_time(curves, x="triangles")["raymask"][0]["margin"] is None
+    report = {"metrics": ["fvvdp"], "foveated": {"fvvdp": True}, "curves": curves, "px_per_deg": 25.2,
+              "display": {"width_m": 0.53, "height_m": 0.3, "distance_m": 0.6}, "fixation_px": [639.5, 359.5],
+              "full": {"frame_ms": 200.0, "triangles": 2e6}, "seconds": {"fvvdp": 1.0},
+              "settings": {"peak_luminance_cd_m2": 200.0}, "off_fixation_deg": 10.0,
+              "comparison": {"fvvdp": {x: pj.compare_at_equal_time(curves, x=x) for x in ("frame_ms", "triangles")}}}
+    table = pj.jod_table(report)
+    assert "raymask" in table and "rays" in table and "C=1: +" in table
+    pj.jod_chart(report, tmp_path / "jod.png")
+    assert (tmp_path / "jod.png").stat().st_size > 10000

@@ -561,7 +561,7 @@ def jod_table(report: dict) -> str:
     for name, pts in report["curves"].items():
         for p in pts:
             off = [f"{p[f'jod_{m}_off']:.3f}" for m in metrics if f"jod_{m}_off" in p]
-            tri = "rays" if p["triangles"] is None else f"{p['triangles']:d}"
+            tri = "rays" if p["triangles"] is None else f"{int(p['triangles']):d}"
             lines.append(f"{name:16s} {p['setting']:>8s} {tri:>9s} {p['frame_ms']:9.1f} "
                          + " ".join(f"{p[f'jod_{m}']:15.3f}" for m in metrics)
                          + (f"   (fixating {report['off_fixation_deg']:g}° left of the POI: {off[0]})" if off else ""))
