@@ -20,12 +20,17 @@ it one JOD of preference):
   declares the two operator schemas torchvision's import registers
   (``nms``, ``qnms``: unused by the metric) so the import succeeds.
 
-``headplod bench plod --vdp`` runs it after the benchmark;
-``python -m headplod.bench.plod_vdp --modes csf,sse`` runs it alone on a
-few modes. Both are an optional extra (``pip install -e '.[vdp]'``: PyTorch, CPU build
-where the index offers it). Without it :func:`vdp_available` is False and
-``headplod bench plod`` runs as before; the geometry and fixation helpers
-here need only numpy.
+What is judged (:func:`jod_report`): every selector mode and every other
+CSF form of ``csf``, each over a level bias, and the image-side techniques
+(``raymask`` over its mask contrast, ``csf`` drawn as foveated layers), each
+point's JOD against its frame time and its triangle count; then each
+CSF-based point against the best geometric curve at the same cost
+(:func:`compare_at_equal_time`). ``headplod bench plod --vdp`` runs it after
+the benchmark; ``python -m headplod.bench.plod_vdp --modes csf,sse`` runs it
+alone on a few modes. The metrics are an optional extra (``pip install -e
+'.[vdp]'``: PyTorch, its CPU build where the index offers it). Without it
+:func:`vdp_available` is False and ``headplod bench plod`` runs as before;
+the geometry, fixation and comparison need only numpy.
 
 The geometry follows the metrics' model: the image fills the display, whose
 physical width and height are the screen's (``calib/screen.yaml``'s
