@@ -581,7 +581,7 @@ def jod_table(report: dict) -> str:
 
 
 def jod_chart(report: dict, path) -> None:
-    """JOD against frame time (top) and triangles (bottom), one column per metric; square: bias 0."""
+    """JOD against frame time (top) and triangles (bottom), one column per metric; square: bias 0 (raymask: C=1)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -590,7 +590,7 @@ def jod_chart(report: dict, path) -> None:
     metrics = report["metrics"]
     fig, axs = plt.subplots(2, len(metrics), figsize=(8 * len(metrics), 12), squeeze=False)
     names = list(report["curves"])
-    cmap = plt.cm.tab10
+    palette = [plt.cm.tab10(i) for i in range(10)] + ["black", "darkgoldenrod", "magenta", "teal"]
     for col, m in enumerate(metrics):
         for row, (x, xlabel) in enumerate((("frame_ms", "frame time: select + build + render (ms, log)"),
                                            ("triangles", "triangles (log)"))):
@@ -603,12 +603,14 @@ def jod_chart(report: dict, path) -> None:
                 if base in IMAGE_SIDE:
                     base = "csf"           # drawn as the CSF-based curves
                 style = "-" if base in CSF_BASED and "[" not in name else ("--" if "[" in name else ":")
-                ax.plot([p[x] for p in pts], [p[f"jod_{m}"] for p in pts], "o" + style, color=cmap(i % 10),
+                color = palette[i % len(palette)]
+                marker = {"raymask": "D", "csf+foveate": "^"}.get(name, "o")
+                ax.plot([p[x] for p in pts], [p[f"jod_{m}"] for p in pts], marker + style, color=color,
                         label=name + (" (CSF)" if base in CSF_BASED else ""), ms=4,
                         lw=2 if base in CSF_BASED and "[" not in name else 1.2)
                 zero = [p for p in pts if p.get("setting") in ("bias +0", "C=1")]
                 if zero:
-                    ax.plot(zero[0][x], zero[0][f"jod_{m}"], "s", color=cmap(i % 10), ms=9, mfc="none")
+                    ax.plot(zero[0][x], zero[0][f"jod_{m}"], "s", color=color, ms=9, mfc="none")
             ax.axvline(report["full"][x], color="k", lw=1, ls="--", label="full (JOD 10)")
             ax.set_xscale("log")
             ax.set_xlabel(xlabel)
@@ -621,7 +623,8 @@ def jod_chart(report: dict, path) -> None:
     fig.suptitle(f"PLOD modes, level bias −1.5 … +1 (square: 0), judged at 1280x720 on a "
                  f"{d['width_m'] * 1000:.0f}x{d['height_m'] * 1000:.0f} mm screen from {d['distance_m'] * 1000:.0f} mm "
                  f"({report['px_per_deg']:.1f} px/deg), {report['settings']['peak_luminance_cd_m2']:g} cd/m²\n"
-                 f"solid: CSF-based modes, dotted: geometric modes, dashed: csf with other CSF forms", fontsize=10)
+                 f"solid: CSF-based (raymask: diamonds over its mask contrast 1, 0.3, 0.1; csf+foveate: triangles), "
+                 f"dotted: geometric modes, dashed: csf with other CSF forms", fontsize=10)
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
