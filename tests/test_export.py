@@ -4,6 +4,8 @@ trimesh reads the files back; the checks are its own: one consistently
 wound, crack-free disk (Euler number 1, boundary edges only on the
 terrain's outer border) whose faces carry their level's colour.
 """
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -67,3 +69,24 @@ def test_bad_export_paths_are_refused_before_any_work(tmp_path, name, message):
     out = tmp_path / "frame.png"
     assert cli_main(["render", "--out", str(out), "--export", str(tmp_path / name), "--size", "64,36"]) == 2
     assert not out.exists()                                                     # nothing rendered
+
+
+@pytest.mark.usefixtures("gl_context")
+def test_rendered_frame_exports_a_crack_free_mesh_with_the_stats_triangle_count(tmp_path, ending=".glb"):
+    """``headplod render --export`` end to end on the built-in scene: trimesh reloads the file with as many
+    faces as the stats report. The terrain is an open sheet, so trimesh's ``is_watertight`` (closed) is
+    False by construction; watertight here means no cracks: after welding, every edge inside is shared by
+    exactly two faces and the open edges lie only on the terrain's border (``_conforming_disk``). glTF here
+    (float32 vertices); tests/test_terrain_files.py does the same with PLY for a ``--terrain`` file."""
+    mesh, stats = tmp_path / f"frame{ending}", tmp_path / "frame.json"
+    assert cli_main(["render", "--out", str(tmp_path / "frame.png"), "--stats", str(stats), "--export", str(mesh),
+                     "--size", "160,90", "--cov", "1,0,1"]) == 0
+    s = json.loads(stats.read_text())
+    loaded = trimesh.load(mesh, force="mesh")
+    assert len(loaded.faces) == s["triangles"] > 2048
+    x0, x1, y0, y1 = Terrain.jacksboro(detail=False).extent
+    _conforming_disk(loaded, ((x0, y0), (x1, y1)))
+    welded = loaded.copy()
+    welded.merge_vertices()
+    _, counts = np.unique(welded.edges_sorted, axis=0, return_counts=True)
+    assert set(counts.tolist()) <= {1, 2}

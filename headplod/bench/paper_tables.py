@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from ..demo import loop as lp
+from .image_metrics import disc_mask, psnr_db
 from ..demo.viewpoints import VIEWPOINTS
 from ..progress import Progress
 from ..render.context import create_context
@@ -221,14 +222,8 @@ def level_statistics(levels: np.ndarray, warmup: int, window: int = FLICKER_FRAM
 
 
 def disc_psnr_db(image: np.ndarray, reference: np.ndarray, centre_px, radius_px: float) -> float:
-    """PSNR (dB, 8-bit peak) of ``image`` against ``reference`` (H, W, 3) within a disc (image px)."""
-    h, w = reference.shape[:2]
-    yy, xx = np.ogrid[:h, :w]
-    mask = (xx - centre_px[0]) ** 2 + (yy - centre_px[1]) ** 2 <= radius_px ** 2
-    if not mask.any():
-        return float("nan")
-    mse = float(np.mean((image[mask].astype(np.float64) - reference[mask]) ** 2))
-    return float("inf") if mse == 0 else 10.0 * math.log10(255.0 ** 2 / mse)
+    """PSNR (dB, 8-bit peak) of ``image`` against ``reference`` (H, W, 3) within a disc (image px); NaN if empty."""
+    return psnr_db(image, reference, disc_mask(reference.shape, centre_px, radius_px))
 
 
 def _run_group(scene, poses, screen, viewpoint, renderers, config: PaperTablesConfig, progress) -> list:

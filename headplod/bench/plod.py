@@ -25,8 +25,24 @@ render of the same view:
 5. **Stability.** A still head through the real tracker on noisy synthetic
    frames: level changes per frame after the first 10, per uncertainty mode
    (:mod:`headplod.bench.stability`).
+6. **Foveated layers** (``--foveate``, :mod:`headplod.bench.plod_foveate`):
+   per viewpoint, ``full``, ``csf`` and ``csf --foveate`` in the demo's
+   loop, interleaved on the same tracked poses; the luminance profile
+   across each layer border against ``full``'s; PSNR and FLIP; a picture of
+   the layers and the POI's 2σ ellipse per viewpoint.
+7. **Ray mask** (``raymask``, :mod:`headplod.bench.plod_raymask`): per
+   viewpoint, ``full``, ``csf`` and Murphy & Duchowski's hybrid, silhouettes
+   on and off, in alternation; PSNR, FLIP, the sky silhouette's largest
+   displacement against ``full``'s; the inset-size sweep; a picture of the
+   mask per viewpoint.
+8. **Perceptual judge** (``--vdp``, the optional extra ``.[vdp]``): JOD
+   against frame time per mode and CSF form, FovVideoVDP foveated on the POI
+   on the screen's real size and distance (:mod:`headplod.bench.plod_judge`).
 
-Writes JSON, a 2x3 chart and the level-colour pictures beside the chart.
+Writes JSON, a 2x3 chart and the level-colour pictures beside the chart,
+and parts 6 and 7's charts and pictures beside it (``foveate_*.png``,
+``plod_raymask.png``, ``raymask_*.png``); with ``--vdp`` also ``plod_jod.png``
+and ``plod_jod_heatmap_{csf,sse}.png``.
 """
 from __future__ import annotations
 
@@ -36,12 +52,12 @@ import time
 from pathlib import Path
 
 import cv2
-import flip_evaluator
 import numpy as np
 
 from calib import DEFAULT_SCREEN
 
 from . import stability as still_head
+from .image_metrics import flip_error, psnr_db
 from .. import io
 from ..plod import perception as pc
 from ..plod.csf import CSF_MODELS
@@ -57,25 +73,6 @@ BIASES = (-1.5, -1.0, -0.5, 0.0, 0.5, 1.0)
 SWEEP_MODES = ("sse", "ipv", "dpv", "csf")
 SWEEP_SPEEDS_DEG_S = (0.0, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0)
 ELLIPSE_SIGMA_DEG = (1.5, 3.0)      # (φ, θ)
-
-
-def psnr_db(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """PSNR (dB) of two 8-bit images, optionally over a boolean mask (H, W); inf when identical."""
-    diff = a.astype(np.float64) - b.astype(np.float64)
-    if mask is not None:
-        diff = diff[mask]
-    mse = float(np.mean(diff ** 2))
-    return float("inf") if mse == 0 else 10 * np.log10(255.0 ** 2 / mse)
-
-
-def flip_error(reference: np.ndarray, test: np.ndarray, px_per_deg: float) -> float:
-    """Mean FLIP error (0 identical … 1) of two 8-bit sRGB images (H, W, 3) seen at ``px_per_deg``."""
-    if np.array_equal(reference, test):
-        return 0.0
-    ref = reference.astype(np.float32) / 255.0
-    tst = test.astype(np.float32) / 255.0
-    _, mean, _ = flip_evaluator.evaluate(ref, tst, "LDR", applyMagma=False, parameters={"ppd": float(px_per_deg)})
-    return float(mean)
 
 
 class _Bench:
@@ -298,7 +295,14 @@ def stability(b: _Bench, frames: int) -> dict | None:
     return out
 
 
-def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool = False) -> int:
+def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool = False, vdp=()) -> int:
+    if vdp:   # --vdp: the perceptual judge (headplod.bench.plod_judge); checked before the long run
+        from . import plod_judge
+        for metric in vdp:
+            if metric not in plod_judge.METRICS or not plod_judge.vdp_available(metric):
+                print(f"bench plod: --vdp {metric}: not one of {plod_judge.METRICS} installed; "
+                      f"pip install -e '.[vdp]'", file=sys.stderr)
+                return 2
     b = _Bench(frames=frames)
     results, images = measure_modes(b)
     curves = quality_curves(b, images["full"], biases=(-1.0, 0.0, 1.0) if quick else BIASES)
@@ -346,12 +350,38 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
         worst = max(stable["fixed"]["mean_changes"], stable["smoothed"]["mean_changes"])  # with hysteresis
         goals.append({"goal": "still head through the tracker: fixed and smoothed reach zero level changes",
                       "value": worst, "met": bool(worst == 0)})
+    fov, ray = image_side_parts(out_dir, quick)
+    for vp, r in fov["speed"].items():
+        lines.append(f"foveate {vp}: full {r['full_ms']:.0f} ms, csf {r['plain_ms']:.1f} ms "
+                     f"({r['plain_ratio']:.1f}x), csf --foveate {r['foveate_ms']:.1f} ms ({r['foveate_ratio']:.1f}x)")
+        goals.append({"goal": f"csf --foveate ≥ 5x faster than full on {vp} (demo loop, interleaved)",
+                      "value": r["foveate_ratio"], "met": bool(r["foveate_ratio"] >= 5)})
+    worst_seam = max(abs(b["step_vs_full"]["foveate"]) for borders in fov["seams"].values() for b in borders)
+    goals.append({"goal": "foveation seams: no luminance step at a layer border beyond full's there "
+                          "(largest |step - full's step|, fraction of white; ≤ 0.5%)",
+                  "value": worst_seam, "met": bool(worst_seam <= 0.005)})
+    for vp, modes in ray["viewpoints"].items():
+        r, off = modes["raymask[C=1]"], modes["raymask[C=1,no-silhouettes]"]
+        lines.append(f"raymask {vp}: {r['frame_ms']:.0f} ms ({r['speedup_over_full']:.2f}x full), "
+                     f"PSNR 5° {r['psnr_disc_5deg_db']:.1f} dB, silhouette {r['silhouette']['max_px']:.1f} px "
+                     f"({off['silhouette']['max_px']:.1f} px without preservation)")
+        goals.append({"goal": f"raymask ≥ 5x faster than full on {vp}", "value": r["speedup_over_full"],
+                      "met": bool(r["speedup_over_full"] >= 5)})
+        goals.append({"goal": f"raymask silhouette within 1 px of full's on {vp} (preservation on)",
+                      "value": r["silhouette"]["max_px"], "met": bool(r["silhouette"]["max_px"] <= 1.0)})
     lines.append("")
     for g in goals:
         lines.append(f"  [{'met' if g['met'] else 'NOT MET'}] {g['goal']}: {g['value']:.3g}")
     print("\n".join(lines))
     report = {"size": SIZE, "px_per_deg": b.px_per_deg, "modes": results, "curves": curves, "velocity_sweep": sweep,
-              "ellipse": ellipse, "stability": stable, "goals": goals}
+              "ellipse": ellipse, "stability": stable, "foveate": fov, "raymask": ray, "goals": goals}
+    if vdp:   # --vdp: JOD against frame time per mode and CSF form (plod_judge), its table and chart
+        report["jod"] = plod_judge.jod_report(b, images["full"], biases=(-1.0, 0.0, 1.0) if quick else BIASES,
+                                              metrics=vdp, image_side=True, progress=_progress)
+        print(plod_judge.jod_table(report["jod"]))
+        if chart_path:
+            plod_judge.jod_chart(report["jod"], Path(chart_path).parent / "plod_jod.png")
+            report["jod"]["heatmap_jod"] = plod_judge.write_heatmaps(b, Path(chart_path).parent)
     if json_path:
         Path(json_path).parent.mkdir(parents=True, exist_ok=True)
         Path(json_path).write_text(json.dumps(report, indent=2, default=float))
@@ -361,6 +391,30 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
             _write_png(Path(chart_path).parent / f"plod_{mode}.png", images[mode])
         print(f"chart: {chart_path}; pictures: {Path(chart_path).parent}/plod_*.png", file=sys.stderr)
     return 0
+
+
+def image_side_parts(out_dir, quick: bool = False) -> tuple[dict, dict]:
+    """Parts 6 and 7: the foveated layers and the ray mask; their summaries, charts and pictures in ``out_dir``.
+
+    Without ``out_dir`` (no ``--chart``) the pictures go to a temporary folder
+    and are dropped.
+    """
+    import tempfile
+
+    from . import plod_foveate, plod_raymask
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(out_dir) if out_dir else Path(tmp)
+        _progress("foveated layers (demo loop, three viewpoints)")
+        fov = plod_foveate.run(folder, frames=8 if quick else 20, progress=_progress)
+        _progress("ray mask (three viewpoints, inset sweep)")
+        if quick:
+            ray = plod_raymask.raymask_report(rounds=1, contrasts=(1.0,), insets_deg=(5.0,), sweep_contrasts=(1.0,),
+                                              flip=False, picture_dir=folder)
+        else:
+            ray = plod_raymask.raymask_report(picture_dir=folder)
+        plod_raymask.chart_raymask(ray, folder / "plod_raymask.png")
+    return fov, ray
 
 
 def _chart(report, path):

@@ -46,7 +46,7 @@ from ..render import TerrainRenderer, create_context, off_axis_projection
 from ..render.raymask import RayMaskRenderer
 from ..render.still import TerrainScene, default_head, px_per_deg_at
 from ..demo.viewpoints import place, viewpoint_names
-from .plod import flip_error, psnr_db
+from .image_metrics import flip_error, psnr_db
 
 __all__ = ["raymask_report", "silhouette_displacement_px", "chart_raymask", "raymask_picture"]
 

@@ -1,7 +1,8 @@
 """``headplod demo``: the head-coupled PLOD terrain viewer, in a window or headless.
 
     headplod demo [--source SPEC | --mouse] [--mode csf] [--uncertainty adaptive] [--viewpoint overview]
-    headplod demo --headless [--frames N] [--out DIR] [--size W,H] [--source SPEC | --mouse]
+    headplod demo --headless [--frames N] [--out DIR] [--size W,H] [--source SPEC | --mouse] [--foveate]
+    headplod demo ... --terrain FILE [--spacing-m D] [--height-scale S]     (your own DEM or height map)
 
 Headless, the same loop as the window runs offscreen: for each named
 viewpoint, the PLOD criterion (``--mode``, default csf) under each
@@ -9,7 +10,9 @@ uncertainty scenario, then ``full`` (every triangle at the finest level), each
 for N frames of the same poses; it writes a few frames per run, a level-colour
 picture per viewpoint with the POI and its 2σ ellipse, ``summary.json`` and
 ``summary.png``, and prints a table with each run's frame rate against
-``full``'s on the same viewpoint.
+``full``'s on the same viewpoint. With ``--foveate`` the mode's runs are
+repeated with foveated resolution layers (:mod:`headplod.render.foveate`),
+interleaved with the others, and a picture per viewpoint shows the layers.
 
 Also runnable as ``python -m headplod.demo.cli``.
 """
@@ -25,10 +28,10 @@ import cv2
 import numpy as np
 
 from .. import io
-from ..plod.select import MODES
+from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..progress import Progress
 from ..render import TerrainRenderer, create_context
-from ..render.still import TerrainScene
+from ..render.still import RENDER_MODES, TerrainScene
 from . import loop as lp
 from .keys import key_help
 from .poses import make_poses
@@ -91,18 +94,22 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     src.add_argument("--growth", type=float, default=lp.GROWTH_DEG2_PER_S, metavar="DEG2_PER_S",
                      help=f"covariance growth while tracking is lost, deg²/s (default {lp.GROWTH_DEG2_PER_S:g})")
     view = parser.add_argument_group("view")
-    view.add_argument("--mode", default="csf", choices=MODES,
+    view.add_argument("--mode", default="csf", choices=RENDER_MODES,
                       help="LOD criterion (window: the initial one; headless: the one compared with full)")
     view.add_argument("--uncertainty", default="adaptive", choices=lp.SCENARIOS,
                       help="uncertainty scenario (window: initial; default adaptive)")
     view.add_argument("--viewpoint", default="overview", choices=tuple(VIEWPOINTS),
                       help="initial viewpoint of the window: " + "; ".join(
                           f"{v.name}: {v.description}" for v in VIEWPOINTS.values()))
+    view.add_argument("--foveate", action="store_true",
+                      help="draw foveated resolution layers about the filtered POI (window: on; headless: "
+                           "the mode's runs again with them, against full and the plain runs)")
     view.add_argument("--view", default="shaded", choices=lp.VIEW_MODES, help="initial view (window)")
     view.add_argument("--size", type=_size, default=(1280, 720), metavar="W,H",
                       help="render size, px (default 1280,720)")
     view.add_argument("--saccade-deg-s", type=float, default=lp.SACCADE_DEG_S,
                       help=f"POI speed above which levels are kept (default {lp.SACCADE_DEG_S:g} deg/s, Ohshima)")
+    add_terrain_arguments(parser.add_argument_group("terrain"))
     head = parser.add_argument_group("headless run")
     head.add_argument("--headless", action="store_true", help="run offscreen and write frames and a summary")
     head.add_argument("--frames", type=int, default=30, help="frames per run (default 30)")
@@ -156,7 +163,7 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
     first.close()
     if scene is None:
         print(f"demo: building the terrain mesh; poses from {source_name}", file=err)
-    scene = scene or TerrainScene.build(screen)
+    scene = scene or TerrainScene.build(screen, terrain=getattr(args, "terrain_loaded", None))
     if renderer is None:
         renderer = TerrainRenderer(create_context(), size=tuple(args.size))
     elif tuple(renderer.size) != tuple(args.size):
@@ -165,9 +172,11 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
     # tracked sequence: the same poses for all, and the speed ratios measured back to back.
     groups = []
     for vp in args.viewpoints:
-        plan = [(vp, args.mode, sc) for sc in args.scenarios]
+        plan = [(vp, args.mode, sc, False) for sc in args.scenarios]
+        if getattr(args, "foveate", False):
+            plan += [(vp, args.mode, sc, True) for sc in args.scenarios]
         if not args.no_full and args.mode != "full":
-            plan.append((vp, "full", "none"))
+            plan.append((vp, "full", "none", False))
         groups.append(plan)
     # One renderer per run of a group: each keeps its mesh on the GPU between its frames.
     renderers = [renderer] + [TerrainRenderer(renderer.ctx, size=tuple(args.size))
@@ -179,14 +188,15 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
         for plan in groups:
             tee = lp.TeePoses(make_poses(args, screen=screen, frames=args.frames), len(plan))
             demos, written = [], []
-            for k, (vp, mode, scenario) in enumerate(plan):
+            for k, (vp, mode, scenario, foveate) in enumerate(plan):
                 demos.append(lp.DemoLoop(scene, tee.consumer(k), renderers[k], mode=mode, uncertainty=scenario,
                                          viewpoint=vp, view_mode="shaded", hud=True,
-                                         saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth))
+                                         saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth,
+                                         foveate=foveate))
                 written.append([])
             try:
                 for k, result in _interleaved(demos, args.frames):
-                    stem = "_".join(plan[k])
+                    stem = "_".join(plan[k][:3]) + ("_foveate" if plan[k][3] else "")
                     if result.index in keep:
                         path = folder / "frames" / f"{stem}_{result.index:03d}.png"
                         cv2.imwrite(str(path), cv2.cvtColor(result.image, cv2.COLOR_RGB2BGR))
@@ -194,11 +204,17 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
                     progress.step(f"{stem} {result.frame_ms:.0f} ms")
             finally:
                 tee.close()
-            for k, (vp, mode, scenario) in enumerate(plan):
+            for k, (vp, mode, scenario, foveate) in enumerate(plan):
                 demo = demos[k]
                 if demo.last is None:
                     raise RuntimeError(f"the pose source gave no frame ({source_name})")
-                if mode == args.mode and (scenario == "adaptive" or vp not in pictures):
+                if foveate and (scenario == "adaptive" or f"{vp} foveate" not in pictures):
+                    path = folder / f"viewpoint_{vp}_layers.png"
+                    caption = (f"{vp}: {mode} --foveate, {scenario}, level colours; layer borders (scale), "
+                               "POI and 2-sigma ellipse")
+                    cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
+                    pictures[f"{vp} foveate"] = str(path)
+                if mode == args.mode and not foveate and (scenario == "adaptive" or vp not in pictures):
                     pose = demo.last.pose
                     sigma = np.sqrt(np.max(np.diag(pose.cov_deg2))) if pose.cov_deg2 is not None else 0
                     caption = (f"{vp}: {mode}, {scenario}, level colours; POI and 2-sigma ellipse "
@@ -207,7 +223,8 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
                     cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
                     pictures[vp] = str(path)
                 s = demo.stats
-                runs.append({"viewpoint": vp, "mode": mode, "uncertainty": scenario, **s.summary(),
+                runs.append({"viewpoint": vp, "mode": mode, "uncertainty": scenario, "foveate": foveate,
+                             **s.summary(),
                              "per_frame": {"frame_ms": [round(v, 3) for v in s.frame_ms],
                                            "triangles": [int(v) for v in s.triangles],
                                            "stage_ms": {name: [round(x, 3) for x in v]
@@ -221,14 +238,16 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
         full = next((r for r in runs if r["viewpoint"] == run["viewpoint"] and r["mode"] == "full"), None)
         run["fps_ratio_to_full"] = None if full is None or run is full else run["fps"] / full["fps"]
     for vp in args.viewpoints:
-        mine = [r for r in runs if r["viewpoint"] == vp and r["mode"] == args.mode]
         full = next((r for r in runs if r["viewpoint"] == vp and r["mode"] == "full"), None)
-        if mine and full is not None:
-            ref = next((r for r in mine if r["uncertainty"] == "adaptive"), mine[0])
-            ratios[vp] = {"mode": args.mode, "uncertainty": ref["uncertainty"], "fps": ref["fps"],
-                          "full_fps": full["fps"], "ratio": ref["fps"] / full["fps"],
-                          "ratio_range": [min(r["fps"] for r in mine) / full["fps"],
-                                          max(r["fps"] for r in mine) / full["fps"]]}
+        for foveate in (False, True):
+            mine = [r for r in runs if r["viewpoint"] == vp and r["mode"] == args.mode and r["foveate"] == foveate]
+            if mine and full is not None:
+                ref = next((r for r in mine if r["uncertainty"] == "adaptive"), mine[0])
+                ratios[vp + (" foveate" if foveate else "")] = {
+                    "mode": args.mode + (" --foveate" if foveate else ""), "uncertainty": ref["uncertainty"],
+                    "fps": ref["fps"], "full_fps": full["fps"], "ratio": ref["fps"] / full["fps"],
+                    "ratio_range": [min(r["fps"] for r in mine) / full["fps"],
+                                    max(r["fps"] for r in mine) / full["fps"]]}
     summary = {"size": list(args.size), "frames_per_run": args.frames, "poses": source_name,
                "mode": args.mode, "viewpoints": {vp: VIEWPOINTS[vp].description for vp in args.viewpoints},
                "fps_ratio_to_full": ratios, "pictures": pictures, "runs": runs,
@@ -257,7 +276,8 @@ def print_table(summary: dict, out=sys.stdout) -> None:
     for r in summary["runs"]:
         st = r["stage_ms_median"]
         ratio = "" if r["fps_ratio_to_full"] is None else f"{r['fps_ratio_to_full']:.1f}x"
-        print(f"{r['viewpoint']:<10} {r['mode']:<8} {r['uncertainty']:<9} {r['fps']:6.1f} {r['frame_ms_median']:9.1f} "
+        mode = r["mode"] + ("+fov" if r.get("foveate") else "")
+        print(f"{r['viewpoint']:<10} {mode:<8} {r['uncertainty']:<9} {r['fps']:6.1f} {r['frame_ms_median']:9.1f} "
               f"{st['select']:7.1f} {st['build']:6.1f} {st['render']:7.1f} {int(r['triangles_median']):>10,} "
               f"{ratio:>7} {r['saccade_skipped']:>7} {r['tracking_failures']:>5}", file=out)
     for vp, q in summary["fps_ratio_to_full"].items():
@@ -284,7 +304,7 @@ def write_chart(runs, viewpoints, path, title="") -> None:
     for j, vp in enumerate(viewpoints):
         for r in (r for r in runs if r["viewpoint"] == vp):
             full = r["mode"] == "full"
-            label = "full" if full else f"{r['mode']} {r['uncertainty']}"
+            label = "full" if full else f"{r['mode']}{' --foveate' if r.get('foveate') else ''} {r['uncertainty']}"
             kw = {"color": "black", "lw": 1.6} if full else {"ls": styles.get(r["uncertainty"], "-"), "lw": 1.2}
             x = np.arange(len(r["per_frame"]["frame_ms"]))
             axes[0, j].plot(x, r["per_frame"]["frame_ms"], label=label, **kw)
@@ -314,6 +334,13 @@ def run_demo(args) -> int:
     if args.frames < 1:
         print("headplod demo: --frames must be at least 1", file=sys.stderr)
         return 2
+    if args.mode == "raymask" and args.foveate:
+        print("headplod demo: --mode raymask draws its own falling resolution; drop --foveate", file=sys.stderr)
+        return 2
+    # The terrain file is read (and any problem reported) before anything is written; None: the built-in one.
+    args.terrain_loaded, status = terrain_for_command(args, "headplod demo")
+    if status is not None:
+        return status
     try:
         if args.headless:
             run_headless(args)

@@ -53,10 +53,12 @@ from calib import DEFAULT_SCREEN
 
 from .. import io
 from ..capture import open_source
-from ..plod.select import MODES, UNCERTAINTY_MODES, View
+from ..plod.select import UNCERTAINTY_MODES, View
 from ..render import TerrainRenderer, create_context, off_axis_projection
+from ..plod.raymask import RayMaskConfig
+from ..render.foveate import FoveatedRenderer, FoveationConfig, LayerAnchor, layer_plan
 from ..render.gl import VIEW_MODES as _GL_VIEW_MODES
-from ..render.still import px_per_deg_at, default_head
+from ..render.still import RENDER_MODES, px_per_deg_at, default_head
 from . import viewpoints as vps
 from .hud import HudInfo, draw_hud, draw_picture_overlay
 
@@ -621,7 +623,7 @@ class DemoLoop:
     size : (2,) int
         Image size (width, height), px, when the renderer is made here.
     mode, uncertainty, viewpoint, view_mode : str
-        Initial settings (``DEMO_MODES`` or any of ``select.MODES``,
+        Initial settings (``DEMO_MODES`` or any of ``render.still.RENDER_MODES``: ``raymask`` too,
         ``SCENARIOS``, ``viewpoints.VIEWPOINTS``, ``VIEW_MODES``).
     hud : bool
         Draw the heads-up display.
@@ -631,11 +633,19 @@ class DemoLoop:
         Covariance growth while tracking is lost (:class:`PoseHold`).
     selector_options : dict, optional
         Passed to every :class:`LevelSelector`.
+    foveate : bool
+        Draw the frame as foveated resolution layers (:mod:`headplod.render.foveate`)
+        centred on the selector's filtered POI, widened by the scenario's
+        covariance, both held by a :class:`LayerAnchor` (a still head: a
+        still frame). The renderer must have ``samples=0``.
+    foveation : FoveationConfig, optional
+        The layers' settings (default ``FoveationConfig()``).
     """
 
     def __init__(self, scene, poses: PoseSource, renderer=None, *, size=(1280, 720), mode="csf",
                  uncertainty="adaptive", viewpoint="overview", view_mode="shaded", hud=True,
-                 saccade_deg_s=SACCADE_DEG_S, growth_deg2_per_s=GROWTH_DEG2_PER_S, selector_options=None):
+                 saccade_deg_s=SACCADE_DEG_S, growth_deg2_per_s=GROWTH_DEG2_PER_S, selector_options=None,
+                 foveate=False, foveation: FoveationConfig | None = None):
         # Its own build state over the scene's shared tables: loops run side by side (the
         # headless demo interleaves them) each rebuild only what their own selection changes.
         self.base_scene = dataclasses.replace(scene, mesh=scene.mesh.share())
@@ -649,7 +659,13 @@ class DemoLoop:
         if renderer is None:
             renderer = TerrainRenderer(create_context(), size=tuple(int(v) for v in size))
         self.renderer = renderer
-        self._modes = MODES
+        self.foveation = foveation or FoveationConfig()
+        self.foveated = FoveatedRenderer(renderer, self.foveation) if foveate else None
+        self.anchor = LayerAnchor()
+        self._fovea_view = None            # (filtered POI screen px, covariance deg² or None) of the levels
+        self._modes = RENDER_MODES
+        self.raymask = RayMaskConfig()      # the settings of mode "raymask"
+        self._raymask_renderer = None
         self.settings = {}
         self.set("mode", mode)
         self.set("uncertainty", uncertainty)
@@ -715,11 +731,14 @@ class DemoLoop:
         key = (self.settings["viewpoint"], self.settings["mode"], self.settings["uncertainty"])
         sel = self._selectors.get(key)
         if sel is None:
-            sel = self._selectors[key] = self.scene.selector(key[1], key[2], **self.selector_options)
+            # raymask selects no levels: the csf selector gives it the filtered POI and the scenario's covariance.
+            criterion = "csf" if key[1] == "raymask" else key[1]
+            sel = self._selectors[key] = self.scene.selector(criterion, key[2], **self.selector_options)
         if key != self._active:
             sel.reset()                      # stale smoothing and hysteresis from its last use
             self._active = key
             self._levels = None              # a new criterion selects at once, saccade or not
+            self.anchor.reset()
         return sel
 
     # -- one frame ----------------------------------------------------------------
@@ -741,38 +760,89 @@ class DemoLoop:
         self._previous_poi = (pose.t, direction)
         skipped = self._levels is not None and speed > self.saccade_deg_s
         if not skipped:
-            self._levels, _ = selector.select(View(pose.eye_mm, pose.poi_px, pose.cov_deg2, pose.t))
+            self._levels, info = selector.select(View(pose.eye_mm, pose.poi_px, pose.cov_deg2, pose.t))
+            # The layers follow the POI the levels were chosen for (filtered), not the raw one.
+            self._fovea_view = (info.get("poi_px", pose.poi_px), info.get("cov_deg2", pose.cov_deg2))
         t2 = time.perf_counter()
         scene = self.scene
+        if self.settings["mode"] == "raymask":
+            image, stage, triangles = self._render_raymask(pose, scene)
+            stage = {"pose": (t1 - t0) * 1e3, "select": (t2 - t1) * 1e3 + stage["mask"], "build": 0.0,
+                     "upload": 0.0, "render": stage["render"], "readback": 0.0, "hud": 0.0}
+            return self._finish(FrameResult(self.index, pose.t, image, self._levels, triangles, stage,
+                                            (time.perf_counter() - t0) * 1e3, pose, bool(skipped), float(speed)),
+                                t0)
         mesh = scene.mesh
         indices, tri_levels = mesh.update_indices(self._levels)
         t3 = time.perf_counter()
-        if self.renderer.tag is not mesh.vertex_positions:     # the vertex table, once per renderer
+        new_table = self.renderer.tag is not mesh.vertex_positions
+        if new_table:                                          # the vertex table, once per renderer
             self.renderer.upload(mesh.vertex_positions, mesh.vertex_normals, tri_levels, indices,
                                  tag=mesh.vertex_positions)
-        elif self._uploaded is not indices:        # a new selection: only its indices and levels move
+        if self.foveated is not None and (new_table or self._uploaded is not indices):
+            self.foveated.set_mesh(indices, tri_levels, mesh.face_per_triangle(), (mesh.corners, mesh.z_range))
+        elif not new_table and self._uploaded is not indices:  # a new selection: only its indices and levels move
             self.renderer.set_indices(indices, tri_levels)
         self._uploaded = indices
         t4 = time.perf_counter()
         view, proj = off_axis_projection(pose.eye_mm, self.screen, NEAR_MM, FAR_MM)
-        image = self.renderer.render(view, proj, scene.model, view_mode=self.settings["view_mode"])
+        if self.foveated is not None:
+            image = self._render_foveated(view, proj, scene.model, pose)
+            renderer = self.foveated
+        else:
+            image = self.renderer.render(view, proj, scene.model, view_mode=self.settings["view_mode"])
+            renderer = self.renderer
         t5 = time.perf_counter()
         stage = {"pose": (t1 - t0) * 1e3, "select": (t2 - t1) * 1e3, "build": (t3 - t2) * 1e3,
-                 "upload": (t4 - t3) * 1e3, "render": self.renderer.last_render_ms,
-                 "readback": self.renderer.last_readback_ms, "hud": 0.0}
+                 "upload": (t4 - t3) * 1e3, "render": renderer.last_render_ms,
+                 "readback": renderer.last_readback_ms, "hud": 0.0}
+        if self.foveated is not None:            # the layers' face spans and index re-sort
+            stage["upload"] += self.foveated.last_sort_ms
         result = FrameResult(self.index, pose.t, image, self._levels, int(len(tri_levels)), stage,
                              (t5 - t0) * 1e3, pose, bool(skipped), float(speed))
+        return self._finish(result, t0)
+
+    def _finish(self, result: FrameResult, t0: float) -> FrameResult:
+        """The HUD drawn on the frame (when on), and the frame counted."""
         if self.hud:
-            result.image = draw_hud(image, self.hud_info(result), inplace=True,
+            t5 = time.perf_counter()
+            result.image = draw_hud(result.image, self.hud_info(result), inplace=True,
                                     max_level=self.base_scene.mesh.max_level)
             t6 = time.perf_counter()
-            stage["hud"] = (t6 - t5) * 1e3
+            result.stage_ms["hud"] = (t6 - t5) * 1e3
             result.frame_ms = (t6 - t0) * 1e3
         self._frame_times.append(result.frame_ms)
         self.stats.add(result)
         self.index += 1
         self.last = result
         return result
+
+    def _render_raymask(self, pose, scene):
+        """Mode ``raymask``: Murphy & Duchowski's hybrid frame about the filtered POI, widened by the scenario's
+        covariance; (image (H, W, 3) uint8, {"mask", "render"} ms, triangles rasterised)."""
+        from ..render.raymask import RayMaskRenderer        # its shaders are compiled only when asked for
+
+        w, h = self.renderer.size
+        if self._raymask_renderer is None:
+            self._raymask_renderer = RayMaskRenderer(self.renderer.ctx, self.base_scene.mesh, size=(w, h))
+        rr = self._raymask_renderer
+        poi, cov = self._fovea_view if self._fovea_view is not None else (pose.poi_px, pose.cov_deg2)
+        view, proj = off_axis_projection(pose.eye_mm, self.screen, NEAR_MM, FAR_MM)
+        mask = rr.mask(self.screen, pose.eye_mm, np.asarray(poi, dtype=np.float64),
+                       px_per_deg_at(self.screen, pose.eye_mm, (w, h)), cov, self.raymask)
+        image = rr.render(mask, view, proj, scene.model, self.raymask)
+        return image, {"mask": rr.last_mask_ms, "render": rr.last_stats["render_ms"]}, 2 * rr.last_stats["drawn_quads"]
+
+    def _render_foveated(self, view, proj, model, pose) -> np.ndarray:
+        """The foveated frame, its layers about the held filtered POI (image px) and widened by the held covariance."""
+        w, h = self.renderer.size
+        scale = np.array([w, h], dtype=np.float64) / np.array(self.screen.size_px, dtype=np.float64)
+        poi_screen, cov = self._fovea_view if self._fovea_view is not None else (pose.poi_px, pose.cov_deg2)
+        ppd = px_per_deg_at(self.screen, pose.eye_mm, (w, h))
+        poi, layers = self.anchor.update(np.asarray(poi_screen, dtype=np.float64) * scale,
+                                         layer_plan(ppd, cov, self.foveation), ppd)
+        return self.foveated.render(view, proj, model, poi, ppd, cov, view_mode=self.settings["view_mode"],
+                                    layers=layers)
 
     def hud_info(self, result: FrameResult):
         """The HUD's content for a frame."""
@@ -781,7 +851,8 @@ class DemoLoop:
         scale = np.array([w, h], dtype=np.float64) / np.array(self.screen.size_px, dtype=np.float64)
         fps = 1e3 / float(np.mean(self._frame_times)) if self._frame_times else 1e3 / result.frame_ms
         return HudInfo(fps=fps, stage_ms=dict(result.stage_ms), frame_ms=result.frame_ms,
-                       triangles=result.triangles, mode=self.settings["mode"],
+                       triangles=result.triangles,
+                       mode=self.settings["mode"] + (" +foveate" if self.foveated is not None else ""),
                        uncertainty=self.settings["uncertainty"], viewpoint=self.settings["viewpoint"],
                        view_mode=self.settings["view_mode"], source=self.poses.name,
                        poi_image_px=pose.poi_px * scale, cov_deg2=pose.cov_deg2,
@@ -804,6 +875,10 @@ class DemoLoop:
         view, proj = off_axis_projection(pose.eye_mm, self.screen, NEAR_MM, FAR_MM)
         image = self.renderer.render(view, proj, self.scene.model, view_mode=view_mode)
         info = self.hud_info(self.last)
+        if self.foveated is not None and self.anchor.poi_px is not None:
+            from ..render.overlay import overlay_layers
+            ppd = px_per_deg_at(self.screen, pose.eye_mm, self.renderer.size)
+            image = overlay_layers(image, self.anchor.poi_px, self.anchor.layers, ppd)
         return draw_picture_overlay(image, info, caption=caption, legend=view_mode == "levels",
                                     max_level=self.base_scene.mesh.max_level)
 

@@ -11,6 +11,10 @@ model=...)``.
 The Jacksboro DEM (scene x east, y north, z up, metres; extent 30.0 km x
 31.7 km) has its ridges in the west and south-west (up to 1076 m) and
 plains in the east (250-400 m), with the fault valley between them.
+Another terrain (``--terrain FILE``) gets the same three placements, their
+scales multiplied by the scene's ``fit`` (:func:`headplod.render.still.fit_scale`)
+so that it is framed alike whatever its size; the names then only describe
+the built-in one.
 """
 from __future__ import annotations
 
@@ -55,13 +59,14 @@ class Viewpoint:
     pitch_deg: float
     yaw_deg: float = 0.0
 
-    def model(self, terrain, screen) -> np.ndarray:
-        """``T_world_scene``, (4, 4) float64: terrain metres → world mm, for ``screen``."""
+    def model(self, terrain, screen, fit: float = 1.0) -> np.ndarray:
+        """``T_world_scene``, (4, 4) float64: terrain metres → world mm, for ``screen``; ``fit`` scales
+        ``scale_mm_per_m`` for a terrain of another size (``TerrainScene.fit``; 1 for the built-in)."""
         x0, x1, y0, y1 = terrain.extent
         fx, fy = self.centre_frac
         cx, cy = x0 + fx * (x1 - x0), y0 + fy * (y1 - y0)
         centre = np.array([cx, cy, float(np.median(terrain.dem_z_m))])
-        placed = np.asarray(scene_to_world(self.scale_mm_per_m, centre, screen, depth_mm=self.depth_mm,
+        placed = np.asarray(scene_to_world(self.scale_mm_per_m * fit, centre, screen, depth_mm=self.depth_mm,
                                            pitch_deg=self.pitch_deg).matrix, dtype=np.float64)
         # Yaw about the vertical through the centre point, in scene coordinates.
         c, s = math.cos(math.radians(self.yaw_deg)), math.sin(math.radians(self.yaw_deg))
@@ -97,4 +102,4 @@ def get_viewpoint(name: str) -> Viewpoint:
 def place(scene, viewpoint: Viewpoint | str):
     """The TerrainScene with its model matrix set for ``viewpoint`` (the terrain and mesh are shared)."""
     vp = get_viewpoint(viewpoint) if isinstance(viewpoint, str) else viewpoint
-    return dataclasses.replace(scene, model=vp.model(scene.terrain, scene.screen))
+    return dataclasses.replace(scene, model=vp.model(scene.terrain, scene.screen, getattr(scene, "fit", 1.0)))

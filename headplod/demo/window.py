@@ -77,11 +77,12 @@ def make_window_class():
             args = demo_args
             self.poses = make_poses(args)
             print("building the terrain mesh ...", file=sys.stderr)
-            scene = TerrainScene.build(self.poses.screen)
+            scene = TerrainScene.build(self.poses.screen, terrain=getattr(args, "terrain_loaded", None))
             size = tuple(args.size)
             self.loop = DemoLoop(scene, self.poses, TerrainRenderer(self.ctx, size=size), mode=args.mode,
                                  uncertainty=args.uncertainty, viewpoint=args.viewpoint, view_mode=args.view,
-                                 saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth)
+                                 saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth,
+                                 foveate=getattr(args, "foveate", False))
             self.texture = self.ctx.texture(size, 3)
             self.program = self.ctx.program(vertex_shader=_VERTEX, fragment_shader=_FRAGMENT)
             self.quad = self.ctx.vertex_array(self.program, [])

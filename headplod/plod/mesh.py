@@ -377,6 +377,11 @@ class AdaptiveMesh:
         Largest vertical distance between the uniform level-L surface and the
         finest (level M) surface over the face, sampled at every finest-level
         vertex, scene units (0 at level M).
+    z_range : (F, 2) float64
+        Lowest and highest z of any vertex any case of the face can produce,
+        scene units (the vertices lie above the base triangle's (x, y)
+        within it: a prism bounding the face, see
+        :func:`headplod.render.foveate.face_layer_span`).
     bounding_radius : (F,) float64
         Radius about ``centroids`` of a sphere holding every vertex any case of
         the face can produce (finest-level lattice and centroid-fan vertices,
@@ -784,6 +789,14 @@ class AdaptiveMesh:
             z, _ = _sample(self.terrain, xy[..., 0].ravel(), xy[..., 1].ravel())
             extra = np.concatenate([xy, z.reshape(F, -1, 1)], axis=2)
             radius = np.maximum(radius, np.sqrt(((extra - self.centroids[:, None]) ** 2).sum(-1)).max(axis=1))
+            z_lo = np.minimum(fine[..., 2].min(axis=1), extra[..., 2].min(axis=1))
+            z_hi = np.maximum(fine[..., 2].max(axis=1), extra[..., 2].max(axis=1))
+        else:
+            z_lo, z_hi = fine[..., 2].min(axis=1), fine[..., 2].max(axis=1)
+        # Every vertex of the face lies above its base triangle (x, y) within these heights (plus
+        # the float32 rounding of the output: one ulp of the largest coordinate).
+        ulp = 2 * np.finfo(np.float32).eps * np.abs(fine).max(axis=(1, 2))
+        self.z_range = np.stack([z_lo - ulp, z_hi + ulp], axis=1)
         # Plus the float32 rounding of the output coordinates (half an ulp per component).
         self.bounding_radius = radius + np.sqrt(3) * np.finfo(np.float32).eps * np.abs(fine).max(axis=(1, 2))
         self._fine_normals = fine_n.astype(np.float32)

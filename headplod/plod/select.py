@@ -288,6 +288,9 @@ class LevelSelector:
 
         The features are NaN for base triangles outside the view (frustum-culled: level 0).
         ``full`` computes nothing: every base triangle at the finest level, features NaN.
+        The dict also gives the view the levels were chosen for: ``poi_px``
+        (2,) screen px, after the One Euro filter, and ``cov_deg2`` (2, 2)
+        deg² or None, after the scenario's policy (not for ``full``).
         """
         cfg = self.config
         if cfg.mode == "full":        # no criterion to evaluate (and no culling: the reference mesh)
@@ -344,7 +347,8 @@ class LevelSelector:
             levels = pc.round_level(continuous, self.rounding, self.max_level)
         levels = np.clip(levels, 0, self.max_level).astype(np.int64)
         return levels, {"eccentricity_deg": ecc, "speed_deg_s": speed, "distance_mm": distance,
-                        "continuous": continuous}
+                        "continuous": continuous, "poi_px": np.asarray(view.poi_px, dtype=np.float64),
+                        "cov_deg2": cov}
 
     def _continuous(self, freq, distance, ecc, speed, angular_deg, seen):
         """Continuous levels of the base triangles ``seen`` (indices); the other arguments are theirs."""

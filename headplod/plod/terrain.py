@@ -187,7 +187,7 @@ class Terrain:
     nyquist_cpm : (2,)
         DEM Nyquist frequencies (1/(2 dx), 1/(2 dy)), cycles per metre.
     spectral_exponent : float
-        β of the fitted DEM power spectrum ``P(f) ∝ f^-β``.
+        β of the fitted DEM power spectrum ``P(f) ∝ f^-β`` (nan with ``detail=False``: not fitted).
     detail_band_cpm : (2,)
         Radial frequency range of the detail waves, cycles per metre.
     detail_wavevectors_cpm : (W, 2) ; detail_amplitudes_m : (W,) ; detail_phases_rad : (W,)
@@ -197,6 +197,10 @@ class Terrain:
     dem_info : DemGrid or None
         Where the DEM came from (``jacksboro``: its geographic corner and
         spacing, without the elevation array); None for a grid passed in.
+    source : object or None
+        The file a terrain was read from (set by
+        :func:`headplod.plod.terrain_file.terrain_from_file`: a ``TerrainGrid``
+        without its array); None otherwise.
     """
 
     def __init__(self, elevation_m, dx_m: float, dy_m: float, *, vertical_exaggeration: float = 1.0,
@@ -213,6 +217,7 @@ class Terrain:
             raise ValueError(f"detail_min_wavelength_m must be positive, got {detail_min_wavelength_m}")
         self.vertical_exaggeration = float(vertical_exaggeration)
         self.dem_info = None
+        self.source = None
         self.dx_m, self.dy_m = float(dx_m), float(dy_m)
         ny, nx = z.shape
         self.shape = (ny, nx)
@@ -227,18 +232,25 @@ class Terrain:
         self.detail_gain = float(detail_gain)
         self.detail_min_wavelength_m = float(detail_min_wavelength_m)
 
-        envelope = self._roughness_envelope(self.dem_z_m)
-        coef = np.stack([ndi.spline_filter(self.dem_z_m, order=3, mode="mirror"),
-                         ndi.spline_filter(envelope, order=3, mode="mirror")], axis=-1)
-        # Pad by 2 with the mirror rule so that every 4x4 stencil of a clamped query is in range.
-        padded = np.pad(coef, ((2, 2), (2, 2), (0, 0)), mode="reflect")
-        self._coef = [np.ascontiguousarray(padded[..., c]).ravel() for c in range(2)]   # DEM, envelope
         self._row_stride = nx + 4
         # Offsets of the 16 taps from tap (i-1, j-1) in the padded, flattened coefficients.
         self._stencil = (np.arange(4)[:, None] * self._row_stride + np.arange(4)[None, :]).ravel().astype(np.int32)
-
-        self.spectral_exponent, log_p0 = self._fit_spectrum(self.dem_z_m)
-        self._make_waves(log_p0, int(detail_waves_per_octave))
+        if not self.detail:
+            # No detail: no roughness envelope, spectrum or waves (their cost grows with the grid:
+            # a 4k x 4k DEM took 28 s and 3.8 GB with them, for nothing that is drawn).
+            # Pad by 2 with the mirror rule so that every 4x4 stencil of a clamped query is in range.
+            self._coef = [np.pad(ndi.spline_filter(self.dem_z_m, order=3, mode="mirror"), 2, mode="reflect").ravel()]
+            self.spectral_exponent = float("nan")
+            self._make_waves(-np.inf, int(detail_waves_per_octave))
+        else:
+            envelope = self._roughness_envelope(self.dem_z_m)
+            coef = np.stack([ndi.spline_filter(self.dem_z_m, order=3, mode="mirror"),
+                             ndi.spline_filter(envelope, order=3, mode="mirror")], axis=-1)
+            # Pad by 2 with the mirror rule so that every 4x4 stencil of a clamped query is in range.
+            padded = np.pad(coef, ((2, 2), (2, 2), (0, 0)), mode="reflect")
+            self._coef = [np.ascontiguousarray(padded[..., c]).ravel() for c in range(2)]   # DEM, envelope
+            self.spectral_exponent, log_p0 = self._fit_spectrum(self.dem_z_m)
+            self._make_waves(log_p0, int(detail_waves_per_octave))
         self._centre = np.array([(self.extent[0] + self.extent[1]) / 2, (self.extent[2] + self.extent[3]) / 2])
 
     # ------------------------------------------------------------------ construction
@@ -333,7 +345,8 @@ class Terrain:
         Returns
         -------
         value, d_dx, d_dy : list of two (n,) float64
-            [DEM, envelope] values and their x and y derivatives (per metre).
+            [DEM, envelope] values and their x and y derivatives (per metre); [DEM] only
+            with ``detail=False``.
         """
         ny, nx = self.shape
         q = np.clip((x - self.extent[0]) / self.dx_m, 0.0, nx - 1.0)

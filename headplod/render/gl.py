@@ -58,6 +58,17 @@ uniform vec2 u_height_range;  // scene z of the low and high colour
 in vec3 in_position;          // scene units
 in vec3 in_normal;            // scene frame
 out vec3 v_color;
+// CULL (the foveated layers' variant): planes 0-3 keep the NDC rectangle u_keep_rect (x0, y0, x1, y1); plane 4 drops what
+// lies inside the disc u_drop_disc (centre x, y and radius, viewport px). Its distance is
+// w (r - radius), r the vertex's distance from the centre on the screen: interpolated over a
+// triangle it is at least (interpolated w) (r - radius) at every point (r is convex), so no
+// point outside the disc is ever dropped.
+#ifdef CULL
+uniform vec4 u_keep_rect;
+uniform vec3 u_drop_disc;
+uniform vec2 u_viewport;
+out gl_PerVertex { vec4 gl_Position; float gl_ClipDistance[5]; };
+#endif
 
 const vec3 LOW = vec3(0.30, 0.42, 0.26);   // grey-green valleys
 const vec3 MID = vec3(0.52, 0.56, 0.40);
@@ -65,6 +76,19 @@ const vec3 HIGH = vec3(0.80, 0.80, 0.76);  // pale grey peaks
 
 void main() {
     gl_Position = u_mvp * vec4(in_position, 1.0);
+#ifdef CULL
+    vec4 c = gl_Position;
+    gl_ClipDistance[0] = c.x - u_keep_rect.x * c.w;
+    gl_ClipDistance[1] = u_keep_rect.z * c.w - c.x;
+    gl_ClipDistance[2] = c.y - u_keep_rect.y * c.w;
+    gl_ClipDistance[3] = u_keep_rect.w * c.w - c.y;
+    if (c.w > 0.0) {
+        vec2 s = (c.xy / c.w * 0.5 + 0.5) * u_viewport;
+        gl_ClipDistance[4] = c.w * (distance(s, u_drop_disc.xy) - u_drop_disc.z);
+    } else {
+        gl_ClipDistance[4] = 1e30;      // behind the eye: never dropped here (the near plane clips it)
+    }
+#endif
     vec3 n = normalize(in_normal);
     float shade = u_ambient + (1.0 - u_ambient) * max(dot(n, u_light), 0.0);
 #ifdef LEVELS
@@ -82,6 +106,10 @@ _GEOMETRY_SHADER = """
 #version 330
 layout(triangles) in;
 layout(triangle_strip, max_vertices = 3) out;
+#ifdef CULL
+in gl_PerVertex { vec4 gl_Position; float gl_ClipDistance[5]; } gl_in[];
+out float gl_ClipDistance[5];
+#endif
 in vec3 v_color[];
 out vec3 g_color;
 out vec3 g_bary;              // barycentric coordinates, for the wireframe
@@ -91,6 +119,9 @@ void main() {
         g_color = v_color[i];
         g_bary = vec3(i == 0, i == 1, i == 2);
         gl_PrimitiveID = gl_PrimitiveIDIn;
+#ifdef CULL
+        for (int j = 0; j < 5; ++j) gl_ClipDistance[j] = gl_in[i].gl_ClipDistance[j];
+#endif
         EmitVertex();
     }
     EndPrimitive();
@@ -112,6 +143,7 @@ in vec3 v_color;
 #ifdef LEVELS
 uniform usampler2D u_levels;  // level of triangle p at texel (p % width, p / width)
 uniform vec3 u_palette[8];
+uniform int u_primitive_base; // first triangle of the draw call (gl_PrimitiveID restarts at 0 per call)
 #endif
 out vec4 f_color;
 
@@ -119,7 +151,8 @@ void main() {
     vec3 color = COLOR;
 #ifdef LEVELS
     int width = textureSize(u_levels, 0).x;
-    uint level = texelFetch(u_levels, ivec2(gl_PrimitiveID % width, gl_PrimitiveID / width), 0).r;
+    int p = gl_PrimitiveID + u_primitive_base;
+    uint level = texelFetch(u_levels, ivec2(p % width, p / width), 0).r;
     color *= u_palette[level % 8u];
 #endif
 #ifdef WIRE
@@ -134,6 +167,9 @@ void main() {
 
 #: ``#define``s of each view mode's program.
 _VARIANTS = {"shaded": (), "wire": ("WIRE",), "levels": ("LEVELS",)}
+
+#: GL_CLIP_DISTANCE0 (moderngl has no flag for it: enabled with ``enable_direct``).
+_GL_CLIP_DISTANCE0 = 0x3000
 
 #: Width of the per-triangle level texture, texels (its height grows with the triangle count).
 _LEVEL_TEXTURE_WIDTH = 4096
@@ -242,14 +278,20 @@ class TerrainRenderer:
         self.tag = None
         self.height_range = (0.0, 1.0)
 
+        # A program per view mode, and per view mode with CULL (``draw(cull=...)``, the foveated
+        # layers): keys "shaded", ("shaded", "cull"), ... The plain programs carry no clip
+        # distances (llvmpipe tests every plane the shader writes, enabled or not).
         self.programs = {}
         for mode, defines in _VARIANTS.items():
-            self.programs[mode] = ctx.program(
-                vertex_shader=_shader_variant(_VERTEX_SHADER, defines),
-                geometry_shader=_shader_variant(_GEOMETRY_SHADER, defines) if "WIRE" in defines else None,
-                fragment_shader=_shader_variant(_FRAGMENT_SHADER, defines))
-        self.programs["levels"]["u_palette"].write((PALETTE.astype("f4") / 255.0).tobytes())
-        self.programs["levels"]["u_levels"].value = 0          # texture unit 0
+            for key, extra in ((mode, ()), ((mode, "cull"), ("CULL",))):
+                self.programs[key] = ctx.program(
+                    vertex_shader=_shader_variant(_VERTEX_SHADER, defines + extra),
+                    geometry_shader=(_shader_variant(_GEOMETRY_SHADER, defines + extra) if "WIRE" in defines
+                                     else None),
+                    fragment_shader=_shader_variant(_FRAGMENT_SHADER, defines + extra))
+        for key in ("levels", ("levels", "cull")):
+            self.programs[key]["u_palette"].write((PALETTE.astype("f4") / 255.0).tobytes())
+            self.programs[key]["u_levels"].value = 0          # texture unit 0
         self._fbo = ctx.framebuffer(
             color_attachments=[ctx.renderbuffer((w, h), components=4, samples=samples)],
             depth_attachment=ctx.depth_renderbuffer((w, h), samples=samples),
@@ -444,23 +486,35 @@ class TerrainRenderer:
         if light.shape != (3,) or not np.isfinite(light).all() or np.linalg.norm(light) == 0:
             raise ValueError(f"render: light_dir must be a non-zero 3-vector, got {light_dir!r}")
         light /= np.linalg.norm(light)
-        prog = self.programs[view_mode]
-        prog["u_mvp"].write(np.ascontiguousarray(mvp.T, dtype="f4").tobytes())  # column-major
-        prog["u_light"].value = tuple(light)
-        prog["u_ambient"].value = float(ambient)
-        if view_mode != "levels":      # the levels view does not use heights (the uniform is compiled out)
-            prog["u_height_range"].value = tuple(float(v) for v in self.height_range)
-        if view_mode == "wire":
-            prog["u_wire_px"].value = float(wire_px)
-            prog["u_wire_color"].value = tuple(float(c) for c in wire_color)
+        for prog in (self.programs[view_mode], self.programs[view_mode, "cull"]):
+            prog["u_mvp"].write(np.ascontiguousarray(mvp.T, dtype="f4").tobytes())  # column-major
+            prog["u_light"].value = tuple(light)
+            prog["u_ambient"].value = float(ambient)
+            if view_mode != "levels":      # the levels view does not use heights (the uniform is compiled out)
+                prog["u_height_range"].value = tuple(float(v) for v in self.height_range)
+            if view_mode == "wire":
+                prog["u_wire_px"].value = float(wire_px)
+                prog["u_wire_color"].value = tuple(float(c) for c in wire_color)
 
-    def draw(self, fbo, viewport: tuple[int, int, int, int], view_mode: str = "shaded", scissor=None) -> None:
+    def draw(self, fbo, viewport: tuple[int, int, int, int], view_mode: str = "shaded", scissor=None,
+             ranges=None, clear: bool = True, cull=None, indirect=None) -> None:
         """Clear ``fbo`` and draw the uploaded mesh into it with the uniforms of :meth:`prepare`.
 
         ``viewport`` (x, y, w, h) px of ``fbo``: where the screen's visible
         area is mapped (a smaller framebuffer draws the same view at a lower
         resolution); ``scissor`` (x, y, w, h) px, optional: only that
-        rectangle is cleared and shaded.
+        rectangle is cleared and shaded. ``ranges``, optional: (first, count)
+        pairs of triangles (rows of the index buffer, or of the soup) to
+        draw, one draw call each, instead of the whole mesh. ``clear``:
+        clear colour and depth (within the scissor) first. ``cull``,
+        optional: ((x0, y0, x1, y1) viewport px, (cx, cy, radius) viewport
+        px or None): the triangles wholly outside the rectangle or wholly
+        inside the disc are dropped before set-up (clip distances); one
+        crossing an edge is clipped there, so its pixels near that edge may
+        differ in the last bit from an undropped draw. ``indirect``, optional:
+        (buffer, n): draw the n commands of an indirect buffer (5 uint32
+        each: index count, 1, first index, 0, 0) in one call instead
+        (not for the "levels" view: gl_PrimitiveID restarts with each command).
         """
         ctx = self.ctx
         fbo.use()
@@ -468,11 +522,42 @@ class TerrainRenderer:
         fbo.scissor = None if scissor is None else tuple(int(v) for v in scissor)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-        fbo.clear(*self.background, 1.0, depth=1.0)
+        if clear:
+            fbo.clear(*self.background, 1.0, depth=1.0)
         if self.n_triangles:
+            key = view_mode if cull is None else (view_mode, "cull")
+            vao = self._vaos[key, self.indexed]
             if view_mode == "levels":
                 self._level_texture.use(0)
-            self._vaos[view_mode, self.indexed].render(moderngl.TRIANGLES, vertices=3 * self.n_triangles)
+            if ranges is None:
+                ranges = ((0, self.n_triangles),)
+            levels_prog = self.programs[key] if view_mode == "levels" else None
+            if cull is not None:
+                prog = self.programs[key]
+                vw, vh = float(viewport[2]), float(viewport[3])
+                prog["u_viewport"].value = (vw, vh)
+                (x0, y0, x1, y1), disc = cull
+                prog["u_keep_rect"].value = (2 * (x0 - viewport[0]) / vw - 1, 2 * (y0 - viewport[1]) / vh - 1,
+                                             2 * (x1 - viewport[0]) / vw - 1, 2 * (y1 - viewport[1]) / vh - 1)
+                prog["u_drop_disc"].value = (0.0, 0.0, -1.0) if disc is None else tuple(float(v) for v in disc)
+                for i in range(5):
+                    ctx.enable_direct(_GL_CLIP_DISTANCE0 + i)
+            if indirect is not None:
+                if view_mode == "levels":
+                    raise ValueError("draw: the levels view cannot be drawn indirect (its levels follow gl_PrimitiveID)")
+                if indirect[1] > 0:
+                    vao.render_indirect(indirect[0], moderngl.TRIANGLES, count=int(indirect[1]))
+                ranges = ()
+            for first, count in ranges:
+                first, count = int(first), min(int(count), self.n_triangles - int(first))
+                if count <= 0:
+                    continue
+                if levels_prog is not None:
+                    levels_prog["u_primitive_base"].value = first
+                vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first)
+            if cull is not None:
+                for i in range(5):
+                    ctx.disable_direct(_GL_CLIP_DISTANCE0 + i)
         fbo.scissor = None
 
     def render(self, view: Any, proj: Any, model: Any = None, view_mode: str = "shaded",

@@ -88,3 +88,50 @@ def overlay_poi(image: np.ndarray, poi_px: Any, cov_deg2: Any, px_per_deg: float
                 axes = (int(round(half[0] * scale)), int(round(half[1] * scale)))
                 cv2.ellipse(out, (cx, cy), axes, angle, 0.0, 360.0, col, thickness, cv2.LINE_AA, _SHIFT)
     return out
+
+
+#: Colours of the foveation layers' borders (RGB), fovea first.
+LAYER_COLORS = ((255, 255, 255), (255, 200, 0), (0, 220, 255), (200, 90, 255), (120, 255, 120), (255, 120, 120))
+
+
+def overlay_layers(image: np.ndarray, poi_px: Any, layers, px_per_deg: float, *, label: bool = True,
+                   thickness: int = 1, inplace: bool = False) -> np.ndarray:
+    """Draw the foveation layers' borders: a circle of ``outer_deg`` about the POI per layer (the last has none).
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8
+    poi_px : (2,)
+        The layers' centre, image px (x right, y down).
+    layers : sequence of :class:`headplod.render.foveate.Layer`
+    px_per_deg : float
+        Image pixels per degree at full resolution.
+    label : bool
+        Write each layer's scale next to its border.
+
+    Returns
+    -------
+    (H, W, 3) uint8, the image with the borders (a copy unless ``inplace``).
+    """
+    img = np.asarray(image)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"overlay_layers: image must be (H, W, 3) uint8, got {img.shape} {img.dtype}")
+    ppd = float(px_per_deg)
+    if not (math.isfinite(ppd) and ppd > 0):
+        raise ValueError(f"overlay_layers: px_per_deg must be > 0, got {px_per_deg!r}")
+    out = img if inplace else img.copy()
+    p = np.asarray(poi_px, dtype=np.float64).reshape(2)
+    scale = 1 << _SHIFT
+    cx, cy = (int(round(v * scale)) for v in p)
+    for k, layer in enumerate(layers):
+        col = LAYER_COLORS[k % len(LAYER_COLORS)]
+        if math.isfinite(layer.outer_deg):
+            radius = layer.outer_deg * ppd
+            cv2.circle(out, (cx, cy), int(round(radius * scale)), col, thickness, cv2.LINE_AA, _SHIFT)
+        if label:
+            r_text = 0.5 * (layer.inner_deg + (layer.outer_deg if math.isfinite(layer.outer_deg)
+                                               else layer.inner_deg + 4.0)) * ppd
+            org = (int(p[0] + r_text * 0.7071), int(p[1] - r_text * 0.7071))
+            cv2.putText(out, f"1/{int(round(1 / layer.scale))}" if layer.scale < 1 else "1", org,
+                        cv2.FONT_HERSHEY_SIMPLEX, 0.45, col, 1, cv2.LINE_AA)
+    return out

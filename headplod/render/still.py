@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from ..plod.contrast import project_to_screen_px, readback_contrast
+from ..io import write_atomically
 from ..plod.export import check_export_path, export_mesh
 from ..plod.mesh import AdaptiveMesh, BaseMesh
 from ..plod.raymask import RayMaskConfig
@@ -33,6 +34,9 @@ from .projection import off_axis_projection, scene_to_world
 SCALE_MM_PER_M = 0.02
 DEPTH_MM = 250.0
 PITCH_DEG = 55.0
+#: The span the scale and the demo's viewpoints were chosen for: the built-in terrain's longer side, m.
+#: Another terrain is scaled by ``fit = FRAME_SPAN_M / its span`` (:func:`fit_scale`) to be framed alike.
+FRAME_SPAN_M = 31_700.0
 
 #: What ``render_still(mode=...)`` and ``headplod render --mode`` draw: the level-selection modes of
 #: :data:`headplod.plod.select.MODES` (a mesh per frame), and ``raymask``, Murphy & Duchowski's hybrid
@@ -54,17 +58,24 @@ class TerrainScene:
     mesh: AdaptiveMesh
     model: np.ndarray           # (4, 4) scene (m) → world (mm)
     screen: object
+    fit: float = 1.0            # scale factor of SCALE_MM_PER_M and the viewpoints' scales (1: the built-in)
 
     @classmethod
-    def build(cls, screen, max_level: int = 5) -> "TerrainScene":
-        terrain = Terrain.jacksboro()
+    def build(cls, screen, max_level: int = 5, terrain: Terrain | None = None) -> "TerrainScene":
+        """The scene of ``terrain`` (default: the built-in Jacksboro terrain), framed by :func:`fit_scale`.
+
+        Any terrain gets the same mesh: a 32 x 32 base grid refined to
+        ``max_level`` (1025 x 1025 vertices at level 5) over its extent.
+        """
+        fit = 1.0 if terrain is None else fit_scale(terrain)
+        terrain = Terrain.jacksboro() if terrain is None else terrain
         base = BaseMesh.grid(terrain)
         mesh = AdaptiveMesh(base, terrain, max_level=max_level)
         x0, x1, y0, y1 = terrain.extent
         centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, float(np.median(terrain.dem_z_m))])
-        model = np.asarray(scene_to_world(SCALE_MM_PER_M, centre, screen, depth_mm=DEPTH_MM,
+        model = np.asarray(scene_to_world(SCALE_MM_PER_M * fit, centre, screen, depth_mm=DEPTH_MM,
                                           pitch_deg=PITCH_DEG).matrix, dtype=np.float64)
-        return cls(terrain, mesh, model, screen)
+        return cls(terrain, mesh, model, screen, fit)
 
     def selector(self, mode: str, uncertainty: str, config: SelectorConfig | None = None,
                  **settings) -> LevelSelector:
@@ -79,6 +90,19 @@ class TerrainScene:
         m = self.mesh
         return LevelSelector(m.centroids, m.edge_length, m.geometric_error, m.contrast, self.model, self.screen,
                              config, corners_scene=m.corners)
+
+
+def fit_scale(terrain) -> float:
+    """Factor on the scene scale that frames ``terrain`` as the built-in one is framed.
+
+    ``FRAME_SPAN_M`` over the larger of the terrain's width, depth and twice
+    its relief (so a small, steep height map does not reach through the
+    screen or past the far plane). The built-in scene uses 1 (not this
+    function), so its framing stays as it was.
+    """
+    x0, x1, y0, y1 = terrain.extent
+    relief = float(np.ptp(terrain.dem_z_m))
+    return FRAME_SPAN_M / max(x1 - x0, y1 - y0, 2.0 * relief)
 
 
 def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
@@ -149,9 +173,14 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
         t0 = time.perf_counter()
         levels, _ = selector.select(View(head, poi, cov_deg2, 0.0))
         t1 = time.perf_counter()
-        positions, normals, tri_levels = scene.mesh.update(levels)
-        t2 = time.perf_counter()
-        renderer.upload(positions, normals, tri_levels)
+        if draw:
+            positions, normals, tri_levels = scene.mesh.update(levels)
+            t2 = time.perf_counter()
+            renderer.upload(positions, normals, tri_levels)
+        else:                  # foveated: the vertex table and indices, for the layers' subsets
+            indices, tri_levels = scene.mesh.update_indices(levels)
+            t2 = time.perf_counter()
+            renderer.upload(scene.mesh.vertex_positions, scene.mesh.vertex_normals, tri_levels, indices)
         image = renderer.render(view, proj, scene.model, view_mode=render_mode) if draw else None
         return image, tri_levels, t1 - t0, t2 - t1, levels
 
@@ -167,6 +196,9 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     if foveate:
         foveated = FoveatedRenderer(renderer)
         try:
+            mesh = scene.mesh
+            foveated.set_mesh(mesh.update_indices(face_levels)[0], tri_levels, mesh.face_per_triangle(),
+                              (mesh.corners, mesh.z_range))
             image = foveated.render(view, proj, scene.model, poi_image, px_per_deg, cov_deg2, view_mode=view_mode)
             render_ms, layers = foveated.last_render_ms, foveated.last_layers
         finally:
@@ -187,12 +219,12 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
                                    for l in layers]
     if readback_ms is not None:
         stats["readback_ms"] = readback_ms
-    if out:
-        Path(out).parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
-    if stats_path:
-        Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(stats_path).write_text(json.dumps(stats, indent=2))
+    source = getattr(scene.terrain, "source", None)       # a --terrain file (plod.terrain_file)
+    if source is not None:
+        stats["terrain"] = {"path": source.path, "kind": source.kind, "shape": list(scene.terrain.shape),
+                            "spacing_m": [source.dx_m, source.dy_m], "filled_samples": source.filled,
+                            "fit": scene.fit}
+    _write_outputs(image, stats, out, stats_path)
     if export is not None:
         export_mesh(scene.mesh, face_levels, export)
     return image, stats
@@ -231,13 +263,31 @@ def _render_raymask(screen, scene, head, poi, cov_deg2, size, view_mode, out, st
                          "mask_contrast": config.contrast, "silhouettes": bool(config.silhouettes),
                          "fill_radius_deg": round(mask.r_fill_deg, 3), "rings": int(len(mask.rings_deg)),
                          "angles": int(mask.n_angles)}}
+    _write_outputs(image, stats, out, stats_path)
+    return image, stats
+
+
+def _write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> None:
+    """Write the image (RGB (H, W, 3) uint8; format from the ending) and the stats (JSON), each whole or not at all.
+
+    Raises ValueError when OpenCV cannot encode the image (an ending it does
+    not know) and OSError when a file cannot be written.
+    """
     if out:
-        Path(out).parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        out = Path(out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+
+        def write_image(name: str) -> None:
+            try:
+                written = cv2.imwrite(name, cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+            except cv2.error:
+                written = False
+            if not written:
+                raise ValueError(f"{out}: OpenCV could not write an image there (use .png or .jpg)")
+        write_atomically(out, write_image, suffix=out.suffix)
     if stats_path:
         Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(stats_path).write_text(json.dumps(stats, indent=2))
-    return image, stats
+        write_atomically(stats_path, lambda name: Path(name).write_text(json.dumps(stats, indent=2)))
 
 
 def px_per_deg_at(screen, head, size) -> float:

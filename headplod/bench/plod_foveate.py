@@ -1,0 +1,496 @@
+"""Foveated resolution layers (``--foveate``) measured: speed against ``full`` and plain ``csf``, seams, quality.
+
+Parts the ``headplod bench plod`` run can call (each returns plain dicts, JSON-ready):
+
+- :func:`foveate_speed`: the demo's frame (select → build → upload → render
+  → read-back, the HUD optional) for ``full``, plain ``csf`` and ``csf
+  --foveate`` on each viewpoint, stepped in turn on one pose sequence
+  tracked beforehand (interleaved: the machine's drift hits all three
+  alike; no tracking in the frames); medians after the first frame, and
+  the ratios to ``full``.
+- :func:`viewpoint_frames`: one still frame per viewpoint at the default head,
+  the POI at the screen centre: ``full``, ``csf`` and ``csf --foveate``
+  images, the layers drawn, the levels view.
+- :func:`seam_profiles`: the luminance profile across each layer border
+  (perpendicular to it: against the distance from the POI, averaged along
+  the border), for the three images at the same place, and the step across
+  the border's blend band of each; the foveated frame's step is compared
+  with ``full``'s (what the terrain itself has there).
+- :func:`quality`: PSNR within 5° of the POI against ``full`` and FLIP over
+  the whole image, for ``csf`` with and without the layers.
+- :func:`seam_chart`, :func:`layer_pictures`: the profiles as a chart, and a
+  picture per viewpoint with the layers' borders, the POI and its 2σ ellipse.
+- :func:`run`: all of it into a folder (``python -m headplod.bench.plod_foveate OUT``).
+
+Units: luminance is relative linear luminance (Rec. 709 weights on
+linearised sRGB, 0 … 1); distances in output pixels (1280x720 by default)
+or degrees at the screen centre (``px_per_deg``); times in ms.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..demo import loop as lp
+from ..demo import viewpoints as vps
+from ..plod.select import View
+from ..render import TerrainRenderer, create_context, off_axis_projection
+from ..render.foveate import FoveatedRenderer, FoveationConfig
+from ..render.overlay import overlay_layers, overlay_poi
+from ..render.still import TerrainScene, default_head, px_per_deg_at
+
+__all__ = ["foveate_speed", "viewpoint_frames", "seam_profiles", "quality", "seam_chart", "layer_pictures",
+           "luminance", "run"]
+
+#: Output size, px (as ``headplod bench plod`` and the demo).
+SIZE = (1280, 720)
+#: The POI's covariance for the still frames, deg² (the tracker's σ of V at 60 cm is ~0.03-0.06°).
+COV_DEG2 = np.diag([0.05 ** 2, 0.05 ** 2])
+#: Width of the windows either side of a border's blend band whose mean luminances make the step, deg.
+STEP_WINDOW_DEG = 0.5
+#: Angular sectors for the local steps (a seam on one side of the POI does not cancel one on the other).
+SECTORS = 32
+
+
+def luminance(image: np.ndarray) -> np.ndarray:
+    """Relative linear luminance (H, W) float64 in 0 … 1 of an sRGB (H, W, 3) uint8 image (RGB order)."""
+    img = np.asarray(image)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"luminance: image must be (H, W, 3) uint8, got {img.shape} {img.dtype}")
+    c = img.astype(np.float64) / 255.0
+    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    return lin @ np.array([0.2126, 0.7152, 0.0722])
+
+
+# --------------------------------------------------------------------------
+# speed
+# --------------------------------------------------------------------------
+
+
+def foveate_speed(scene=None, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20, size=SIZE, source="synthetic",
+                  mode: str = "csf", uncertainty: str = "adaptive", config: FoveationConfig | None = None,
+                  hud: bool = True, ctx=None, progress=None) -> dict:
+    """Frame time of ``full``, ``mode`` and ``mode --foveate`` per viewpoint, interleaved on one pose sequence.
+
+    Parameters
+    ----------
+    scene : TerrainScene, optional
+        For the source's screen (built here when None).
+    viewpoints : sequence of str
+    frames : int
+        Frames per run (≥ 2: the first, which uploads the vertex table, is left out of the medians).
+    size : (W, H)
+    source : str
+        Pose source spec for :class:`headplod.demo.loop.TrackerPoses` (``"synthetic"``: the built-in
+        sequence through the real tracker).
+    mode, uncertainty : str
+    config : FoveationConfig, optional
+    hud : bool
+        Draw the HUD as the headless demo does (its cost is the same in every run).
+    ctx : moderngl.Context, optional
+    progress : callable(str), optional
+
+    Returns
+    -------
+    dict
+        Per viewpoint: ``full_ms``, ``plain_ms``, ``foveate_ms`` (median frame, ms),
+        ``plain_ratio``, ``foveate_ratio`` (full's frame time over theirs),
+        ``stage_ms`` (median per stage, per run), ``triangles``, ``foveate_triangles_per_layer``.
+    """
+    if frames < 2:
+        raise ValueError(f"foveate_speed: frames must be >= 2, got {frames}")
+    ctx = ctx or create_context()
+    screen = None
+    if scene is None:
+        first = lp.TrackerPoses(source, max_frames=1)
+        screen = first.screen
+        first.close()
+        scene = TerrainScene.build(screen)
+    runs = (("plain", mode, False), ("foveate", mode, True), ("full", "full", False))
+    poses = None
+    renderers = [TerrainRenderer(ctx, size=tuple(size)) for _ in runs]
+    out = {}
+    try:
+        for vp in viewpoints:
+            if poses is None:              # tracked once, before the runs: the frames time no tracking
+                poses = _tracked(source, scene.screen, frames)
+            loops = [lp.DemoLoop(scene, _Replay(poses, scene.screen), renderers[k], mode=m,
+                                 uncertainty=uncertainty if m != "full" else "none", viewpoint=vp, hud=hud,
+                                 foveate=fov, foveation=config)
+                     for k, (_, m, fov) in enumerate(runs)]
+            per = {name: [] for name, _, _ in runs}
+            stages = {name: [] for name, _, _ in runs}
+            for i in range(len(poses)):
+                order = list(range(len(runs)))
+                order = order[i % len(order):] + order[:i % len(order)]     # each run leads in turn
+                for k in order:
+                    result = loops[k].step()
+                    if i > 0:
+                        per[runs[k][0]].append(result.frame_ms)
+                        stages[runs[k][0]].append(result.stage_ms)
+                if progress:
+                    progress(f"speed {vp} frame {i + 1}/{len(poses)}")
+            med = {name: float(np.median(v)) if v else float("nan") for name, v in per.items()}
+            fov_loop = loops[1]
+            out[vp] = {"full_ms": med["full"], "plain_ms": med["plain"], "foveate_ms": med["foveate"],
+                       "plain_ratio": med["full"] / med["plain"], "foveate_ratio": med["full"] / med["foveate"],
+                       "frames": len(per["full"]),
+                       "stage_ms": {name: {s: float(np.median([st.get(s, 0.0) for st in v])) for s in lp.STAGES}
+                                    for name, v in stages.items() if v},
+                       "triangles": int(loops[0].last.triangles) if loops[0].last else None,
+                       "foveate_triangles_per_layer": list(fov_loop.foveated.last_triangles_per_layer),
+                       "foveate_layers": [_layer_dict(l) for l in fov_loop.foveated.last_layers]}
+            for loop in loops:
+                if loop.foveated is not None:
+                    loop.foveated.release()
+    finally:
+        for r in renderers:
+            r.release()
+    return out
+
+
+def _tracked(source, screen, frames: int) -> list:
+    """The first ``frames`` poses of a tracked source, as a list (images dropped)."""
+    src = lp.TrackerPoses(source, screen=screen, max_frames=frames)
+    try:
+        out = []
+        while (pose := src.read()) is not None:
+            pose.images = None
+            out.append(pose)
+    finally:
+        src.close()
+    if len(out) < 2:
+        raise ValueError(f"foveate_speed: the source {source!r} gave {len(out)} poses, need at least 2")
+    return out
+
+
+class _Replay(lp.PoseSource):
+    """A list of poses read again (copies: the loop may not change them)."""
+
+    name = "replay"
+
+    def __init__(self, poses, screen):
+        self.poses, self.screen, self.k = poses, screen, 0
+
+    def read(self):
+        if self.k >= len(self.poses):
+            return None
+        self.k += 1
+        return dataclasses.replace(self.poses[self.k - 1])
+
+
+def _layer_dict(layer) -> dict:
+    return {"scale": layer.scale, "inner_deg": round(layer.inner_deg, 3),
+            "outer_deg": None if math.isinf(layer.outer_deg) else round(layer.outer_deg, 3)}
+
+
+# --------------------------------------------------------------------------
+# still frames
+# --------------------------------------------------------------------------
+
+
+def viewpoint_frames(scene=None, viewpoints=tuple(vps.VIEWPOINTS), size=SIZE, mode: str = "csf",
+                     uncertainty: str = "adaptive", cov_deg2=COV_DEG2, config: FoveationConfig | None = None,
+                     ctx=None) -> dict:
+    """One still frame per viewpoint: the default head, the POI at the screen centre.
+
+    Returns
+    -------
+    dict
+        Per viewpoint: ``full``, ``plain``, ``foveate`` (H, W, 3) uint8 RGB
+        images, ``levels`` (the plain frame's levels view, RGB), ``poi_px``
+        (2,) output px, ``px_per_deg``, ``cov_deg2``, ``layers`` (list of
+        Layer, as drawn), ``blend_deg``, ``triangles``,
+        ``triangles_per_layer``.
+    """
+    config = config or FoveationConfig()
+    ctx = ctx or create_context()
+    if scene is None:
+        scene = TerrainScene.build(lp.default_screen())
+    screen = scene.screen
+    head = default_head(screen)
+    poi_screen = np.array(screen.size_px, dtype=np.float64) / 2
+    poi = poi_screen * np.array(size) / np.array(screen.size_px)
+    ppd = px_per_deg_at(screen, head, size)
+    view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
+    renderer = TerrainRenderer(ctx, size=tuple(size))
+    foveated = FoveatedRenderer(renderer, config)
+    mesh = scene.mesh.share()
+    renderer.upload(mesh.vertex_positions, mesh.vertex_normals, None, np.zeros(3, np.uint32))
+    out = {}
+    try:
+        for vp in viewpoints:
+            placed = vps.place(scene, vp)
+            model = placed.model
+            full_idx, full_lv = mesh.update_indices(np.full(mesh.n_faces, mesh.max_level))
+            renderer.set_indices(full_idx, full_lv)
+            full = renderer.render(view, proj, model)
+            selector = placed.selector(mode, uncertainty, hysteresis=False)
+            levels, _ = selector.select(View(head, poi_screen, cov_deg2, 0.0))
+            idx, lv = mesh.update_indices(levels)
+            renderer.set_indices(idx, lv)
+            plain = renderer.render(view, proj, model)
+            levels_img = renderer.render(view, proj, model, view_mode="levels")
+            foveated.set_mesh(idx, lv, mesh.face_per_triangle(), (mesh.corners, mesh.z_range))
+            fov = foveated.render(view, proj, model, poi, ppd, cov_deg2)
+            out[vp] = {"full": full, "plain": plain, "foveate": fov, "levels": levels_img, "poi_px": poi,
+                       "px_per_deg": ppd, "cov_deg2": np.asarray(cov_deg2, dtype=np.float64),
+                       "layers": list(foveated.last_layers), "blend_deg": config.blend_deg,
+                       "triangles": int(len(lv)), "triangles_per_layer": list(foveated.last_triangles_per_layer)}
+    finally:
+        foveated.release()
+        renderer.release()
+    return out
+
+
+# --------------------------------------------------------------------------
+# seams and quality
+# --------------------------------------------------------------------------
+
+
+def _step(lum: np.ndarray, r: np.ndarray, inner_px: float, outer_px: float, window_px: float, mask=None) -> float:
+    """Mean luminance in [outer, outer + window) minus that in [inner - window, inner) (px from the POI)."""
+    out_sel = (r >= outer_px) & (r < outer_px + window_px)
+    in_sel = (r >= inner_px - window_px) & (r < inner_px)
+    if mask is not None:
+        out_sel &= mask
+        in_sel &= mask
+    if not out_sel.any() or not in_sel.any():
+        return float("nan")
+    return float(lum[out_sel].mean() - lum[in_sel].mean())
+
+
+def seam_profiles(frames: dict, half_width_deg: float = 2.0, window_deg: float = STEP_WINDOW_DEG,
+                  sectors: int = SECTORS) -> dict:
+    """Luminance across each layer border of :func:`viewpoint_frames`' frames, for ``full``, ``plain``, ``foveate``.
+
+    For a border of radius R px about the POI (a layer's ``outer_deg``) whose
+    blend band is [R - b, R] (``b`` = ``blend_deg``): the profile is the mean
+    luminance of the image's pixels at distance R + s from the POI, s in
+    whole px from ``-half_width_deg`` to ``+half_width_deg`` (1 px bins,
+    the pixels of the circle inside the image); the step is the mean over
+    [R, R + w) minus the mean over [R - b - w, R - b) (w = ``window_deg``),
+    over the whole circle and per angular sector.
+
+    Returns
+    -------
+    dict
+        Per viewpoint, a list (one per finite border) of dicts:
+        ``border_deg``, ``radius_px``, ``blend_px``, ``offset_px`` (S,),
+        ``profile`` {image: (S,) list}, ``step`` {image: float},
+        ``step_vs_full`` (foveate's step minus full's, and plain's minus full's),
+        ``sector_step_vs_full_rms`` (RMS over the sectors of the same
+        difference, per image), ``coverage`` (fraction of the circle inside the image).
+        Luminance is relative (0 … 1).
+    """
+    out = {}
+    for vp, f in frames.items():
+        ppd = float(f["px_per_deg"])
+        h, w = f["full"].shape[:2]
+        yy, xx = np.mgrid[0:h, 0:w]
+        dx, dy = xx + 0.5 - f["poi_px"][0], yy + 0.5 - f["poi_px"][1]
+        r = np.hypot(dx, dy)
+        angle = np.mod(np.arctan2(dy, dx), 2 * np.pi)
+        sector = np.minimum((angle / (2 * np.pi) * sectors).astype(int), sectors - 1)
+        lum = {name: luminance(f[name]) for name in ("full", "plain", "foveate")}
+        blend_px = float(f["blend_deg"]) * ppd
+        half = int(math.ceil(half_width_deg * ppd))
+        window = window_deg * ppd
+        borders = []
+        for layer in f["layers"][:-1]:
+            if not math.isfinite(layer.outer_deg):
+                continue
+            R = layer.outer_deg * ppd
+            offsets = np.arange(-half, half + 1)
+            bins = np.floor(r - R).astype(np.int64)
+            sel = (bins >= -half) & (bins <= half)
+            counts = np.bincount(bins[sel] + half, minlength=2 * half + 1)
+            profiles, steps, sector_rms = {}, {}, {}
+            for name, L in lum.items():
+                sums = np.bincount(bins[sel] + half, weights=L[sel], minlength=2 * half + 1)
+                profiles[name] = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan).tolist()
+                steps[name] = _step(L, r, R - blend_px, R, window)
+            per_sector = {name: np.array([_step(L, r, R - blend_px, R, window, sector == s) for s in range(sectors)])
+                          for name, L in lum.items()}
+            for name in ("plain", "foveate"):
+                d = per_sector[name] - per_sector["full"]
+                d = d[np.isfinite(d)]
+                sector_rms[name] = float(np.sqrt(np.mean(d ** 2))) if len(d) else float("nan")
+            circle = np.linspace(0, 2 * np.pi, 720, endpoint=False)
+            cx, cy = f["poi_px"][0] + R * np.cos(circle), f["poi_px"][1] + R * np.sin(circle)
+            coverage = float(np.mean((cx >= 0) & (cx < w) & (cy >= 0) & (cy < h)))
+            borders.append({"border_deg": float(layer.outer_deg), "radius_px": float(R), "blend_px": blend_px,
+                            "offset_px": offsets.tolist(), "profile": profiles, "step": steps,
+                            "step_vs_full": {n: steps[n] - steps["full"] for n in ("plain", "foveate")},
+                            "sector_step_vs_full_rms": sector_rms, "coverage": coverage})
+        out[vp] = borders
+    return out
+
+
+def quality(frames: dict) -> dict:
+    """PSNR within 5° of the POI against ``full`` (dB) and FLIP over the whole image, plain and foveated.
+
+    Returns
+    -------
+    dict
+        Per viewpoint: ``psnr_5deg_db`` {plain, foveate}, ``flip`` {plain, foveate},
+        ``psnr_5deg_foveate_vs_plain_db`` (inf: the fovea is the plain frame's pixels).
+    """
+    from .image_metrics import flip_error, psnr_db
+
+    out = {}
+    for vp, f in frames.items():
+        h, w = f["full"].shape[:2]
+        yy, xx = np.mgrid[0:h, 0:w]
+        disc = np.hypot(xx + 0.5 - f["poi_px"][0], yy + 0.5 - f["poi_px"][1]) <= 5 * f["px_per_deg"]
+        out[vp] = {"psnr_5deg_db": {n: psnr_db(f[n], f["full"], disc) for n in ("plain", "foveate")},
+                   "flip": {n: flip_error(f["full"], f[n], f["px_per_deg"]) for n in ("plain", "foveate")},
+                   "psnr_5deg_foveate_vs_plain_db": psnr_db(f["foveate"], f["plain"], disc)}
+    return out
+
+
+# --------------------------------------------------------------------------
+# charts and pictures
+# --------------------------------------------------------------------------
+
+
+def seam_chart(profiles: dict, path) -> str:
+    """The profiles of :func:`seam_profiles` as a chart (PNG at ``path``): one panel per viewpoint and border."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [(vp, b) for vp, borders in profiles.items() for b in borders]
+    if not panels:
+        raise ValueError("seam_chart: no finite layer border in the profiles")
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.4 * len(panels), 3.6), squeeze=False)
+    styles = {"full": {"color": "black", "lw": 1.6}, "plain": {"color": "tab:blue", "lw": 1.0, "ls": "--"},
+              "foveate": {"color": "tab:red", "lw": 1.2}}
+    for ax, (vp, b) in zip(axes[0], panels):
+        x = np.asarray(b["offset_px"], dtype=np.float64)
+        for name in ("full", "plain", "foveate"):
+            label = {"full": "full", "plain": "csf", "foveate": "csf --foveate"}[name]
+            ax.plot(x, np.asarray(b["profile"][name], dtype=np.float64) * 100, label=label, **styles[name])
+        ax.axvspan(-b["blend_px"], 0, color="0.85", label="blend band")
+        ax.axvline(0, color="0.5", lw=0.8)
+        sv = b["step_vs_full"]
+        ax.set_title(f"{vp}: border {b['border_deg']:.2f}° ({b['coverage']:.0%} in view)\n"
+                     f"step - full's: foveate {sv['foveate'] * 100:+.2f}, csf {sv['plain'] * 100:+.2f} (% lum.)",
+                     fontsize=8)
+        ax.set_xlabel("distance from the border, px (+: outside, coarser layer)")
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].set_ylabel("mean luminance along the border, % of white")
+    axes[0, -1].legend(fontsize=7)
+    fig.suptitle("foveation seams: luminance across each layer border (averaged along it)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(str(path), dpi=110)
+    plt.close(fig)
+    return str(path)
+
+
+def layer_pictures(frames: dict, folder) -> dict:
+    """A picture per viewpoint (PNG in ``folder``): the foveated frame's layers on the levels view, the POI and
+    its 2σ ellipse; {viewpoint: path}."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    out = {}
+    for vp, f in frames.items():
+        img = overlay_layers(f["levels"], f["poi_px"], f["layers"], f["px_per_deg"])
+        img = overlay_poi(img, f["poi_px"], f["cov_deg2"], f["px_per_deg"], inplace=True)
+        sigma = math.sqrt(float(np.linalg.eigvalsh(f["cov_deg2"]).max()))
+        text = (f"{vp}: layers " + ", ".join(f"x{l.scale:g} to {l.outer_deg:.2f} deg" if math.isfinite(l.outer_deg)
+                                             else f"x{l.scale:g} beyond" for l in f["layers"])
+                + f"; POI 2-sigma ellipse (sigma {sigma:.2f} deg)")
+        (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
+        y = img.shape[0] - 10
+        img[max(y - th - 6, 0):min(y + base + 2, img.shape[0]), 4:min(16 + tw, img.shape[1])] //= 3
+        cv2.putText(img, text, (10, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+        path = folder / f"foveate_layers_{vp}.png"
+        cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        out[vp] = str(path)
+    return out
+
+
+# --------------------------------------------------------------------------
+# all of it
+# --------------------------------------------------------------------------
+
+
+def run(folder, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20, speed: bool = True, progress=None) -> dict:
+    """Speed, seams, quality, chart and pictures into ``folder``; the summary (also ``foveate.json``)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    progress = progress or (lambda text: print(f"plod_foveate: {text}", file=sys.stderr, flush=True))
+    t0 = time.perf_counter()
+    ctx = create_context()
+    first = lp.TrackerPoses("synthetic", max_frames=1)
+    screen = first.screen
+    first.close()
+    scene = TerrainScene.build(screen)
+    summary = {"size": list(SIZE), "config": FoveationConfig().__dict__}
+    if speed:
+        summary["speed"] = foveate_speed(scene, viewpoints, frames=frames, ctx=ctx, progress=progress)
+    progress("still frames")
+    still = viewpoint_frames(scene, viewpoints, ctx=ctx)
+    summary["quality"] = quality(still)
+    prof = seam_profiles(still)
+    summary["seams"] = prof
+    summary["seam_chart"] = seam_chart(prof, folder / "foveate_seams.png")
+    summary["pictures"] = layer_pictures(still, folder)
+    for vp, f in still.items():
+        cv2.imwrite(str(folder / f"foveate_frame_{vp}.png"), cv2.cvtColor(f["foveate"], cv2.COLOR_RGB2BGR))
+    summary["wall_s"] = round(time.perf_counter() - t0, 1)
+    (folder / "foveate.json").write_text(json.dumps(summary, indent=1, default=_json_default))
+    return summary
+
+
+def _json_default(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m headplod.bench.plod_foveate",
+                                     description="foveated layers: speed, seams, quality, pictures")
+    parser.add_argument("out", help="output folder")
+    parser.add_argument("--frames", type=int, default=20, help="frames per speed run (default 20)")
+    parser.add_argument("--no-speed", action="store_true", help="skip the speed runs")
+    parser.add_argument("--viewpoints", default=",".join(vps.VIEWPOINTS), help="comma-separated")
+    args = parser.parse_args(argv)
+    names = [v for v in args.viewpoints.split(",") if v]
+    for v in names:
+        vps.get_viewpoint(v)
+    s = run(args.out, names, frames=args.frames, speed=not args.no_speed)
+    for vp in names:
+        q, seams = s["quality"][vp], s["seams"][vp]
+        line = (f"{vp:<10} PSNR-5° plain {q['psnr_5deg_db']['plain']:.1f} foveate {q['psnr_5deg_db']['foveate']:.1f} dB"
+                f"  FLIP plain {q['flip']['plain']:.4f} foveate {q['flip']['foveate']:.4f}")
+        if "speed" in s:
+            sp = s["speed"][vp]
+            line = (f"{vp:<10} full {sp['full_ms']:.1f} ms, csf {sp['plain_ms']:.1f} ms ({sp['plain_ratio']:.1f}x), "
+                    f"csf --foveate {sp['foveate_ms']:.1f} ms ({sp['foveate_ratio']:.1f}x)\n" + line)
+        for b in seams:
+            line += (f"\n   border {b['border_deg']:.2f}°: step full {b['step']['full'] * 100:+.2f}, foveate "
+                     f"{b['step']['foveate'] * 100:+.2f}, csf {b['step']['plain'] * 100:+.2f} (% lum.); sector RMS "
+                     f"vs full: foveate {b['sector_step_vs_full_rms']['foveate'] * 100:.2f}, csf "
+                     f"{b['sector_step_vs_full_rms']['plain'] * 100:.2f}")
+        print(line)
+    print(f"chart {s['seam_chart']}; pictures {', '.join(s['pictures'].values())} ({s['wall_s']} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
