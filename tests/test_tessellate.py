@@ -217,3 +217,9 @@ def test_render_cli_tessellation_backend(ctx430, tmp_path, monkeypatch, capsys):
     assert cli_main(["render", "--backend", "tessellation", "--mode", "gp", "--out", str(out)]) == 2
     assert "does not take --mode gp" in capsys.readouterr().err
     assert cli_main(["render", "--backend", "tessellation", "--grid-samples", "100", "--out", str(out)]) == 2
+    # A person's own terrain, resampled to the grid.
+    y, x = np.mgrid[0:60, 0:80]
+    np.save(tmp_path / "h.npy", (200 * np.sin(x / 9.0) * np.cos(y / 7.0) + 500).astype(np.float32))
+    assert cli_main(["render", "--backend", "tessellation", "--terrain", str(tmp_path / "h.npy"), "--spacing-m", "30",
+                     "--grid-samples", "129", "--size", "160,90", "--out", str(out), "--stats", str(stats)]) == 0
+    assert json.loads(stats.read_text())["triangles"] > 0
