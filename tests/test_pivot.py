@@ -199,3 +199,33 @@ def test_pivot_command_usage(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["pivot", "--seconds", "0"])
     assert exc.value.code == 2
+
+
+class _SlowLive:
+    """A dataset replayed at 20 Hz, posing as live cameras (for the time limit and the progress lines)."""
+
+    def __init__(self, folder):
+        self.inner = open_source(str(folder))
+        self.rig, self.markers, self.screen = self.inner.rig, self.inner.markers, self.inner.screen
+        self.name, self.warnings = "fake cameras", []
+
+    def read(self, timeout_s=1.0):
+        import time
+        time.sleep(0.05)
+        return self.inner.read()
+
+    def close(self):
+        self.inner.close()
+
+
+def test_pivot_command_live_stops_on_time_and_says_what_is_missing(neck_turns, monkeypatch, capsys):
+    import headplod.live.command as command
+
+    folder, _ = neck_turns
+    monkeypatch.setattr(command, "_open_track_source", lambda args, spec: (_SlowLive(folder), None, True))
+    # 1.3 s at 20 Hz: ~26 of the 48 frames, the left-right half only: the pivot's height is not determined.
+    assert main(["pivot", "--source", "v4l2:auto", "--seconds", "1.3"]) == 1
+    err = capsys.readouterr().err
+    assert "turn the head left and right" in err.splitlines()[0]
+    assert "  1.0 s of 1.3: " in err
+    assert err.strip().splitlines()[-1].startswith("headplod: no pivot:") and "nod up and down" in err
