@@ -5,6 +5,7 @@ yaw ±30°, then pitch ±15°, about the neck point ``NECK_PIVOT_HEAD_MM`` =
 (0, -80, -90) mm in the head frame), rendered by ``synthetic/`` and tracked
 by the real tracker, so the fit sees the tracker's own noise.
 """
+import re
 import shutil
 import socket
 
@@ -227,5 +228,5 @@ def test_pivot_command_live_stops_on_time_and_says_what_is_missing(neck_turns, m
     assert main(["pivot", "--source", "v4l2:auto", "--seconds", "1.3"]) == 1
     err = capsys.readouterr().err
     assert "turn the head left and right" in err.splitlines()[0]
-    assert "  1.0 s of 1.3: " in err
+    assert re.search(r"^ +1\.[0-3] s of 1\.3: \d+ poses$", err, re.M)
     assert err.strip().splitlines()[-1].startswith("headplod: no pivot:") and "nod up and down" in err

@@ -97,20 +97,21 @@ def run_pivot(args) -> int:
         return 1
     log = sys.stderr
     positions, axes = [], []
-    start = time.monotonic()
-    last_print = [start]
+    clock = {"start": None, "printed": None}        # the time starts with the first frame, not the camera's start-up
 
     def on_record(record, result):
         if record["ok"]:
             positions.append(record["position"])
             axes.append(record["axes"])
         now = time.monotonic()
-        if live and not args.quiet and now - last_print[0] >= 1.0:
-            last_print[0] = now
-            print(f"  {now - start:4.1f} s of {args.seconds:g}: {len(positions)} poses", file=log)
+        if clock["start"] is None:
+            clock["start"] = clock["printed"] = now
+        if live and not args.quiet and now - clock["printed"] >= 1.0:
+            clock["printed"] = now
+            print(f"  {now - clock['start']:4.1f} s of {args.seconds:g}: {len(positions)} poses", file=log)
 
     def stop() -> bool:
-        return live and time.monotonic() - start >= args.seconds
+        return live and clock["start"] is not None and time.monotonic() - clock["start"] >= args.seconds
 
     try:
         markers = io.read_markers(args.markers) if args.markers else None
