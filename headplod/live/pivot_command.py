@@ -116,7 +116,7 @@ def run_pivot(args) -> int:
     try:
         markers = io.read_markers(args.markers) if args.markers else None
         if live and not args.quiet:
-            print(f"pivot: {_INSTRUCTIONS}; {args.seconds:g} s from now", file=log)
+            print(f"pivot: {_INSTRUCTIONS}; {args.seconds:g} s from the first frame", file=log)
         tracker = make_tracker(source, TrackerConfig(), rig=rig, markers=markers)
         run_source(source, on_record=on_record, max_frames=args.frames, stop=stop, tracker=tracker)
     except (ValueError, OSError) as exc:
