@@ -24,12 +24,14 @@ from .calibration.command import add_calibrate_arguments, run_calibrate
 from .capture.command import add_cameras_arguments, run_cameras
 from .demo.cli import add_demo_arguments, run_demo
 from .live.command import add_track_arguments, run_track
+from .live.pivot_command import add_pivot_arguments, run_pivot
 from .render.command import add_render_arguments, run_render
 
 #: ``headplod NAME``: (help, add NAME's arguments to its subparser, run(args) -> exit status), in --help's order.
 COMMANDS = {
     "track": ("track a frame source: a dataset folder, videos, live cameras or the built-in synthetic sequence",
               add_track_arguments, run_track),
+    "pivot": ("measure the head's pivot (the neck) from head turns, for track --udp", add_pivot_arguments, run_pivot),
     "cameras": ("list the video devices with their USB identity", add_cameras_arguments, run_cameras),
     "calibrate": ("stereo calibration from chessboard/ChArUco pairs -> rig.yaml", add_calibrate_arguments,
                   run_calibrate),

@@ -296,6 +296,29 @@ def pitch_sweep(n_frames: int = 60, seed: int = 0, amplitude_deg: float = 30.0, 
                   f"pitch sweep ±{amplitude_deg:g}° at 65 cm")
 
 
+def neck_turns(n_frames: int = 48, seed: int = 0, yaw_deg: float = 30.0, pitch_deg: float = 15.0,
+               fps: float = 30.0) -> Scene:
+    """A head turning about its neck (``NECK_PIVOT_HEAD_MM``): left-right ±``yaw_deg``, then up-down ±``pitch_deg``.
+
+    The first half of the frames is one sinusoidal yaw cycle, the second one
+    pitch cycle, at the nominal head position: what a user does when asked
+    to show the tracker where the head's pivot is (``headplod pivot``). The
+    pivot stays still in the world; P1 swings about it.
+    """
+    s = default_setup()
+    n = max(int(n_frames), 2)
+    half_s = (n / 2.0) / float(fps)
+
+    def ypr(t):
+        if t < half_s:
+            return (yaw_deg * np.sin(2 * np.pi * t / half_s), 0.0, 0.0)
+        return (0.0, pitch_deg * np.sin(2 * np.pi * (t - half_s) / half_s), 0.0)
+
+    pf = make_pose_fn(s, _const(NOMINAL_HEAD_M), _screen_centre, ypr)
+    return _scene("neck_turns", s, pf, _times(n, fps), RenderOptions(ambient_seed=seed),
+                  f"head turns about the neck: yaw ±{yaw_deg:g}°, then pitch ±{pitch_deg:g}°, at 65 cm")
+
+
 def roll_sweep(n_frames: int = 60, seed: int = 0, amplitude_deg: float = 30.0, fps: float = 30.0) -> Scene:
     """One full sinusoidal roll cycle of ±``amplitude_deg``."""
     s = default_setup()
@@ -530,6 +553,7 @@ PRESETS: Dict[str, Callable[..., Scene]] = {
     "yaw_sweep": yaw_sweep,
     "pitch_sweep": pitch_sweep,
     "roll_sweep": roll_sweep,
+    "neck_turns": neck_turns,
     "distance_sweep": distance_sweep,
     "fast_motion": fast_motion,
     "random": random_poses,

@@ -7,7 +7,7 @@ import numpy as np
 
 from headplod import io
 from headplod.cli import main as cli_main
-from headplod.live.output import decode_opentrack, opentrack_values
+from headplod.live.output import DEFAULT_PIVOT_MM, decode_opentrack, opentrack_values
 
 
 def test_record_while_tracking_then_replay_gives_the_same_records(sample, tmp_path):
@@ -52,7 +52,7 @@ def test_udp_output_reaches_a_receiver(sample, tmp_path):
     for data, record in zip(got, records):
         assert len(data) == 48
         np.testing.assert_allclose(decode_opentrack(data),
-                                   opentrack_values(record["position"], record["axes"]), atol=1e-9)
+                                   opentrack_values(record["position"], record["axes"], DEFAULT_PIVOT_MM), atol=1e-9)
 
 
 def test_filter_smooths_the_records_but_keeps_cov(sample, tmp_path):

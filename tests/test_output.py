@@ -1,13 +1,15 @@
 """opentrack output (angles, datagrams, UDP) and the status line."""
 import io
 import math
+from io import StringIO
 import socket
 import struct
 
 import numpy as np
 import pytest
 
-from headplod.live.output import OPENTRACK_PACKET_BYTES, OpentrackSender, StatusLine, axes_from_opentrack, decode_opentrack, encode_opentrack, opentrack_values, parse_host_port
+from headplod.live.output import (OPENTRACK_PACKET_BYTES, OpentrackSender, StatusLine, axes_from_opentrack,
+                                  decode_opentrack, encode_opentrack, opentrack_values, parse_host_port)
 
 # Head facing the cameras: V toward -z, Ψ (up) = -y, Ξ (wearer's left) = +x.
 FACING = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
@@ -33,8 +35,34 @@ def record(position_mm, axes, ok=True):
 
 def test_facing_cameras_is_zero():
     vals = opentrack_values([10.0, -20.0, 600.0], FACING)
-    assert vals[:3] == pytest.approx((1.0, -2.0, 60.0))
+    assert vals[:3] == pytest.approx((1.0, 2.0, 60.0))  # tracker-pt's axes: y up (world y is down)
     assert vals[3:] == pytest.approx((0, 0, 0), abs=1e-9)
+
+
+def test_position_axes_are_tracker_pt_or_opencv():
+    # tracker-pt (pt-api.cpp to_screen_pos negates the pixel row): x right, y UP, z away from the camera.
+    up_right_far = [30.0, -40.0, 700.0]  # world (OpenCV): right of the camera, above it (y < 0), 70 cm away
+    x, y, z = opentrack_values(up_right_far, FACING)[:3]
+    assert x > 0 and y > 0 and z > 0
+    assert opentrack_values(up_right_far, FACING, frame="opencv")[:3] == pytest.approx((3.0, -4.0, 70.0))
+    with pytest.raises(ValueError, match="frame"):
+        opentrack_values(up_right_far, FACING, frame="opengl")
+
+
+def test_pivot_is_the_point_sent():
+    # Facing the cameras, the head frame (Ξ, Ψ, V) is (+x, -y, -z) of the world: a pivot 80 mm down and
+    # 90 mm back of the bridge lies 80 mm lower (world +y) and 90 mm farther (world +z).
+    vals = opentrack_values([0.0, 0.0, 600.0], FACING, pivot_mm=(0.0, -80.0, -90.0))
+    assert vals[:3] == pytest.approx((0.0, -8.0, 69.0))
+    # Turning about the pivot leaves the point sent where it was.
+    pivot = np.array([0.0, -80.0, -90.0])
+    p1 = np.array([0.0, 0.0, 600.0])
+    neck = p1 + FACING.T @ pivot
+    for R in (rotation([0, -1, 0], 30), rotation([1, 0, 0], 15)):
+        axes = turned(R)
+        p1_turned = neck - axes.T @ pivot
+        assert np.linalg.norm(p1_turned - p1) > 20.0  # the bridge swings
+        assert opentrack_values(p1_turned, axes, pivot_mm=pivot)[:3] == pytest.approx(vals[:3], abs=1e-9)
 
 
 def test_yaw_sign_turning_left_is_negative():
@@ -113,17 +141,59 @@ def receiver():
 
 def test_udp_round_trip(receiver):
     port = receiver.getsockname()[1]
-    poses = [([12.0, -30.0, 650.0], (0, 0, 0)), ([-50.0, 20.0, 700.0], (25, -10, 5)),
-             ([3.0, 4.0, 500.0], (-60, 35, -20))]
-    with OpentrackSender("127.0.0.1", port) as out:
+    # The second pose is 50 mm higher than the first (world y is down), the third 24 mm lower.
+    poses = [([12.0, -30.0, 650.0], (0, 0, 0)), ([-50.0, -80.0, 700.0], (25, -10, 5)),
+             ([3.0, -6.0, 500.0], (-60, 35, -20))]
+    with OpentrackSender("127.0.0.1", port, pivot_mm=(0, 0, 0)) as out:
         for position, ypr in poses:
             assert out.send(record(position, axes_from_opentrack(*ypr)))
-        assert out.sent == 3
+        assert out.sent == 3 and out.failed == 0 and out.failure_summary() is None
+    received = []
     for position, ypr in poses:
         data, _ = receiver.recvfrom(1024)
         vals = decode_opentrack(data)
-        assert vals[:3] == pytest.approx(np.array(position) / 10.0)
+        received.append(vals)
+        assert vals[:3] == pytest.approx(np.array(position) * [1, -1, 1] / 10.0)
         assert vals[3:] == pytest.approx(ypr, abs=1e-9)
+    # Head up, TY up; head down, TY down (tracker-pt's sign).
+    assert received[1][1] - received[0][1] == pytest.approx(5.0)
+    assert received[2][1] - received[1][1] == pytest.approx(-7.4)
+
+
+def test_udp_round_trip_truth_head_up_is_ty_up(receiver):
+    """Against a synthetic sequence's truth: when the head (P1) rises (world y decreases), TY increases."""
+    from headplod import io as hio
+    from headplod.capture.synthetic import ensure_dataset
+
+    truth = hio.read_truth(ensure_dataset("pitch_sweep", frames=12, quiet=True) / "truth.csv")
+    frames = sorted(truth)
+    port = receiver.getsockname()[1]
+    with OpentrackSender("127.0.0.1", port, pivot_mm=(0, 0, 0)) as out:  # tracker-pt's axes (the default)
+        for f in frames:
+            assert out.send(record(*truth[f]))
+    ty_cm = np.array([decode_opentrack(receiver.recvfrom(1024)[0])[1] for _ in frames])
+    y_world_mm = np.array([truth[f][0][1] for f in frames])
+    rises, falls = np.diff(y_world_mm) < -0.5, np.diff(y_world_mm) > 0.5
+    assert rises.sum() >= 2 and falls.sum() >= 2  # the head nods: P1 goes up and down
+    assert np.all(np.diff(ty_cm)[rises] > 0) and np.all(np.diff(ty_cm)[falls] < 0)
+    assert ty_cm == pytest.approx(-y_world_mm / 10.0)
+
+
+def test_send_failures_are_counted_and_shown():
+    # A broadcast address without SO_BROADCAST: the system refuses every datagram (PermissionError).
+    out = StringIO()
+    status = StatusLine(stream=out, every_s=0.5)
+    with OpentrackSender("255.255.255.255", 4242) as sender:
+        status.sender = sender
+        for i in range(5):
+            assert sender.send(record([0.0, 0.0, 600.0], FACING)) is False
+            status.update({"ok": True}, now=i * 0.2)
+        assert sender.failed == 5 and sender.sent == 0
+        assert sender.first_error.startswith("255.255.255.255:4242: ") and "ermission" in sender.first_error
+        summary = sender.failure_summary()
+    assert summary.startswith("udp: 5 of 5 datagrams not sent; first: 255.255.255.255:4242:")
+    assert "udp: " in out.getvalue() and "not sent (first: 255.255.255.255:4242" in out.getvalue()
+    assert status.summary()["udp_failed"] == 5
 
 
 def test_failed_record_sends_nothing(receiver):
@@ -196,3 +266,33 @@ def test_status_line_overwrites_on_a_tty():
     text = out.getvalue()
     assert text.count("\r") == 3 and text.endswith("\n") and text.count("\n") == 1
     assert "10.0 Hz" in text
+
+
+def test_track_reports_udp_failures_at_the_end(capsys):
+    from headplod.cli import main
+
+    code = main(["track", "--source", "synthetic:static", "--frames", "4", "-q", "--udp", "255.255.255.255:4242"])
+    err = capsys.readouterr().err
+    assert code == 0
+    assert "udp: 4 of 4 datagrams not sent; first: 255.255.255.255:4242:" in err
+    assert "axes tracker-pt" in err and "(0, -80, -90) mm" in err
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--pivot", "0,-80"], "X,Y,Z"),
+    (["--pivot", "0,-800,-900"], "300 mm"),
+    (["--pivot", "0,nan,0"], "finite"),
+])
+def test_track_pivot_option_refused(capsys, argv, match):
+    from headplod.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["track", "--source", "synthetic:static", "--udp", "127.0.0.1:4242", *argv])
+    assert exc.value.code == 2 and match in capsys.readouterr().err
+
+
+def test_track_pivot_without_udp_is_refused(capsys):
+    from headplod.cli import main
+
+    assert main(["track", "--source", "synthetic:static", "--pivot", "0,-80,-90"]) == 2
+    assert "go with --udp" in capsys.readouterr().err

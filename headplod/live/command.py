@@ -30,7 +30,7 @@ from ..tracking.filters import PoseFilter
 from ..tracking.geometry import ESTIMATORS
 from ..tracking.rig_refine import RigRefineConfig
 from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
-from .output import OpentrackSender, StatusLine, parse_host_port
+from .output import DEFAULT_PIVOT_MM, OPENTRACK_FRAMES, OpentrackSender, StatusLine, check_pivot_mm, parse_host_port
 
 __all__ = ["add_track_arguments", "run_track", "track_source_spec", "note_old_spelling"]
 
@@ -101,9 +101,7 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
     live.add_argument("--exposure", type=float, help="manual exposure (V4L2 units; auto exposure is then off)")
     live.add_argument("--gain", type=float, help="camera gain (V4L2 units)")
     live.add_argument("--record", metavar="DIR", help="write the frames as a dataset folder while tracking")
-    live.add_argument("--udp", metavar="HOST[:PORT]",
-                      help="send each pose to opentrack's UDP input (six float64: x, y, z cm, yaw, pitch, "
-                           "roll deg; default port 4242)")
+    add_udp_arguments(live)
     live.add_argument("--filter", nargs="?", const="1.0,0.02", metavar="MIN_CUTOFF,BETA",
                       help="One Euro filter on the recorded/sent poses (default off; 1.0 Hz, 0.02 when given "
                            "without values)")
@@ -111,6 +109,55 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
                       help="a status line (rate, latency, skew, drops); on by default with live cameras")
     live.add_argument("--frames", type=int, help="stop after N frames")
     return track
+
+
+def pivot_arg(text: str) -> np.ndarray:
+    """``--pivot X,Y,Z`` (mm, head frame) as a checked (3,) array; argparse's type."""
+    try:
+        values = [float(v) for v in str(text).split(",")]
+        return check_pivot_mm(values)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z in mm such as 0,-80,-90 ({exc})") from None
+
+
+def add_udp_arguments(group) -> None:
+    """``--udp``, ``--pivot`` and ``--udp-axes`` (for ``track`` and any command that sends to opentrack)."""
+    group.add_argument("--udp", metavar="HOST[:PORT]",
+                       help="send each pose to opentrack's 'UDP over network' input (six float64: x, y, z cm, "
+                            "yaw, pitch, roll deg; default port 4242), with the axes and signs of opentrack's "
+                            "point tracker: nothing to invert in opentrack")
+    group.add_argument("--pivot", type=pivot_arg, metavar="X,Y,Z",
+                       help="with --udp: the point sent, the head's pivot (the neck), from the bridge of the "
+                            "glasses in the head frame (x to the wearer's left, y up, z forward), mm. Default: "
+                            "pivot.yaml next to rig.yaml ('headplod pivot' measures it), else "
+                            + ",".join(f"{v:g}" for v in DEFAULT_PIVOT_MM) + " (a typical head); 0,0,0 sends "
+                            "the bridge")
+    group.add_argument("--udp-axes", choices=OPENTRACK_FRAMES, default="tracker-pt",
+                       help="with --udp: the position's axes: tracker-pt (default: x right, y up, z away from "
+                            "the camera, as opentrack's point tracker) or opencv (y down, as opentrack's ArUco "
+                            "tracker, and headplod's earlier output)")
+
+
+def udp_pivot(args, rig=None, source=None) -> tuple[np.ndarray, str]:
+    """The pivot ``--udp`` sends and where it comes from: ``--pivot``, a ``pivot.yaml`` next to the rig, else the
+    default. Raises :class:`~headplod.io.ContractError` for a broken pivot.yaml."""
+    from .pivot import find_pivot_file, read_pivot
+
+    if args.pivot is not None:
+        return np.asarray(args.pivot, float), "--pivot"
+    folders = []
+    for r in (rig, getattr(source, "rig", None)):
+        if r is not None and getattr(r, "path", None):
+            folders.append(Path(r.path).expanduser().parent)
+    if getattr(args, "calib", None):
+        folders.append(Path(args.calib).expanduser().parent)
+    dataset = getattr(source, "dataset", None)
+    if dataset is not None:
+        folders.append(Path(dataset.folder))
+    found = find_pivot_file(*folders)
+    if found is not None:
+        return read_pivot(found), str(found)
+    return np.asarray(DEFAULT_PIVOT_MM, float), "the default for a typical head; 'headplod pivot' measures yours"
 
 
 def track_source_spec(args) -> str:
@@ -191,6 +238,9 @@ def run_track(args) -> int:
         except ValueError as exc:
             print(f"headplod: {exc}", file=sys.stderr)
             return 2
+    elif args.pivot is not None or args.udp_axes != "tracker-pt":
+        print("headplod: --pivot and --udp-axes go with --udp (they shape what is sent to opentrack)", file=sys.stderr)
+        return 2
     try:
         spec = track_source_spec(args)
         _check_save_rig(args, spec=spec)                # what can be checked before opening the source
@@ -242,12 +292,15 @@ def run_track(args) -> int:
     try:
         writer = io.PoseWriter(args.out) if args.out else None
         if udp is not None:
-            sender = OpentrackSender(*udp)
+            pivot_mm, pivot_from = udp_pivot(args, rig=rig, source=source)
+            sender = OpentrackSender(*udp, pivot_mm=pivot_mm, frame=args.udp_axes)
+            print(f"udp: to {udp[0]}:{udp[1]}, the pivot ({', '.join(f'{v:.0f}' for v in pivot_mm)}) mm "
+                  f"({pivot_from}), axes {args.udp_axes}", file=log)
         if args.record:
             recorder = DatasetRecorder(args.record, rig, markers=markers or source.markers,
                                        screen=screen or source.screen)
         if args.status or (live and not args.quiet):
-            status = StatusLine(stream=log)
+            status = StatusLine(stream=log, sender=sender)
         tracker = make_tracker(source, config, rig=rig, markers=markers)
         stats = run_source(source, screen=screen, on_record=on_record, recorder=recorder, sender=sender,
                            pose_filter=pose_filter, status=status, max_frames=args.frames, tracker=tracker)
@@ -268,6 +321,8 @@ def run_track(args) -> int:
         s = stats.summary()
         print(f"rate {s['rate_hz'] or 0:.1f} Hz, latency p50 {s['latency_ms_p50'] or 0:.1f} ms, "
               f"p95 {s['latency_ms_p95'] or 0:.1f} ms", file=log)
+    if sender is not None:
+        print(sender.failure_summary() or f"udp: {sender.sent} poses sent to {sender.host}:{sender.port}", file=log)
     code = _report_rig(args, tracker, tracked=sum(bool(r["ok"]) for r in records), log=log)
     if args.record:
         print(f"recording: {args.record} (replay: headplod track --source {args.record})", file=log)

@@ -11,22 +11,61 @@ doubles are little-endian, positions in centimetres and rotations in degrees
 (opentrack issue #881). A datagram here is therefore ``struct.pack('<6d', x_cm,
 y_cm, z_cm, yaw_deg, pitch_deg, roll_deg)``: 48 bytes.
 
-Position. ``x_cm, y_cm, z_cm`` is the head position (marker P1) in headplod's
-world frame, the left camera's OpenCV frame (x to the camera's right, y DOWN,
-z forward, away from the camera), in centimetres, no axis flipped. That is
-what opentrack's ArUco tracker sends (``tracker-aruco/ftnoir_tracker_aruco.cpp``
-sends ``tvec * .1`` of ``cv::solvePnP``, the same OpenCV camera frame). x
-(positive: the head moves to the camera's right, which is the wearer's left)
-and z (positive: farther from the camera) agree with opentrack's other
-trackers; y does not: the SteamVR and neural-net trackers send y positive UP.
-If raising the head lowers the view in a game, tick "invert" for Y in
-opentrack's Options > Output. opentrack centres the pose when tracking
-starts, so only the directions matter there, not the origin.
+What is sent is what opentrack's point tracker (``tracker-pt``) sends, so that
+a user switching from it changes nothing in opentrack: no axis to invert, no
+offset to enter. The sources read (opentrack master, commit f009bb52, July
+2026):
+
+- ``tracker-pt/pt-api.cpp`` lines 46-50, ``to_screen_pos``: a blob at pixel
+  (px, py) of a w x h image becomes ``((px - w/2)/w, -(py - h/2)/w)``: x to
+  the image's right, y UP (the pixel row is negated).
+- ``tracker-pt/point_tracker.cpp`` lines 304-307 (POSIT's translation
+  ``order[0] * Z0/focal_length``, ``Z0``) and 354-357 (``project``: ``f *
+  v_C[0]/v_C[2]``, ``f * v_C[1]/v_C[2]``): the camera frame C of ``X_CM`` is
+  x to the camera's right, y up, z away from the camera (depth > 0).
+- ``tracker-pt/ftnoir_tracker_pt.cpp`` lines 153-195, ``Tracker_PT::data``:
+  ``X_GH = X_CM * X_MH`` with ``X_MH`` a pure translation by the model offset
+  ``t_MH`` (``pt-settings.hpp`` lines 47-49, "model-centroid-x/y/z", mm,
+  default 0, which the dialog's "calibrate" button estimates from head
+  turns: ``ftnoir_tracker_pt_dialog.cpp`` lines 174-197 and 275-285,
+  ``cv/translation-calibrator.cpp``); ``TX, TY, TZ = X_GH.t / 10``. So the
+  position is that of the model point ``t_MH`` (the head's pivot, once
+  calibrated), in C, in cm. The angles are the z-y-x decomposition of
+  ``R_EG X_GH.R R_EG^T`` with ``R_EG = [[0,0,-1],[-1,0,0],[0,1,0]]``, yaw =
+  alpha, pitch = -beta, roll = gamma (lines 167-189).
+
+Working the last step through for the three elementary head motions (a
+head facing the camera, the image not mirrored) gives tracker-pt's signs:
+
+- x (TX) positive: the head is to the camera's right (the wearer's left);
+- y (TY) positive: the head is UP;
+- z (TZ) positive: farther from the camera;
+- yaw positive: the wearer turns to their RIGHT;
+- pitch positive: the wearer looks UP;
+- roll positive: the head tilts to the wearer's LEFT (left ear toward the
+  left shoulder).
+
+Position. The default frame here, ``"tracker-pt"``, is that: headplod's world
+frame (the left camera's OpenCV frame: x right, y DOWN, z forward) with y
+negated, in cm. ``"opencv"`` (``headplod track --udp-axes opencv``) keeps y
+down, which is what opentrack's ArUco tracker sends
+(``tracker-aruco/ftnoir_tracker_aruco.cpp``: ``tvec * .1`` of
+``cv::solvePnP``) and what headplod sent before. The JSON pose records are not
+affected: they keep the contract's frame (``spec/conventions.md``, y down)
+and P1.
+
+The point sent is the head's pivot, not P1: ``P1 + axes^T @ pivot_mm`` with
+``pivot_mm`` in the head frame (x along Ξ toward P0, the wearer's left; y
+along Ψ, up; z along V, forward; for the default marker model this is the
+glasses frame G of the contract). That plays the part of tracker-pt's
+``t_MH``: a head turning about its neck then leaves x, y and z still instead
+of swinging them by ~10 cm. :data:`DEFAULT_PIVOT_MM` is a typical head;
+``headplod pivot`` measures it (:mod:`headplod.live.pivot`).
 
 Angles. A head facing the cameras (V along the world's -z, Ψ up = world -y,
 Ξ the wearer's left = world +x) has yaw = pitch = roll = 0. The angles are
 intrinsic Tait-Bryan angles in the order yaw, then pitch, then roll (the
-"aerospace" z-y'-x'' sequence), with opentrack's signs:
+"aerospace" z-y'-x'' sequence), with the signs above:
 
 - yaw: rotation about the head's up axis; positive when the wearer turns to
   their RIGHT (V moves toward the world's -x, the cameras' left);
@@ -39,20 +78,21 @@ intrinsic Tait-Bryan angles in the order yaw, then pitch, then roll (the
 Written as a matrix: with the user frame F = (forward, left, up) =
 (-z, +x, -y) of the world, the head axes expressed in F, columns (V, Ξ, Ψ),
 are ``Rz(-yaw) @ Ry(-pitch) @ Rx(-roll)`` (right-handed elementary
-rotations). This is exactly the decomposition of opentrack's
-``compat/euler.cpp`` (``euler_to_rmat`` negates all three angles and builds
-Rz Ry Rx; ``rmat_to_euler`` is the inverse used here). The signs were checked
-against two trackers whose frames are unambiguous: ``tracker-steamvr/
-steamvr.cpp`` (``matrix_to_euler`` on OpenVR's x right, y up, z back frame:
-turning right, looking up and tilting left give positive yaw, pitch, roll)
-and ``tracker-aruco/ftnoir_tracker_aruco.cpp`` (``cv::RQDecomp3x3`` of the
-OpenCV camera-frame rotation, yaw = euler[1], pitch = -euler[0], roll =
-euler[2]; the same three signs). Ranges: yaw and roll in (-180, 180], pitch
-in [-90, 90]; at pitch ±90° roll is reported as 0.
+rotations). This is the decomposition of opentrack's ``compat/euler.cpp``
+(``euler_to_rmat`` negates all three angles and builds Rz Ry Rx;
+``rmat_to_euler`` is the inverse used here), and it gives the three signs
+tracker-pt gives (above); ``tracker-steamvr/steamvr.cpp`` and
+``tracker-aruco/ftnoir_tracker_aruco.cpp`` agree on them. The angles do not
+depend on the position frame chosen. Ranges: yaw and roll in (-180, 180],
+pitch in [-90, 90]; at pitch ±90° roll is reported as 0.
 
 A record with ``ok`` false sends nothing: opentrack keeps the last pose it
 received (it also ignores datagrams holding NaN), which is the right
-behaviour for a frame without a trustworthy pose.
+behaviour for a frame without a trustworthy pose. A datagram the system
+refuses to send (a broadcast address without permission, an unreachable
+network) is counted in :attr:`OpentrackSender.failed`, its first and last
+errors kept; :class:`StatusLine` shows them, and ``headplod track`` prints
+them at the end of the run.
 """
 from __future__ import annotations
 
@@ -69,6 +109,19 @@ import numpy as np
 
 OPENTRACK_PORT = 4242
 """opentrack's default UDP input port (``tracker-udp/ftnoir_tracker_udp.h``)."""
+
+#: Position frames of the UDP output: ``"tracker-pt"`` (x right, y UP, z away from the camera, as opentrack's
+#: point tracker; the default) and ``"opencv"`` (the contract's world frame, y DOWN, as opentrack's ArUco tracker).
+OPENTRACK_FRAMES = ("tracker-pt", "opencv")
+
+#: The head's pivot (the neck) from the bridge of the glasses, in the head frame (x along Ξ, the wearer's left;
+#: y along Ψ, up; z along V, forward), mm. No lateral offset; 80 mm down and 90 mm back: the head's yaw axis
+#: (the atlanto-axial joint, C1-C2) runs about 80-100 mm behind the eyes, and its pitch axis (the
+#: atlanto-occipital joints, just below and in front of the ear canal) some 60-90 mm below the eyes' level,
+#: the bridge of glasses sitting a few mm in front of and above the eyes; one point stands for both axes.
+#: The synthetic renderer's heads turn about the same point (``synthetic/scenes.py`` ``NECK_PIVOT_HEAD_MM``).
+#: Heads differ by a couple of centimetres: ``headplod pivot`` measures the wearer's.
+DEFAULT_PIVOT_MM = (0.0, -80.0, -90.0)
 
 _PACKET = struct.Struct("<6d")
 OPENTRACK_PACKET_BYTES = _PACKET.size  # 48
@@ -89,7 +142,49 @@ def _check_pose(position_mm, axes) -> tuple[np.ndarray, np.ndarray]:
     return p, a
 
 
-def opentrack_values(position_mm, axes) -> tuple[float, float, float, float, float, float]:
+def check_pivot_mm(pivot_mm) -> np.ndarray:
+    """A pivot as a (3,) float array, checked: finite, within 300 mm of the bridge.
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape, a non-finite value or a pivot farther than 300 mm
+        (a head is not that big: metres or a typo).
+    """
+    c = np.asarray(pivot_mm, dtype=float)
+    if c.shape != (3,):
+        raise ValueError(f"pivot: expected 3 values X,Y,Z in mm, got shape {c.shape}")
+    if not np.all(np.isfinite(c)):
+        raise ValueError(f"pivot: expected finite values in mm, got {c.tolist()}")
+    if np.linalg.norm(c) > 300.0:
+        raise ValueError(f"pivot: {c.tolist()} mm is {np.linalg.norm(c):.0f} mm from the bridge, expected "
+                         "within 300 mm (a head's neck lies ~120 mm from it; mm, not cm or m?)")
+    return c
+
+
+def pivot_position_mm(position_mm, axes, pivot_mm) -> np.ndarray:
+    """The pivot's position in the world frame: ``P1 + axes^T @ pivot_mm``.
+
+    Parameters
+    ----------
+    position_mm : (3,) array_like of float
+        P1, world frame, mm.
+    axes : (3, 3) array_like of float
+        Rows Ξ, Ψ, V in the world frame.
+    pivot_mm : (3,) array_like of float
+        The pivot in the head frame (coordinates along Ξ, Ψ, V), mm.
+
+    Returns
+    -------
+    (3,) ndarray of float
+        World frame, mm.
+    """
+    p, a = _check_pose(position_mm, axes)
+    return p + a.T @ np.asarray(pivot_mm, dtype=float)
+
+
+def opentrack_values(position_mm, axes, pivot_mm=(0.0, 0.0, 0.0),
+                     frame: str = "tracker-pt") -> tuple[float, float, float, float, float, float]:
     """The six values opentrack expects for a head pose.
 
     Parameters
@@ -100,11 +195,17 @@ def opentrack_values(position_mm, axes) -> tuple[float, float, float, float, flo
     axes : (3, 3) array_like of float
         Rows Ξ, Ψ, V: unit vectors in the world frame (the contract's pose
         axes; a proper rotation).
+    pivot_mm : (3,) array_like of float
+        The point whose position is sent, in the head frame (along Ξ, Ψ, V),
+        mm; (0, 0, 0) sends P1. :data:`DEFAULT_PIVOT_MM` is a head's neck.
+    frame : {"tracker-pt", "opencv"}
+        The position's axes: ``"tracker-pt"`` (x right, y up, z away from
+        the camera: opentrack's point tracker) or ``"opencv"`` (y down).
 
     Returns
     -------
     x_cm, y_cm, z_cm : float
-        The position in the world frame, cm (no axis flipped; y is down).
+        The pivot's position, cm, in ``frame``.
     yaw_deg, pitch_deg, roll_deg : float
         Intrinsic yaw-pitch-roll in degrees, zero facing the cameras; yaw
         positive turning to the wearer's right, pitch positive looking up,
@@ -114,8 +215,10 @@ def opentrack_values(position_mm, axes) -> tuple[float, float, float, float, flo
     Raises
     ------
     ValueError
-        On a wrong shape.
+        On a wrong shape or an unknown frame.
     """
+    if frame not in OPENTRACK_FRAMES:
+        raise ValueError(f"frame: expected one of {', '.join(OPENTRACK_FRAMES)}, got {frame!r}")
     p, a = _check_pose(position_mm, axes)
     xi, psi, v = a
     # Head axes (forward V, left Ξ, up Ψ) expressed in F: M = F^T [V Ξ Ψ].
@@ -129,7 +232,10 @@ def opentrack_values(position_mm, axes) -> tuple[float, float, float, float, flo
         pitch = math.atan2(M[2, 0], cos_pitch)
         yaw = -math.atan2(-M[0, 1], M[1, 1])
         roll = 0.0
-    x_cm, y_cm, z_cm = (float(c) / 10.0 for c in p)
+    q = pivot_position_mm(p, a, pivot_mm)
+    if frame == "tracker-pt":
+        q = q * np.array([1.0, -1.0, 1.0])
+    x_cm, y_cm, z_cm = (float(c) / 10.0 for c in q)
     return (x_cm, y_cm, z_cm, math.degrees(yaw), math.degrees(pitch), math.degrees(roll))
 
 
@@ -269,6 +375,11 @@ class OpentrackSender:
         resolved once, here.
     port : int
         opentrack's UDP port (default 4242).
+    pivot_mm : (3,) array_like of float
+        The point sent, in the head frame (along Ξ, Ψ, V), mm (default
+        :data:`DEFAULT_PIVOT_MM`, a head's neck; (0, 0, 0) sends P1).
+    frame : {"tracker-pt", "opencv"}
+        The position's axes (default ``"tracker-pt"``: y up).
 
     Attributes
     ----------
@@ -276,9 +387,11 @@ class OpentrackSender:
         Datagrams sent.
     skipped : int
         Records not sent (``ok`` false, or a non-finite pose).
-    last_error : str or None
-        The last socket error (a send that failed returns False; the caller
-        keeps running).
+    failed : int
+        Datagrams the socket refused (a send that failed returns False; the
+        caller keeps running).
+    first_error, last_error : str or None
+        The first and the last socket error, ``"HOST:PORT: message"``.
 
     Examples
     --------
@@ -287,7 +400,12 @@ class OpentrackSender:
     ...         out.send(record)
     """
 
-    def __init__(self, host: str, port: int = OPENTRACK_PORT):
+    def __init__(self, host: str, port: int = OPENTRACK_PORT, *, pivot_mm=DEFAULT_PIVOT_MM,
+                 frame: str = "tracker-pt"):
+        if frame not in OPENTRACK_FRAMES:
+            raise ValueError(f"OpentrackSender: frame must be one of {', '.join(OPENTRACK_FRAMES)}, got {frame!r}")
+        self.pivot_mm = check_pivot_mm(pivot_mm)
+        self.frame = frame
         if not host:
             raise ValueError("OpentrackSender: empty host")
         if not 1 <= int(port) <= 65535:
@@ -301,6 +419,8 @@ class OpentrackSender:
         self._sock = socket.socket(family, type_, proto)
         self.sent = 0
         self.skipped = 0
+        self.failed = 0
+        self.first_error: str | None = None
         self.last_error: str | None = None
 
     def send(self, record: Mapping) -> bool:
@@ -325,17 +445,35 @@ class OpentrackSender:
             self.skipped += 1
             return False
         try:
-            packet = encode_opentrack(opentrack_values(record["position"], record["axes"]))
+            packet = encode_opentrack(opentrack_values(record["position"], record["axes"], self.pivot_mm,
+                                                       self.frame))
         except ValueError:
             self.skipped += 1
             return False
         try:
             self._sock.sendto(packet, self.address)
         except OSError as e:
+            self.failed += 1
             self.last_error = f"{self.host}:{self.port}: {e}"
+            if self.first_error is None:
+                self.first_error = self.last_error
             return False
         self.sent += 1
         return True
+
+    def failure_summary(self) -> str | None:
+        """One line on the sends that failed, or None when none did.
+
+        Examples
+        --------
+        ``"udp: 120 of 120 datagrams not sent; first: 255.255.255.255:4242: [Errno 13] Permission denied"``
+        """
+        if not self.failed:
+            return None
+        line = f"udp: {self.failed} of {self.failed + self.sent} datagrams not sent; first: {self.first_error}"
+        if self.last_error != self.first_error:
+            line += f"; last: {self.last_error}"
+        return line
 
     def close(self) -> None:
         """Close the socket (idempotent)."""
@@ -401,6 +539,9 @@ class StatusLine:
         Minimum interval between two renderings, s (> 0).
     window_s : float
         Length of the sliding window for the rate, latency and skew, s.
+    sender : OpentrackSender, optional
+        When given, sends that failed are shown: ``udp: N not sent (first:
+        ...)``.
 
     Notes
     -----
@@ -413,7 +554,8 @@ class StatusLine:
     shortened by :func:`short_rig_message`.
     """
 
-    def __init__(self, stream: TextIO | None = None, every_s: float = 1.0, window_s: float = 5.0):
+    def __init__(self, stream: TextIO | None = None, every_s: float = 1.0, window_s: float = 5.0,
+                 sender: OpentrackSender | None = None):
         if not every_s > 0:
             raise ValueError(f"every_s must be > 0, got {every_s}")
         if not window_s > 0:
@@ -421,6 +563,7 @@ class StatusLine:
         self.stream = sys.stderr if stream is None else stream
         self.every_s = float(every_s)
         self.window_s = float(window_s)
+        self.sender = sender
         try:
             self._tty = bool(self.stream.isatty())
         except (AttributeError, ValueError):
@@ -513,7 +656,9 @@ class StatusLine:
             ``ok_percent``, ``rate_hz``, ``latency_ms_median``,
             ``latency_ms_p95``, ``skew_ms_median``, ``skew_ms_max`` (over the
             window; None when there is no data), ``last_failure`` and
-            ``rig_message`` (the last record's, in full).
+            ``rig_message`` (the last record's, in full), ``udp_failed``
+            (datagrams not sent; None without a sender) and
+            ``udp_first_error``.
         """
         lat = np.array([v for _, v in self._latency])
         skew = np.array([v for _, v in self._skew])
@@ -530,6 +675,8 @@ class StatusLine:
             "skew_ms_max": float(skew.max()) if skew.size else None,
             "last_failure": self.last_failure,
             "rig_message": self.rig_message,
+            "udp_failed": None if self.sender is None else self.sender.failed,
+            "udp_first_error": None if self.sender is None else self.sender.first_error,
         }
 
     def render(self) -> str:
@@ -544,6 +691,8 @@ class StatusLine:
                  f"skew {num(s['skew_ms_median'])}/{num(s['skew_ms_max'])} ms (med/max)",
                  f"dropped {s['dropped']}",
                  f"ok {num(s['ok_percent'])}%"]
+        if s["udp_failed"]:
+            parts.append(f"udp: {s['udp_failed']} not sent (first: {s['udp_first_error']})")
         if s["last_failure"]:
             parts.append(f"last failure: {s['last_failure']}")
         if s["rig_message"]:
