@@ -409,14 +409,17 @@ class LevelSelector:
         return pc.velocity_baseline_level(base, speed, mode=cfg.mode, v_ref=cfg.velocity_ref_deg_s, max_level=L,
                                           return_continuous=True)[1]
 
-    def _outside_screen(self, eye) -> np.ndarray:
-        """(F,) bool: the base triangle projects wholly outside the screen rectangle (or lies behind the eye)."""
+    def _outside_screen(self, eye, rows=None) -> np.ndarray:
+        """(F,) bool (or (k,) for base triangles ``rows`` (k,) int): the base triangle projects wholly
+        outside the screen rectangle (or lies behind the eye)."""
         from .contrast import project_to_screen_px
 
-        xy = project_to_screen_px(self.centroids_mm, eye, self.screen)
+        centroids, edge0 = ((self.centroids_mm, self.edge_len_mm[:, 0]) if rows is None
+                            else (self.centroids_mm[rows], self.edge_len_mm[rows, 0]))
+        xy = project_to_screen_px(centroids, eye, self.screen)
         width, height = self.screen.size_px
         # Margin: the triangle's size at level 0 on the screen, generously.
-        margin = self.config.cull_margin_edges * self.edge_len_mm[:, 0] * self.px_per_mm
+        margin = self.config.cull_margin_edges * edge0 * self.px_per_mm
         with np.errstate(invalid="ignore"):
             inside = ((xy[:, 0] >= -margin) & (xy[:, 0] <= width + margin)
                       & (xy[:, 1] >= -margin) & (xy[:, 1] <= height + margin))
