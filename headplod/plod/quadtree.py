@@ -105,17 +105,20 @@ class QuadTree:
     ----------
     depth : int
         D: the leaves (quads) are at depth D, the root at 0.
-    lo_mm, hi_mm : list of (4^d, 3) float64
-        Per depth d, node ``j 2^d + i``'s box corners, world mm (+inf / -inf for an empty node).
-    diameter_mm : list of (4^d,) float64
-        Longest side of any triangle below the node, mm.
-    reach_mm : list of (4^d,) float64
-        Largest distance from a triangle's centroid to one of its corners below the node, mm.
-    margin_mm : list of (4^d,) float64
-        Widest culling margin below the node, mm.
+    table : list of (4^d, 12) float64
+        Per depth d, node ``j 2^d + i``'s row: its box's centre (3) and
+        half-size (3), world mm; the box's half diagonal, mm; the longest
+        side of a triangle below it, mm; the largest distance from a
+        triangle's centroid to its corners, mm; the widest culling margin,
+        mm (widened by 1e-9 against rounding); the highest contrast; the
+        highest foveal f_max over all speeds at that contrast, cpd (the
+        last two set by :meth:`set_contrast`). Empty nodes (padding) hold
+        anything: they are never reached.
     valid : list of (4^d,) bool
         The node holds at least one quad.
     """
+
+    COLUMNS = ("cx", "cy", "cz", "hx", "hy", "hz", "radius", "diameter", "reach", "margin", "contrast", "fmax")
 
     def __init__(self, corners_mm, centroids_mm, nx: int, ny: int, margin_mm):
         corners = np.asarray(corners_mm, dtype=np.float64)
@@ -133,55 +136,56 @@ class QuadTree:
         points = np.concatenate([corners, centroids[:, None]], axis=1).reshape(ny, nx, 8, 3)   # 2 faces x 4
         side = np.linalg.norm(corners - corners[:, [1, 2, 0]], axis=2).max(axis=1)
         reach = np.linalg.norm(corners - centroids[:, None], axis=2).max(axis=1)
-        margin = np.asarray(margin_mm, dtype=np.float64).reshape(-1)
+        margin = np.asarray(margin_mm, dtype=np.float64).reshape(-1) * (1 + 1e-9) + 1e-9
 
-        def leaf(values, fill, reduce):
-            reduced = reduce(values)                      # (ny, nx, ...)
+        def leaf(reduced, fill):
             out = np.full((n, n) + reduced.shape[2:], fill)
             out[:ny, :nx] = reduced
             return out
 
-        lo = leaf(points, np.inf, lambda p: p.min(axis=2))
-        hi = leaf(points, -np.inf, lambda p: p.max(axis=2))
-        per_quad = {"diameter": side, "reach": reach, "margin": margin}
-        grids = {k: leaf(v.reshape(ny, nx, 2), -np.inf, lambda a: a.max(axis=2)) for k, v in per_quad.items()}
-        valid = np.zeros((n, n), bool)
-        valid[:ny, :nx] = True
-        self.lo_mm, self.hi_mm, self.valid = [None] * (D + 1), [None] * (D + 1), [None] * (D + 1)
-        self.diameter_mm, self.reach_mm, self.margin_mm = [None] * (D + 1), [None] * (D + 1), [None] * (D + 1)
+        lo, hi = leaf(points.min(axis=2), 0.0), leaf(points.max(axis=2), 0.0)
+        scalars = np.stack([leaf(v.reshape(ny, nx, 2).max(axis=2), 0.0) for v in (side, reach, margin)], axis=-1)
+        valid = leaf(np.ones((ny, nx), bool), False)
+        self.table, self.valid = [None] * (D + 1), [None] * (D + 1)
         for d in range(D, -1, -1):                        # loop over depths, leaves up
             m = 2 ** d
-            self.lo_mm[d], self.hi_mm[d] = lo.reshape(m * m, 3), hi.reshape(m * m, 3)
-            self.valid[d] = valid.reshape(-1)
-            self.diameter_mm[d] = grids["diameter"].reshape(-1)
-            self.reach_mm[d] = grids["reach"].reshape(-1)
-            self.margin_mm[d] = grids["margin"].reshape(-1)
+            row = np.zeros((m, m, len(self.COLUMNS)))
+            row[..., 0:3], row[..., 3:6] = 0.5 * (lo + hi), 0.5 * (hi - lo)
+            row[..., 6] = np.linalg.norm(row[..., 3:6], axis=-1)
+            row[..., 7:10] = scalars
+            self.table[d], self.valid[d] = row.reshape(m * m, -1), valid.reshape(-1)
             if d:
-                lo = lo.reshape(m // 2, 2, m // 2, 2, 3).min(axis=(1, 3))
-                hi = hi.reshape(m // 2, 2, m // 2, 2, 3).max(axis=(1, 3))
-                valid = valid.reshape(m // 2, 2, m // 2, 2).any(axis=(1, 3))
-                grids = {k: g.reshape(m // 2, 2, m // 2, 2).max(axis=(1, 3)) for k, g in grids.items()}
-        self.contrast = None
+                # A node's extremes over its valid children (padding ones hold zeros).
+                blocks = lambda a: a.reshape(m // 2, 2, m // 2, 2, *a.shape[2:])                  # noqa: E731
+                vb = blocks(valid)[..., None]
+                lo = np.where(vb, blocks(lo), np.inf).min(axis=(1, 3))
+                hi = np.where(vb, blocks(hi), -np.inf).max(axis=(1, 3))
+                scalars = np.where(vb, blocks(scalars), -np.inf).max(axis=(1, 3))
+                valid = blocks(valid).any(axis=(1, 3))
+                lo, hi = np.where(valid[..., None], lo, 0.0), np.where(valid[..., None], hi, 0.0)
+                scalars = np.where(valid[..., None], scalars, 0.0)
         self._contrast_source = None
 
     @property
     def n_nodes(self) -> int:
-        return sum(len(v) for v in self.valid)
+        return sum(int(v.sum()) for v in self.valid)
 
-    def set_contrast(self, contrast) -> None:
-        """Per-node highest contrast from the triangles' (F,); recomputed only for a new array."""
+    def set_contrast(self, contrast, fmax_sup=None) -> None:
+        """Per-node highest contrast from the triangles' (F,) and, with ``fmax_sup`` (a function of the
+        contrast (k,) → cpd (k,), non-decreasing), its sup f_max; recomputed only for a new array."""
         if contrast is self._contrast_source:
             return
         D, n = self.depth, 2 ** self.depth
         c = np.full((n, n), -np.inf)
         c[:self.ny, :self.nx] = np.asarray(contrast, dtype=np.float64).reshape(self.ny, self.nx, 2).max(axis=2)
-        out = [None] * (D + 1)
         for d in range(D, -1, -1):                        # loop over depths
-            out[d] = c.reshape(-1)
+            self.table[d][:, 10] = np.maximum(c.reshape(-1), 0.0)
+            if fmax_sup is not None:
+                self.table[d][:, 11] = fmax_sup(self.table[d][:, 10])
             if d:
                 m = 2 ** d
                 c = c.reshape(m // 2, 2, m // 2, 2).max(axis=(1, 3))
-        self.contrast, self._contrast_source = out, contrast
+        self._contrast_source = contrast
 
     def children(self, d: int, nodes):
         """The valid children (at depth d + 1) of ``nodes`` (k,) int at depth d."""
@@ -243,10 +247,16 @@ class QuadtreeSelector(LevelSelector):
                              config.cull_margin_edges * self.edge_len_mm[:, 0])
         self._hot = None                # per depth: nodes with a triangle above level 0 (hysteresis)
         self._fmax_table = None         # (contrast grid, sup f_max) of mode csf
+        if config.mode == "csf":
+            self._fmax_sup(self.contrast)   # the table, once (~0.1 s)
         self.last_stats: dict = {}
+        # Frustum culling of a node: the screen's four sides, each a plane through the eye that moves
+        # outwards with the margin (``_frame_planes``).
         tl = np.asarray(screen.top_left, dtype=np.float64)
-        self._screen_uvn = (tl, np.asarray(screen.top_right, dtype=np.float64) - tl,
-                            np.asarray(screen.bottom_left, dtype=np.float64) - tl)
+        u = np.asarray(screen.top_right, dtype=np.float64) - tl
+        v = np.asarray(screen.bottom_left, dtype=np.float64) - tl
+        width, height = screen.size_px
+        self._screen = (tl, u, v, np.cross(u, v), self.px_per_mm / width * (u @ u), self.px_per_mm / height * (v @ v))
 
     # ------------------------------------------------------------------ bounds
     def _fmax_sup(self, contrast):
@@ -259,73 +269,65 @@ class QuadtreeSelector(LevelSelector):
         k = np.searchsorted(grid, contrast, side="left")        # grid[k] >= contrast: f_max rises with C
         return table[np.minimum(k, len(grid) - 1)]
 
-    def _bound(self, d, nodes, eye, axes, cov):
-        """Upper bound (k,) of the continuous level of any base triangle below ``nodes`` at depth d."""
-        t, cfg = self.tree, self.config
-        lo, hi = t.lo_mm[d][nodes], t.hi_mm[d][nodes]
-        dmin = np.linalg.norm(np.maximum(np.maximum(lo - eye, eye - hi), 0.0), axis=1)
-        if cfg.mode == "distance":
-            return (self.max_level - np.log2(np.maximum(dmin / cfg.distance_ref_mm, 1e-9))
-                    + float(cfg.level_bias) + _LEVEL_SLACK)
-        # Smallest angle from the POI's direction V to the node's bounding sphere, deg. The offsets'
-        # norm |(φ, θ)| is at least that angle, and the eccentricity of shifted offsets P' at least
-        # atan(|P'| in rad).
-        centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1)
-        rel = centre - eye
-        dc = np.linalg.norm(rel, axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cos_c = np.clip((rel @ axes[2]) / dc, -1.0, 1.0)
-            half = np.degrees(np.arcsin(np.minimum(radius / dc, 1.0)))
-        angle = np.maximum(np.degrees(np.arccos(cos_c)) - np.where(radius < dc, half, 180.0), 0.0)
-        if cov is not None:
-            S = np.asarray(cov, dtype=np.float64)
-            lam = float(np.linalg.eigvalsh(0.5 * (S + S.T))[-1])
-            if lam > 0:
-                if cfg.shift == "ellipse":
-                    angle = np.maximum(angle - cfg.ellipse_sigma * math.sqrt(lam), 0.0)
-                else:                           # eq1: |P'| = (1 - exp(-q/2)) |P|, q >= |P|² / λmax
-                    angle = -np.expm1(-0.5 * angle ** 2 / lam) * angle
-        ecc = np.degrees(np.arctan(np.radians(angle)))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = t.reach_mm[d][nodes] / dmin
-            reach = np.where(ratio < 1.0, np.degrees(np.arcsin(np.minimum(ratio, 1.0))), 180.0)
-            diameter = np.degrees(2 * np.arcsin(np.minimum(t.diameter_mm[d][nodes] / (2 * dmin), 1.0)))
-        diameter = np.where(dmin > 0, diameter, 180.0)
-        ecc = np.maximum(ecc - reach - _ANGLE_SLACK_DEG, 0.0)
-        contrast = t.contrast[d][nodes]
-        if cfg.mode == "gp":
-            fmax = pc.gp_cutoff_cpd(contrast, ecc)
-        elif cfg.csf_model == "kelly_scaled":
-            fmax = self._fmax_sup(contrast) / pc.eccentricity_factor(ecc)
-        else:                                   # f_max(C, v, e) = f_max(C / (1 + 0.29 e), v, 0)
-            fmax = self._fmax_sup(contrast / pc.eccentricity_factor(ecc))
-        with np.errstate(divide="ignore"):
-            return np.log2(np.maximum(fmax, 1e-12) * diameter) + float(cfg.level_bias) + _LEVEL_SLACK
+    def _frame_planes(self, eye):
+        """The culling sides' constants for this eye: (W0 (4, 3), A (4,), B (4,), normal (3,)).
 
-    def _culled(self, d, nodes, eye):
-        """(k,) bool: every centroid below the node projects outside the screen (with its margin), or behind."""
-        t = self.tree
-        lo, hi = t.lo_mm[d][nodes], t.hi_mm[d][nodes]
-        box = np.stack([np.where(np.array(bits, bool), hi, lo)
-                        for bits in np.ndindex(2, 2, 2)], axis=1) - eye           # (k, 8, 3)
-        tl, u, v = self._screen_uvn
-        normal = np.cross(u, v)
-        k = (tl - eye) @ normal
-        along = box @ normal                                                        # (k, 8)
-        width, height = self.screen.size_px
-        # Margin on the screen plane, widened by a hair against rounding.
-        m = t.margin_mm[d][nodes][:, None] * (1 + 1e-9) + 1e-9
-        out = np.zeros(len(nodes), bool)
-        for axis, size_px in ((u, width), (v, height)):   # two screen axes, two sides each
-            a = box @ axis
-            h0 = (eye - tl) @ axis
-            scale = axis @ axis
-            mpx = m * self.px_per_mm / size_px * scale       # margin in the units of hit · axis
-            # In front of the eye (s > 0): hit·axis >= -mpx  <=>  rel·axis + (h0 + mpx) (rel·n) / k >= 0.
-            low_side = a + (h0 + mpx) / k * along
-            high_side = -a + (scale + mpx - h0) / k * along
-            out |= np.all(low_side < 0, axis=1) | np.all(high_side < 0, axis=1)
-        return out
+        A point ``p`` in front of the eye projects inside side s of the
+        screen widened by a margin ``m`` (mm on the screen) iff
+        ``(p - eye) · (W0[s] + (A[s] + B[s] m) / k n) >= 0``, with ``n`` the
+        screen's normal and ``k = (top_left - eye) · n``: multiply the pixel
+        condition of ``contrast.project_to_screen_px`` by the positive
+        ``1 / s``. A box is wholly outside a side when that linear form's
+        maximum over the box is negative.
+        """
+        tl, u, v, n, bu, bv = self._screen
+        k = float((tl - eye) @ n)
+        h0u, h0v = float((eye - tl) @ u), float((eye - tl) @ v)
+        W0 = np.stack([u, -u, v, -v])
+        A = np.array([h0u, u @ u - h0u, h0v, v @ v - h0v]) / k
+        B = np.array([bu, bu, bv, bv]) / k
+        return W0, A, B, n
+
+    def _keep(self, d, nodes, frame):
+        """(k,) bool: some base triangle below ``nodes`` (depth d) is in view and may need a level above 0."""
+        eye, axes, planes, shift, threshold = frame
+        row = self.tree.table[d][nodes]                                       # (k, 12)
+        rel, half = row[:, 0:3] - eye, row[:, 3:6]
+        # Culling: the linear form's maximum over the box, per side.
+        W0, A, B, n = planes
+        w = W0 + ((A + B * row[:, 9:10])[:, :, None] * n)                    # (k, 4, 3)
+        top = np.einsum("kj,ksj->ks", rel, w) + np.einsum("kj,ksj->ks", half, np.abs(w))
+        seen = (top >= 0).all(axis=1)
+        cfg = self.config
+        dmin = np.sqrt((np.maximum(np.abs(rel) - half, 0.0) ** 2).sum(axis=1))
+        if cfg.mode == "distance":
+            return seen & (self.max_level - np.log2(np.maximum(dmin / cfg.distance_ref_mm, 1e-9)) > threshold)
+        # Smallest angle from the POI's direction V to the node's bounding sphere, deg: the offsets'
+        # norm |(φ, θ)| is at least that angle, and the eccentricity of the shifted offsets P' at
+        # least atan(|P'| in rad).
+        dc = np.sqrt((rel * rel).sum(axis=1))
+        radius = row[:, 6]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            angle = np.degrees(np.arccos(np.clip((rel @ axes[2]) / dc, -1.0, 1.0))
+                               - np.where(radius < dc, np.arcsin(np.minimum(radius / dc, 1.0)), np.pi))
+            angle = np.maximum(angle, 0.0)
+            if shift is not None:
+                form, amount = shift
+                angle = (np.maximum(angle - amount, 0.0) if form == "ellipse"
+                         else -np.expm1(-0.5 * angle ** 2 / amount) * angle)     # eq1, amount = λmax
+            # Less the largest angle from a centroid to its corners; the largest angular diameter.
+            ratio = row[:, 8] / dmin
+            reach = np.where(ratio < 1.0, np.arcsin(np.minimum(ratio, 1.0)), np.pi)
+            diameter = np.where(dmin > 0, 2 * np.arcsin(np.minimum(row[:, 7] / (2 * dmin), 1.0)), np.pi)
+        ecc = np.maximum(np.degrees(np.arctan(np.radians(angle)) - reach) - _ANGLE_SLACK_DEG, 0.0)
+        if cfg.mode == "gp":
+            fmax = pc.gp_cutoff_cpd(row[:, 10], ecc)
+        elif cfg.csf_model == "kelly_scaled":
+            fmax = row[:, 11] / pc.eccentricity_factor(ecc)
+        else:                                   # f_max(C, v, e) = f_max(C / (1 + 0.29 e), v, 0)
+            fmax = self._fmax_sup(row[:, 10] / pc.eccentricity_factor(ecc))
+        # log2(f_max · diameter) + bias > 0, the continuous level's bound.
+        return seen & (np.maximum(fmax, 1e-12) * np.degrees(diameter) > threshold)
 
     # ------------------------------------------------------------------ selection
     def select(self, view: View):
@@ -335,13 +337,27 @@ class QuadtreeSelector(LevelSelector):
             return super().select(view)
         view, eye, axes, cov = self._frame(view)
         tree = self.tree
-        tree.set_contrast(self.contrast)
+        kelly = cfg.mode == "csf" and cfg.csf_model == "kelly_scaled"
+        tree.set_contrast(self.contrast, self._fmax_sup if kelly else None)
+        shift = None
+        if cov is not None:
+            S = np.asarray(cov, dtype=np.float64)
+            lam = float(np.linalg.eigvalsh(0.5 * (S + S.T))[-1])
+            if lam > 0:
+                shift = ("ellipse", cfg.ellipse_sigma * math.sqrt(lam)) if cfg.shift == "ellipse" else ("eq1", lam)
+        # The continuous level must exceed 0: log2(x) + bias + slack > 0, i.e. x > 2^-(bias + slack)
+        # (mode distance: its level itself > -(bias + slack)).
+        slack = float(cfg.level_bias) + _LEVEL_SLACK
+        threshold = -slack if cfg.mode == "distance" else 2.0 ** -slack
+        frame = (eye, axes, self._frame_planes(eye), shift, threshold)
         hot = self._hot if (self.hysteresis is not None and self.hysteresis.levels is not None) else None
-        frontier = np.flatnonzero(tree.valid[0])
+        # Start below the root: the top depths are almost always entered whole.
+        start = min(tree.depth, 3)
+        frontier = np.flatnonzero(tree.valid[start])
         visited = []
-        for d in range(tree.depth + 1):                    # loop over depths, numpy over the frontier
+        for d in range(start, tree.depth + 1):             # loop over depths, numpy over the frontier
             visited.append(len(frontier))
-            keep = ~self._culled(d, frontier, eye) & (self._bound(d, frontier, eye, axes, cov) > 0)
+            keep = self._keep(d, frontier, frame)
             if hot is not None:
                 keep |= hot[d][frontier]
             frontier = frontier[keep]
@@ -371,7 +387,7 @@ class QuadtreeSelector(LevelSelector):
         else:
             levels = np.zeros(len(self.centroids_mm), dtype=np.int64)
             levels[rows] = pc.round_level(continuous, self.rounding, self.max_level)
-        self.last_stats = {"nodes_visited": int(sum(visited)), "nodes_per_depth": visited,
+        self.last_stats = {"nodes_visited": int(sum(visited)), "nodes_per_depth": [0] * start + visited,
                            "leaves": int(len(frontier)), "triangles_evaluated": int(len(rows))}
         return levels, {"rows": rows, "eccentricity_deg": ecc, "speed_deg_s": speed, "distance_mm": distance,
                         "continuous": continuous, "poi_px": np.asarray(view.poi_px, dtype=np.float64),
