@@ -56,6 +56,18 @@ _LEVEL_SLACK = 1e-6
 _FMAX_MARGIN = 1.001
 
 
+def _sup_table(model: str, top: float):
+    """(contrast grid, sup f_max) up to contrast ``top``, cached per model and top."""
+    key = (model, top)
+    if key not in _SUP_TABLES:
+        grid = np.concatenate([[0.0], np.logspace(-4, math.log10(top), 801)])
+        _SUP_TABLES[key] = (grid, sup_max_visible_freq_cpd(grid, model))
+    return _SUP_TABLES[key]
+
+
+_SUP_TABLES: dict = {}
+
+
 def sup_max_visible_freq_cpd(contrast, model: str = "kelly_scaled", speeds_deg_s=None):
     """Highest foveal f_max over all retinal speeds, per contrast, cpd, with a safety margin.
 
@@ -263,8 +275,7 @@ class QuadtreeSelector(LevelSelector):
         """sup over speeds of the foveal f_max at each contrast (k,), cpd, from a table (rounded up in C)."""
         top = max(1.0, float(np.max(contrast, initial=0.0)))
         if self._fmax_table is None or self._fmax_table[0][-1] < top:
-            grid = np.concatenate([[0.0], np.logspace(-4, math.log10(top), 801)])
-            self._fmax_table = (grid, sup_max_visible_freq_cpd(grid, self.config.csf_model))
+            self._fmax_table = _sup_table(self.config.csf_model, top)
         grid, table = self._fmax_table
         k = np.searchsorted(grid, contrast, side="left")        # grid[k] >= contrast: f_max rises with C
         return table[np.minimum(k, len(grid) - 1)]
@@ -288,20 +299,39 @@ class QuadtreeSelector(LevelSelector):
         B = np.array([bu, bu, bv, bv]) / k
         return W0, A, B, n
 
-    def _keep(self, d, nodes, frame):
-        """(k,) bool: some base triangle below ``nodes`` (depth d) is in view and may need a level above 0."""
-        eye, axes, planes, shift, threshold = frame
+    def _frame_context(self, eye, axes, cov):
+        """The per-frame constants of :meth:`_node_bounds`: (eye, axes, culling planes, shift)."""
+        cfg = self.config
+        shift = None
+        if cov is not None:
+            S = np.asarray(cov, dtype=np.float64)
+            lam = float(np.linalg.eigvalsh(0.5 * (S + S.T))[-1])
+            if lam > 0:
+                shift = ("ellipse", cfg.ellipse_sigma * math.sqrt(lam)) if cfg.shift == "ellipse" else ("eq1", lam)
+        return eye, axes, self._frame_planes(eye), shift
+
+    def _node_bounds(self, d, nodes, frame):
+        """For ``nodes`` (k,) int at depth d: (culled (k,) bool, bound (k,) float).
+
+        ``culled``: every centroid below the node projects outside the
+        screen with its margin (or lies behind the eye), as the flat
+        selection's culling decides. ``bound``: an upper bound of the
+        continuous level (bias included) of every base triangle below the
+        node (module notes).
+        """
+        eye, axes, planes, shift = frame
         row = self.tree.table[d][nodes]                                       # (k, 12)
         rel, half = row[:, 0:3] - eye, row[:, 3:6]
         # Culling: the linear form's maximum over the box, per side.
         W0, A, B, n = planes
         w = W0 + ((A + B * row[:, 9:10])[:, :, None] * n)                    # (k, 4, 3)
         top = np.einsum("kj,ksj->ks", rel, w) + np.einsum("kj,ksj->ks", half, np.abs(w))
-        seen = (top >= 0).all(axis=1)
+        culled = (top < 0).any(axis=1)
         cfg = self.config
         dmin = np.sqrt((np.maximum(np.abs(rel) - half, 0.0) ** 2).sum(axis=1))
         if cfg.mode == "distance":
-            return seen & (self.max_level - np.log2(np.maximum(dmin / cfg.distance_ref_mm, 1e-9)) > threshold)
+            return culled, (self.max_level - np.log2(np.maximum(dmin / cfg.distance_ref_mm, 1e-9))
+                            + float(cfg.level_bias) + _LEVEL_SLACK)
         # Smallest angle from the POI's direction V to the node's bounding sphere, deg: the offsets'
         # norm |(φ, θ)| is at least that angle, and the eccentricity of the shifted offsets P' at
         # least atan(|P'| in rad).
@@ -326,8 +356,9 @@ class QuadtreeSelector(LevelSelector):
             fmax = row[:, 11] / pc.eccentricity_factor(ecc)
         else:                                   # f_max(C, v, e) = f_max(C / (1 + 0.29 e), v, 0)
             fmax = self._fmax_sup(row[:, 10] / pc.eccentricity_factor(ecc))
-        # log2(f_max · diameter) + bias > 0, the continuous level's bound.
-        return seen & (np.maximum(fmax, 1e-12) * np.degrees(diameter) > threshold)
+        # The continuous level is log2(f_max / f) with f = 1 / diameter (deg), plus the bias.
+        with np.errstate(divide="ignore"):
+            return culled, np.log2(np.maximum(fmax, 1e-12) * np.degrees(diameter)) + float(cfg.level_bias) + _LEVEL_SLACK
 
     # ------------------------------------------------------------------ selection
     def select(self, view: View):
@@ -339,17 +370,7 @@ class QuadtreeSelector(LevelSelector):
         tree = self.tree
         kelly = cfg.mode == "csf" and cfg.csf_model == "kelly_scaled"
         tree.set_contrast(self.contrast, self._fmax_sup if kelly else None)
-        shift = None
-        if cov is not None:
-            S = np.asarray(cov, dtype=np.float64)
-            lam = float(np.linalg.eigvalsh(0.5 * (S + S.T))[-1])
-            if lam > 0:
-                shift = ("ellipse", cfg.ellipse_sigma * math.sqrt(lam)) if cfg.shift == "ellipse" else ("eq1", lam)
-        # The continuous level must exceed 0: log2(x) + bias + slack > 0, i.e. x > 2^-(bias + slack)
-        # (mode distance: its level itself > -(bias + slack)).
-        slack = float(cfg.level_bias) + _LEVEL_SLACK
-        threshold = -slack if cfg.mode == "distance" else 2.0 ** -slack
-        frame = (eye, axes, self._frame_planes(eye), shift, threshold)
+        frame = self._frame_context(eye, axes, cov)
         hot = self._hot if (self.hysteresis is not None and self.hysteresis.levels is not None) else None
         # Start below the root: the top depths are almost always entered whole.
         start = min(tree.depth, 3)
@@ -357,7 +378,8 @@ class QuadtreeSelector(LevelSelector):
         visited = []
         for d in range(start, tree.depth + 1):             # loop over depths, numpy over the frontier
             visited.append(len(frontier))
-            keep = self._keep(d, frontier, frame)
+            culled, bound = self._node_bounds(d, frontier, frame)
+            keep = ~culled & (bound > 0)                    # ceil(level) <= 0 for every triangle otherwise
             if hot is not None:
                 keep |= hot[d][frontier]
             frontier = frontier[keep]
