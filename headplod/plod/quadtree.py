@@ -300,8 +300,13 @@ class QuadtreeSelector(LevelSelector):
         return W0, A, B, n
 
     def _frame_context(self, eye, axes, cov):
-        """The per-frame constants of :meth:`_node_bounds`: (eye, axes, culling planes, shift)."""
+        """The per-frame constants of :meth:`_node_bounds`: (eye, axes, culling planes, shift).
+
+        Also brings the nodes' contrast up to date (``self.contrast`` may be replaced between frames).
+        """
         cfg = self.config
+        kelly = cfg.mode == "csf" and cfg.csf_model == "kelly_scaled"
+        self.tree.set_contrast(self.contrast, self._fmax_sup if kelly else None)
         shift = None
         if cov is not None:
             S = np.asarray(cov, dtype=np.float64)
@@ -368,8 +373,6 @@ class QuadtreeSelector(LevelSelector):
             return super().select(view)
         view, eye, axes, cov = self._frame(view)
         tree = self.tree
-        kelly = cfg.mode == "csf" and cfg.csf_model == "kelly_scaled"
-        tree.set_contrast(self.contrast, self._fmax_sup if kelly else None)
         frame = self._frame_context(eye, axes, cov)
         hot = self._hot if (self.hysteresis is not None and self.hysteresis.levels is not None) else None
         # Start below the root: the top depths are almost always entered whole.
