@@ -57,6 +57,14 @@ def test_quadtree_levels_equal_the_flat_ones_on_the_builtin_scene(terrain_scene,
         tree.reset()
 
 
+def test_the_scene_gives_a_quadtree_selector_on_request(terrain_scene):
+    sel = terrain_scene.selector("csf", "adaptive", hierarchy=True)
+    assert isinstance(sel, QuadtreeSelector) and (sel.tree.nx, sel.tree.ny) == (32, 32)
+    flat = terrain_scene.selector("csf", "adaptive")
+    view = _views(terrain_scene.screen, POIS["centre"], None, 1, seed=0, moving=False)[0]
+    np.testing.assert_array_equal(flat.select(view)[0], sel.select(view)[0])
+
+
 @pytest.mark.parametrize("settings", [{"hysteresis": False}, {"mode": "gp"}, {"mode": "distance"},
                                       {"csf_model": "kelly"}, {"shift": "eq1"}, {"level_bias": -1.0},
                                       {"uncertainty": "fixed"}])
