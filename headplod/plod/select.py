@@ -22,6 +22,11 @@ level (for hysteresis) and returns integer levels in [0, max_level]:
 
 Every setting of the selection is a field of :class:`SelectorConfig` (key,
 unit, default, allowed range); :class:`LevelSelector` takes one.
+
+:class:`LevelSelector` evaluates every base triangle on every frame;
+:class:`headplod.plod.quadtree.QuadtreeSelector` gives the same levels
+walking a quadtree of the base grid, through the same per-triangle
+criterion (``LevelSelector._criterion``) and hysteresis rule.
 """
 from __future__ import annotations
 
