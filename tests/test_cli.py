@@ -75,7 +75,7 @@ def test_cli_keeps_no_function_local_imports():
     (["render"], "--view", tuple(VIEW_MODES)),
     (["render"], "--contrast", CONTRAST_SOURCES),
     (["calibrate"], "--board", BOARD_KINDS),
-    (["demo"], "--mode", MODES),
+    (["demo"], "--mode", RENDER_MODES),
     (["demo"], "--uncertainty", UNCERTAINTY_MODES),
     (["demo"], "--view", tuple(VIEW_MODES)),
 ])

@@ -329,3 +329,21 @@ def test_loops_side_by_side_keep_their_own_mesh_state(terrain_scene, renderer, d
     assert fine.stats["rebuilt_faces"] == 0 and (lv == 3).all() and len(lv) == n * 4 ** 3
     idx0, lv0 = coarse.update_indices(np.zeros(n, int))
     assert coarse.stats["rebuilt_faces"] == 0 and len(lv0) == n
+
+
+def test_demo_loop_draws_raymask_frames_and_a_still_poi_repeats_them(gl_context):
+    """Mode raymask in the demo's loop: a frame per pose, the mask about the filtered POI; a still POI, same frame."""
+    from headplod.demo import loop as lp
+    from headplod.render.still import TerrainScene
+
+    screen = lp.default_screen()
+    scene = TerrainScene.build(screen)
+    poses = lp.MousePoses(screen, cov_deg2=np.diag([0.01, 0.01]))
+    demo = lp.DemoLoop(scene, poses, size=(320, 180), mode="raymask", uncertainty="adaptive", hud=False)
+    frames = [demo.step() for _ in range(4)]
+    assert all(f is not None and f.image.shape == (180, 320, 3) for f in frames)
+    assert frames[-1].stage_ms["render"] > 0           # (at 320x180 the inset covers the frame: no rings)
+    np.testing.assert_array_equal(frames[-1].image, frames[-2].image)
+    sky = np.array([0.62, 0.72, 0.82]) * 255
+    assert np.abs(frames[-1].image.reshape(-1, 3) - sky).max(axis=1).min() < 2     # terrain and sky both drawn
+    assert (np.abs(frames[-1].image.reshape(-1, 3) - sky).max(axis=1) > 20).mean() > 0.5

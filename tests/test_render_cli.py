@@ -45,3 +45,28 @@ def test_readback_contrast_variant_renders_and_reports_its_cost(tmp_path):
     s = json.loads(stats.read_text())
     assert s["contrast"] == "readback" and s["readback_ms"] > 0
     assert 2048 < s["triangles"] < 2_000_000
+
+
+@pytest.mark.parametrize("extra, expected", [
+    (["--size", "0,0"], "--size"), (["--size", "64.5,48"], "--size"),
+    (["--out", "{tmp}"], "is a folder"), (["--out", "{tmp}/x.bmpx"], "cannot write images"),
+    (["--stats", "{tmp}"], "is a folder"),
+])
+def test_render_refuses_bad_outputs_before_rendering(tmp_path, capsys, extra, expected):
+    args = ["render", "--size", "64,48", "--out", str(tmp_path / "x.png")]
+    args += [a.replace("{tmp}", str(tmp_path)) for a in extra]
+    assert cli_main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert expected in err and len(err.splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []
+
+
+@needs_gl
+def test_render_that_cannot_write_fails_with_one_line(tmp_path, capsys):
+    """The image's folder cannot be made (a file stands in its way): exit 1, one line, nothing left."""
+    blocker = tmp_path / "notes.txt"
+    blocker.write_text("keep me\n")
+    assert cli_main(["render", "--size", "64,48", "--out", str(blocker / "x.png")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "could not write" in err and len(err.splitlines()) == 1, err
+    assert blocker.read_text() == "keep me\n" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]

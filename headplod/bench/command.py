@@ -2,7 +2,7 @@
 
     headplod bench track [--json FILE] [--chart FILE.png] [--quick] [--sets A,B]
     headplod bench uncertainty [--json FILE] [--chart FILE.png] [--quick]
-    headplod bench plod [--json FILE] [--chart FILE.png] [--quick]
+    headplod bench plod [--json FILE] [--chart FILE.png] [--quick] [--vdp [fvvdp,cvvdp]] [--scale]
     headplod bench live [--source SPEC] [--json FILE] [--repeats N]
     headplod bench paper [--json FILE] [--chart FILE.png] [--quick] [--noise-deg S]
 
@@ -53,6 +53,13 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bp.add_argument("--json", help="write the results as JSON")
     bp.add_argument("--chart", help="write the chart (PNG); the level-colour pictures go beside it")
     bp.add_argument("--quick", action="store_true", help="fewer points on the curves and sweeps (a smoke run)")
+    bp.add_argument("--vdp", nargs="?", const="fvvdp", metavar="METRICS",
+                    help="also judge every mode and CSF form with a visible-difference predictor, JOD against frame "
+                         "time: fvvdp (FovVideoVDP, foveated on the POI; the default) and/or cvvdp (ColorVideoVDP, "
+                         "not foveated), comma-separated; needs the optional extra: pip install -e '.[vdp]'")
+    bp.add_argument("--scale", action="store_true",
+                    help="instead: cost against terrain size (2M-134M triangles), tessellation back end and full "
+                         "(headplod.bench.plod_scale)")
 
     bpa = bench_sub.add_parser("paper", help="Martinez et al.'s Tables 1-4 (uncertainty scenarios) under the "
                                              "paper's tracker conditions")
@@ -89,8 +96,12 @@ def _uncertainty(args) -> int:
 
 
 def _plod(args) -> int:
+    if args.scale:
+        from . import plod_scale
+        return plod_scale.run_scale_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
     from . import plod
-    return plod.run_plod_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
+    vdp = tuple(m for m in args.vdp.split(",") if m) if getattr(args, "vdp", None) else ()
+    return plod.run_plod_bench(json_path=args.json, chart_path=args.chart, quick=args.quick, vdp=vdp)
 
 
 def _paper(args) -> int:

@@ -35,10 +35,14 @@ render of the same view:
    on and off, in alternation; PSNR, FLIP, the sky silhouette's largest
    displacement against ``full``'s; the inset-size sweep; a picture of the
    mask per viewpoint.
+8. **Perceptual judge** (``--vdp``, the optional extra ``.[vdp]``): JOD
+   against frame time per mode and CSF form, FovVideoVDP foveated on the POI
+   on the screen's real size and distance (:mod:`headplod.bench.plod_judge`).
 
 Writes JSON, a 2x3 chart and the level-colour pictures beside the chart,
 and parts 6 and 7's charts and pictures beside it (``foveate_*.png``,
-``plod_raymask.png``, ``raymask_*.png``).
+``plod_raymask.png``, ``raymask_*.png``); with ``--vdp`` also ``plod_jod.png``
+and ``plod_jod_heatmap_{csf,sse}.png``.
 """
 from __future__ import annotations
 
@@ -291,7 +295,14 @@ def stability(b: _Bench, frames: int) -> dict | None:
     return out
 
 
-def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool = False) -> int:
+def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool = False, vdp=()) -> int:
+    if vdp:   # --vdp: the perceptual judge (headplod.bench.plod_judge); checked before the long run
+        from . import plod_judge
+        for metric in vdp:
+            if metric not in plod_judge.METRICS or not plod_judge.vdp_available(metric):
+                print(f"bench plod: --vdp {metric}: not one of {plod_judge.METRICS} installed; "
+                      f"pip install -e '.[vdp]'", file=sys.stderr)
+                return 2
     b = _Bench(frames=frames)
     results, images = measure_modes(b)
     curves = quality_curves(b, images["full"], biases=(-1.0, 0.0, 1.0) if quick else BIASES)
@@ -364,6 +375,13 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
     print("\n".join(lines))
     report = {"size": SIZE, "px_per_deg": b.px_per_deg, "modes": results, "curves": curves, "velocity_sweep": sweep,
               "ellipse": ellipse, "stability": stable, "foveate": fov, "raymask": ray, "goals": goals}
+    if vdp:   # --vdp: JOD against frame time per mode and CSF form (plod_judge), its table and chart
+        report["jod"] = plod_judge.jod_report(b, images["full"], biases=(-1.0, 0.0, 1.0) if quick else BIASES,
+                                              metrics=vdp, image_side=True, progress=_progress)
+        print(plod_judge.jod_table(report["jod"]))
+        if chart_path:
+            plod_judge.jod_chart(report["jod"], Path(chart_path).parent / "plod_jod.png")
+            report["jod"]["heatmap_jod"] = plod_judge.write_heatmaps(b, Path(chart_path).parent)
     if json_path:
         Path(json_path).parent.mkdir(parents=True, exist_ok=True)
         Path(json_path).write_text(json.dumps(report, indent=2, default=float))

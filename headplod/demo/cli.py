@@ -28,11 +28,10 @@ import cv2
 import numpy as np
 
 from .. import io
-from ..plod.select import MODES
-from ..plod.terrain_file import TerrainUsageError, add_terrain_arguments, terrain_from_args
+from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..progress import Progress
 from ..render import TerrainRenderer, create_context
-from ..render.still import TerrainScene
+from ..render.still import RENDER_MODES, TerrainScene
 from . import loop as lp
 from .keys import key_help
 from .poses import make_poses
@@ -95,7 +94,7 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     src.add_argument("--growth", type=float, default=lp.GROWTH_DEG2_PER_S, metavar="DEG2_PER_S",
                      help=f"covariance growth while tracking is lost, deg²/s (default {lp.GROWTH_DEG2_PER_S:g})")
     view = parser.add_argument_group("view")
-    view.add_argument("--mode", default="csf", choices=MODES,
+    view.add_argument("--mode", default="csf", choices=RENDER_MODES,
                       help="LOD criterion (window: the initial one; headless: the one compared with full)")
     view.add_argument("--uncertainty", default="adaptive", choices=lp.SCENARIOS,
                       help="uncertainty scenario (window: initial; default adaptive)")
@@ -335,14 +334,13 @@ def run_demo(args) -> int:
     if args.frames < 1:
         print("headplod demo: --frames must be at least 1", file=sys.stderr)
         return 2
-    try:        # the terrain file is read (and any problem reported) before anything is written
-        args.terrain_loaded = terrain_from_args(args)     # None: the built-in terrain
-    except TerrainUsageError as exc:
-        print(f"headplod demo: {exc}", file=sys.stderr)
+    if args.mode == "raymask" and args.foveate:
+        print("headplod demo: --mode raymask draws its own falling resolution; drop --foveate", file=sys.stderr)
         return 2
-    except ValueError as exc:
-        print(f"headplod demo: --terrain {exc}", file=sys.stderr)
-        return 1
+    # The terrain file is read (and any problem reported) before anything is written; None: the built-in one.
+    args.terrain_loaded, status = terrain_for_command(args, "headplod demo")
+    if status is not None:
+        return status
     try:
         if args.headless:
             run_headless(args)

@@ -53,11 +53,12 @@ from calib import DEFAULT_SCREEN
 
 from .. import io
 from ..capture import open_source
-from ..plod.select import MODES, UNCERTAINTY_MODES, View
+from ..plod.select import UNCERTAINTY_MODES, View
 from ..render import TerrainRenderer, create_context, off_axis_projection
+from ..plod.raymask import RayMaskConfig
 from ..render.foveate import FoveatedRenderer, FoveationConfig, LayerAnchor, layer_plan
 from ..render.gl import VIEW_MODES as _GL_VIEW_MODES
-from ..render.still import px_per_deg_at, default_head
+from ..render.still import RENDER_MODES, px_per_deg_at, default_head
 from . import viewpoints as vps
 from .hud import HudInfo, draw_hud, draw_picture_overlay
 
@@ -622,7 +623,7 @@ class DemoLoop:
     size : (2,) int
         Image size (width, height), px, when the renderer is made here.
     mode, uncertainty, viewpoint, view_mode : str
-        Initial settings (``DEMO_MODES`` or any of ``select.MODES``,
+        Initial settings (``DEMO_MODES`` or any of ``render.still.RENDER_MODES``: ``raymask`` too,
         ``SCENARIOS``, ``viewpoints.VIEWPOINTS``, ``VIEW_MODES``).
     hud : bool
         Draw the heads-up display.
@@ -662,7 +663,9 @@ class DemoLoop:
         self.foveated = FoveatedRenderer(renderer, self.foveation) if foveate else None
         self.anchor = LayerAnchor()
         self._fovea_view = None            # (filtered POI screen px, covariance deg² or None) of the levels
-        self._modes = MODES
+        self._modes = RENDER_MODES
+        self.raymask = RayMaskConfig()      # the settings of mode "raymask"
+        self._raymask_renderer = None
         self.settings = {}
         self.set("mode", mode)
         self.set("uncertainty", uncertainty)
@@ -728,7 +731,9 @@ class DemoLoop:
         key = (self.settings["viewpoint"], self.settings["mode"], self.settings["uncertainty"])
         sel = self._selectors.get(key)
         if sel is None:
-            sel = self._selectors[key] = self.scene.selector(key[1], key[2], **self.selector_options)
+            # raymask selects no levels: the csf selector gives it the filtered POI and the scenario's covariance.
+            criterion = "csf" if key[1] == "raymask" else key[1]
+            sel = self._selectors[key] = self.scene.selector(criterion, key[2], **self.selector_options)
         if key != self._active:
             sel.reset()                      # stale smoothing and hysteresis from its last use
             self._active = key
@@ -760,6 +765,13 @@ class DemoLoop:
             self._fovea_view = (info.get("poi_px", pose.poi_px), info.get("cov_deg2", pose.cov_deg2))
         t2 = time.perf_counter()
         scene = self.scene
+        if self.settings["mode"] == "raymask":
+            image, stage, triangles = self._render_raymask(pose, scene)
+            stage = {"pose": (t1 - t0) * 1e3, "select": (t2 - t1) * 1e3 + stage["mask"], "build": 0.0,
+                     "upload": 0.0, "render": stage["render"], "readback": 0.0, "hud": 0.0}
+            return self._finish(FrameResult(self.index, pose.t, image, self._levels, triangles, stage,
+                                            (time.perf_counter() - t0) * 1e3, pose, bool(skipped), float(speed)),
+                                t0)
         mesh = scene.mesh
         indices, tri_levels = mesh.update_indices(self._levels)
         t3 = time.perf_counter()
@@ -788,17 +800,38 @@ class DemoLoop:
             stage["upload"] += self.foveated.last_sort_ms
         result = FrameResult(self.index, pose.t, image, self._levels, int(len(tri_levels)), stage,
                              (t5 - t0) * 1e3, pose, bool(skipped), float(speed))
+        return self._finish(result, t0)
+
+    def _finish(self, result: FrameResult, t0: float) -> FrameResult:
+        """The HUD drawn on the frame (when on), and the frame counted."""
         if self.hud:
-            result.image = draw_hud(image, self.hud_info(result), inplace=True,
+            t5 = time.perf_counter()
+            result.image = draw_hud(result.image, self.hud_info(result), inplace=True,
                                     max_level=self.base_scene.mesh.max_level)
             t6 = time.perf_counter()
-            stage["hud"] = (t6 - t5) * 1e3
+            result.stage_ms["hud"] = (t6 - t5) * 1e3
             result.frame_ms = (t6 - t0) * 1e3
         self._frame_times.append(result.frame_ms)
         self.stats.add(result)
         self.index += 1
         self.last = result
         return result
+
+    def _render_raymask(self, pose, scene):
+        """Mode ``raymask``: Murphy & Duchowski's hybrid frame about the filtered POI, widened by the scenario's
+        covariance; (image (H, W, 3) uint8, {"mask", "render"} ms, triangles rasterised)."""
+        from ..render.raymask import RayMaskRenderer        # its shaders are compiled only when asked for
+
+        w, h = self.renderer.size
+        if self._raymask_renderer is None:
+            self._raymask_renderer = RayMaskRenderer(self.renderer.ctx, self.base_scene.mesh, size=(w, h))
+        rr = self._raymask_renderer
+        poi, cov = self._fovea_view if self._fovea_view is not None else (pose.poi_px, pose.cov_deg2)
+        view, proj = off_axis_projection(pose.eye_mm, self.screen, NEAR_MM, FAR_MM)
+        mask = rr.mask(self.screen, pose.eye_mm, np.asarray(poi, dtype=np.float64),
+                       px_per_deg_at(self.screen, pose.eye_mm, (w, h)), cov, self.raymask)
+        image = rr.render(mask, view, proj, scene.model, self.raymask)
+        return image, {"mask": rr.last_mask_ms, "render": rr.last_stats["render_ms"]}, 2 * rr.last_stats["drawn_quads"]
 
     def _render_foveated(self, view, proj, model, pose) -> np.ndarray:
         """The foveated frame, its layers about the held filtered POI (image px) and widened by the held covariance."""

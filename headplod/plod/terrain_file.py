@@ -492,3 +492,17 @@ def terrain_from_args(args, err=sys.stderr):
         print(f"terrain: {note}", file=err)
     print(f"terrain: {grid.describe()}", file=err)
     return terrain
+
+
+def terrain_for_command(args, program: str, err=None):
+    """:func:`terrain_from_args` for a command: (Terrain or None, None), or (None, exit status) with the
+    one-line reason printed as ``program: ...`` (2 for options that cannot work together, 1 for a bad file)."""
+    err = err or sys.stderr
+    try:
+        return terrain_from_args(args, err), None
+    except TerrainUsageError as exc:
+        print(f"{program}: {exc}", file=err)
+        return None, 2
+    except ValueError as exc:
+        print(f"{program}: --terrain {exc}", file=err)
+        return None, 1

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
+import cv2
 import numpy as np
 
 from calib import DEFAULT_SCREEN
@@ -20,7 +22,7 @@ from .. import io
 from ..plod.export import check_export_path
 from ..argtypes import floats
 from ..plod.raymask import RayMaskConfig
-from ..plod.terrain_file import TerrainUsageError, add_terrain_arguments, terrain_from_args
+from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..plod.select import UNCERTAINTY_MODES
 from .gl import VIEW_MODES
 from .still import CONTRAST_SOURCES, RENDER_MODES, TerrainScene, render_still
@@ -52,12 +54,30 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     render.add_argument("--no-silhouettes", action="store_true",
                         help="raymask: rasterise the quads that straddle a silhouette instead of casting "
                              "every pixel in them")
+    render.add_argument("--backend", choices=("mesh", "tessellation"), default="mesh",
+                        help="mesh: levels selected on the CPU, an adaptive mesh (default); tessellation: the "
+                             "built-in terrain as a height texture, per-patch CSF levels in the tessellation "
+                             "control shader (GL 4.3; --mode csf or full, shaded view only)")
+    render.add_argument("--grid-samples", type=int, default=1025,
+                        help="tessellation: samples per side of the terrain's height grid (the built-in one or "
+                             "--terrain's, resampled), 1 + a multiple of 64 (default 1025: 2M triangles at full "
+                             "detail; 8193: 134M)")
     render.add_argument("--out", required=True, help="output image (PNG)")
     render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
     render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
                                                          "scene metres, faces coloured by level)")
     add_terrain_arguments(render)
     return render
+
+
+def _output_problem(path, image: bool = False) -> str | None:
+    """Why ``path`` cannot be an output file (a folder; an image ending OpenCV cannot write), or None."""
+    p = Path(path)
+    if p.is_dir():
+        return f"{path} is a folder; name a file"
+    if image and not cv2.haveImageWriter(str(p)):
+        return f"{path}: OpenCV cannot write images ending {p.suffix or '(no ending)'!r}; use .png or .jpg"
+    return None
 
 
 def run_render(args) -> int:
@@ -71,12 +91,21 @@ def run_render(args) -> int:
             print(f"headplod: --cov {args.cov} is not positive definite", file=sys.stderr)
             return 2
     size = tuple(int(v) for v in args.size)
+    if min(size) < 1 or max(size) > 16384 or any(v != int(v) for v in args.size):
+        print(f"headplod: --size must be two whole numbers of pixels in 1..16384, got {args.size}", file=sys.stderr)
+        return 2
+    problem = _output_problem(args.out, image=True) or (args.stats and _output_problem(args.stats))
+    if problem:
+        print(f"headplod: {problem}", file=sys.stderr)
+        return 2
     if args.export is not None:
         try:
             check_export_path(args.export)
         except ValueError as exc:
             print(f"headplod: --export {exc}", file=sys.stderr)
             return 2
+    if args.backend == "tessellation":
+        return _run_tessellation(args, screen, cov, size)
     raymask = None
     if args.mode == "raymask":
         bad = [name for name, on in (("--foveate", args.foveate), ("--export", args.export is not None),
@@ -90,19 +119,19 @@ def run_render(args) -> int:
         except ValueError as exc:
             print(f"headplod: --inset-deg: {exc}", file=sys.stderr)
             return 2
-    try:        # the terrain file is read (and any problem reported) before anything is written
-        terrain = terrain_from_args(args)
-    except TerrainUsageError as exc:
-        print(f"headplod: {exc}", file=sys.stderr)
-        return 2
-    except ValueError as exc:
-        print(f"headplod: --terrain {exc}", file=sys.stderr)
-        return 1
+    terrain, status = terrain_for_command(args, "headplod")     # read before anything is written
+    if status is not None:
+        return status
     scene = None if terrain is None else TerrainScene.build(screen, terrain=terrain)
-    _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
-                            poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
-                            stats_path=args.stats, contrast=args.contrast, export=args.export,
-                            foveate=args.foveate, raymask=raymask, scene=scene)
+    try:
+        _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
+                                poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
+                                stats_path=args.stats, contrast=args.contrast, export=args.export,
+                                foveate=args.foveate, raymask=raymask, scene=scene)
+    except OSError as exc:           # a folder that cannot be written: nothing half-written is left
+        print(f"headplod: could not write the output: {exc.strerror or exc} ({exc.filename or args.out})",
+              file=sys.stderr)
+        return 1
     if "raymask" in stats:
         r = stats["raymask"]
         print(f"{r['rays']} rays ({r['fill_rays']} inset, {r['ring_rays']} rings, {r['silhouette_rays']} in "
@@ -112,4 +141,50 @@ def run_render(args) -> int:
     print(f"{stats['triangles']} triangles; select {stats['select_ms']:.1f} ms, build {stats['build_ms']:.1f} ms, "
           f"render {stats['render_ms']:.1f} ms; image: {args.out}"
           + (f"; mesh: {args.export}" if args.export else ""), file=sys.stderr)
+    return 0
+
+
+def _run_tessellation(args, screen, cov, size) -> int:
+    """``headplod render --backend tessellation``: one frame of :mod:`headplod.render.tessellate`."""
+    from pathlib import Path
+
+    import cv2
+
+    from ..plod.patches import PatchGrid, height_grid, jacksboro_grid
+    from .context import create_context
+    from .tessellate import TESS_MODES, TessellationConfig, TessellationRenderer, grid_model, render_frame
+
+    bad = [name for name, on in (("--foveate", args.foveate), ("--export", args.export is not None),
+                                 ("--contrast readback", args.contrast != "shading"),
+                                 (f"--view {args.view}", args.view != "shaded"),
+                                 (f"--mode {args.mode}", args.mode not in TESS_MODES)) if on]
+    if bad:
+        print(f"headplod: --backend tessellation does not take {', '.join(bad)} (modes: {', '.join(TESS_MODES)})",
+              file=sys.stderr)
+        return 2
+    config = TessellationConfig()
+    n = args.grid_samples
+    if n < config.patch_samples + 1 or (n - 1) % config.patch_samples:
+        print(f"headplod: --grid-samples must be 1 + a multiple of {config.patch_samples}, got {n}", file=sys.stderr)
+        return 2
+    terrain, status = terrain_for_command(args, "headplod")     # --terrain FILE: a person's own terrain
+    if status is not None:
+        return status
+    if terrain is None:
+        z, dx, dy, origin = jacksboro_grid(n)
+    else:
+        z, dx, dy = height_grid(terrain, n)
+        origin = (terrain.extent[0], terrain.extent[2])
+    grid = PatchGrid.build(z, dx, dy, config.patch_samples, origin_m=origin)
+    with TessellationRenderer(create_context(require=430), grid, size=size, config=config) as renderer:
+        image, stats = render_frame(renderer, screen, grid_model(grid, screen), args.head, args.poi, cov,
+                                    mode=args.mode)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(args.out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    if args.stats:
+        import json
+        Path(args.stats).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.stats).write_text(json.dumps({**stats, "grid_samples": n, "size": list(size)}, indent=2))
+    print(f"{stats['triangles']} triangles ({grid.full_triangles} at full detail); select {stats['select_ms']:.1f} ms, "
+          f"render {stats['render_ms']:.1f} ms; image: {args.out}", file=sys.stderr)
     return 0

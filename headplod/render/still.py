@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from ..plod.contrast import project_to_screen_px, readback_contrast
+from ..io import write_atomically
 from ..plod.export import check_export_path, export_mesh
 from ..plod.mesh import AdaptiveMesh, BaseMesh
 from ..plod.raymask import RayMaskConfig
@@ -232,12 +233,7 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
         stats["terrain"] = {"path": source.path, "kind": source.kind, "shape": list(scene.terrain.shape),
                             "spacing_m": [source.dx_m, source.dy_m], "filled_samples": source.filled,
                             "fit": scene.fit}
-    if out:
-        Path(out).parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
-    if stats_path:
-        Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(stats_path).write_text(json.dumps(stats, indent=2))
+    _write_outputs(image, stats, out, stats_path)
     if export is not None:
         export_mesh(scene.mesh, face_levels, export)
     return image, stats
@@ -276,13 +272,31 @@ def _render_raymask(screen, scene, head, poi, cov_deg2, size, view_mode, out, st
                          "mask_contrast": config.contrast, "silhouettes": bool(config.silhouettes),
                          "fill_radius_deg": round(mask.r_fill_deg, 3), "rings": int(len(mask.rings_deg)),
                          "angles": int(mask.n_angles)}}
+    _write_outputs(image, stats, out, stats_path)
+    return image, stats
+
+
+def _write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> None:
+    """Write the image (RGB (H, W, 3) uint8; format from the ending) and the stats (JSON), each whole or not at all.
+
+    Raises ValueError when OpenCV cannot encode the image (an ending it does
+    not know) and OSError when a file cannot be written.
+    """
     if out:
-        Path(out).parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        out = Path(out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+
+        def write_image(name: str) -> None:
+            try:
+                written = cv2.imwrite(name, cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+            except cv2.error:
+                written = False
+            if not written:
+                raise ValueError(f"{out}: OpenCV could not write an image there (use .png or .jpg)")
+        write_atomically(out, write_image, suffix=out.suffix)
     if stats_path:
         Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(stats_path).write_text(json.dumps(stats, indent=2))
-    return image, stats
+        write_atomically(stats_path, lambda name: Path(name).write_text(json.dumps(stats, indent=2)))
 
 
 def px_per_deg_at(screen, head, size) -> float:

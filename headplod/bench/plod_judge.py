@@ -1,0 +1,716 @@
+"""A judge that sees as a viewer does: foveated JOD of the PLOD modes against ``full``.
+
+PSNR and FLIP know neither where the viewer looks nor how large the screen
+is. This module scores a rendered frame against ``full``'s with a
+visible-difference predictor from Mantiuk's group that does, in JOD (just
+objectionable differences: 10 = identical to the reference, each unit below
+it one JOD of preference):
+
+* ``"fvvdp"`` (default) — **FovVideoVDP** (PyPI ``pyfvvdp``, Mantiuk et al.
+  2021) in **foveated mode**: the fixation point is the POI, the CSF falls
+  with eccentricity from it (cortical magnification), the display geometry
+  is the screen's real size at the head's real distance.
+* ``"cvvdp"`` — **ColorVideoVDP** (PyPI ``cvvdp``, Mantiuk et al. 2024),
+  the colour successor, same display geometry. Its released Python code
+  (0.5.x) has **no foveated mode** (no ``foveated`` argument and no
+  fixation point in ``cvvdp.predict``; only FovVideoVDP has them), so it
+  judges every pixel as if it were fixated. It is the second opinion, not
+  the foveated judge. Its PyPI ``torchvision`` is a CUDA build whose C
+  operators do not load against the CPU ``torch``; :func:`_import_metric`
+  declares the two operator schemas torchvision's import registers
+  (``nms``, ``qnms``: unused by the metric) so the import succeeds.
+
+What is judged (:func:`jod_report`): every selector mode and every other
+CSF form of ``csf``, each over a level bias, and the image-side techniques
+(``raymask`` over its mask contrast, ``csf`` drawn as foveated layers), each
+point's JOD against its frame time and its triangle count; then each
+CSF-based point against the best geometric curve at the same cost
+(:func:`compare_at_equal_time`). ``headplod bench plod --vdp`` runs it after
+the benchmark; ``python -m headplod.bench.plod_vdp --modes csf,sse`` runs it
+alone on a few modes. The metrics are an optional extra (``pip install -e
+'.[vdp]'``: PyTorch, its CPU build where the index offers it). Without it
+:func:`vdp_available` is False and ``headplod bench plod`` runs as before;
+the geometry, fixation and comparison need only numpy.
+
+The geometry follows the metrics' model: the image fills the display, whose
+physical width and height are the screen's (``calib/screen.yaml``'s
+corners), and the eye sits on the normal through the screen's centre at the
+head's distance. The rendered image (1280x720) is the display's pixel grid
+(each image pixel is 1.5 screen pixels of the 1920x1080 screen), so the
+pixels per degree are the image's, as :func:`headplod.render.still.px_per_deg_at`.
+
+Photometry (a standard office monitor, as the metrics' ``standard_4k``):
+200 cd/m² peak, 1000:1, sRGB EOTF, 250 lux ambient, 0.5 % reflectance.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+#: The metrics this module can call, by the name of the PyPI package: "fvvdp" is the foveated one.
+METRICS = ("fvvdp", "cvvdp")
+#: The criteria whose levels come from a contrast-sensitivity function.
+CSF_BASED = ("csf", "gp", "acuity")
+#: The criteria whose levels come from geometry alone (screen-space error, velocity, distance).
+GEOMETRIC = ("sse", "ipv", "dpv", "distance")
+#: The image-side CSF techniques judged beside the modes: Murphy & Duchowski's ray mask (its knob: the
+#: Michelson contrast its ray spacing is chosen for) and ``csf`` drawn as foveated layers (``--foveate``).
+IMAGE_SIDE = ("raymask", "csf+foveate")
+RAYMASK_CONTRASTS = (1.0, 0.3, 0.1)
+
+
+@dataclass(frozen=True)
+class JudgeSettings:
+    """How the judge sees, each with its unit.
+
+    Attributes
+    ----------
+    metric : one of METRICS
+        ``"fvvdp"`` (default: FovVideoVDP, foveated on the fixation point) or
+        ``"cvvdp"`` (ColorVideoVDP, not foveated: its code has no such mode).
+    peak_luminance_cd_m2 : float
+        White of the display, cd/m² (200, the metrics' ``standard_4k``).
+    contrast : float
+        Display contrast ratio, white/black (1000).
+    ambient_lux : float
+        Illuminance of the room on the screen, lux (250, an office).
+    reflectance : float
+        Fraction of the ambient light the screen reflects (0.005).
+    threads : int
+        CPU threads PyTorch may use (2, this machine's cores).
+    max_eye_offset_mm : float
+        Largest distance of the eye from the normal through the screen's
+        centre that the metrics' centred-eye model is used for, mm (5.0).
+    """
+
+    metric: str = "fvvdp"
+    peak_luminance_cd_m2: float = 200.0
+    contrast: float = 1000.0
+    ambient_lux: float = 250.0
+    reflectance: float = 0.005
+    threads: int = 2
+    max_eye_offset_mm: float = 5.0
+
+    def __post_init__(self) -> None:
+        if self.metric not in METRICS:
+            raise ValueError(f"unknown metric {self.metric!r}; expected one of {METRICS}")
+        for name in ("peak_luminance_cd_m2", "contrast", "max_eye_offset_mm"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"JudgeSettings.{name} must be a positive number, got {value!r}")
+        if not (np.isfinite(self.ambient_lux) and self.ambient_lux >= 0):
+            raise ValueError(f"JudgeSettings.ambient_lux must be ≥ 0 lux, got {self.ambient_lux!r}")
+        if not (0 <= self.reflectance < 1):
+            raise ValueError(f"JudgeSettings.reflectance must be in [0, 1), got {self.reflectance!r}")
+        if int(self.threads) != self.threads or self.threads < 1:
+            raise ValueError(f"JudgeSettings.threads must be a positive integer, got {self.threads!r}")
+
+
+@dataclass(frozen=True)
+class DisplayGeometry:
+    """The display as the judge sees it.
+
+    Attributes
+    ----------
+    resolution_px : (int, int)
+        The image's (width, height), px: the display's pixel grid.
+    width_m, height_m : float
+        The screen's physical size, m.
+    distance_m : float
+        Eye to the screen plane along its normal, m.
+    """
+
+    resolution_px: tuple[int, int]
+    width_m: float
+    height_m: float
+    distance_m: float
+
+    def __post_init__(self) -> None:
+        w, h = self.resolution_px
+        if int(w) != w or int(h) != h or w < 1 or h < 1:
+            raise ValueError(f"resolution_px must be two positive integers (width, height), got {self.resolution_px!r}")
+        for name in ("width_m", "height_m", "distance_m"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"DisplayGeometry.{name} must be a positive length in m, got {value!r}")
+
+    @property
+    def horizontal_fov_deg(self) -> float:
+        """The screen's width as a visual angle, degrees."""
+        return 2 * math.degrees(math.atan(self.width_m / (2 * self.distance_m)))
+
+    @property
+    def px_per_deg(self) -> float:
+        """Pixels per degree at the screen's centre (one pixel's angle there), px/deg."""
+        return 1 / (2 * math.degrees(math.atan(0.5 * self.width_m / self.resolution_px[0] / self.distance_m)))
+
+
+def display_geometry(screen, head_mm, image_size, max_eye_offset_mm: float = 5.0) -> DisplayGeometry:
+    """The judge's display: ``screen``'s physical size, seen from ``head_mm``, as an image of ``image_size``.
+
+    Parameters
+    ----------
+    screen : headplod.io.Screen
+        Its corners give the physical width and height (mm).
+    head_mm : array (3,)
+        The eye in the world frame, mm.
+    image_size : (int, int)
+        The rendered image's (width, height), px; the image fills the screen.
+    max_eye_offset_mm : float
+        The metrics put the eye on the normal through the screen's centre; an
+        eye farther from that normal than this (mm) raises ValueError.
+    """
+    head = np.asarray(head_mm, dtype=np.float64)
+    if head.shape != (3,) or not np.all(np.isfinite(head)):
+        raise ValueError(f"head_mm must be a finite 3-vector (mm), got shape {head.shape}")
+    tl, tr, bl = (np.asarray(c, dtype=np.float64) for c in (screen.top_left, screen.top_right, screen.bottom_left))
+    right, down = tr - tl, bl - tl
+    width_mm, height_mm = float(np.linalg.norm(right)), float(np.linalg.norm(down))
+    normal = np.cross(right, down)
+    normal /= np.linalg.norm(normal)
+    centre = screen.pixel_to_world(np.array(screen.size_px, dtype=np.float64) / 2.0)
+    to_eye = head - centre
+    distance_mm = abs(float(to_eye @ normal))
+    offset_mm = float(np.linalg.norm(to_eye - (to_eye @ normal) * normal))
+    if offset_mm > max_eye_offset_mm:
+        raise ValueError(f"the eye is {offset_mm:.1f} mm off the screen centre's normal (the judge's model allows "
+                         f"{max_eye_offset_mm:g} mm)")
+    if distance_mm <= 0:
+        raise ValueError("the eye lies in the screen plane")
+    return DisplayGeometry(resolution_px=(int(image_size[0]), int(image_size[1])), width_m=width_mm / 1000,
+                           height_m=height_mm / 1000, distance_m=distance_mm / 1000)
+
+
+def fixation_px(screen, poi_px, image_size) -> np.ndarray:
+    """The metrics' fixation point (x, y) for a POI given in screen pixels.
+
+    ``poi_px`` is the POI in the screen's continuous pixel coordinates
+    (:meth:`Screen.pixel_to_world`'s: (0, 0) the top-left corner,
+    ``size_px`` the bottom-right one). The image of ``image_size`` (w, h) px
+    covers the screen; the metrics index a pixel by its integer (column, row)
+    and place its centre at index + 0.5, so the fixation is the POI scaled to
+    the image, minus half a pixel. Returns float64 (2,).
+    """
+    poi = np.asarray(poi_px, dtype=np.float64).reshape(-1)
+    if poi.shape != (2,) or not np.all(np.isfinite(poi)):
+        raise ValueError(f"poi_px must be a finite (x, y) in screen px, got {poi_px!r}")
+    size = np.asarray(image_size, dtype=np.float64)
+    return poi * size / np.asarray(screen.size_px, dtype=np.float64) - 0.5
+
+
+def vdp_available(metric: str = "fvvdp") -> bool:
+    """True when the optional extra for ``metric`` (one of METRICS) imports."""
+    if metric not in METRICS:
+        raise ValueError(f"unknown metric {metric!r}; expected one of {METRICS}")
+    try:
+        _import_metric(metric)
+    except ImportError:
+        return False
+    return True
+
+
+def _import_metric(metric: str):
+    """The metric's package (``pyfvvdp`` or ``pycvvdp``); ImportError when the extra is missing."""
+    import torch  # noqa: F401  (ImportError without the extra)
+
+    if metric == "fvvdp":
+        return _import_isolated("pyfvvdp")
+    if "torchvision" not in sys.modules:
+        try:
+            import torchvision  # noqa: F401
+        except RuntimeError as e:
+            # PyPI's torchvision is built for CUDA: with the CPU torch its C
+            # operators do not load, and its import then fails registering fake
+            # kernels for two of them. Declare their schemas (the metric never
+            # calls them) and import again.
+            if "torchvision::" not in str(e):
+                raise
+            for name in [m for m in sys.modules if m == "torchvision" or m.startswith("torchvision.")]:
+                del sys.modules[name]
+            _declare_torchvision_nms()
+            import torchvision  # noqa: F401,F811
+    return _import_isolated("pycvvdp")
+
+
+def _import_isolated(package: str):
+    """Import ``pyfvvdp`` or ``pycvvdp`` so that both can live in one process.
+
+    Each puts its own folder on ``sys.path`` and imports its helpers as
+    top-level modules of the same names (``interp``, ``utils``,
+    ``video_source``, ...): the second one imported would get the first one's.
+    Its folder goes first on the path while it is imported, and the other's
+    helpers are set aside and put back afterwards (each package keeps the
+    module objects it bound; neither imports them again at run time).
+    """
+    import importlib.util
+    import os
+
+    if package not in ("pyfvvdp", "pycvvdp"):
+        raise ValueError(f"no metric package {package!r}")
+
+    if package in sys.modules:
+        return sys.modules[package]
+    spec = importlib.util.find_spec(package)
+    if spec is None or spec.origin is None:
+        raise ImportError(f"{package} is not installed")
+    folder = os.path.dirname(os.path.abspath(spec.origin))
+    helpers = {os.path.splitext(n)[0] for n in os.listdir(folder)
+               if n.endswith(".py") or os.path.isdir(os.path.join(folder, n))} - {"__init__", "__pycache__"}
+    aside = {n: sys.modules.pop(n) for n in list(sys.modules) if n.split(".")[0] in helpers}
+    sys.path.insert(0, folder)
+    try:
+        if package == "pyfvvdp":
+            import pyfvvdp as module
+        else:
+            import pycvvdp as module
+    finally:
+        sys.path.remove(folder)
+        for n in [n for n in list(sys.modules) if n.split(".")[0] in helpers]:
+            if n in aside:
+                sys.modules[n] = aside.pop(n)
+        sys.modules.update(aside)
+    return module
+
+
+_DECLARED = []
+
+
+def _declare_torchvision_nms() -> None:
+    import torch
+
+    if _DECLARED:
+        return
+    lib = torch.library.Library("torchvision", "FRAGMENT")
+    for op in ("nms", "qnms"):
+        if not hasattr(torch.ops.torchvision, op):
+            lib.define(f"{op}(Tensor dets, Tensor scores, float iou_threshold) -> Tensor")
+    _DECLARED.append(lib)     # the library object must live for the definitions to stay
+
+
+class Judge:
+    """One metric set up for one display; :meth:`jod` scores image pairs.
+
+    Building it loads the metric's CSF tables (about a second); reuse it.
+    """
+
+    def __init__(self, display: DisplayGeometry, settings: JudgeSettings = JudgeSettings(), heatmap: bool = False):
+        self.display, self.settings = display, settings
+        heatmap = "threshold" if heatmap else None    # the metrics' visualisation: blue (invisible) … red
+        import torch
+
+        torch.set_num_threads(int(settings.threads))
+        vdp = _import_metric(settings.metric)
+        s = settings
+        if s.metric == "fvvdp":
+            geometry = vdp.fvvdp_display_geometry(display.resolution_px, distance_m=display.distance_m,
+                                                  fov_horizontal=display.horizontal_fov_deg)
+            photometry = vdp.fvvdp_display_photo_eotf(s.peak_luminance_cd_m2, contrast=s.contrast, EOTF="sRGB",
+                                                      E_ambient=s.ambient_lux, k_refl=s.reflectance)
+            self._metric = vdp.fvvdp(display_photometry=photometry, display_geometry=geometry, foveated=True,
+                                     heatmap=heatmap, device=torch.device("cpu"), quiet=True)
+        else:
+            geometry = vdp.vvdp_display_geometry(display.resolution_px, distance_m=display.distance_m,
+                                                 fov_horizontal=display.horizontal_fov_deg)
+            photometry = vdp.vvdp_display_photo_eotf(s.peak_luminance_cd_m2, contrast=s.contrast,
+                                                     source_colorspace="sRGB", E_ambient=s.ambient_lux,
+                                                     k_refl=s.reflectance)
+            self._metric = vdp.cvvdp(display_photometry=photometry, display_geometry=geometry, heatmap=heatmap,
+                                     device=torch.device("cpu"), quiet=True)
+        self.px_per_deg = float(geometry.get_ppd())
+        self.last_seconds = float("nan")
+
+    @property
+    def foveated(self) -> bool:
+        """Whether the metric uses the fixation point (only FovVideoVDP has a foveated mode)."""
+        return self.settings.metric == "fvvdp"
+
+    def jod_map(self, reference_rgb: np.ndarray, test_rgb: np.ndarray, fixation: np.ndarray):
+        """(JOD, heatmap): the heatmap is sRGB uint8 (H, W, 3), the metric's threshold colour map over the
+        reference's luminance (blue: invisible, green: at threshold, red: clearly visible). Needs ``heatmap=True``."""
+        if self._metric.heatmap is None:
+            raise ValueError("this Judge was built without heatmap=True")
+        q, stats = self._predict(reference_rgb, test_rgb, fixation)
+        hm = stats["heatmap"].float().numpy()[0, :, 0]              # (3, H, W) in 0..1, display-encoded
+        return q, np.clip(np.round(np.moveaxis(hm, 0, -1) * 255), 0, 255).astype(np.uint8)
+
+    def jod(self, reference_rgb: np.ndarray, test_rgb: np.ndarray, fixation: np.ndarray) -> float:
+        """JOD (10 = identical) of ``test_rgb`` against ``reference_rgb``, both sRGB uint8 (H, W, 3).
+
+        ``fixation`` is the fixation point (x, y) in image pixel indices
+        (:func:`fixation_px`); (H, W) must be the display's resolution.
+        ``last_seconds`` holds the wall time of the call.
+        """
+        return self._predict(reference_rgb, test_rgb, fixation)[0]
+
+    def _predict(self, reference_rgb, test_rgb, fixation):
+        _check_image("reference_rgb", reference_rgb, self.display.resolution_px)
+        _check_image("test_rgb", test_rgb, self.display.resolution_px)
+        fix = np.asarray(fixation, dtype=np.float64).reshape(-1)
+        if fix.shape != (2,) or not np.all(np.isfinite(fix)):
+            raise ValueError(f"fixation must be a finite (x, y) in image px, got {fixation!r}")
+        import torch
+
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            if self.foveated:
+                q, stats = self._metric.predict(test_rgb, reference_rgb, dim_order="HWC",
+                                                fixation_point=torch.tensor(fix, dtype=torch.float32))
+            else:
+                q, stats = self._metric.predict(test_rgb, reference_rgb, dim_order="HWC")
+        self.last_seconds = time.perf_counter() - t0
+        return float(q), stats
+
+
+def _check_image(name, image, resolution_px) -> None:
+    w, h = resolution_px
+    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.shape != (h, w, 3):
+        shape = getattr(image, "shape", None)
+        dtype = getattr(image, "dtype", type(image).__name__)
+        raise ValueError(f"{name} must be uint8 sRGB of shape ({h}, {w}, 3), got {dtype} {shape}")
+
+
+_JUDGES: dict = {}
+
+
+def foveated_jod(reference_rgb: np.ndarray, test_rgb: np.ndarray, fixation: np.ndarray, display: DisplayGeometry,
+                 settings: JudgeSettings = JudgeSettings()) -> float:
+    """JOD of ``test_rgb`` against ``reference_rgb`` (sRGB uint8, (H, W, 3)) fixating ``fixation`` (x, y px).
+
+    The :class:`Judge` for (``display``, ``settings``) is built once and kept.
+    """
+    key = (display, settings)
+    if key not in _JUDGES:
+        _JUDGES[key] = Judge(display, settings)
+    return _JUDGES[key].jod(reference_rgb, test_rgb, fixation)
+
+
+# --- The benchmark: JOD against frame time -------------------------------------------------------------------
+
+
+def judge_entries(modes=None, forms=None) -> list[tuple[str, dict]]:
+    """The curves judged: (name, selector settings) per PLOD mode and per non-default CSF form of ``csf``.
+
+    ``modes`` defaults to every mode but ``full``; ``forms`` to every CSF
+    form but the default (``kelly_scaled``, which is ``csf`` itself).
+    """
+    from ..plod.csf import CSF_MODELS
+    from ..plod.select import MODES, SelectorConfig
+
+    default_form = SelectorConfig().csf_model
+    modes = [m for m in MODES if m != "full"] if modes is None else list(modes)
+    forms = [f for f in CSF_MODELS if f != default_form] if forms is None else list(forms)
+    for m in modes:
+        if m not in MODES or m == "full":
+            raise ValueError(f"unknown mode {m!r} to judge; expected one of {[x for x in MODES if x != 'full']}")
+    for f in forms:
+        if f not in CSF_MODELS:
+            raise ValueError(f"unknown CSF form {f!r}; expected one of {CSF_MODELS}")
+    return [(m, {}) for m in modes] + [(f"csf[{f}]", {"csf_model": f}) for f in forms if f != default_form]
+
+
+def jod_report(bench, reference_rgb: np.ndarray | None = None, modes=None, forms=None, biases=(-1.0, 0.0, 1.0),
+               metrics=("fvvdp",), settings: JudgeSettings = JudgeSettings(), off_fixation_deg: float = 10.0,
+               timing_rounds: int = 3, image_side: bool = False, progress=None) -> dict:
+    """JOD and frame time per mode and CSF form, each over a level bias, at the bench's default view.
+
+    ``bench`` is a :class:`headplod.bench.plod._Bench` (the scene, renderer,
+    head and POI); ``reference_rgb`` its ``full`` image (rendered when None).
+    Every curve point renders the mode with its level shifted by ``bias``
+    (levels) as ``bench plod``'s quality curves do. All points are rendered
+    and timed first, then scored with each of ``metrics``: PyTorch's worker
+    threads stay busy for a while after a JOD and would slow a render timed
+    right after it. The points are timed in ``timing_rounds`` rounds, each
+    round every point once (``_Bench.run``'s steady frame), and a point's
+    ``frame_ms`` is its fastest round (``frame_ms_rounds`` all of them): a
+    load burst from another process slows a round, not the curve.
+
+    Returns a JSON-ready dict: ``display`` (geometry), ``px_per_deg``,
+    ``fixation_px``, ``settings``, ``full`` (frame_ms, triangles),
+    ``curves`` {name: [{bias, triangles, frame_ms, render_ms, jod_<metric>,
+    seconds_<metric>}]}, ``comparison`` {metric: {"frame_ms": ...,
+    "triangles": ...}} (:func:`compare_at_equal_time`) and ``seconds``
+    per metric (median wall time of one JOD, s).
+
+    With ``image_side``, also the curves of :data:`IMAGE_SIDE`: ``raymask``
+    over :data:`RAYMASK_CONTRASTS` (``triangles`` None: it casts rays) and
+    ``csf+foveate`` over ``biases`` (:func:`_image_side_frame`). Every point
+    carries ``setting`` (``"bias +0"``, ``"C=0.3"``) and ``bias`` (NaN for
+    the ray mask).
+
+    The check that the judge looks where the viewer does: each curve's bias-0
+    point is also scored by the foveated metric with the fixation moved
+    ``off_fixation_deg`` (degrees) left of the POI (``off_fixation_px``), as
+    ``jod_<metric>_off``: a viewer looking away from where the detail is.
+    """
+    progress = progress or (lambda text: None)
+    full_image, full_stats = bench.run(bench.scene.selector("full", "adaptive"))
+    if reference_rgb is None:
+        reference_rgb = full_image
+    size = (full_image.shape[1], full_image.shape[0])       # the renderer's (w, h), px
+    geometry = display_geometry(bench.screen, bench.head, size, settings.max_eye_offset_mm)
+    fixation = fixation_px(bench.screen, bench.poi, size)
+    off_px = geometry.distance_m * math.tan(math.radians(off_fixation_deg)) / geometry.width_m * size[0]
+    off_fixation = fixation - np.array([off_px, 0.0])
+    if int(timing_rounds) != timing_rounds or timing_rounds < 1:
+        raise ValueError(f"timing_rounds must be a positive integer, got {timing_rounds!r}")
+    points = [(name, float(b), f"bias {b:+g}", opts) for name, opts in judge_entries(modes, forms) for b in biases]
+    if image_side:
+        points += [("raymask", float("nan"), f"C={c:g}", {"contrast": float(c)}) for c in RAYMASK_CONTRASTS]
+        points += [("csf+foveate", float(b), f"bias {b:+g}", {}) for b in biases]
+    side = _ImageSide(bench) if image_side else None
+    curves = {name: [] for name, *_ in points}
+    images = {}
+    full_ms = [full_stats["frame_ms"]]
+    for k in range(int(timing_rounds)):
+        if k > 0:
+            full_ms.append(bench.run(bench.scene.selector("full", "adaptive"))[1]["frame_ms"])
+        for name, bias, setting, opts in points:
+            if name in IMAGE_SIDE:
+                image, stats = side.frame(name, bias, **opts)
+            else:
+                image, stats = bench.run(bench.scene.selector(name.split("[")[0], "adaptive", level_bias=bias,
+                                                              **opts))
+            if k == 0:
+                images[name, setting] = image
+                curves[name].append({"bias": bias, "setting": setting, "triangles": stats["triangles"],
+                                     "frame_ms_rounds": [], "render_ms_rounds": []})
+            p = next(q for q in curves[name] if q["setting"] == setting)
+            p["frame_ms_rounds"].append(stats["frame_ms"])
+            p["render_ms_rounds"].append(stats["render_ms"])
+            p["frame_ms"], p["render_ms"] = min(p["frame_ms_rounds"]), min(p["render_ms_rounds"])
+        progress(f"timing round {k + 1}/{timing_rounds}: " + ", ".join(
+            f"{name} {min(q['frame_ms'] for q in c):.0f}-{max(q['frame_ms'] for q in c):.0f} ms"
+            for name, c in curves.items()))
+    if side is not None:
+        side.release()
+    seconds = {}
+    for m in metrics:
+        judge = Judge(geometry, dataclasses.replace(settings, metric=m))
+        seconds[m] = []
+        for name, pts in curves.items():
+            for p in pts:
+                p[f"jod_{m}"] = judge.jod(reference_rgb, images[name, p["setting"]], fixation)
+                p[f"seconds_{m}"] = judge.last_seconds
+                seconds[m].append(judge.last_seconds)
+                if judge.foveated and p["setting"] in ("bias +0", "C=1"):
+                    p[f"jod_{m}_off"] = judge.jod(reference_rgb, images[name, p["setting"]], off_fixation)
+            progress(f"{m} {name}: " + ", ".join(f"{p['setting']}: {p[f'jod_{m}']:.2f}" for p in pts))
+        seconds[m] = float(np.median(seconds[m])) if seconds[m] else float("nan")
+    report = {"display": dataclasses.asdict(geometry), "px_per_deg": geometry.px_per_deg,
+              "fixation_px": fixation.tolist(), "off_fixation_deg": float(off_fixation_deg),
+              "off_fixation_px": off_fixation.tolist(), "settings": dataclasses.asdict(settings), "metrics": list(metrics),
+              "foveated": {m: m == "fvvdp" for m in metrics},
+              "full": {"frame_ms": min(full_ms), "frame_ms_rounds": full_ms, "triangles": full_stats["triangles"]},
+              "timing_rounds": int(timing_rounds),
+              "curves": curves, "seconds": seconds}
+    report["comparison"] = {m: {x: compare_at_equal_time(curves, f"jod_{m}", x) for x in ("frame_ms", "triangles")}
+                            for m in metrics}
+    return report
+
+
+def compare_at_equal_time(curves: dict, key: str = "jod_fvvdp", x: str = "frame_ms") -> dict:
+    """Each CSF-based point against the best geometric curve at the same cost ``x``.
+
+    ``x`` is ``"frame_ms"`` (frame time, ms) or ``"triangles"`` (the cost
+    that does not depend on the machine's load). The geometric envelope at
+    cost c is the highest JOD among the curves of :data:`GEOMETRIC`
+    interpolated (linearly in log cost, each curve's points sorted by cost)
+    at c; a point outside a curve's cost range does not count for that
+    curve. Returns {curve name: [{bias, <x>, jod, geometric_jod,
+    geometric_mode, margin}]} for the curves of :data:`CSF_BASED`, the
+    CSF forms (``csf[...]``) and :data:`IMAGE_SIDE`; margin = jod − geometric_jod (JOD; positive:
+    the CSF-based point is above), None where no geometric curve spans c.
+    """
+    if x not in ("frame_ms", "triangles"):
+        raise ValueError(f"x must be 'frame_ms' or 'triangles', got {x!r}")
+    geometric = {n: sorted(((p[x], p[key]) for p in pts)) for n, pts in curves.items() if n in GEOMETRIC}
+    out = {}
+    for name, pts in curves.items():
+        if name.split("[")[0] not in CSF_BASED + IMAGE_SIDE:
+            continue
+        rows = []
+        for p in pts:
+            best, best_mode = None, None
+            for g, gp in geometric.items():
+                if p[x] is None:
+                    break
+                t = np.log([q[0] for q in gp])
+                c = math.log(p[x])
+                if len(gp) < 2 or not (t[0] <= c <= t[-1]):
+                    continue
+                j = float(np.interp(c, t, [q[1] for q in gp]))
+                if best is None or j > best:
+                    best, best_mode = j, g
+            rows.append({"bias": p["bias"], "setting": p.get("setting", f"bias {p['bias']:+g}"), x: p[x],
+                         "jod": p[key], "geometric_jod": best,
+                         "geometric_mode": best_mode, "margin": None if best is None else p[key] - best})
+        out[name] = rows
+    return out
+
+
+def jod_table(report: dict) -> str:
+    """The report as text: one line per curve point, then the comparisons at equal frame time and triangles."""
+    metrics = report["metrics"]
+    head = f"{'curve':16s} {'setting':>8s} {'triangles':>9s} {'frame ms':>9s} " + " ".join(
+        f"{'JOD ' + m + (' (fov)' if report['foveated'][m] else ''):>15s}" for m in metrics)
+    lines = [f"display {report['display']['width_m'] * 1000:.0f}x{report['display']['height_m'] * 1000:.0f} mm at "
+             f"{report['display']['distance_m'] * 1000:.0f} mm, {report['px_per_deg']:.1f} px/deg, fixation "
+             f"{report['fixation_px'][0]:.1f}, {report['fixation_px'][1]:.1f} px; full {report['full']['frame_ms']:.1f} ms; "
+             + ", ".join(f"{m} {s:.2f} s per image" for m, s in report["seconds"].items()), head]
+    for name, pts in report["curves"].items():
+        for p in pts:
+            off = [f"{p[f'jod_{m}_off']:.3f}" for m in metrics if f"jod_{m}_off" in p]
+            tri = "rays" if p["triangles"] is None else f"{int(p['triangles']):d}"
+            lines.append(f"{name:16s} {p['setting']:>8s} {tri:>9s} {p['frame_ms']:9.1f} "
+                         + " ".join(f"{p[f'jod_{m}']:15.3f}" for m in metrics)
+                         + (f"   (fixating {report['off_fixation_deg']:g}° left of the POI: {off[0]})" if off else ""))
+    for m in metrics:
+        for x, what in (("frame_ms", "frame time"), ("triangles", "triangle count")):
+            lines.append(f"{m}: CSF-based point − best geometric curve at the same {what} (JOD):")
+            for name, rows in report["comparison"][m][x].items():
+                lines.append(f"  {name:14s} " + "  ".join(
+                    f"{r['setting']}: " + ("outside" if r["margin"] is None
+                                           else f"{r['margin']:+.3f} ({r['geometric_mode']})") for r in rows))
+    return "\n".join(lines)
+
+
+def jod_chart(report: dict, path) -> None:
+    """JOD against frame time (top) and triangles (bottom), one column per metric; square: bias 0 (raymask: C=1)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    metrics = report["metrics"]
+    fig, axs = plt.subplots(2, len(metrics), figsize=(8 * len(metrics), 12), squeeze=False)
+    names = list(report["curves"])
+    palette = [plt.cm.tab10(i) for i in range(10)] + ["black", "darkgoldenrod", "magenta", "teal"]
+    for col, m in enumerate(metrics):
+        for row, (x, xlabel) in enumerate((("frame_ms", "frame time: select + build + render (ms, log)"),
+                                           ("triangles", "triangles (log)"))):
+            ax = axs[row, col]
+            for i, name in enumerate(names):
+                pts = sorted((p for p in report["curves"][name] if p[x] is not None), key=lambda p: p[x])
+                if not pts:
+                    continue
+                base = name.split("[")[0]
+                if base in IMAGE_SIDE:
+                    base = "csf"           # drawn as the CSF-based curves
+                style = "-" if base in CSF_BASED and "[" not in name else ("--" if "[" in name else ":")
+                color = palette[i % len(palette)]
+                marker = {"raymask": "D", "csf+foveate": "^"}.get(name, "o")
+                ax.plot([p[x] for p in pts], [p[f"jod_{m}"] for p in pts], marker + style, color=color,
+                        label=name + (" (CSF)" if base in CSF_BASED else ""), ms=4,
+                        lw=2 if base in CSF_BASED and "[" not in name else 1.2)
+                zero = [p for p in pts if p.get("setting") in ("bias +0", "C=1")]
+                if zero:
+                    ax.plot(zero[0][x], zero[0][f"jod_{m}"], "s", color=color, ms=9, mfc="none")
+            ax.axvline(report["full"][x], color="k", lw=1, ls="--", label="full (JOD 10)")
+            ax.set_xscale("log")
+            ax.set_xlabel(xlabel)
+            fov = "foveated on the POI" if report["foveated"][m] else "not foveated (the package has no such mode)"
+            ax.set_ylabel(f"JOD against full ({m}; 10 = identical)")
+            ax.set_title(f"{'FovVideoVDP' if m == 'fvvdp' else 'ColorVideoVDP'}: {fov}")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=7)
+    d = report["display"]
+    fig.suptitle(f"PLOD modes, level bias −1.5 … +1 (square: 0), judged at 1280x720 on a "
+                 f"{d['width_m'] * 1000:.0f}x{d['height_m'] * 1000:.0f} mm screen from {d['distance_m'] * 1000:.0f} mm "
+                 f"({report['px_per_deg']:.1f} px/deg), {report['settings']['peak_luminance_cd_m2']:g} cd/m²\n"
+                 f"solid: CSF-based (raymask: diamonds over its mask contrast 1, 0.3, 0.1; csf+foveate: triangles), "
+                 f"dotted: geometric modes, dashed: csf with other CSF forms", fontsize=10)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+class _ImageSide:
+    """The image-side techniques at the bench's default view, one steady frame each: (image, stats).
+
+    ``raymask``: :class:`headplod.render.raymask.RayMaskRenderer` with
+    :class:`headplod.plod.raymask.RayMaskConfig` at a mask contrast; its
+    frame is the mask (reused for the still view, as ``bench plod``'s
+    raymask part counts it: the second frame's) + cast, classify and
+    rasterise. ``csf+foveate``: ``csf`` at a level bias drawn by
+    :class:`headplod.render.foveate.FoveatedRenderer`; select + build +
+    the layers' render (the steady second frame).
+    """
+
+    def __init__(self, bench):
+        from ..render.foveate import FoveatedRenderer
+        from ..render.raymask import RayMaskRenderer
+
+        self.b = bench
+        r = bench.renderer
+        self.size = tuple(r.size)
+        self.rays = RayMaskRenderer(r.ctx, bench.scene.mesh, size=self.size, background=r.background)
+        self.fov = FoveatedRenderer(r)
+        self.poi_image = bench.poi * np.array(self.size) / np.array(bench.screen.size_px)
+
+    def frame(self, name, bias, contrast=1.0):
+        b = self.b
+        if name == "raymask":
+            from ..plod.raymask import RayMaskConfig
+
+            cfg = RayMaskConfig(contrast=contrast)
+            for _ in range(2):
+                mask = self.rays.mask(b.screen, b.head, b.poi, b.px_per_deg, b.cov, cfg)
+                image = self.rays.render(mask, b.view_m, b.proj, b.scene.model, cfg)
+            st = self.rays.last_stats
+            return image, {"triangles": None, "render_ms": st["render_ms"],
+                           "frame_ms": self.rays.last_mask_ms + st["render_ms"]}
+        from ..plod.select import View
+
+        selector = b.scene.selector("csf", "adaptive", level_bias=bias)
+        b.scene.mesh.clear()
+        for k in range(2):
+            t0 = time.perf_counter()
+            levels, _ = selector.select(View(b.head, b.poi, b.cov, k / 60))
+            t1 = time.perf_counter()
+            positions, normals, tri_levels = b.scene.mesh.update(levels)
+            t2 = time.perf_counter()
+            b.renderer.upload(positions, normals, tri_levels)
+            image = self.fov.render(b.view_m, b.proj, b.scene.model, self.poi_image, b.px_per_deg, b.cov)
+        return image, {"triangles": int(len(tri_levels)), "render_ms": self.fov.last_render_ms,
+                       "frame_ms": (t1 - t0) * 1e3 + (t2 - t1) * 1e3 + self.fov.last_render_ms}
+
+    def release(self):
+        for obj in (self.fov, self.rays):
+            if hasattr(obj, "release"):
+                obj.release()
+
+
+def write_heatmaps(bench, out_dir, modes=("csf", "sse"), settings: JudgeSettings = JudgeSettings()) -> dict:
+    """The foveated metric's heatmap of each mode (bias 0) against ``full``, with the fixation marked.
+
+    Writes ``plod_jod_heatmap_<mode>.png`` (1280x720) into ``out_dir``;
+    returns {mode: JOD}.
+    """
+    import cv2
+
+    reference, _ = bench.run(bench.scene.selector("full", "adaptive"))
+    size = (reference.shape[1], reference.shape[0])
+    geometry = display_geometry(bench.screen, bench.head, size, settings.max_eye_offset_mm)
+    fixation = fixation_px(bench.screen, bench.poi, size)
+    judge = Judge(geometry, settings, heatmap=True)
+    out = {}
+    for mode in modes:
+        image, _ = bench.run(bench.scene.selector(mode, "adaptive"))
+        out[mode], hm = judge.jod_map(reference, image, fixation)
+        hm = np.ascontiguousarray(hm)
+        centre = tuple(int(round(c + 0.5)) for c in fixation)
+        for deg in (2, 5, 10, 20):     # eccentricity rings around the fixation
+            cv2.circle(hm, centre, int(round(deg * geometry.px_per_deg)), (255, 255, 255), 1, cv2.LINE_AA)
+        cv2.putText(hm, f"{mode}: {out[mode]:.2f} JOD ({settings.metric}); rings 2, 5, 10, 20 deg", (10, 30),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2, cv2.LINE_AA)
+        path = Path(out_dir) / f"plod_jod_heatmap_{mode}.png"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(path), cv2.cvtColor(hm, cv2.COLOR_RGB2BGR))
+    return out

@@ -1,0 +1,225 @@
+"""The tessellation back end (headplod.render.tessellate) and its numpy half (headplod.plod.patches).
+
+- The height grid equals ``Terrain.heights`` at its samples.
+- The control shader's CSF levels equal :func:`patch_levels` (built from
+  ``plod.perception``) within float32 tolerance, per patch and per edge.
+- The tessellated surface is watertight across every neighbour pair: every
+  generated triangle's vertices are read back (a storage buffer), and every
+  interior edge of the triangulation is shared by exactly two triangles,
+  every border edge by one, and the triangles tile the grid's area exactly.
+- A still view renders identical frames.
+
+The GL tests need OpenGL 4.3 (storage buffers; Mesa llvmpipe has it) and skip, saying why, without.
+"""
+import numpy as np
+import pytest
+
+from headplod.plod.patches import PatchGrid, height_grid, patch_levels, tess_factors
+from headplod.plod.terrain import Terrain
+from headplod.render.projection import off_axis_projection
+from headplod.render.still import default_head
+
+N_SAMPLES = 257      # grid side: 16 x 16 patches of 16 samples
+PATCH = 16
+# float32 against float64: angles from chords of unit vectors ~1e-7 rad relative, the CSF's log form
+# a few ulps; levels are log2 of their product, so ~1e-4 levels is the float32 noise (measured 1.5e-4).
+LEVEL_ATOL = 2e-3
+
+
+@pytest.fixture(scope="module")
+def terrain():
+    return Terrain.jacksboro(detail_min_wavelength_m=20.0)
+
+
+@pytest.fixture(scope="module")
+def grid(terrain):
+    z, dx, dy = height_grid(terrain, N_SAMPLES)
+    x0, _, y0, _ = terrain.extent
+    return PatchGrid.build(z, dx, dy, PATCH, origin_m=(x0, y0))
+
+
+@pytest.fixture(scope="module")
+def ctx430():
+    from headplod.render import create_context
+
+    try:
+        ctx = create_context(require=430)
+    except RuntimeError as exc:
+        pytest.skip(f"no headless OpenGL 4.3: {exc}")
+    yield ctx
+    ctx.release()
+
+
+def _view(screen, grid, poi_px=None, head_mm=None):
+    from headplod.render.tessellate import grid_model, head_axes
+
+    head = default_head(screen) if head_mm is None else np.asarray(head_mm, float)
+    poi = np.array(screen.size_px, float) / 2 if poi_px is None else np.asarray(poi_px, float)
+    view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
+    return view, proj, grid_model(grid, screen), head, head_axes(screen, head, poi)
+
+
+def test_height_grid_equals_terrain_heights(terrain):
+    z, dx, dy = height_grid(terrain, 129)
+    x0, _, y0, _ = terrain.extent
+    rng = np.random.default_rng(3)
+    i, j = rng.integers(0, 129, 300), rng.integers(0, 129, 300)
+    ref = terrain.heights(x0 + j * dx, y0 + i * dy)
+    # float32 heights of ~1000 m: 6e-5 m resolution; the detail waves' float32 phases add ~1e-4 m.
+    np.testing.assert_allclose(z[i, j], ref, atol=2e-3)
+
+
+def test_patch_grid_ranges_and_contrast(grid):
+    z, p = grid.heights_m, grid.patch_samples
+    assert grid.n_patches == (N_SAMPLES - 1) // PATCH
+    for pi, pj in ((0, 0), (3, 7), (15, 15)):
+        block = z[pi * p:(pi + 1) * p + 1, pj * p:(pj + 1) * p + 1]
+        assert grid.z_min_m[pi, pj] == block.min() and grid.z_max_m[pi, pj] == block.max()
+    assert np.all((grid.contrast > 0) & (grid.contrast < 1))
+
+
+def test_patch_grid_rejects_bad_sizes():
+    with pytest.raises(ValueError, match="multiple of patch_samples"):
+        PatchGrid.build(np.zeros((20, 20)), 1.0, 1.0, 8)
+    with pytest.raises(ValueError, match="square"):
+        PatchGrid.build(np.zeros((17, 9)), 1.0, 1.0, 8)
+
+
+def test_config_validation():
+    from headplod.render.tessellate import TessellationConfig
+
+    assert TessellationConfig().max_level == 6
+    assert TessellationConfig(patch_samples=16).max_level == 4
+    for bad in ({"patch_samples": 48}, {"max_tess_level": 0}, {"shift": "eq3"}, {"ellipse_sigma": -1.0},
+                {"level_bias": float("nan")}, {"csf_stage": "fragment"}):
+        with pytest.raises(ValueError):
+            TessellationConfig(**bad)
+
+
+@pytest.mark.parametrize("cov_deg2, shift, bias, stage", [
+    (np.diag([0.05 ** 2, 0.05 ** 2]), "ellipse", 0.0, "vertex"),     # the bench's tracker σ
+    (np.diag([0.05 ** 2, 0.05 ** 2]), "ellipse", 0.0, "control"),    # the CSF in the tessellation control shader
+    (np.array([[2.0, 0.6], [0.6, 0.8]]), "ellipse", 0.0, "control"),  # a wide, tilted ellipse
+    (np.array([[2.0, 0.6], [0.6, 0.8]]), "eq1", 0.5, "vertex"),
+    (None, "ellipse", -1.0, "control"),
+])
+def test_shader_csf_equals_perception(ctx430, grid, default_screen, cov_deg2, shift, bias, stage):
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer
+
+    cfg = TessellationConfig(patch_samples=PATCH, shift=shift, level_bias=bias, csf_stage=stage)
+    view, proj, model, head, axes = _view(default_screen, grid, poi_px=(700.0, 500.0))
+    with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg) as r:
+        inner, outer, culled = r.levels(view, proj, model, head, axes, cov_deg2)
+    ref_inner, ref_outer = patch_levels(grid, model, head, axes, cov_deg2, shift=shift, level_bias=bias)
+    assert np.isfinite(ref_inner).all()
+    assert ref_inner.max() - ref_inner.min() > 2            # the view spans several levels
+    np.testing.assert_allclose(inner, ref_inner, atol=LEVEL_ATOL)
+    np.testing.assert_allclose(outer, ref_outer, atol=LEVEL_ATOL)
+    # The factors agree except where a level is within the tolerance of an integer (ceil's boundary).
+    near = np.abs(ref_inner - np.round(ref_inner)) < LEVEL_ATOL
+    top = cfg.max_level
+    assert np.array_equal(tess_factors(inner, top)[~near], tess_factors(ref_inner, top)[~near])
+
+
+def test_edge_levels_agree_between_neighbours(grid, default_screen):
+    _, _, model, head, axes = _view(default_screen, grid)
+    _, outer = patch_levels(grid, model, head, axes, np.diag([0.05 ** 2] * 2))
+    # east edge of (i, j) is the west edge of (i, j+1); north of (i, j) is south of (i+1, j)
+    assert np.array_equal(outer[:, :-1, 2], outer[:, 1:, 0])
+    assert np.array_equal(outer[:-1, :, 3], outer[1:, :, 1])
+
+
+def _edges_and_area(tri):
+    """Undirected edges (E, 4) of triangles (T, 3, 2) of sample coordinates, and their total area (samples²)."""
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])          # (3T, 2, 2)
+    key = e.reshape(-1, 4)
+    swap = (key[:, 0] > key[:, 2]) | ((key[:, 0] == key[:, 2]) & (key[:, 1] > key[:, 3]))
+    key[swap] = key[swap][:, [2, 3, 0, 1]]
+    a, b = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    area = 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    return key, area
+
+
+@pytest.mark.parametrize("mode, poi_px, stage", [("csf", (700.0, 500.0), "vertex"), ("csf", (100.0, 900.0), "control"),
+                                                 ("full", None, "vertex")])
+def test_patches_are_watertight(ctx430, grid, default_screen, mode, poi_px, stage):
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer
+
+    # No culling: every patch and every neighbour pair is generated. "full" makes 66049 vertices,
+    # more than one draw call may hold on llvmpipe: the split into calls is checked too.
+    cfg = TessellationConfig(patch_samples=PATCH, cull=False, csf_stage=stage)
+    view, proj, model, head, axes = _view(default_screen, grid, poi_px=poi_px)
+    with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg) as r:
+        tri = r.triangle_samples(view, proj, model, head, axes, np.diag([0.05 ** 2] * 2), mode=mode)
+        _, outer, _ = r.levels(view, proj, model, head, axes, np.diag([0.05 ** 2] * 2))
+    if mode == "csf":
+        assert len(np.unique(tess_factors(outer, cfg.max_level))) >= 3     # edges of different factors meet
+    key, area = _edges_and_area(tri)
+    assert np.all(area > 0)                                                 # no degenerate triangles
+    n = N_SAMPLES - 1
+    assert area.sum() == pytest.approx(n * n, abs=1e-6)                    # the grid, tiled exactly
+    edges, counts = np.unique(key, axis=0, return_counts=True)
+    on_border = (((edges[:, 0] == edges[:, 2]) & np.isin(edges[:, 0], (0, n)))
+                 | ((edges[:, 1] == edges[:, 3]) & np.isin(edges[:, 1], (0, n))))
+    assert np.all(counts[on_border] == 1)
+    assert np.all(counts[~on_border] == 2), f"{np.sum(counts[~on_border] != 2)} edges not shared by two triangles"
+
+
+def test_still_view_gives_identical_frames(ctx430, grid, default_screen):
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model, render_frame
+
+    cov = np.diag([0.05 ** 2] * 2)
+    with TessellationRenderer(ctx430, grid, size=(320, 180), config=TessellationConfig(patch_samples=PATCH)) as r:
+        model = grid_model(grid, default_screen)
+        a, sa = render_frame(r, default_screen, model, cov_deg2=cov, t=0.0)
+        b, sb = render_frame(r, default_screen, model, cov_deg2=cov, t=1 / 60)
+    assert sa["triangles"] == sb["triangles"] > 0
+    assert np.array_equal(a, b)
+    assert (a != np.array([158, 184, 209], np.uint8)).any(axis=-1).mean() > 0.3    # the terrain is in view
+
+
+def test_many_patches_keep_their_ids(ctx430, default_screen):
+    """16384 patches in one draw: on llvmpipe gl_PrimitiveID restarts within such a draw (it gave the
+    control shader other patches' levels); the patch is known by its vertex instead. Both stages agree,
+    and the surface stays watertight."""
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer
+
+    terrain = Terrain.jacksboro(detail_min_wavelength_m=40.0)
+    z, dx, dy = height_grid(terrain, 2049)
+    big = PatchGrid.build(z, dx, dy, 16, origin_m=terrain.extent[::2])
+    view, proj, model, head, axes = _view(default_screen, big, poi_px=(700.0, 500.0))
+    cov = np.diag([0.05 ** 2] * 2)
+    levels = {}
+    for stage in ("vertex", "control"):
+        with TessellationRenderer(ctx430, big, size=(64, 36),
+                                  config=TessellationConfig(patch_samples=16, cull=False, csf_stage=stage)) as r:
+            levels[stage] = r.levels(view, proj, model, head, axes, cov)
+            if stage == "control":
+                tri = r.triangle_samples(view, proj, model, head, axes, cov, capacity=1 << 22)
+    for a, b in zip(levels["vertex"], levels["control"]):
+        np.testing.assert_allclose(a, b, atol=LEVEL_ATOL)
+    key, area = _edges_and_area(tri)
+    assert area.sum() == pytest.approx(2048.0 ** 2, abs=1e-3)
+    _, counts = np.unique(key, axis=0, return_counts=True)
+    assert counts.max() == 2
+
+
+def test_render_cli_tessellation_backend(ctx430, tmp_path, monkeypatch, capsys):
+    from headplod.cli import main as cli_main
+
+    monkeypatch.setenv("HEADPLOD_CACHE", str(tmp_path / "cache"))
+    out, stats = tmp_path / "t.png", tmp_path / "t.json"
+    assert cli_main(["render", "--backend", "tessellation", "--grid-samples", "129", "--size", "160,90",
+                     "--cov", "0.01,0,0.01", "--out", str(out), "--stats", str(stats)]) == 0
+    import json
+    st = json.loads(stats.read_text())
+    assert out.exists() and st["triangles"] > 0 and st["grid_samples"] == 129
+    assert cli_main(["render", "--backend", "tessellation", "--mode", "gp", "--out", str(out)]) == 2
+    assert "does not take --mode gp" in capsys.readouterr().err
+    assert cli_main(["render", "--backend", "tessellation", "--grid-samples", "100", "--out", str(out)]) == 2
+    # A person's own terrain, resampled to the grid.
+    y, x = np.mgrid[0:60, 0:80]
+    np.save(tmp_path / "h.npy", (200 * np.sin(x / 9.0) * np.cos(y / 7.0) + 500).astype(np.float32))
+    assert cli_main(["render", "--backend", "tessellation", "--terrain", str(tmp_path / "h.npy"), "--spacing-m", "30",
+                     "--grid-samples", "129", "--size", "160,90", "--out", str(out), "--stats", str(stats)]) == 0
+    assert json.loads(stats.read_text())["triangles"] > 0
