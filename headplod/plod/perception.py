@@ -708,7 +708,49 @@ class Hysteresis:
         if self.levels is None:
             self.levels = nominal
             return self.levels.copy()
-        cur = np.clip(self.levels, 0, max_level)
+        self.levels = self._rule(x, nominal, self.levels, max_level, eager)
+        return self.levels.copy()
+
+    def update_rows(self, rows, continuous_level, max_level, eager=None):
+        """Update only the triangles ``rows``; the others keep their levels (0 on the first frame).
+
+        The same rule as :meth:`update` applied to a subset, for a selector
+        that evaluates the criterion on some triangles only
+        (:mod:`headplod.plod.quadtree`): it must know that the others'
+        continuous levels would not have moved them.
+
+        Parameters
+        ----------
+        rows : (k,) array_like of int
+            Triangles to update (distinct).
+        continuous_level : (k,) array_like of float
+            Their continuous levels.
+        max_level : int
+        eager : (k,) array_like of bool, optional
+            As in :meth:`update`, for the rows.
+
+        Returns
+        -------
+        (k,) ndarray of int
+            The rows' new levels; the state of all triangles stays in :attr:`levels`.
+        """
+        rows = np.asarray(rows, dtype=np.int64)
+        x = np.asarray(continuous_level, dtype=float)
+        if x.shape != rows.shape or rows.ndim != 1:
+            raise ValueError(f"expected rows (k,) and continuous levels of the same shape, got {rows.shape} "
+                             f"and {x.shape}")
+        nominal = round_level(x, self.rounding, max_level)
+        if self.levels is None:
+            self.levels = np.zeros(self.n, dtype=nominal.dtype)
+            self.levels[rows] = nominal
+            return nominal
+        new = self._rule(x, nominal, self.levels[rows], max_level, None if eager is None else np.asarray(eager))
+        self.levels[rows] = new
+        return new
+
+    def _rule(self, x, nominal, current, max_level, eager):
+        """New levels from continuous ``x``, their rounding ``nominal`` and the ``current`` levels."""
+        cur = np.clip(current, 0, max_level)
         c = cur.astype(float)
         if self.rounding == "ceil":
             lo, hi = c - 1.0, c
@@ -725,6 +767,4 @@ class Hysteresis:
         # coarsen it again. Elsewhere the band is symmetric (fewer triangles kept fine).
         up = hi + m if eager is None else np.where(np.asarray(eager, dtype=bool), hi, hi + m)
         switch = (x < lo - m) | (x > up)              # False for NaN: keep
-        self.levels = np.where(switch, nominal, cur).astype(int)
-        return self.levels.copy()
-
+        return np.where(switch, nominal, cur).astype(int)

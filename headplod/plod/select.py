@@ -22,6 +22,11 @@ level (for hysteresis) and returns integer levels in [0, max_level]:
 
 Every setting of the selection is a field of :class:`SelectorConfig` (key,
 unit, default, allowed range); :class:`LevelSelector` takes one.
+
+:class:`LevelSelector` evaluates every base triangle on every frame;
+:class:`headplod.plod.quadtree.QuadtreeSelector` gives the same levels
+walking a quadtree of the base grid, through the same per-triangle
+criterion (``LevelSelector._criterion``) and hysteresis rule.
 """
 from __future__ import annotations
 
@@ -299,14 +304,11 @@ class LevelSelector:
             return (np.full(n, self.max_level, dtype=np.int64),
                     {"eccentricity_deg": nan, "speed_deg_s": nan.copy(), "distance_mm": nan.copy(),
                      "continuous": np.full(n, float(self.max_level))})
-        view = self._smoothed_view(view)
-        eye = np.asarray(view.eye_mm, dtype=np.float64)
+        view, eye, axes, cov = self._frame(view)
         rel = self.centroids_mm - eye
         distance = np.linalg.norm(rel, axis=1)
         directions = rel / distance[:, None]
-        axes = self.head_axes(view)
         offsets = pc.view_offsets_deg(self.centroids_mm, eye, axes)
-        cov = self.policy(view.cov_deg2)
         shifted = pc.uncertainty_shift(offsets, cov, cfg.shift, cfg.ellipse_sigma) if cov is not None else offsets
         speed = self._angular_speed(view.t, eye, directions)
         # Frustum culling (the paper's renderer culled too): a base triangle
@@ -314,29 +316,10 @@ class LevelSelector:
         # level (GL clips it anyway), and the criterion is computed only for
         # the others.
         seen = np.flatnonzero(~self._outside_screen(eye))
-        # Angular size of a level's pieces and its spatial frequency (1 / diameter).
-        if self.corners_mm is not None:
-            to_corners = self.corners_mm[seen] - eye
-            to_corners /= np.linalg.norm(to_corners, axis=2, keepdims=True)
-            chord = np.linalg.norm(to_corners - to_corners[:, [2, 0, 1]], axis=2)           # (S, 3)
-            diameter_deg = np.degrees(2 * np.arcsin(np.minimum(chord.max(axis=1) / 2, 1.0)))
-            angular_deg = diameter_deg[:, None] * self._level_scale[seen]
-            # Angular radius about the centroid's direction: the farthest corner.
-            chord_c = np.linalg.norm(to_corners - directions[seen, None, :], axis=2).max(axis=1)
-            reach_deg = np.degrees(2 * np.arcsin(np.minimum(chord_c / 2, 1.0)))
-        else:
-            angular_deg = np.degrees(2 * np.arctan(self.edge_len_mm[seen] / (2 * distance[seen, None])))
-            reach_deg = angular_deg[:, 0] / math.sqrt(3)      # an equilateral triangle's circumradius
-        # The triangle's nearest point to the POI, not its centroid, decides
-        # what the eye can see of it: a large base triangle reaching into the
-        # fovea must be refined there. (Bounded by the centroid's eccentricity
-        # less the angle to the farthest corner.)
         ecc = np.full(len(rel), np.nan)
-        ecc[seen] = np.maximum(pc.eccentricity_deg(shifted[seen]) - reach_deg, 0.0)
-        freq = 1.0 / np.maximum(angular_deg, 1e-9)
         continuous = np.zeros(len(rel))
-        continuous[seen] = self._continuous(freq, distance[seen], ecc[seen], speed[seen], angular_deg,
-                                            seen) + float(cfg.level_bias)
+        ecc[seen], continuous[seen] = self._criterion(seen, eye, shifted[seen], distance[seen], directions[seen],
+                                                      speed[seen])
         if self.hysteresis is not None:
             eager = None
             if self._gaze_speed(view.t, axes[2]) > cfg.hysteresis_eager_deg_s:
@@ -349,6 +332,50 @@ class LevelSelector:
         return levels, {"eccentricity_deg": ecc, "speed_deg_s": speed, "distance_mm": distance,
                         "continuous": continuous, "poi_px": np.asarray(view.poi_px, dtype=np.float64),
                         "cov_deg2": cov}
+
+    def _frame(self, view: View):
+        """The frame's smoothed view, eye (3,) world mm, head axes (3, 3) and covariance (deg², or None).
+
+        Advances the filters and the uncertainty policy: call once per frame.
+        """
+        view = self._smoothed_view(view)
+        eye = np.asarray(view.eye_mm, dtype=np.float64)
+        axes = self.head_axes(view)
+        cov = self.policy(view.cov_deg2)
+        return view, eye, axes, cov
+
+    def _criterion(self, seen, eye, shifted, distance, directions, speed):
+        """Eccentricities (S,) deg and continuous levels (S,) of the base triangles ``seen`` (S,) int.
+
+        The per-triangle criterion, shared by the flat selection and the
+        hierarchical one (:mod:`headplod.plod.quadtree`): ``shifted`` (S, 2)
+        deg are their centroids' (φ, θ) after the uncertainty shift,
+        ``distance`` (S,) mm, ``directions`` (S, 3) unit vectors from the eye
+        (3,) world mm to their centroids, ``speed`` (S,) deg/s. The level bias
+        is included.
+        """
+        cfg = self.config
+        # Angular size of a level's pieces and its spatial frequency (1 / diameter).
+        if self.corners_mm is not None:
+            to_corners = self.corners_mm[seen] - eye
+            to_corners /= np.linalg.norm(to_corners, axis=2, keepdims=True)
+            chord = np.linalg.norm(to_corners - to_corners[:, [2, 0, 1]], axis=2)           # (S, 3)
+            diameter_deg = np.degrees(2 * np.arcsin(np.minimum(chord.max(axis=1) / 2, 1.0)))
+            angular_deg = diameter_deg[:, None] * self._level_scale[seen]
+            # Angular radius about the centroid's direction: the farthest corner.
+            chord_c = np.linalg.norm(to_corners - directions[:, None, :], axis=2).max(axis=1)
+            reach_deg = np.degrees(2 * np.arcsin(np.minimum(chord_c / 2, 1.0)))
+        else:
+            angular_deg = np.degrees(2 * np.arctan(self.edge_len_mm[seen] / (2 * distance[:, None])))
+            reach_deg = angular_deg[:, 0] / math.sqrt(3)      # an equilateral triangle's circumradius
+        # The triangle's nearest point to the POI, not its centroid, decides
+        # what the eye can see of it: a large base triangle reaching into the
+        # fovea must be refined there. (Bounded by the centroid's eccentricity
+        # less the angle to the farthest corner.)
+        ecc = np.maximum(pc.eccentricity_deg(shifted) - reach_deg, 0.0)
+        freq = 1.0 / np.maximum(angular_deg, 1e-9)
+        continuous = self._continuous(freq, distance, ecc, speed, angular_deg, seen) + float(cfg.level_bias)
+        return ecc, continuous
 
     def _continuous(self, freq, distance, ecc, speed, angular_deg, seen):
         """Continuous levels of the base triangles ``seen`` (indices); the other arguments are theirs."""
@@ -387,14 +414,17 @@ class LevelSelector:
         return pc.velocity_baseline_level(base, speed, mode=cfg.mode, v_ref=cfg.velocity_ref_deg_s, max_level=L,
                                           return_continuous=True)[1]
 
-    def _outside_screen(self, eye) -> np.ndarray:
-        """(F,) bool: the base triangle projects wholly outside the screen rectangle (or lies behind the eye)."""
+    def _outside_screen(self, eye, rows=None) -> np.ndarray:
+        """(F,) bool (or (k,) for base triangles ``rows`` (k,) int): the base triangle projects wholly
+        outside the screen rectangle (or lies behind the eye)."""
         from .contrast import project_to_screen_px
 
-        xy = project_to_screen_px(self.centroids_mm, eye, self.screen)
+        centroids, edge0 = ((self.centroids_mm, self.edge_len_mm[:, 0]) if rows is None
+                            else (self.centroids_mm[rows], self.edge_len_mm[rows, 0]))
+        xy = project_to_screen_px(centroids, eye, self.screen)
         width, height = self.screen.size_px
         # Margin: the triangle's size at level 0 on the screen, generously.
-        margin = self.config.cull_margin_edges * self.edge_len_mm[:, 0] * self.px_per_mm
+        margin = self.config.cull_margin_edges * edge0 * self.px_per_mm
         with np.errstate(invalid="ignore"):
             inside = ((xy[:, 0] >= -margin) & (xy[:, 0] <= width + margin)
                       & (xy[:, 1] >= -margin) & (xy[:, 1] <= height + margin))

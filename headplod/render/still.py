@@ -77,19 +77,28 @@ class TerrainScene:
                                           pitch_deg=PITCH_DEG).matrix, dtype=np.float64)
         return cls(terrain, mesh, model, screen, fit)
 
-    def selector(self, mode: str, uncertainty: str, config: SelectorConfig | None = None,
-                 **settings) -> LevelSelector:
+    def selector(self, mode: str, uncertainty: str, config: SelectorConfig | None = None, *,
+                 hierarchy: bool = False, **settings) -> LevelSelector:
         """A level selector for this scene's mesh.
 
         ``mode``, ``uncertainty`` and the keyword ``settings`` (any other
         :class:`SelectorConfig` field, e.g. ``hysteresis=False``) replace
-        those of ``config`` (default ``SelectorConfig()``).
+        those of ``config`` (default ``SelectorConfig()``). ``hierarchy``:
+        a :class:`headplod.plod.quadtree.QuadtreeSelector` (the same levels,
+        the criterion evaluated only where a triangle may need more than
+        level 0; modes ``csf``, ``gp``, ``distance``, ``full``).
         """
         config = SelectorConfig() if config is None else config
         config = dataclasses.replace(config, mode=mode, uncertainty=uncertainty, **settings)
         m = self.mesh
-        return LevelSelector(m.centroids, m.edge_length, m.geometric_error, m.contrast, self.model, self.screen,
-                             config, corners_scene=m.corners)
+        args = (m.centroids, m.edge_length, m.geometric_error, m.contrast, self.model, self.screen, config)
+        if hierarchy:
+            from ..plod.quadtree import QuadtreeSelector
+
+            vertices = m.base.vertices           # BaseMesh.grid: (nx + 1) x (ny + 1) vertices
+            grid_shape = (len(np.unique(vertices[:, 1])) - 1, len(np.unique(vertices[:, 0])) - 1)
+            return QuadtreeSelector(*args, corners_scene=m.corners, grid_shape=grid_shape)
+        return LevelSelector(*args, corners_scene=m.corners)
 
 
 def fit_scale(terrain) -> float:

@@ -1,0 +1,263 @@
+"""Selection time against the terrain's size: the flat selection against the quadtree's.
+
+Issue 14's goal for selection: its cost grows at most 2x from the 2M-triangle
+terrain (a 32 x 32 base grid at level 5) to the 128M one (256 x 256 at level
+5). :func:`selection_scaling` times :class:`headplod.plod.select.LevelSelector`
+(every base triangle on every frame) and
+:class:`headplod.plod.quadtree.QuadtreeSelector` on base grids of 32² to 512²
+quads (2k to 512k base triangles, 2M to 512M triangles at level 5) over the
+built-in Jacksboro terrain, from the default view (the head 60 cm in front of
+the screen's centre, the POI at the centre, the built-in scene's placement),
+and checks on every frame that both give the same levels.
+
+The selector's inputs are made here directly from the terrain
+(:func:`grid_inputs`), not through ``AdaptiveMesh``, whose vertex table
+would not fit in memory at these sizes: the corners and centroids are exact,
+the level-L edge length is the base triangle's longest side over 2^L
+(midpoint subdivision of a flat triangle), the geometric error is 0
+(mode ``csf`` does not use it) and the contrast is the Lambertian shading's
+over 7 points per triangle (corners, centroid, and midway from the centroid
+to each corner) instead of the finest level's lattice: cheaper, and lower
+than ``AdaptiveMesh.contrast`` (which sees the detail below the base
+triangle), so these grids refine a little less than the built-in scene.
+
+Run: ``python -m headplod.bench.plod_quadtree [--json FILE] [--chart FILE.png] [--sizes 32,64,...]``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from calib import DEFAULT_SCREEN
+
+from .. import io
+from ..plod.quadtree import QuadtreeSelector
+from ..plod.select import LevelSelector, SelectorConfig, View
+
+SIZES = (32, 64, 128, 256, 512)
+#: The other way to the 128M terrain: the 32² base refined to level 8 (same base triangles, finer levels).
+DEEP = ((32, 8),)
+GOAL_GROWTH = 2.0
+LIGHT_DIR = (-0.5, 0.5, 0.7071067811865476)       # AdaptiveMesh's default: north-west, 45° up
+AMBIENT = 0.2
+
+
+def grid_inputs(terrain, nx: int, ny: int, max_level: int = 5) -> dict:
+    """The selector's per-base-triangle inputs of ``BaseMesh.grid(terrain, nx, ny)``, without a mesh.
+
+    Returns
+    -------
+    dict
+        ``corners`` (F, 3, 3), ``centroids`` (F, 3), ``edge_length`` (F, L+1),
+        ``geometric_error`` (F, L+1) (zeros), scene units (m); ``contrast``
+        (F,); ``grid_shape`` (ny, nx). F = 2 nx ny, faces in ``BaseMesh.grid``'s
+        order (module notes for what is approximate).
+    """
+    xmin, xmax, ymin, ymax = map(float, terrain.extent)
+    gx, gy = np.meshgrid(np.linspace(xmin, xmax, nx + 1), np.linspace(ymin, ymax, ny + 1))
+    z, vertex_normals = terrain.sample(gx.ravel(), gy.ravel())
+    vertices = np.column_stack([gx.ravel(), gy.ravel(), z])
+    j, i = np.mgrid[0:ny, 0:nx]
+    v00 = (j * (nx + 1) + i).ravel()
+    v10, v01 = v00 + 1, v00 + nx + 1
+    v11 = v01 + 1
+    faces = np.stack([np.column_stack([v00, v10, v11]), np.column_stack([v00, v11, v01])], axis=1).reshape(-1, 3)
+    corners = vertices[faces]
+    centroids = corners.mean(axis=1)
+    side = np.linalg.norm(corners - corners[:, [1, 2, 0]], axis=2).max(axis=1)
+    edge_length = side[:, None] / 2.0 ** np.arange(max_level + 1)
+    # Shading at the corners, the centroid and midway from it to each corner.
+    inner = np.concatenate([centroids[:, None, :2], 0.5 * (corners[..., :2] + centroids[:, None, :2])], axis=1)
+    _, inner_normals = terrain.sample(inner[..., 0].ravel(), inner[..., 1].ravel())
+    normals = np.concatenate([vertex_normals[faces], inner_normals.reshape(len(faces), 4, 3)], axis=1)
+    light = np.asarray(LIGHT_DIR) / np.linalg.norm(LIGHT_DIR)
+    shade = AMBIENT + (1 - AMBIENT) * np.maximum(normals @ light, 0.0)
+    hi, lo = shade.max(axis=1), shade.min(axis=1)
+    return {"corners": corners, "centroids": centroids, "edge_length": edge_length,
+            "geometric_error": np.zeros_like(edge_length), "contrast": (hi - lo) / np.maximum(hi + lo, 1e-12),
+            "grid_shape": (ny, nx)}
+
+
+def default_model(terrain, screen) -> np.ndarray:
+    """The built-in scene's placement ``T_world_scene`` (4, 4) (``TerrainScene.build``), without its mesh."""
+    from ..render.still import DEPTH_MM, PITCH_DEG, SCALE_MM_PER_M
+    from ..render.projection import scene_to_world
+
+    x0, x1, y0, y1 = terrain.extent
+    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, float(np.median(terrain.dem_z_m))])
+    return np.asarray(scene_to_world(SCALE_MM_PER_M, centre, screen, depth_mm=DEPTH_MM,
+                                     pitch_deg=PITCH_DEG).matrix, dtype=np.float64)
+
+
+def default_views(screen, frames: int, seed: int = 0) -> list:
+    """A still head 60 cm in front of the screen's centre looking at its centre, with a tracker's noise.
+
+    ``frames`` views at 30 Hz; eye noise 0.3 mm, POI noise 2 px, covariance
+    diag(0.05, 0.08) deg² (σ of 0.2-0.3°), from ``seed``.
+    """
+    from ..render.still import default_head
+
+    rng = np.random.default_rng(seed)
+    head = default_head(screen)
+    poi = np.array(screen.size_px, dtype=np.float64) / 2
+    cov = np.diag([0.05, 0.08])
+    return [View(head + rng.normal(0, 0.3, 3), poi + rng.normal(0, 2.0, 2), cov, k / 30.0) for k in range(frames)]
+
+
+def selection_scaling(sizes=SIZES, frames: int = 12, max_level: int = 5, terrain=None, screen=None,
+                      progress=None, deep=DEEP) -> dict:
+    """Flat against quadtree selection time per base grid size, from the default view.
+
+    Parameters
+    ----------
+    sizes : sequence of int
+        Base grids of n x n quads.
+    frames : int
+        Views timed per size (the first is a warm-up, not timed).
+    max_level : int
+        Finest level (the triangles at full detail are 2 n² 4^max_level).
+    terrain : Terrain, optional
+        Default ``Terrain.jacksboro()``.
+    screen : io.Screen, optional
+        Default the embedded screen.
+    progress : callable(str), optional
+    deep : sequence of (int, int)
+        Further rows (quads per side, max level): by default the 32² base at
+        level 8, the 128M terrain with the 2M one's base triangles.
+
+    Returns
+    -------
+    dict
+        ``rows``: per size ``quads``, ``base_triangles``, ``triangles_full``,
+        ``flat_ms`` and ``quadtree_ms`` (median over the timed frames),
+        ``nodes_visited``, ``triangles_evaluated`` (medians), ``tree_nodes``,
+        ``mismatched_levels`` (over all frames; 0: the same levels),
+        ``build_s`` (inputs and tree), ``max_level``; ``growth_2M_to_128M`` (quadtree ms at
+        256² over flat ms at 32², when both were measured) and ``goal``.
+    """
+    from ..plod.terrain import Terrain
+
+    terrain = Terrain.jacksboro() if terrain is None else terrain
+    screen = io.read_screen(DEFAULT_SCREEN) if screen is None else screen
+    model = default_model(terrain, screen)
+    views = default_views(screen, frames)
+    rows = []
+    for n, level in [(n, max_level) for n in sizes] + list(deep):     # loop over grid sizes
+        t0 = time.perf_counter()
+        g = grid_inputs(terrain, n, n, level)
+        args = (g["centroids"], g["edge_length"], g["geometric_error"], g["contrast"], model, screen,
+                SelectorConfig())
+        flat = LevelSelector(*args, corners_scene=g["corners"])
+        tree = QuadtreeSelector(*args, corners_scene=g["corners"], grid_shape=g["grid_shape"])
+        build_s = time.perf_counter() - t0
+        flat_ms, tree_ms, nodes, evaluated, mismatched = [], [], [], [], 0
+        for k, view in enumerate(views):              # loop over frames
+            t1 = time.perf_counter()
+            a, _ = flat.select(view)
+            t2 = time.perf_counter()
+            b, _ = tree.select(view)
+            t3 = time.perf_counter()
+            mismatched += int(np.count_nonzero(a != b))
+            if k:
+                flat_ms.append((t2 - t1) * 1e3)
+                tree_ms.append((t3 - t2) * 1e3)
+                nodes.append(tree.last_stats["nodes_visited"])
+                evaluated.append(tree.last_stats["triangles_evaluated"])
+        F = len(g["centroids"])
+        row = {"quads": n * n, "max_level": level, "base_triangles": F, "triangles_full": F * 4 ** level,
+               "flat_ms": float(np.median(flat_ms)), "quadtree_ms": float(np.median(tree_ms)),
+               "nodes_visited": int(np.median(nodes)), "triangles_evaluated": int(np.median(evaluated)),
+               "tree_nodes": tree.tree.n_nodes, "mismatched_levels": mismatched,
+               "levels_above_0": int(np.count_nonzero(b)), "build_s": round(build_s, 2)}
+        rows.append(row)
+        if progress:
+            progress(f"{n}x{n} quads ({F} base triangles) at level {level}: flat {row['flat_ms']:.2f} ms, "
+                     f"quadtree {row['quadtree_ms']:.2f} ms, {row['nodes_visited']} nodes, "
+                     f"{row['mismatched_levels']} mismatched levels")
+        del flat, tree, g
+    by_size = {(r["quads"], r["max_level"]): r for r in rows}
+    small = by_size.get((32 * 32, 5))
+
+    def growth(key):
+        big = by_size.get(key)
+        return None if big is None or small is None else min(big["quadtree_ms"], big["flat_ms"]) / small["flat_ms"]
+
+    growths = {"256x256_level5": growth((256 * 256, 5)), "32x32_level8": growth((32 * 32, 8))}
+    return {"rows": rows, "frames": frames, "max_level": max_level, "growth_2M_to_128M": growths,
+            "goal": f"selection cost grows at most {GOAL_GROWTH:g}x from the 2M terrain (32² base at level 5, "
+                    f"flat) to the 128M one (the faster selector on it)",
+            "goal_met": {k: None if v is None else bool(v <= GOAL_GROWTH) for k, v in growths.items()}}
+
+
+def chart(report: dict, path) -> None:
+    """Selection ms and nodes visited against base triangles, flat and quadtree, log-log."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    deep = [r for r in report["rows"] if r["max_level"] != report["max_level"]]
+    rows = [r for r in report["rows"] if r["max_level"] == report["max_level"]]
+    x = [r["triangles_full"] for r in rows]
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.5))
+    ax.plot(x, [r["flat_ms"] for r in rows], "o-", label="flat (LevelSelector)")
+    ax.plot(x, [r["quadtree_ms"] for r in rows], "s-", label="quadtree (QuadtreeSelector)")
+    for r in deep:
+        ax.plot(r["triangles_full"], r["flat_ms"], "o", mfc="none", ms=10, color="tab:blue",
+                label=f"{int(r['quads'] ** 0.5)}² base at level {r['max_level']}, flat")
+        ax.plot(r["triangles_full"], r["quadtree_ms"], "s", mfc="none", ms=10, color="tab:orange",
+                label=f"{int(r['quads'] ** 0.5)}² base at level {r['max_level']}, quadtree")
+    if rows:
+        base = rows[0]["flat_ms"]
+        ax.axhline(GOAL_GROWTH * base, color="k", ls="--", lw=1, label=f"goal: {GOAL_GROWTH:g}x the 2M flat")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(f"triangles at full detail (lines: level {report['max_level']}, n² base quads)")
+    ax.set_ylabel("selection ms (median)")
+    ax.set_title("csf selection, default view")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    bx.plot(x, [r["base_triangles"] for r in rows], "o-", label="base triangles (flat evaluates all)")
+    bx.plot(x, [r["nodes_visited"] for r in rows], "s-", label="quadtree nodes visited")
+    bx.plot(x, [r["triangles_evaluated"] for r in rows], "^-", label="base triangles evaluated (quadtree)")
+    bx.set_xscale("log")
+    bx.set_yscale("log")
+    bx.set_xlabel(f"triangles at full detail (level {report['max_level']})")
+    bx.set_title("work per frame")
+    bx.grid(True, which="both", alpha=0.3)
+    bx.legend(fontsize=8)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m headplod.bench.plod_quadtree", description=__doc__.split("\n")[0])
+    parser.add_argument("--json", help="write the report here")
+    parser.add_argument("--chart", help="write the chart (PNG) here")
+    parser.add_argument("--sizes", default=",".join(map(str, SIZES)), help="base grids, quads per side")
+    parser.add_argument("--frames", type=int, default=12)
+    args = parser.parse_args(argv)
+    try:
+        sizes = [int(s) for s in args.sizes.split(",") if s]
+    except ValueError:
+        print(f"plod_quadtree: --sizes must be integers separated by commas, got {args.sizes!r}", file=sys.stderr)
+        return 2
+    report = selection_scaling(sizes, frames=args.frames, progress=lambda s: print(s, flush=True))
+    print(json.dumps({k: v for k, v in report.items() if k != "rows"}, indent=2))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(report, indent=2))
+    if args.chart:
+        chart(report, args.chart)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,444 @@
+"""Level selection over a quadtree of the base grid: cost that follows what is seen.
+
+:class:`LevelSelector` evaluates its criterion on every base triangle of the
+grid on every frame. :class:`QuadtreeSelector` gives the same levels while
+evaluating it only where some triangle could need more than level 0:
+
+- :class:`QuadTree`: a quadtree over the quads of a ``BaseMesh.grid``
+  (``nx x ny`` quads, two base triangles each, face ``2 (j nx + i) + k``):
+  a leaf is one quad, a node at depth ``d`` the ``2^(D-d) x 2^(D-d)`` quads
+  below it (``D = ceil(log2(max(nx, ny)))``; the grid is padded to
+  ``2^D x 2^D`` with empty nodes). Each node keeps, computed once, the
+  axis-aligned box (world frame, mm) of its triangles' corners and centroids,
+  its largest triangle diameter and corner reach, its highest contrast and
+  its widest culling margin.
+- Per frame the tree is walked breadth-first, one depth at a time, with
+  numpy over the whole frontier (no Python loop over nodes). A node is
+  dropped, all its triangles at level 0, when no triangle below it can get
+  a level above 0: either all its centroids project outside the screen
+  (culled: the flat selection gives them the continuous level 0), or an
+  upper bound of the criterion over the node is <= 0. The bound of mode
+  ``csf`` is ``log2(f_max · diameter)`` with the smallest eccentricity
+  (the angle from the POI's direction to the node's bounding sphere, less
+  the uncertainty shift's largest reach, less the largest angle from a
+  centroid to its corners), the largest angular diameter (longest triangle
+  side seen from the box's nearest point), the highest contrast and the
+  highest f_max over every speed (:func:`sup_max_visible_freq_cpd`); ``gp``
+  and ``distance`` have theirs. With hysteresis a node is also entered when
+  a triangle below it holds a level above 0 from the last frame (the dead
+  band could keep it there, so only the exact criterion can tell).
+- The leaves reached are evaluated with :class:`LevelSelector`'s own
+  per-triangle criterion and hysteresis rule (``_criterion``,
+  ``Hysteresis.update_rows``) on those triangles only. Every dropped
+  triangle is at level 0 in the flat selection too, so the levels are the
+  flat selection's (``tests/test_quadtree.py``).
+
+Modes whose criterion is not per-triangle (``acuity``, ``sse``, ``ipv``,
+``dpv`` use the median distance of all visible triangles) are refused.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import perception as pc
+from .select import LevelSelector, SelectorConfig, View
+
+HIERARCHY_MODES = ("csf", "gp", "distance", "full")
+"""Modes :class:`QuadtreeSelector` supports: those whose level is a function of the triangle alone."""
+
+# Slack on the bounds against rounding, deg and levels: the bound is a chain of closed forms whose
+# float error is ~1e-12; these are far above it and far below anything that changes a level.
+_ANGLE_SLACK_DEG = 1e-6
+_LEVEL_SLACK = 1e-6
+# Relative margin on the sup of f_max over the speed grid (the grid's error is ~1e-5).
+_FMAX_MARGIN = 1.001
+
+
+def _sup_table(model: str, top: float):
+    """(contrast grid, sup f_max) up to contrast ``top``, cached per model and top."""
+    key = (model, top)
+    if key not in _SUP_TABLES:
+        grid = np.concatenate([[0.0], np.logspace(-4, math.log10(top), 801)])
+        _SUP_TABLES[key] = (grid, sup_max_visible_freq_cpd(grid, model))
+    return _SUP_TABLES[key]
+
+
+_SUP_TABLES: dict = {}
+
+
+def sup_max_visible_freq_cpd(contrast, model: str = "kelly_scaled", speeds_deg_s=None):
+    """Highest foveal f_max over all retinal speeds, per contrast, cpd, with a safety margin.
+
+    ``max_visible_freq_cpd(C, v, 0)`` is not monotone in the speed ``v``
+    (it peaks near 0.2 deg/s for low contrasts), so a bound valid for any
+    speed takes its maximum over a fine logarithmic speed grid from the
+    floor (0.1 deg/s) to 30 deg/s, times 1.001 (the grid's own error is
+    ~1e-5 relative; f_max only falls beyond 30 deg/s).
+
+    Parameters
+    ----------
+    contrast : (n,) array_like
+        Michelson contrasts.
+    model : one of perception.CSF_MODELS
+    speeds_deg_s : (m,) array_like, optional
+        The speed grid, deg/s.
+
+    Returns
+    -------
+    (n,) ndarray
+        sup over v of f_max(C, v, e=0), cpd (x 1.001); non-decreasing in C.
+    """
+    c = np.asarray(contrast, dtype=np.float64).reshape(-1)
+    v = (np.logspace(math.log10(pc.MIN_SPEED_DEG_S), math.log10(30.0), 600) if speeds_deg_s is None
+         else np.asarray(speeds_deg_s, dtype=np.float64))
+    f = pc.max_visible_freq_cpd(c[:, None], v[None, :], 0.0, model=model)
+    return f.max(axis=1) * _FMAX_MARGIN
+
+
+class QuadTree:
+    """Per-node bounds of a quadtree over a grid of quads (two base triangles per quad).
+
+    Parameters
+    ----------
+    corners_mm : (F, 3, 3)
+        Base triangles' corners, world frame, mm; F = 2 nx ny in
+        ``BaseMesh.grid``'s order (face ``2 (j nx + i) + k`` in quad column i, row j).
+    centroids_mm : (F, 3)
+        Their centroids (the points the criterion is evaluated at), world mm.
+    nx, ny : int
+        Quads along the grid's x and y.
+    margin_mm : (F,)
+        Each triangle's culling margin on the screen plane, mm (its
+        ``cull_margin_edges`` level-0 edges).
+
+    Attributes
+    ----------
+    depth : int
+        D: the leaves (quads) are at depth D, the root at 0.
+    table : list of (4^d, 12) float64
+        Per depth d, node ``j 2^d + i``'s row: its box's centre (3) and
+        half-size (3), world mm; the box's half diagonal, mm; the longest
+        side of a triangle below it, mm; the largest distance from a
+        triangle's centroid to its corners, mm; the widest culling margin,
+        mm (widened by 1e-9 against rounding); the highest contrast; the
+        highest foveal f_max over all speeds at that contrast, cpd (the
+        last two set by :meth:`set_contrast`). Empty nodes (padding) hold
+        anything: they are never reached.
+    valid : list of (4^d,) bool
+        The node holds at least one quad.
+    """
+
+    COLUMNS = ("cx", "cy", "cz", "hx", "hy", "hz", "radius", "diameter", "reach", "margin", "contrast", "fmax")
+
+    def __init__(self, corners_mm, centroids_mm, nx: int, ny: int, margin_mm):
+        corners = np.asarray(corners_mm, dtype=np.float64)
+        centroids = np.asarray(centroids_mm, dtype=np.float64)
+        nx, ny = int(nx), int(ny)
+        if nx < 1 or ny < 1:
+            raise ValueError(f"QuadTree: nx and ny must be >= 1, got {nx}, {ny}")
+        F = 2 * nx * ny
+        if corners.shape != (F, 3, 3) or centroids.shape != (F, 3):
+            raise ValueError(f"QuadTree: expected corners ({F}, 3, 3) and centroids ({F}, 3) for {nx} x {ny} "
+                             f"quads, got {corners.shape} and {centroids.shape}")
+        self.nx, self.ny = nx, ny
+        self.depth = D = max(int(math.ceil(math.log2(max(nx, ny)))), 0)
+        n = 2 ** D
+        points = np.concatenate([corners, centroids[:, None]], axis=1).reshape(ny, nx, 8, 3)   # 2 faces x 4
+        side = np.linalg.norm(corners - corners[:, [1, 2, 0]], axis=2).max(axis=1)
+        reach = np.linalg.norm(corners - centroids[:, None], axis=2).max(axis=1)
+        margin = np.asarray(margin_mm, dtype=np.float64).reshape(-1) * (1 + 1e-9) + 1e-9
+
+        def leaf(reduced, fill):
+            out = np.full((n, n) + reduced.shape[2:], fill)
+            out[:ny, :nx] = reduced
+            return out
+
+        lo, hi = leaf(points.min(axis=2), 0.0), leaf(points.max(axis=2), 0.0)
+        scalars = np.stack([leaf(v.reshape(ny, nx, 2).max(axis=2), 0.0) for v in (side, reach, margin)], axis=-1)
+        valid = leaf(np.ones((ny, nx), bool), False)
+        self.table, self.valid = [None] * (D + 1), [None] * (D + 1)
+        for d in range(D, -1, -1):                        # loop over depths, leaves up
+            m = 2 ** d
+            row = np.zeros((m, m, len(self.COLUMNS)))
+            row[..., 0:3], row[..., 3:6] = 0.5 * (lo + hi), 0.5 * (hi - lo)
+            row[..., 6] = np.linalg.norm(row[..., 3:6], axis=-1)
+            row[..., 7:10] = scalars
+            self.table[d], self.valid[d] = row.reshape(m * m, -1), valid.reshape(-1)
+            if d:
+                # A node's extremes over its valid children (padding ones hold zeros).
+                blocks = lambda a: a.reshape(m // 2, 2, m // 2, 2, *a.shape[2:])                  # noqa: E731
+                vb = blocks(valid)[..., None]
+                lo = np.where(vb, blocks(lo), np.inf).min(axis=(1, 3))
+                hi = np.where(vb, blocks(hi), -np.inf).max(axis=(1, 3))
+                scalars = np.where(vb, blocks(scalars), -np.inf).max(axis=(1, 3))
+                valid = blocks(valid).any(axis=(1, 3))
+                lo, hi = np.where(valid[..., None], lo, 0.0), np.where(valid[..., None], hi, 0.0)
+                scalars = np.where(valid[..., None], scalars, 0.0)
+        self._contrast_source = None
+
+    @property
+    def n_nodes(self) -> int:
+        return sum(int(v.sum()) for v in self.valid)
+
+    def set_contrast(self, contrast, fmax_sup=None) -> None:
+        """Per-node highest contrast from the triangles' (F,) and, with ``fmax_sup`` (a function of the
+        contrast (k,) → cpd (k,), non-decreasing), its sup f_max; recomputed only for a new array."""
+        if contrast is self._contrast_source:
+            return
+        D, n = self.depth, 2 ** self.depth
+        c = np.full((n, n), -np.inf)
+        c[:self.ny, :self.nx] = np.asarray(contrast, dtype=np.float64).reshape(self.ny, self.nx, 2).max(axis=2)
+        for d in range(D, -1, -1):                        # loop over depths
+            self.table[d][:, 10] = np.maximum(c.reshape(-1), 0.0)
+            if fmax_sup is not None:
+                self.table[d][:, 11] = fmax_sup(self.table[d][:, 10])
+            if d:
+                m = 2 ** d
+                c = c.reshape(m // 2, 2, m // 2, 2).max(axis=(1, 3))
+        self._contrast_source = contrast
+
+    def children(self, d: int, nodes):
+        """The valid children (at depth d + 1) of ``nodes`` (k,) int at depth d."""
+        i, j = nodes & (2 ** d - 1), nodes >> d
+        first = (2 * j) * 2 ** (d + 1) + 2 * i
+        kids = (first[:, None] + np.array([0, 1, 2 ** (d + 1), 2 ** (d + 1) + 1])).reshape(-1)
+        return kids[self.valid[d + 1][kids]]
+
+    def faces(self, leaves):
+        """Base triangles (2k,) int of leaf nodes (k,) int at depth D (face 2 (j nx + i) + k)."""
+        D = self.depth
+        q = (leaves >> D) * self.nx + (leaves & (2 ** D - 1))
+        return (2 * q[:, None] + np.arange(2)).reshape(-1)
+
+    def ancestors(self, faces):
+        """Per depth d, the nodes (k,) int holding the base triangles ``faces`` (duplicates kept)."""
+        q = np.asarray(faces) // 2
+        i, j = q % self.nx, q // self.nx
+        D = self.depth
+        return [((j >> (D - d)) << d) + (i >> (D - d)) for d in range(D + 1)]
+
+
+class QuadtreeSelector(LevelSelector):
+    """:class:`LevelSelector` with the same ``select(View) -> (levels, info)``, walking a :class:`QuadTree`.
+
+    The arguments are ``LevelSelector``'s, with ``corners_scene`` required
+    and ``grid_shape = (ny, nx)``: the base triangles are those of
+    ``BaseMesh.grid(terrain, nx, ny)``, in its order. The levels equal the
+    flat selection's for the same sequence of views (module notes); the
+    criterion is evaluated only on the triangles of the leaves reached.
+
+    ``info`` has ``poi_px`` and ``cov_deg2`` as ``LevelSelector``'s, and
+    the features for the evaluated triangles only: ``rows`` (k,) int, the
+    base triangles evaluated, and ``eccentricity_deg``, ``speed_deg_s``,
+    ``distance_mm``, ``continuous`` (k,) theirs (eccentricity NaN for the
+    culled ones, continuous 0 for them as in the flat selection). Every
+    other triangle is at level 0. :attr:`last_stats` gives
+    ``nodes_visited`` (nodes whose bound was evaluated, leaves included),
+    ``leaves`` (quads reached), ``triangles_evaluated`` and
+    ``nodes_per_depth``.
+    """
+
+    def __init__(self, centroids_scene, edge_len_scene, geometric_error_scene, contrast, model, screen,
+                 config: SelectorConfig = SelectorConfig(), *, corners_scene, grid_shape):
+        if not isinstance(config, SelectorConfig):
+            raise TypeError(f"QuadtreeSelector: config must be a SelectorConfig, got {type(config).__name__}")
+        if config.mode not in HIERARCHY_MODES:
+            raise ValueError(f"QuadtreeSelector: mode must be one of {HIERARCHY_MODES}, got {config.mode!r} "
+                             f"(its criterion is not per triangle)")
+        if corners_scene is None:
+            raise ValueError("QuadtreeSelector: corners_scene is required (the nodes' bounds come from them)")
+        ny, nx = (int(v) for v in grid_shape)
+        if 2 * nx * ny != len(centroids_scene):
+            raise ValueError(f"QuadtreeSelector: grid_shape {tuple(grid_shape)} has {2 * nx * ny} base triangles, "
+                             f"got {len(centroids_scene)}")
+        super().__init__(centroids_scene, edge_len_scene, geometric_error_scene, contrast, model, screen, config,
+                         corners_scene=corners_scene)
+        self.tree = QuadTree(self.corners_mm, self.centroids_mm, nx, ny,
+                             config.cull_margin_edges * self.edge_len_mm[:, 0])
+        self._hot = None                # per depth: nodes with a triangle above level 0 (hysteresis)
+        self._fmax_table = None         # (contrast grid, sup f_max) of mode csf
+        if config.mode == "csf":
+            self._fmax_sup(self.contrast)   # the table, once (~0.1 s)
+        self.last_stats: dict = {}
+        # Frustum culling of a node: the screen's four sides, each a plane through the eye that moves
+        # outwards with the margin (``_frame_planes``).
+        tl = np.asarray(screen.top_left, dtype=np.float64)
+        u = np.asarray(screen.top_right, dtype=np.float64) - tl
+        v = np.asarray(screen.bottom_left, dtype=np.float64) - tl
+        width, height = screen.size_px
+        self._screen = (tl, u, v, np.cross(u, v), self.px_per_mm / width * (u @ u), self.px_per_mm / height * (v @ v))
+
+    # ------------------------------------------------------------------ bounds
+    def _fmax_sup(self, contrast):
+        """sup over speeds of the foveal f_max at each contrast (k,), cpd, from a table (rounded up in C)."""
+        top = max(1.0, float(np.max(contrast, initial=0.0)))
+        if self._fmax_table is None or self._fmax_table[0][-1] < top:
+            self._fmax_table = _sup_table(self.config.csf_model, top)
+        grid, table = self._fmax_table
+        k = np.searchsorted(grid, contrast, side="left")        # grid[k] >= contrast: f_max rises with C
+        return table[np.minimum(k, len(grid) - 1)]
+
+    def _frame_planes(self, eye):
+        """The culling sides' constants for this eye: (W0 (4, 3), A (4,), B (4,), normal (3,)).
+
+        A point ``p`` in front of the eye projects inside side s of the
+        screen widened by a margin ``m`` (mm on the screen) iff
+        ``(p - eye) · (W0[s] + (A[s] + B[s] m) / k n) >= 0``, with ``n`` the
+        screen's normal and ``k = (top_left - eye) · n``: multiply the pixel
+        condition of ``contrast.project_to_screen_px`` by the positive
+        ``1 / s``. A box is wholly outside a side when that linear form's
+        maximum over the box is negative.
+        """
+        tl, u, v, n, bu, bv = self._screen
+        k = float((tl - eye) @ n)
+        h0u, h0v = float((eye - tl) @ u), float((eye - tl) @ v)
+        W0 = np.stack([u, -u, v, -v])
+        A = np.array([h0u, u @ u - h0u, h0v, v @ v - h0v]) / k
+        B = np.array([bu, bu, bv, bv]) / k
+        return W0, A, B, n
+
+    def _frame_context(self, eye, axes, cov):
+        """The per-frame constants of :meth:`_node_bounds`: (eye, axes, culling planes, shift).
+
+        Also brings the nodes' contrast up to date (``self.contrast`` may be replaced between frames).
+        """
+        cfg = self.config
+        kelly = cfg.mode == "csf" and cfg.csf_model == "kelly_scaled"
+        self.tree.set_contrast(self.contrast, self._fmax_sup if kelly else None)
+        shift = None
+        if cov is not None:
+            S = np.asarray(cov, dtype=np.float64)
+            lam = float(np.linalg.eigvalsh(0.5 * (S + S.T))[-1])
+            if lam > 0:
+                shift = ("ellipse", cfg.ellipse_sigma * math.sqrt(lam)) if cfg.shift == "ellipse" else ("eq1", lam)
+        return eye, axes, self._frame_planes(eye), shift
+
+    def _node_bounds(self, d, nodes, frame):
+        """For ``nodes`` (k,) int at depth d: (culled (k,) bool, bound (k,) float).
+
+        ``culled``: every centroid below the node projects outside the
+        screen with its margin (or lies behind the eye), as the flat
+        selection's culling decides. ``bound``: an upper bound of the
+        continuous level (bias included) of every base triangle below the
+        node (module notes).
+        """
+        eye, axes, planes, shift = frame
+        row = self.tree.table[d][nodes]                                       # (k, 12)
+        rel, half = row[:, 0:3] - eye, row[:, 3:6]
+        # Culling: the linear form's maximum over the box, per side.
+        W0, A, B, n = planes
+        w = W0 + ((A + B * row[:, 9:10])[:, :, None] * n)                    # (k, 4, 3)
+        top = np.einsum("kj,ksj->ks", rel, w) + np.einsum("kj,ksj->ks", half, np.abs(w))
+        culled = (top < 0).any(axis=1)
+        cfg = self.config
+        dmin = np.sqrt((np.maximum(np.abs(rel) - half, 0.0) ** 2).sum(axis=1))
+        if cfg.mode == "distance":
+            return culled, (self.max_level - np.log2(np.maximum(dmin / cfg.distance_ref_mm, 1e-9))
+                            + float(cfg.level_bias) + _LEVEL_SLACK)
+        # Smallest angle from the POI's direction V to the node's bounding sphere, deg: the offsets'
+        # norm |(φ, θ)| is at least that angle, and the eccentricity of the shifted offsets P' at
+        # least atan(|P'| in rad).
+        dc = np.sqrt((rel * rel).sum(axis=1))
+        radius = row[:, 6]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            angle = np.degrees(np.arccos(np.clip((rel @ axes[2]) / dc, -1.0, 1.0))
+                               - np.where(radius < dc, np.arcsin(np.minimum(radius / dc, 1.0)), np.pi))
+            angle = np.maximum(angle, 0.0)
+            if shift is not None:
+                form, amount = shift
+                angle = (np.maximum(angle - amount, 0.0) if form == "ellipse"
+                         else -np.expm1(-0.5 * angle ** 2 / amount) * angle)     # eq1, amount = λmax
+            # Less the largest angle from a centroid to its corners; the largest angular diameter.
+            ratio = row[:, 8] / dmin
+            reach = np.where(ratio < 1.0, np.arcsin(np.minimum(ratio, 1.0)), np.pi)
+            diameter = np.where(dmin > 0, 2 * np.arcsin(np.minimum(row[:, 7] / (2 * dmin), 1.0)), np.pi)
+        ecc = np.maximum(np.degrees(np.arctan(np.radians(angle)) - reach) - _ANGLE_SLACK_DEG, 0.0)
+        if cfg.mode == "gp":
+            fmax = pc.gp_cutoff_cpd(row[:, 10], ecc)
+        elif cfg.csf_model == "kelly_scaled":
+            fmax = row[:, 11] / pc.eccentricity_factor(ecc)
+        else:                                   # f_max(C, v, e) = f_max(C / (1 + 0.29 e), v, 0)
+            fmax = self._fmax_sup(row[:, 10] / pc.eccentricity_factor(ecc))
+        # The continuous level is log2(f_max / f) with f = 1 / diameter (deg), plus the bias.
+        with np.errstate(divide="ignore"):
+            return culled, np.log2(np.maximum(fmax, 1e-12) * np.degrees(diameter)) + float(cfg.level_bias) + _LEVEL_SLACK
+
+    # ------------------------------------------------------------------ selection
+    def select(self, view: View):
+        """Levels (F,) int, equal to ``LevelSelector.select``'s; info (class notes)."""
+        cfg = self.config
+        if cfg.mode == "full":
+            return super().select(view)
+        view, eye, axes, cov = self._frame(view)
+        tree = self.tree
+        frame = self._frame_context(eye, axes, cov)
+        hot = self._hot if (self.hysteresis is not None and self.hysteresis.levels is not None) else None
+        # Start below the root: the top depths are almost always entered whole.
+        start = min(tree.depth, 3)
+        frontier = np.flatnonzero(tree.valid[start])
+        visited = []
+        for d in range(start, tree.depth + 1):             # loop over depths, numpy over the frontier
+            visited.append(len(frontier))
+            culled, bound = self._node_bounds(d, frontier, frame)
+            keep = ~culled & (bound > 0)                    # ceil(level) <= 0 for every triangle otherwise
+            if hot is not None:
+                keep |= hot[d][frontier]
+            frontier = frontier[keep]
+            if d < tree.depth:
+                frontier = tree.children(d, frontier)
+        rows = tree.faces(frontier)
+        rel = self.centroids_mm[rows] - eye
+        distance = np.linalg.norm(rel, axis=1)
+        directions = rel / distance[:, None]
+        speed = self._angular_speed_rows(view.t, eye, rows, directions)
+        inside = np.flatnonzero(~self._outside_screen(eye, rows))
+        seen = rows[inside]
+        offsets = pc.view_offsets_deg(self.centroids_mm[seen], eye, axes)
+        shifted = pc.uncertainty_shift(offsets, cov, cfg.shift, cfg.ellipse_sigma) if cov is not None else offsets
+        ecc = np.full(len(rows), np.nan)
+        continuous = np.zeros(len(rows))
+        ecc[inside], continuous[inside] = self._criterion(seen, eye, shifted, distance[inside],
+                                                          directions[inside], speed[inside])
+        if self.hysteresis is not None:
+            eager = None
+            if self._gaze_speed(view.t, axes[2]) > cfg.hysteresis_eager_deg_s:
+                with np.errstate(invalid="ignore"):
+                    eager = ecc < cfg.hysteresis_eager_deg
+            row_levels = self.hysteresis.update_rows(rows, continuous, self.max_level, eager=eager)
+            levels = np.clip(self.hysteresis.levels, 0, self.max_level).astype(np.int64)
+            self._hot = self._mark_hot(rows[row_levels > 0])
+        else:
+            levels = np.zeros(len(self.centroids_mm), dtype=np.int64)
+            levels[rows] = pc.round_level(continuous, self.rounding, self.max_level)
+        self.last_stats = {"nodes_visited": int(sum(visited)), "nodes_per_depth": [0] * start + visited,
+                           "leaves": int(len(frontier)), "triangles_evaluated": int(len(rows))}
+        return levels, {"rows": rows, "eccentricity_deg": ecc, "speed_deg_s": speed, "distance_mm": distance,
+                        "continuous": continuous, "poi_px": np.asarray(view.poi_px, dtype=np.float64),
+                        "cov_deg2": cov}
+
+    def _mark_hot(self, faces):
+        """Per depth, (4^d,) bool: the nodes holding a triangle of ``faces`` (those above level 0)."""
+        old = self._hot
+        hot = old if old is not None else [np.zeros(len(v), bool) for v in self.tree.valid]
+        for h in hot:                               # loop over depths: clear the last frame's marks
+            h[:] = False
+        for h, nodes in zip(hot, self.tree.ancestors(faces)):
+            h[nodes] = True
+        return hot
+
+    def _angular_speed_rows(self, t, eye, rows, directions):
+        """Angular speed (k,) deg/s of the triangles ``rows`` since the last view, >= 0.1 (as the flat one)."""
+        previous, self._previous = self._previous, (t, eye, None)
+        if previous is None or t is None or previous[0] is None or t <= previous[0]:
+            return np.full(len(rows), pc.MIN_SPEED_DEG_S)
+        dt = t - previous[0]
+        rel = self.centroids_mm[rows] - previous[1]
+        before = rel / np.linalg.norm(rel, axis=1)[:, None]
+        cos = np.clip(np.einsum("ij,ij->i", directions, before), -1.0, 1.0)
+        return np.maximum(np.degrees(np.arccos(cos)) / dt, pc.MIN_SPEED_DEG_S)
+
+    def reset(self):
+        super().reset()
+        self._hot = None
