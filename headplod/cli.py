@@ -13,7 +13,9 @@ Exit status: 0 on success, 1 when the run failed (bad files), 2 on bad usage.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from pathlib import Path
 
 from synthetic.cli import add_render_arguments as add_synth_arguments
 from synthetic.cli import run_render as run_synth
@@ -52,6 +54,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    # matplotlib keeps a font cache in ~/.config/matplotlib or ~/.cache/matplotlib; the command keeps it
+    # in its own cache folder instead (HEADPLOD_CACHE, default ~/.cache/headplod), unless MPLCONFIGDIR is set.
+    os.environ.setdefault("MPLCONFIGDIR", str(Path(os.environ.get("HEADPLOD_CACHE", Path.home() / ".cache" / "headplod"))
+                                              / "matplotlib"))
     args = build_parser().parse_args(argv)
     try:
         return COMMANDS[args.command][2](args)

@@ -283,3 +283,21 @@ def test_v4l2_auto_needs_the_rig_that_names_the_cameras():
     assert source_kind("v4l2:auto") == "v4l2"
     with pytest.raises(ValueError, match="--calib"):
         open_source("v4l2:auto")
+
+
+def test_the_command_keeps_matplotlib_in_its_own_cache(tmp_path, monkeypatch):
+    """matplotlib's config and font cache go under HEADPLOD_CACHE, not the home folder (unless MPLCONFIGDIR is set)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "MPLCONFIGDIR"}
+    env.update(HEADPLOD_CACHE=str(tmp_path / "cache"), HOME=str(tmp_path / "home"))
+    code = ("import os, sys; from headplod.cli import main\n"
+            "try:\n    main(['render', '--size', '0,0', '--out', 'x.png'])\n"
+            "finally:\n    print(os.environ['MPLCONFIGDIR'])")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == str(tmp_path / "cache" / "matplotlib")
+    env["MPLCONFIGDIR"] = str(tmp_path / "mine")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == str(tmp_path / "mine")

@@ -70,3 +70,12 @@ def test_render_that_cannot_write_fails_with_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "could not write" in err and len(err.splitlines()) == 1, err
     assert blocker.read_text() == "keep me\n" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+@needs_gl
+def test_render_warns_of_a_poi_off_the_screen(tmp_path, capsys):
+    out = tmp_path / "x.png"
+    assert cli_main(["render", "--size", "64,48", "--poi", "5000,-300", "--out", str(out)]) == 0
+    assert "outside the screen" in capsys.readouterr().err and out.exists()
+    assert cli_main(["render", "--size", "64,48", "--poi", "960,540", "--out", str(out)]) == 0
+    assert "outside the screen" not in capsys.readouterr().err

@@ -119,6 +119,12 @@ def run_render(args) -> int:
         except ValueError as exc:
             print(f"headplod: --inset-deg: {exc}", file=sys.stderr)
             return 2
+    if args.poi is not None:
+        w, h = screen.size_px
+        x, y = args.poi
+        if not (0 <= x <= w and 0 <= y <= h):
+            print(f"headplod: warning: --poi {x:g},{y:g} lies outside the screen (0..{w}, 0..{h} px): the viewer "
+                  "looks off the screen and the whole frame is periphery", file=sys.stderr)
     terrain, status = terrain_for_command(args, "headplod")     # read before anything is written
     if status is not None:
         return status
