@@ -234,6 +234,7 @@ class DatasetRecorder:
                 for part, path in zip(parts, paths):
                     os.replace(part, path)
                 self._times.write(row)
+                self.count += 1                      # the frame is in: a held signal comes after this step
                 done = True
                 self._times.flush()
             except BaseException:
@@ -243,7 +244,6 @@ class DatasetRecorder:
                 raise
         for flag in getattr(frame, "flags", None) or []:
             self._note(f"frame {index:06d} (source frame {frame.index}): {flag}")
-        self.count += 1
         return index
 
     def _drop_orphans(self) -> list[str]:

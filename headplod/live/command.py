@@ -268,41 +268,41 @@ def run_track(args) -> int:
 
     stats = None
     stop = StopSignals()
-    try:
-        # Everything that can fail without writing comes first: the files read, the tracker, the UDP socket.
-        markers = io.read_markers(args.markers) if args.markers else None
-        screen = io.read_screen(args.screen) if args.screen else None
-        tracker = make_tracker(source, config, rig=rig, markers=markers)
-        if udp is not None:
-            sender = OpentrackSender(*udp)
-        # Then the outputs: a recording replaced only at the end, the records under a temporary name.
-        if args.record:
-            recorder = DatasetRecorder(args.record, rig, markers=markers or source.markers,
-                                       screen=screen or source.screen, overwrite=args.overwrite)
-        writer = io.PoseWriter(args.out) if args.out else None
-        if args.status or (live and not args.quiet):
-            status = StatusLine(stream=log)
-        with stop:
+    with stop:                                          # from here, Ctrl-C and SIGTERM stop between frames
+        try:
+            # Everything that can fail without writing comes first: the files read, the tracker, the UDP socket.
+            markers = io.read_markers(args.markers) if args.markers else None
+            screen = io.read_screen(args.screen) if args.screen else None
+            tracker = make_tracker(source, config, rig=rig, markers=markers)
+            if udp is not None:
+                sender = OpentrackSender(*udp)
+            # Then the outputs: a recording replaced only at the end, the records under a temporary name.
+            if args.record:
+                recorder = DatasetRecorder(args.record, rig, markers=markers or source.markers,
+                                           screen=screen or source.screen, overwrite=args.overwrite)
+            writer = io.PoseWriter(args.out) if args.out else None
+            if args.status or (live and not args.quiet):
+                status = StatusLine(stream=log)
             stats = run_source(source, screen=screen, on_record=on_record, recorder=recorder, sender=sender,
                                pose_filter=pose_filter, status=status, max_frames=args.frames, tracker=tracker,
                                stop=stop)
-    except (ValueError, OSError, LookupError) as exc:
-        notes = []
-        if writer is not None:
-            writer.discard()
-            notes.append(f"--out {args.out} left as it was")
-        if recorder is not None:
-            notes.append(f"--record {args.record} " + ("left as it was" if recorder.replacing else
-                                                       f"keeps the {recorder.count} frames recorded"))
-            recorder.discard()
-        print(f"headplod: {exc}" + (f" ({'; '.join(notes)})" if notes else ""), file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:                           # a second Ctrl-C: stop at once, keep what is whole
-        stop.received = stop.received or signal.SIGINT
-    finally:
-        for thing in (status, recorder, sender, writer, source):
-            if thing is not None:
-                thing.close()
+        except (ValueError, OSError, LookupError) as exc:
+            notes = []
+            if writer is not None:
+                writer.discard()
+                notes.append(f"--out {args.out} left as it was")
+            if recorder is not None:
+                notes.append(f"--record {args.record} " + ("left as it was" if recorder.replacing else
+                                                           f"keeps the {recorder.count} frames recorded"))
+                recorder.discard()
+            print(f"headplod: {exc}" + (f" ({'; '.join(notes)})" if notes else ""), file=sys.stderr)
+            return 1
+        except KeyboardInterrupt:                       # a second Ctrl-C: stop at once, keep what is whole
+            stop.received = stop.received or signal.SIGINT
+        finally:
+            for thing in (status, recorder, sender, writer, source):
+                if thing is not None:
+                    thing.close()
     if stop():
         print(f"headplod: stopped ({stop.name}); the {len(records)} frames so far are kept", file=sys.stderr)
     summary = evaluate.summarize(records, truth or None)
