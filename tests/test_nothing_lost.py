@@ -406,3 +406,124 @@ def test_v4l2_auto_without_identities_names_the_command_that_stores_them(small_r
     with pytest.raises(LookupError) as err:
         resolve_rig_cameras(small_rig(), [])
     assert "headplod cameras --store" in str(err.value) and "rig_with_cameras" not in str(err.value)
+
+
+# ---------------------------------------------------------------------------
+# 6. synth never mixes two datasets
+# ---------------------------------------------------------------------------
+
+
+def _synth(*argv) -> int:
+    return cli_main(["synth", "static", *argv, "-q"])
+
+
+def test_synth_refuses_a_non_empty_folder_and_overwrite_replaces_the_dataset_whole(tmp_path, capsys):
+    out = tmp_path / "s"
+    assert _synth(str(out), "--frames", "3") == 0
+    before = _snapshot(out)
+    assert _synth(str(out), "--frames", "2") == 2
+    line = capsys.readouterr().err.strip()
+    assert line.startswith("synth: ") and "not empty" in line and "--overwrite" in line and "\n" not in line
+    assert _snapshot(out) == before
+    assert _synth(str(out), "--frames", "2", "--overwrite") == 0
+    ds = io.Dataset(out)                               # the new dataset only: no third frame left from the old
+    assert len(ds) == 2 and not ds.warnings and len(ds.times) == 2 and len(ds.truth) == 2
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert _synth(str(empty), "--frames", "2") == 0 and len(io.Dataset(empty)) == 2
+
+
+def test_synth_overwrite_never_deletes_what_is_not_a_datasets(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "s"
+    assert _synth(str(out), "--frames", "2") == 0
+    (out / "notes.txt").write_text("mine\n")
+    before = _snapshot(out)
+    assert _synth(str(out), "--frames", "2", "--overwrite") == 2
+    assert "notes.txt" in capsys.readouterr().err and _snapshot(out) == before
+    (out / "notes.txt").unlink()
+    monkeypatch.chdir(out)                               # the current folder, home and root are refused
+    assert _synth(".", "--frames", "2", "--overwrite") == 2
+    assert "current folder" in capsys.readouterr().err
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("HOME", str(out))
+    assert _synth(str(out), "--frames", "2", "--overwrite") == 2
+    assert "home folder" in capsys.readouterr().err
+    assert _synth("/", "--frames", "2", "--overwrite") == 2
+    assert "root folder" in capsys.readouterr().err
+    assert _snapshot(out) == {k: v for k, v in before.items() if k != "notes.txt"}
+
+
+def test_synth_interrupted_leaves_the_folder_as_it_was(tmp_path, monkeypatch, capsys):
+    import synthetic.dataset
+    out = tmp_path / "s"
+    assert _synth(str(out), "--frames", "2") == 0
+    before = _snapshot(out)
+
+    def interrupted(folder, scene, **kwargs):
+        (Path(folder) / "left").mkdir()
+        (Path(folder) / "left" / "000000.png").write_bytes(b"half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(synthetic.dataset, "write_dataset", interrupted)
+    assert _synth(str(out), "--frames", "3", "--overwrite") == 130
+    assert _snapshot(out) == before and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+# ---------------------------------------------------------------------------
+# 4. calibrate never loses a calibration
+# ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def calibration_pairs(tmp_path_factory) -> Path:
+    from synthetic.boards import Board, write_calibration_set
+    folder = tmp_path_factory.mktemp("calib") / "pairs"
+    write_calibration_set(folder, io.read_rig(ROOT / "calib" / "rig.yaml"), Board("chessboard", 9, 6, 25.0),
+                          n_pairs=8, seed=0, layout="subfolders")
+    return folder
+
+
+def _calibrate(pairs: Path, out) -> int:
+    return cli_main(["calibrate", str(pairs), "--cols", "9", "--rows", "6", "--square-mm", "25", "--out", str(out)])
+
+
+def test_calibrate_prints_the_report_and_keeps_the_rig_when_out_cannot_be_written(calibration_pairs, tmp_path,
+                                                                                   capsys):
+    blocker = tmp_path / "not_a_folder"
+    blocker.write_text("a file where the folder of --out should be\n")
+    out = blocker / "rig.yaml"
+    assert _calibrate(calibration_pairs, out) == 1
+    captured = capsys.readouterr()
+    assert "RMS" in captured.out or "rms" in captured.out.lower()          # the report came first
+    line = _one_line_error(captured.err)
+    assert f"--out {out}: cannot be written" in line and "the calibration is kept in" in line
+    kept = Path(line.rsplit("kept in ", 1)[1])
+    assert kept.parent == calibration_pairs and kept.name.startswith("rig.") and kept.suffix == ".yaml"
+    rig = io.read_rig(kept)
+    assert rig.image_size == io.read_rig(ROOT / "calib" / "rig.yaml").image_size
+    kept.unlink()
+
+
+def test_calibrate_falls_back_to_the_temporary_folder_and_refuses_a_folder_as_out(calibration_pairs, tmp_path,
+                                                                                  monkeypatch, capsys):
+    from headplod.calibration import command
+    real = command.io.write_rig
+
+    def refuse_beside_the_pairs(path, rig):
+        if Path(path).parent == calibration_pairs:
+            raise OSError(30, "Read-only file system")
+        real(path, rig)
+
+    monkeypatch.setattr(command.io, "write_rig", refuse_beside_the_pairs)
+    monkeypatch.setattr(command.tempfile, "tempdir", str(tmp_path))
+    assert _calibrate(calibration_pairs, tmp_path / "file" / "rig.yaml") == 0     # a missing folder is made
+    capsys.readouterr()
+    (tmp_path / "blocker").write_text("x")
+    assert _calibrate(calibration_pairs, tmp_path / "blocker" / "rig.yaml") == 1
+    line = _one_line_error(capsys.readouterr().err)
+    kept = Path(line.rsplit("kept in ", 1)[1])
+    assert kept.parent == tmp_path and io.read_rig(kept) is not None
+    assert not [p for p in calibration_pairs.iterdir() if p.name.startswith("rig.")]
+    assert _calibrate(calibration_pairs, tmp_path) == 2
+    assert "is a folder" in _one_line_error(capsys.readouterr().err)
