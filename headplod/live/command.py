@@ -345,8 +345,11 @@ def _source_inputs(spec: str | None = None, source=None, rig=None) -> tuple[list
         for r in (rig, getattr(source, "rig", None)):
             if r is not None and getattr(r, "path", None):
                 files.append(("the rig being read", r.path))
-    resolve = lambda items: [(what, Path(p).expanduser().resolve()) for what, p in items]   # noqa: E731
-    return resolve(files), resolve(folders)
+    return _resolved(files), _resolved(folders)
+
+
+def _resolved(items: list) -> list:
+    return [(what, Path(path).expanduser().resolve()) for what, path in items]
 
 
 def _check_outputs(args, spec: str | None = None, source=None, rig=None) -> None:
