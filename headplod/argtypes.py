@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["floats"]
+__all__ = ["floats", "frame_count"]
 
 
 def floats(n: int):
@@ -18,3 +18,14 @@ def floats(n: int):
             raise argparse.ArgumentTypeError(f"expected {n} comma-separated finite numbers, got {text!r}")
         return tuple(values)
     return parse
+
+
+def frame_count(text: str) -> int:
+    """An argparse type: a number of frames, a whole number of at least 1 (0 or -1 would run nothing)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of frames, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 frame, got {value}")
+    return value

@@ -1,24 +1,41 @@
 """The renderer's command line, one parser for ``python -m synthetic render`` and ``headplod synth``.
 
-    python -m synthetic render PRESET OUT_DIR [--frames N] [--seed S] [-q]
+    python -m synthetic render PRESET OUT_DIR [--frames N] [--seed S] [-q] [--overwrite]
     python -m synthetic list
-    headplod synth PRESET OUT_DIR [--frames N] [--seed S] [-q]      (the same arguments and run)
+    headplod synth PRESET OUT_DIR [--frames N] [--seed S] [-q] [--overwrite]     (the same arguments and run)
 
 :func:`add_render_arguments` adds the arguments of ``render`` to a parser and
 :func:`run_render` runs it, so ``headplod synth`` (``headplod/cli.py``) is this
 command under another name. Progress (frames, rate) goes to standard error
 through tqdm, silent with ``-q``.
+
+OUT_DIR is never mixed with what it held: a folder that is not empty is
+refused unless ``--overwrite``, and then only the entries a dataset folder
+owns (:data:`DATASET_ENTRIES`) are replaced; a folder that holds anything
+else is refused even then (nothing that is not a dataset's is deleted), and
+so are the current, home and root folders. The dataset is rendered into a
+hidden folder beside OUT_DIR and moved in when complete, so a failed or
+interrupted render leaves OUT_DIR as it was. Exit status: 0 on success, 1
+when the dataset cannot be written, 2 on bad usage.
 """
 from __future__ import annotations
 
 import argparse
+import os
+import shutil
 import sys
+import tempfile
+from pathlib import Path
 
 from tqdm import tqdm
 
 from .scenes import PRESETS, make_scene, preset_name
 
-__all__ = ["add_render_arguments", "run_render", "build_parser", "main"]
+__all__ = ["add_render_arguments", "run_render", "build_parser", "main", "DATASET_ENTRIES"]
+
+#: What a dataset folder owns: the contract's files and folders, and what the renderer and a recording add.
+DATASET_ENTRIES = ("left", "right", "rig.yaml", "markers.yaml", "screen.yaml", "times.csv", "truth.csv",
+                   "rig_truth.json", "recording.log")
 
 
 def _preset(text: str) -> str:
@@ -42,11 +59,63 @@ def _frames(text: str) -> int:
 def add_render_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add ``render``'s arguments to a (sub)parser; returns it."""
     parser.add_argument("preset", type=_preset, metavar="PRESET", help="one of: " + ", ".join(PRESETS))
-    parser.add_argument("out_dir", metavar="OUT_DIR", help="dataset folder to write (created)")
+    parser.add_argument("out_dir", metavar="OUT_DIR",
+                        help="dataset folder to write (created; an existing one must be empty, or hold only a "
+                             "dataset, replaced with --overwrite)")
     parser.add_argument("--frames", type=_frames, default=None, help="number of frames (preset default)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the scene and of the noise")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on standard error")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the dataset already in OUT_DIR (only its own files: left/, right/, the "
+                             "YAML and CSV files; a folder holding anything else is refused)")
     return parser
+
+
+def _refuse_out_dir(out_dir: str, overwrite: bool) -> str | None:
+    """Why OUT_DIR may not be written (one line), or None."""
+    folder = Path(out_dir).expanduser()
+    if folder.exists() and not folder.is_dir():
+        return f"{out_dir}: is a file; give a folder for the dataset"
+    if not folder.exists():
+        return None
+    entries = sorted(e.name for e in folder.iterdir())
+    if not entries:
+        return None
+    if not overwrite:
+        return (f"{out_dir}: is not empty ({len(entries)} entries: {', '.join(entries[:4])}"
+                f"{', ...' if len(entries) > 4 else ''}); choose an empty folder, or add --overwrite to replace "
+                "the dataset in it")
+    resolved = folder.resolve()
+    special = [("the current folder", Path.cwd().resolve()), ("the home folder", Path.home().resolve()),
+               ("the root folder", Path(resolved.anchor))]
+    for name, path in special:
+        if resolved == path:
+            return f"{out_dir}: is {name}; --overwrite only replaces a dataset folder of its own"
+    for name, path in special:
+        if resolved in path.parents:
+            return f"{out_dir}: holds {name}; --overwrite only replaces a dataset folder of its own"
+    foreign = [e for e in entries if e not in DATASET_ENTRIES]
+    if foreign:
+        return (f"{out_dir}: holds files that are not a dataset's ({', '.join(foreign[:4])}"
+                f"{', ...' if len(foreign) > 4 else ''}); --overwrite deletes only a dataset's own files: "
+                "move them, or choose another folder")
+    return None
+
+
+def _move_into(work: Path, folder: Path) -> None:
+    """Put the dataset rendered in ``work`` in ``folder``'s place: its own entries replaced, then ``work`` gone."""
+    if not folder.exists():
+        os.replace(work, folder)
+        return
+    for name in DATASET_ENTRIES:
+        old = folder / name
+        if old.is_symlink() or old.is_file():
+            old.unlink()
+        elif old.is_dir():
+            shutil.rmtree(old)
+    for entry in work.iterdir():
+        os.replace(entry, folder / entry.name)
+    work.rmdir()
 
 
 def run_render(args: argparse.Namespace) -> int:
@@ -54,6 +123,18 @@ def run_render(args: argparse.Namespace) -> int:
     # Imported on use: the renderer's modules are not needed to parse (or to print --help).
     from .dataset import write_dataset
 
+    problem = _refuse_out_dir(args.out_dir, args.overwrite)
+    if problem:
+        print(f"synth: {problem}", file=sys.stderr)
+        return 2
+    folder = Path(args.out_dir).expanduser()
+    parent = folder.resolve().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        work = Path(tempfile.mkdtemp(prefix=f".{folder.name}.synth-", dir=parent))
+    except OSError as exc:
+        print(f"synth: {args.out_dir}: cannot write beside it ({exc.strerror or exc})", file=sys.stderr)
+        return 1
     scene = make_scene(args.preset, n_frames=args.frames, seed=args.seed)
     print(f"{scene.name}: {scene.description}; {scene.n_frames} frames "
           f"{scene.setup.image_size[0]}x{scene.setup.image_size[1]} -> {args.out_dir}")
@@ -64,12 +145,24 @@ def run_render(args: argparse.Namespace) -> int:
         bar.update(done - bar.n)
 
     try:
-        write_dataset(args.out_dir, scene, seed=args.seed, progress=progress)
+        write_dataset(work, scene, seed=args.seed, progress=progress)
+        os.chmod(work, 0o777 & ~_umask())                 # mkdtemp's 0700 is for the hidden name only
+        _move_into(work, folder)
+    except OSError as exc:
+        print(f"synth: {args.out_dir}: {exc}; left as it was", file=sys.stderr)
+        return 1
     finally:
         bar.close()
+        shutil.rmtree(work, ignore_errors=True)
     if not args.quiet:
         print(f"wrote {scene.n_frames} stereo pairs to {args.out_dir}", file=sys.stderr)
     return 0
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def build_parser(prog: str = "python -m synthetic") -> argparse.ArgumentParser:

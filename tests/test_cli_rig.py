@@ -100,11 +100,12 @@ def test_save_rig_without_a_tracked_frame_writes_nothing(sample, tmp_path, capsy
         for side in ("left", "right"):
             cv2.imwrite(str(black / side / f"{i:06d}.png"), np.zeros((480, 640), np.uint8))
     out = tmp_path / "refined.yaml"
-    assert cli_main(["track", "--source", str(black), "--save-rig", str(out), "-q"]) == 1
+    assert cli_main(["track", "--source", str(black), "--save-rig", str(out), "-q"]) == 3
     assert "no frame was tracked" in capsys.readouterr().err
     assert not out.exists()
-    assert cli_main(["track", "--source", str(sample), "--save-rig", str(out), "--frames", "0", "-q"]) == 1
-    assert not out.exists()
+    with pytest.raises(SystemExit) as stop:                 # --frames 0 is refused before anything runs
+        cli_main(["track", "--source", str(sample), "--save-rig", str(out), "--frames", "0", "-q"])
+    assert stop.value.code == 2 and not out.exists()
 
 
 def test_recording_keeps_the_rig_given_and_its_replay_refines_the_same_way(sample, tmp_path):

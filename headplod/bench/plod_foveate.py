@@ -38,6 +38,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..argtypes import frame_count
 from ..demo import loop as lp
 from ..demo import viewpoints as vps
 from ..plod.select import View
@@ -466,7 +467,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m headplod.bench.plod_foveate",
                                      description="foveated layers: speed, seams, quality, pictures")
     parser.add_argument("out", help="output folder")
-    parser.add_argument("--frames", type=int, default=20, help="frames per speed run (default 20)")
+    parser.add_argument("--frames", type=frame_count, default=20, help="frames per speed run (default 20)")
     parser.add_argument("--no-speed", action="store_true", help="skip the speed runs")
     parser.add_argument("--viewpoints", default=",".join(vps.VIEWPOINTS), help="comma-separated")
     args = parser.parse_args(argv)

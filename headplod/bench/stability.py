@@ -42,6 +42,7 @@ import numpy as np
 from calib import DEFAULT_SCREEN
 
 from .. import io
+from ..argtypes import frame_count
 from ..capture.synthetic import ensure_dataset
 from ..live.loop import make_tracker, track_frames
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
@@ -344,7 +345,7 @@ def plot_stability(report: dict, path) -> Path:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m headplod.bench.stability", description=__doc__.split("\n")[0])
-    parser.add_argument("--frames", type=int, default=60)
+    parser.add_argument("--frames", type=frame_count, default=60)
     parser.add_argument("--distance", type=float, default=600.0, help="head distance, mm")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--modes", default="csf", help=f"comma-separated, of {','.join(MODES)}, or 'all'")

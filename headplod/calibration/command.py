@@ -4,15 +4,24 @@
                        --square-mm S [--marker-mm S] --out rig.yaml
 
 Exit status: 0 on success, 1 when the calibration failed, 2 on bad usage.
+
+A calibration is never lost: the report (RMS errors) is printed before
+``--out`` is written (whole or not at all: a temporary name, then a rename);
+when ``--out`` cannot be written, the rig goes beside the image pairs (or,
+failing that, to the temporary folder), one line says where, and the exit
+status is 1.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import tempfile
 from pathlib import Path
 
 import cv2
 
+from .. import io
 from ..argtypes import floats
 from ..capture import V4L2StereoSource
 from ..progress import Progress
@@ -35,7 +44,9 @@ def add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> argparse.Argu
     calibrate.add_argument("--square-mm", type=float, required=True, help="side of a square, mm")
     calibrate.add_argument("--marker-mm", type=float, help="ChArUco: side of a marker, mm (default 0.7 square)")
     calibrate.add_argument("--dictionary", default="DICT_5X5_100", help="ChArUco dictionary (default DICT_5X5_100)")
-    calibrate.add_argument("--out", required=True, help="rig.yaml to write")
+    calibrate.add_argument("--out", required=True,
+                           help="rig.yaml to write (after the report is printed; if it cannot be written, the "
+                                "rig is kept beside the image pairs and the exit status is 1)")
     calibrate.add_argument("--save", help="live: folder for the captured pairs (default: beside --out)")
     calibrate.add_argument("--pairs", type=int, default=20, help="live: pairs to capture (default 20)")
     calibrate.add_argument("--size", type=floats(2), help="live: camera image size W,H (default 640,480)")
@@ -49,6 +60,10 @@ def run_calibrate(args) -> int:
                          marker_mm=args.marker_mm, dictionary=args.dictionary)
     except ValueError as exc:
         print(f"headplod: {exc}", file=sys.stderr)
+        return 2
+    if Path(args.out).expanduser().is_dir():
+        print(f"headplod: --out {args.out}: is a folder; give the file to write, e.g. "
+              f"{Path(args.out) / 'rig.yaml'}", file=sys.stderr)
         return 2
     folder = args.folder
     if args.camera:
@@ -69,14 +84,42 @@ def run_calibrate(args) -> int:
         progress.step()
 
     try:
-        result = calibrate_folder(folder, spec, out=args.out, progress=step)
+        result = calibrate_folder(folder, spec, progress=step)
     except CalibrationError as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 1
     finally:
         progress.close()
-    print(format_report(result))
-    print(f"rig: {args.out}", file=sys.stderr)
+    print(format_report(result))                       # first: the numbers are never lost with the file
+    return _write_rig_or_keep(result.rig, args.out, folder)
+
+
+def _write_rig_or_keep(rig, out: str, folder) -> int:
+    """Write ``rig`` to ``out``; if it cannot be, beside the pairs in ``folder`` (else the temporary folder),
+    with one line that says where. The exit status: 0, or 1 when ``out`` was not written."""
+    try:
+        Path(out).expanduser().parent.mkdir(parents=True, exist_ok=True)
+        io.write_atomically(out, lambda name: io.write_rig(name, rig), suffix=".tmp.yaml")
+    except (OSError, ValueError) as exc:
+        reason = getattr(exc, "strerror", None) or str(exc)
+        stem = Path(out).stem or "rig"
+        for place in (Path(folder), Path(tempfile.gettempdir())):
+            kept = None
+            try:
+                fd, kept = tempfile.mkstemp(prefix=f"{stem}.", suffix=".yaml", dir=place)
+                os.close(fd)
+                io.write_rig(kept, rig)
+            except (OSError, ValueError):
+                if kept is not None:
+                    Path(kept).unlink(missing_ok=True)
+                continue
+            print(f"headplod: --out {out}: cannot be written ({reason}); the calibration is kept in {kept}",
+                  file=sys.stderr)
+            return 1
+        print(f"headplod: --out {out}: cannot be written ({reason}), nor beside the pairs or in "
+              f"{tempfile.gettempdir()}; the report above is all that is left", file=sys.stderr)
+        return 1
+    print(f"rig: {out}", file=sys.stderr)
     return 0
 
 

@@ -4,13 +4,23 @@
 ``rig.yaml``, ``markers.yaml`` / ``screen.yaml`` when given,
 ``left/NNNNNN.png``, ``right/NNNNNN.png`` (8-bit gray, lossless) and
 ``times.csv`` (``frame,t,t_right``, s). Everything is written as it comes,
-so a recording interrupted by a crash keeps every frame written before it:
+so a recording interrupted by a crash keeps every frame written before it,
+and a recording is consistent whenever it stops (every ``times.csv`` row has
+both images, no image is without its row):
 
-- each image is written to ``NNNNNN.png.part`` and renamed when complete
-  (a reader never sees half a PNG; a leftover ``.part`` file is ignored by
-  ``io.Dataset`` with a warning);
-- the ``times.csv`` row of a frame is written and flushed after both of its
-  images, so a row always has its images.
+- a frame is one step: both images are written to ``NNNNNN.png.part``,
+  renamed, and then its ``times.csv`` row is written and flushed, with
+  SIGINT and SIGTERM held until the step is done
+  (:func:`~headplod.capture.signals.deferred_signals`); a step that fails
+  (a full disk) removes what it wrote of its frame;
+- :meth:`DatasetRecorder.close` removes any image without a row and any
+  ``.part`` file left behind (there are none unless the process was killed
+  outright; ``io.Dataset`` then warns about them).
+
+A folder that already holds a recording is only replaced when asked
+(``overwrite=True``): the new one is recorded into a hidden folder beside it
+and takes its place when the recorder is closed, so the old recording is
+kept until then, and kept for good by :meth:`DatasetRecorder.discard`.
 
 Frames are numbered 000000, 000001, ... in the order written, whatever their
 index in the source. Frames with an ``error`` (a camera stalled, a bad
@@ -24,7 +34,9 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import shutil
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,11 +47,25 @@ import numpy as np
 
 from .. import io
 from .base import FrameSource
+from .signals import deferred_signals
 
-__all__ = ["DatasetRecorder", "RecordingSummary", "record"]
+__all__ = ["DatasetRecorder", "RecordingSummary", "record", "holds_recording", "RECORDING_ENTRIES"]
 
 _LOG_NAME = "recording.log"
 _TIMES_HEADER = "frame,t,t_right\n"
+_IMAGE_NAME = re.compile(r"^([0-9]{6})\.png(\.part)?$")
+#: The entries of a dataset folder that a recording owns (replaced with it; everything else is left alone).
+RECORDING_ENTRIES = ("left", "right", "times.csv", "truth.csv", _LOG_NAME, "rig.yaml", "markers.yaml", "screen.yaml")
+
+
+def holds_recording(folder: str | Path) -> bool:
+    """True when ``folder`` already holds a recording: images in ``left/`` or ``right/``, or a ``times.csv``."""
+    folder = Path(folder)
+    for side in ("left", "right"):
+        d = folder / side
+        if d.is_dir() and any(d.iterdir()):
+            return True
+    return (folder / "times.csv").exists()
 
 
 class DatasetRecorder:
@@ -57,10 +83,14 @@ class DatasetRecorder:
     screen : io.Screen, optional
         Written as ``screen.yaml``.
     overwrite : bool
-        Allow recording into a folder whose ``left/`` already holds files:
-        its ``left/``, ``right/``, ``times.csv``, ``truth.csv`` and
-        ``recording.log`` are removed first (``truth.csv`` would describe
-        other frames).
+        Allow recording into a folder that already holds a recording
+        (:func:`holds_recording`). The new recording is written into a
+        hidden folder beside it and replaces the old one's entries
+        (:data:`RECORDING_ENTRIES`: ``left/``, ``right/``, ``times.csv``,
+        ``truth.csv``, which would describe other frames, ``recording.log``
+        and the YAML files) at :meth:`close`; other files in the folder are
+        kept. Until then, and after :meth:`discard`, the old recording is
+        untouched.
 
     Attributes
     ----------
@@ -68,11 +98,14 @@ class DatasetRecorder:
         Frames written.
     skipped : int
         Frames not written (error frames).
+    replacing : bool
+        True when an existing recording is being replaced (``overwrite``):
+        the frames go to a hidden folder until :meth:`close`.
 
     Raises
     ------
     FileExistsError
-        When ``left/`` already holds files and ``overwrite`` is False.
+        When the folder already holds a recording and ``overwrite`` is False.
     TypeError
         When ``rig`` is not an :class:`io.Rig`.
 
@@ -90,35 +123,43 @@ class DatasetRecorder:
                             "the calibration its images belong to; see headplod.io.read_rig)")
         self.folder = Path(folder)
         self.rig = rig
-        left = self.folder / "left"
-        if left.is_dir() and any(left.iterdir()):
-            if not overwrite:
-                raise FileExistsError(
-                    f"{self.folder}: already holds a recording ({left} is not empty); "
-                    "choose another folder or pass overwrite=True to replace it")
-            for name in ("left", "right"):
-                shutil.rmtree(self.folder / name, ignore_errors=True)
-            for name in ("times.csv", "truth.csv", _LOG_NAME):
-                (self.folder / name).unlink(missing_ok=True)
-        for name in ("left", "right"):
-            (self.folder / name).mkdir(parents=True, exist_ok=True)
-        io.write_rig(self.folder / "rig.yaml", rig)
-        if markers is not None:
-            io.write_markers(self.folder / "markers.yaml", markers)
-        if screen is not None:
-            io.write_screen(self.folder / "screen.yaml", screen)
-        self._times = open(self.folder / "times.csv", "w", newline="", encoding="utf-8")
-        self._times.write(_TIMES_HEADER)
-        self._times.flush()
+        self._times: Any = None
         self._log: Any = None
         self.count = 0
         self.skipped = 0
+        if self.folder.exists() and not self.folder.is_dir():
+            raise FileExistsError(f"{self.folder}: is a file, not a folder; choose a folder for the recording")
+        self._work = self.folder                       # where the frames go until close()
+        self.replacing = False
+        if holds_recording(self.folder):
+            if not overwrite:
+                raise FileExistsError(
+                    f"{self.folder}: already holds a recording; choose another folder, or replace it "
+                    "(overwrite=True; on the command line --overwrite)")
+            parent = self.folder.resolve().parent
+            self.replacing = True
+            self._work = Path(tempfile.mkdtemp(prefix=f".{self.folder.name}.recording-", dir=parent))
+        try:
+            for name in ("left", "right"):
+                (self._work / name).mkdir(parents=True, exist_ok=True)
+            io.write_rig(self._work / "rig.yaml", rig)
+            if markers is not None:
+                io.write_markers(self._work / "markers.yaml", markers)
+            if screen is not None:
+                io.write_screen(self._work / "screen.yaml", screen)
+            self._times = open(self._work / "times.csv", "w", newline="", encoding="utf-8")
+            self._times.write(_TIMES_HEADER)
+            self._times.flush()
+        except BaseException:
+            if self._work != self.folder:
+                shutil.rmtree(self._work, ignore_errors=True)
+            raise
 
     # -- writing -------------------------------------------------------------
 
     def _note(self, line: str) -> None:
         if self._log is None:
-            self._log = open(self.folder / _LOG_NAME, "a", encoding="utf-8")
+            self._log = open(self._work / _LOG_NAME, "a", encoding="utf-8")
         self._log.write(line + "\n")
         self._log.flush()
 
@@ -133,14 +174,12 @@ class DatasetRecorder:
             return f"{side} image is {w}x{h}, rig says {rw}x{rh}"
         return None
 
-    def _write_png(self, path: Path, image: np.ndarray) -> None:
+    @staticmethod
+    def _encode_png(path: Path, image: np.ndarray) -> bytes:
         ok, data = cv2.imencode(".png", image)
         if not ok:
             raise OSError(f"{path}: PNG encoding failed")
-        part = path.with_name(path.name + ".part")
-        with open(part, "wb") as fh:
-            fh.write(data.tobytes())
-        os.replace(part, path)
+        return data.tobytes()
 
     def write(self, frame: io.Frame) -> int | None:
         """Write one frame (both images and its times.csv row).
@@ -182,28 +221,87 @@ class DatasetRecorder:
             return None
         index = self.count
         name = f"{index:06d}.png"
-        self._write_png(self.folder / "left" / name, frame.left)
-        self._write_png(self.folder / "right" / name, frame.right)
-        self._times.write(f"{index},{t!r},{'' if t_right is None else repr(t_right)}\n")
-        self._times.flush()
+        paths = [self._work / side / name for side in ("left", "right")]
+        data = [self._encode_png(path, image) for path, image in zip(paths, (frame.left, frame.right))]
+        parts = [path.with_name(name + ".part") for path in paths]
+        row = f"{index},{t!r},{'' if t_right is None else repr(t_right)}\n"
+        with deferred_signals():                     # the pair and its row: one step
+            done = False
+            try:
+                for part, blob in zip(parts, data):
+                    with open(part, "wb") as fh:
+                        fh.write(blob)
+                for part, path in zip(parts, paths):
+                    os.replace(part, path)
+                self._times.write(row)
+                self.count += 1                      # the frame is in: a held signal comes after this step
+                done = True
+                self._times.flush()
+            except BaseException:
+                if not done:                         # drop the pair in progress
+                    for path in (*parts, *paths):
+                        path.unlink(missing_ok=True)
+                raise
         for flag in getattr(frame, "flags", None) or []:
             self._note(f"frame {index:06d} (source frame {frame.index}): {flag}")
-        self.count += 1
         return index
 
+    def _drop_orphans(self) -> list[str]:
+        """Remove images without a times.csv row (index >= count) and ``.part`` files; their names."""
+        dropped = []
+        for side in ("left", "right"):
+            d = self._work / side
+            if not d.is_dir():
+                continue
+            for entry in d.iterdir():
+                m = _IMAGE_NAME.match(entry.name)
+                if m and (m.group(2) or int(m.group(1)) >= self.count):
+                    entry.unlink(missing_ok=True)
+                    dropped.append(f"{side}/{entry.name}")
+        return dropped
+
     def close(self) -> None:
-        """Flush and close ``times.csv`` and ``recording.log``; idempotent."""
-        for fh in (self._times, self._log):
-            if fh is not None:
-                fh.close()
-        self._times = None
-        self._log = None
+        """Flush and close ``times.csv`` and ``recording.log``, drop any image without its row, and (with
+        ``overwrite``) put the new recording in the old one's place; idempotent."""
+        self._close(keep=True)
+
+    def discard(self) -> None:
+        """Close; a recording made with ``overwrite`` is dropped and the old one kept as it was. A new
+        folder keeps the frames written (they are consistent). Idempotent."""
+        self._close(keep=False)
+
+    def _close(self, keep: bool) -> None:
+        if self._times is None and self._work == self.folder:
+            return
+        with deferred_signals():
+            for fh in (self._times, self._log):
+                if fh is not None:
+                    fh.close()
+            self._times = None
+            self._log = None
+            self._drop_orphans()
+            if self._work != self.folder:
+                work, self._work = self._work, self.folder
+                if keep:
+                    for name in RECORDING_ENTRIES:
+                        old = self.folder / name
+                        if old.is_dir() and not old.is_symlink():
+                            shutil.rmtree(old)
+                        else:
+                            old.unlink(missing_ok=True)
+                        if (work / name).exists():
+                            os.replace(work / name, old)
+                shutil.rmtree(work, ignore_errors=True)
 
     def __enter__(self) -> "DatasetRecorder":
         return self
 
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc: Any) -> None:
+        # An error drops a recording made with overwrite (the old one is kept); Ctrl-C keeps the frames so far.
+        if exc_type is not None and issubclass(exc_type, Exception):
+            self.discard()
+        else:
+            self.close()
 
     def __repr__(self) -> str:
         return f"DatasetRecorder({str(self.folder)!r}, {self.count} frames, {self.skipped} skipped)"

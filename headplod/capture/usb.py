@@ -554,7 +554,7 @@ def _rig_identity(rig: io.Rig, key: str) -> Mapping:
     if key not in rig.extra:
         raise LookupError(
             f"{where}rig.yaml has no {key}, so the cameras cannot be told apart after a "
-            "reboot; store the identities with headplod.capture.usb.rig_with_cameras "
+            "reboot; store the identities with 'headplod cameras --store LEFT RIGHT --rig rig.yaml' "
             f"(keys present: {', '.join(rig.extra) or 'none'})"
         )
     value = rig.extra[key]

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from .. import io
+from ..argtypes import frame_count
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..progress import Progress
 from ..render import TerrainRenderer, create_context
@@ -112,7 +113,7 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     add_terrain_arguments(parser.add_argument_group("terrain"))
     head = parser.add_argument_group("headless run")
     head.add_argument("--headless", action="store_true", help="run offscreen and write frames and a summary")
-    head.add_argument("--frames", type=int, default=30, help="frames per run (default 30)")
+    head.add_argument("--frames", type=frame_count, default=30, help="frames per run (default 30)")
     head.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     head.add_argument("--viewpoints", type=_names(tuple(VIEWPOINTS)), default=list(VIEWPOINTS),
                       help="comma-separated viewpoints to run (default all three)")

@@ -10,7 +10,9 @@ from __future__ import annotations
 import json
 import math
 import operator
+import os
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -184,8 +186,17 @@ class PoseWriter:
     Parameters
     ----------
     path : str or Path
-        Output file (created or truncated), or ``'-'`` for standard output
-        (which is not closed).
+        Output file, or ``'-'`` for standard output (which is not closed).
+        A file is written under a temporary name in its folder
+        (``.NAME.XXXX.part``) and renamed to ``path`` by :meth:`close`, so an
+        existing file is untouched until then, and replaced whole;
+        :meth:`discard` drops the temporary file and keeps the old one.
+
+    Raises
+    ------
+    OSError
+        When the temporary file cannot be made (the folder is missing or
+        not writable), or ``path`` is a folder.
 
     Examples
     --------
@@ -196,19 +207,28 @@ class PoseWriter:
     -----
     Records must come in strictly increasing frame order (the contract's
     "one object per frame, in frame order"); :meth:`write` raises
-    ``ValueError`` otherwise.
+    ``ValueError`` otherwise. Each record is one ``write`` of a whole line,
+    flushed at once.
     """
 
     def __init__(self, path: str | Path):
         self.path = str(path)
         self._last_frame: int | None = None
+        self._tmp: str | None = None
         self.count = 0
         if self.path == "-":
             self._fh = sys.stdout
             self._owned = False
-        else:
-            self._fh = open(self.path, "w", encoding="utf-8", newline="\n")
-            self._owned = True
+            return
+        target = Path(self.path).expanduser()
+        if target.is_dir():
+            raise IsADirectoryError(f"{self.path}: is a folder; give the file to write, e.g. {target / 'poses.jsonl'}")
+        fd, self._tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.resolve().parent)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(self._tmp, 0o666 & ~umask)             # mkstemp's 0600 is for the temporary name only
+        self._fh = os.fdopen(fd, "w", encoding="utf-8", newline="\n")
+        self._owned = True
 
     def write(self, record: Mapping[str, Any] | None = None, **fields: Any) -> dict:
         """Validate and write one record.
@@ -242,20 +262,37 @@ class PoseWriter:
         return rec
 
     def close(self) -> None:
-        """Close the file (standard output is only flushed)."""
+        """Close the file and rename it to ``path`` (standard output is only flushed); idempotent."""
+        self._close(keep=True)
+
+    def discard(self) -> None:
+        """Close and drop what was written; an existing ``path`` stays as it was. Idempotent."""
+        self._close(keep=False)
+
+    def _close(self, keep: bool) -> None:
         if self._fh is None:
             return
-        if self._owned:
-            self._fh.close()
-        else:
-            self._fh.flush()
-        self._fh = None
+        fh, self._fh = self._fh, None
+        if not self._owned:
+            fh.flush()
+            return
+        try:
+            fh.close()
+            if keep:
+                os.replace(self._tmp, Path(self.path).expanduser())
+        finally:
+            if self._tmp is not None and os.path.exists(self._tmp):
+                os.unlink(self._tmp)
 
     def __enter__(self) -> "PoseWriter":
         return self
 
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc: Any) -> None:
+        # An error drops the file (an existing one is kept); Ctrl-C keeps the records so far.
+        if exc_type is not None and issubclass(exc_type, Exception):
+            self.discard()
+        else:
+            self.close()
 
 
 def _reject_constant(name: str) -> Any:

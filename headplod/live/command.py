@@ -9,19 +9,30 @@ default: the built-in sequence, rendered on first use) or
 spellings, a positional ``DATASET`` and ``--camera LEFT RIGHT|auto``, still
 work for one release and print a note with the new one.
 
-Exit status: 0 on success, 1 when the run failed (bad files, no frame
-tracked for ``--save-rig``), 2 on bad usage (nothing is written then).
+Exit status: 0 on success, 1 when the run failed (bad files; the outputs
+are then left as they were), 2 on bad usage (nothing is written then), 3
+when the run tracked no frame at all (every frame failed, or there was none).
+
+Nothing is lost: every option is checked and the source opened before any
+output is touched; ``--out`` is written under a temporary name and renamed
+at the end of the run; ``--record`` never replaces an existing recording
+without ``--overwrite`` (and then only at the end of the run); no output may
+lie inside the dataset folder being read. Ctrl-C and SIGTERM stop the run
+cleanly between frames: the records and frames so far are kept, whole.
 """
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from .. import io
-from ..capture import DatasetRecorder, open_source, source_kind, synthetic_preset
+from ..argtypes import frame_count
+from ..capture import RECORDING_ENTRIES, DatasetRecorder, holds_recording, open_source, source_kind, synthetic_preset
+from ..capture.signals import StopSignals
 from ..capture.synthetic import ensure_dataset
 from ..capture.v4l2 import FOURCCS
 from ..tracking import evaluate
@@ -32,7 +43,14 @@ from ..tracking.rig_refine import RigRefineConfig
 from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
 from .output import DEFAULT_PIVOT_MM, OPENTRACK_FRAMES, OpentrackSender, StatusLine, check_pivot_mm, parse_host_port
 
-__all__ = ["add_track_arguments", "run_track", "track_source_spec", "note_old_spelling"]
+__all__ = ["add_track_arguments", "run_track", "track_source_spec", "note_old_spelling", "EXIT_NO_FRAME_TRACKED"]
+
+#: Exit status of a run that tracked no frame at all.
+EXIT_NO_FRAME_TRACKED = 3
+
+TRACK_EPILOG = ("exit status: 0 success; 1 the run failed (bad files; --out and --record are left as they were); "
+                "2 bad usage (nothing is written); 3 no frame was tracked (every frame failed, or there was none). "
+                "Ctrl-C or SIGTERM stops cleanly between frames: the records and frames so far are kept.")
 
 
 def note_old_spelling(old: str, new: str) -> None:
@@ -66,7 +84,10 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
                             "named in --calib, found by USB identity; see 'headplod cameras') with --calib")
     track.add_argument("dataset", nargs="?", metavar="DATASET",
                        help="old spelling of --source DATASET (goes in the next release)")
-    track.add_argument("--out", help="pose records, JSON Lines ('-' for standard output)")
+    track.add_argument("--out", help="pose records, JSON Lines ('-' for standard output). A file is written under "
+                                     "a temporary name beside it and renamed at the end of the run (after Ctrl-C "
+                                     "too), so an existing file is replaced whole, never left half-written; not "
+                                     "inside the dataset folder being read")
     track.add_argument("--estimator", choices=ESTIMATORS, default="reproj",
                        help="pose estimator (default reproj, the most accurate in 'headplod bench track')")
     track.add_argument("--threshold", type=_threshold_arg, default=None, metavar="DN|adaptive",
@@ -87,7 +108,7 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
     track.add_argument("--save-rig", metavar="FILE",
                        help="at the end of the run, write the refined rig to FILE (a new rig.yaml; not the "
                             "rig.yaml being read, nor inside the dataset or --record folder). Nothing is "
-                            "written, and the exit status is 1, when no frame was tracked")
+                            "written, and the exit status is 3, when no frame was tracked")
     live = track.add_argument_group("live cameras, recording and outputs")
     live.add_argument("--camera", nargs="+", metavar="DEV",
                       help="old spelling of --source v4l2:LEFT,RIGHT (or --source v4l2:auto for 'auto'); goes in "
@@ -100,14 +121,20 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
                       help="camera pixel format to request (default: the camera's)")
     live.add_argument("--exposure", type=float, help="manual exposure (V4L2 units; auto exposure is then off)")
     live.add_argument("--gain", type=float, help="camera gain (V4L2 units)")
-    live.add_argument("--record", metavar="DIR", help="write the frames as a dataset folder while tracking")
+    live.add_argument("--record", metavar="DIR",
+                      help="write the frames as a dataset folder while tracking (not the dataset being read, "
+                           "nor inside it); a folder that holds a recording is refused unless --overwrite")
+    live.add_argument("--overwrite", action="store_true",
+                      help="with --record: replace the recording already in DIR; the old one is kept until the "
+                           "run ends, and kept as it was if the run fails")
     add_udp_arguments(live)
     live.add_argument("--filter", nargs="?", const="1.0,0.02", metavar="MIN_CUTOFF,BETA",
                       help="One Euro filter on the recorded/sent poses (default off; 1.0 Hz, 0.02 when given "
                            "without values)")
     live.add_argument("--status", action="store_true",
                       help="a status line (rate, latency, skew, drops); on by default with live cameras")
-    live.add_argument("--frames", type=int, help="stop after N frames")
+    live.add_argument("--frames", type=frame_count, metavar="N", help="stop after N frames (at least 1)")
+    track.epilog = TRACK_EPILOG
     return track
 
 
@@ -244,6 +271,7 @@ def run_track(args) -> int:
     try:
         spec = track_source_spec(args)
         _check_save_rig(args, spec=spec)                # what can be checked before opening the source
+        _check_outputs(args, spec=spec)
         source, rig, live = _open_track_source(args, spec)
     except _Usage as exc:
         print(f"headplod: {exc}", file=sys.stderr)
@@ -253,14 +281,13 @@ def run_track(args) -> int:
         return 1
     try:
         _check_save_rig(args, source=source, rig=rig)   # the rig.yaml and dataset folder the source read
+        _check_outputs(args, source=source, rig=rig)
     except _Usage as exc:
         source.close()
         print(f"headplod: {exc}", file=sys.stderr)
         return 2
     for warning in source.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    markers = io.read_markers(args.markers) if args.markers else None
-    screen = io.read_screen(args.screen) if args.screen else None
     truth = getattr(getattr(source, "dataset", None), "truth", None) or {}
     log = sys.stderr
     writer = sender = recorder = status = tracker = None
@@ -289,31 +316,48 @@ def run_track(args) -> int:
             line += "  [" + "; ".join(record["flags"]) + "]"
         print(line, file=log)
 
-    try:
-        writer = io.PoseWriter(args.out) if args.out else None
-        if udp is not None:
-            pivot_mm, pivot_from = udp_pivot(args, rig=rig, source=source)
-            sender = OpentrackSender(*udp, pivot_mm=pivot_mm, frame=args.udp_axes)
-            print(f"udp: to {udp[0]}:{udp[1]}, the pivot ({', '.join(f'{v:.0f}' for v in pivot_mm)}) mm "
-                  f"({pivot_from}), axes {args.udp_axes}", file=log)
-        if args.record:
-            recorder = DatasetRecorder(args.record, rig, markers=markers or source.markers,
-                                       screen=screen or source.screen)
-        if args.status or (live and not args.quiet):
-            status = StatusLine(stream=log, sender=sender)
-        tracker = make_tracker(source, config, rig=rig, markers=markers)
-        stats = run_source(source, screen=screen, on_record=on_record, recorder=recorder, sender=sender,
-                           pose_filter=pose_filter, status=status, max_frames=args.frames, tracker=tracker)
-    except (ValueError, OSError) as exc:
-        print(f"headplod: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("headplod: stopped (Ctrl-C); everything up to here is kept", file=sys.stderr)
-        stats = None
-    finally:
-        for thing in (status, recorder, sender, writer, source):
-            if thing is not None:
-                thing.close()
+    stats = None
+    stop = StopSignals()
+    with stop:                                          # from here, Ctrl-C and SIGTERM stop between frames
+        try:
+            # Everything that can fail without writing comes first: the files read, the tracker, the UDP socket.
+            markers = io.read_markers(args.markers) if args.markers else None
+            screen = io.read_screen(args.screen) if args.screen else None
+            tracker = make_tracker(source, config, rig=rig, markers=markers)
+            if udp is not None:
+                pivot_mm, pivot_from = udp_pivot(args, rig=rig, source=source)
+                sender = OpentrackSender(*udp, pivot_mm=pivot_mm, frame=args.udp_axes)
+                print(f"udp: to {udp[0]}:{udp[1]}, the pivot ({', '.join(f'{v:.0f}' for v in pivot_mm)}) mm "
+                      f"({pivot_from}), axes {args.udp_axes}", file=log)
+            # Then the outputs: a recording replaced only at the end, the records under a temporary name.
+            if args.record:
+                recorder = DatasetRecorder(args.record, rig, markers=markers or source.markers,
+                                           screen=screen or source.screen, overwrite=args.overwrite)
+            writer = io.PoseWriter(args.out) if args.out else None
+            if args.status or (live and not args.quiet):
+                status = StatusLine(stream=log, sender=sender)
+            stats = run_source(source, screen=screen, on_record=on_record, recorder=recorder, sender=sender,
+                               pose_filter=pose_filter, status=status, max_frames=args.frames, tracker=tracker,
+                               stop=stop)
+        except (ValueError, OSError, LookupError) as exc:
+            notes = []
+            if writer is not None:
+                writer.discard()
+                notes.append(f"--out {args.out} left as it was")
+            if recorder is not None:
+                notes.append(f"--record {args.record} " + ("left as it was" if recorder.replacing else
+                                                           f"keeps the {recorder.count} frames recorded"))
+                recorder.discard()
+            print(f"headplod: {exc}" + (f" ({'; '.join(notes)})" if notes else ""), file=sys.stderr)
+            return 1
+        except KeyboardInterrupt:                       # a second Ctrl-C: stop at once, keep what is whole
+            stop.received = stop.received or signal.SIGINT
+        finally:
+            for thing in (status, recorder, sender, writer, source):
+                if thing is not None:
+                    thing.close()
+    if stop():
+        print(f"headplod: stopped ({stop.name}); the {len(records)} frames so far are kept", file=sys.stderr)
     summary = evaluate.summarize(records, truth or None)
     name = source.name if live else Path(str(source.name)).name
     print(evaluate.format_summary(name, summary), file=log)
@@ -323,12 +367,102 @@ def run_track(args) -> int:
               f"p95 {s['latency_ms_p95'] or 0:.1f} ms", file=log)
     if sender is not None:
         print(sender.failure_summary() or f"udp: {sender.sent} poses sent to {sender.host}:{sender.port}", file=log)
-    code = _report_rig(args, tracker, tracked=sum(bool(r["ok"]) for r in records), log=log)
+    tracked = sum(bool(r["ok"]) for r in records)
+    code = _report_rig(args, tracker, tracked=tracked, log=log)
     if args.record:
         print(f"recording: {args.record} (replay: headplod track --source {args.record})", file=log)
     if args.out and args.out != "-":
         print(f"pose records: {args.out}", file=log)
+    if tracked == 0:
+        print(f"headplod: no frame tracked (of {len(records)}); exit status {EXIT_NO_FRAME_TRACKED}",
+              file=sys.stderr)
+        return EXIT_NO_FRAME_TRACKED
     return code
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    """Whether resolved ``path`` is ``folder`` or lies inside it (both resolved)."""
+    return path == folder or folder in path.parents
+
+
+def _source_inputs(spec: str | None = None, source=None, rig=None) -> tuple[list, list]:
+    """What the source reads: ([(what, file)], [(what, folder)]), paths resolved."""
+    files, folders = [], []
+    if spec is not None and source_kind(spec) != "v4l2" and synthetic_preset(spec) is None:
+        if Path(spec).expanduser().is_dir():
+            folders.append(("the dataset folder being read", spec))
+        elif "," in spec:
+            files += [("a video being read", part) for part in spec.split(",")]
+    if source is not None:
+        dataset = getattr(source, "dataset", None)
+        if dataset is not None:
+            folders.append(("the dataset folder being read", dataset.folder))
+        for r in (rig, getattr(source, "rig", None)):
+            if r is not None and getattr(r, "path", None):
+                files.append(("the rig being read", r.path))
+    return _resolved(files), _resolved(folders)
+
+
+def _resolved(items: list) -> list:
+    return [(what, Path(path).expanduser().resolve()) for what, path in items]
+
+
+def _check_outputs(args, spec: str | None = None, source=None, rig=None) -> None:
+    """Refuse ``--out`` and ``--record`` that would overwrite what is read, or each other (raises _Usage).
+
+    Without ``source``: what the command line tells (``--out`` is not a
+    folder and its folder exists; ``--record`` is not a file, holds no
+    recording unless ``--overwrite``; neither is an input named on the
+    command line). With it: the dataset folder and the rig the source read.
+    Nothing is written.
+    """
+    files, folders = _source_inputs(spec, source, rig)
+    if source is None:
+        files += [(f"the {name} being read", Path(value).expanduser().resolve())
+                  for name, value in (("--calib", args.calib), ("--markers", args.markers),
+                                      ("--screen", args.screen)) if value]
+    if args.out and args.out != "-":
+        out = Path(args.out).expanduser()
+        resolved = out.resolve()
+        if source is None:
+            if out.is_dir():
+                raise _Usage(f"--out {args.out}: is a folder; give the file to write, e.g. {out / 'poses.jsonl'}")
+            if not resolved.parent.is_dir():
+                raise _Usage(f"--out {args.out}: the folder {out.parent} does not exist; create it first")
+        for what, path in files:
+            if resolved == path:
+                raise _Usage(f"--out {args.out}: is {what}, which is never overwritten; give another file name")
+        for what, folder in folders:
+            if _inside(resolved, folder):
+                raise _Usage(f"--out {args.out}: lies inside {what} ({folder}), which is never written to; "
+                             "write the records elsewhere")
+        if args.record:
+            record = Path(args.record).expanduser().resolve()
+            for entry in RECORDING_ENTRIES:
+                if _inside(resolved, record / entry):
+                    raise _Usage(f"--out {args.out}: is the recording's own {entry} in --record {args.record}; "
+                                 "write the records elsewhere")
+    if args.record:
+        target = Path(args.record).expanduser()
+        record = target.resolve()
+        if source is None:
+            if target.exists() and not target.is_dir():
+                raise _Usage(f"--record {args.record}: is a file; give a folder for the recording")
+            if holds_recording(target) and not args.overwrite:
+                raise _Usage(f"--record {args.record}: already holds a recording; choose another folder, or add "
+                             "--overwrite to replace it (the old one is kept until the run ends)")
+            if args.overwrite and record in (Path.cwd().resolve(), Path.home().resolve(), Path(record.anchor)):
+                raise _Usage(f"--record {args.record}: is the current, home or root folder; record into a "
+                             "folder of its own")
+        for what, folder in folders:
+            if _inside(record, folder) or _inside(folder, record):
+                raise _Usage(f"--record {args.record}: {'lies inside' if _inside(record, folder) else 'holds'} "
+                             f"{what} ({folder}); record into another folder")
+        for what, path in files:
+            if _inside(path, record):
+                raise _Usage(f"--record {args.record}: holds {what} ({path}); record into another folder")
+    elif args.overwrite:
+        raise _Usage("--overwrite goes with --record DIR (it replaces the recording in DIR)")
 
 
 def _check_save_rig(args, source=None, rig=None, spec=None) -> None:
