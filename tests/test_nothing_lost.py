@@ -309,11 +309,17 @@ def test_a_signal_in_the_middle_of_a_pair_waits_for_the_pair_and_its_row(tmp_pat
         if len(calls) == 1:                     # frame 1: its left image is in place, the right one not yet
             signal.raise_signal(signal.SIGINT)
 
+    # Python's own Ctrl-C handler, whatever this process inherited: a shell that starts the test run in
+    # the background (`.ci/run &`) has SIGINT ignored, and a raised SIGINT would do nothing.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     rec = DatasetRecorder(tmp_path / "r", small_rig())
     rec.write(_frame(0))
     monkeypatch.setattr(record_module.os, "replace", replace_then_signal)
-    with pytest.raises(KeyboardInterrupt):
-        rec.write(_frame(1))                    # the Ctrl-C comes after the step: the pair and its row
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            rec.write(_frame(1))                # the Ctrl-C comes after the step: the pair and its row
+    finally:
+        signal.signal(signal.SIGINT, previous)
     monkeypatch.setattr(record_module.os, "replace", real_replace)
     rec.close()
     assert _check_consistent(tmp_path / "r") == 2
