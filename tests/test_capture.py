@@ -435,6 +435,15 @@ def test_v4l2_uses_the_grab_time_without_a_plausible_device_timestamp(fakes, dev
         # than the exposure depends on the machine.
         assert exposure_of(fakes.left, f.left) + 0.005 <= f.t_monotonic_left <= now
         assert exposure_of(fakes.right, f.right) + 0.005 <= f.t_monotonic_right <= now
+        assert f.time_source == "grab"            # what the latency is measured from
+
+
+def test_v4l2_frames_say_they_carry_the_driver_timestamp(fakes):
+    with open_fake(fakes) as source:
+        frames = read_good(source, 3)
+    for f in frames:
+        assert f.time_source == "driver"
+        assert f.t_monotonic_left == exposure_of(fakes.left, f.left)
 
 
 def test_v4l2_dropped_frames_counted(fakes):

@@ -10,7 +10,9 @@ cameras use, as fast as it goes, three ways in the same run:
 - ``replay + recording``: also writing every frame back as a dataset folder.
 
 Reported: frames per second, latency from reading a frame to its finished
-record (median, 95th percentile, max), and the capture layer's time (reading
+record (median, 95th percentile, max; a recording has no capture time, so
+the latency starts when the frame is asked for, and the summary says so),
+the frames dropped for a zero or non-increasing time (as live), and the capture layer's time (reading
 and decoding the frame: ``source.read``) as a ratio to the tracker's time on
 the same frames.
 """
@@ -68,6 +70,7 @@ def run_live_bench(dataset=None, json_path=None, repeats: int = 3) -> int:
         best = min(summaries, key=lambda s: s["track_ms_mean"])
         results[variant] = {k: (float(np.median([s[k] for s in summaries])) if isinstance(best[k], float) else best[k])
                             for k in best}
+        results[variant]["time_dropped"] = max(s["time_dropped"] for s in summaries)
         print(f"bench live: {variant}", file=sys.stderr)
     receiver.close()
     lines = [f"recording: {folder} ({results['replay']['frames']} frames, {repeats} passes each, medians)",
@@ -77,6 +80,10 @@ def run_live_bench(dataset=None, json_path=None, repeats: int = 3) -> int:
         lines.append(f"{variant:20s} {r['rate_hz']:8.0f} {r['latency_ms_p50']:8.2f} {r['latency_ms_p95']:8.2f} "
                      f"{r['latency_ms_max']:8.2f} {r['read_ms_mean']:8.2f} {r['track_ms_mean']:9.2f} "
                      f"{r['output_ms_mean']:7.2f} {r['capture_over_tracking']:11.2f}")
+    first = results["replay"]
+    lines.append(f"latency: from {first['latency_from']} to the finished record")
+    lines.append(f"timestamps: {first['time_dropped']} frames dropped for a zero or non-increasing time"
+                 + (f" (first: {first['time_dropped_first']})" if first["time_dropped"] else ""))
     lines.append("read: the capture layer (for a recording: PNG decoding of both images); with live cameras the "
                  "frames arrive decoded, so this ratio is an upper bound for them")
     print("\n".join(lines))

@@ -20,6 +20,10 @@ v4l2
     dropped-frame accounting, stall and reconnect handling.
 record
     :class:`DatasetRecorder` and :func:`record`.
+timestamps
+    :class:`TimestampCheck`: frames whose time is zero or not increasing
+    are dropped and counted (Pupil's rule), where every sequence enters the
+    tracker.
 usb
     Camera identity over USB (``v4l2:auto``).
 command
@@ -31,7 +35,8 @@ from . import sources as _sources
 from .base import *
 from .record import *
 from .sources import *
+from .timestamps import TimestampCheck
 from .v4l2 import CameraSetting, V4L2StereoSource
 
 # The modules' own lists, so a name is exported from one place.
-__all__ = [*_base.__all__, *_sources.__all__, "V4L2StereoSource", "CameraSetting", *_record.__all__]
+__all__ = [*_base.__all__, *_sources.__all__, "V4L2StereoSource", "CameraSetting", "TimestampCheck", *_record.__all__]

@@ -72,6 +72,11 @@ class CaptureFrame(io.Frame):
     flags : list of str
         Notes on a frame that is still usable, e.g.
         ``"skew 21.3 ms > 16.7 ms bound"``.
+    time_source : str or None
+        What ``t_monotonic_left`` is, for a live camera: ``'driver'`` (the
+        V4L2 buffer timestamp: start of exposure or end of frame, as the
+        driver decides) or ``'grab'`` (when ``grab()`` returned); ``None``
+        for replay. Latencies are measured from it.
     """
 
     t_monotonic_left: float | None = None
@@ -79,6 +84,7 @@ class CaptureFrame(io.Frame):
     skew_ms: float | None = None
     dropped: int = 0
     flags: list[str] = field(default_factory=list)
+    time_source: str | None = None
 
     @classmethod
     def from_frame(cls, frame: io.Frame, **diagnostics: Any) -> "CaptureFrame":

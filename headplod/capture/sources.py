@@ -16,9 +16,18 @@ Conventions
 -----------
 - Images are 8-bit grayscale, shape ``(height, width)``, px; pixel (u, v) =
   (0, 0) is the centre of the top-left pixel (``spec/conventions.md``).
-- ``t`` / ``t_right``: mid-exposure times of the left / right image, s. For
-  replay they come from the recording; for live cameras they are seconds
-  since the source was opened, on the monotonic clock.
+- ``t`` / ``t_right``: times of the left / right image, s. For replay they
+  come from the recording (mid-exposure for the synthetic renderer; a
+  recording of live cameras holds their capture times). For live cameras
+  they are seconds since the source was opened, on the monotonic clock,
+  from the driver's buffer timestamp (start of exposure or end of frame, as
+  the driver decides) or the time ``grab()`` returned: not mid-exposure
+  (:mod:`headplod.capture.v4l2`, "Times").
+- A frame whose time is zero or not above the previous one, per camera, is
+  dropped and counted where frames enter the tracker, for every source
+  alike (:mod:`headplod.capture.timestamps`). Sources return such frames as
+  they are; ``times.csv`` that does not increase is a dataset warning, not
+  an error, so a replay drops the same frames a live run does.
 - Skew: ``|t_right - t|`` in ms, the time between the two images of a pair.
 - A per-frame problem is a value, never an exception: the frame comes with
   ``error`` set and both images ``None``; the source goes on. Exceptions are

@@ -17,12 +17,29 @@ tests.
 
 Times
 -----
-A capture time is the driver's buffer timestamp (``CAP_PROP_POS_MSEC``, the
-kernel's ``CLOCK_MONOTONIC`` for UVC cameras, the clock of
-``time.monotonic()``) when the camera reports a plausible one (at most
-``DEVICE_TIME_WINDOW_S`` before ``grab()`` returned); otherwise the
-``time.monotonic()`` at which ``grab()`` returned. Frame times ``t`` and
-``t_right`` are seconds since the source was opened.
+A capture time is the driver's buffer timestamp when the camera reports a
+plausible one (at most ``DEVICE_TIME_WINDOW_S`` before ``grab()`` returned);
+otherwise the ``time.monotonic()`` at which ``grab()`` returned. Frame
+times ``t`` and ``t_right`` are seconds since the source was opened; the
+frame's ``time_source`` says which of the two the left time is
+(``'driver'`` or ``'grab'``), and so where the latency is measured from.
+
+The buffer timestamp is OpenCV's ``CAP_PROP_POS_MSEC`` for a V4L2 camera:
+the ``timestamp`` of the dequeued ``v4l2_buffer``, on the kernel's
+``CLOCK_MONOTONIC`` for UVC cameras (the clock of ``time.monotonic()``), 0
+before the first frame. Which instant of the frame it is, the driver
+decides and states in the buffer's flags: ``V4L2_BUF_FLAG_TSTAMP_SRC_SOE``
+(start of exposure) or ``V4L2_BUF_FLAG_TSTAMP_SRC_EOF`` (end of frame, the
+last byte received). OpenCV does not pass the flags on, so headplod does
+not know which. Either way it is not the middle of the exposure: SOE is
+half an exposure before it, EOF half an exposure plus the read-out and
+transfer after it, and the grab time later still (when OpenCV had the
+frame). A latency measured from SOE is half an exposure longer than from
+mid-exposure; from EOF or the grab time it is shorter.
+
+A zero, repeated or backward capture time is not corrected here: the
+tracking loop drops such frames, per camera, for every source
+(:mod:`headplod.capture.timestamps`).
 """
 from __future__ import annotations
 
@@ -220,6 +237,7 @@ class _Shot:
     """One image from one camera."""
 
     t_mono: float          # capture time, s, monotonic clock
+    clock: str             # what t_mono is: 'driver' (buffer timestamp) or 'grab' (grab() returned)
     image: np.ndarray      # (H, W) uint8
     dropped: int           # frames this camera lost just before this one
     round: int | None      # rendezvous round (None: grabbed alone, unpairable)
@@ -343,7 +361,7 @@ class _Camera:
                 self.failed_grabs += 1
             return
         self._failures = 0
-        t_mono = self._capture_time(t_grab)
+        t_mono, clock = self._capture_time(t_grab)
         ok, image = self.cap.retrieve()
         try:
             gray = to_gray(image) if ok and image is not None else None
@@ -366,22 +384,22 @@ class _Camera:
             if len(self.queue) >= src.queue_length:      # reader too slow
                 old = self.queue.popleft()
                 dropped += old.dropped + 1
-            self.queue.append(_Shot(t_mono, gray, dropped, round_))
+            self.queue.append(_Shot(t_mono, clock, gray, dropped, round_))
             self.last_frame_mono = t_grab
             src._lock.notify_all()
 
-    def _capture_time(self, t_grab: float) -> float:
-        """The driver's timestamp when plausible, else the grab time (s, monotonic)."""
+    def _capture_time(self, t_grab: float) -> tuple[float, str]:
+        """(time s, monotonic; ``'driver'`` or ``'grab'``): the driver's timestamp when plausible, else the grab time."""
         if not self.src.device_timestamps:
-            return t_grab
+            return t_grab, "grab"
         try:
             ms = float(self.cap.get(cv2.CAP_PROP_POS_MSEC))
         except Exception:
-            return t_grab
+            return t_grab, "grab"
         t_dev = ms / 1000.0
         if math.isfinite(t_dev) and 0.0 <= t_grab - t_dev <= DEVICE_TIME_WINDOW_S:
-            return t_dev
-        return t_grab
+            return t_dev, "driver"
+        return t_grab, "grab"
 
 
 class V4L2StereoSource(FrameSource):
@@ -657,7 +675,8 @@ class V4L2StereoSource(FrameSource):
             index=index, t=a.t_mono - self._t0, t_right=b.t_mono - self._t0,
             left=a.image if ok else None, right=b.image if ok else None,
             error="; ".join(errors) or None, t_monotonic_left=a.t_mono, t_monotonic_right=b.t_mono,
-            skew_ms=skew_ms, dropped=dropped, flags=_skew_flag(skew_ms, self.skew_bound_ms))
+            skew_ms=skew_ms, dropped=dropped, flags=_skew_flag(skew_ms, self.skew_bound_ms),
+            time_source=a.clock)
 
     def _error_frame(self) -> CaptureFrame:
         now = time.monotonic()

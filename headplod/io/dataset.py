@@ -42,9 +42,11 @@ class Frame:
     index : int
         Frame index (the six digits of the file names).
     t : float
-        Mid-exposure time of the left image, s.
+        Time of the left image, s: mid-exposure for synthetic data; for a
+        recording of live cameras, their capture time (the driver's buffer
+        timestamp or the grab time, :mod:`headplod.capture.v4l2`).
     t_right : float or None
-        Mid-exposure time of the right image, s, when it differs from ``t``.
+        Time of the right image, s, likewise, when it differs from ``t``.
     left, right : ndarray or None
         8-bit grayscale images, shape (height, width), px. Both ``None``
         when ``error`` is set.

@@ -84,7 +84,7 @@ def read_times(path: str | Path) -> dict[int, tuple[float, float | None]]:
     Returns
     -------
     dict
-        frame index -> ``(t, t_right)``, s: mid-exposure of the left image and
+        frame index -> ``(t, t_right)``, s: the time of the left image and
         of the right one (``None`` when the column is absent or the cell
         empty, meaning the same as ``t``). Sorted by frame.
 

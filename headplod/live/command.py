@@ -364,7 +364,9 @@ def run_track(args) -> int:
     if stats is not None and (live or args.status):
         s = stats.summary()
         print(f"rate {s['rate_hz'] or 0:.1f} Hz, latency p50 {s['latency_ms_p50'] or 0:.1f} ms, "
-              f"p95 {s['latency_ms_p95'] or 0:.1f} ms", file=log)
+              f"p95 {s['latency_ms_p95'] or 0:.1f} ms, from {s['latency_from'] or '-'}", file=log)
+    if stats is not None and stats.timestamps.dropped:
+        print(stats.timestamps.summary(), file=log)
     if sender is not None:
         print(sender.failure_summary() or f"udp: {sender.sent} poses sent to {sender.host}:{sender.port}", file=log)
     tracked = sum(bool(r["ok"]) for r in records)

@@ -18,8 +18,14 @@ Records from a capture source carry, beyond the contract's keys:
 ``skew_ms`` (left/right capture-time difference), ``dropped`` (pairs lost
 before this one), ``flags`` (e.g. ``"skew 21.3 ms > 16.7 ms bound"``: the
 pair was not taken at one instant, so the pose may be off for a moving head)
-and ``latency_ms`` (from the capture of the left image, or from when the
-frame was read for replay, to the finished record).
+and ``latency_ms``: from the left image's capture time to the finished
+record. For a live camera that is the driver's V4L2 buffer timestamp (start
+of exposure or end of frame, as the driver decides; not mid-exposure), or
+the time ``grab()`` returned when the driver gives none (the frame's
+``time_source``); for replay, from when the frame was asked for
+(:data:`LATENCY_FROM`, ``LiveStats.summary()['latency_from']``). Frames whose
+time is zero or not increasing are dropped before tracking
+(:func:`track_frames`), counted in ``LiveStats.timestamps``.
 """
 from __future__ import annotations
 
@@ -31,6 +37,7 @@ from typing import Callable, Iterable, Iterator
 import numpy as np
 
 from .. import io
+from ..capture.timestamps import TimestampCheck
 from ..tracking.tracker import Tracker, TrackerConfig, TrackResult
 
 
@@ -44,13 +51,25 @@ class LiveStats:
     track_s: list = field(default_factory=list)      # tracker.process() (tracker.reset() for an error frame)
     output_s: list = field(default_factory=list)     # record, filter, UDP, writing, recording
     latency_ms: list = field(default_factory=list)
+    latency_from: dict = field(default_factory=dict)   # instant latencies are measured from -> frames
+    timestamps: TimestampCheck = field(default_factory=TimestampCheck)   # frames dropped for their time
     wall_s: float = 0.0
 
     def summary(self) -> dict:
+        """Counts, rate, latency percentiles, mean times per stage (ms), and the latency's origin.
+
+        ``latency_from`` names the instant the latencies are measured from
+        (:data:`LATENCY_FROM`; several, with their frame counts, when they
+        changed during the run); ``time_dropped`` counts the frames dropped
+        for a zero or non-increasing time and ``time_dropped_first`` is the
+        first of them (:class:`~headplod.capture.TimestampCheck`).
+        """
         lat = np.asarray(self.latency_ms, dtype=np.float64)
         track = float(np.sum(self.track_s))
         return {
             "frames": self.frames, "ok": self.ok,
+            "latency_from": latency_origin(self.latency_from),
+            "time_dropped": self.timestamps.dropped, "time_dropped_first": self.timestamps.first,
             "rate_hz": self.frames / self.wall_s if self.wall_s > 0 else None,
             "latency_ms_p50": float(np.percentile(lat, 50)) if lat.size else None,
             "latency_ms_p95": float(np.percentile(lat, 95)) if lat.size else None,
@@ -60,6 +79,26 @@ class LiveStats:
             "output_ms_mean": 1e3 * float(np.mean(self.output_s)) if self.output_s else None,
             "capture_over_tracking": float(np.sum(self.read_s)) / track if track > 0 else None,
         }
+
+
+#: The instants a latency is measured from, by a frame's ``time_source``.
+LATENCY_FROM = {
+    "driver": "the driver's buffer timestamp (V4L2, CLOCK_MONOTONIC: start of exposure or end of frame, "
+              "as the driver decides; not mid-exposure)",
+    "grab": "the grab time (time.monotonic() when the camera's grab() returned)",
+    None: "the start of reading the frame (replay: no capture time)",
+}
+
+
+def latency_origin(counts: dict) -> str | None:
+    """What latencies were measured from, given ``{time_source: frames}``; None without frames."""
+    if not counts:
+        return None
+    if len(counts) == 1:
+        return LATENCY_FROM[next(iter(counts))]
+    total = sum(counts.values())
+    return "; ".join(f"{LATENCY_FROM[k]} for {100.0 * n / total:.0f}% of frames"
+                     for k, n in sorted(counts.items(), key=lambda kv: -kv[1]))
 
 
 @dataclass
@@ -100,7 +139,8 @@ class FrameTimes:
 
 def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: int | None = None,
                  stop: Callable[[], bool] | None = None, timeout_s: float = 1.0,
-                 times: FrameTimes | None = None) -> Iterator[tuple[io.Frame, TrackResult | None]]:
+                 times: FrameTimes | None = None,
+                 timestamps: TimestampCheck | None = None) -> Iterator[tuple[io.Frame, TrackResult | None]]:
     """Read and track frames one by one: the one loop of everything that tracks a sequence.
 
     Parameters
@@ -138,6 +178,13 @@ def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: in
     -----
     The per-frame policy, the same for every caller:
 
+    - a frame whose left or right time is zero or not above that camera's
+      last accepted time is dropped, as Pupil's UVC source does (see
+      :mod:`headplod.capture.timestamps`): it is neither tracked nor yielded
+      nor counted in ``max_frames``, the tracker keeps its state, and the
+      next frame yielded carries a flag ``"dropped before this frame:
+      frame 3: left time 0.066 s not after 0.066 s (frame 2)"`` (when it has
+      ``flags``, as capture frames do);
     - a frame with ``error`` set (an image missing, unreadable or of the
       wrong size; a camera that stalled past ``timeout_s`` or was lost) is
       not tracked: the tracker is reset (the next pair is acquired afresh,
@@ -158,6 +205,8 @@ def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: in
 
         def next_frame():
             return next(iterator, None)
+    check = TimestampCheck() if timestamps is None else timestamps
+    pending: list[str] = []
     count = 0
     while max_frames is None or count < max_frames:
         if stop is not None and stop():
@@ -168,6 +217,13 @@ def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: in
         if frame is None:
             return
         read_mono = time.monotonic()
+        why = check.check(frame)
+        if why is not None:
+            pending.append(why)
+            continue
+        if pending and isinstance(getattr(frame, "flags", None), list):
+            frame.flags.extend(f"dropped before this frame: {w}" for w in pending)
+        pending = []
         result = None
         if frame.error is None:
             result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
@@ -265,7 +321,7 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
     times = FrameTimes()
     start = time.perf_counter()
     for frame, result in track_frames(source, tracker, max_frames=max_frames, stop=stop, timeout_s=timeout_s,
-                                      times=times):
+                                      times=times, timestamps=stats.timestamps):
         if recorder is not None and frame.error is None:
             recorder.write(frame)
         record = result_record(frame, result, screen)
@@ -273,6 +329,7 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         dropped = int(getattr(frame, "dropped", 0) or 0)
         flags = list(getattr(frame, "flags", []) or [])
         captured = getattr(frame, "t_monotonic_left", None)
+        origin = getattr(frame, "time_source", None) if captured is not None else None
         if pose_filter is not None:
             record = pose_filter(record, frame.t)
         record["skew_ms"] = None if skew is None else round(float(skew), 3)
@@ -287,7 +344,8 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         if on_record is not None:
             on_record(record, result)
         if status is not None:
-            status.update(record, latency_ms=latency, skew_ms=skew, dropped=dropped)
+            status.update(record, latency_ms=latency, skew_ms=skew, dropped=dropped,
+                          time_dropped=stats.timestamps.dropped, time_dropped_first=stats.timestamps.first)
         t_done = time.perf_counter()
         stats.frames += 1
         stats.ok += bool(record["ok"])
@@ -295,5 +353,7 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         stats.track_s.append(times.track_s)
         stats.output_s.append(t_done - times.track_end)
         stats.latency_ms.append(latency)
+        if frame.error is None:
+            stats.latency_from[origin] = stats.latency_from.get(origin, 0) + 1
     stats.wall_s = time.perf_counter() - start
     return stats

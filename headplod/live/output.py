@@ -546,10 +546,14 @@ class StatusLine:
     Notes
     -----
     Rate: (frames in the window - 1) / (time between the first and the last),
-    Hz. Latency (capture to pose, ms): median and 95th percentile over the
-    window. Skew (left/right capture-time difference, ms): median and maximum
-    of its absolute value over the window. Dropped frames, % ok and the last
-    failure reason are over the whole run. The rig part is the last record's
+    Hz. Latency (capture time to pose, ms; a live camera's capture time is the
+    driver's buffer timestamp or the grab time, see
+    :data:`headplod.live.loop.LATENCY_FROM`): median and 95th percentile over
+    the window. Skew (left/right capture-time difference, ms): median and
+    maximum of its absolute value over the window. Dropped frames, frames
+    dropped for a zero or non-increasing time (``bad time N (first: ...)``,
+    shown once there is one), % ok and the last failure reason are over the
+    whole run. The rig part is the last record's
     ``rig_message`` (the tracker's online refinement of ``rig.yaml``),
     shortened by :func:`short_rig_message`.
     """
@@ -575,6 +579,8 @@ class StatusLine:
         self.ok = 0
         self.failed = 0
         self.dropped = 0
+        self.time_dropped = 0
+        self.time_dropped_first: str | None = None
         self.last_failure: str | None = None
         self.rig_message: str | None = None
         self._last_render: float | None = None
@@ -583,7 +589,8 @@ class StatusLine:
         self._closed = False
 
     def update(self, record: Mapping, latency_ms: float | None = None, skew_ms: float | None = None,
-               dropped: int = 0, now: float | None = None) -> str | None:
+               dropped: int = 0, now: float | None = None, time_dropped: int | None = None,
+               time_dropped_first: str | None = None) -> str | None:
         """Account for one frame, and write the line when it is due.
 
         Parameters
@@ -592,11 +599,17 @@ class StatusLine:
             The frame's pose record (``ok``, ``reason``, optional
             ``rig_message``: kept until a later record brings another).
         latency_ms : float, optional
-            Capture (mid-exposure) to pose, ms.
+            Capture time (a live camera's: the driver's buffer timestamp or
+            the grab time, not mid-exposure) to pose, ms.
         skew_ms : float, optional
             Left minus right capture time, ms (its absolute value is used).
         dropped : int
             Frames dropped since the previous update.
+        time_dropped : int, optional
+            Frames dropped so far for a zero or non-increasing time (a
+            running count, not an increment); shown with the first one.
+        time_dropped_first : str, optional
+            The first of them.
         now : float, optional
             The current time, s, on any monotonic clock (default
             ``time.monotonic()``).
@@ -609,6 +622,9 @@ class StatusLine:
         now = time.monotonic() if now is None else float(now)
         self.frames += 1
         self.dropped += int(dropped)
+        if time_dropped is not None:
+            self.time_dropped = int(time_dropped)
+            self.time_dropped_first = time_dropped_first
         if record.get("ok"):
             self.ok += 1
         else:
@@ -653,6 +669,8 @@ class StatusLine:
         -------
         dict
             ``frames``, ``ok``, ``failed``, ``dropped`` (counts over the run),
+            ``time_dropped`` and ``time_dropped_first`` (frames dropped for
+            a zero or non-increasing time, and the first),
             ``ok_percent``, ``rate_hz``, ``latency_ms_median``,
             ``latency_ms_p95``, ``skew_ms_median``, ``skew_ms_max`` (over the
             window; None when there is no data), ``last_failure`` and
@@ -667,6 +685,8 @@ class StatusLine:
             "ok": self.ok,
             "failed": self.failed,
             "dropped": self.dropped,
+            "time_dropped": self.time_dropped,
+            "time_dropped_first": self.time_dropped_first,
             "ok_percent": 100.0 * self.ok / self.frames if self.frames else None,
             "rate_hz": self.rate_hz(),
             "latency_ms_median": float(np.median(lat)) if lat.size else None,
@@ -690,6 +710,8 @@ class StatusLine:
                  f"latency {num(s['latency_ms_median'])}/{num(s['latency_ms_p95'])} ms (med/p95)",
                  f"skew {num(s['skew_ms_median'])}/{num(s['skew_ms_max'])} ms (med/max)",
                  f"dropped {s['dropped']}",
+                 *([f"bad time {s['time_dropped']} (first: {s['time_dropped_first']})"]
+                   if s["time_dropped"] else []),
                  f"ok {num(s['ok_percent'])}%"]
         if s["udp_failed"]:
             parts.append(f"udp: {s['udp_failed']} not sent (first: {s['udp_first_error']})")

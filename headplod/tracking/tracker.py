@@ -351,7 +351,8 @@ class Tracker:
         left, right : (H, W) uint8
             IR images of the left and right camera, the rig's size.
         t, t_right : float, optional
-            Mid-exposure times in seconds (t_right only if it differs).
+            Image times in seconds (t_right only if it differs): mid-exposure for
+            synthetic data, a camera's capture time live (not mid-exposure).
         """
         timings = {}
         start = time.perf_counter()
