@@ -41,6 +41,7 @@ from ..tracking.filters import PoseFilter
 from ..tracking.geometry import ESTIMATORS
 from ..tracking.rig_refine import RigRefineConfig
 from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
+from .frame_notes import FrameNotes, warning_kind
 from .output import DEFAULT_PIVOT_MM, OPENTRACK_FRAMES, OpentrackSender, StatusLine, check_pivot_mm, parse_host_port
 
 __all__ = ["add_track_arguments", "run_track", "track_source_spec", "note_old_spelling", "EXIT_NO_FRAME_TRACKED"]
@@ -292,6 +293,7 @@ def run_track(args) -> int:
     log = sys.stderr
     writer = sender = recorder = status = tracker = None
     records = []
+    notes = FrameNotes(stream=log)                      # per-frame warnings: the first of each kind, then a count
 
     def on_record(record, result):
         records.append(record)
@@ -312,8 +314,9 @@ def run_track(args) -> int:
                 line += f"  {result.timings_s.get('total', 0) * 1e3:5.2f} ms [{result.mode}]"
         else:
             line += f"no pose: {record['reason']}"
-        if record.get("flags"):
-            line += "  [" + "; ".join(record["flags"]) + "]"
+        flags = [f for f in record.get("flags") or () if warning_kind(f) not in notes.kinds]
+        if flags:                                       # the frame's warnings are shown once, by notes
+            line += "  [" + "; ".join(flags) + "]"
         print(line, file=log)
 
     stats = None
@@ -338,7 +341,7 @@ def run_track(args) -> int:
                 status = StatusLine(stream=log, sender=sender)
             stats = run_source(source, screen=screen, on_record=on_record, recorder=recorder, sender=sender,
                                pose_filter=pose_filter, status=status, max_frames=args.frames, tracker=tracker,
-                               stop=stop)
+                               stop=stop, notes=notes)
         except (ValueError, OSError, LookupError) as exc:
             notes = []
             if writer is not None:
@@ -361,6 +364,7 @@ def run_track(args) -> int:
     summary = evaluate.summarize(records, truth or None)
     name = source.name if live else Path(str(source.name)).name
     print(evaluate.format_summary(name, summary), file=log)
+    notes.report()
     if stats is not None and (live or args.status):
         s = stats.summary()
         print(f"rate {s['rate_hz'] or 0:.1f} Hz, latency p50 {s['latency_ms_p50'] or 0:.1f} ms, "

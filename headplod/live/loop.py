@@ -17,7 +17,9 @@ status line.
 Records from a capture source carry, beyond the contract's keys:
 ``skew_ms`` (left/right capture-time difference), ``dropped`` (pairs lost
 before this one), ``flags`` (e.g. ``"skew 21.3 ms > 16.7 ms bound"``: the
-pair was not taken at one instant, so the pose may be off for a moving head)
+pair was not taken at one instant, so the pose may be off for a moving head;
+and the frame's warnings, e.g. ``"left/000003.png: 3-channel image converted
+to gray, expected 8-bit grayscale"``)
 and ``latency_ms``: from the left image's capture time to the finished
 record. For a live camera that is the driver's V4L2 buffer timestamp (start
 of exposure or end of frame, as the driver decides; not mid-exposure), or
@@ -39,6 +41,7 @@ import numpy as np
 from .. import io
 from ..capture.timestamps import TimestampCheck
 from ..tracking.tracker import Tracker, TrackerConfig, TrackResult
+from .frame_notes import FrameNotes, split_frame_warning
 
 
 @dataclass
@@ -279,7 +282,7 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
                on_record: Callable[[dict, object], None] | None = None, recorder=None, sender=None,
                pose_filter=None, status=None, max_frames: int | None = None,
                timeout_s: float = 1.0, stop: Callable[[], bool] | None = None,
-               tracker: Tracker | None = None) -> LiveStats:
+               tracker: Tracker | None = None, notes: FrameNotes | None = None) -> LiveStats:
     """Track every frame of a source until it ends (or ``max_frames``, or ``stop()``).
 
     The frames are read and tracked by :func:`track_frames` (its error
@@ -309,6 +312,10 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         The tracker to use (e.g. :func:`make_tracker`), so that the caller
         can read its refined rig after the run, even one ended by Ctrl-C;
         ``config``, ``rig`` and ``markers`` then only serve when it is None.
+    notes : FrameNotes, optional
+        Shown the frames' warnings (a colour image converted to gray, an
+        interpolated time): the first of each kind in full, then counted.
+        With or without it, a frame's warnings are in its record's ``flags``.
 
     Returns
     -------
@@ -328,6 +335,7 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         skew = getattr(frame, "skew_ms", None)
         dropped = int(getattr(frame, "dropped", 0) or 0)
         flags = list(getattr(frame, "flags", []) or [])
+        flags += notes.add(frame.index, frame.warning) if notes is not None else split_frame_warning(frame.warning)
         captured = getattr(frame, "t_monotonic_left", None)
         origin = getattr(frame, "time_source", None) if captured is not None else None
         if pose_filter is not None:
