@@ -87,3 +87,75 @@ def test_frame_notes_split_and_count():
         "warning: 3 of 5 frames: left/NNNNNN.png: 4-channel image converted to gray, expected 8-bit grayscale",
         "warning: 3 of 5 frames: right/NNNNNN.png: 3-channel image converted to gray, expected 8-bit grayscale",
     ]
+
+
+# ---------------------------------------------------------------------------
+# 3. extreme values: absurd intrinsics refused; a t_right seconds off named as a skew
+# ---------------------------------------------------------------------------
+
+
+def _edit_rig(folder: Path, key: str, i: int, j: int, value: float) -> None:
+    rig = io.read_rig(folder / "rig.yaml")
+    K = dict(K1=rig.K1.copy(), K2=rig.K2.copy())
+    K[key][i, j] = value
+    fs = cv2.FileStorage(str(folder / "rig.yaml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", rig.image_size[0])
+    fs.write("image_height", rig.image_size[1])
+    for name, m in (("K1", K["K1"]), ("D1", rig.D1[None]), ("K2", K["K2"]), ("D2", rig.D2[None]),
+                    ("R", rig.R), ("T", rig.T[:, None])):
+        fs.write(name, np.asarray(m, np.float64))
+    fs.release()
+
+
+@pytest.mark.parametrize("key, i, j, value, fragment", [
+    ("K1", 0, 0, 1e308, "'K1' has fx = K1[0,0] = 1e+308 px"),
+    ("K2", 1, 1, 1e6, "'K2' has fy = K2[1,1] = 1e+06 px"),
+    ("K1", 0, 0, 5.0, "'K1' has fx = K1[0,0] = 5 px"),
+    ("K2", 0, 2, 5000.0, "'K2' has cx = K2[0,2] = 5000 px, far outside the image"),
+    ("K1", 1, 2, -1e300, "'K1' has cy = K1[1,2] = -1e+300 px"),
+])
+def test_absurd_intrinsics_are_refused_with_one_line(sample, tmp_path, capsys, key, i, j, value, fragment):
+    _edit_rig(sample, key, i, j, value)
+    with pytest.raises(io.ContractError, match="expected"):
+        io.read_rig(sample / "rig.yaml")
+    out = tmp_path / "poses.jsonl"
+    assert cli_main(["track", "--source", str(sample), "--out", str(out), "-q"]) == 1
+    line = _one_line_error(capsys.readouterr().err)
+    assert fragment in line and "rig.yaml" in line, line
+    assert not out.exists()
+
+
+def test_plausible_intrinsics_still_read(sample):
+    _edit_rig(sample, "K1", 0, 0, 0.2 * 640)        # a wide lens: 0.2 x the width
+    _edit_rig(sample, "K2", 0, 2, -100.0)           # a principal point a little outside the image
+    assert io.read_rig(sample / "rig.yaml").K1[0, 0] == 128.0
+
+
+def _shift_right_times(folder: Path, offset_s: float) -> None:
+    rows = (folder / "times.csv").read_text().split()[1:]
+    text = "frame,t,t_right\n" + "".join(f"{f},{t},{float(t) + offset_s!r}\n"
+                                         for f, t in (r.split(",")[:2] for r in rows))
+    (folder / "times.csv").write_text(text)
+
+
+def test_right_times_seconds_off_are_named_as_a_skew(sample, tmp_path, capsys):
+    _shift_right_times(sample, 5.0)
+    out = tmp_path / "poses.jsonl"
+    assert cli_main(["track", "--source", str(sample), "--out", str(out), "-q"]) == 3
+    err = capsys.readouterr().err
+    warned = [l for l in err.splitlines() if "times.csv: the right camera's times are 5.0 s after the left's" in l]
+    assert len(warned) == 1 and "clocks" in warned[0], err              # once, naming the skew
+    records = _records(out)
+    assert len(records) == 12
+    for r in records:                                                   # no pose, and the skew as the reason
+        assert not r["ok"], r
+        assert r["reason"].startswith("right image's time is 5.0 s after the left's"), r["reason"]
+        assert "clocks" in r["reason"] and "reprojection" not in r["reason"]
+
+
+def test_right_times_a_little_off_are_tracked_without_a_skew_warning(sample, tmp_path, capsys):
+    _shift_right_times(sample, 0.004)                                   # 4 ms: an exposure offset
+    out = tmp_path / "poses.jsonl"
+    assert cli_main(["track", "--source", str(sample), "--out", str(out), "-q"]) == 0
+    assert "right camera's times" not in capsys.readouterr().err
+    assert sum(r["ok"] for r in _records(out)) >= 11

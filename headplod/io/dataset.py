@@ -29,6 +29,8 @@ from .tables import read_times, read_truth
 
 #: Frame rate assumed for frame times when a dataset has no times.csv (Hz).
 DEFAULT_FPS = 30.0
+#: t_right farther than this many frame periods (and 0.1 s) from t is a skew of the clocks (a warning).
+MAX_RIGHT_OFFSET_PERIODS = 3.0
 _FRAME_NAME = re.compile(r"^([0-9]{6})\.png$")
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -234,12 +236,37 @@ class Dataset:
                 f"times.csv has rows for frames not in left/ or right/: {_list_names([str(i) for i in extra])}"
             )
         items = list(self.times.items())
+        self._check_right_times(items)
         for (f0, (t0, _)), (f1, (t1, _)) in zip(items, items[1:]):
             if not t1 > t0:
                 self.warnings.append(
                     f"times.csv: t does not increase from frame {f0} ({t0:g} s) to frame {f1} ({t1:g} s)"
                 )
                 break
+
+    def _check_right_times(self, items: list) -> None:
+        """One warning when times.csv's t_right lies far from t: a skew of the clocks, not of exposure."""
+        offsets = np.array([tr - t for _, (t, tr) in items if tr is not None], dtype=np.float64)
+        if not offsets.size:
+            return
+        ts = np.array([t for _, (t, _) in items], dtype=np.float64)
+        steps = np.diff(ts)
+        steps = steps[steps > 0]
+        period_s = float(np.median(steps)) if steps.size else 1.0 / DEFAULT_FPS
+        bound_s = max(MAX_RIGHT_OFFSET_PERIODS * period_s, 0.1)
+        far = np.abs(offsets) > bound_s
+        if not far.any():
+            return
+        median_s = float(np.median(offsets[far]))
+        size = abs(median_s)
+        amount = f"{size:.1f} s" if size >= 1.0 else f"{size * 1e3:.0f} ms"
+        side = "after" if median_s > 0 else "before"
+        self.warnings.append(
+            f"times.csv: the right camera's times are {amount} {side} the left's (t_right - t, median of "
+            f"{int(far.sum())} of {offsets.size} rows beyond {bound_s * 1e3:.0f} ms, "
+            f"{MAX_RIGHT_OFFSET_PERIODS:g} frame periods): check times.csv / the cameras' clocks; "
+            "the tracker gives such frames no pose"
+        )
 
     def _time(self, index: int) -> tuple[float, float | None]:
         if self.times is None:

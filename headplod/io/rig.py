@@ -39,6 +39,11 @@ from ._storage import (
 ROTATION_TOL = 1e-6
 #: A baseline shorter than this (mm) almost surely means T is in metres.
 MIN_BASELINE_MM = 1.0
+#: Plausible focal lengths (fx, fy), as multiples of the image width: 0.05 is a field of view of ~170°
+#: (a fisheye's), 100 one of ~0.6° (a long telephoto); outside, the number is a mistake (units, a typo).
+FOCAL_RANGE_WIDTHS = (0.05, 100.0)
+#: How far the principal point (cx, cy) may lie outside the image, as a fraction of its width / height.
+PRINCIPAL_POINT_MARGIN = 0.5
 #: Numbers of distortion coefficients OpenCV understands.
 DIST_COEFF_COUNTS = (4, 5, 8, 12, 14)
 _RIG_KEYS = ("image_width", "image_height", "K1", "D1", "K2", "D2", "R", "T")
@@ -72,6 +77,32 @@ def _check_K(ctx: _Ctx, key: str, K: np.ndarray) -> np.ndarray:
                 hint,
             )
     return K
+
+
+def _check_K_plausible(ctx: _Ctx, key: str, K: np.ndarray, image_size: tuple[int, int]) -> None:
+    """Refuse focal lengths and a principal point no camera of ``image_size`` (width, height) px has."""
+    w, h = image_size
+    lo, hi = (f * w for f in FOCAL_RANGE_WIDTHS)
+    hint = (f"{key} is [[fx, s, cx], [0, fy, cy], [0, 0, 1]] in px, for the image of "
+            f"image_width x image_height = {w}x{h} px; recalibrate, or check the file for a typo")
+    for (i, label) in ((0, "fx"), (1, "fy")):
+        f = K[i, i]
+        if not lo <= f <= hi:
+            raise ctx.error(
+                f"{ctx.name(key)} has {label} = {key}[{i},{i}] = {_fmt(f)} px, {_fmt(f / w)} times the image "
+                f"width; expected {_fmt(lo)} to {_fmt(hi)} px ({_fmt(FOCAL_RANGE_WIDTHS[0])} to "
+                f"{_fmt(FOCAL_RANGE_WIDTHS[1])} times the width)",
+                hint,
+            )
+    m = PRINCIPAL_POINT_MARGIN
+    for (i, label, size) in ((0, "cx", w), (1, "cy", h)):
+        c = K[i, 2]
+        if not -m * size <= c <= (1 + m) * size:
+            raise ctx.error(
+                f"{ctx.name(key)} has {label} = {key}[{i},2] = {_fmt(c)} px, far outside the image "
+                f"(0 to {size} px); expected {_fmt(-m * size)} to {_fmt((1 + m) * size)} px",
+                hint,
+            )
 
 
 def _check_D(ctx: _Ctx, key: str, D: np.ndarray) -> np.ndarray:
@@ -233,8 +264,10 @@ def _validate_rig(ctx: _Ctx, image_size, K1, D1, K2, D2, R, T) -> dict:
             raise ctx.error(f"{ctx.name(key)} is not numeric ({exc})") from None
 
     out["K1"] = _check_K(ctx, "K1", arr("K1", K1))
+    _check_K_plausible(ctx, "K1", out["K1"], out["image_size"])
     out["D1"] = _check_D(ctx, "D1", arr("D1", D1))
     out["K2"] = _check_K(ctx, "K2", arr("K2", K2))
+    _check_K_plausible(ctx, "K2", out["K2"], out["image_size"])
     out["D2"] = _check_D(ctx, "D2", arr("D2", D2))
     out["R"] = _check_R(ctx, "R", arr("R", R))
     out["T"] = _check_T(ctx, "T", arr("T", T))
@@ -262,7 +295,10 @@ def read_rig(path: str | Path) -> Rig:
     ContractError
         If the file is missing, cannot be parsed, lacks a key, or a value
         has the wrong shape, is not finite, K is not upper-triangular with
-        positive fx, fy and K[2,2] = 1, R is not a rotation (tolerance
+        positive fx, fy and K[2,2] = 1, fx or fy lies outside
+        ``FOCAL_RANGE_WIDTHS`` times the image width or the principal point
+        more than ``PRINCIPAL_POINT_MARGIN`` of the image size outside it
+        (e.g. ``fx = 1e308``), R is not a rotation (tolerance
         ``ROTATION_TOL``), or the baseline is under ``MIN_BASELINE_MM``
         (T given in metres). Matrices stored as float32 or integers are
         accepted and converted to float64.

@@ -51,6 +51,13 @@ for _constant in (_ALL_VISIBLE, _NO_BLOB, _NAN5, _NAN53):
 MARKER_NAMES = ("P0", "P1", "P2", "P3", "P4")
 
 
+def describe_offset_s(offset_s: float) -> str:
+    """``t_right - t`` in words: ``"5.0 s after"``, ``"120 ms before"``."""
+    side = "after" if offset_s >= 0 else "before"
+    size = abs(offset_s)
+    return f"{size:.1f} s {side}" if size >= 1.0 else f"{size * 1e3:.0f} ms {side}"
+
+
 @dataclass(frozen=True)
 class TrackerConfig:
     """Tracker settings, each with its unit.
@@ -133,6 +140,12 @@ class TrackerConfig:
         The consistency checks (epipolar, model fit, reprojection, outlier)
         allow this many σ of the image displacement the rig's remaining
         uncertainty can cause, on top of their image-noise tolerances.
+    max_right_offset_periods : float
+        A right image exposed more than this many frame periods (1/30 s
+        until the frame rate is known), and more than 0.1 s, before or after
+        the left one is not a stereo pair the head's motion can bridge: the
+        frame gets no pose, and its reason names the skew (``t_right``
+        seconds off is a clock problem, not a tracking one).
     """
 
     estimator: str = "reproj"
@@ -160,6 +173,7 @@ class TrackerConfig:
     rig_refine: RigRefineConfig = field(default_factory=RigRefineConfig)
     rig_errors: RigErrorModel = field(default_factory=RigErrorModel)
     rig_gate_sigma: float = 3.0
+    max_right_offset_periods: float = 3.0
     extrapolate_velocity: bool = True
 
     def __post_init__(self):
@@ -268,6 +282,8 @@ class Tracker:
         self.axes_G = geo.model_axes(self.model_mm)
         self._calibration_std = calibration_std
         self.refiner = None           # made at the first frame, when it is known whether t_right is given
+        self._frame_periods = []      # recent frame periods, s, for the right time's plausibility (kept by reset)
+        self._last_t = None
         self._apply_rig(rig)
         self.uncertainty = make_covariance_estimator(config.uncertainty, rig, self.model_mm, self.axes_G)
         self.reset()
@@ -359,6 +375,10 @@ class Tracker:
         problem = self._check_images(left, right)
         if problem:
             return TrackResult(False, problem, timings_s={"total": time.perf_counter() - start})
+        skew = self._implausible_offset(t, t_right)
+        if skew:
+            self._prev_centers = self._prev2_centers = None
+            return TrackResult(False, skew, timings_s={"total": time.perf_counter() - start})
         if self.refiner is None:
             self._start_refiner(t, t_right)
         images, t_right = self._pair(left, right, t, t_right)
@@ -485,6 +505,31 @@ class Tracker:
                            rig=self._rig_status(), rig_message=self._rig_message(disagrees))
 
     # ------------------------------------------------------------------ the rig
+    def _implausible_offset(self, t, t_right) -> str | None:
+        """The reason for refusing a pair whose right time is far from the left one (None if plausible).
+
+        Far: more than ``max_right_offset_periods`` frame periods and 0.1 s.
+        No motion model bridges that; compensating it would move the model
+        by seconds of head motion, so the frame gets no pose, and the
+        reason names the skew rather than the reprojection error it causes.
+        """
+        if t is None:
+            return None
+        if self._last_t is not None and 0 < t - self._last_t < 1.0:
+            self._frame_periods = (self._frame_periods + [t - self._last_t])[-8:]
+        self._last_t = t
+        if t_right is None:
+            return None
+        offset_s = float(t_right) - float(t)
+        period_s = float(np.median(self._frame_periods)) if self._frame_periods else 1.0 / 30.0
+        k = self.config.max_right_offset_periods
+        bound_s = max(k * period_s, 0.1)
+        if not abs(offset_s) > bound_s:
+            return None
+        periods = f", {k:g} frame periods" if self._frame_periods and bound_s > 0.1 else ""
+        return (f"right image's time is {describe_offset_s(offset_s)} the left's (t_right - t), more than "
+                f"{bound_s * 1e3:.0f} ms{periods}: not a stereo pair; check times.csv / the cameras' clocks")
+
     def _pair(self, left, right, t, t_right):
         """The images to use and the right one's exposure time, with the estimated offset.
 
