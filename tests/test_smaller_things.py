@@ -159,3 +159,48 @@ def test_right_times_a_little_off_are_tracked_without_a_skew_warning(sample, tmp
     assert cli_main(["track", "--source", str(sample), "--out", str(out), "-q"]) == 0
     assert "right camera's times" not in capsys.readouterr().err
     assert sum(r["ok"] for r in _records(out)) >= 11
+
+
+# ---------------------------------------------------------------------------
+# 2. units: markers in metres (or cm) get a hint about units
+# ---------------------------------------------------------------------------
+
+
+def _write_markers_raw(path: Path, points, diameter: float) -> Path:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("markers", np.asarray(points, np.float64))
+    fs.write("diameter", float(diameter))
+    fs.release()
+    return path
+
+
+def test_markers_in_metres_are_refused_with_a_units_hint(sample, tmp_path, capsys):
+    model = io.default_marker_model()
+    path = _write_markers_raw(tmp_path / "markers.yaml", model.points_mm / 1000.0, 0.006)
+    with pytest.raises(io.ContractError, match="looks like metres; markers.yaml is in mm"):
+        io.read_markers(path)
+    assert cli_main(["track", "--source", str(sample), "--markers", str(path), "-q"]) == 1
+    line = _one_line_error(capsys.readouterr().err)
+    assert "the markers span 0.13 mm" in line and "multiply every coordinate by 1000" in line, line
+    # In a dataset's own markers.yaml too.
+    _write_markers_raw(sample / "markers.yaml", model.points_mm / 1000.0, 0.006)
+    with pytest.raises(io.ContractError, match="metres"):
+        io.Dataset(sample)
+
+
+def test_markers_in_cm_get_a_units_hint_in_the_reason(sample, tmp_path, capsys):
+    model = io.default_marker_model()
+    path = _write_markers_raw(tmp_path / "markers.yaml", model.points_mm / 10.0, 0.6)   # plausible alone
+    io.read_markers(path)
+    out = tmp_path / "poses.jsonl"
+    assert cli_main(["track", "--source", str(sample), "--markers", str(path), "--out", str(out), "-q",
+                     "--frames", "3"]) == 3
+    for r in _records(out):
+        assert "best labeling" in r["reason"], r["reason"]
+        assert "the markers seen are 10 times the size of the marker model: is markers.yaml in mm" in r["reason"]
+
+
+def test_no_units_hint_for_the_right_model(sample, tmp_path):
+    out = tmp_path / "poses.jsonl"
+    assert cli_main(["track", "--source", str(sample), "--out", str(out), "-q"]) == 0
+    assert not any("times the size" in (r["reason"] or "") for r in _records(out))

@@ -31,6 +31,8 @@ from ._storage import (
 
 #: Tolerance on the marker model's P1 = origin and P0, P2 on the x axis (mm).
 MARKER_TOL_MM = 1e-6
+#: A model smaller than this across (mm) is in other units: glasses are ~100 mm wide, so 0.13 is metres.
+MIN_MODEL_SPAN_MM = 5.0
 _MARKER_KEYS = ("markers", "diameter")
 
 
@@ -64,6 +66,15 @@ def _validate_markers(ctx: _Ctx, points: Any, diameter: Any) -> tuple[np.ndarray
         hint = _MARKER_HINT + ("; this looks transposed" if P.shape == (3, 5) else "")
         raise ctx.error(f"{ctx.name('markers')} has shape {_shape_str(P)}, expected 5x3", hint)
     _check_finite(ctx, "markers", P)
+    span_mm = float(np.ptp(P, axis=0).max())
+    if span_mm < MIN_MODEL_SPAN_MM:
+        metres = np.abs(P).max() < 1.0
+        raise ctx.error(
+            f"the markers span {_fmt(span_mm)} mm, expected the glasses' size in mm "
+            f"(the default model spans {_fmt(float(np.ptp(_DEFAULT_MARKERS_MM, axis=0).max()))} mm)",
+            ("this looks like metres; markers.yaml is in mm: multiply every coordinate by 1000"
+             if metres else "markers.yaml is in mm (spec/conventions.md)"),
+        )
     tol = MARKER_TOL_MM
     if np.abs(P[1]).max() > tol:
         raise ctx.error(
@@ -198,7 +209,8 @@ def read_markers(path: str | Path) -> MarkerModel:
     ContractError
         On a missing or malformed file, a wrong shape, non-finite values,
         P1 not at the origin or P0/P2 off G's x axis (tolerance
-        ``MARKER_TOL_MM``), P0.x <= 0 or P2.x >= 0, P3/P4 on the x axis,
+        ``MARKER_TOL_MM``), a model that spans less than
+        ``MIN_MODEL_SPAN_MM`` (metres, say), P0.x <= 0 or P2.x >= 0, P3/P4 on the x axis,
         a triangle whose normal cannot be oriented, a non-positive
         diameter, or an unknown key (so that a misspelt ``diameter`` is not
         silently replaced by the default).

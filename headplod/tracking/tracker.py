@@ -51,6 +51,24 @@ for _constant in (_ALL_VISIBLE, _NO_BLOB, _NAN5, _NAN53):
 MARKER_NAMES = ("P0", "P1", "P2", "P3", "P4")
 
 
+def _scale_hint(points_mm: np.ndarray, model_mm: np.ndarray) -> str:
+    """A hint on units when triangulated markers (5, 3) and the model (5, 3) differ in size, else "".
+
+    Size: the RMS distance of the five points from their centroid. The
+    markers seen 10, 25.4 or 1000 times the model's size mean a model in cm,
+    inches or metres; any factor beyond 2 is worth saying.
+    """
+    def size(P):
+        P = np.asarray(P, dtype=np.float64)
+        return float(np.sqrt(np.mean(np.sum((P - P.mean(axis=0)) ** 2, axis=1))))
+
+    seen, model = size(points_mm), size(model_mm)
+    if not (model > 0 and np.isfinite(seen)) or 0.5 <= seen / model <= 2.0:
+        return ""
+    return (f"; the markers seen are {seen / model:.3g} times the size of the marker model: "
+            "is markers.yaml in mm (conventions.md), and is it these glasses?")
+
+
 def describe_offset_s(offset_s: float) -> str:
     """``t_right - t`` in words: ``"5.0 s after"``, ``"120 ms before"``."""
     side = "after" if offset_s >= 0 else "before"
@@ -841,7 +859,8 @@ class Tracker:
             if not valid.any():
                 k = int(np.argmin(rms))
                 best_reason = (f"no consistent stereo identification: the best labeling is {rms[k]:.1f} mm "
-                               f"(RMS) from the marker model, tolerance {self.fit_tol_mm:.1f} mm")
+                               f"(RMS) from the marker model, tolerance {self.fit_tol_mm:.1f} mm"
+                               + _scale_hint(points[k], self.model_mm))
                 continue
             # Ranked in units of the image-noise tolerances, not of the rig-widened
             # ones: widening must not make a clearly worse assignment a rival.
