@@ -204,3 +204,117 @@ def test_no_units_hint_for_the_right_model(sample, tmp_path):
     out = tmp_path / "poses.jsonl"
     assert cli_main(["track", "--source", str(sample), "--out", str(out), "-q"]) == 0
     assert not any("times the size" in (r["reason"] or "") for r in _records(out))
+
+
+# ---------------------------------------------------------------------------
+# 4. the synthetic sequence cache: a damaged frame is found and rendered again
+# ---------------------------------------------------------------------------
+
+from headplod.capture import synthetic as cache  # noqa: E402
+
+
+@pytest.fixture
+def cached(tmp_path):
+    """A small rendered sequence in a cache of its own: (root, folder, original bytes of left/000002.png)."""
+    root = tmp_path / "cache"
+    folder = cache.ensure_dataset("yaw_sweep", frames=6, root=root, quiet=True)
+    return root, folder, (folder / "left" / "000002.png").read_bytes()
+
+
+def _again(root, capsys):
+    folder = cache.ensure_dataset("yaw_sweep", frames=6, root=root, quiet=True)
+    return folder, capsys.readouterr().err
+
+
+def test_an_intact_cache_is_used_as_it_is(cached, capsys):
+    root, folder, _ = cached
+    marker = (folder / cache.COMPLETE).read_text()
+    again, err = _again(root, capsys)
+    assert again == folder and err == ""
+    assert (folder / cache.COMPLETE).read_text() == marker
+    # Touched but unchanged (a copy, a backup tool): hashed, found the same, kept.
+    path = folder / "right" / "000001.png"
+    path.write_bytes(path.read_bytes())
+    assert _again(root, capsys)[1] == ""
+
+
+@pytest.mark.parametrize("damage, words", [
+    ("truncate", "left/000002.png has"),
+    ("delete", "left/000002.png is missing"),
+    ("flip", "left/000002.png changed since it was rendered"),
+])
+def test_a_damaged_cached_frame_is_rendered_again(cached, capsys, damage, words):
+    root, folder, original = cached
+    path = folder / "left" / "000002.png"
+    if damage == "truncate":
+        path.write_bytes(original[: len(original) // 2])
+    elif damage == "delete":
+        path.unlink()
+    else:                                            # the same size, other bytes
+        data = bytearray(original)
+        data[len(data) // 2] ^= 0xFF
+        path.write_bytes(bytes(data))
+    again, err = _again(root, capsys)
+    notes = [l for l in err.splitlines() if l.startswith("note:")]
+    assert len(notes) == 1 and "is damaged" in notes[0] and words in notes[0], err
+    assert again == folder and path.read_bytes() == original           # rendered again, the same images
+    assert _again(root, capsys)[1] == ""                                # and trusted from then on
+
+
+def test_an_older_cache_is_read_once_then_given_a_manifest(cached, capsys):
+    root, folder, original = cached
+    (folder / cache.COMPLETE).write_text("ok\n")                        # as earlier versions wrote it
+    assert _again(root, capsys)[1] == ""
+    assert '"files"' in (folder / cache.COMPLETE).read_text()
+    (folder / cache.COMPLETE).write_text("ok\n")
+    (folder / "left" / "000002.png").write_bytes(original[:100])        # and one with a broken frame
+    err = _again(root, capsys)[1]
+    assert "left/000002.png cannot be read" in err
+    assert (folder / "left" / "000002.png").read_bytes() == original
+
+
+def test_ensure_dataset_stays_cheap_on_a_cached_sequence(cached):
+    import time
+    root, folder, _ = cached
+    start = time.perf_counter()
+    for _ in range(20):
+        cache.ensure_dataset("yaw_sweep", frames=6, root=root, quiet=True)
+    # About 2 ms for the 150 frames of the default sequence (0.2 ms before the manifest); generous for CI.
+    assert (time.perf_counter() - start) / 20 < 0.05
+
+
+def test_track_renders_a_damaged_default_sequence_again_and_tracks_it(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("HEADPLOD_CACHE", str(tmp_path / "cache"))
+    first, second = tmp_path / "first.jsonl", tmp_path / "second.jsonl"
+    assert cli_main(["track", "--source", "synthetic:yaw_sweep", "--frames", "8", "-q", "--out", str(first)]) == 0
+    capsys.readouterr()
+    folder = next((tmp_path / "cache").iterdir())
+    path = folder / "left" / "000003.png"
+    path.write_bytes(path.read_bytes()[:500])                           # truncated
+    assert cli_main(["track", "--source", "synthetic:yaw_sweep", "--frames", "8", "-q", "--out", str(second)]) == 0
+    err = capsys.readouterr().err
+    assert "is damaged (left/000003.png has 500 bytes" in err and "rendering it again" in err
+    a, b = _records(first), _records(second)
+    assert [r["ok"] for r in b] == [r["ok"] for r in a] and b[3]["ok"]
+    assert np.allclose(b[3]["position"], a[3]["position"])
+
+
+def test_a_cached_frame_that_fails_to_read_is_rendered_again_next_time(tmp_path, monkeypatch, capsys):
+    import os
+    monkeypatch.setenv("HEADPLOD_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "poses.jsonl"
+    assert cli_main(["track", "--source", "synthetic:yaw_sweep", "--frames", "4", "-q"]) == 0
+    folder = next((tmp_path / "cache").iterdir())
+    path = folder / "left" / "000001.png"
+    st = path.stat()
+    data = bytearray(path.read_bytes())
+    data[40:4000] = bytes(3960)                                         # the same size, the same time: not seen
+    path.write_bytes(bytes(data))
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+    capsys.readouterr()
+    assert cli_main(["track", "--source", "synthetic:yaw_sweep", "--frames", "4", "-q", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert not _records(out)[1]["ok"]
+    assert "it will be rendered again" in err and "left/000001.png" in err
+    assert cli_main(["track", "--source", "synthetic:yaw_sweep", "--frames", "4", "-q", "--out", str(out)]) == 0
+    assert all(r["ok"] for r in _records(out))

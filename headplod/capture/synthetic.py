@@ -4,10 +4,18 @@ The tracker never sees how these are made: :mod:`synthetic` renders a
 dataset folder in the contract's format (conventions.md), and the tracker
 reads it like any recording. Renders are cached under ``$HEADPLOD_CACHE``
 (default ``~/.cache/headplod``), keyed by preset, frame count and seed.
+
+A finished render holds ``.complete``, its manifest: every file's name,
+size, modification time and hash. Each use checks the sizes and times (one
+``stat`` per file, about a millisecond for a sequence) and hashes only the
+files whose time changed; a file missing, truncated or changed makes the
+sequence render again, with a one-line note. :func:`verify_dataset` reads
+every image instead, for a sequence whose frame failed to read.
 """
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import shutil
 import sys
@@ -66,18 +74,95 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
     root = Path(root) if root is not None else cache_root()
     tag = "".join(f"-{k}{v}" for k, v in sorted(options.items()))
     folder = root / f"{preset}{tag}-{frames or 'default'}-s{seed}-{_renderer_version()}"
-    if (folder / ".complete").exists():
-        return folder
+    marker = folder / COMPLETE
+    if marker.exists():
+        problem = _check_manifest(folder)
+        if problem is None:
+            return folder
+        print(f"note: the cached synthetic sequence {folder} is damaged ({problem}); rendering it again",
+              file=sys.stderr)
     if folder.exists():
-        shutil.rmtree(folder)          # an interrupted render
+        shutil.rmtree(folder)          # an interrupted or damaged render
     scene = scenes.make_scene(preset, n_frames=frames, seed=seed, **options)
     if not quiet:
         print(f"rendering synthetic sequence '{preset}' ({len(scene.times)} stereo pairs) into {folder}",
               file=sys.stderr)
     progress = None if quiet else _progress(len(scene.times), preset)
     synth_dataset.write_dataset(folder, scene, seed=seed, progress=progress)
-    (folder / ".complete").write_text("ok\n")
+    _write_manifest(folder)
     return folder
+
+
+#: The marker of a finished render, and its manifest (JSON: {"files": {name: [size, mtime_ns, blake2b]}}).
+COMPLETE = ".complete"
+
+
+def _file_hash(path: Path) -> str:
+    return hashlib.blake2b(path.read_bytes(), digest_size=16).hexdigest()
+
+
+def _dataset_files(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.rglob("*") if p.is_file() and p.name != COMPLETE)
+
+
+def _write_manifest(folder: Path) -> None:
+    """Write ``.complete`` with every file's size, modification time and hash (atomically)."""
+    files = {}
+    for path in _dataset_files(folder):
+        st = path.stat()
+        files[path.relative_to(folder).as_posix()] = [st.st_size, st.st_mtime_ns, _file_hash(path)]
+    tmp = folder / (COMPLETE + ".tmp")
+    tmp.write_text(json.dumps({"files": files}))
+    os.replace(tmp, folder / COMPLETE)
+
+
+def _check_manifest(folder: Path) -> str | None:
+    """What is wrong with a finished render, from its manifest (None: nothing). Cheap: one stat per file.
+
+    A file whose modification time changed is hashed and compared; a marker
+    of an older version (no manifest) has every image read once, then gets
+    a manifest.
+    """
+    try:
+        manifest = json.loads((folder / COMPLETE).read_text())
+        files = manifest["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        problem = verify_dataset(folder)
+        if problem is None:
+            _write_manifest(folder)    # an older cache, read whole once: from now on, the cheap check
+        return problem
+    for name, (size, mtime_ns, digest) in files.items():
+        path = folder / name
+        try:
+            st = path.stat()
+        except OSError:
+            return f"{name} is missing"
+        if st.st_size != size:
+            return f"{name} has {st.st_size} bytes, {size} when rendered"
+        if st.st_mtime_ns != mtime_ns and _file_hash(path) != digest:
+            return f"{name} changed since it was rendered"
+    return None
+
+
+def verify_dataset(folder: Path) -> str | None:
+    """Read every image of a rendered sequence: the first one that fails, or None when all read."""
+    import cv2
+
+    folder = Path(folder)
+    for side in ("left", "right"):
+        if not (folder / side).is_dir():
+            return f"{side}/ is missing"
+    for path in _dataset_files(folder):
+        if path.suffix == ".png" and cv2.imread(str(path), cv2.IMREAD_UNCHANGED) is None:
+            return f"{path.relative_to(folder).as_posix()} cannot be read"
+    return None
+
+
+def rerender(folder: Path, reason: str) -> None:
+    """Mark a cached render as damaged (``reason``), so that the next :func:`ensure_dataset` renders it again."""
+    print(f"note: the cached synthetic sequence {folder} is damaged ({reason}); it will be rendered again",
+          file=sys.stderr)
+    (Path(folder) / COMPLETE).unlink(missing_ok=True)
 
 
 def _progress(total: int, label: str):

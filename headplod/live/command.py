@@ -33,7 +33,7 @@ from .. import io
 from ..argtypes import frame_count
 from ..capture import RECORDING_ENTRIES, DatasetRecorder, holds_recording, open_source, source_kind, synthetic_preset
 from ..capture.signals import StopSignals
-from ..capture.synthetic import ensure_dataset
+from ..capture.synthetic import ensure_dataset, rerender
 from ..capture.v4l2 import FOURCCS
 from ..tracking import evaluate
 from ..tracking.detect import DetectionParams
@@ -365,6 +365,11 @@ def run_track(args) -> int:
     name = source.name if live else Path(str(source.name)).name
     print(evaluate.format_summary(name, summary), file=log)
     notes.report()
+    if synthetic_preset(spec) is not None:             # a cached frame that cannot be read: render it all again
+        unreadable = next((r["reason"] for r in records if not r["ok"] and r["reason"]
+                           and (".png: missing" in r["reason"] or ".png: unreadable (" in r["reason"])), None)
+        if unreadable is not None:
+            rerender(source.dataset.folder, unreadable)
     if stats is not None and (live or args.status):
         s = stats.summary()
         print(f"rate {s['rate_hz'] or 0:.1f} Hz, latency p50 {s['latency_ms_p50'] or 0:.1f} ms, "
