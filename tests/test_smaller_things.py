@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from headplod import io
+from headplod.capture import synthetic as cache
 from headplod.cli import main as cli_main
 from headplod.live.frame_notes import FrameNotes, split_frame_warning, warning_kind
 
@@ -209,8 +210,6 @@ def test_no_units_hint_for_the_right_model(sample, tmp_path):
 # ---------------------------------------------------------------------------
 # 4. the synthetic sequence cache: a damaged frame is found and rendered again
 # ---------------------------------------------------------------------------
-
-from headplod.capture import synthetic as cache  # noqa: E402
 
 
 @pytest.fixture
