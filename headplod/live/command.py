@@ -216,6 +216,22 @@ def track_source_spec(args) -> str:
     return args.source or "synthetic"
 
 
+def open_source_or_report(args, spec: str, check=None):
+    """:func:`_open_track_source` for a command: (source, rig, live), or the exit status with its one-line
+    reason printed (2: usage, 1: a file or device that cannot be used). ``check(spec)``, run before
+    opening, may raise ``_Usage`` too."""
+    try:
+        if check is not None:
+            check(spec)
+        return _open_track_source(args, spec)
+    except _Usage as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
+    except (ValueError, OSError, LookupError) as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 1
+
+
 def _open_track_source(args, spec: str):
     """The frame source of ``headplod track``, the rig and whether it is live."""
     rig = io.read_rig(args.calib) if args.calib else None
@@ -269,17 +285,20 @@ def run_track(args) -> int:
     elif args.pivot is not None or args.udp_axes != "tracker-pt":
         print("headplod: --pivot and --udp-axes go with --udp (they shape what is sent to opentrack)", file=sys.stderr)
         return 2
+
+    def check(spec):                                    # what can be checked before opening the source
+        _check_save_rig(args, spec=spec)
+        _check_outputs(args, spec=spec)
+
     try:
         spec = track_source_spec(args)
-        _check_save_rig(args, spec=spec)                # what can be checked before opening the source
-        _check_outputs(args, spec=spec)
-        source, rig, live = _open_track_source(args, spec)
     except _Usage as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 2
-    except (ValueError, OSError, LookupError) as exc:
-        print(f"headplod: {exc}", file=sys.stderr)
-        return 1
+    opened = open_source_or_report(args, spec, check)
+    if isinstance(opened, int):
+        return opened
+    source, rig, live = opened
     try:
         _check_save_rig(args, source=source, rig=rig)   # the rig.yaml and dataset folder the source read
         _check_outputs(args, source=source, rig=rig)

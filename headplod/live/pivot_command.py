@@ -74,7 +74,7 @@ def _default_out(args, source, live: bool, spec: str) -> Path | None:
 
 def run_pivot(args) -> int:
     """Run ``headplod pivot`` from parsed arguments; the exit status."""
-    from .command import _open_track_source, _Usage
+    from .command import open_source_or_report
     from ..tracking.tracker import TrackerConfig
     from .loop import make_tracker, run_source
 
@@ -87,14 +87,10 @@ def run_pivot(args) -> int:
         return 2
     spec = args.source
     opener = argparse.Namespace(calib=args.calib, fps=60.0, fourcc=None, exposure=None, gain=None, quiet=args.quiet)
-    try:
-        source, rig, live = _open_track_source(opener, spec)
-    except _Usage as exc:
-        print(f"headplod: {exc}", file=sys.stderr)
-        return 2
-    except (ValueError, OSError, LookupError) as exc:
-        print(f"headplod: {exc}", file=sys.stderr)
-        return 1
+    opened = open_source_or_report(opener, spec)
+    if isinstance(opened, int):
+        return opened
+    source, rig, live = opened
     log = sys.stderr
     positions, axes = [], []
     clock = {"start": None, "printed": None}        # the time starts with the first frame, not the camera's start-up
