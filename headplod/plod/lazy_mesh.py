@@ -51,7 +51,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .mesh import AdaptiveMesh, BaseMesh, Template, _sample, build_template, triangle_count_table
+from .mesh import AdaptiveMesh, BaseMesh, Template, _face_areas_xy, _sample, build_template, triangle_count_table
 
 #: Default byte budget of the piece cache (positions and normals of the cached pieces).
 DEFAULT_CACHE_BYTES = 256 * 2 ** 20
@@ -123,8 +123,7 @@ class LazyAdaptiveMesh:
         self.contrast = data.contrast
         self._fine_normals_data = data._fine_normals           # (F, P_K, 3) float32: shading_contrast
         del data
-        leg = float(np.sqrt(2 * np.median(0.5 * np.abs(np.cross(
-            *(base.vertices[base.faces[:, k], :2] - base.vertices[base.faces[:, 0], :2] for k in (1, 2)))))))
+        leg = float(np.sqrt(2 * np.median(_face_areas_xy(base))))     # as AdaptiveMesh's
         self.normal_filter_m = np.array([normal_filter * leg / 2 ** L if L < M else 0.0 for L in range(M + 1)])
         _, vnrm = _sample(terrain, base.vertices[:, 0], base.vertices[:, 1])
         self._base_pos = base.vertices.astype(np.float32)
