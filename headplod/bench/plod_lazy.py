@@ -45,9 +45,9 @@ def rss_mb() -> tuple[float, float]:
     return current / 2 ** 20, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def run_frames(scene, renderer, screen, frames: int) -> dict:
+def run_frames(scene, renderer, screen, frames: int, level_bias: float = 0.0) -> dict:
     """A cold frame then ``frames`` frames with the head moving 1 mm per frame; stats of each kind."""
-    selector = scene.selector("csf", "adaptive", hierarchy=True)
+    selector = scene.selector("csf", "adaptive", hierarchy=True, level_bias=level_bias)
     head0 = default_head(screen)
     poi = np.array(screen.size_px, dtype=np.float64) / 2
     cov = np.diag([0.05 ** 2, 0.05 ** 2])
@@ -82,11 +82,13 @@ def main(argv=None) -> int:
     parser.add_argument("--frames", type=int, default=5)
     parser.add_argument("--cache-mb", type=float, default=256.0)
     parser.add_argument("--max-level", type=int, default=8)
+    parser.add_argument("--level-bias", type=float, default=0.0,
+                        help="csf's level bias (3: the default view asks for levels up to 8)")
     parser.add_argument("--skip-adaptive", action="store_true", help="only the lazy mesh")
     parser.add_argument("--out", default=None, help="also write the JSON here")
     args = parser.parse_args(argv)
     screen = io.read_screen(DEFAULT_SCREEN)
-    result = {"size": list(SIZE), "rss_start_mb": round(rss_mb()[0], 1)}
+    result = {"size": list(SIZE), "level_bias": args.level_bias, "rss_start_mb": round(rss_mb()[0], 1)}
     terrain = Terrain.jacksboro()
     base = BaseMesh.grid(terrain)
     t0 = time.perf_counter()
@@ -96,7 +98,7 @@ def main(argv=None) -> int:
     scene.mesh = lazy
     renderer = TerrainRenderer(create_context(), size=SIZE)
     result["rss_after_lazy_init_mb"] = round(rss_mb()[0], 1)
-    result[f"lazy_level{args.max_level}"] = run_frames(scene, renderer, screen, args.frames)
+    result[f"lazy_level{args.max_level}"] = run_frames(scene, renderer, screen, args.frames, args.level_bias)
     result["lazy_level_stats"] = {"cache_budget_bytes": lazy.budget_bytes, "cache_bytes": lazy.cache_bytes,
                                   "full_detail_triangles": int(lazy.triangle_count(
                                       np.full(lazy.n_faces, lazy.max_level)))}
@@ -106,7 +108,7 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         scene.mesh = AdaptiveMesh(base, terrain, max_level=5)
         result["adaptive_init_s"] = time.perf_counter() - t0
-        result["adaptive_level5"] = run_frames(scene, renderer, screen, args.frames)
+        result["adaptive_level5"] = run_frames(scene, renderer, screen, args.frames, args.level_bias)
     text = json.dumps(result, indent=1)
     print(text)
     if args.out:
