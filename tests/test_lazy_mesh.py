@@ -58,6 +58,32 @@ def test_equals_adaptive_mesh_per_base_triangle(pair):
         np.testing.assert_array_equal(a[0], b[0])
 
 
+def test_equals_adaptive_mesh_on_the_built_in_scene():
+    """The built-in scene (32 x 32 base, level 5): the default view's csf/quadtree selection and a mixed
+    one give AdaptiveMesh's soup bit for bit, and the selector inputs are AdaptiveMesh's."""
+    from calib import DEFAULT_SCREEN
+
+    from headplod import io
+    from headplod.plod.select import View
+    from headplod.render.still import TerrainScene, default_head
+
+    screen = io.read_screen(DEFAULT_SCREEN)
+    scene = TerrainScene.build(screen)
+    adaptive = scene.mesh
+    lazy = LazyAdaptiveMesh(adaptive.base, scene.terrain, max_level=5)
+    for name in ("centroids", "corners", "edge_length", "geometric_error", "contrast"):
+        np.testing.assert_array_equal(getattr(adaptive, name), getattr(lazy, name), err_msg=name)
+    selector = scene.selector("csf", "adaptive", hierarchy=True)
+    levels, _ = selector.select(View(default_head(screen), np.array(screen.size_px, dtype=np.float64) / 2,
+                                     np.diag([0.05 ** 2] * 2), 0.0))
+    assert len(np.unique(levels)) >= 4                          # neighbours at mixed levels
+    for lv in (levels, _selections(adaptive.n_faces, 5, seed=3)[3]):
+        adaptive.clear()
+        for x, y in zip(adaptive.update(lv), lazy.update(lv)):
+            np.testing.assert_array_equal(x, y)
+        np.testing.assert_array_equal(adaptive.face_per_triangle(), lazy.face_per_triangle())
+
+
 def test_indices_address_the_frame_table(pair):
     _, lazy = pair
     levels = _selections(lazy.n_faces, 5, seed=2)[3]

@@ -84,7 +84,8 @@ def main(argv=None) -> int:
     parser.add_argument("--max-level", type=int, default=8)
     parser.add_argument("--level-bias", type=float, default=0.0,
                         help="csf's level bias (3: the default view asks for levels up to 8)")
-    parser.add_argument("--skip-adaptive", action="store_true", help="only the lazy mesh")
+    parser.add_argument("--only", choices=("lazy", "adaptive"), default=None,
+                        help="run one mesh only (its RSS then is its own)")
     parser.add_argument("--out", default=None, help="also write the JSON here")
     args = parser.parse_args(argv)
     screen = io.read_screen(DEFAULT_SCREEN)
@@ -92,17 +93,19 @@ def main(argv=None) -> int:
     terrain = Terrain.jacksboro()
     base = BaseMesh.grid(terrain)
     t0 = time.perf_counter()
-    lazy = LazyAdaptiveMesh(base, terrain, max_level=args.max_level, cache_bytes=int(args.cache_mb * 2 ** 20))
+    lazy = None if args.only == "adaptive" else LazyAdaptiveMesh(base, terrain, max_level=args.max_level,
+                                                                 cache_bytes=int(args.cache_mb * 2 ** 20))
     result["lazy_init_s"] = time.perf_counter() - t0
     scene = TerrainScene.build(screen, max_level=0)          # the model matrix; its mesh is replaced
     scene.mesh = lazy
     renderer = TerrainRenderer(create_context(), size=SIZE)
     result["rss_after_lazy_init_mb"] = round(rss_mb()[0], 1)
-    result[f"lazy_level{args.max_level}"] = run_frames(scene, renderer, screen, args.frames, args.level_bias)
-    result["lazy_level_stats"] = {"cache_budget_bytes": lazy.budget_bytes, "cache_bytes": lazy.cache_bytes,
-                                  "full_detail_triangles": int(lazy.triangle_count(
-                                      np.full(lazy.n_faces, lazy.max_level)))}
-    if not args.skip_adaptive:
+    if args.only != "adaptive":
+        result[f"lazy_level{args.max_level}"] = run_frames(scene, renderer, screen, args.frames, args.level_bias)
+        result["lazy_level_stats"] = {"cache_budget_bytes": lazy.budget_bytes, "cache_bytes": lazy.cache_bytes,
+                                      "full_detail_triangles": int(lazy.triangle_count(
+                                          np.full(lazy.n_faces, lazy.max_level)))}
+    if args.only != "lazy":
         scene.mesh = None
         del lazy
         t0 = time.perf_counter()
