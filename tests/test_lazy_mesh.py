@@ -182,6 +182,27 @@ def test_cache_stays_within_its_budget_and_evicts(terrain):
     assert small.stats["generated_pieces"] > 0
 
 
+def test_idle_pieces_are_freed_when_out_of_view(terrain):
+    """With ``idle_frames``, a spot's pieces go once it has been out of the selection that many frames,
+    though the budget has room; the cache then holds only what recent frames used."""
+    base = BaseMesh.grid(terrain, 6, 4)
+    lazy = LazyAdaptiveMesh(base, terrain, max_level=5, idle_frames=2)
+    F = lazy.n_faces
+    first = np.zeros(F, np.int64)
+    first[:4] = 5
+    lazy.update(first)
+    held = lazy.cache_bytes
+    assert held > 0 and any(k[0] == "f" and k[1] == 0 for k in lazy._cache)
+    for k in range(3):                                     # three frames elsewhere (each a new selection)
+        levels = np.zeros(F, np.int64)
+        levels[F - 4 - k:F - k] = 5
+        lazy.update(levels)
+    assert not any(k[0] == "f" and k[1] == 0 for k in lazy._cache), "face 0's pieces outlived idle_frames"
+    assert lazy.stats["evicted_pieces"] > 0 and lazy.cache_bytes < lazy.budget_bytes
+    with pytest.raises(ValueError, match="idle_frames"):
+        LazyAdaptiveMesh(base, terrain, max_level=1, idle_frames=0)
+
+
 def test_rejects_bad_settings(terrain):
     base = BaseMesh.grid(terrain, 2, 2)
     with pytest.raises(ValueError, match="max_level"):

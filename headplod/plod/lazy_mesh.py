@@ -74,6 +74,11 @@ class LazyAdaptiveMesh:
     cache_bytes : int
         Budget of the piece cache, bytes (positions + normals, float32);
         after every ``update`` the cache holds at most this much.
+    idle_frames : int, optional
+        Also free, after every frame, the pieces no frame has used in the
+        last ``idle_frames`` frames (frames whose cases changed), within
+        budget or not: memory then follows what is in view. ``None``: only
+        the budget evicts.
     light_dir, ambient, normal_filter
         As :class:`AdaptiveMesh`'s.
     data_level : int
@@ -100,12 +105,18 @@ class LazyAdaptiveMesh:
     """
 
     def __init__(self, base: BaseMesh, terrain, max_level: int = 5, *, cache_bytes: int = DEFAULT_CACHE_BYTES,
+                 idle_frames: int | None = None,
                  light_dir=(-0.5, 0.5, 0.7071067811865476), ambient: float = 0.2, normal_filter: float = 0.25,
                  data_level: int | None = None):
         if not isinstance(max_level, (int, np.integer)) or not 0 <= max_level <= 8:
             raise ValueError(f"max_level must be an integer in 0..8, got {max_level!r}")
         if not int(cache_bytes) > 0:
             raise ValueError(f"cache_bytes must be > 0, got {cache_bytes!r}")
+        if idle_frames is not None and not int(idle_frames) >= 1:
+            raise ValueError(f"idle_frames must be >= 1 or None, got {idle_frames!r}")
+        self.idle_frames = None if idle_frames is None else int(idle_frames)
+        self._frame = 0                                        # frames built (cases changed)
+        self._used: dict = {}                                  # key -> last frame that used it
         M = int(max_level)
         K = min(M, DATA_LEVEL) if data_level is None else int(data_level)
         if not 0 <= K <= M:
@@ -188,17 +199,23 @@ class LazyAdaptiveMesh:
         item = self._cache.get(key)
         if item is not None:
             self._cache.move_to_end(key)
+            self._used[key] = self._frame
         return item
 
     def _put(self, key, positions, normals) -> None:
         self._cache[key] = (positions, normals)
+        self._used[key] = self._frame
         self.cache_bytes += positions.nbytes + normals.nbytes
 
     def _trim(self) -> int:
-        """Evict least recently used pieces until the cache fits its budget; the number evicted."""
+        """Evict least recently used pieces until the cache fits its budget, and those idle for more than
+        ``idle_frames`` frames; the number evicted."""
         n = 0
-        while self.cache_bytes > self.budget_bytes and self._cache:
-            _, (p, q) = self._cache.popitem(last=False)
+        oldest = -1 if self.idle_frames is None else self._frame - self.idle_frames
+        while self._cache and (self.cache_bytes > self.budget_bytes
+                               or self._used[next(iter(self._cache))] < oldest):
+            key, (p, q) = self._cache.popitem(last=False)
+            del self._used[key]
             self.cache_bytes -= p.nbytes + q.nbytes
             n += 1
         return n
@@ -206,6 +223,7 @@ class LazyAdaptiveMesh:
     def drop_cache(self) -> None:
         """Free every cached piece (the next update makes all it needs again)."""
         self._cache.clear()
+        self._used.clear()
         self.cache_bytes = 0
         self.clear()
 
@@ -311,6 +329,7 @@ class LazyAdaptiveMesh:
                               evicted_pieces=0)
             return self._output
         self._n_generated = self._n_reused = 0
+        self._frame += 1
         M, N = self.max_level, 2 ** self.max_level
         M1 = M + 1
         lv = self._check_levels(levels)
