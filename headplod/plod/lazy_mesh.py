@@ -33,13 +33,15 @@ Per-face data for the selectors (``centroids``, ``corners``,
 kept, its vertex table freed): for ``max_level <= 5`` they are exactly
 ``AdaptiveMesh``'s. Above it they are extended without sampling level
 ``max_level``: ``edge_length[:, L] = edge_length[:, K] / 2**(L - K)``
-(a level halves every side; exact on planes, the xy part of it
-everywhere), ``geometric_error`` of the levels ``< K`` measured against
-the level-K surface and below it extrapolated by a quarter per level (a
-smooth surface's linear-interpolation error), ``contrast`` over the level-K
-vertices, ``z_range`` and ``bounding_radius`` widened by the level-(K-1)
-error (an estimate, not a bound, for ``max_level > 5``). Mode ``csf`` uses
-only ``edge_length`` (through the level's angular size) and ``contrast``.
+for ``L > K`` (a level halves every side; exact on planes, the xy part of
+it everywhere); ``geometric_error`` of the levels ``< K`` is measured
+against the level-K surface (not level M: an underestimate), that of the
+levels ``K..M-1`` extrapolated from level K-1's by a quarter per level (a
+smooth surface's linear-interpolation error), 0 at M; ``contrast`` is over
+the level-K vertices; ``z_range`` and ``bounding_radius`` are widened by
+the level-(K-1) error (an estimate, not a bound, for ``max_level > 5``).
+Mode ``csf`` reads only ``edge_length`` (through the levels' angular
+size) and ``contrast``; ``sse``-like modes read ``geometric_error``.
 
 Scene units are the terrain's (metres for the built-in one): x east, y
 north, z up; triangles counter-clockwise seen from +z; float32 output.
