@@ -1,0 +1,416 @@
+"""Crack-free adaptive subdivision made lazily: geometry only for the cases a selection asks for.
+
+:class:`headplod.plod.mesh.AdaptiveMesh` samples, when it is made, every
+vertex any level of any base triangle can use (1.9 million rows at level 5
+on the 32 x 32 base; about 68 million at level 8, gigabytes).
+:class:`LazyAdaptiveMesh` draws the same triangulation (the same cases,
+templates and canonical edge points: see :mod:`headplod.plod.mesh`) but
+samples the terrain only for what a frame draws, and keeps what it sampled
+in a least-recently-used cache bounded in bytes:
+
+- an **edge piece** ``(edge, level)``: the points of one base edge at one
+  edge level, in the edge's canonical direction (lower global vertex index
+  to higher), ``2**level + 1`` of them, normals prefiltered for that level;
+  level-0 edges are the base vertices and are not cached;
+- a **face piece** ``(face, case)``: the interior points (level lattice and
+  centroid-fan centres) of one base triangle for one case
+  ``(L, e0, e1, e2)``, normals prefiltered for ``L``.
+
+Each frame's vertices are assembled into a compact per-frame table
+``[edge pieces of every base edge at its frame level; face pieces]`` and
+the triangles are the case templates' indices into it. Both faces of an
+edge read that edge's points from the *same* edge piece in the same frame,
+so neighbours of any levels share bit-identical points on their common
+edge (no cracks, no T-junctions), whether or not a piece was evicted and
+made again in between. After each frame the cache is trimmed to its budget
+(the least recently used pieces first; pieces not in the frame are older
+than those in it): pieces out of view are freed first.
+
+Per-face data for the selectors (``centroids``, ``corners``,
+``edge_length``, ``geometric_error``, ``contrast``, ``z_range``,
+``bounding_radius``) come from an :class:`AdaptiveMesh` at
+``data_level = min(max_level, 5)`` made once and dropped (its arrays are
+kept, its vertex table freed): for ``max_level <= 5`` they are exactly
+``AdaptiveMesh``'s. Above it they are extended without sampling level
+``max_level``: ``edge_length[:, L] = edge_length[:, K] / 2**(L - K)``
+for ``L > K`` (a level halves every side; exact on planes, the xy part of
+it everywhere); ``geometric_error`` of the levels ``< K`` is measured
+against the level-K surface (not level M: an underestimate), that of the
+levels ``K..M-1`` extrapolated from level K-1's by a quarter per level (a
+smooth surface's linear-interpolation error), 0 at M; ``contrast`` is over
+the level-K vertices; ``z_range`` and ``bounding_radius`` are widened by
+the level-(K-1) error (an estimate, not a bound, for ``max_level > 5``).
+Mode ``csf`` reads only ``edge_length`` (through the levels' angular
+size) and ``contrast``; ``sse``-like modes read ``geometric_error``.
+
+Scene units are the terrain's (metres for the built-in one): x east, y
+north, z up; triangles counter-clockwise seen from +z; float32 output.
+"""
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+
+import numpy as np
+
+from .mesh import AdaptiveMesh, BaseMesh, Template, _face_areas_xy, _sample, build_template, triangle_count_table
+
+#: Default byte budget of the piece cache (positions and normals of the cached pieces).
+DEFAULT_CACHE_BYTES = 256 * 2 ** 20
+#: Finest level whose per-face data are measured by sampling (above it they are extrapolated).
+DATA_LEVEL = 5
+
+
+class LazyAdaptiveMesh:
+    """:class:`AdaptiveMesh`'s triangles for per-face levels, with geometry made only when asked for.
+
+    Parameters
+    ----------
+    base : BaseMesh
+        Its vertices should lie on the terrain (``BaseMesh.grid`` does that).
+    terrain : object
+        ``sample(x, y[, smooth_m]) -> (z (n,), normals (n, 3))`` or
+        ``heights``/``normals``, vectorized, scene units.
+    max_level : int
+        Finest level M, 0..8 (4**M triangles per base face at full detail).
+    cache_bytes : int
+        Budget of the piece cache, bytes (positions + normals, float32);
+        after every ``update`` the cache holds at most this much.
+    idle_frames : int, optional
+        Also free, after every frame, the pieces no frame has used in the
+        last ``idle_frames`` frames (frames whose cases changed), within
+        budget or not: memory then follows what is in view. ``None``: only
+        the budget evicts.
+    light_dir, ambient, normal_filter
+        As :class:`AdaptiveMesh`'s.
+    data_level : int
+        Finest level sampled for the per-face data (module notes), default
+        ``min(max_level, 5)``.
+
+    Attributes
+    ----------
+    centroids : (F, 3) float64, corners : (F, 3, 3) float64, edge_length : (F, M+1) float64,
+    geometric_error : (F, M+1) float64, contrast : (F,) float64, z_range : (F, 2) float64,
+    bounding_radius : (F,) float64
+        Per-face data as :class:`AdaptiveMesh`'s (module notes for M > data_level).
+    vertex_positions : (V, 3) float32
+        The last frame's compact vertex table, scene units (``update_indices`` indexes it).
+    vertex_normals : (V, 3) float32
+        Unit normals of its rows (prefiltered for the row's level).
+    cache_bytes : int
+        Bytes held by the cache now.
+    stats : dict
+        After each update: ``triangles``, ``vertices``, ``build_ms`` (pieces
+        made and the frame assembled), ``assemble_ms`` (for ``update``, the
+        soup gather), ``generated_pieces``, ``reused_pieces``,
+        ``evicted_pieces``, ``cache_bytes``, ``cache_pieces``.
+    """
+
+    def __init__(self, base: BaseMesh, terrain, max_level: int = 5, *, cache_bytes: int = DEFAULT_CACHE_BYTES,
+                 idle_frames: int | None = None,
+                 light_dir=(-0.5, 0.5, 0.7071067811865476), ambient: float = 0.2, normal_filter: float = 0.25,
+                 data_level: int | None = None):
+        if not isinstance(max_level, (int, np.integer)) or not 0 <= max_level <= 8:
+            raise ValueError(f"max_level must be an integer in 0..8, got {max_level!r}")
+        if not int(cache_bytes) > 0:
+            raise ValueError(f"cache_bytes must be > 0, got {cache_bytes!r}")
+        if idle_frames is not None and not int(idle_frames) >= 1:
+            raise ValueError(f"idle_frames must be >= 1 or None, got {idle_frames!r}")
+        self.idle_frames = None if idle_frames is None else int(idle_frames)
+        self._frame = 0                                        # frames built (cases changed)
+        self._used: dict = {}                                  # key -> last frame that used it
+        M = int(max_level)
+        K = min(M, DATA_LEVEL) if data_level is None else int(data_level)
+        if not 0 <= K <= M:
+            raise ValueError(f"data_level must be in 0..max_level={M}, got {data_level!r}")
+        self.base, self.terrain, self.max_level = base, terrain, M
+        self.n_faces = len(base.faces)
+        self.budget_bytes = int(cache_bytes)
+        self._count_table = triangle_count_table(M)
+        self._templates: dict[int, Template] = {}
+        self._group_data: dict[int, tuple] = {}
+        # The per-face data, from a mesh at the data level (its tables are dropped with it).
+        data = AdaptiveMesh(base, terrain, max_level=K, light_dir=light_dir, ambient=ambient,
+                            normal_filter=normal_filter)
+        self._per_face_data(data, K)
+        self.contrast = data.contrast
+        self._fine_normals_data = data._fine_normals           # (F, P_K, 3) float32: shading_contrast
+        del data
+        leg = float(np.sqrt(2 * np.median(_face_areas_xy(base))))     # as AdaptiveMesh's
+        self.normal_filter_m = np.array([normal_filter * leg / 2 ** L if L < M else 0.0 for L in range(M + 1)])
+        _, vnrm = _sample(terrain, base.vertices[:, 0], base.vertices[:, 1])
+        self._base_pos = base.vertices.astype(np.float32)
+        self._base_nrm = vnrm.astype(np.float32)
+        self._cache: OrderedDict = OrderedDict()               # key -> (positions, normals) float32
+        self.cache_bytes = 0
+        self._last_case = None
+        self._output = None
+        self._soup = None
+        self._face_per_tri = None
+        self.vertex_positions = np.zeros((0, 3), np.float32)
+        self.vertex_normals = np.zeros((0, 3), np.float32)
+        self.stats: dict = {}
+
+    # ------------------------------------------------------------------ per-face data
+    def _per_face_data(self, data: AdaptiveMesh, K: int) -> None:
+        M = self.max_level
+        self.corners, self.centroids = data.corners, data.centroids
+        self.edge_length = np.zeros((self.n_faces, M + 1))
+        self.geometric_error = np.zeros((self.n_faces, M + 1))
+        self.edge_length[:, :K + 1] = data.edge_length
+        self.geometric_error[:, :K + 1] = data.geometric_error
+        for L in range(K + 1, M + 1):                            # loop over the extrapolated levels
+            self.edge_length[:, L] = data.edge_length[:, K] / 2 ** (L - K)
+        slack = np.zeros(self.n_faces)
+        if M > K and K > 0:
+            tail = data.geometric_error[:, K - 1]
+            for L in range(K, M):                                # loop over the extrapolated levels
+                self.geometric_error[:, L] = tail / 4 ** (L - K + 1)
+            slack = tail
+        self.z_range = data.z_range + np.stack([-slack, slack], axis=1)
+        self.bounding_radius = data.bounding_radius + slack
+
+    def shading_contrast(self, light_dir, ambient: float = 0.2) -> np.ndarray:
+        """As :meth:`AdaptiveMesh.shading_contrast`, over the data level's vertices, (F,) float64."""
+        light = np.asarray(light_dir, dtype=np.float64)
+        if light.shape != (3,) or not np.linalg.norm(light) > 0:
+            raise ValueError(f"light_dir must be a non-zero (3,) vector, got {light_dir!r}")
+        light = light / np.linalg.norm(light)
+        shade = ambient + (1 - ambient) * np.maximum(self._fine_normals_data @ light.astype(np.float32), 0)
+        hi, lo = shade.max(axis=1).astype(np.float64), shade.min(axis=1).astype(np.float64)
+        return (hi - lo) / np.maximum(hi + lo, 1e-12)
+
+    # ------------------------------------------------------------------ cases (as AdaptiveMesh's)
+    def template(self, case_id: int) -> Template:
+        """The cached template of an encoded case (see ``cases``)."""
+        tpl = self._templates.get(case_id)
+        if tpl is None:
+            M1 = self.max_level + 1
+            L, e0, e1, e2 = np.unravel_index(case_id, (M1,) * 4)
+            tpl = build_template(self.max_level, L, (e0, e1, e2))
+            self._templates[case_id] = tpl
+        return tpl
+
+    _check_levels = AdaptiveMesh._check_levels
+    edge_levels = AdaptiveMesh.edge_levels
+    cases = AdaptiveMesh.cases
+    triangle_count = AdaptiveMesh.triangle_count
+
+    # ------------------------------------------------------------------ cache
+    def _get(self, key):
+        item = self._cache.get(key)
+        if item is not None:
+            self._cache.move_to_end(key)
+            self._used[key] = self._frame
+        return item
+
+    def _put(self, key, positions, normals) -> None:
+        self._cache[key] = (positions, normals)
+        self._used[key] = self._frame
+        self.cache_bytes += positions.nbytes + normals.nbytes
+
+    def _trim(self) -> int:
+        """Evict least recently used pieces until the cache fits its budget, and those idle for more than
+        ``idle_frames`` frames; the number evicted."""
+        n = 0
+        oldest = -1 if self.idle_frames is None else self._frame - self.idle_frames
+        while self._cache and (self.cache_bytes > self.budget_bytes
+                               or self._used[next(iter(self._cache))] < oldest):
+            key, (p, q) = self._cache.popitem(last=False)
+            del self._used[key]
+            self.cache_bytes -= p.nbytes + q.nbytes
+            n += 1
+        return n
+
+    def drop_cache(self) -> None:
+        """Free every cached piece (the next update makes all it needs again)."""
+        self._cache.clear()
+        self._used.clear()
+        self.cache_bytes = 0
+        self.clear()
+
+    def clear(self) -> None:
+        """Forget the last frame's output (the cache stays): the next update assembles it again."""
+        self._last_case = None
+        self._output = self._soup = self._face_per_tri = None
+
+    # ------------------------------------------------------------------ pieces
+    def _edge_block(self, level: int, edges: np.ndarray):
+        """Points of ``edges`` (n,) at edge ``level``: positions, normals (n, 2**level + 1, 3) float32."""
+        M, N = self.max_level, 2 ** self.max_level
+        base = self.base
+        n_pts = 2 ** level + 1
+        pos = np.empty((len(edges), n_pts, 3), np.float32)
+        nrm = np.empty_like(pos)
+        lo, hi = base.edges[edges, 0], base.edges[edges, 1]
+        pos[:, 0], pos[:, -1] = self._base_pos[lo], self._base_pos[hi]
+        nrm[:, 0], nrm[:, -1] = self._base_nrm[lo], self._base_nrm[hi]
+        if level == 0 or not len(edges):
+            return pos, nrm
+        items = [None] * len(edges)
+        missing = []
+        for i, e in enumerate(edges.tolist()):                   # loop over edges: cache look-ups only
+            items[i] = self._get(("e", e, level))
+            if items[i] is None:
+                missing.append(i)
+        self._n_reused += len(edges) - len(missing)
+        if missing:
+            miss = np.array(missing)
+            k = np.arange(1, n_pts - 1) * 2 ** (M - level)       # canonical positions, 1/N of the edge
+            t = k / N
+            pa = base.vertices[lo[miss]][:, None, :2]
+            pb = base.vertices[hi[miss]][:, None, :2]
+            xy = pa + t[None, :, None] * (pb - pa)
+            z, n = _sample(self.terrain, xy[..., 0].ravel(), xy[..., 1].ravel(),
+                           self.normal_filter_m[level] if level < M else None)
+            mp = np.concatenate([xy, z.reshape(len(miss), -1, 1)], axis=2).astype(np.float32)
+            mn = n.reshape(len(miss), -1, 3).astype(np.float32)
+            for j, i in enumerate(missing):                      # loop over new edge pieces: store copies
+                items[i] = (mp[j].copy(), mn[j].copy())
+                self._put(("e", int(edges[i]), level), *items[i])
+            self._n_generated += len(missing)
+        pos[:, 1:-1] = np.stack([it[0] for it in items])
+        nrm[:, 1:-1] = np.stack([it[1] for it in items])
+        return pos, nrm
+
+    def _face_block(self, cid: int, level: int, tpl: Template, fids: np.ndarray):
+        """Interior points of faces ``fids`` (m,) in case ``cid``: positions, normals (m, K, 3) float32."""
+        Kp = len(tpl.interior_bary)
+        if not Kp:
+            z = np.zeros((len(fids), 0, 3), np.float32)
+            return z, z
+        items = [None] * len(fids)
+        missing = []
+        for i, f in enumerate(fids.tolist()):                    # loop over faces: cache look-ups only
+            items[i] = self._get(("f", f, cid))
+            if items[i] is None:
+                missing.append(i)
+        self._n_reused += len(fids) - len(missing)
+        if missing:
+            miss = fids[np.array(missing)]
+            corners = self.base.vertices[self.base.faces[miss]][..., :2]          # (m', 3, 2)
+            xy = np.einsum("pk,mkd->mpd", tpl.interior_bary, corners)
+            z, n = _sample(self.terrain, xy[..., 0].ravel(), xy[..., 1].ravel(),
+                           self.normal_filter_m[level] if level < self.max_level else None)
+            mp = np.concatenate([xy, z.reshape(len(miss), Kp, 1)], axis=2).astype(np.float32)
+            mn = n.reshape(len(miss), Kp, 3).astype(np.float32)
+            for j, i in enumerate(missing):                      # loop over new face pieces: store copies
+                items[i] = (mp[j].copy(), mn[j].copy())
+                self._put(("f", int(fids[i]), cid), *items[i])
+            self._n_generated += len(missing)
+        return np.stack([it[0] for it in items]), np.stack([it[1] for it in items])
+
+    # ------------------------------------------------------------------ frames
+    def update_indices(self, levels):
+        """Triangles for per-face levels as indices into this frame's ``vertex_positions``.
+
+        Parameters
+        ----------
+        levels : (F,) int
+            Level of each base face, 0..max_level.
+
+        Returns
+        -------
+        indices : (3T,) uint32
+            Rows of ``vertex_positions`` / ``vertex_normals`` (the compact
+            table of this frame, replaced by every update with new cases);
+            entries 3t..3t+2 are triangle t, counter-clockwise seen from +z.
+        level_per_triangle : (T,) uint8
+            Level of the base face each triangle belongs to.
+
+        Notes
+        -----
+        Triangles are grouped by case (ascending), then by face (ascending):
+        ``AdaptiveMesh``'s order for a build from scratch. The same arrays
+        are returned again when no case changes; do not modify them.
+        """
+        t0 = time.perf_counter()
+        case = self.cases(levels)
+        if self._last_case is not None and np.array_equal(case, self._last_case):
+            self.stats.update(build_ms=1e3 * (time.perf_counter() - t0), assemble_ms=0.0, generated_pieces=0,
+                              evicted_pieces=0)
+            return self._output
+        self._n_generated = self._n_reused = 0
+        self._frame += 1
+        M, N = self.max_level, 2 ** self.max_level
+        M1 = M + 1
+        lv = self._check_levels(levels)
+        el = self.edge_levels(lv)                                            # (E,)
+        base = self.base
+        # 1. Every edge's points at its frame level, grouped by level.
+        pos_parts, nrm_parts = [], []
+        edge_off = np.zeros(len(base.edges), np.int64)
+        row = 0
+        for level in np.unique(el).tolist():                                 # loop over edge levels
+            edges = np.flatnonzero(el == level)
+            p, n = self._edge_block(level, edges)
+            edge_off[edges] = row + np.arange(len(edges)) * p.shape[1]
+            pos_parts.append(p.reshape(-1, 3))
+            nrm_parts.append(n.reshape(-1, 3))
+            row += p.shape[0] * p.shape[1]
+        # 2. Each case group's interior points and triangles.
+        order = np.argsort(case, kind="stable")
+        ids, starts = np.unique(case[order], return_index=True)
+        idx_parts, lv_parts, face_parts = [], [], []
+        for cid, fids in zip(ids.tolist(), np.split(order, starts[1:])):     # loop over cases
+            tpl = self.template(cid)
+            level = cid // M1 ** 3
+            p, n = self._face_block(cid, level, tpl, fids)
+            Kp = p.shape[1]
+            eids = base.face_edges[fids][:, tpl.boundary_edge]                # (m, Pb)
+            fwd = base.face_edge_forward[fids][:, tpl.boundary_edge]
+            kk = np.where(fwd, tpl.boundary_k, N - tpl.boundary_k)           # canonical, 1/N of the edge
+            boundary = edge_off[eids] + (kk >> (M - el[eids]))
+            interior = row + np.arange(len(fids))[:, None] * Kp + np.arange(Kp)[None, :]
+            rows = np.concatenate([boundary, interior], axis=1)
+            idx_parts.append(rows[:, tpl.triangles.reshape(-1)].astype(np.uint32).reshape(-1))
+            n_tri = len(tpl.triangles)
+            lv_parts.append(np.full(len(fids) * n_tri, level, np.uint8))
+            face_parts.append((fids, n_tri))
+            if Kp:
+                pos_parts.append(p.reshape(-1, 3))
+                nrm_parts.append(n.reshape(-1, 3))
+                row += len(fids) * Kp
+        if row >= 2 ** 32:
+            raise ValueError(f"LazyAdaptiveMesh: {row} frame vertices do not fit 32-bit indices")
+        self.vertex_positions = np.concatenate(pos_parts)
+        self.vertex_normals = np.concatenate(nrm_parts)
+        indices = np.concatenate(idx_parts) if idx_parts else np.zeros(0, np.uint32)
+        tri_levels = np.concatenate(lv_parts) if lv_parts else np.zeros(0, np.uint8)
+        self._output = (indices, tri_levels)
+        self._faces_of_groups = face_parts
+        self._soup = self._face_per_tri = None
+        self._last_case = case
+        evicted = self._trim()
+        self.stats = {"triangles": int(len(tri_levels)), "vertices": int(row),
+                      "build_ms": 1e3 * (time.perf_counter() - t0), "assemble_ms": 0.0,
+                      "generated_pieces": int(self._n_generated), "reused_pieces": int(self._n_reused),
+                      "evicted_pieces": int(evicted), "cache_bytes": int(self.cache_bytes),
+                      "cache_pieces": len(self._cache)}
+        return self._output
+
+    def update(self, levels):
+        """Mesh for per-face levels as a triangle soup (``AdaptiveMesh.update``'s arrays).
+
+        Returns
+        -------
+        positions : (3T, 3) float32
+            Rows 3t..3t+2 are triangle t, scene units, counter-clockwise from +z.
+        normals : (3T, 3) float32
+        level_per_triangle : (T,) uint8
+        """
+        indices, lv = self.update_indices(levels)
+        t0 = time.perf_counter()
+        if self._soup is None:
+            self._soup = (self.vertex_positions[indices], self.vertex_normals[indices], lv)
+        self.stats["assemble_ms"] = 1e3 * (time.perf_counter() - t0)
+        return self._soup
+
+    def face_per_triangle(self) -> np.ndarray:
+        """Base face of each triangle of the last output, (T,) int64."""
+        if self._output is None:
+            return np.zeros(0, dtype=np.int64)
+        if self._face_per_tri is None:
+            parts = [np.repeat(f, n) for f, n in self._faces_of_groups]
+            self._face_per_tri = np.concatenate(parts) if parts else np.zeros(0, np.int64)
+        return self._face_per_tri
