@@ -441,9 +441,14 @@ def test_v4l2_uses_the_grab_time_without_a_plausible_device_timestamp(fakes, dev
 def test_v4l2_frames_say_they_carry_the_driver_timestamp(fakes):
     with open_fake(fakes) as source:
         frames = read_good(source, 3)
+    from headplod.capture.v4l2 import DEVICE_TIME_WINDOW_S
+
     for f in frames:
-        assert f.time_source == "driver"
-        assert f.t_monotonic_left == exposure_of(fakes.left, f.left)
+        exposure = exposure_of(fakes.left, f.left)
+        if f.time_source == "driver":
+            assert f.t_monotonic_left == exposure
+        else:        # a loaded machine held the grab past the window: the rule falls back to the grab time
+            assert f.time_source == "grab" and f.t_monotonic_left - exposure > DEVICE_TIME_WINDOW_S
 
 
 def test_v4l2_dropped_frames_counted(fakes):
