@@ -247,30 +247,19 @@ class LazyAdaptiveMesh:
         nrm[:, 0], nrm[:, -1] = self._base_nrm[lo], self._base_nrm[hi]
         if level == 0 or not len(edges):
             return pos, nrm
-        items = [None] * len(edges)
-        missing = []
-        for i, e in enumerate(edges.tolist()):                   # loop over edges: cache look-ups only
-            items[i] = self._get(("e", e, level))
-            if items[i] is None:
-                missing.append(i)
-        self._n_reused += len(edges) - len(missing)
-        if missing:
-            miss = np.array(missing)
-            k = np.arange(1, n_pts - 1) * 2 ** (M - level)       # canonical positions, 1/N of the edge
-            t = k / N
+        k = np.arange(1, n_pts - 1) * 2 ** (M - level)           # canonical positions, 1/N of the edge
+        t = k / N
+
+        def make(miss):
             pa = base.vertices[lo[miss]][:, None, :2]
             pb = base.vertices[hi[miss]][:, None, :2]
             xy = pa + t[None, :, None] * (pb - pa)
             z, n = _sample(self.terrain, xy[..., 0].ravel(), xy[..., 1].ravel(),
                            self.normal_filter_m[level] if level < M else None)
-            mp = np.concatenate([xy, z.reshape(len(miss), -1, 1)], axis=2).astype(np.float32)
-            mn = n.reshape(len(miss), -1, 3).astype(np.float32)
-            for j, i in enumerate(missing):                      # loop over new edge pieces: store copies
-                items[i] = (mp[j].copy(), mn[j].copy())
-                self._put(("e", int(edges[i]), level), *items[i])
-            self._n_generated += len(missing)
-        pos[:, 1:-1] = np.stack([it[0] for it in items])
-        nrm[:, 1:-1] = np.stack([it[1] for it in items])
+            return (np.concatenate([xy, z.reshape(len(miss), -1, 1)], axis=2).astype(np.float32),
+                    n.reshape(len(miss), -1, 3).astype(np.float32))
+
+        pos[:, 1:-1], nrm[:, 1:-1] = self._pieces([("e", e, level) for e in edges.tolist()], make)
         return pos, nrm
 
     def _face_block(self, cid: int, level: int, tpl: Template, fids: np.ndarray):
@@ -279,26 +268,34 @@ class LazyAdaptiveMesh:
         if not Kp:
             z = np.zeros((len(fids), 0, 3), np.float32)
             return z, z
-        items = [None] * len(fids)
-        missing = []
-        for i, f in enumerate(fids.tolist()):                    # loop over faces: cache look-ups only
-            items[i] = self._get(("f", f, cid))
-            if items[i] is None:
-                missing.append(i)
-        self._n_reused += len(fids) - len(missing)
-        if missing:
-            miss = fids[np.array(missing)]
-            corners = self.base.vertices[self.base.faces[miss]][..., :2]          # (m', 3, 2)
+
+        def make(miss):
+            corners = self.base.vertices[self.base.faces[fids[miss]]][..., :2]     # (m', 3, 2)
             xy = np.einsum("pk,mkd->mpd", tpl.interior_bary, corners)
             z, n = _sample(self.terrain, xy[..., 0].ravel(), xy[..., 1].ravel(),
                            self.normal_filter_m[level] if level < self.max_level else None)
-            mp = np.concatenate([xy, z.reshape(len(miss), Kp, 1)], axis=2).astype(np.float32)
-            mn = n.reshape(len(miss), Kp, 3).astype(np.float32)
-            for j, i in enumerate(missing):                      # loop over new face pieces: store copies
-                items[i] = (mp[j].copy(), mn[j].copy())
-                self._put(("f", int(fids[i]), cid), *items[i])
+            return (np.concatenate([xy, z.reshape(len(miss), Kp, 1)], axis=2).astype(np.float32),
+                    n.reshape(len(miss), Kp, 3).astype(np.float32))
+
+        return self._pieces([("f", f, cid) for f in fids.tolist()], make)
+
+    def _pieces(self, keys, make):
+        """The cached pieces under ``keys``: (positions, normals), each (len(keys), P, 3) float32.
+
+        ``make(missing)`` gives the pieces not in the cache, for the indices
+        ``missing`` (m,) into ``keys``, as two (m, P, 3) arrays; they are
+        stored (as copies) before they are returned.
+        """
+        items = [self._get(key) for key in keys]                     # loop over pieces: cache look-ups only
+        missing = [i for i, item in enumerate(items) if item is None]
+        self._n_reused += len(keys) - len(missing)
+        if missing:
+            made_pos, made_nrm = make(np.array(missing))
+            for j, i in enumerate(missing):                          # loop over new pieces: store copies
+                items[i] = (made_pos[j].copy(), made_nrm[j].copy())
+                self._put(keys[i], *items[i])
             self._n_generated += len(missing)
-        return np.stack([it[0] for it in items]), np.stack([it[1] for it in items])
+        return np.stack([item[0] for item in items]), np.stack([item[1] for item in items])
 
     # ------------------------------------------------------------------ frames
     def update_indices(self, levels):
@@ -389,22 +386,9 @@ class LazyAdaptiveMesh:
                       "cache_pieces": len(self._cache)}
         return self._output
 
-    def update(self, levels):
-        """Mesh for per-face levels as a triangle soup (``AdaptiveMesh.update``'s arrays).
-
-        Returns
-        -------
-        positions : (3T, 3) float32
-            Rows 3t..3t+2 are triangle t, scene units, counter-clockwise from +z.
-        normals : (3T, 3) float32
-        level_per_triangle : (T,) uint8
-        """
-        indices, lv = self.update_indices(levels)
-        t0 = time.perf_counter()
-        if self._soup is None:
-            self._soup = (self.vertex_positions[indices], self.vertex_normals[indices], lv)
-        self.stats["assemble_ms"] = 1e3 * (time.perf_counter() - t0)
-        return self._soup
+    #: The soup of the last ``update_indices``: ``AdaptiveMesh.update`` (positions, normals (3T, 3) float32,
+    #: levels (T,) uint8), the same arrays again while no case changes.
+    update = AdaptiveMesh.update
 
     def face_per_triangle(self) -> np.ndarray:
         """Base face of each triangle of the last output, (T,) int64."""
