@@ -18,7 +18,6 @@ the same frames.
 """
 from __future__ import annotations
 
-import json
 import socket
 import sys
 import tempfile
@@ -32,6 +31,7 @@ from ..capture.synthetic import DEFAULT_SEQUENCE, ensure_dataset
 from ..live.loop import run_source
 from ..live.output import OpentrackSender
 from ..tracking.filters import PoseFilter
+from .outputs import write_json
 
 
 def run_live_bench(dataset=None, json_path=None, repeats: int = 3) -> int:
@@ -88,9 +88,7 @@ def run_live_bench(dataset=None, json_path=None, repeats: int = 3) -> int:
                  "frames arrive decoded, so this ratio is an upper bound for them")
     print("\n".join(lines))
     if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps({"recording": str(folder), "repeats": repeats, "results": results},
-                                              indent=2))
+        write_json(json_path, {"recording": str(folder), "repeats": repeats, "results": results})
     return 0
 
 

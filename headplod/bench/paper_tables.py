@@ -45,12 +45,13 @@ from pathlib import Path
 import numpy as np
 
 from ..demo import loop as lp
-from .image_metrics import disc_mask, psnr_db
 from ..demo.viewpoints import VIEWPOINTS
 from ..progress import Progress
 from ..render.context import create_context
 from ..render.gl import TerrainRenderer
 from ..render.still import TerrainScene, px_per_deg_at
+from .image_metrics import disc_mask, psnr_db
+from .outputs import write_json
 
 __all__ = ["CONDITIONS", "PaperTablesConfig", "ReplayPoses", "JitteredPoses", "track_poses",
            "level_statistics", "disc_psnr_db", "paper_tables", "format_tables", "plot_tables"]
@@ -409,10 +410,9 @@ def run_paper_bench(json_path=None, chart_path=None, quick: bool = False, noise_
     The output paths are checked (their folders must exist or be creatable)
     before the run, and each is written whole or not at all.
     """
-    import json
     import sys
 
-    from ..io._storage import write_atomically
+    from ..io import write_atomically
 
     out = out or sys.stdout
     config = PaperTablesConfig(frames=30, warmup=10, viewpoints=("mountains",)) if quick else PaperTablesConfig()
@@ -425,7 +425,7 @@ def run_paper_bench(json_path=None, chart_path=None, quick: bool = False, noise_
     report = paper_tables(config, err=err)
     print(format_tables(report), file=out)
     if json_path:
-        write_atomically(json_path, lambda name: Path(name).write_text(json.dumps(report, indent=1, default=float)))
+        write_json(json_path, report, indent=1, default=float)
         print(f"json: {json_path}", file=out)
     if chart_path:
         write_atomically(chart_path, lambda name: plot_tables(report, name), suffix=".png")

@@ -46,7 +46,6 @@ and ``plod_jod_heatmap_{csf,sse}.png``.
 """
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -65,6 +64,7 @@ from ..plod.contrast import project_to_screen_px, readback_contrast
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
 from ..render import TerrainRenderer, create_context, off_axis_projection, overlay_poi, screen_frame
 from ..render.still import TerrainScene, px_per_deg_at, default_head
+from .outputs import write_json
 
 SIZE = (1280, 720)
 #: The CSF forms compared: every model of :data:`headplod.plod.csf.CSF_MODELS`; the default is chosen from them.
@@ -383,8 +383,7 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
             plod_judge.jod_chart(report["jod"], Path(chart_path).parent / "plod_jod.png")
             report["jod"]["heatmap_jod"] = plod_judge.write_heatmaps(b, Path(chart_path).parent)
     if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps(report, indent=2, default=float))
+        write_json(json_path, report, default=float)
     if chart_path:
         _chart(report, chart_path)
         for mode in ("csf", "full"):

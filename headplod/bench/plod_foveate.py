@@ -29,7 +29,6 @@ or degrees at the screen centre (``px_per_deg``); times in ms.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import sys
 import time
@@ -46,6 +45,7 @@ from ..render import TerrainRenderer, create_context, off_axis_projection
 from ..render.foveate import FoveatedRenderer, FoveationConfig
 from ..render.overlay import overlay_layers, overlay_poi
 from ..render.still import TerrainScene, default_head, px_per_deg_at
+from .outputs import write_json
 
 __all__ = ["foveate_speed", "viewpoint_frames", "seam_profiles", "quality", "seam_chart", "layer_pictures",
            "luminance", "run"]
@@ -449,7 +449,7 @@ def run(folder, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20, speed: bool 
     for vp, f in still.items():
         cv2.imwrite(str(folder / f"foveate_frame_{vp}.png"), cv2.cvtColor(f["foveate"], cv2.COLOR_RGB2BGR))
     summary["wall_s"] = round(time.perf_counter() - t0, 1)
-    (folder / "foveate.json").write_text(json.dumps(summary, indent=1, default=_json_default))
+    write_json(folder / "foveate.json", summary, indent=1, default=_json_default)
     return summary
 
 

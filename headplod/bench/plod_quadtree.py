@@ -38,6 +38,7 @@ from calib import DEFAULT_SCREEN
 from .. import io
 from ..plod.quadtree import QuadtreeSelector
 from ..plod.select import LevelSelector, SelectorConfig, View
+from .outputs import write_json
 
 SIZES = (32, 64, 128, 256, 512)
 #: The other way to the 128M terrain: the 32² base refined to level 8 (same base triangles, finer levels).
@@ -252,8 +253,7 @@ def main(argv=None) -> int:
     report = selection_scaling(sizes, frames=args.frames, progress=lambda s: print(s, flush=True))
     print(json.dumps({k: v for k, v in report.items() if k != "rows"}, indent=2))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(report, indent=2))
+        write_json(args.json, report)
     if args.chart:
         chart(report, args.chart)
     return 0

@@ -318,9 +318,9 @@ def chart_raymask(report: dict, path) -> None:
 
 
 if __name__ == "__main__":  # pragma: no cover - a manual run: python -m headplod.bench.plod_raymask OUT.json
-    import json
+    from .outputs import write_json
 
     out = Path(sys.argv[1] if len(sys.argv) > 1 else "raymask_report.json")
     rep = raymask_report(picture_dir=out.parent)
-    out.write_text(json.dumps(rep, indent=2))
+    write_json(out, rep)
     chart_raymask(rep, out.with_suffix(".png"))

@@ -93,7 +93,7 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     from ..render import TerrainRenderer, create_context, off_axis_projection
     from ..render.still import default_head
     from ..render.tessellate import TessellationConfig, TessellationRenderer, grid_model, render_frame
-    from .plod import psnr_db
+    from .image_metrics import psnr_db
 
     if backend not in BACKENDS:
         raise ValueError(f"run_case: backend must be one of {BACKENDS}, got {backend!r}")
@@ -294,8 +294,8 @@ def run_scale_bench(json_path=None, chart_path=None, quick: bool = False) -> int
     for g in report["goals"]:
         print(f"{'met    ' if g['met'] else 'NOT met'} {g['goal']}: {g['value']:.2f}")
     if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps(report, indent=2))
+        from .outputs import write_json
+        write_json(json_path, report)
     if chart_path:
         _chart(report, chart_path)
     return 0

@@ -14,11 +14,11 @@ benchmark.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from .plod import _Bench
+from .outputs import write_json
 from .plod_judge import METRICS, jod_chart, jod_report, jod_table, vdp_available, write_heatmaps
 
 
@@ -39,8 +39,7 @@ def run_judge(json_path=None, chart_path=None, modes=None, forms=None, biases=(-
         jod_chart(report, chart_path)
         report["heatmap_jod"] = write_heatmaps(bench, Path(chart_path).parent)
     if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps(report, indent=2, default=float))
+        write_json(json_path, report, default=float)
     return report
 
 

@@ -32,7 +32,6 @@ selection (some coarser near the new POI) for as long as the head stays.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -48,6 +47,7 @@ from ..live.loop import make_tracker, track_frames
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
 from ..render.still import TerrainScene
 from ..tracking.tracker import TrackerConfig
+from .outputs import write_json
 
 __all__ = ["ViewList", "track_still_head", "still_head_views", "level_changes", "levels_sequence",
            "stability_report", "format_table", "plot_stability"]
@@ -356,8 +356,7 @@ def main(argv=None) -> int:
     report = stability_report(frames=args.frames, modes=modes, distance_mm=args.distance, seed=args.seed)
     print(format_table(report))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(report, indent=1))
+        write_json(args.json, report, indent=1)
     if args.chart:
         plot_stability(report, args.chart)
     return 0
