@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["floats", "frame_count"]
+__all__ = ["floats", "frame_count", "non_negative"]
 
 
 def floats(n: int):
@@ -28,4 +28,15 @@ def frame_count(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a whole number of frames, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1 frame, got {value}")
+    return value
+
+
+def non_negative(text: str) -> float:
+    """An argparse type: a finite number of at least 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (value >= 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
     return value

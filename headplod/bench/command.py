@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..argtypes import non_negative
 from ..capture import source_kind, synthetic_preset
 from ..capture.synthetic import ensure_dataset
 from ..live.command import note_old_spelling
@@ -66,19 +67,9 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bpa.add_argument("--json", help="write the results as JSON")
     bpa.add_argument("--chart", help="write the chart (PNG)")
     bpa.add_argument("--quick", action="store_true", help="one viewpoint, 30 frames (a smoke run)")
-    bpa.add_argument("--noise-deg", type=_non_negative, default=0.5, metavar="S",
+    bpa.add_argument("--noise-deg", type=non_negative, default=0.5, metavar="S",
                      help="sigma per angle of the 'paper_noise' tracker's jitter of V, deg (default 0.5)")
     return bench
-
-
-def _non_negative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (value >= 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-    return value
 
 
 # The benchmark modules are imported on use: they pull in the tracker (scipy.stats) and matplotlib,
