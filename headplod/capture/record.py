@@ -68,7 +68,7 @@ def holds_recording(folder: str | Path) -> bool:
     return (folder / "times.csv").exists()
 
 
-class DatasetRecorder:
+class DatasetRecorder(io.KeptOnSuccess):
     """Write stereo frames into a dataset folder, frame by frame.
 
     Parameters
@@ -292,16 +292,6 @@ class DatasetRecorder:
                         if (work / name).exists():
                             os.replace(work / name, old)
                 shutil.rmtree(work, ignore_errors=True)
-
-    def __enter__(self) -> "DatasetRecorder":
-        return self
-
-    def __exit__(self, exc_type, *exc: Any) -> None:
-        # An error drops a recording made with overwrite (the old one is kept); Ctrl-C keeps the frames so far.
-        if exc_type is not None and issubclass(exc_type, Exception):
-            self.discard()
-        else:
-            self.close()
 
     def __repr__(self) -> str:
         return f"DatasetRecorder({str(self.folder)!r}, {self.count} frames, {self.skipped} skipped)"

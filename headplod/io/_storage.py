@@ -359,3 +359,27 @@ def write_atomically(path, write: Callable[[str], None], suffix: str = "") -> Pa
         Path(tmp).unlink(missing_ok=True)
         raise
     return target
+
+
+class KeptOnSuccess:
+    """Context-manager behaviour of an output built under a temporary name (``close`` keeps it, ``discard`` drops it).
+
+    Leaving the ``with`` block normally, or by Ctrl-C (KeyboardInterrupt: the
+    run stopped, what is whole is kept), closes the output; leaving it by an
+    error discards it, so an existing file or recording stays as it was.
+    """
+
+    def close(self) -> None:        # pragma: no cover - each output defines it
+        raise NotImplementedError
+
+    def discard(self) -> None:      # pragma: no cover - each output defines it
+        raise NotImplementedError
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, *exc) -> None:
+        if exc_type is not None and issubclass(exc_type, Exception):
+            self.discard()
+        else:
+            self.close()

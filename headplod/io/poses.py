@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ._storage import AXES_TOL_READ, AXES_TOL_WRITE, _Ctx, _check_axes
+from ._storage import AXES_TOL_READ, AXES_TOL_WRITE, KeptOnSuccess, _Ctx, _check_axes
 
 # --------------------------------------------------------------------------
 # constants
@@ -180,7 +180,7 @@ def pose_record(frame: int, t: float, ok: bool, position: Any = None, axes: Any 
     return _build_record(frame, t, ok, position, axes, cov, reason, extra, AXES_TOL_WRITE)
 
 
-class PoseWriter:
+class PoseWriter(KeptOnSuccess):
     """Write pose records as JSON Lines, one object per line, flushed per record.
 
     Parameters
@@ -283,16 +283,6 @@ class PoseWriter:
         finally:
             if self._tmp is not None and os.path.exists(self._tmp):
                 os.unlink(self._tmp)
-
-    def __enter__(self) -> "PoseWriter":
-        return self
-
-    def __exit__(self, exc_type, *exc: Any) -> None:
-        # An error drops the file (an existing one is kept); Ctrl-C keeps the records so far.
-        if exc_type is not None and issubclass(exc_type, Exception):
-            self.discard()
-        else:
-            self.close()
 
 
 def _reject_constant(name: str) -> Any:
