@@ -56,7 +56,7 @@ import numpy as np
 from calib import DEFAULT_SCREEN
 
 from . import stability as still_head
-from .image_metrics import flip_error, psnr_db
+from .image_metrics import disc_mask, flip_error, psnr_db
 from .. import io
 from ..plod import perception as pc
 from ..plod.csf import CSF_MODELS
@@ -87,9 +87,8 @@ class _Bench:
         self.view_m, self.proj = off_axis_projection(self.head, self.screen, near_mm=50.0, far_mm=5000.0)
         self.frames = frames
         self.px_per_deg = px_per_deg_at(self.screen, self.head, SIZE)
-        yy, xx = np.mgrid[0:SIZE[1], 0:SIZE[0]]
         centre = self.poi * np.array(SIZE) / np.array(self.screen.size_px)
-        self.disc = np.hypot(xx - centre[0], yy - centre[1]) <= 5 * self.px_per_deg
+        self.disc = disc_mask((SIZE[1], SIZE[0]), centre, 5 * self.px_per_deg)
         # The tracker's σ of V for a head at 60 cm is about 0.03° (headplod bench uncertainty).
         self.cov = np.diag([0.05 ** 2, 0.05 ** 2])
 

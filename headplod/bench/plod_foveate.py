@@ -344,13 +344,13 @@ def quality(frames: dict) -> dict:
         Per viewpoint: ``psnr_5deg_db`` {plain, foveate}, ``flip`` {plain, foveate},
         ``psnr_5deg_foveate_vs_plain_db`` (inf: the fovea is the plain frame's pixels).
     """
-    from .image_metrics import flip_error, psnr_db
+    from .image_metrics import disc_mask, flip_error, psnr_db
 
     out = {}
     for vp, f in frames.items():
         h, w = f["full"].shape[:2]
-        yy, xx = np.mgrid[0:h, 0:w]
-        disc = np.hypot(xx + 0.5 - f["poi_px"][0], yy + 0.5 - f["poi_px"][1]) <= 5 * f["px_per_deg"]
+        # The composite's pixel centres are GL's, at +0.5: the disc about the POI in those.
+        disc = disc_mask((h, w), np.asarray(f["poi_px"]) - 0.5, 5 * f["px_per_deg"])
         out[vp] = {"psnr_5deg_db": {n: psnr_db(f[n], f["full"], disc) for n in ("plain", "foveate")},
                    "flip": {n: flip_error(f["full"], f[n], f["px_per_deg"]) for n in ("plain", "foveate")},
                    "psnr_5deg_foveate_vs_plain_db": psnr_db(f["foveate"], f["plain"], disc)}

@@ -46,7 +46,7 @@ from ..render import TerrainRenderer, create_context, off_axis_projection
 from ..render.raymask import RayMaskRenderer
 from ..render.still import TerrainScene, default_head, px_per_deg_at
 from ..demo.viewpoints import place, viewpoint_names
-from .image_metrics import flip_error, psnr_db
+from .image_metrics import disc_mask, flip_error, psnr_db
 
 __all__ = ["raymask_report", "silhouette_displacement_px", "chart_raymask", "raymask_picture"]
 
@@ -158,9 +158,8 @@ def raymask_report(viewpoints=None, rounds: int = 5, contrasts=(1.0, 0.3), inset
     cov = np.diag([0.05 ** 2, 0.05 ** 2])          # the tracker's σ of V at 60 cm, as bench plod uses
     view_m, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
     ppd = px_per_deg_at(screen, head, size)
-    yy, xx = np.mgrid[0:size[1], 0:size[0]]
     centre = poi * np.array(size) / np.array(screen.size_px)
-    disc = np.hypot(xx - centre[0], yy - centre[1]) <= 5 * ppd
+    disc = disc_mask((size[1], size[0]), centre, 5 * ppd)
 
     configs = {}
     for c in contrasts:

@@ -68,12 +68,12 @@ GOAL_PSNR_DB = 45.0
 def _disc_region(screen, head, size):
     """(disc mask (H, W) bool, its bounding box in NDC (x0, y0, x1, y1), px per deg) around the centre POI."""
     from ..render.still import px_per_deg_at
+    from .image_metrics import disc_mask
 
     w, h = size
     ppd = px_per_deg_at(screen, head, size)
     radius = DISC_DEG * ppd
-    yy, xx = np.mgrid[0:h, 0:w]
-    disc = np.hypot(xx - w / 2, yy - h / 2) <= radius
+    disc = disc_mask((h, w), (w / 2, h / 2), radius)
     # NDC y is up, the image's row 0 is the top: the box is symmetric about the centre either way.
     rx, ry = (radius + 4) / (w / 2), (radius + 4) / (h / 2)
     return disc, (-rx, -ry, rx, ry), ppd
