@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from headplod.bench.paper_tables import JitteredPoses, PaperTablesConfig, ReplayPoses, disc_psnr_db
+from headplod.bench.paper_tables import JitteredPoses, PaperTablesConfig, disc_psnr_db
+from headplod.demo.loop import ReplayPoses
 from headplod.demo import loop as lp
 from headplod.render.still import default_head
 
@@ -28,7 +29,16 @@ def test_jitter_turns_the_viewing_direction_by_its_sigma_and_says_so():
 def test_jitter_leaves_failed_poses_alone():
     screen = lp.default_screen()
     lost = lp.Pose(0.0, False, reason="markers hidden")
-    assert JitteredPoses(ReplayPoses([lost], screen), noise_deg=1.0).read() is lost
+
+    class Once(lp.PoseSource):                   # gives the very object (ReplayPoses gives copies)
+        name = "once"
+
+        def read(self):
+            return lost
+
+    source = Once()
+    source.screen = screen
+    assert JitteredPoses(source, noise_deg=1.0).read() is lost
 
 
 def test_disc_psnr_sees_only_the_disc():

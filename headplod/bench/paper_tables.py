@@ -53,7 +53,7 @@ from ..render.still import TerrainScene, px_per_deg_at
 from .image_metrics import disc_mask, psnr_db
 from .outputs import write_json
 
-__all__ = ["CONDITIONS", "PaperTablesConfig", "ReplayPoses", "JitteredPoses", "track_poses",
+__all__ = ["CONDITIONS", "PaperTablesConfig", "JitteredPoses", "track_poses",
            "level_statistics", "disc_psnr_db", "paper_tables", "format_tables", "plot_tables"]
 
 #: Tracker conditions, in report order.
@@ -111,23 +111,6 @@ class PaperTablesConfig:
             raise ValueError(f"PaperTablesConfig.noise_deg must be a finite number >= 0, got {self.noise_deg!r}")
 
 
-class ReplayPoses(lp.PoseSource):
-    """Recorded poses (a list of :class:`headplod.demo.loop.Pose`) replayed in order."""
-
-    def __init__(self, poses, screen, name: str = "replay"):
-        self._poses, self._k = list(poses), 0
-        self.screen, self.name = screen, name
-
-    def read(self):
-        if self._k >= len(self._poses):
-            return None
-        self._k += 1
-        return self._poses[self._k - 1]
-
-    def close(self) -> None:
-        self._k = len(self._poses)
-
-
 class JitteredPoses(lp.PoseSource):
     """Another source's poses with the viewing direction jittered: a noisier tracker, honestly reported.
 
@@ -179,13 +162,7 @@ def track_poses(condition: str, frames: int, noise_deg: float = PAPER_NOISE_DEG,
     source = lp.TrackerPoses("synthetic", config=config, max_frames=frames)
     if condition == "paper_noise":
         source = JitteredPoses(source, noise_deg, seed)
-    try:
-        poses = []
-        while (pose := source.read()) is not None:
-            poses.append(replace(pose, images=None))          # the images are not needed again
-    finally:
-        source.close()
-    return poses, source.screen, source.name
+    return lp.read_all_poses(source), source.screen, source.name
 
 
 def level_statistics(levels: np.ndarray, warmup: int, window: int = FLICKER_FRAMES) -> dict:
@@ -230,7 +207,7 @@ def disc_psnr_db(image: np.ndarray, reference: np.ndarray, centre_px, radius_px:
 def _run_group(scene, poses, screen, viewpoint, renderers, config: PaperTablesConfig, progress) -> list:
     """One viewpoint of one condition: the scenarios (hysteresis on, off) and full, interleaved."""
     plan = [(sc, h) for h in (True, False) for sc in SCENARIOS] + [("full", False)]
-    tee = lp.TeePoses(ReplayPoses(poses, screen), len(plan))
+    tee = lp.TeePoses(lp.ReplayPoses(poses, screen), len(plan))
     loops = []
     for k, (scenario, hysteresis) in enumerate(plan):
         mode, unc = ("full", "none") if scenario == "full" else ("csf", scenario)

@@ -28,7 +28,6 @@ or degrees at the screen centre (``px_per_deg``); times in ms.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import sys
 import time
@@ -122,7 +121,7 @@ def foveate_speed(scene=None, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20
         for vp in viewpoints:
             if poses is None:              # tracked once, before the runs: the frames time no tracking
                 poses = _tracked(source, scene.screen, frames)
-            loops = [lp.DemoLoop(scene, _Replay(poses, scene.screen), renderers[k], mode=m,
+            loops = [lp.DemoLoop(scene, lp.ReplayPoses(poses, scene.screen), renderers[k], mode=m,
                                  uncertainty=uncertainty if m != "full" else "none", viewpoint=vp, hud=hud,
                                  foveate=fov, foveation=config)
                      for k, (_, m, fov) in enumerate(runs)]
@@ -159,32 +158,10 @@ def foveate_speed(scene=None, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20
 
 def _tracked(source, screen, frames: int) -> list:
     """The first ``frames`` poses of a tracked source, as a list (images dropped)."""
-    src = lp.TrackerPoses(source, screen=screen, max_frames=frames)
-    try:
-        out = []
-        while (pose := src.read()) is not None:
-            pose.images = None
-            out.append(pose)
-    finally:
-        src.close()
+    out = lp.read_all_poses(lp.TrackerPoses(source, screen=screen, max_frames=frames))
     if len(out) < 2:
         raise ValueError(f"foveate_speed: the source {source!r} gave {len(out)} poses, need at least 2")
     return out
-
-
-class _Replay(lp.PoseSource):
-    """A list of poses read again (copies: the loop may not change them)."""
-
-    name = "replay"
-
-    def __init__(self, poses, screen):
-        self.poses, self.screen, self.k = poses, screen, 0
-
-    def read(self):
-        if self.k >= len(self.poses):
-            return None
-        self.k += 1
-        return dataclasses.replace(self.poses[self.k - 1])
 
 
 def _layer_dict(layer) -> dict:

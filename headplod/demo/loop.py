@@ -386,6 +386,39 @@ class _TeeConsumer(PoseSource):
             self._tee._close(self._k)
 
 
+class ReplayPoses(PoseSource):
+    """Poses recorded earlier (a list of :class:`Pose`, e.g. from :func:`read_all_poses`) read again in order.
+
+    Each read gives a copy: a loop may change the pose it is given, and the
+    same list is replayed to several loops (benchmarks compare them on the
+    same poses, the tracking done once).
+    """
+
+    def __init__(self, poses, screen, name: str = "replay"):
+        self._poses, self._k = list(poses), 0
+        self.screen, self.name = screen, name
+
+    def read(self) -> Pose | None:
+        if self._k >= len(self._poses):
+            return None
+        self._k += 1
+        return dataclasses.replace(self._poses[self._k - 1])
+
+    def close(self) -> None:
+        self._k = len(self._poses)
+
+
+def read_all_poses(source: PoseSource) -> list:
+    """Every pose of ``source`` until it ends, its camera images dropped; the source is closed."""
+    try:
+        poses = []
+        while (pose := source.read()) is not None:
+            poses.append(dataclasses.replace(pose, images=None))
+        return poses
+    finally:
+        source.close()
+
+
 class PrefetchPoses(PoseSource):
     """Another source read ahead on its own thread: tracking runs while the viewer renders.
 
