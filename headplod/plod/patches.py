@@ -40,7 +40,8 @@ from scipy import ndimage as ndi
 from . import perception as pc
 from .terrain import Terrain, _bspline_weights
 
-__all__ = ["height_grid", "jacksboro_grid", "grid_normals", "PatchGrid", "patch_levels", "tess_factors", "EDGE_NAMES"]
+__all__ = ["height_grid", "jacksboro_grid", "grid_normals", "PatchGrid", "patch_levels", "levels_of_patches",
+           "point_speed_deg_s", "tess_factors", "EDGE_NAMES"]
 
 #: The detail's shortest wavelength on :func:`jacksboro_grid`'s grids, sample spacings: each grid has detail
 #: down to its own resolution.
@@ -328,34 +329,85 @@ def patch_levels(grid: PatchGrid, model: np.ndarray, eye_mm, axes, cov_deg2=None
     outer : (n, n, 4) float64
         Continuous level of each patch's edges in :data:`EDGE_NAMES` order.
     """
+    corners = grid.corners_scene()                                               # (n, n, 4, 3)
+    contrast = grid.contrast.astype(np.float64)
+    padded = np.pad(contrast, 1, mode="edge")
+    neighbour = np.stack([padded[1:-1, :-2], padded[:-2, 1:-1], padded[1:-1, 2:], padded[2:, 1:-1]], axis=-1)
+    return levels_of_patches(corners, contrast, neighbour, model, eye_mm, axes, cov_deg2, shift=shift,
+                             ellipse_sigma=ellipse_sigma, speed_deg_s=speed_deg_s, level_bias=level_bias)
+
+
+def point_speed_deg_s(points_mm, eye_mm, eye_prev_mm=None, dt_s: float = 0.0):
+    """Angular speed of world points (..., 3) mm seen from an eye that moved, deg/s (the shader's rule).
+
+    The angle between the directions from the last and the current eye over ``dt_s``, floored at
+    :data:`perception.MIN_SPEED_DEG_S`; the floor everywhere when ``dt_s <= 0`` or no last eye.
+    """
+    pts = np.asarray(points_mm, np.float64)
+    if eye_prev_mm is None or not dt_s > 0:
+        return np.full(pts.shape[:-1], pc.MIN_SPEED_DEG_S)
+    a = _angle_deg(_unit(pts - np.asarray(eye_prev_mm, np.float64)), _unit(pts - np.asarray(eye_mm, np.float64)))
+    return np.maximum(a / dt_s, pc.MIN_SPEED_DEG_S)
+
+
+def levels_of_patches(corners_scene, contrast, neighbour_contrast, model, eye_mm, axes, cov_deg2=None, *,
+                      shift: str = "ellipse", ellipse_sigma: float = 2.0, speed_deg_s=pc.MIN_SPEED_DEG_S,
+                      level_bias: float = 0.0, eye_prev_mm=None, dt_s: float = 0.0):
+    """:func:`patch_levels`' closed form on any set of patches (the flat grid's, or a quadtree's leaves).
+
+    Parameters
+    ----------
+    corners_scene : (..., 4, 3)
+        Each patch's corners SW, SE, NE, NW, scene metres.
+    contrast : (...,)
+        Each patch's shading contrast.
+    neighbour_contrast : (..., 4)
+        The contrast of the patch across each edge (W, S, E, N; its own at the grid's border).
+    model, eye_mm, axes, cov_deg2, shift, ellipse_sigma, speed_deg_s, level_bias
+        As :func:`patch_levels`.
+    eye_prev_mm : (3,) or None; dt_s : float
+        The last frame's eye (world mm) and the time since, s: when given (``dt_s > 0``), each point's
+        speed is :func:`point_speed_deg_s`'s (the shader's rule) instead of ``speed_deg_s``.
+
+    Returns
+    -------
+    inner : (...,) float64
+    outer : (..., 4) float64
+        As :func:`patch_levels`.
+    """
     model = np.asarray(model, np.float64)
     eye = np.asarray(eye_mm, np.float64)
-    corners = grid.corners_scene()                                               # (n, n, 4, 3)
+    corners = np.asarray(corners_scene, np.float64)
     homog = np.concatenate([corners, np.ones(corners.shape[:-1] + (1,))], axis=-1)
     c_mm = (homog @ model.T)[..., :3]
     dirs = _unit(c_mm - eye)
+    moving = eye_prev_mm is not None and dt_s > 0
+
+    def speed(points):
+        return point_speed_deg_s(points, eye, eye_prev_mm, dt_s) if moving else speed_deg_s
+
     # Inner: centre = mean of the corners; diameter = largest angle between two corners.
-    centre = c_mm.mean(axis=2)
+    centre = c_mm.mean(axis=-2)
     pairs = [(0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3)]
     diameter = np.max([_angle_deg(dirs[..., a, :], dirs[..., b, :]) for a, b in pairs], axis=0)
     cdir = _unit(centre - eye)
     reach = np.max([_angle_deg(cdir, dirs[..., k, :]) for k in range(4)], axis=0)
-    contrast = grid.contrast.astype(np.float64)
+    contrast = np.asarray(contrast, np.float64)
+    neighbour_contrast = np.asarray(neighbour_contrast, np.float64)
     args = dict(eye_mm=eye, axes=axes, cov_deg2=cov_deg2, shift=shift, ellipse_sigma=ellipse_sigma,
-                speed_deg_s=speed_deg_s, level_bias=level_bias)
-    inner = _csf_level(centre, reach, diameter, contrast, **args)
+                level_bias=level_bias)
+    inner = _csf_level(centre, reach, diameter, contrast, speed_deg_s=speed(centre), **args)
     # Edges: west = NW-SW (corners 3, 0), south = SW-SE (0, 1), east = SE-NE (1, 2), north = NE-NW (2, 3);
     # the endpoints in a fixed order (west to east, south to north) so that neighbours compute the same numbers.
     ends = [(0, 3), (0, 1), (1, 2), (3, 2)]
-    padded = np.pad(contrast, 1, mode="edge")
-    neighbour = [padded[1:-1, :-2], padded[:-2, 1:-1], padded[1:-1, 2:], padded[2:, 1:-1]]   # W, S, E, N
     outer = []
     for k, (a, b) in enumerate(ends):
         mid = 0.5 * (c_mm[..., a, :] + c_mm[..., b, :])
         mdir = _unit(mid - eye)
         length = _angle_deg(dirs[..., a, :], dirs[..., b, :])
         reach_e = np.maximum(_angle_deg(mdir, dirs[..., a, :]), _angle_deg(mdir, dirs[..., b, :]))
-        outer.append(_csf_level(mid, reach_e, length, np.maximum(contrast, neighbour[k]), **args))
+        outer.append(_csf_level(mid, reach_e, length, np.maximum(contrast, neighbour_contrast[..., k]),
+                                speed_deg_s=speed(mid), **args))
     return inner, np.stack(outer, axis=-1)
 
 
