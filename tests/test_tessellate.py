@@ -225,19 +225,15 @@ def test_render_cli_tessellation_backend(ctx430, tmp_path, monkeypatch, capsys):
     assert json.loads(stats.read_text())["triangles"] > 0
 
 
-def _sample_colors(grid, height_range, light=(0.4, -0.3, 0.85), ambient=0.25):
-    """(n, n, 3) float: every sample's colour as the shaders define it (numpy, float64): ground truth."""
-    from headplod.plod.patches import grid_normals
+def _sample_colors(grid, height_range):
+    """(n, n, 3) float32: every sample's colour as gl.py's shaded terrain computes a vertex's (ground truth, numpy)."""
+    from types import SimpleNamespace
 
-    nrm = grid_normals(grid.heights_m, grid.dx_m, grid.dy_m).astype(np.float64)
-    nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
-    light = np.asarray(light, float) / np.linalg.norm(light)
-    shade = ambient + (1 - ambient) * np.clip(nrm @ light, 0, None)
-    lo, hi = height_range
-    t = np.clip((grid.heights_m - lo) / (hi - lo), 0, 1)[..., None]
-    low, mid, high = (np.array(c) for c in ((0.30, 0.42, 0.26), (0.52, 0.56, 0.40), (0.80, 0.80, 0.76)))
-    base = np.where(t < 0.5, low + (mid - low) * 2 * t, mid + (high - mid) * (2 * t - 1))
-    return base * shade[..., None]
+    from headplod.plod.patches import grid_normals
+    from headplod.render.raymask import vertex_colors
+
+    heights = SimpleNamespace(heights=grid.heights_m, normals=grid_normals(grid.heights_m, grid.dx_m, grid.dy_m))
+    return vertex_colors(heights, height_range)
 
 
 def test_texture_shading_bakes_every_samples_colour(ctx430, grid):
