@@ -29,7 +29,9 @@ into draw calls), the triangles drawn (``GL_PRIMITIVES_GENERATED``) and the
 PSNR within 5° of the POI against a full-detail render of that region (the
 tessellation back end at its finest level, drawing only the patches that
 reach the disc's bounding box: ``full`` of the whole 134M terrain need not
-fit).
+fit), with the case's own shading (the tessellation's default ``texture``;
+``full``'s mesh shades per vertex, and so does its reference), at 1 and
+4x4 samples per pixel.
 """
 from __future__ import annotations
 
@@ -147,7 +149,9 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
         if backend == "tessellation":
             tess.release()
         fine = PatchGrid.build(z, dx, dy, MIN_PATCH_SAMPLES, origin_m=origin)
-        tess = TessellationRenderer(ctx, fine, size=size, config=TessellationConfig(patch_samples=MIN_PATCH_SAMPLES))
+        # ``full``'s mesh shades per vertex: its reference does too.
+        tess = TessellationRenderer(ctx, fine, size=size, config=TessellationConfig(
+            patch_samples=MIN_PATCH_SAMPLES, shading="vertex" if backend == "full" else config.shading))
     # The references: every patch reaching the disc's box at the finest level, at 1 and 4x4 samples per pixel.
     t0 = time.perf_counter()
     reference, ref_stats = render_frame(tess, screen, model, head, poi, COV_DEG2, mode="full", region_ndc=region)
@@ -156,6 +160,7 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
                                    supersample=SUPERSAMPLE)
     select_ms, render_ms = (float(np.median([s[j] for s in steady])) for j in range(2))
     return {"backend": backend, "samples": n_samples, "level_bias": level_bias, "full_triangles": grid.full_triangles,
+            "shading": "vertex" if backend == "full" else config.shading,
             "patch_samples": p, "patches": grid.n_patches ** 2, "frames": frames,
             "frame_ms": select_ms + render_ms, "select_ms": select_ms, "render_ms": render_ms,
             "fps": 1e3 / (select_ms + render_ms), "triangles": int(steady[-1][2]), "draw_calls": int(steady[-1][3]),

@@ -34,12 +34,23 @@ The second PLOD back end (issue 14), beside the CPU one (``LevelSelector`` +
   16384 patches, and at full detail across several draw calls).
 - The evaluation shader places every vertex on a height sample (the tess
   coordinate rounded to the sample grid, so shared edge vertices are
-  bit-identical) and shades it as ``gl.py``'s terrain shader does (Lambert
-  + ambient times the height colour, per vertex), with the normal from
-  central differences of the height texture: at full detail over the
-  neighbouring samples (as :func:`headplod.plod.patches.grid_normals`); at a
-  coarser level over the level's vertex spacing in the matching mip level
-  (the normals of the surface that level can show).
+  bit-identical).
+- Shading (``TessellationConfig.shading``). By default (``texture``) every
+  sample's colour (``gl.py``'s terrain shading: Lambert + ambient times the
+  height colour, with the sample's own normal from central differences, as
+  :func:`headplod.plod.patches.grid_normals`) is baked once, on the GPU,
+  into a mipmapped RGBA8 texture, and each fragment samples it trilinearly
+  at the pixel's footprint. A pixel then shows the average colour of the
+  samples it covers whichever level drew it: the geometry is PLOD's, the
+  shading is prefiltered as terrain renderers do with colour or normal
+  maps. Why: once a sample is smaller than a pixel (8M triangles and up on
+  the scale bench's view), the full-detail render's per-vertex shading
+  aliases and a coarser level's smoothed normals cannot match it (36.5 dB
+  in the 5° disc at 134M; 56 dB with the texture). ``vertex`` keeps the
+  per-vertex colour, with a coarse level's normal from the matching mip
+  level of the heights (the surface that level can show). Anisotropic
+  filtering (``anisotropy``) gained 0.8 dB for 2-3x the frame time on
+  llvmpipe, so it is off.
 
 The CPU's share per frame is the uniforms, the read-back of the levels and
 the split into draw calls (``headplod bench plod --scale``). Not here (yet):
@@ -101,6 +112,20 @@ class TessellationConfig:
     smooth_normals : bool
         Normals of a coarse level from the matching mip level (True); False:
         every vertex's normal from its neighbouring samples.
+    shading : {"texture", "vertex"}
+        ``texture`` (default): every height sample's colour (Lambert +
+        ambient times the height colour, from the sample's own normal) is
+        baked once into a mipmapped RGBA8 texture, sampled per fragment with
+        trilinear (and ``anisotropy``) filtering at the pixel's footprint:
+        what a pixel shows is the average of the samples it covers, whatever
+        the level that drew it. ``vertex``: colour per vertex from the
+        level's normal (``smooth_normals``), interpolated (``gl.py``'s way).
+    anisotropy : float
+        Texture anisotropy of ``texture`` shading, 1..16 (1: isotropic).
+    light_dir : (3,) float
+        Toward the light, scene frame (normalised).
+    ambient : float
+        Ambient share of the shading, 0..1.
     csf_stage : {"vertex", "control"}
         Where the levels pass evaluates the CSF: a vertex shader, one vertex
         per patch (default: llvmpipe runs it 8 patches at a time), or the
@@ -116,6 +141,10 @@ class TessellationConfig:
     ellipse_sigma: float = 2.0
     cull: bool = True
     smooth_normals: bool = True
+    shading: str = "texture"
+    anisotropy: float = 1.0
+    light_dir: tuple = (0.4, -0.3, 0.85)
+    ambient: float = 0.25
     csf_stage: str = "vertex"
 
     def __post_init__(self):
@@ -125,6 +154,15 @@ class TessellationConfig:
                 raise ValueError(f"TessellationConfig.{name} must be a power of two >= 1, got {v!r}")
         if self.csf_stage not in ("vertex", "control"):
             raise ValueError(f"TessellationConfig.csf_stage must be 'vertex' or 'control', got {self.csf_stage!r}")
+        if self.shading not in ("texture", "vertex"):
+            raise ValueError(f"TessellationConfig.shading must be 'texture' or 'vertex', got {self.shading!r}")
+        if not (isinstance(self.anisotropy, (int, float)) and 1.0 <= self.anisotropy <= 16.0):
+            raise ValueError(f"TessellationConfig.anisotropy must be within 1..16, got {self.anisotropy!r}")
+        if not (isinstance(self.ambient, (int, float)) and 0.0 <= self.ambient <= 1.0):
+            raise ValueError(f"TessellationConfig.ambient must be within 0..1, got {self.ambient!r}")
+        light = np.asarray(self.light_dir, dtype=float)
+        if light.shape != (3,) or not np.all(np.isfinite(light)) or not np.linalg.norm(light) > 0:
+            raise ValueError(f"TessellationConfig.light_dir must be a non-zero 3-vector, got {self.light_dir!r}")
         if self.shift not in ("ellipse", "eq1"):
             raise ValueError(f"TessellationConfig.shift must be 'ellipse' or 'eq1', got {self.shift!r}")
         for name in ("level_bias", "ellipse_sigma"):
@@ -358,19 +396,12 @@ void main() {
 }
 """
 
-_EVALUATION = """
-#version 430
-layout(quads, equal_spacing, ccw) in;
-patch in int p_id;
-""" + _COMMON + """
+# Colour of a height and a normal (gl.py's terrain shader: Lambert + ambient times the height colour), and the
+# normal of a sample from its neighbours (np.gradient: central differences, one-sided at the border).
+_SHADE = """
 uniform vec3 u_light;             // unit vector toward the light, scene frame
 uniform float u_ambient;
 uniform vec2 u_height_range;      // scene z of the low and high colour
-uniform int u_smooth_normals;
-out vec3 v_color;
-#ifdef SAMPLES_OUT
-out vec2 t_sample;                // the vertex's sample (column, row), for the watertightness test
-#endif
 
 const vec3 LOW = vec3(0.30, 0.42, 0.26);   // as gl.py's terrain shader
 const vec3 MID = vec3(0.52, 0.56, 0.40);
@@ -378,12 +409,52 @@ const vec3 HIGH = vec3(0.80, 0.80, 0.76);
 
 float h(ivec2 s) { return texelFetch(u_height, s, 0).r; }
 
+vec3 terrain_color(float z, vec3 nrm) {
+    float shade = u_ambient + (1.0 - u_ambient) * max(dot(nrm, u_light), 0.0);
+    float span = max(u_height_range.y - u_height_range.x, 1e-20);
+    float t = clamp((z - u_height_range.x) / span, 0.0, 1.0);
+    vec3 base = t < 0.5 ? mix(LOW, MID, 2.0 * t) : mix(MID, HIGH, 2.0 * t - 1.0);
+    return base * shade;
+}
+
+vec2 sample_gradient(ivec2 s) {
+    int n = textureSize(u_height, 0).x;
+    ivec2 lo = max(s - 1, ivec2(0)), hi = min(s + 1, ivec2(n - 1));
+    return vec2((h(ivec2(hi.x, s.y)) - h(ivec2(lo.x, s.y))) / (float(hi.x - lo.x) * u_spacing_m.x),
+                (h(ivec2(s.x, hi.y)) - h(ivec2(s.x, lo.y))) / (float(hi.y - lo.y) * u_spacing_m.y));
+}
+"""
+
+_EVALUATION = """
+#version 430
+layout(quads, equal_spacing, ccw) in;
+patch in int p_id;
+""" + _COMMON + _SHADE + """
+uniform int u_smooth_normals;
+#ifdef TEXTURE_SHADING
+out vec2 v_st;                    // the colour texture's coordinate of the surface point
+#else
+out vec3 v_color;
+#endif
+#ifdef SAMPLES_OUT
+out vec2 t_sample;                // the vertex's sample (column, row), for the watertightness test
+#endif
+
 void main() {
     int P = u_patch_samples;
     ivec2 pq = patch_of(p_id);
     vec2 uv = gl_TessCoord.xy;
     ivec2 s = pq * P + ivec2(round(uv * float(P)));     // on the sample grid: shared vertices are identical
     vec3 pos = sample_point(s);
+    gl_Position = u_mvp * vec4(pos, 1.0);
+#ifdef SAMPLES_OUT
+    t_sample = vec2(s);
+#endif
+#ifdef TEXTURE_SHADING
+    // Texel centres are the samples; linear along a triangle as the sample grid is linear in scene x, y.
+    v_st = (vec2(s) + 0.5) / vec2(textureSize(u_height, 0));
+    return;
+#else
     // Vertex spacing of the level that made this vertex: an edge's factor on an edge (the same in both
     // patches), the inner factor inside; at a corner (shared by four patches' different edges) full detail.
     bool eu = uv.x == 0.0 || uv.x == 1.0, ev = uv.y == 0.0 || uv.y == 1.0;
@@ -395,10 +466,7 @@ void main() {
     vec2 grad;
     float spacing = float(P) / tf;       // samples between vertices, a power of two
     if (u_smooth_normals == 0 || spacing <= 1.0) {
-        // np.gradient: central differences, one-sided at the border.
-        ivec2 lo = max(s - 1, ivec2(0)), hi = min(s + 1, ivec2(n - 1));
-        grad = vec2((h(ivec2(hi.x, s.y)) - h(ivec2(lo.x, s.y))) / (float(hi.x - lo.x) * u_spacing_m.x),
-                    (h(ivec2(s.x, hi.y)) - h(ivec2(s.x, lo.y))) / (float(hi.y - lo.y) * u_spacing_m.y));
+        grad = sample_gradient(s);
     } else {
         float lod = log2(spacing);
         vec2 c = (vec2(s) + 0.5) / float(n), dx = vec2(spacing / float(n), 0.0), dy = vec2(0.0, spacing / float(n));
@@ -406,17 +474,38 @@ void main() {
                     textureLod(u_height, c + dy, lod).r - textureLod(u_height, c - dy, lod).r)
                / (2.0 * spacing * u_spacing_m);
     }
-    vec3 nrm = normalize(vec3(-grad, 1.0));
-    gl_Position = u_mvp * vec4(pos, 1.0);
-    float shade = u_ambient + (1.0 - u_ambient) * max(dot(nrm, u_light), 0.0);
-    float span = max(u_height_range.y - u_height_range.x, 1e-20);
-    float t = clamp((pos.z - u_height_range.x) / span, 0.0, 1.0);
-    vec3 base = t < 0.5 ? mix(LOW, MID, 2.0 * t) : mix(MID, HIGH, 2.0 * t - 1.0);
-    v_color = base * shade;
-#ifdef SAMPLES_OUT
-    t_sample = vec2(s);
+    v_color = terrain_color(pos.z, normalize(vec3(-grad, 1.0)));
 #endif
 }
+"""
+
+# Texture shading's bake: one fragment per height sample, its colour from its own normal (the finest level's).
+_BAKE_VERTEX = """
+#version 430
+void main() {                     // one triangle over the viewport
+    vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2);
+    gl_Position = vec4(2.0 * p - 1.0, 0.0, 1.0);
+}
+"""
+
+_BAKE_FRAGMENT = """
+#version 430
+uniform sampler2D u_height;
+uniform vec2 u_spacing_m;
+""" + _SHADE + """
+out vec4 f_color;
+void main() {
+    ivec2 s = ivec2(gl_FragCoord.xy);
+    f_color = vec4(terrain_color(h(s), normalize(vec3(-sample_gradient(s), 1.0))), 1.0);
+}
+"""
+
+_TEXTURE_FRAGMENT = """
+#version 430
+uniform sampler2D u_color;        // RGBA8 (n, n), mipmapped: the samples' colours
+in vec2 v_st;
+out vec4 f_color;
+void main() { f_color = vec4(texture(u_color, v_st).rgb, 1.0); }
 """
 
 # The watertightness test's pass: every generated triangle's three samples into a storage buffer.
@@ -502,6 +591,7 @@ class TessellationRenderer:
         else:
             self._height.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._height.repeat_x = self._height.repeat_y = False
+        self._color = self._bake_colors() if config.shading == "texture" else None
         info = np.stack([grid.z_min_m, grid.z_max_m, grid.contrast, np.zeros_like(grid.contrast)], axis=-1)
         self._patch = ctx.texture((grid.n_patches, grid.n_patches), 4, info.astype(np.float32).tobytes(), dtype="f4")
         self._patch.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -515,6 +605,46 @@ class TessellationRenderer:
         self._levels_buffer = None
         self.last_draw_calls = 0
 
+    def _bake_colors(self):
+        """The colour texture of ``texture`` shading: RGBA8 (n, n), every sample's colour, mipmapped.
+
+        Drawn on the GPU (one fragment per sample) so no (n, n, 3) normal
+        array is made on the CPU (8193²: 0.8 GB of float32).
+        """
+        ctx, cfg = self.ctx, self.config
+        n = self.grid.heights_m.shape[0]
+        texture = ctx.texture((n, n), 4, dtype="f1")
+        fbo = ctx.framebuffer(color_attachments=[texture])
+        prog = ctx.program(vertex_shader=_BAKE_VERTEX, fragment_shader=_BAKE_FRAGMENT)
+        vao = ctx.vertex_array(prog, [])
+        try:
+            self._shade_uniforms(prog)
+            prog["u_height"].value = 0
+            prog["u_spacing_m"].value = (self.grid.dx_m, self.grid.dy_m)
+            self._height.use(0)
+            fbo.use()
+            fbo.viewport = (0, 0, n, n)
+            ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+            vao.render(moderngl.TRIANGLES, vertices=3)
+            ctx.finish()
+        finally:
+            for obj in (vao, prog, fbo):
+                obj.release()
+        texture.build_mipmaps()
+        texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        texture.repeat_x = texture.repeat_y = False
+        if cfg.anisotropy > 1:
+            texture.anisotropy = float(cfg.anisotropy)
+        return texture
+
+    def _shade_uniforms(self, prog):
+        cfg = self.config
+        light = np.asarray(cfg.light_dir, np.float64)
+        for name, value in (("u_light", tuple(light / np.linalg.norm(light))), ("u_ambient", float(cfg.ambient)),
+                            ("u_height_range", self.height_range)):
+            if name in prog:
+                prog[name].value = value
+
     # -- programs --------------------------------------------------------------
 
     def _program(self, kind: str):
@@ -525,17 +655,18 @@ class TessellationRenderer:
                 prog = self.ctx.program(vertex_shader=_LEVELS_VERTEX, fragment_shader=_NO_FRAGMENT)
             else:
                 control = _variant(_CONTROL, "LEVELS_OUT") if kind == "levels" else _variant(_CONTROL, *here)
-                evaluation = _variant(_EVALUATION, "SAMPLES_OUT") if kind == "samples" else _EVALUATION
+                textured = kind == "draw" and self.config.shading == "texture"
+                evaluation = (_variant(_EVALUATION, "SAMPLES_OUT") if kind == "samples" else
+                              _variant(_EVALUATION, "TEXTURE_SHADING") if textured else _EVALUATION)
                 prog = self.ctx.program(vertex_shader=_VERTEX, tess_control_shader=control,
                                         tess_evaluation_shader=evaluation,
                                         geometry_shader=_GEOMETRY_SAMPLES if kind == "samples" else None,
-                                        fragment_shader=_FRAGMENT_SHADER)
+                                        fragment_shader=_TEXTURE_FRAGMENT if textured else _FRAGMENT_SHADER)
             self._programs[kind] = prog
             self._vaos[kind] = self.ctx.vertex_array(prog, [])
         return self._programs[kind]
 
-    def _set_uniforms(self, prog, view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc,
-                      light_dir=(0.4, -0.3, 0.85), ambient=0.25):
+    def _set_uniforms(self, prog, view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc):
         """Every uniform of the frame (the CPU's whole share of the selection)."""
         g, cfg = self.grid, self.config
         model = np.asarray(model, np.float64)
@@ -548,11 +679,9 @@ class TessellationRenderer:
             "u_level_bias": float(cfg.level_bias), "u_max_level": cfg.max_level, "u_full": int(mode == "full"),
             "u_cull": int(cfg.cull), "u_ellipse_sigma": float(cfg.ellipse_sigma),
             "u_region_ndc": tuple(region_ndc) if region_ndc is not None else (-2.0, -2.0, 2.0, 2.0),
-            "u_smooth_normals": int(cfg.smooth_normals), "u_ambient": float(ambient),
-            "u_height_range": self.height_range,
+            "u_smooth_normals": int(cfg.smooth_normals), "u_color": 2,
         }
-        light = np.asarray(light_dir, np.float64)
-        values["u_light"] = tuple(light / np.linalg.norm(light))
+        self._shade_uniforms(prog)
         # Σ⁻¹ for the shift (None or all-zero: no shift). u_axes: the rows Ξ, Ψ, V written row-major are the
         # columns of the GLSL mat3, so transpose(u_axes) * d = (Ξ·d, Ψ·d, V·d).
         form, cov_inv = 0, np.eye(2)
@@ -573,6 +702,8 @@ class TessellationRenderer:
     def _bind(self):
         self._height.use(0)
         self._patch.use(1)
+        if self._color is not None:
+            self._color.use(2)
         self.ctx.patch_vertices = 1
 
     # -- frames ----------------------------------------------------------------
@@ -733,7 +864,7 @@ class TessellationRenderer:
     def release(self) -> None:
         """Free the GL objects (the context stays)."""
         for obj in [*self._vaos.values(), *self._programs.values(), self._height, self._patch, self._fbo,
-                    self._levels_buffer]:
+                    self._levels_buffer, self._color]:
             if obj is not None:
                 obj.release()
         self._vaos, self._programs = {}, {}
