@@ -278,13 +278,21 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def _csf_level(points_mm, reach_deg, diameter_deg, contrast, eye_mm, axes, cov_deg2, shift, ellipse_sigma,
-               speed_deg_s, level_bias):
-    """Continuous level log2(f_max · diameter) of pieces seen from ``eye_mm`` (select.py's csf closed form)."""
+               speed_deg_s, level_bias, fmax_foveal=None):
+    """Continuous level log2(f_max · diameter) of pieces seen from ``eye_mm`` (select.py's csf closed form).
+
+    ``fmax_foveal``: f_max at eccentricity 0 of each piece (its contrast and speed), cpd, if known: the same
+    number as ``max_visible_freq_cpd`` (kelly_scaled divides the foveal f_max by 1 + 0.29 e), without its
+    Lambert W.
+    """
     offsets = pc.view_offsets_deg(points_mm, eye_mm, axes)
     if cov_deg2 is not None:
         offsets = pc.uncertainty_shift(offsets, cov_deg2, shift, ellipse_sigma)
     ecc = np.maximum(pc.eccentricity_deg(offsets) - reach_deg, 0.0)
-    fmax = pc.max_visible_freq_cpd(contrast, speed_deg_s, ecc, model="kelly_scaled")
+    if fmax_foveal is None:
+        fmax = pc.max_visible_freq_cpd(contrast, speed_deg_s, ecc, model="kelly_scaled")
+    else:
+        fmax = np.asarray(fmax_foveal, np.float64) / pc.eccentricity_factor(ecc)
     with np.errstate(divide="ignore"):
         return pc.lod_continuous(1.0 / np.maximum(diameter_deg, 1e-9), np.maximum(fmax, 1e-12)) + level_bias
 
@@ -352,7 +360,7 @@ def point_speed_deg_s(points_mm, eye_mm, eye_prev_mm=None, dt_s: float = 0.0):
 
 def levels_of_patches(corners_scene, contrast, neighbour_contrast, model, eye_mm, axes, cov_deg2=None, *,
                       shift: str = "ellipse", ellipse_sigma: float = 2.0, speed_deg_s=pc.MIN_SPEED_DEG_S,
-                      level_bias: float = 0.0, eye_prev_mm=None, dt_s: float = 0.0):
+                      level_bias: float = 0.0, eye_prev_mm=None, dt_s: float = 0.0, fmax_foveal=None):
     """:func:`patch_levels`' closed form on any set of patches (the flat grid's, or a quadtree's leaves).
 
     Parameters
@@ -368,6 +376,10 @@ def levels_of_patches(corners_scene, contrast, neighbour_contrast, model, eye_mm
     eye_prev_mm : (3,) or None; dt_s : float
         The last frame's eye (world mm) and the time since, s: when given (``dt_s > 0``), each point's
         speed is :func:`point_speed_deg_s`'s (the shader's rule) instead of ``speed_deg_s``.
+    fmax_foveal : (..., 5) or None
+        Optional: the foveal f_max (eccentricity 0) of the inner piece and of each edge at
+        ``speed_deg_s`` (cpd), precomputed (:class:`headplod.plod.patch_tree.PatchTree` does, once);
+        ignored when the eye moves. The levels are the same numbers.
 
     Returns
     -------
@@ -383,9 +395,6 @@ def levels_of_patches(corners_scene, contrast, neighbour_contrast, model, eye_mm
     dirs = _unit(c_mm - eye)
     moving = eye_prev_mm is not None and dt_s > 0
 
-    def speed(points):
-        return point_speed_deg_s(points, eye, eye_prev_mm, dt_s) if moving else speed_deg_s
-
     # Inner: centre = mean of the corners; diameter = largest angle between two corners.
     centre = c_mm.mean(axis=-2)
     pairs = [(0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3)]
@@ -394,21 +403,23 @@ def levels_of_patches(corners_scene, contrast, neighbour_contrast, model, eye_mm
     reach = np.max([_angle_deg(cdir, dirs[..., k, :]) for k in range(4)], axis=0)
     contrast = np.asarray(contrast, np.float64)
     neighbour_contrast = np.asarray(neighbour_contrast, np.float64)
-    args = dict(eye_mm=eye, axes=axes, cov_deg2=cov_deg2, shift=shift, ellipse_sigma=ellipse_sigma,
-                level_bias=level_bias)
-    inner = _csf_level(centre, reach, diameter, contrast, speed_deg_s=speed(centre), **args)
     # Edges: west = NW-SW (corners 3, 0), south = SW-SE (0, 1), east = SE-NE (1, 2), north = NE-NW (2, 3);
     # the endpoints in a fixed order (west to east, south to north) so that neighbours compute the same numbers.
-    ends = [(0, 3), (0, 1), (1, 2), (3, 2)]
-    outer = []
-    for k, (a, b) in enumerate(ends):
-        mid = 0.5 * (c_mm[..., a, :] + c_mm[..., b, :])
-        mdir = _unit(mid - eye)
-        length = _angle_deg(dirs[..., a, :], dirs[..., b, :])
-        reach_e = np.maximum(_angle_deg(mdir, dirs[..., a, :]), _angle_deg(mdir, dirs[..., b, :]))
-        outer.append(_csf_level(mid, reach_e, length, np.maximum(contrast, neighbour_contrast[..., k]),
-                                speed_deg_s=speed(mid), **args))
-    return inner, np.stack(outer, axis=-1)
+    a, b = [3, 0, 1, 3], [0, 1, 2, 2]
+    mid = 0.5 * (c_mm[..., a, :] + c_mm[..., b, :])                               # (..., 4, 3)
+    mdir = _unit(mid - eye)
+    length = _angle_deg(dirs[..., a, :], dirs[..., b, :])
+    reach_e = np.maximum(_angle_deg(mdir, dirs[..., a, :]), _angle_deg(mdir, dirs[..., b, :]))
+    # The patch and its four edges as five pieces, evaluated together.
+    points = np.concatenate([centre[..., None, :], mid], axis=-2)                  # (..., 5, 3)
+    pieces_contrast = np.concatenate([contrast[..., None], np.maximum(contrast[..., None], neighbour_contrast)],
+                                     axis=-1)
+    speed = point_speed_deg_s(points, eye, eye_prev_mm, dt_s) if moving else speed_deg_s
+    levels = _csf_level(points, np.concatenate([reach[..., None], reach_e], axis=-1),
+                        np.concatenate([diameter[..., None], length], axis=-1), pieces_contrast, eye_mm=eye,
+                        axes=axes, cov_deg2=cov_deg2, shift=shift, ellipse_sigma=ellipse_sigma, speed_deg_s=speed,
+                        level_bias=level_bias, fmax_foveal=None if moving else fmax_foveal)
+    return levels[..., 0], levels[..., 1:]
 
 
 def tess_factors(levels: np.ndarray, max_level: int) -> np.ndarray:
