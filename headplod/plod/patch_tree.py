@@ -270,7 +270,7 @@ class PatchTree:
         model = np.asarray(model, np.float64)
         eye = np.asarray(eye_mm, np.float64)
         sv = np.linalg.svd(model[:3, :3], compute_uv=False)
-        eye_scene = np.linalg.solve(model, np.r_[eye, 1.0])[:3]
+        eye_scene = np.linalg.solve(model[:3, :3], eye - model[:3, 3])
         # Largest displacement of an offset (φ, θ) by the uncertainty shift, deg: the ellipse form moves
         # it by ellipse_sigma Mahalanobis units, eq. 1 by at most e^-1/2 of one.
         reach = 0.0

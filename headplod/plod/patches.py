@@ -277,6 +277,16 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+def _chord(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """|u - v| of unit vectors (..., 3)."""
+    return np.linalg.norm(u - v, axis=-1)
+
+
+def _chord_angle_deg(chord: np.ndarray) -> np.ndarray:
+    """The angle of a chord between unit vectors, deg (:func:`_angle_deg`'s second half)."""
+    return np.degrees(2 * np.arcsin(np.minimum(chord / 2, 1.0)))
+
+
 def _csf_level(points_mm, reach_deg, diameter_deg, contrast, eye_mm, axes, cov_deg2, shift, ellipse_sigma,
                speed_deg_s, level_bias, fmax_foveal=None):
     """Continuous level log2(f_max · diameter) of pieces seen from ``eye_mm`` (select.py's csf closed form).
@@ -395,12 +405,12 @@ def levels_of_patches(corners_scene, contrast, neighbour_contrast, model, eye_mm
     dirs = _unit(c_mm - eye)
     moving = eye_prev_mm is not None and dt_s > 0
 
+    # Angles are taken from chords (_angle_deg), and the largest angle is that of the largest chord.
     # Inner: centre = mean of the corners; diameter = largest angle between two corners.
     centre = c_mm.mean(axis=-2)
-    pairs = [(0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3)]
-    diameter = np.max([_angle_deg(dirs[..., a, :], dirs[..., b, :]) for a, b in pairs], axis=0)
+    diameter = _chord_angle_deg(_chord(dirs[..., [0, 1, 2, 3, 0, 1], :], dirs[..., [1, 2, 3, 0, 2, 3], :]).max(axis=-1))
     cdir = _unit(centre - eye)
-    reach = np.max([_angle_deg(cdir, dirs[..., k, :]) for k in range(4)], axis=0)
+    reach = _chord_angle_deg(_chord(cdir[..., None, :], dirs).max(axis=-1))
     contrast = np.asarray(contrast, np.float64)
     neighbour_contrast = np.asarray(neighbour_contrast, np.float64)
     # Edges: west = NW-SW (corners 3, 0), south = SW-SE (0, 1), east = SE-NE (1, 2), north = NE-NW (2, 3);
@@ -408,8 +418,8 @@ def levels_of_patches(corners_scene, contrast, neighbour_contrast, model, eye_mm
     a, b = [3, 0, 1, 3], [0, 1, 2, 2]
     mid = 0.5 * (c_mm[..., a, :] + c_mm[..., b, :])                               # (..., 4, 3)
     mdir = _unit(mid - eye)
-    length = _angle_deg(dirs[..., a, :], dirs[..., b, :])
-    reach_e = np.maximum(_angle_deg(mdir, dirs[..., a, :]), _angle_deg(mdir, dirs[..., b, :]))
+    length = _chord_angle_deg(_chord(dirs[..., a, :], dirs[..., b, :]))
+    reach_e = _chord_angle_deg(np.maximum(_chord(mdir, dirs[..., a, :]), _chord(mdir, dirs[..., b, :])))
     # The patch and its four edges as five pieces, evaluated together.
     points = np.concatenate([centre[..., None, :], mid], axis=-2)                  # (..., 5, 3)
     pieces_contrast = np.concatenate([contrast[..., None], np.maximum(contrast[..., None], neighbour_contrast)],

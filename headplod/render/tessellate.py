@@ -584,8 +584,8 @@ def _split_draws(counts: np.ndarray, most: int) -> list:
         return []
     g = group[nz]
     cut = np.flatnonzero(np.diff(g)) + 1
-    firsts = nz[np.r_[0, cut]]
-    lasts = nz[np.r_[cut - 1, len(nz) - 1]]
+    firsts = nz[np.concatenate(([0], cut))]
+    lasts = nz[np.concatenate((cut - 1, [len(nz) - 1]))]
     return [(int(a), int(b - a + 1)) for a, b in zip(firsts, lasts)]
 
 
