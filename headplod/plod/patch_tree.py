@@ -114,7 +114,8 @@ class NodeSelection:
     size : (m,) int32
         Its side, sample spacings.
     inner : (m,) int32
-        Inner tessellation factor, a power of two in ``[1, min(size, max_tess_level)]``.
+        Inner tessellation factor in ``[1, min(size, max_tess_level)]``: a leaf's is the flat path's (a power
+        of two), a larger node's any whole number.
     outer : (m, 4) int32
         Outer factors W, S, E, N.
     evaluated : int
