@@ -11,8 +11,12 @@ Grids are cached (:func:`headplod.plod.patches.jacksboro_grid`).
 
 Back ends:
 
-- ``tessellation`` (:mod:`headplod.render.tessellate`): patches of 64 samples,
-  the ``csf`` levels computed per patch on the GPU; on the largest terrain
+- ``tessellation`` (:mod:`headplod.render.tessellate`), with each selection
+  (:data:`SELECTIONS`): ``tree``, the quadtree of variable-size patches of
+  :mod:`headplod.plod.patch_tree` walked on the CPU (leaves of 64 samples);
+  ``flat``, patches of 64 samples, the ``csf`` levels computed per patch on
+  the GPU. The goals are the default selection's
+  (``TessellationConfig.hierarchy``). The flat one on the largest terrain
   also with patches of 128, 256 and 512 samples (``patch_sweep``: fewer
   patches to select and draw, more triangles).
 - ``full``: the whole grid as one indexed mesh (``TerrainRenderer``, 24 bytes
@@ -23,9 +27,10 @@ Each (back end, terrain) runs in its own process, so its peak resident
 memory (``ru_maxrss``) is its own: the cached grid loaded, the patch grid,
 the GL objects, the frames. Per case: the median over ``frames`` steady
 frames of the frame time (selection + draw, no read-back), the selection
-time (the CPU's share before drawing: for ``tessellation`` the uniforms, the
-control shader's levels pass and its 24-byte-per-patch read-back, the split
-into draw calls), the triangles drawn (``GL_PRIMITIVES_GENERATED``) and the
+time (the CPU's share before drawing: for ``tessellation`` the uniforms and
+the split into draw calls, with the flat selection's levels pass and its
+24-byte-per-patch read-back, or the tree's numpy walk and its 32-byte-per-node
+upload), the triangles drawn (``GL_PRIMITIVES_GENERATED``) and the
 PSNR within 5° of the POI against a full-detail render of that region (the
 tessellation back end at its finest level, drawing only the patches that
 reach the disc's bounding box: ``full`` of the whole 134M terrain need not
