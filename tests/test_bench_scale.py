@@ -25,6 +25,11 @@ def report(tmp_path_factory):
 
 
 def test_every_case_runs_and_reports(report):
+    assert {(c["samples"], c.get("hierarchy")) for c in report["cases"] if c["backend"] == "tessellation"} == {
+        (257, True), (257, False), (513, True), (513, False)}                  # both selections on every terrain
+    for c in report["cases"]:
+        if c["backend"] == "tessellation":
+            assert c["ok"] and c["psnr_disc_5deg_db"] >= plod_scale.GOAL_PSNR_DB, c
     cases = {(c["backend"], c["samples"]): c for c in report["cases"]}
     assert set(cases) == {("tessellation", 257), ("full", 257), ("tessellation", 513), ("full", 513)}
     assert not cases["full", 513]["ok"] and "not run" in cases["full", 513]["reason"]
@@ -40,9 +45,14 @@ def test_every_case_runs_and_reports(report):
 
 
 def test_goals_follow_the_cases(report):
+    from headplod.render.tessellate import TessellationConfig
+
     goals = {g["goal"]: g for g in report["goals"]}
-    big = next(c for c in report["cases"] if c["backend"] == "tessellation" and c["samples"] == 513)
-    small = next(c for c in report["cases"] if c["backend"] == "tessellation" and c["samples"] == 257)
+    default = TessellationConfig().hierarchy
+    big = next(c for c in report["cases"] if c["backend"] == "tessellation" and c["samples"] == 513
+               and c["hierarchy"] == default)
+    small = next(c for c in report["cases"] if c["backend"] == "tessellation" and c["samples"] == 257
+                 and c["hierarchy"] == default)
     growth = next(g for name, g in goals.items() if name.startswith("selection grows"))
     assert growth["value"] == pytest.approx(big["select_ms"] / small["select_ms"])
     fps = next(g for name, g in goals.items() if "fps" in name)

@@ -223,6 +223,13 @@ def test_render_cli_tessellation_backend(ctx430, tmp_path, monkeypatch, capsys):
     assert cli_main(["render", "--backend", "tessellation", "--terrain", str(tmp_path / "h.npy"), "--spacing-m", "30",
                      "--grid-samples", "129", "--size", "160,90", "--out", str(out), "--stats", str(stats)]) == 0
     assert json.loads(stats.read_text())["triangles"] > 0
+    # The hierarchy's selection from the command line; it refuses a grid whose patches per side are not 2^k.
+    assert cli_main(["render", "--backend", "tessellation", "--selection", "tree", "--grid-samples", "257",
+                     "--size", "160,90", "--out", str(out), "--stats", str(stats)]) == 0
+    assert json.loads(stats.read_text())["triangles"] > 0
+    assert cli_main(["render", "--backend", "tessellation", "--selection", "tree", "--grid-samples", "193",
+                     "--out", str(out)]) == 2
+    assert "power-of-two number of patches" in capsys.readouterr().err
 
 
 def _sample_colors(grid, height_range):

@@ -11,8 +11,12 @@ Grids are cached (:func:`headplod.plod.patches.jacksboro_grid`).
 
 Back ends:
 
-- ``tessellation`` (:mod:`headplod.render.tessellate`): patches of 64 samples,
-  the ``csf`` levels computed per patch on the GPU; on the largest terrain
+- ``tessellation`` (:mod:`headplod.render.tessellate`), with each selection
+  (:data:`SELECTIONS`): ``tree``, the quadtree of variable-size patches of
+  :mod:`headplod.plod.patch_tree` walked on the CPU (leaves of 64 samples);
+  ``flat``, patches of 64 samples, the ``csf`` levels computed per patch on
+  the GPU. The goals are the default selection's
+  (``TessellationConfig.hierarchy``). The flat one on the largest terrain
   also with patches of 128, 256 and 512 samples (``patch_sweep``: fewer
   patches to select and draw, more triangles).
 - ``full``: the whole grid as one indexed mesh (``TerrainRenderer``, 24 bytes
@@ -23,9 +27,10 @@ Each (back end, terrain) runs in its own process, so its peak resident
 memory (``ru_maxrss``) is its own: the cached grid loaded, the patch grid,
 the GL objects, the frames. Per case: the median over ``frames`` steady
 frames of the frame time (selection + draw, no read-back), the selection
-time (the CPU's share before drawing: for ``tessellation`` the uniforms, the
-control shader's levels pass and its 24-byte-per-patch read-back, the split
-into draw calls), the triangles drawn (``GL_PRIMITIVES_GENERATED``) and the
+time (the CPU's share before drawing: for ``tessellation`` the uniforms and
+the split into draw calls, with the flat selection's levels pass and its
+24-byte-per-patch read-back, or the tree's numpy walk and its 32-byte-per-node
+upload), the triangles drawn (``GL_PRIMITIVES_GENERATED``) and the
 PSNR within 5° of the POI against a full-detail render of that region (the
 tessellation back end at its finest level, drawing only the patches that
 reach the disc's bounding box: ``full`` of the whole 134M terrain need not
@@ -37,6 +42,7 @@ from __future__ import annotations
 
 import json
 import resource
+from dataclasses import replace
 import subprocess
 import sys
 import time
@@ -48,6 +54,8 @@ SIZE = (1280, 720)
 SCALE_SAMPLES = (1025, 2049, 4097, 8193)
 QUICK_SAMPLES = (1025, 2049)
 BACKENDS = ("tessellation", "full")
+#: The tessellation's selections each terrain is measured with: the hierarchy (plod.patch_tree) and the flat grid.
+SELECTIONS = ("tree", "flat")
 #: Largest grid the ``full`` back end is run on by default (samples per side).
 FULL_MAX_SAMPLES = 2049
 #: Patch size of the scale runs, samples: the finest level has a vertex per sample.
@@ -82,7 +90,7 @@ def _disc_region(screen, head, size):
 
 
 def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir=None, level_bias: float = 0.0,
-             patch_samples: int | None = None) -> dict:
+             patch_samples: int | None = None, hierarchy: bool | None = None, split_factor: int | None = None) -> dict:
     """One (back end, terrain) measured in this process; the result dict (see the module notes).
 
     The frames come first and the peak memory is read after them; the references (drawn by the
@@ -111,6 +119,9 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     grid = PatchGrid.build(z, dx, dy, p, origin_m=origin)
     model = grid_model(grid, screen)
     config = TessellationConfig(patch_samples=p, level_bias=level_bias)
+    if hierarchy is not None or split_factor is not None:
+        config = replace(config, **({} if hierarchy is None else {"hierarchy": bool(hierarchy)}),
+                         **({} if split_factor is None else {"split_factor": int(split_factor)}))
     steady, extra = [], {}
     if backend == "tessellation":
         tess = TessellationRenderer(ctx, grid, size=size, config=config)
@@ -119,6 +130,11 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
             image, st = render_frame(tess, screen, model, head, poi, COV_DEG2, t=k / 60)
             if k:
                 steady.append((st["select_ms"], st["render_ms"], st["triangles"], st["draw_calls"]))
+        extra["drawn_patches"] = int(st["patches"])
+        if tess.last_selection is not None and backend == "tessellation" and config.hierarchy:
+            extra["nodes_evaluated"] = int(tess.last_selection.evaluated)
+            extra["nodes_by_depth"] = np.bincount(tess.last_selection.depth, minlength=tess._tree.depth + 1).tolist()
+            extra["capped"] = int(tess.last_selection.capped)
     else:
         n = grid.heights_m.shape[0]
         xs = grid.origin_m[0] + np.arange(n, dtype=np.float64) * grid.dx_m
@@ -161,6 +177,7 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     select_ms, render_ms = (float(np.median([s[j] for s in steady])) for j in range(2))
     return {"backend": backend, "samples": n_samples, "level_bias": level_bias, "full_triangles": grid.full_triangles,
             "shading": "vertex" if backend == "full" else config.shading,
+            "hierarchy": bool(config.hierarchy) and backend == "tessellation", "split_factor": config.split_factor,
             "patch_samples": p, "patches": grid.n_patches ** 2, "frames": frames,
             "frame_ms": select_ms + render_ms, "select_ms": select_ms, "render_ms": render_ms,
             "fps": 1e3 / (select_ms + render_ms), "triangles": int(steady[-1][2]), "draw_calls": int(steady[-1][3]),
@@ -170,9 +187,10 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
             "select_ms_all": [s[0] for s in steady], "render_ms_all": [s[1] for s in steady]}
 
 
-def _run_in_subprocess(backend: str, n_samples: int, frames: int, cache_dir, patch_samples=MIN_PATCH_SAMPLES) -> dict:
+def _run_in_subprocess(backend: str, n_samples: int, frames: int, cache_dir, patch_samples=MIN_PATCH_SAMPLES,
+                       selection: str | None = None) -> dict:
     cmd = [sys.executable, "-m", "headplod.bench.plod_scale", backend, str(n_samples), str(frames),
-           "-" if cache_dir is None else str(cache_dir), "0", str(patch_samples)]
+           "-" if cache_dir is None else str(cache_dir), "0", str(patch_samples), selection or "-"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         return {"backend": backend, "samples": n_samples, "ok": False,
@@ -181,10 +199,13 @@ def _run_in_subprocess(backend: str, n_samples: int, frames: int, cache_dir, pat
 
 
 def scale_report(samples=SCALE_SAMPLES, frames: int = 9, full_max_samples: int = FULL_MAX_SAMPLES,
-                 cache_dir=None, progress=None, patch_sweep: bool = True) -> dict:
+                 cache_dir=None, progress=None, patch_sweep: bool = True, selections=SELECTIONS) -> dict:
     """Measure every (back end, terrain) in its own process; the report (cases, patch sweep, goals).
 
     ``full`` runs on the grids up to ``full_max_samples`` per side; larger ones are listed as not run.
+    ``selections``: the tessellation's selections measured on every terrain (``tree``: the hierarchy of
+    :mod:`headplod.plod.patch_tree`; ``flat``: every patch's levels on the GPU); the goals are the
+    default's (``TessellationConfig.hierarchy``), the selection growth of each is listed.
     ``patch_sweep``: also the tessellation on the largest terrain with the larger patches of
     :data:`SWEEP_PATCH_SAMPLES` (the trade between selection and draw).
     """
@@ -201,22 +222,27 @@ def scale_report(samples=SCALE_SAMPLES, frames: int = 9, full_max_samples: int =
                               "reason": f"not run: the mesh of {2 * (n - 1) ** 2 / 1e6:.0f}M triangles needs "
                                         f"{(24 * n * n + 12 * 2 * (n - 1) ** 2) / 2 ** 30:.1f} GB of buffers"})
                 continue
-            say(f"{backend} on {n}x{n}")
-            cases.append(_run_in_subprocess(backend, n, frames, cache_dir))
-            say("  " + _row(cases[-1]))
+            for selection in (selections if backend == "tessellation" else (None,)):
+                say(f"{backend}{'' if selection is None else ' (' + selection + ')'} on {n}x{n}")
+                cases.append(_run_in_subprocess(backend, n, frames, cache_dir, selection=selection))
+                say("  " + _row(cases[-1]))
     sweep = []
     if patch_sweep:
         for p in SWEEP_PATCH_SAMPLES:
             if p != MIN_PATCH_SAMPLES and (max(samples) - 1) % p == 0:
                 say(f"tessellation on {max(samples)}x{max(samples)}, patches of {p} samples")
-                sweep.append(_run_in_subprocess("tessellation", max(samples), frames, cache_dir, p))
+                sweep.append(_run_in_subprocess("tessellation", max(samples), frames, cache_dir, p, selection="flat"))
                 say("  " + _row(sweep[-1]))
     return {"size": list(SIZE), "patch_samples": MIN_PATCH_SAMPLES, "cov_deg2": COV_DEG2.tolist(), "cases": cases,
             "patch_sweep": sweep, "goals": _goals(cases, samples)}
 
 
 def _goals(cases, samples) -> list:
-    tess = {c["samples"]: c for c in cases if c["backend"] == "tessellation" and c.get("ok")}
+    from ..render.tessellate import TessellationConfig
+
+    default = TessellationConfig().hierarchy
+    tess = {c["samples"]: c for c in cases if c["backend"] == "tessellation" and c.get("ok")
+            and c.get("hierarchy", False) == default}
     goals = []
     big, small = max(samples), min(samples)
     if big in tess:
@@ -234,6 +260,14 @@ def _goals(cases, samples) -> list:
         growth = tess[big]["select_ms"] / max(tess[small]["select_ms"], 1e-9)
         goals.append({"goal": f"selection grows <= {GOAL_SELECT_GROWTH:g}x from the smallest to the largest terrain",
                       "value": growth, "met": bool(growth <= GOAL_SELECT_GROWTH)})
+    for hierarchy in (True, False):        # each selection's growth, for the comparison
+        sel = {c["samples"]: c for c in cases if c["backend"] == "tessellation" and c.get("ok")
+               and c.get("hierarchy", False) == hierarchy}
+        if hierarchy != default and big in sel and small in sel:
+            growth = sel[big]["select_ms"] / max(sel[small]["select_ms"], 1e-9)
+            goals.append({"goal": f"({'tree' if hierarchy else 'flat'} selection, not the default) selection grows "
+                                  f"<= {GOAL_SELECT_GROWTH:g}x", "value": growth,
+                          "met": bool(growth <= GOAL_SELECT_GROWTH)})
     return goals
 
 
@@ -241,6 +275,8 @@ def _row(c) -> str:
     if not c.get("ok"):
         return f"{c['backend']:13s} {c['samples']:5d}  -- {c.get('reason')}"
     name = c["backend"] if c.get("patch_samples", MIN_PATCH_SAMPLES) == MIN_PATCH_SAMPLES else f"tess P={c['patch_samples']}"
+    if c["backend"] == "tessellation":
+        name = ("tess tree" if c.get("hierarchy") else "tess flat") + name[len("tessellation"):]
     return (f"{name:13s} {c['samples']:5d} {c['full_triangles'] / 1e6:7.1f}M {c['frame_ms']:9.1f} "
             f"{c['select_ms']:8.2f} {c['rss_mb']:8.0f} {c['triangles']:10d} {c['psnr_disc_5deg_db']:7.1f} "
             f"{c['psnr_disc_5deg_ssaa_db']:7.1f}")
@@ -257,10 +293,12 @@ def _chart(report, path) -> None:
               ("rss_mb", "peak resident memory (MB)"), ("triangles", "triangles drawn"),
               ("psnr_disc_5deg_db", "PSNR within 5° of the POI (dB)"), ("fps", "frames per second"))
     for ax, (key, title) in zip(axs.ravel(), panels):
-        for backend, style in (("tessellation", "o-"), ("full", "s--")):
-            cs = [c for c in report["cases"] if c["backend"] == backend and c.get("ok")]
+        for backend, hierarchy, style, label in (("tessellation", True, "o-", "tessellation, tree selection (csf)"),
+                                                 ("tessellation", False, "^-", "tessellation, flat selection (csf)"),
+                                                 ("full", False, "s--", "full (indexed mesh)")):
+            cs = [c for c in report["cases"] if c["backend"] == backend and c.get("ok")
+                  and c.get("hierarchy", False) == hierarchy]
             if cs:
-                label = "tessellation (csf)" if backend == "tessellation" else "full (indexed mesh)"
                 ax.plot([c["full_triangles"] for c in cs], [min(c[key], 99.0) if key.startswith("psnr") else c[key]
                                                             for c in cs], style, label=label)
         ax.set_xscale("log")
@@ -270,7 +308,10 @@ def _chart(report, path) -> None:
         ax.set_xlabel("terrain triangles at full detail")
         ax.grid(True, which="both", alpha=0.3)
     axs[0, 2].axhline(GOAL_RSS_MB, color="r", lw=0.8, ls=":")
-    cs = [c for c in report["cases"] if c["backend"] == "tessellation" and c.get("ok")]
+    from ..render.tessellate import TessellationConfig
+
+    cs = [c for c in report["cases"] if c["backend"] == "tessellation" and c.get("ok")
+          and c.get("hierarchy", False) == TessellationConfig().hierarchy]
     if cs:
         axs[1, 1].plot([c["full_triangles"] for c in cs], [c["psnr_disc_5deg_ssaa_db"] for c in cs], "o:",
                        label="tessellation against the 4x4-supersampled reference")
@@ -306,9 +347,12 @@ def run_scale_bench(json_path=None, chart_path=None, quick: bool = False) -> int
     return 0
 
 
-if __name__ == "__main__":  # one case, for scale_report's subprocesses: BACKEND SAMPLES FRAMES [CACHE_DIR [BIAS [PATCH]]]
+if __name__ == "__main__":  # one case (scale_report's subprocesses): BACKEND SAMPLES FRAMES [CACHE_DIR [BIAS [PATCH [tree|flat [SPLIT]]]]]; "-" = default
     _backend, _n, _frames = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
     _cache = sys.argv[4] if len(sys.argv) > 4 and sys.argv[4] != "-" else None
-    _result = run_case(_backend, _n, _frames, cache_dir=_cache, level_bias=float(sys.argv[5]) if len(sys.argv) > 5 else 0.0,
-                       patch_samples=int(sys.argv[6]) if len(sys.argv) > 6 else None)
+    _arg = (lambda k: sys.argv[k] if len(sys.argv) > k and sys.argv[k] != "-" else None)
+    _result = run_case(_backend, _n, _frames, cache_dir=_cache, level_bias=float(_arg(5) or 0.0),
+                       patch_samples=int(_arg(6)) if _arg(6) else None,
+                       hierarchy={"tree": True, "flat": False, None: None}[_arg(7)],
+                       split_factor=int(_arg(8)) if _arg(8) else None)
     print(json.dumps(_result))

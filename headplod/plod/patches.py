@@ -40,7 +40,8 @@ from scipy import ndimage as ndi
 from . import perception as pc
 from .terrain import Terrain, _bspline_weights
 
-__all__ = ["height_grid", "jacksboro_grid", "grid_normals", "PatchGrid", "patch_levels", "tess_factors", "EDGE_NAMES"]
+__all__ = ["height_grid", "jacksboro_grid", "grid_normals", "PatchGrid", "patch_levels", "levels_of_patches",
+           "point_speed_deg_s", "tess_factors", "EDGE_NAMES"]
 
 #: The detail's shortest wavelength on :func:`jacksboro_grid`'s grids, sample spacings: each grid has detail
 #: down to its own resolution.
@@ -276,14 +277,32 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+def _chord(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """|u - v| of unit vectors (..., 3)."""
+    return np.linalg.norm(u - v, axis=-1)
+
+
+def _chord_angle_deg(chord: np.ndarray) -> np.ndarray:
+    """The angle of a chord between unit vectors, deg (:func:`_angle_deg`'s second half)."""
+    return np.degrees(2 * np.arcsin(np.minimum(chord / 2, 1.0)))
+
+
 def _csf_level(points_mm, reach_deg, diameter_deg, contrast, eye_mm, axes, cov_deg2, shift, ellipse_sigma,
-               speed_deg_s, level_bias):
-    """Continuous level log2(f_max · diameter) of pieces seen from ``eye_mm`` (select.py's csf closed form)."""
+               speed_deg_s, level_bias, fmax_foveal=None):
+    """Continuous level log2(f_max · diameter) of pieces seen from ``eye_mm`` (select.py's csf closed form).
+
+    ``fmax_foveal``: f_max at eccentricity 0 of each piece (its contrast and speed), cpd, if known: the same
+    number as ``max_visible_freq_cpd`` (kelly_scaled divides the foveal f_max by 1 + 0.29 e), without its
+    Lambert W.
+    """
     offsets = pc.view_offsets_deg(points_mm, eye_mm, axes)
     if cov_deg2 is not None:
         offsets = pc.uncertainty_shift(offsets, cov_deg2, shift, ellipse_sigma)
     ecc = np.maximum(pc.eccentricity_deg(offsets) - reach_deg, 0.0)
-    fmax = pc.max_visible_freq_cpd(contrast, speed_deg_s, ecc, model="kelly_scaled")
+    if fmax_foveal is None:
+        fmax = pc.max_visible_freq_cpd(contrast, speed_deg_s, ecc, model="kelly_scaled")
+    else:
+        fmax = np.asarray(fmax_foveal, np.float64) / pc.eccentricity_factor(ecc)
     with np.errstate(divide="ignore"):
         return pc.lod_continuous(1.0 / np.maximum(diameter_deg, 1e-9), np.maximum(fmax, 1e-12)) + level_bias
 
@@ -328,35 +347,89 @@ def patch_levels(grid: PatchGrid, model: np.ndarray, eye_mm, axes, cov_deg2=None
     outer : (n, n, 4) float64
         Continuous level of each patch's edges in :data:`EDGE_NAMES` order.
     """
+    corners = grid.corners_scene()                                               # (n, n, 4, 3)
+    contrast = grid.contrast.astype(np.float64)
+    padded = np.pad(contrast, 1, mode="edge")
+    neighbour = np.stack([padded[1:-1, :-2], padded[:-2, 1:-1], padded[1:-1, 2:], padded[2:, 1:-1]], axis=-1)
+    return levels_of_patches(corners, contrast, neighbour, model, eye_mm, axes, cov_deg2, shift=shift,
+                             ellipse_sigma=ellipse_sigma, speed_deg_s=speed_deg_s, level_bias=level_bias)
+
+
+def point_speed_deg_s(points_mm, eye_mm, eye_prev_mm=None, dt_s: float = 0.0):
+    """Angular speed of world points (..., 3) mm seen from an eye that moved, deg/s (the shader's rule).
+
+    The angle between the directions from the last and the current eye over ``dt_s``, floored at
+    :data:`perception.MIN_SPEED_DEG_S`; the floor everywhere when ``dt_s <= 0`` or no last eye.
+    """
+    pts = np.asarray(points_mm, np.float64)
+    if eye_prev_mm is None or not dt_s > 0:
+        return np.full(pts.shape[:-1], pc.MIN_SPEED_DEG_S)
+    a = _angle_deg(_unit(pts - np.asarray(eye_prev_mm, np.float64)), _unit(pts - np.asarray(eye_mm, np.float64)))
+    return np.maximum(a / dt_s, pc.MIN_SPEED_DEG_S)
+
+
+def levels_of_patches(corners_scene, contrast, neighbour_contrast, model, eye_mm, axes, cov_deg2=None, *,
+                      shift: str = "ellipse", ellipse_sigma: float = 2.0, speed_deg_s=pc.MIN_SPEED_DEG_S,
+                      level_bias: float = 0.0, eye_prev_mm=None, dt_s: float = 0.0, fmax_foveal=None):
+    """:func:`patch_levels`' closed form on any set of patches (the flat grid's, or a quadtree's leaves).
+
+    Parameters
+    ----------
+    corners_scene : (..., 4, 3)
+        Each patch's corners SW, SE, NE, NW, scene metres.
+    contrast : (...,)
+        Each patch's shading contrast.
+    neighbour_contrast : (..., 4)
+        The contrast of the patch across each edge (W, S, E, N; its own at the grid's border).
+    model, eye_mm, axes, cov_deg2, shift, ellipse_sigma, speed_deg_s, level_bias
+        As :func:`patch_levels`.
+    eye_prev_mm : (3,) or None; dt_s : float
+        The last frame's eye (world mm) and the time since, s: when given (``dt_s > 0``), each point's
+        speed is :func:`point_speed_deg_s`'s (the shader's rule) instead of ``speed_deg_s``.
+    fmax_foveal : (..., 5) or None
+        Optional: the foveal f_max (eccentricity 0) of the inner piece and of each edge at
+        ``speed_deg_s`` (cpd), precomputed (:class:`headplod.plod.patch_tree.PatchTree` does, once);
+        ignored when the eye moves. The levels are the same numbers.
+
+    Returns
+    -------
+    inner : (...,) float64
+    outer : (..., 4) float64
+        As :func:`patch_levels`.
+    """
     model = np.asarray(model, np.float64)
     eye = np.asarray(eye_mm, np.float64)
-    corners = grid.corners_scene()                                               # (n, n, 4, 3)
+    corners = np.asarray(corners_scene, np.float64)
     homog = np.concatenate([corners, np.ones(corners.shape[:-1] + (1,))], axis=-1)
     c_mm = (homog @ model.T)[..., :3]
     dirs = _unit(c_mm - eye)
+    moving = eye_prev_mm is not None and dt_s > 0
+
+    # Angles are taken from chords (_angle_deg), and the largest angle is that of the largest chord.
     # Inner: centre = mean of the corners; diameter = largest angle between two corners.
-    centre = c_mm.mean(axis=2)
-    pairs = [(0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3)]
-    diameter = np.max([_angle_deg(dirs[..., a, :], dirs[..., b, :]) for a, b in pairs], axis=0)
+    centre = c_mm.mean(axis=-2)
+    diameter = _chord_angle_deg(_chord(dirs[..., [0, 1, 2, 3, 0, 1], :], dirs[..., [1, 2, 3, 0, 2, 3], :]).max(axis=-1))
     cdir = _unit(centre - eye)
-    reach = np.max([_angle_deg(cdir, dirs[..., k, :]) for k in range(4)], axis=0)
-    contrast = grid.contrast.astype(np.float64)
-    args = dict(eye_mm=eye, axes=axes, cov_deg2=cov_deg2, shift=shift, ellipse_sigma=ellipse_sigma,
-                speed_deg_s=speed_deg_s, level_bias=level_bias)
-    inner = _csf_level(centre, reach, diameter, contrast, **args)
+    reach = _chord_angle_deg(_chord(cdir[..., None, :], dirs).max(axis=-1))
+    contrast = np.asarray(contrast, np.float64)
+    neighbour_contrast = np.asarray(neighbour_contrast, np.float64)
     # Edges: west = NW-SW (corners 3, 0), south = SW-SE (0, 1), east = SE-NE (1, 2), north = NE-NW (2, 3);
     # the endpoints in a fixed order (west to east, south to north) so that neighbours compute the same numbers.
-    ends = [(0, 3), (0, 1), (1, 2), (3, 2)]
-    padded = np.pad(contrast, 1, mode="edge")
-    neighbour = [padded[1:-1, :-2], padded[:-2, 1:-1], padded[1:-1, 2:], padded[2:, 1:-1]]   # W, S, E, N
-    outer = []
-    for k, (a, b) in enumerate(ends):
-        mid = 0.5 * (c_mm[..., a, :] + c_mm[..., b, :])
-        mdir = _unit(mid - eye)
-        length = _angle_deg(dirs[..., a, :], dirs[..., b, :])
-        reach_e = np.maximum(_angle_deg(mdir, dirs[..., a, :]), _angle_deg(mdir, dirs[..., b, :]))
-        outer.append(_csf_level(mid, reach_e, length, np.maximum(contrast, neighbour[k]), **args))
-    return inner, np.stack(outer, axis=-1)
+    a, b = [3, 0, 1, 3], [0, 1, 2, 2]
+    mid = 0.5 * (c_mm[..., a, :] + c_mm[..., b, :])                               # (..., 4, 3)
+    mdir = _unit(mid - eye)
+    length = _chord_angle_deg(_chord(dirs[..., a, :], dirs[..., b, :]))
+    reach_e = _chord_angle_deg(np.maximum(_chord(mdir, dirs[..., a, :]), _chord(mdir, dirs[..., b, :])))
+    # The patch and its four edges as five pieces, evaluated together.
+    points = np.concatenate([centre[..., None, :], mid], axis=-2)                  # (..., 5, 3)
+    pieces_contrast = np.concatenate([contrast[..., None], np.maximum(contrast[..., None], neighbour_contrast)],
+                                     axis=-1)
+    speed = point_speed_deg_s(points, eye, eye_prev_mm, dt_s) if moving else speed_deg_s
+    levels = _csf_level(points, np.concatenate([reach[..., None], reach_e], axis=-1),
+                        np.concatenate([diameter[..., None], length], axis=-1), pieces_contrast, eye_mm=eye,
+                        axes=axes, cov_deg2=cov_deg2, shift=shift, ellipse_sigma=ellipse_sigma, speed_deg_s=speed,
+                        level_bias=level_bias, fmax_foveal=None if moving else fmax_foveal)
+    return levels[..., 0], levels[..., 1:]
 
 
 def tess_factors(levels: np.ndarray, max_level: int) -> np.ndarray:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -62,6 +63,10 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
                         help="tessellation: samples per side of the terrain's height grid (the built-in one or "
                              "--terrain's, resampled), 1 + a multiple of 64 (default 1025: 2M triangles at full "
                              "detail; 8193: 134M)")
+    render.add_argument("--selection", choices=("flat", "tree"), default=None,
+                        help="tessellation: flat = every patch's levels on the GPU; tree = a quadtree of "
+                             "variable-size patches walked on the CPU (headplod.plod.patch_tree; needs "
+                             "(grid samples - 1) / 64 a power of two). Default: TessellationConfig's")
     render.add_argument("--out", required=True, help="output image (PNG)")
     render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
     render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
@@ -169,9 +174,16 @@ def _run_tessellation(args, screen, cov, size) -> int:
               file=sys.stderr)
         return 2
     config = TessellationConfig()
+    if getattr(args, "selection", None) is not None:
+        config = replace(config, hierarchy=args.selection == "tree")
     n = args.grid_samples
     if n < config.patch_samples + 1 or (n - 1) % config.patch_samples:
         print(f"headplod: --grid-samples must be 1 + a multiple of {config.patch_samples}, got {n}", file=sys.stderr)
+        return 2
+    patches = (n - 1) // config.patch_samples
+    if config.hierarchy and patches & (patches - 1):
+        print(f"headplod: --selection tree needs a power-of-two number of patches per side: --grid-samples {n} "
+              f"gives {patches} (1 + 64 x 2^k: 129, 257, 513, 1025, ...)", file=sys.stderr)
         return 2
     terrain, status = terrain_for_command(args, "headplod")     # --terrain FILE: a person's own terrain
     if status is not None:

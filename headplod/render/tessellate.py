@@ -25,6 +25,14 @@ The second PLOD back end (issue 14), beside the CPU one (``LevelSelector`` +
   patch at a time and a vertex shader 8 at a time (16384 patches: 19 ms
   against 66 ms). Either writes the levels to a storage buffer; the draw's
   control shader turns them into tessellation factors.
+- Or, with ``TessellationConfig.hierarchy``, a quadtree of variable-size
+  patches (:class:`headplod.plod.patch_tree.PatchTree`): walked in numpy
+  per frame, refined only where the CSF needs it, 2:1 balanced, with
+  crack-free factors on transition edges. Its drawn nodes are uploaded as
+  records (origin sample, size, inner and outer factors: 32 bytes a node) to
+  a storage buffer the control and evaluation shaders read by the patch's
+  ``gl_VertexID``; no levels pass. The CPU's share is the walk and the upload.
+  ``mode="full"`` (the reference) always draws the flat grid.
 - Two llvmpipe limits shape the draw. It numbers a draw call's tessellated
   vertices with 16 bits (past 65536, triangles join vertices of other
   patches), so the levels are read back (24 bytes per patch) and the
@@ -69,6 +77,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..plod.patch_tree import PatchTree
 from ..plod.patches import PatchGrid, max_level_for, tess_factors
 from .context import moderngl
 from .gl import _FRAGMENT_SHADER, read_rgb
@@ -132,6 +141,22 @@ class TessellationConfig:
         tessellation control shader (one patch at a time on llvmpipe, and
         again in the draw). Both write the same storage buffer; the draw's
         control shader turns its levels into factors.
+    hierarchy : bool
+        Select with :class:`headplod.plod.patch_tree.PatchTree` (a quadtree
+        of patches of ``patch_samples * 2^k`` samples, walked in numpy, its
+        nodes' factors uploaded as records; no levels pass) instead of the
+        flat grid of patches evaluated on the GPU. Needs a power-of-two
+        number of patches per side. ``mode="full"`` always draws the flat grid.
+        Off by default: on the scale bench's view (busy 2-core machine,
+        medians of 5 interleaved runs) its selection grows 1.5x from 2M to
+        134M triangles (3.6 -> 5.4 ms; flat: 1.1 -> 8.0 ms, 7x), but at 134M
+        its merged nodes draw 177k triangles against the flat path's 147k
+        (a node shows all its patches at its worst patch's bounded level),
+        so the frame is slower (143 ms against 110 ms).
+    split_factor : int
+        With ``hierarchy``: the largest tessellation factor (segments per
+        side) of a node larger than a patch; a node that needs more is split
+        (a power of two <= ``max_tess_level``; 16).
     """
 
     patch_samples: int = 64
@@ -146,12 +171,19 @@ class TessellationConfig:
     light_dir: tuple = (0.4, -0.3, 0.85)
     ambient: float = 0.25
     csf_stage: str = "vertex"
+    hierarchy: bool = False
+    split_factor: int = 16
 
     def __post_init__(self):
-        for name in ("patch_samples", "max_tess_level"):
+        for name in ("patch_samples", "max_tess_level", "split_factor"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1 or v & (v - 1):
                 raise ValueError(f"TessellationConfig.{name} must be a power of two >= 1, got {v!r}")
+        if not isinstance(self.hierarchy, (bool, np.bool_)):
+            raise ValueError(f"TessellationConfig.hierarchy must be a bool, got {self.hierarchy!r}")
+        if self.split_factor > self.max_tess_level:
+            raise ValueError(f"TessellationConfig.split_factor ({self.split_factor}) must be <= max_tess_level "
+                             f"({self.max_tess_level})")
         if self.csf_stage not in ("vertex", "control"):
             raise ValueError(f"TessellationConfig.csf_stage must be 'vertex' or 'control', got {self.csf_stage!r}")
         if self.shading not in ("texture", "vertex"):
@@ -199,6 +231,14 @@ uniform vec2 u_spacing_m;         // (dx, dy)
 uniform mat4 u_mvp;               // T_clip_scene
 
 ivec2 patch_of(int id) { return ivec2(id % u_patches, id / u_patches); }     // (column, row)
+
+#ifdef TREE
+// The hierarchy's nodes (patch_tree.NodeSelection.records): (column, row, size, inner), (outer W, S, E, N).
+layout(std430, binding = 3) readonly buffer Nodes { ivec4 nodes[]; };
+void patch_box(int id, out ivec2 origin, out int size) { ivec4 a = nodes[2 * id]; origin = a.xy; size = a.z; }
+#else
+void patch_box(int id, out ivec2 origin, out int size) { origin = patch_of(id) * u_patch_samples; size = u_patch_samples; }
+#endif
 
 vec3 sample_point(ivec2 s) {      // scene position of sample (column, row)
     return vec3(u_origin_m + vec2(s) * u_spacing_m, texelFetch(u_height, s, 0).r);
@@ -376,6 +416,12 @@ patch out int p_id;               // the patch (gl_PrimitiveID in the evaluation
 void main() {
     int id = v_patch[0];
     p_id = id;
+#ifdef TREE
+    ivec4 node = nodes[2 * id], node_outer = nodes[2 * id + 1];
+    for (int e = 0; e < 4; ++e) gl_TessLevelOuter[e] = float(node_outer[e]);
+    gl_TessLevelInner[0] = gl_TessLevelInner[1] = float(node.w);
+    return;
+#endif
     float inner, outer[4];
     bool culled;
 #if defined(CSF_HERE) || defined(LEVELS_OUT)
@@ -441,10 +487,11 @@ out vec2 t_sample;                // the vertex's sample (column, row), for the 
 #endif
 
 void main() {
-    int P = u_patch_samples;
-    ivec2 pq = patch_of(p_id);
+    ivec2 s0;
+    int P;                                              // the patch's (or node's) size, samples
+    patch_box(p_id, s0, P);
     vec2 uv = gl_TessCoord.xy;
-    ivec2 s = pq * P + ivec2(round(uv * float(P)));     // on the sample grid: shared vertices are identical
+    ivec2 s = s0 + ivec2(round(uv * float(P)));         // on the sample grid: shared vertices are identical
     vec3 pos = sample_point(s);
     gl_Position = u_mvp * vec4(pos, 1.0);
 #ifdef SAMPLES_OUT
@@ -531,6 +578,23 @@ void main() { f_color = vec4(0.0); }
 """
 
 
+def _split_draws(counts: np.ndarray, most: int) -> list:
+    """Draw calls ``(first, count)`` over patches with these vertex bounds (0: not drawn), each < 65536 vertices.
+
+    ``most``: the largest bound one patch can have; a call's patches are consecutive.
+    """
+    counts = np.asarray(counts, np.int64)
+    group = (np.cumsum(counts) - counts) // (VERTICES_PER_DRAW - most)   # each group < VERTICES_PER_DRAW
+    nz = np.flatnonzero(counts)
+    if not len(nz):
+        return []
+    g = group[nz]
+    cut = np.flatnonzero(np.diff(g)) + 1
+    firsts = nz[np.concatenate(([0], cut))]
+    lasts = nz[np.concatenate((cut - 1, [len(nz) - 1]))]
+    return [(int(a), int(b - a + 1)) for a, b in zip(firsts, lasts)]
+
+
 def _variant(source: str, *defines: str) -> str:
     head, rest = source.lstrip().split("\n", 1)
     return head + "\n" + "".join(f"#define {d} 1\n" for d in defines) + rest
@@ -557,7 +621,12 @@ class TessellationRenderer:
     last_render_ms : float
         Clear + draw + ``ctx.finish()`` of the last :meth:`render`, ms (no read-back).
     last_setup_ms : float
-        CPU time of the last frame's uniforms (the selection's CPU share), ms.
+        Time from the frame's start to its draw (the selection's CPU share: the flat path's levels pass,
+        read-back and split, or the hierarchy's walk and upload; the uniforms), ms.
+    last_nodes : int
+        Patches (flat) or nodes (hierarchy) the last frame drew.
+    last_selection : NodeSelection or None
+        The hierarchy's last selection.
     last_triangles : int
         Triangles the last :meth:`render` generated (``GL_PRIMITIVES_GENERATED``).
     height_range : (2,) float
@@ -604,6 +673,12 @@ class TessellationRenderer:
         self._prev = None        # (eye_mm, t) of the last frame, for the angular speed
         self._levels_buffer = None
         self.last_draw_calls = 0
+        # The hierarchy: the tree's bounds (built once), the node records' buffer, the last selection.
+        self._tree = (PatchTree(grid, config.split_factor, config.max_tess_level) if config.hierarchy else None)
+        self._node_buffer = None
+        self._tree_frame = False
+        self.last_selection = None
+        self.last_nodes = 0
 
     def _bake_colors(self):
         """The colour texture of ``texture`` shading: RGBA8 (n, n), every sample's colour, mipmapped.
@@ -648,20 +723,26 @@ class TessellationRenderer:
     # -- programs --------------------------------------------------------------
 
     def _program(self, kind: str):
-        """``draw`` (image), ``levels`` (the levels pass: levels into the buffer), ``samples`` (triangles' samples)."""
+        """``draw`` (image), ``levels`` (the levels pass: levels into the buffer), ``samples`` (triangles' samples);
+        ``draw_tree``, ``samples_tree``: the same from the hierarchy's node records."""
         if kind not in self._programs:
+            tree = kind.endswith("_tree")
             here = ("CSF_HERE",) if self.config.csf_stage == "control" else ()
+            if tree:
+                kind, here = kind[:-len("_tree")], ("TREE",)
             if kind == "levels" and self.config.csf_stage == "vertex":
                 prog = self.ctx.program(vertex_shader=_LEVELS_VERTEX, fragment_shader=_NO_FRAGMENT)
             else:
                 control = _variant(_CONTROL, "LEVELS_OUT") if kind == "levels" else _variant(_CONTROL, *here)
                 textured = kind == "draw" and self.config.shading == "texture"
-                evaluation = (_variant(_EVALUATION, "SAMPLES_OUT") if kind == "samples" else
-                              _variant(_EVALUATION, "TEXTURE_SHADING") if textured else _EVALUATION)
+                evaluation = _variant(_EVALUATION, *(("SAMPLES_OUT",) if kind == "samples" else
+                                                     ("TEXTURE_SHADING",) if textured else ()),
+                                      *(("TREE",) if tree else ()))
                 prog = self.ctx.program(vertex_shader=_VERTEX, tess_control_shader=control,
                                         tess_evaluation_shader=evaluation,
                                         geometry_shader=_GEOMETRY_SAMPLES if kind == "samples" else None,
                                         fragment_shader=_TEXTURE_FRAGMENT if textured else _FRAGMENT_SHADER)
+            kind = kind + ("_tree" if tree else "")
             self._programs[kind] = prog
             self._vaos[kind] = self.ctx.vertex_array(prog, [])
         return self._programs[kind]
@@ -700,6 +781,10 @@ class TessellationRenderer:
                     prog[name].value = value
 
     def _bind(self):
+        if self._levels_buffer is not None:
+            self._levels_buffer.bind_to_storage_buffer(0)
+        if self._node_buffer is not None:
+            self._node_buffer.bind_to_storage_buffer(3)
         self._height.use(0)
         self._patch.use(1)
         if self._color is not None:
@@ -739,12 +824,12 @@ class TessellationRenderer:
         ctx = self.ctx
         t0 = time.perf_counter()
         ranges = self._draw_ranges(view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc)
-        prog = self._program("draw")
+        kind = "draw_tree" if self._tree_frame else "draw"
+        prog = self._program(kind)
         self._set_uniforms(prog, view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc)
         self._prev = (np.asarray(eye_mm, float).copy(), t)
         self.last_setup_ms = (time.perf_counter() - t0) * 1e3
-        self._bind()
-        self._levels_buffer.bind_to_storage_buffer(0)     # the levels pass's levels, read by the control shader
+        self._bind()     # with the levels pass's levels (flat) or the node records (hierarchy)
         ctx.finish()
         t1 = time.perf_counter()
         k = int(supersample)
@@ -763,7 +848,7 @@ class TessellationRenderer:
         fbo.clear(*self.background, 1.0, depth=1.0)
         with self._query:
             for first, count in ranges:
-                self._vaos["draw"].render(moderngl.PATCHES, vertices=count, first=first)
+                self._vaos[kind].render(moderngl.PATCHES, vertices=count, first=first)
         ctx.finish()
         self.last_render_ms = (time.perf_counter() - t1) * 1e3
         self.last_triangles = int(self._query.primitives)
@@ -804,24 +889,42 @@ class TessellationRenderer:
         the patches split into calls of at most :data:`VERTICES_PER_DRAW`
         vertices; culled patches cost nothing.
         """
-        lv = self._levels_pass(view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc).reshape(-1, 6)
         top = self.config.max_level
+        most = (2 ** top + 1) ** 2 + 4 * (2 ** top + 1)
+        self._tree_frame = self._tree is not None and mode == "csf"
+        if self._tree_frame:
+            sel = self._select_nodes(view, proj, model, eye_mm, axes, cov_deg2, t, region_ndc)
+            lim = self.config.max_tess_level
+            return _split_draws(sel.vertex_bound(), (lim + 1) ** 2 + 4 * (lim + 1))
+        lv = self._levels_pass(view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc).reshape(-1, 6)
+        self.last_nodes = int(np.count_nonzero(lv[:, 5] < 0.5))
         if mode == "full":
             inner = np.full(len(lv), 2 ** top)
             outer = np.full((len(lv), 4), 2 ** top)
         else:
             inner, outer = tess_factors(lv[:, 0], top), tess_factors(lv[:, 1:5], top)
         counts = np.where(lv[:, 5] > 0.5, 0, (inner + 1) ** 2 + (outer + 1).sum(axis=1))   # bound on vertices
-        most = (2 ** top + 1) ** 2 + 4 * (2 ** top + 1)
-        group = (np.cumsum(counts) - counts) // (VERTICES_PER_DRAW - most)   # each group < VERTICES_PER_DRAW
-        nz = np.flatnonzero(counts)
-        if not len(nz):
-            return []
-        g = group[nz]
-        cut = np.flatnonzero(np.diff(g)) + 1
-        firsts = nz[np.r_[0, cut]]
-        lasts = nz[np.r_[cut - 1, len(nz) - 1]]
-        return [(int(a), int(b - a + 1)) for a, b in zip(firsts, lasts)]
+        return _split_draws(counts, most)
+
+    def _select_nodes(self, view, proj, model, eye_mm, axes, cov_deg2, t, region_ndc):
+        """The hierarchy's selection of this frame (:meth:`PatchTree.select`), its records uploaded."""
+        cfg = self.config
+        model = np.asarray(model, np.float64)
+        mvp = np.asarray(proj, np.float64) @ np.asarray(view, np.float64) @ model
+        prev, dt = None, 0.0
+        if t is not None and self._prev is not None and self._prev[1] is not None and t > self._prev[1]:
+            prev, dt = self._prev[0], t - self._prev[1]
+        sel = self._tree.select(model, eye_mm, axes, cov_deg2, mvp=mvp, region_ndc=region_ndc, cull=cfg.cull,
+                                shift=cfg.shift, ellipse_sigma=cfg.ellipse_sigma, level_bias=cfg.level_bias,
+                                eye_prev_mm=prev, dt_s=dt)
+        data = sel.records().tobytes() or bytes(32)
+        if self._node_buffer is None or self._node_buffer.size < len(data):
+            if self._node_buffer is not None:
+                self._node_buffer.release()
+            self._node_buffer = self.ctx.buffer(reserve=max(len(data), 32 * 1024))
+        self._node_buffer.write(data)
+        self.last_selection, self.last_nodes = sel, len(sel)
+        return sel
 
     def levels(self, view, proj, model, eye_mm, axes, cov_deg2=None, *, t: float | None = None):
         """The control shader's continuous levels (nothing is drawn).
@@ -842,16 +945,16 @@ class TessellationRenderer:
                          capacity: int = 1 << 20) -> np.ndarray:
         """Every generated triangle as its three vertices' samples (T, 3, 2) int64 (column, row); GL 4.3."""
         ranges = self._draw_ranges(view, proj, model, eye_mm, axes, cov_deg2, mode, None, None)
-        prog = self._program("samples")
+        kind = "samples_tree" if self._tree_frame else "samples"
+        prog = self._program(kind)
         self._set_uniforms(prog, view, proj, model, eye_mm, axes, cov_deg2, mode, None, None)
         buf = self.ctx.buffer(np.array([0, capacity, 0, 0], np.uint32).tobytes() + bytes(24 * capacity))
         try:
             buf.bind_to_storage_buffer(1)
-            self._levels_buffer.bind_to_storage_buffer(0)
             self._bind()
             self._fbo.use()                  # (not under RASTERIZER_DISCARD: see _levels_pass)
             for first, count in ranges:
-                self._vaos["samples"].render(moderngl.PATCHES, vertices=count, first=first)
+                self._vaos[kind].render(moderngl.PATCHES, vertices=count, first=first)
             self.ctx.memory_barrier()
             raw = buf.read()
         finally:
@@ -864,7 +967,7 @@ class TessellationRenderer:
     def release(self) -> None:
         """Free the GL objects (the context stays)."""
         for obj in [*self._vaos.values(), *self._programs.values(), self._height, self._patch, self._fbo,
-                    self._levels_buffer, self._color]:
+                    self._levels_buffer, self._color, self._node_buffer]:
             if obj is not None:
                 obj.release()
         self._vaos, self._programs = {}, {}
@@ -926,4 +1029,5 @@ def render_frame(renderer: TessellationRenderer, screen, model, head_mm=None, po
     image = renderer.render(view, proj, model, head, head_axes(screen, head, poi), cov_deg2, mode=mode, t=t,
                             region_ndc=region_ndc, supersample=supersample)
     return image, {"mode": mode, "triangles": renderer.last_triangles, "select_ms": renderer.last_setup_ms,
-                   "render_ms": renderer.last_render_ms, "draw_calls": renderer.last_draw_calls}
+                   "render_ms": renderer.last_render_ms, "draw_calls": renderer.last_draw_calls,
+                   "patches": renderer.last_nodes}
