@@ -131,7 +131,7 @@ def test_tree_leaves_equal_flat_levels(grid, default_screen):
         leaf = sel.depth == tree.depth
         assert leaf.sum() > 50 and (~leaf).sum() >= (0 if split_factor == 16 else 10)
         r, c = sel.row[leaf], sel.col[leaf]
-        np.testing.assert_array_equal(sel.inner[leaf], tess_factors(inner[r, c], top))
+        np.testing.assert_array_equal(sel.inner[leaf], tess_factors(inner[r, c], top, grid.patch_samples, tree.factors))
         # Edges between two leaves: the flat edge factor (both sides compute it from the edge alone).
         depth_map = _depth_map(tree, sel)
         n = grid.n_patches
@@ -140,7 +140,8 @@ def test_tree_leaves_equal_flat_levels(grid, default_screen):
             inside = (nr >= 0) & (nr < n) & (nc >= 0) & (nc < n)
             both = inside.copy()
             both[inside] = depth_map[nr[inside], nc[inside]] == tree.depth
-            np.testing.assert_array_equal(sel.outer[leaf][both, e], tess_factors(outer[r[both], c[both], e], top))
+            np.testing.assert_array_equal(sel.outer[leaf][both, e], tess_factors(outer[r[both], c[both], e], top,
+                                                                                    grid.patch_samples, tree.factors))
 
 
 def _depth_map(tree, sel):
@@ -300,5 +301,5 @@ def test_moving_eye_nodes_stay_conservative(grid, default_screen):
         if k:
             assert math.ceil(size / fi) <= need_gap[r << k:(r + 1) << k, c << k:(c + 1) << k].min() + 1e-9
         else:
-            assert fi == tess_factors(inner[r, c], tree.leaf_max_level)
+            assert fi == tess_factors(inner[r, c], tree.leaf_max_level, p, tree.factors)
     assert n == 32

@@ -115,10 +115,36 @@ def test_shader_csf_equals_perception(ctx430, grid, default_screen, cov_deg2, sh
     assert ref_inner.max() - ref_inner.min() > 2            # the view spans several levels
     np.testing.assert_allclose(inner, ref_inner, atol=LEVEL_ATOL)
     np.testing.assert_allclose(outer, ref_outer, atol=LEVEL_ATOL)
-    # The factors agree except where a level is within the tolerance of an integer (ceil's boundary).
-    near = np.abs(ref_inner - np.round(ref_inner)) < LEVEL_ATOL
+    # The factors agree, by either rule, except where a level is within the tolerance of a rule's boundary.
     top = cfg.max_level
-    assert np.array_equal(tess_factors(inner, top)[~near], tess_factors(ref_inner, top)[~near])
+    for rule in ("whole", "power_of_two"):
+        near = tess_factors(ref_inner - LEVEL_ATOL, top, PATCH, rule) != tess_factors(ref_inner + LEVEL_ATOL, top,
+                                                                                       PATCH, rule)
+        assert near.mean() < 0.1
+        assert np.array_equal(tess_factors(inner, top, PATCH, rule)[~near], tess_factors(ref_inner, top, PATCH, rule)[~near])
+
+
+def test_whole_factors_keep_every_gap_and_are_the_fewest():
+    """The "whole" rule: with vertex k of F at round(k P / F) samples, no gap exceeds the level's spacing
+    floor(P 2^-L) (at least one sample), and F - 1 segments would leave one that does; never more
+    segments than the power-of-two rule, and fewer at many levels (whole samples limit the gain near the
+    finest levels: a gap of 1.4 samples still needs one vertex per sample)."""
+    levels = np.linspace(-2.0, 7.0, 2001)
+    for p, top in ((64, 6), (16, 4), (128, 6)):
+        whole = tess_factors(levels, top, p, "whole")
+        pow2 = tess_factors(levels, top, p, "power_of_two")
+        assert np.all(whole <= pow2) and np.all(whole >= 1) and whole.max() == 2 ** top
+        spacing = np.maximum(np.floor(p * np.exp2(-np.clip(levels, -1, top))), 1)
+        for f, g in zip(whole, spacing):
+            gaps = np.diff(np.round(np.arange(f + 1) * p / f))
+            assert gaps.max() <= g
+            if f > 1:
+                assert np.diff(np.round(np.arange(f) * p / (f - 1))).max() > g
+        inside = (levels > 0) & (levels < top)
+        assert np.mean(whole[inside] < pow2[inside]) > 0.2            # 21-54% of levels get fewer segments
+        assert np.mean((pow2[inside] / whole[inside]) ** 2) > 1.15     # triangles: 1.16-1.54x fewer on average
+    with pytest.raises(ValueError, match="rule"):
+        tess_factors(levels, 6, 64, "nearest")
 
 
 def test_edge_levels_agree_between_neighbours(grid, default_screen):
@@ -140,20 +166,22 @@ def _edges_and_area(tri):
     return key, area
 
 
-@pytest.mark.parametrize("mode, poi_px, stage", [("csf", (700.0, 500.0), "vertex"), ("csf", (100.0, 900.0), "control"),
-                                                 ("full", None, "vertex")])
-def test_patches_are_watertight(ctx430, grid, default_screen, mode, poi_px, stage):
+@pytest.mark.parametrize("mode, poi_px, stage, rule", [("csf", (700.0, 500.0), "vertex", "whole"),
+                                                       ("csf", (100.0, 900.0), "control", "whole"),
+                                                       ("csf", (700.0, 500.0), "vertex", "power_of_two"),
+                                                       ("full", None, "vertex", "whole")])
+def test_patches_are_watertight(ctx430, grid, default_screen, mode, poi_px, stage, rule):
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer
 
     # No culling: every patch and every neighbour pair is generated. "full" makes 66049 vertices,
     # more than one draw call may hold on llvmpipe: the split into calls is checked too.
-    cfg = TessellationConfig(patch_samples=PATCH, cull=False, csf_stage=stage)
+    cfg = TessellationConfig(patch_samples=PATCH, cull=False, csf_stage=stage, factors=rule)
     view, proj, model, head, axes = _view(default_screen, grid, poi_px=poi_px)
     with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg) as r:
         tri = r.triangle_samples(view, proj, model, head, axes, np.diag([0.05 ** 2] * 2), mode=mode)
         _, outer, _ = r.levels(view, proj, model, head, axes, np.diag([0.05 ** 2] * 2))
     if mode == "csf":
-        assert len(np.unique(tess_factors(outer, cfg.max_level))) >= 3     # edges of different factors meet
+        assert len(np.unique(tess_factors(outer, cfg.max_level, PATCH, rule))) >= 3   # edges of different factors meet
     key, area = _edges_and_area(tri)
     assert np.all(area > 0)                                                 # no degenerate triangles
     n = N_SAMPLES - 1

@@ -33,8 +33,8 @@ of two; the root, depth 0, is the whole grid). Per frame
    - If ``F`` exceeds ``split_factor`` (or ``min(S, max_tess_level)``), the
      node is split and its children join the frontier.
 
-   Leaves (``S = P``) get the flat path's exact levels and power-of-two
-   factors (:func:`levels_of_patches`, the same code as the flat twin).
+   Leaves (``S = P``) get the flat path's exact levels and factors
+   (:func:`levels_of_patches` and :func:`tess_factors`, the same code as the flat twin).
    The cost is that of the nodes in view along the refined paths.
 2. **Balance** the tree 2:1 (neighbours across an edge differ by at most one
    depth), bottom-up: a split node forces the split of its edge neighbours'
@@ -70,6 +70,11 @@ The price of merging: a node shows all its leaves at its worst leaf's need
 (bounded, ~0.2 levels above the true worst on the scale bench's view), so it
 draws more triangles than the flat per-patch levels would there; a smaller
 ``split_factor`` trades those triangles for more nodes to evaluate and draw.
+A cost rule was tried and not kept: also splitting a node whose four
+children's bounds would draw 16 or more fewer triangles (one more depth
+evaluated per pass) gave 149k triangles instead of 174k at 134M, still above
+the flat path's 109k (both with whole-number factors), for 2.3x the
+selection (9.8 against 4.2 ms).
 
 Not here (yet): hysteresis (per-node state), as in the flat path.
 Frames: grid frame as :mod:`headplod.plod.patches` (row 0 south, column 0 west);
@@ -83,7 +88,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import perception as pc
-from .patches import PatchGrid, levels_of_patches, max_level_for, tess_factors
+from .patches import FACTOR_RULES, PatchGrid, levels_of_patches, max_level_for, tess_factors
 
 __all__ = ["PatchTree", "NodeSelection", "EDGE_STEP", "OPPOSITE"]
 
@@ -172,6 +177,9 @@ class PatchTree:
         each at its worst leaf's level.
     max_tess_level : int
         Largest factor GL is given (a power of two; GL guarantees 64).
+    factors : {"whole", "power_of_two"}
+        The leaves' rule from level to factor (:func:`tess_factors`; the flat path's
+        ``TessellationConfig.factors``). Nodes above the leaves always take whole numbers.
     batch_depths : int
         Depths evaluated per numpy pass of the walk (a node's descendants down to this many depths are
         evaluated together, whether or not the node splits): fewer passes, a few wasted evaluations.
@@ -193,7 +201,8 @@ class PatchTree:
         (its diagonal with the largest height range of a leaf below the node).
     """
 
-    def __init__(self, grid: PatchGrid, split_factor: int = 16, max_tess_level: int = 64, batch_depths: int = 2):
+    def __init__(self, grid: PatchGrid, split_factor: int = 16, max_tess_level: int = 64, batch_depths: int = 2,
+                 factors: str = "whole"):
         n = grid.n_patches
         if n < 1 or n & (n - 1):
             raise ValueError(f"PatchTree: the grid's patches per side must be a power of two, got {n} "
@@ -205,6 +214,9 @@ class PatchTree:
             raise ValueError(f"PatchTree: max_tess_level must be a power of two >= 2, got {max_tess_level!r}")
         if split_factor > max_tess_level:
             raise ValueError(f"PatchTree: split_factor ({split_factor}) must be <= max_tess_level ({max_tess_level})")
+        if factors not in FACTOR_RULES:
+            raise ValueError(f"PatchTree: factors must be one of {FACTOR_RULES}, got {factors!r}")
+        self.factors = factors
         if int(batch_depths) < 1:
             raise ValueError(f"PatchTree: batch_depths must be >= 1, got {batch_depths!r}")
         self.grid, self.split_factor, self.max_tess_level = grid, int(split_factor), int(max_tess_level)
@@ -486,8 +498,9 @@ class PatchTree:
             culled[leaves] = cul
             live = leaves[~cul]
             inner, outer = self._leaf_levels(lr[~cul], lc[~cul], f)
-            top[live] = tess_factors(inner, self.leaf_max_level)
-            edge[live] = tess_factors(outer, self.leaf_max_level)
+            p, rule = self.grid.patch_samples, self.factors
+            top[live] = tess_factors(inner, self.leaf_max_level, p, rule)
+            edge[live] = tess_factors(outer, self.leaf_max_level, p, rule)
             evaluated += len(leaves)
         # 3. The drawn nodes' outer factors.
         ids = np.flatnonzero(drawn & ~culled)

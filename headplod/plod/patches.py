@@ -41,7 +41,7 @@ from . import perception as pc
 from .terrain import Terrain, _bspline_weights
 
 __all__ = ["height_grid", "jacksboro_grid", "grid_normals", "PatchGrid", "patch_levels", "levels_of_patches",
-           "point_speed_deg_s", "tess_factors", "EDGE_NAMES"]
+           "point_speed_deg_s", "tess_factors", "FACTOR_RULES", "EDGE_NAMES"]
 
 #: The detail's shortest wavelength on :func:`jacksboro_grid`'s grids, sample spacings: each grid has detail
 #: down to its own resolution.
@@ -432,9 +432,34 @@ def levels_of_patches(corners_scene, contrast, neighbour_contrast, model, eye_mm
     return levels[..., 0], levels[..., 1:]
 
 
-def tess_factors(levels: np.ndarray, max_level: int) -> np.ndarray:
-    """Tessellation factors 2^L of continuous levels, L = ceil clamped to [0, max_level] (:func:`perception.round_level`)."""
-    return (2 ** pc.round_level(levels, "ceil", max_level)).astype(np.int64)
+#: How a continuous level becomes a tessellation factor (``TessellationConfig.factors``).
+FACTOR_RULES = ("whole", "power_of_two")
+
+
+def tess_factors(levels: np.ndarray, max_level: int, patch_samples: int | None = None,
+                 rule: str = "power_of_two") -> np.ndarray:
+    """Tessellation factors (segments per patch side, int64, the shape of ``levels``) of continuous levels.
+
+    ``power_of_two``: 2^L, L = ceil clamped to [0, max_level]
+    (:func:`perception.round_level`): the CPU mesh's integer levels.
+    ``whole`` (needs ``patch_samples`` P): level L asks for a vertex every
+    ``P 2^-L`` samples; ``g`` is the largest whole number of samples within
+    that (at least 1) and the factor ``F = ceil(P / g)``, at most
+    ``2^max_level``: with ``equal_spacing`` and every vertex rounded to a
+    sample, no gap exceeds ``g``. The same density as ``power_of_two``'s
+    but without rounding the segment count up to a power of two (up to 2x
+    per side, about 2x the triangles on average).
+    """
+    if rule == "power_of_two":
+        return (2 ** pc.round_level(levels, "ceil", max_level)).astype(np.int64)
+    if rule != "whole":
+        raise ValueError(f"tess_factors: rule must be one of {FACTOR_RULES}, got {rule!r}")
+    if patch_samples is None:
+        raise ValueError("tess_factors: the 'whole' rule needs patch_samples")
+    lv = np.nan_to_num(np.asarray(levels, np.float64), nan=-1.0, posinf=float(max_level), neginf=-1.0)
+    lv = np.clip(lv, -1.0, float(max_level))
+    gap = np.maximum(np.floor(patch_samples * np.exp2(-lv)), 1.0)
+    return np.minimum(np.ceil(patch_samples / gap), 2 ** max_level).astype(np.int64)
 
 
 def max_level_for(patch_samples: int, max_tess_level: int) -> int:

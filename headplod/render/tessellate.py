@@ -78,7 +78,7 @@ import cv2
 import numpy as np
 
 from ..plod.patch_tree import PatchTree
-from ..plod.patches import PatchGrid, max_level_for, tess_factors
+from ..plod.patches import FACTOR_RULES, PatchGrid, max_level_for, tess_factors
 from .context import moderngl
 from .gl import _FRAGMENT_SHADER, read_rgb
 
@@ -150,13 +150,20 @@ class TessellationConfig:
         Off by default: on the scale bench's view (busy 2-core machine,
         medians of 5 interleaved runs) its selection grows 1.5x from 2M to
         134M triangles (3.6 -> 5.4 ms; flat: 1.1 -> 8.0 ms, 7x), but at 134M
-        its merged nodes draw 177k triangles against the flat path's 147k
-        (a node shows all its patches at its worst patch's bounded level),
-        so the frame is slower (143 ms against 110 ms).
+        its merged nodes draw 175k triangles against the flat path's 109k
+        with whole-number factors (147k with powers of two): a node shows
+        all its patches at its worst patch's bounded level, and llvmpipe's
+        draw follows the triangles, so the frame is slower.
     split_factor : int
         With ``hierarchy``: the largest tessellation factor (segments per
         side) of a node larger than a patch; a node that needs more is split
         (a power of two <= ``max_tess_level``; 16).
+    factors : {"whole", "power_of_two"}
+        How a patch's continuous level becomes its factor
+        (:func:`headplod.plod.patches.tess_factors`): ``whole`` (default),
+        the fewest segments that keep every gap within the level's vertex
+        spacing; ``power_of_two``, 2^ceil(level) as the CPU mesh's integer
+        levels (up to 2x the segments per side).
     """
 
     patch_samples: int = 64
@@ -173,6 +180,7 @@ class TessellationConfig:
     csf_stage: str = "vertex"
     hierarchy: bool = False
     split_factor: int = 16
+    factors: str = "whole"
 
     def __post_init__(self):
         for name in ("patch_samples", "max_tess_level", "split_factor"):
@@ -184,6 +192,8 @@ class TessellationConfig:
         if self.split_factor > self.max_tess_level:
             raise ValueError(f"TessellationConfig.split_factor ({self.split_factor}) must be <= max_tess_level "
                              f"({self.max_tess_level})")
+        if self.factors not in FACTOR_RULES:
+            raise ValueError(f"TessellationConfig.factors must be one of {FACTOR_RULES}, got {self.factors!r}")
         if self.csf_stage not in ("vertex", "control"):
             raise ValueError(f"TessellationConfig.csf_stage must be 'vertex' or 'control', got {self.csf_stage!r}")
         if self.shading not in ("texture", "vertex"):
@@ -319,9 +329,16 @@ float level_at(vec3 c, float reach_deg, float diameter_deg, float contrast) {
     return log2(f * max(diameter_deg, 1e-9)) + u_level_bias;
 }
 
-float factor(float level) {       // ceil, clamped to [0, max level], as 2^L (perception.round_level)
-    float l = clamp(ceil(clamp(level, -1.0, float(u_max_level) + 1.0)), 0.0, float(u_max_level));
-    return exp2(u_full == 1 ? float(u_max_level) : l);
+uniform int u_whole_factors;       // 1: patches.tess_factors' "whole" rule; 0: "power_of_two"
+
+float factor(float level) {       // patches.tess_factors
+    if (u_full == 1) return exp2(float(u_max_level));
+    if (u_whole_factors == 1) {
+        float P = float(u_patch_samples);
+        float gap = max(floor(P * exp2(-clamp(level, -1.0, float(u_max_level)))), 1.0);
+        return min(ceil(P / gap), exp2(float(u_max_level)));
+    }
+    return exp2(clamp(ceil(clamp(level, -1.0, float(u_max_level) + 1.0)), 0.0, float(u_max_level)));
 }
 
 bool outside(vec3 lo, vec3 hi) {   // the box is wholly outside one frustum plane, or misses the region
@@ -674,7 +691,7 @@ class TessellationRenderer:
         self._levels_buffer = None
         self.last_draw_calls = 0
         # The hierarchy: the tree's bounds (built once), the node records' buffer, the last selection.
-        self._tree = (PatchTree(grid, config.split_factor, config.max_tess_level) if config.hierarchy else None)
+        self._tree = (PatchTree(grid, config.split_factor, config.max_tess_level, factors=config.factors) if config.hierarchy else None)
         self._node_buffer = None
         self._tree_frame = False
         self.last_selection = None
@@ -758,6 +775,7 @@ class TessellationRenderer:
             "u_model": model.T.astype("f4").tobytes(), "u_mvp": mvp.T.astype("f4").tobytes(),
             "u_eye_mm": tuple(np.asarray(eye_mm, float)), "u_axes": np.asarray(axes, "f4").tobytes(),
             "u_level_bias": float(cfg.level_bias), "u_max_level": cfg.max_level, "u_full": int(mode == "full"),
+            "u_whole_factors": int(cfg.factors == "whole"),
             "u_cull": int(cfg.cull), "u_ellipse_sigma": float(cfg.ellipse_sigma),
             "u_region_ndc": tuple(region_ndc) if region_ndc is not None else (-2.0, -2.0, 2.0, 2.0),
             "u_smooth_normals": int(cfg.smooth_normals), "u_color": 2,
@@ -902,7 +920,8 @@ class TessellationRenderer:
             inner = np.full(len(lv), 2 ** top)
             outer = np.full((len(lv), 4), 2 ** top)
         else:
-            inner, outer = tess_factors(lv[:, 0], top), tess_factors(lv[:, 1:5], top)
+            rule, p = self.config.factors, self.grid.patch_samples
+            inner, outer = tess_factors(lv[:, 0], top, p, rule), tess_factors(lv[:, 1:5], top, p, rule)
         counts = np.where(lv[:, 5] > 0.5, 0, (inner + 1) ** 2 + (outer + 1).sum(axis=1))   # bound on vertices
         return _split_draws(counts, most)
 
