@@ -48,6 +48,7 @@ north, z up; triangles counter-clockwise seen from +z; float32 output.
 """
 from __future__ import annotations
 
+import copy
 import time
 from collections import OrderedDict
 
@@ -59,6 +60,75 @@ from .mesh import AdaptiveMesh, BaseMesh, Template, _face_areas_xy, _sample, bui
 DEFAULT_CACHE_BYTES = 256 * 2 ** 20
 #: Finest level whose per-face data are measured by sampling (above it they are extrapolated).
 DATA_LEVEL = 5
+
+
+class PieceCache:
+    """The byte-bounded LRU cache of pieces, shareable by several meshes over the same base and terrain.
+
+    Parameters
+    ----------
+    budget_bytes : int
+        Bytes (positions + normals, float32) held at most after each trim.
+    idle_frames : int or None
+        Also evict pieces no frame has used in the last ``idle_frames``
+        frames (frames counted over every mesh sharing the cache).
+
+    Attributes
+    ----------
+    entries : OrderedDict
+        key -> (positions (P, 3) float32, normals (P, 3) float32), least recently used first.
+    used : dict
+        key -> the frame number that last used it.
+    nbytes : int
+        Bytes held now.
+    frame : int
+        Frames built (with new cases) by the meshes sharing the cache.
+    """
+
+    def __init__(self, budget_bytes: int, idle_frames: int | None = None):
+        if not int(budget_bytes) > 0:
+            raise ValueError(f"cache_bytes must be > 0, got {budget_bytes!r}")
+        if idle_frames is not None and not int(idle_frames) >= 1:
+            raise ValueError(f"idle_frames must be >= 1 or None, got {idle_frames!r}")
+        self.budget_bytes = int(budget_bytes)
+        self.idle_frames = None if idle_frames is None else int(idle_frames)
+        self.entries: OrderedDict = OrderedDict()
+        self.used: dict = {}
+        self.nbytes = 0
+        self.frame = 0
+
+    def get(self, key):
+        item = self.entries.get(key)
+        if item is not None:
+            self.entries.move_to_end(key)
+            self.used[key] = self.frame
+        return item
+
+    def put(self, key, positions, normals) -> None:
+        old = self.entries.pop(key, None)
+        if old is not None:
+            self.nbytes -= old[0].nbytes + old[1].nbytes
+        self.entries[key] = (positions, normals)
+        self.used[key] = self.frame
+        self.nbytes += positions.nbytes + normals.nbytes
+
+    def trim(self) -> int:
+        """Evict least recently used pieces until the cache fits its budget, and those idle for more than
+        ``idle_frames`` frames; the number evicted."""
+        n = 0
+        oldest = -1 if self.idle_frames is None else self.frame - self.idle_frames
+        while self.entries and (self.nbytes > self.budget_bytes
+                                or self.used[next(iter(self.entries))] < oldest):
+            key, (p, q) = self.entries.popitem(last=False)
+            del self.used[key]
+            self.nbytes -= p.nbytes + q.nbytes
+            n += 1
+        return n
+
+    def clear(self) -> None:
+        self.entries.clear()
+        self.used.clear()
+        self.nbytes = 0
 
 
 class LazyAdaptiveMesh:
@@ -112,20 +182,13 @@ class LazyAdaptiveMesh:
                  data_level: int | None = None):
         if not isinstance(max_level, (int, np.integer)) or not 0 <= max_level <= 8:
             raise ValueError(f"max_level must be an integer in 0..8, got {max_level!r}")
-        if not int(cache_bytes) > 0:
-            raise ValueError(f"cache_bytes must be > 0, got {cache_bytes!r}")
-        if idle_frames is not None and not int(idle_frames) >= 1:
-            raise ValueError(f"idle_frames must be >= 1 or None, got {idle_frames!r}")
-        self.idle_frames = None if idle_frames is None else int(idle_frames)
-        self._frame = 0                                        # frames built (cases changed)
-        self._used: dict = {}                                  # key -> last frame that used it
+        self._pieces_cache = PieceCache(cache_bytes, idle_frames)
         M = int(max_level)
         K = min(M, DATA_LEVEL) if data_level is None else int(data_level)
         if not 0 <= K <= M:
             raise ValueError(f"data_level must be in 0..max_level={M}, got {data_level!r}")
         self.base, self.terrain, self.max_level = base, terrain, M
         self.n_faces = len(base.faces)
-        self.budget_bytes = int(cache_bytes)
         self._count_table = triangle_count_table(M)
         self._templates: dict[int, Template] = {}
         self._group_data: dict[int, tuple] = {}
@@ -141,8 +204,6 @@ class LazyAdaptiveMesh:
         _, vnrm = _sample(terrain, base.vertices[:, 0], base.vertices[:, 1])
         self._base_pos = base.vertices.astype(np.float32)
         self._base_nrm = vnrm.astype(np.float32)
-        self._cache: OrderedDict = OrderedDict()               # key -> (positions, normals) float32
-        self.cache_bytes = 0
         self._last_case = None
         self._output = None
         self._soup = None
@@ -197,37 +258,53 @@ class LazyAdaptiveMesh:
     triangle_count = AdaptiveMesh.triangle_count
 
     # ------------------------------------------------------------------ cache
+    @property
+    def _cache(self) -> OrderedDict:
+        """The cached pieces, key -> (positions, normals), least recently used first (shared by ``share()``s)."""
+        return self._pieces_cache.entries
+
+    @property
+    def cache_bytes(self) -> int:
+        """Bytes the (shared) piece cache holds now."""
+        return self._pieces_cache.nbytes
+
+    @property
+    def budget_bytes(self) -> int:
+        """The (shared) piece cache's budget, bytes."""
+        return self._pieces_cache.budget_bytes
+
+    @property
+    def idle_frames(self) -> int | None:
+        return self._pieces_cache.idle_frames
+
     def _get(self, key):
-        item = self._cache.get(key)
-        if item is not None:
-            self._cache.move_to_end(key)
-            self._used[key] = self._frame
-        return item
+        return self._pieces_cache.get(key)
 
     def _put(self, key, positions, normals) -> None:
-        self._cache[key] = (positions, normals)
-        self._used[key] = self._frame
-        self.cache_bytes += positions.nbytes + normals.nbytes
+        self._pieces_cache.put(key, positions, normals)
 
     def _trim(self) -> int:
-        """Evict least recently used pieces until the cache fits its budget, and those idle for more than
-        ``idle_frames`` frames; the number evicted."""
-        n = 0
-        oldest = -1 if self.idle_frames is None else self._frame - self.idle_frames
-        while self._cache and (self.cache_bytes > self.budget_bytes
-                               or self._used[next(iter(self._cache))] < oldest):
-            key, (p, q) = self._cache.popitem(last=False)
-            del self._used[key]
-            self.cache_bytes -= p.nbytes + q.nbytes
-            n += 1
-        return n
+        return self._pieces_cache.trim()
 
     def drop_cache(self) -> None:
-        """Free every cached piece (the next update makes all it needs again)."""
-        self._cache.clear()
-        self._used.clear()
-        self.cache_bytes = 0
+        """Free every cached piece (the next update makes all it needs again; sharers included)."""
+        self._pieces_cache.clear()
         self.clear()
+
+    def share(self) -> "LazyAdaptiveMesh":
+        """A mesh over the same per-face data, templates and piece cache, with its own frame state.
+
+        As :meth:`AdaptiveMesh.share`: several selections (the demo's
+        scenario loops) build side by side, each its own compact frame table,
+        while the pieces any of them made are reused by all and the cache's
+        byte budget bounds them together.
+        """
+        other = copy.copy(self)
+        other.clear()
+        other.stats = {}
+        other.vertex_positions = np.zeros((0, 3), np.float32)
+        other.vertex_normals = np.zeros((0, 3), np.float32)
+        return other
 
     def clear(self) -> None:
         """Forget the last frame's output (the cache stays): the next update assembles it again."""
@@ -328,7 +405,7 @@ class LazyAdaptiveMesh:
                               evicted_pieces=0)
             return self._output
         self._n_generated = self._n_reused = 0
-        self._frame += 1
+        self._pieces_cache.frame += 1
         M, N = self.max_level, 2 ** self.max_level
         M1 = M + 1
         lv = self._check_levels(levels)
