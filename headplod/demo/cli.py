@@ -244,6 +244,7 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
                              **s.summary(), "mesh": mesh,
                              "per_frame": {"frame_ms": [round(v, 3) for v in s.frame_ms],
                                            "triangles": [int(v) for v in s.triangles],
+                                           **({"lazy": s.lazy, "cache_bytes": s.cache_bytes} if s.lazy else {}),
                                            "stage_ms": {name: [round(x, 3) for x in v]
                                                         for name, v in s.stage_ms.items()}},
                              "frames_png": written[k]})

@@ -600,6 +600,9 @@ class FrameResult:
     cache_bytes : int or None
         A lazy mesh's piece cache after the frame's build, bytes (shared by the loops of one scene); None
         for the whole-table mesh.
+    lazy_stats : dict or None
+        A lazy mesh's build of the frame: ``rebuilt_faces``, ``generated_pieces``, ``vertices`` (None for
+        the whole-table mesh).
     """
 
     index: int
@@ -613,6 +616,7 @@ class FrameResult:
     saccade_skipped: bool
     poi_speed_deg_s: float
     cache_bytes: int | None = None
+    lazy_stats: dict | None = None
 
     @property
     def tracking_lost(self) -> str | None:
@@ -629,11 +633,14 @@ class RunStats:
     saccade_skipped: int = 0
     tracking_failures: int = 0
     cache_bytes: list = field(default_factory=list)
+    lazy: dict = field(default_factory=dict)
 
     def add(self, r: FrameResult) -> None:
         self.frame_ms.append(r.frame_ms)
         if r.cache_bytes is not None:
             self.cache_bytes.append(r.cache_bytes)
+        for key, value in (r.lazy_stats or {}).items():
+            self.lazy.setdefault(key, []).append(value)
         self.triangles.append(r.triangles)
         for s in STAGES:
             self.stage_ms[s].append(r.stage_ms.get(s, 0.0))
@@ -853,7 +860,9 @@ class DemoLoop:
             stage["upload"] += self.foveated.last_sort_ms
         result = FrameResult(self.index, pose.t, image, self._levels, int(len(tri_levels)), stage,
                              (t5 - t0) * 1e3, pose, bool(skipped), float(speed),
-                             None if uses_table(mesh) else int(mesh.cache_bytes))
+                             None if uses_table(mesh) else int(mesh.cache_bytes),
+                             None if uses_table(mesh) else {k: int(mesh.stats.get(k, 0)) for k in
+                                                            ("rebuilt_faces", "generated_pieces", "vertices")})
         return self._finish(result, t0)
 
     def _finish(self, result: FrameResult, t0: float) -> FrameResult:
