@@ -483,10 +483,10 @@ class LazyAdaptiveMesh:
         order = np.argsort(case, kind="stable")
         ids, starts = np.unique(case[order], return_index=True)
         sizes = self._block_len[order]
-        offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
         total = int(sizes.sum())
         if total >= 2 ** 32:
             raise ValueError(f"LazyAdaptiveMesh: {total} frame vertices do not fit 32-bit indices")
+        offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.uint32)       # fits: checked above
         order_list = order.tolist()
         self.vertex_positions = np.concatenate([self._block_pos[f] for f in order_list])
         self.vertex_normals = np.concatenate([self._block_nrm[f] for f in order_list])
@@ -495,7 +495,7 @@ class LazyAdaptiveMesh:
         for j, cid in enumerate(ids.tolist()):                               # loop over cases
             a, b = int(bounds[j]), int(bounds[j + 1])
             tri = self.template(cid).triangles.reshape(-1)
-            idx_parts.append((offsets[a:b, None] + tri[None, :]).astype(np.uint32).reshape(-1))
+            idx_parts.append((offsets[a:b, None] + tri.astype(np.uint32)[None, :]).reshape(-1))
             n_tri = len(tri) // 3
             lv_parts.append(np.full((b - a) * n_tri, cid // M1 ** 3, np.uint8))
             face_parts.append((order[a:b], n_tri))
