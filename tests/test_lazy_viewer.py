@@ -153,3 +153,14 @@ def test_bad_mesh_options_exit_2_with_one_line_before_writing(tmp_path, capsys, 
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and words in err, err
     assert not out.exists()
+
+
+def test_mesh_options_choose_the_lazy_mesh_above_level_5():
+    from headplod.render.still import MeshOptions
+
+    assert MeshOptions() == MeshOptions(5, False, 256.0) and not MeshOptions().lazy
+    assert MeshOptions(6).lazy and MeshOptions(8).lazy and MeshOptions(5, lazy=True).lazy
+    assert MeshOptions(7, cache_mb=2).cache_bytes == 2 * 2 ** 20
+    for bad in ({"max_level": 9}, {"max_level": 5.5}, {"cache_mb": 0.5}, {"cache_mb": float("nan")}):
+        with pytest.raises(ValueError):
+            MeshOptions(**bad)

@@ -41,7 +41,7 @@ from ..argtypes import frame_count
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..progress import Progress
 from ..render import TerrainRenderer, create_context
-from ..render.still import (FULL_MAX_LEVEL, RENDER_MODES, TerrainScene, add_mesh_arguments, mesh_options,
+from ..render.still import (FULL_MAX_LEVEL, RENDER_MODES, add_mesh_arguments, mesh_options,
                             mesh_options_problem, mesh_stats)
 from . import loop as lp
 from .keys import key_help
@@ -176,9 +176,7 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
     if scene is None:
         print(f"demo: building the terrain mesh; poses from {source_name}", file=err)
     if scene is None:
-        max_level, lazy, cache_bytes = mesh_options(args)
-        scene = TerrainScene.build(screen, max_level, terrain=getattr(args, "terrain_loaded", None), lazy=lazy,
-                                   cache_bytes=cache_bytes)
+        scene = mesh_options(args).build(screen, getattr(args, "terrain_loaded", None))
     if renderer is None:
         renderer = TerrainRenderer(create_context(), size=tuple(args.size))
     elif tuple(renderer.size) != tuple(args.size):
@@ -376,7 +374,7 @@ def run_demo(args) -> int:
     if problem:
         print(f"headplod demo: {problem}", file=sys.stderr)
         return 2
-    max_level = mesh_options(args)[0]
+    max_level = mesh_options(args).max_level
     if args.headless and max_level > FULL_MAX_LEVEL and not args.no_full:
         print(f"headplod demo: warning: full at --max-level {max_level} would draw {2048 * 4 ** max_level:,} "
               f"triangles, which do not fit; the full runs are skipped (as --no-full: no ratio to full)",

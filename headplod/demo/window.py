@@ -16,7 +16,7 @@ import sys
 import numpy as np
 
 from ..render import TerrainRenderer
-from ..render.still import TerrainScene, mesh_options
+from ..render.still import mesh_options
 from .keys import action_for_key
 from .loop import DemoLoop
 from .poses import make_poses
@@ -77,9 +77,7 @@ def make_window_class():
             args = demo_args
             self.poses = make_poses(args)
             print("building the terrain mesh ...", file=sys.stderr)
-            max_level, lazy, cache_bytes = mesh_options(args)
-            scene = TerrainScene.build(self.poses.screen, max_level, terrain=getattr(args, "terrain_loaded", None),
-                                       lazy=lazy, cache_bytes=cache_bytes)
+            scene = mesh_options(args).build(self.poses.screen, getattr(args, "terrain_loaded", None))
             size = tuple(args.size)
             self.loop = DemoLoop(scene, self.poses, TerrainRenderer(self.ctx, size=size), mode=args.mode,
                                  uncertainty=args.uncertainty, viewpoint=args.viewpoint, view_mode=args.view,

@@ -26,7 +26,7 @@ from ..plod.raymask import RayMaskConfig
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..plod.select import UNCERTAINTY_MODES
 from .gl import VIEW_MODES
-from .still import (CONTRAST_SOURCES, RENDER_MODES, TerrainScene, add_mesh_arguments, mesh_options,
+from .still import (CONTRAST_SOURCES, RENDER_MODES, MeshOptions, add_mesh_arguments, mesh_options,
                     mesh_options_problem, render_still)
 
 __all__ = ["add_render_arguments", "run_render"]
@@ -141,10 +141,10 @@ def run_render(args) -> int:
     terrain, status = terrain_for_command(args, "headplod")     # read before anything is written
     if status is not None:
         return status
-    max_level, lazy, cache_bytes = mesh_options(args)
+    options = mesh_options(args)
     scene = None
-    if terrain is not None or (max_level, lazy) != (5, False):
-        scene = TerrainScene.build(screen, max_level, terrain=terrain, lazy=lazy, cache_bytes=cache_bytes)
+    if terrain is not None or options != MeshOptions():         # else render_still's default scene
+        scene = options.build(screen, terrain)
     try:
         _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
                                 poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,

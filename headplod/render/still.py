@@ -51,7 +51,7 @@ MAX_LEVELS = range(1, 9)
 #: Default finest level: the whole-table :class:`AdaptiveMesh`, 1025 x 1025 samples, 2.1 M triangles.
 DEFAULT_MAX_LEVEL = 5
 #: Finest level the whole-table :class:`AdaptiveMesh` is used for; above it the scene's mesh is a
-#: :class:`LazyAdaptiveMesh` (its table would be 190 MB at level 6, 750 MB at 7, 3 GB at 8).
+#: :class:`LazyAdaptiveMesh` (its table would be about 190 MB at level 6, 750 MB at 7, 3 GB at 8: 4x a level).
 TABLE_MAX_LEVEL = 5
 #: Finest level at which ``full`` (every face at the finest level) is drawn: 33.5 M triangles at 7 (a frame's
 #: table and indices ~0.8 GB, more again in llvmpipe's buffers); level 8's 134 M (~3 GB) is refused.
@@ -180,13 +180,51 @@ def _parse_mesh_values(args) -> None:
                 raise argparse.ArgumentTypeError(f"{option}: {exc}") from None
 
 
-def mesh_options(args) -> tuple[int, bool, int]:
-    """(max_level, lazy, cache_bytes) of :func:`add_mesh_arguments` options (defaults filled in)."""
+@dataclass(frozen=True)
+class MeshOptions:
+    """The scene's mesh: ``--max-level``, ``--lazy``, ``--cache-mb``.
+
+    Attributes
+    ----------
+    max_level : int
+        Finest level, 0..8 (the commands take 1..8); default 5: the 32 x 32 base to 1025 x 1025 samples.
+    lazy : bool
+        A :class:`LazyAdaptiveMesh`; always true above :data:`TABLE_MAX_LEVEL` (set so when made), false:
+        the whole-table :class:`AdaptiveMesh`.
+    cache_mb : float
+        Budget of the lazy mesh's piece cache, MB (2**20 bytes), 1..65536; default 256.
+    """
+
+    max_level: int = DEFAULT_MAX_LEVEL
+    lazy: bool = False
+    cache_mb: float = DEFAULT_CACHE_BYTES / 2 ** 20
+
+    def __post_init__(self):
+        if not isinstance(self.max_level, (int, np.integer)) or not 0 <= self.max_level <= MAX_LEVELS.stop - 1:
+            raise ValueError(f"max_level must be an integer in 0..{MAX_LEVELS.stop - 1}, got {self.max_level!r}")
+        if not (math.isfinite(self.cache_mb) and 1 <= self.cache_mb <= 65536):
+            raise ValueError(f"cache_mb must lie in 1..65536 MB, got {self.cache_mb!r}")
+        object.__setattr__(self, "max_level", int(self.max_level))
+        object.__setattr__(self, "lazy", bool(self.lazy) or self.max_level > TABLE_MAX_LEVEL)
+
+    @property
+    def cache_bytes(self) -> int:
+        return int(self.cache_mb * 2 ** 20)
+
+    def build(self, screen, terrain: Terrain | None = None) -> "TerrainScene":
+        """``TerrainScene.build`` with these options."""
+        return TerrainScene.build(screen, self.max_level, terrain=terrain, lazy=self.lazy,
+                                  cache_bytes=self.cache_bytes)
+
+
+def mesh_options(args) -> MeshOptions:
+    """The :class:`MeshOptions` of :func:`add_mesh_arguments`'s options (``argparse.ArgumentTypeError``
+    naming the option for a bad value)."""
     _parse_mesh_values(args)
-    level = DEFAULT_MAX_LEVEL if getattr(args, "max_level", None) is None else int(args.max_level)
-    lazy = bool(getattr(args, "lazy", False)) or level > TABLE_MAX_LEVEL
+    level = getattr(args, "max_level", None)
     mb = getattr(args, "cache_mb", None)
-    return level, lazy, DEFAULT_CACHE_BYTES if mb is None else int(mb * 2 ** 20)
+    return MeshOptions(DEFAULT_MAX_LEVEL if level is None else int(level), bool(getattr(args, "lazy", False)),
+                       MeshOptions.cache_mb if mb is None else float(mb))
 
 
 def mesh_options_problem(args, modes) -> str | None:
@@ -202,9 +240,10 @@ def mesh_options_problem(args, modes) -> str | None:
     import argparse
 
     try:
-        level, lazy, _ = mesh_options(args)
+        options = mesh_options(args)
     except argparse.ArgumentTypeError as exc:
         return str(exc)
+    level, lazy = options.max_level, options.lazy
     if getattr(args, "cache_mb", None) is not None and not lazy:
         return "--cache-mb applies to the lazy mesh only (--max-level above 5, or --lazy)"
     if "raymask" in modes and lazy:
