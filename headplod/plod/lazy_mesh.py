@@ -22,7 +22,10 @@ its case changes, as :class:`AdaptiveMesh` rebuilds only faces whose case
 changed. A frame with new cases concatenates the blocks into a compact
 per-frame table (grouped by case, then face: ``AdaptiveMesh``'s order for
 a build from scratch) and offsets each case template's indices; a frame
-with the same cases returns the same arrays. Measured on the built-in
+with the same cases returns the same arrays. The table repeats a shared
+edge's points once per face (bit-identical copies): on the built-in
+default view, 133,571 rows for 209,231 triangles, against 110,032 when
+the frame shared them, which the renderer draws alike. Measured on the built-in
 scene (mountains view, a POI moving ~8 px a frame, 12-14 faces changing
 a frame; 2 busy cores): 31-33 ms a changed frame against 46-58 ms when
 every face was assembled again, and 17 ms against 52-55 ms once the
