@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["floats", "frame_count", "non_negative"]
+__all__ = ["cache_mb", "floats", "frame_count", "max_level", "non_negative"]
 
 
 def floats(n: int):
@@ -39,4 +39,33 @@ def non_negative(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
     if not (value >= 0 and math.isfinite(value)):
         raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return value
+
+
+#: Levels ``--max-level`` accepts (as :data:`headplod.render.still.MAX_LEVELS`; kept here so the parser
+#: does not import the renderer).
+MAX_LEVEL_RANGE = (1, 8)
+
+
+def max_level(text: str) -> int:
+    """An argparse type: the finest PLOD level, a whole number in 1..8 (8: 134 M triangles at full detail)."""
+    lo, hi = MAX_LEVEL_RANGE
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number {lo}..{hi}, got {text!r}") from None
+    if not lo <= value <= hi:
+        raise argparse.ArgumentTypeError(f"must lie in {lo}..{hi} (5: the default 1025 x 1025 mesh; each level "
+                                         f"doubles the samples per side), got {value}")
+    return value
+
+
+def cache_mb(text: str) -> float:
+    """An argparse type: a cache budget in MB, a finite number from 1 to 65536."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of MB, got {text!r}") from None
+    if not (math.isfinite(value) and 1 <= value <= 65536):
+        raise argparse.ArgumentTypeError(f"must lie in 1..65536 MB, got {text!r}")
     return value

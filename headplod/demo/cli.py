@@ -3,6 +3,7 @@
     headplod demo [--source SPEC | --mouse] [--mode csf] [--uncertainty adaptive] [--viewpoint overview]
     headplod demo --headless [--frames N] [--out DIR] [--size W,H] [--source SPEC | --mouse] [--foveate]
     headplod demo ... --terrain FILE [--spacing-m D] [--height-scale S]     (your own DEM or height map)
+    headplod demo ... --max-level N [--lazy] [--cache-mb MB]               (finer than level 5: the lazy mesh)
 
 Headless, the same loop as the window runs offscreen: for each named
 viewpoint, the PLOD criterion (``--mode``, default csf) under each
@@ -14,12 +15,20 @@ picture per viewpoint with the POI and its 2σ ellipse, ``summary.json`` and
 repeated with foveated resolution layers (:mod:`headplod.render.foveate`),
 interleaved with the others, and a picture per viewpoint shows the layers.
 
+``--max-level N`` (1..8, default 5) sets the finest level; above 5 the
+scene's mesh is :class:`headplod.plod.lazy_mesh.LazyAdaptiveMesh`, one
+piece cache shared by every run (``--cache-mb`` bounds it together).
+``--mode raymask`` is refused with the lazy mesh (exit 2); at level 8 the
+``full`` runs (134 M triangles) are skipped with a warning, as with
+``--no-full``, and ``--mode full`` is refused.
+
 Also runnable as ``python -m headplod.demo.cli``.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import resource
 import sys
 import time
 from pathlib import Path
@@ -32,7 +41,8 @@ from ..argtypes import frame_count
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..progress import Progress
 from ..render import TerrainRenderer, create_context
-from ..render.still import RENDER_MODES, TerrainScene
+from ..render.still import (FULL_MAX_LEVEL, RENDER_MODES, add_mesh_arguments, mesh_options,
+                            mesh_options_problem, mesh_stats)
 from . import loop as lp
 from .keys import key_help
 from .poses import make_poses
@@ -111,6 +121,7 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     view.add_argument("--saccade-deg-s", type=float, default=lp.SACCADE_DEG_S,
                       help=f"POI speed above which levels are kept (default {lp.SACCADE_DEG_S:g} deg/s, Ohshima)")
     add_terrain_arguments(parser.add_argument_group("terrain"))
+    add_mesh_arguments(parser.add_argument_group("mesh"))
     head = parser.add_argument_group("headless run")
     head.add_argument("--headless", action="store_true", help="run offscreen and write frames and a summary")
     head.add_argument("--frames", type=frame_count, default=30, help="frames per run (default 30)")
@@ -164,7 +175,8 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
     first.close()
     if scene is None:
         print(f"demo: building the terrain mesh; poses from {source_name}", file=err)
-    scene = scene or TerrainScene.build(screen, terrain=getattr(args, "terrain_loaded", None))
+    if scene is None:
+        scene = mesh_options(args).build(screen, getattr(args, "terrain_loaded", None))
     if renderer is None:
         renderer = TerrainRenderer(create_context(), size=tuple(args.size))
     elif tuple(renderer.size) != tuple(args.size):
@@ -224,10 +236,13 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
                     cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
                     pictures[vp] = str(path)
                 s = demo.stats
+                mesh = {**mesh_stats(demo.base_scene.mesh), "cache_bytes_max": max(s.cache_bytes, default=None)}
+                mesh.pop("cache_bytes", None)
                 runs.append({"viewpoint": vp, "mode": mode, "uncertainty": scenario, "foveate": foveate,
-                             **s.summary(),
+                             **s.summary(), "mesh": mesh,
                              "per_frame": {"frame_ms": [round(v, 3) for v in s.frame_ms],
                                            "triangles": [int(v) for v in s.triangles],
+                                           **({"lazy": s.lazy, "cache_bytes": s.cache_bytes} if s.lazy else {}),
                                            "stage_ms": {name: [round(x, 3) for x in v]
                                                         for name, v in s.stage_ms.items()}},
                              "frames_png": written[k]})
@@ -251,12 +266,15 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
                                     max(r["fps"] for r in mine) / full["fps"]]}
     summary = {"size": list(args.size), "frames_per_run": args.frames, "poses": source_name,
                "mode": args.mode, "viewpoints": {vp: VIEWPOINTS[vp].description for vp in args.viewpoints},
-               "fps_ratio_to_full": ratios, "pictures": pictures, "runs": runs,
+               "fps_ratio_to_full": ratios, "pictures": pictures, "runs": runs, "mesh": mesh_stats(scene.mesh),
+               "rss_mb": round(_rss_mb(), 1),
+               "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
                "notes": "per viewpoint, the runs are interleaved (one frame of each in turn) on one tracked "
                         "sequence; medians over each run's frames after its first (the first uploads the "
                         "mesh's vertex table and builds the mesh); frame = pose (waiting for the tracking "
                         "thread) + select + build + upload (indices) + render + readback + hud; upload is "
-                        "skipped when the mesh did not change",
+                        "skipped when the mesh did not change; with the lazy mesh (mesh.kind 'lazy') a frame "
+                        "whose cases changed uploads its compact vertex table and indices",
                "wall_s": None}
     chart = folder / "summary.png"
     write_chart(runs, args.viewpoints, chart, title=f"{args.size[0]}x{args.size[1]}, {source_name}")
@@ -265,6 +283,12 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     print_table(summary, out)
     return summary
+
+
+def _rss_mb() -> float:
+    """This process's resident set size now, MB."""
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * resource.getpagesize() / 2 ** 20
 
 
 def print_table(summary: dict, out=sys.stdout) -> None:
@@ -287,6 +311,14 @@ def print_table(summary: dict, out=sys.stdout) -> None:
               f"{q['ratio']:.1f}x (all scenarios {lo:.1f}-{hi:.1f}x)", file=out)
     for vp, path in summary["pictures"].items():
         print(f"picture {vp}: {path}", file=out)
+    m = summary.get("mesh")
+    if m is not None:
+        cache = ""
+        if m["kind"] == "lazy":
+            peak = max((r["mesh"]["cache_bytes_max"] or 0) for r in summary["runs"])
+            cache = f", piece cache at most {peak / 2 ** 20:.0f} of {m['cache_budget_bytes'] / 2 ** 20:.0f} MB"
+        print(f"mesh: {m['kind']}, level {m['max_level']} ({m['full_triangles']:,} triangles at full detail)"
+              f"{cache}; RSS {summary['rss_mb']:.0f} MB (peak {summary['peak_rss_mb']:.0f} MB)", file=out)
     folder = Path(summary["chart"]).parent
     print(f"frames: {folder / 'frames'}/   summary: {folder / 'summary.json'}, {summary['chart']}   "
           f"({summary['wall_s']} s)", file=out)
@@ -338,6 +370,16 @@ def run_demo(args) -> int:
     if args.mode == "raymask" and args.foveate:
         print("headplod demo: --mode raymask draws its own falling resolution; drop --foveate", file=sys.stderr)
         return 2
+    problem = mesh_options_problem(args, (args.mode,))
+    if problem:
+        print(f"headplod demo: {problem}", file=sys.stderr)
+        return 2
+    max_level = mesh_options(args).max_level
+    if args.headless and max_level > FULL_MAX_LEVEL and not args.no_full:
+        print(f"headplod demo: warning: full at --max-level {max_level} would draw {2048 * 4 ** max_level:,} "
+              f"triangles, which do not fit; the full runs are skipped (as --no-full: no ratio to full)",
+              file=sys.stderr)
+        args.no_full = True
     # The terrain file is read (and any problem reported) before anything is written; None: the built-in one.
     args.terrain_loaded, status = terrain_for_command(args, "headplod demo")
     if status is not None:

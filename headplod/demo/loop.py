@@ -34,6 +34,14 @@ Per frame
    case changed are rebuilt, as indices into the mesh's vertex table, which
    is uploaded once) → upload of the indices, skipped when the mesh did not
    change → off-axis indexed render → HUD.
+
+   With a :class:`headplod.plod.lazy_mesh.LazyAdaptiveMesh` (``--max-level``
+   above 5, or ``--lazy``) there is no whole table: a frame whose cases
+   changed gets a new compact table (the pieces it draws, from the shared
+   piece cache) and indices into it, both uploaded; a frame whose cases did
+   not change uploads nothing. ``raymask`` (rays against the whole ``full``
+   mesh) is not offered with it, nor ``full`` above
+   :data:`headplod.render.still.FULL_MAX_LEVEL`.
 """
 from __future__ import annotations
 
@@ -58,7 +66,7 @@ from ..render import TerrainRenderer, create_context, off_axis_projection
 from ..plod.raymask import RayMaskConfig
 from ..render.foveate import FoveatedRenderer, FoveationConfig, LayerAnchor, layer_plan
 from ..render.gl import VIEW_MODES as _GL_VIEW_MODES
-from ..render.still import RENDER_MODES, px_per_deg_at, default_head
+from ..render.still import RENDER_MODES, full_fits, px_per_deg_at, default_head, uses_table
 from . import viewpoints as vps
 from .hud import HudInfo, draw_hud, draw_picture_overlay
 
@@ -589,6 +597,12 @@ class FrameResult:
         The saccade rule kept the previous levels.
     poi_speed_deg_s : float
         Angular speed of the POI seen from the eye, deg/s.
+    cache_bytes : int or None
+        A lazy mesh's piece cache after the frame's build, bytes (shared by the loops of one scene); None
+        for the whole-table mesh.
+    lazy_stats : dict or None
+        A lazy mesh's build of the frame: ``rebuilt_faces``, ``generated_pieces``, ``vertices`` (None for
+        the whole-table mesh).
     """
 
     index: int
@@ -601,6 +615,8 @@ class FrameResult:
     pose: Pose
     saccade_skipped: bool
     poi_speed_deg_s: float
+    cache_bytes: int | None = None
+    lazy_stats: dict | None = None
 
     @property
     def tracking_lost(self) -> str | None:
@@ -616,9 +632,15 @@ class RunStats:
     stage_ms: dict = field(default_factory=lambda: {s: [] for s in STAGES})
     saccade_skipped: int = 0
     tracking_failures: int = 0
+    cache_bytes: list = field(default_factory=list)
+    lazy: dict = field(default_factory=dict)
 
     def add(self, r: FrameResult) -> None:
         self.frame_ms.append(r.frame_ms)
+        if r.cache_bytes is not None:
+            self.cache_bytes.append(r.cache_bytes)
+        for key, value in (r.lazy_stats or {}).items():
+            self.lazy.setdefault(key, []).append(value)
         self.triangles.append(r.triangles)
         for s in STAGES:
             self.stage_ms[s].append(r.stage_ms.get(s, 0.0))
@@ -696,7 +718,10 @@ class DemoLoop:
         self.foveated = FoveatedRenderer(renderer, self.foveation) if foveate else None
         self.anchor = LayerAnchor()
         self._fovea_view = None            # (filtered POI screen px, covariance deg² or None) of the levels
-        self._modes = RENDER_MODES
+        # The lazy mesh keeps no whole full mesh for raymask's rays, and full above FULL_MAX_LEVEL does not fit.
+        mesh = scene.mesh
+        self._modes = tuple(m for m in RENDER_MODES if not (m == "raymask" and not uses_table(mesh))
+                            and not (m == "full" and not full_fits(mesh)))
         self.raymask = RayMaskConfig()      # the settings of mode "raymask"
         self._raymask_renderer = None
         self.settings = {}
@@ -744,6 +769,8 @@ class DemoLoop:
             return False
         if key == "hud":
             self.hud = not self.hud
+        elif key == "mode" and value not in self._modes:
+            pass                             # a mode this mesh cannot draw (see __init__): the key does nothing
         elif key == "viewpoint" and value == "next":
             names = list(vps.VIEWPOINTS)
             self.set("viewpoint", names[(names.index(self.settings["viewpoint"]) + 1) % len(names)])
@@ -832,7 +859,10 @@ class DemoLoop:
         if self.foveated is not None:            # the layers' face spans and index re-sort
             stage["upload"] += self.foveated.last_sort_ms
         result = FrameResult(self.index, pose.t, image, self._levels, int(len(tri_levels)), stage,
-                             (t5 - t0) * 1e3, pose, bool(skipped), float(speed))
+                             (t5 - t0) * 1e3, pose, bool(skipped), float(speed),
+                             None if uses_table(mesh) else int(mesh.cache_bytes),
+                             None if uses_table(mesh) else {k: int(mesh.stats.get(k, 0)) for k in
+                                                            ("rebuilt_faces", "generated_pieces", "vertices")})
         return self._finish(result, t0)
 
     def _finish(self, result: FrameResult, t0: float) -> FrameResult:

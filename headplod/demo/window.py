@@ -16,7 +16,7 @@ import sys
 import numpy as np
 
 from ..render import TerrainRenderer
-from ..render.still import TerrainScene
+from ..render.still import mesh_options
 from .keys import action_for_key
 from .loop import DemoLoop
 from .poses import make_poses
@@ -77,7 +77,7 @@ def make_window_class():
             args = demo_args
             self.poses = make_poses(args)
             print("building the terrain mesh ...", file=sys.stderr)
-            scene = TerrainScene.build(self.poses.screen, terrain=getattr(args, "terrain_loaded", None))
+            scene = mesh_options(args).build(self.poses.screen, getattr(args, "terrain_loaded", None))
             size = tuple(args.size)
             self.loop = DemoLoop(scene, self.poses, TerrainRenderer(self.ctx, size=size), mode=args.mode,
                                  uncertainty=args.uncertainty, viewpoint=args.viewpoint, view_mode=args.view,

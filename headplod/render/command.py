@@ -4,6 +4,7 @@
                     [--size W,H] [--view shaded|wire|levels] --out IMAGE.png [--stats STATS.json]
                     [--export MESH.glb|.ply|.obj|.stl]
                     [--terrain DEM.tif|HEIGHTS.png|HEIGHTS.npy [--spacing-m D|DX,DY] [--height-scale S]]
+                    [--max-level 1..8] [--lazy] [--cache-mb MB]
 
 Exit status: 0 on success, 1 on a broken input file, 2 on bad usage.
 """
@@ -26,7 +27,8 @@ from ..plod.raymask import RayMaskConfig
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..plod.select import UNCERTAINTY_MODES
 from .gl import VIEW_MODES
-from .still import CONTRAST_SOURCES, RENDER_MODES, TerrainScene, render_still
+from .still import (CONTRAST_SOURCES, RENDER_MODES, MeshOptions, add_mesh_arguments, mesh_options,
+                    mesh_options_problem, render_still)
 
 __all__ = ["add_render_arguments", "run_render"]
 
@@ -72,6 +74,7 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
                                                          "scene metres, faces coloured by level)")
     add_terrain_arguments(render)
+    add_mesh_arguments(render.add_argument_group("mesh (backend mesh)"))
     return render
 
 
@@ -110,7 +113,17 @@ def run_render(args) -> int:
             print(f"headplod: --export {exc}", file=sys.stderr)
             return 2
     if args.backend == "tessellation":
+        given = [name for name, on in (("--max-level", args.max_level is not None), ("--lazy", args.lazy),
+                                       ("--cache-mb", args.cache_mb is not None)) if on]
+        if given:
+            print(f"headplod: --backend tessellation does not take {', '.join(given)} (its detail is "
+                  "--grid-samples)", file=sys.stderr)
+            return 2
         return _run_tessellation(args, screen, cov, size)
+    problem = mesh_options_problem(args, (args.mode,))
+    if problem:
+        print(f"headplod: {problem}", file=sys.stderr)
+        return 2
     raymask = None
     if args.mode == "raymask":
         bad = [name for name, on in (("--foveate", args.foveate), ("--export", args.export is not None),
@@ -133,7 +146,10 @@ def run_render(args) -> int:
     terrain, status = terrain_for_command(args, "headplod")     # read before anything is written
     if status is not None:
         return status
-    scene = None if terrain is None else TerrainScene.build(screen, terrain=terrain)
+    options = mesh_options(args)
+    scene = None
+    if terrain is not None or options != MeshOptions():         # else render_still's default scene
+        scene = options.build(screen, terrain)
     try:
         _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
                                 poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
@@ -149,7 +165,11 @@ def run_render(args) -> int:
               f"{r['silhouette_quads']} silhouette quads), {stats['triangles']} triangles; mask "
               f"{stats['select_ms']:.1f} ms, render {stats['render_ms']:.1f} ms; image: {args.out}", file=sys.stderr)
         return 0
-    print(f"{stats['triangles']} triangles; select {stats['select_ms']:.1f} ms, build {stats['build_ms']:.1f} ms, "
+    m = stats["mesh"]
+    lazy = (f", lazy mesh: {m['vertices']:,} vertices, cache {m['cache_bytes'] / 2 ** 20:.0f} of "
+            f"{m['cache_budget_bytes'] / 2 ** 20:.0f} MB" if m["kind"] == "lazy" else "")
+    print(f"{stats['triangles']} triangles (level {m['max_level']}{lazy}); select {stats['select_ms']:.1f} ms, "
+          f"build {stats['build_ms']:.1f} ms, "
           f"render {stats['render_ms']:.1f} ms; image: {args.out}"
           + (f"; mesh: {args.export}" if args.export else ""), file=sys.stderr)
     return 0

@@ -19,6 +19,7 @@ import numpy as np
 from ..plod.contrast import project_to_screen_px, readback_contrast
 from ..io import write_atomically
 from ..plod.export import check_export_path, export_mesh
+from ..plod.lazy_mesh import DEFAULT_CACHE_BYTES, LazyAdaptiveMesh
 from ..plod.mesh import AdaptiveMesh, BaseMesh
 from ..plod.raymask import RayMaskConfig
 from ..plod.select import MODES, LevelSelector, SelectorConfig, View
@@ -45,6 +46,19 @@ FRAME_SPAN_M = 31_700.0
 #: iterate over ``MODES`` stay as they are.
 RENDER_MODES = MODES + ("raymask",)
 
+#: Finest level of the meshes (``--max-level``): 1..8 (8: 134 M triangles at full detail on the 32 x 32 base).
+MAX_LEVELS = range(1, 9)
+#: Default finest level: the whole-table :class:`AdaptiveMesh`, 1025 x 1025 samples, 2.1 M triangles.
+DEFAULT_MAX_LEVEL = 5
+#: Finest level the whole-table :class:`AdaptiveMesh` is used for; above it the scene's mesh is a
+#: :class:`LazyAdaptiveMesh` (its table would be about 190 MB at level 6, 750 MB at 7, 3 GB at 8: 4x a level).
+TABLE_MAX_LEVEL = 5
+#: Finest level at which ``full`` (every face at the finest level) is drawn: 33.5 M triangles at 7 (a frame's
+#: table and indices ~0.8 GB, more again in llvmpipe's buffers); level 8's 134 M (~3 GB) is refused.
+FULL_MAX_LEVEL = 7
+#: Shortest synthetic detail wave of the built-in terrain at the default level, m (``Terrain``'s default).
+BUILTIN_DETAIL_M = 60.0
+
 #: Where a triangle's contrast comes from (``render_still(contrast=...)``, ``headplod render --contrast``):
 #: the shading, or the paper's window read back from a first frame.
 CONTRAST_SOURCES = ("shading", "readback")
@@ -55,22 +69,43 @@ class TerrainScene:
     """The terrain, its base mesh and adaptive mesh, placed behind a screen."""
 
     terrain: Terrain
-    mesh: AdaptiveMesh
+    mesh: AdaptiveMesh | LazyAdaptiveMesh
     model: np.ndarray           # (4, 4) scene (m) → world (mm)
     screen: object
     fit: float = 1.0            # scale factor of SCALE_MM_PER_M and the viewpoints' scales (1: the built-in)
 
     @classmethod
-    def build(cls, screen, max_level: int = 5, terrain: Terrain | None = None) -> "TerrainScene":
+    def build(cls, screen, max_level: int = DEFAULT_MAX_LEVEL, terrain: Terrain | None = None, *,
+              lazy: bool | None = None, cache_bytes: int = DEFAULT_CACHE_BYTES) -> "TerrainScene":
         """The scene of ``terrain`` (default: the built-in Jacksboro terrain), framed by :func:`fit_scale`.
 
-        Any terrain gets the same mesh: a 32 x 32 base grid refined to
-        ``max_level`` (1025 x 1025 vertices at level 5) over its extent.
+        Any terrain gets the same base: a 32 x 32 grid over its extent,
+        refined to ``max_level``: ``32 * 2**max_level + 1`` samples per side
+        at full detail (1025 at level 5, 4097 at 7), sampled from the
+        terrain's own interpolant, so a DEM finer than 1025 samples shows
+        its detail where the selection asks for those levels.
+
+        ``lazy``: the mesh is a :class:`LazyAdaptiveMesh` (pieces made for
+        what a frame draws, in a cache of ``cache_bytes``) instead of the
+        whole-table :class:`AdaptiveMesh`; default: above
+        :data:`TABLE_MAX_LEVEL`. At level 5 both draw the same triangles.
+
+        The built-in terrain's synthetic detail reaches down to twice the
+        finest level's vertex spacing: 60 m at level 5 (as before), halved
+        per level above it (30 m at 6, 15 m at 7), so finer levels have
+        detail to show (and no aliasing); ``--terrain`` files get no
+        synthetic detail at any level.
         """
+        if not isinstance(max_level, (int, np.integer)) or not 0 <= max_level <= MAX_LEVELS.stop - 1:
+            raise ValueError(f"max_level must be an integer in 0..{MAX_LEVELS.stop - 1}, got {max_level!r}")
+        lazy = max_level > TABLE_MAX_LEVEL if lazy is None else bool(lazy)
         fit = 1.0 if terrain is None else fit_scale(terrain)
-        terrain = Terrain.jacksboro() if terrain is None else terrain
+        terrain = Terrain.jacksboro(**builtin_terrain_options(max_level)) if terrain is None else terrain
         base = BaseMesh.grid(terrain)
-        mesh = AdaptiveMesh(base, terrain, max_level=max_level)
+        if lazy:
+            mesh = LazyAdaptiveMesh(base, terrain, max_level=max_level, cache_bytes=cache_bytes)
+        else:
+            mesh = AdaptiveMesh(base, terrain, max_level=max_level)
         x0, x1, y0, y1 = terrain.extent
         centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, float(np.median(terrain.dem_z_m))])
         model = np.asarray(scene_to_world(SCALE_MM_PER_M * fit, centre, screen, depth_mm=DEPTH_MM,
@@ -99,6 +134,148 @@ class TerrainScene:
             grid_shape = (len(np.unique(vertices[:, 1])) - 1, len(np.unique(vertices[:, 0])) - 1)
             return QuadtreeSelector(*args, corners_scene=m.corners, grid_shape=grid_shape)
         return LevelSelector(*args, corners_scene=m.corners)
+
+
+def builtin_terrain_options(max_level: int) -> dict:
+    """``Terrain.jacksboro`` options for a mesh of ``max_level``: {} up to level 5 (the built-in scene as it
+    is), else the detail's shortest wave halved per level above 5 (``BUILTIN_DETAIL_M / 2**(max_level - 5)``)."""
+    if max_level <= DEFAULT_MAX_LEVEL:
+        return {}
+    return {"detail_min_wavelength_m": BUILTIN_DETAIL_M / 2 ** (max_level - DEFAULT_MAX_LEVEL)}
+
+
+def add_mesh_arguments(parser) -> None:
+    """Add ``--max-level``, ``--lazy`` and ``--cache-mb`` (the scene's mesh) to a parser or argument group.
+
+    Their values are checked by :func:`mesh_options_problem` (one line, exit status 2, before anything is
+    written), not by argparse (whose usage message is many lines).
+    """
+    parser.add_argument("--max-level", default=None, metavar="N",
+                        help=f"finest PLOD level, 1..8 (default {DEFAULT_MAX_LEVEL}: the 32x32 base to 1025x1025 "
+                             "samples, 2.1M triangles at full detail); above 5 the mesh is made lazily (only the "
+                             "pieces a frame draws, in a bounded cache) and the terrain is sampled at "
+                             "32*2^N+1 per side (4097 at 7), so a fine --terrain DEM shows its own detail near "
+                             "the POI; the built-in terrain's synthetic detail is refined to match")
+    parser.add_argument("--lazy", action="store_true",
+                        help="use the lazy mesh at --max-level 5 or lower too (the same triangles as the default "
+                             "whole-table mesh)")
+    parser.add_argument("--cache-mb", default=None, metavar="MB",
+                        help=f"lazy mesh: byte budget of its piece cache, MB (default {DEFAULT_CACHE_BYTES >> 20}; "
+                             "the pieces of a frame beyond it are made again when next needed)")
+
+
+def _parse_mesh_values(args) -> None:
+    """``args.max_level`` and ``args.cache_mb`` from their text to numbers, in place;
+    ``argparse.ArgumentTypeError`` (its message names the option) for a bad one."""
+    import argparse
+
+    from ..argtypes import cache_mb, max_level
+
+    for name, option, parse in (("max_level", "--max-level", max_level), ("cache_mb", "--cache-mb", cache_mb)):
+        value = getattr(args, name, None)
+        if isinstance(value, str):
+            try:
+                setattr(args, name, parse(value))
+            except argparse.ArgumentTypeError as exc:
+                raise argparse.ArgumentTypeError(f"{option}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class MeshOptions:
+    """The scene's mesh: ``--max-level``, ``--lazy``, ``--cache-mb``.
+
+    Attributes
+    ----------
+    max_level : int
+        Finest level, 0..8 (the commands take 1..8); default 5: the 32 x 32 base to 1025 x 1025 samples.
+    lazy : bool
+        A :class:`LazyAdaptiveMesh`; always true above :data:`TABLE_MAX_LEVEL` (set so when made), false:
+        the whole-table :class:`AdaptiveMesh`.
+    cache_mb : float
+        Budget of the lazy mesh's piece cache, MB (2**20 bytes), 1..65536; default 256.
+    """
+
+    max_level: int = DEFAULT_MAX_LEVEL
+    lazy: bool = False
+    cache_mb: float = DEFAULT_CACHE_BYTES / 2 ** 20
+
+    def __post_init__(self):
+        if not isinstance(self.max_level, (int, np.integer)) or not 0 <= self.max_level <= MAX_LEVELS.stop - 1:
+            raise ValueError(f"max_level must be an integer in 0..{MAX_LEVELS.stop - 1}, got {self.max_level!r}")
+        if not (math.isfinite(self.cache_mb) and 1 <= self.cache_mb <= 65536):
+            raise ValueError(f"cache_mb must lie in 1..65536 MB, got {self.cache_mb!r}")
+        object.__setattr__(self, "max_level", int(self.max_level))
+        object.__setattr__(self, "lazy", bool(self.lazy) or self.max_level > TABLE_MAX_LEVEL)
+
+    @property
+    def cache_bytes(self) -> int:
+        return int(self.cache_mb * 2 ** 20)
+
+    def build(self, screen, terrain: Terrain | None = None) -> "TerrainScene":
+        """``TerrainScene.build`` with these options."""
+        return TerrainScene.build(screen, self.max_level, terrain=terrain, lazy=self.lazy,
+                                  cache_bytes=self.cache_bytes)
+
+
+def mesh_options(args) -> MeshOptions:
+    """The :class:`MeshOptions` of :func:`add_mesh_arguments`'s options (``argparse.ArgumentTypeError``
+    naming the option for a bad value)."""
+    _parse_mesh_values(args)
+    level = getattr(args, "max_level", None)
+    mb = getattr(args, "cache_mb", None)
+    return MeshOptions(DEFAULT_MAX_LEVEL if level is None else int(level), bool(getattr(args, "lazy", False)),
+                       MeshOptions.cache_mb if mb is None else float(mb))
+
+
+def mesh_options_problem(args, modes) -> str | None:
+    """Why the mesh options cannot work with the ``modes`` a command will draw (one line), or None.
+
+    - ``--cache-mb`` without the lazy mesh: it has no cache.
+    - ``raymask`` with the lazy mesh: it casts rays against the height field of the whole ``full`` mesh,
+      which the lazy mesh never holds (at level 8 it would be 67 M samples); use the default mesh.
+    - ``full`` above :data:`FULL_MAX_LEVEL`: 134 M triangles at level 8 do not fit (~3 GB a frame).
+
+    Also the values themselves: ``--max-level`` a whole number in 1..8, ``--cache-mb`` in 1..65536.
+    """
+    import argparse
+
+    try:
+        options = mesh_options(args)
+    except argparse.ArgumentTypeError as exc:
+        return str(exc)
+    level, lazy = options.max_level, options.lazy
+    if getattr(args, "cache_mb", None) is not None and not lazy:
+        return "--cache-mb applies to the lazy mesh only (--max-level above 5, or --lazy)"
+    if "raymask" in modes and lazy:
+        return ("--mode raymask casts rays against the whole full-detail mesh, which the lazy mesh does not "
+                f"keep; use --max-level {TABLE_MAX_LEVEL} or lower without --lazy")
+    if "full" in modes and level > FULL_MAX_LEVEL:
+        return (f"--mode full at --max-level {level} would draw {2048 * 4 ** level:,} triangles (about "
+                f"{2048 * 4 ** level * 24 / 2 ** 30:.1f} GB a frame); use --max-level {FULL_MAX_LEVEL} or lower, "
+                "or a PLOD mode such as csf")
+    return None
+
+
+def mesh_stats(mesh) -> dict:
+    """What a frame's stats say of the mesh: ``kind`` (``table`` or ``lazy``), ``max_level``,
+    ``full_triangles``; for a lazy mesh also the last frame's ``vertices`` (compact table rows) and its
+    cache's ``cache_bytes`` and ``cache_budget_bytes``."""
+    out = {"kind": "table" if uses_table(mesh) else "lazy", "max_level": int(mesh.max_level),
+           "full_triangles": int(mesh.triangle_count(np.full(mesh.n_faces, mesh.max_level)))}
+    if not uses_table(mesh):
+        out.update(vertices=int(len(mesh.vertex_positions)), cache_bytes=int(mesh.cache_bytes),
+                   cache_budget_bytes=int(mesh.budget_bytes))
+    return out
+
+
+def full_fits(mesh) -> bool:
+    """Whether mode ``full`` (every face at the finest level) is drawn on this mesh (:data:`FULL_MAX_LEVEL`)."""
+    return mesh.max_level <= FULL_MAX_LEVEL
+
+
+def uses_table(mesh) -> bool:
+    """Whether ``mesh`` is the whole-table :class:`AdaptiveMesh` (``raymask`` needs it)."""
+    return isinstance(mesh, AdaptiveMesh)
 
 
 def fit_scale(terrain) -> float:
@@ -165,6 +342,11 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
         raise ValueError(f"render_still: contrast must be one of {', '.join(CONTRAST_SOURCES)}, got {contrast!r}")
     if mode not in RENDER_MODES:
         raise ValueError(f"render_still: mode must be one of {', '.join(RENDER_MODES)}, got {mode!r}")
+    if mode == "raymask" and not uses_table(scene.mesh):
+        raise ValueError("render_still: mode 'raymask' needs the whole-table AdaptiveMesh (max_level <= 5, not lazy)")
+    if mode == "full" and not full_fits(scene.mesh):
+        raise ValueError(f"render_still: mode 'full' at max_level {scene.mesh.max_level} does not fit "
+                         f"(at most {FULL_MAX_LEVEL})")
     if mode == "raymask":
         return _render_raymask(screen, scene, head, poi, cov_deg2, size, view_mode, out, stats_path, renderer,
                                contrast, export, foveate, raymask or RayMaskConfig(), raymask_renderer)
@@ -182,11 +364,11 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
         t0 = time.perf_counter()
         levels, _ = selector.select(View(head, poi, cov_deg2, 0.0))
         t1 = time.perf_counter()
-        if draw:
+        if draw and uses_table(scene.mesh):
             positions, normals, tri_levels = scene.mesh.update(levels)
             t2 = time.perf_counter()
             renderer.upload(positions, normals, tri_levels)
-        else:                  # foveated: the vertex table and indices, for the layers' subsets
+        else:   # foveated: the vertex table and indices, for the layers' subsets; a lazy mesh: its frame table
             indices, tri_levels = scene.mesh.update_indices(levels)
             t2 = time.perf_counter()
             renderer.upload(scene.mesh.vertex_positions, scene.mesh.vertex_normals, tri_levels, indices)
@@ -221,7 +403,7 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
              "head_mm": head.round(2).tolist(), "poi_px": poi.round(2).tolist(),
              "triangles": int(len(tri_levels)), "select_ms": select_s * 1e3, "build_ms": build_s * 1e3,
              "render_ms": render_ms, "triangles_per_level": counts.tolist(),
-             "contrast": contrast}
+             "contrast": contrast, "mesh": mesh_stats(scene.mesh)}
     if layers is not None:
         stats["foveate_layers"] = [{"scale": l.scale, "inner_deg": round(l.inner_deg, 3),
                                     "outer_deg": None if math.isinf(l.outer_deg) else round(l.outer_deg, 3)}
