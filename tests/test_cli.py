@@ -19,7 +19,7 @@ from headplod.plod.select import MODES, UNCERTAINTY_MODES
 from headplod.render.gl import VIEW_MODES
 from headplod.render.still import CONTRAST_SOURCES, RENDER_MODES
 from headplod.tracking.tracker import ESTIMATORS
-from headplod.tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
+from headplod.tracking.uncertainty import COVARIANCE_ESTIMATORS
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTE_END = "the old spelling goes in the next release"

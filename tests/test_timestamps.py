@@ -12,7 +12,6 @@ import io as textio
 import shutil
 from pathlib import Path
 
-import pytest
 
 from headplod import io
 from headplod.capture import DatasetSource, TimestampCheck
