@@ -312,3 +312,19 @@ def test_texture_shading_meets_the_full_detail_render(ctx430, default_screen):
         psnr[shading] = psnr_db(csf, full, disc)
     assert psnr["texture"] >= 45.0, psnr
     assert psnr["vertex"] < psnr["texture"] - 5, psnr
+
+
+def test_patch_samples_for_keeps_two_vertices_per_pixel():
+    from headplod.plod.patches import patch_samples_for
+
+    for n in (129, 1025, 2049, 4097, 8193, 16385):
+        for px in (320, 1280, 1920):
+            p = patch_samples_for(n, px)
+            assert p >= 64 and (n - 1) % p == 0 and p & (p - 1) == 0
+            finest = (n - 1) // p * min(p, 64)             # vertices across the terrain at the finest level
+            assert finest >= 2 * px or p == 64             # enough for the image (or the smallest patch)
+            if (n - 1) % (2 * p) == 0:                     # and the next size up would not be
+                assert (n - 1) // (2 * p) * 64 < 2 * px
+    assert patch_samples_for(8193, 1280) == 128 and patch_samples_for(1025, 1280) == 64
+    with pytest.raises(ValueError, match="multiple of 64"):
+        patch_samples_for(1000, 1280)

@@ -14,11 +14,13 @@ Back ends:
 - ``tessellation`` (:mod:`headplod.render.tessellate`), with each selection
   (:data:`SELECTIONS`): ``tree``, the quadtree of variable-size patches of
   :mod:`headplod.plod.patch_tree` walked on the CPU (leaves of 64 samples);
-  ``flat``, patches of 64 samples, the ``csf`` levels computed per patch on
-  the GPU. The goals are the default selection's
-  (``TessellationConfig.hierarchy``). The flat one on the largest terrain
-  also with patches of 128, 256 and 512 samples (``patch_sweep``: fewer
-  patches to select and draw, more triangles).
+  ``flat``, the ``csf`` levels computed per patch on the GPU, with patches
+  as large as the image can use (:func:`headplod.plod.patches.patch_samples_for`,
+  as ``headplod render``: 64 samples up to 4097², 128 at 8193² for 1280 px).
+  The goals are the default selection's (``TessellationConfig.hierarchy``).
+  The flat one on the largest terrain also with the other patch sizes of
+  64, 128, 256 and 512 samples (``patch_sweep``: fewer patches to select
+  and draw, more triangles).
 - ``full``: the whole grid as one indexed mesh (``TerrainRenderer``, 24 bytes
   per vertex and 12 per triangle), where it fits (by default up to 2049²:
   4097² needs about 1.6 GB of buffers before llvmpipe's copies).
@@ -99,7 +101,7 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     from calib import DEFAULT_SCREEN
 
     from .. import io
-    from ..plod.patches import PatchGrid, grid_normals, jacksboro_grid
+    from ..plod.patches import PatchGrid, grid_normals, jacksboro_grid, patch_samples_for
     from ..render import TerrainRenderer, create_context, off_axis_projection
     from ..render.still import default_head
     from ..render.tessellate import TessellationConfig, TessellationRenderer, grid_model, render_frame
@@ -115,7 +117,11 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
     disc, region, _ = _disc_region(screen, head, size)
     ctx = create_context(require=430)
-    p = MIN_PATCH_SAMPLES if patch_samples is None else int(patch_samples)
+    tree = bool(TessellationConfig().hierarchy if hierarchy is None else hierarchy)
+    # Default patches: the flat grid's as large as the image can use (the render command's rule); the tree's
+    # leaves keep one vertex per sample at the finest level.
+    p = (int(patch_samples) if patch_samples is not None else MIN_PATCH_SAMPLES if tree
+         else patch_samples_for(n_samples, max(size), smallest=MIN_PATCH_SAMPLES))
     grid = PatchGrid.build(z, dx, dy, p, origin_m=origin)
     model = grid_model(grid, screen)
     config = TessellationConfig(patch_samples=p, level_bias=level_bias)
@@ -187,10 +193,10 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
             "select_ms_all": [s[0] for s in steady], "render_ms_all": [s[1] for s in steady]}
 
 
-def _run_in_subprocess(backend: str, n_samples: int, frames: int, cache_dir, patch_samples=MIN_PATCH_SAMPLES,
+def _run_in_subprocess(backend: str, n_samples: int, frames: int, cache_dir, patch_samples=None,
                        selection: str | None = None) -> dict:
     cmd = [sys.executable, "-m", "headplod.bench.plod_scale", backend, str(n_samples), str(frames),
-           "-" if cache_dir is None else str(cache_dir), "0", str(patch_samples), selection or "-"]
+           "-" if cache_dir is None else str(cache_dir), "0", str(patch_samples or "-"), selection or "-"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         return {"backend": backend, "samples": n_samples, "ok": False,
@@ -228,12 +234,15 @@ def scale_report(samples=SCALE_SAMPLES, frames: int = 9, full_max_samples: int =
                 say("  " + _row(cases[-1]))
     sweep = []
     if patch_sweep:
+        from ..plod.patches import patch_samples_for
+        default_p = patch_samples_for(max(samples), max(SIZE), smallest=MIN_PATCH_SAMPLES)
         for p in SWEEP_PATCH_SAMPLES:
-            if p != MIN_PATCH_SAMPLES and (max(samples) - 1) % p == 0:
+            if p != default_p and (max(samples) - 1) % p == 0:
                 say(f"tessellation on {max(samples)}x{max(samples)}, patches of {p} samples")
                 sweep.append(_run_in_subprocess("tessellation", max(samples), frames, cache_dir, p, selection="flat"))
                 say("  " + _row(sweep[-1]))
-    return {"size": list(SIZE), "patch_samples": MIN_PATCH_SAMPLES, "cov_deg2": COV_DEG2.tolist(), "cases": cases,
+    return {"size": list(SIZE), "patch_samples": "flat: patches.patch_samples_for(samples, 1280); tree: leaves of 64",
+            "cov_deg2": COV_DEG2.tolist(), "cases": cases,
             "patch_sweep": sweep, "goals": _goals(cases, samples)}
 
 
@@ -274,9 +283,9 @@ def _goals(cases, samples) -> list:
 def _row(c) -> str:
     if not c.get("ok"):
         return f"{c['backend']:13s} {c['samples']:5d}  -- {c.get('reason')}"
-    name = c["backend"] if c.get("patch_samples", MIN_PATCH_SAMPLES) == MIN_PATCH_SAMPLES else f"tess P={c['patch_samples']}"
+    name = "full"
     if c["backend"] == "tessellation":
-        name = ("tess tree" if c.get("hierarchy") else "tess flat") + name[len("tessellation"):]
+        name = f"{'tree' if c.get('hierarchy') else 'flat'} P={c['patch_samples']}"
     return (f"{name:13s} {c['samples']:5d} {c['full_triangles'] / 1e6:7.1f}M {c['frame_ms']:9.1f} "
             f"{c['select_ms']:8.2f} {c['rss_mb']:8.0f} {c['triangles']:10d} {c['psnr_disc_5deg_db']:7.1f} "
             f"{c['psnr_disc_5deg_ssaa_db']:7.1f}")

@@ -41,7 +41,7 @@ from . import perception as pc
 from .terrain import Terrain, _bspline_weights
 
 __all__ = ["height_grid", "jacksboro_grid", "grid_normals", "PatchGrid", "patch_levels", "levels_of_patches",
-           "point_speed_deg_s", "tess_factors", "FACTOR_RULES", "EDGE_NAMES"]
+           "point_speed_deg_s", "tess_factors", "FACTOR_RULES", "EDGE_NAMES", "patch_samples_for"]
 
 #: The detail's shortest wavelength on :func:`jacksboro_grid`'s grids, sample spacings: each grid has detail
 #: down to its own resolution.
@@ -460,6 +460,27 @@ def tess_factors(levels: np.ndarray, max_level: int, patch_samples: int | None =
     lv = np.clip(lv, -1.0, float(max_level))
     gap = np.maximum(np.floor(patch_samples * np.exp2(-lv)), 1.0)
     return np.minimum(np.ceil(patch_samples / gap), 2 ** max_level).astype(np.int64)
+
+
+def patch_samples_for(n_samples: int, image_px: int, max_tess_level: int = 64, smallest: int = 64) -> int:
+    """Patch side (samples) for an ``n x n`` grid drawn into an image ``image_px`` pixels on its longer side.
+
+    The largest power of two ``P >= smallest`` dividing ``n - 1`` whose finest
+    level (``P / max_tess_level`` samples per vertex) still puts at least two
+    vertices per image pixel across the whole terrain: ``(n - 1) / P *
+    max_tess_level >= 2 image_px``. Finer vertices than that cannot show
+    even where the terrain fills the image, and larger patches mean fewer
+    for the levels pass and the draw (8193² at 1280 px: 128, 4096 patches
+    instead of 16384). ``smallest`` when no larger one qualifies.
+    """
+    if n_samples < 2 or (n_samples - 1) % smallest:
+        raise ValueError(f"patch_samples_for: n_samples - 1 must be a positive multiple of {smallest}, "
+                         f"got {n_samples}")
+    p = smallest
+    while ((n_samples - 1) % (2 * p) == 0
+           and (n_samples - 1) / (2 * p) * min(2 * p, max_tess_level) >= 2 * image_px):
+        p *= 2
+    return p
 
 
 def max_level_for(patch_samples: int, max_tess_level: int) -> int:

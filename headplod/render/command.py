@@ -177,12 +177,9 @@ def run_render(args) -> int:
 
 def _run_tessellation(args, screen, cov, size) -> int:
     """``headplod render --backend tessellation``: one frame of :mod:`headplod.render.tessellate`."""
-    from pathlib import Path
-
-    import cv2
-
-    from ..plod.patches import PatchGrid, height_grid, jacksboro_grid
+    from ..plod.patches import PatchGrid, height_grid, jacksboro_grid, patch_samples_for
     from .context import create_context
+    from .still import write_outputs
     from .tessellate import TESS_MODES, TessellationConfig, TessellationRenderer, grid_model, render_frame
 
     bad = [name for name, on in (("--foveate", args.foveate), ("--export", args.export is not None),
@@ -200,6 +197,9 @@ def _run_tessellation(args, screen, cov, size) -> int:
     if n < config.patch_samples + 1 or (n - 1) % config.patch_samples:
         print(f"headplod: --grid-samples must be 1 + a multiple of {config.patch_samples}, got {n}", file=sys.stderr)
         return 2
+    if not config.hierarchy:        # the flat grid: patches as large as the image can use (the tree's leaves stay 64)
+        config = replace(config, patch_samples=patch_samples_for(n, max(size), config.max_tess_level,
+                                                                 config.patch_samples))
     patches = (n - 1) // config.patch_samples
     if config.hierarchy and patches & (patches - 1):
         print(f"headplod: --selection tree needs a power-of-two number of patches per side: --grid-samples {n} "
@@ -217,12 +217,12 @@ def _run_tessellation(args, screen, cov, size) -> int:
     with TessellationRenderer(create_context(require=430), grid, size=size, config=config) as renderer:
         image, stats = render_frame(renderer, screen, grid_model(grid, screen), args.head, args.poi, cov,
                                     mode=args.mode)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(args.out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
-    if args.stats:
-        import json
-        Path(args.stats).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.stats).write_text(json.dumps({**stats, "grid_samples": n, "size": list(size)}, indent=2))
+    try:                             # each file whole or not at all, as the mesh back end's
+        write_outputs(image, {**stats, "grid_samples": n, "patch_samples": config.patch_samples, "size": list(size)},
+                       args.out, args.stats)
+    except (OSError, ValueError) as exc:
+        print(f"headplod: could not write the output: {getattr(exc, 'strerror', None) or exc}", file=sys.stderr)
+        return 1
     print(f"{stats['triangles']} triangles ({grid.full_triangles} at full detail); select {stats['select_ms']:.1f} ms, "
           f"render {stats['render_ms']:.1f} ms; image: {args.out}", file=sys.stderr)
     return 0

@@ -415,7 +415,7 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
         stats["terrain"] = {"path": source.path, "kind": source.kind, "shape": list(scene.terrain.shape),
                             "spacing_m": [source.dx_m, source.dy_m], "filled_samples": source.filled,
                             "fit": scene.fit}
-    _write_outputs(image, stats, out, stats_path)
+    write_outputs(image, stats, out, stats_path)
     if export is not None:
         export_mesh(scene.mesh, face_levels, export)
     return image, stats
@@ -454,11 +454,11 @@ def _render_raymask(screen, scene, head, poi, cov_deg2, size, view_mode, out, st
                          "mask_contrast": config.contrast, "silhouettes": bool(config.silhouettes),
                          "fill_radius_deg": round(mask.r_fill_deg, 3), "rings": int(len(mask.rings_deg)),
                          "angles": int(mask.n_angles)}}
-    _write_outputs(image, stats, out, stats_path)
+    write_outputs(image, stats, out, stats_path)
     return image, stats
 
 
-def _write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> None:
+def write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> None:
     """Write the image (RGB (H, W, 3) uint8; format from the ending) and the stats (JSON), each whole or not at all.
 
     Raises ValueError when OpenCV cannot encode the image (an ending it does
