@@ -128,6 +128,19 @@ def default_screen() -> io.Screen:
 
 
 @pytest.fixture(scope="module")
+def ctx430():
+    """A headless OpenGL 4.3 context (tessellation and storage buffers; Mesa llvmpipe has it), or a skip saying why."""
+    from headplod.render import create_context
+
+    try:
+        ctx = create_context(require=430)
+    except RuntimeError as exc:
+        pytest.skip(f"no headless OpenGL 4.3: {exc}")
+    yield ctx
+    ctx.release()
+
+
+@pytest.fixture(scope="module")
 def terrain_scene(default_screen):
     """The PLOD terrain scene (Jacksboro DEM, 2048 base faces up to level 5) behind the default screen.
     Built once per module (a few seconds): the modules do not share its mesh state."""

@@ -38,18 +38,6 @@ def grid(terrain):
     return PatchGrid.build(z, dx, dy, PATCH, origin_m=(x0, y0))
 
 
-@pytest.fixture(scope="module")
-def ctx430():
-    from headplod.render import create_context
-
-    try:
-        ctx = create_context(require=430)
-    except RuntimeError as exc:
-        pytest.skip(f"no headless OpenGL 4.3: {exc}")
-    yield ctx
-    ctx.release()
-
-
 def _view(screen, grid, poi_px=None, head_mm=None):
     from headplod.render.tessellate import grid_model, head_axes
 
