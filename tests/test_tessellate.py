@@ -316,3 +316,28 @@ def test_patch_samples_for_keeps_two_vertices_per_pixel():
     assert patch_samples_for(8193, 1280) == 128 and patch_samples_for(1025, 1280) == 64
     with pytest.raises(ValueError, match="multiple of 64"):
         patch_samples_for(1000, 1280)
+
+
+def test_shader_csf_of_a_moving_eye_equals_perception(ctx430, grid, default_screen):
+    """With the eye moving the levels pass solves f_max per point (Newton on Lambert's W) instead of the
+    still-head shortcut: it equals levels_of_patches given the same last eye and time step."""
+    from headplod.plod.patches import levels_of_patches
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer
+
+    cov = np.diag([0.05 ** 2] * 2)
+    view0, proj0, model, head0, axes0 = _view(default_screen, grid, poi_px=(700.0, 500.0))
+    head1 = head0 + np.array([25.0, -10.0, 0.0])               # 25 mm in 1/60 s: points move ~100 deg/s
+    view1, proj1, _, _, axes1 = _view(default_screen, grid, poi_px=(700.0, 500.0), head_mm=head1)
+    with TessellationRenderer(ctx430, grid, size=(64, 36), config=TessellationConfig(patch_samples=PATCH)) as r:
+        still, _, _ = r.levels(view0, proj0, model, head0, axes0, cov, t=0.0)
+        r._prev = (head0.copy(), 0.0)
+        inner, outer, _ = r.levels(view1, proj1, model, head1, axes1, cov, t=1 / 60)
+    n = grid.n_patches
+    pad = np.pad(grid.contrast.astype(float), 1, mode="edge")
+    neighbour = np.stack([pad[1:-1, :-2], pad[:-2, 1:-1], pad[1:-1, 2:], pad[2:, 1:-1]], axis=-1)
+    ref_inner, ref_outer = levels_of_patches(grid.corners_scene(), grid.contrast, neighbour, model, head1, axes1,
+                                             cov, eye_prev_mm=head0, dt_s=1 / 60)
+    assert ref_inner.shape == (n, n)
+    np.testing.assert_allclose(inner, ref_inner, atol=LEVEL_ATOL)
+    np.testing.assert_allclose(outer, ref_outer, atol=LEVEL_ATOL)
+    assert np.median(still - inner) > 0.5                       # the motion coarsens: the Newton path ran

@@ -78,6 +78,7 @@ import cv2
 import numpy as np
 
 from ..plod.patch_tree import PatchTree
+from ..plod import perception as pc
 from ..plod.patches import FACTOR_RULES, PatchGrid, max_level_for, tess_factors
 from .context import moderngl
 from .gl import _FRAGMENT_SHADER, read_rgb
@@ -233,7 +234,7 @@ void main() { v_patch = gl_VertexID; }
 
 _COMMON = """
 uniform sampler2D u_height;       // R32F, texel (j, i) = height of sample [i, j], metres
-uniform sampler2D u_patch;        // RGBA32F (n, n): z_min, z_max (m), contrast of patch (pj, pi)
+uniform sampler2D u_patch;        // RGBA32F (n, n): z_min, z_max (m), contrast, still f_max (cpd) of patch (pj, pi)
 uniform int u_patches;            // patches per side, n
 uniform int u_patch_samples;      // P
 uniform vec2 u_origin_m;          // scene (x, y) of sample [0, 0]
@@ -319,12 +320,14 @@ float fmax_cpd(float contrast, float speed, float ecc) {
 }
 
 // Continuous level log2(f_max · diameter) of pieces centred at world point c, reaching reach_deg from it.
-float level_at(vec3 c, float reach_deg, float diameter_deg, float contrast) {
+// fmax_still: the pieces' f_max at eccentricity 0 and the speed floor (precomputed per patch, cpd): the
+// same number as fmax_cpd there, without its Newton steps (a still or slow head, the common case).
+float level_at(vec3 c, float reach_deg, float diameter_deg, float contrast, float fmax_still) {
     float ecc = max(eccentricity_deg(shift(offsets_deg(c))) - reach_deg, 0.0);
     float speed = MIN_SPEED;
     if (u_dt_s > 0.0)
         speed = max(angle_deg(normalize(c - u_eye_prev_mm), normalize(c - u_eye_mm)) / u_dt_s, MIN_SPEED);
-    float f = fmax_cpd(contrast, speed, ecc);
+    float f = speed <= MIN_SPEED ? fmax_still / (1.0 + ECC_SLOPE * ecc) : fmax_cpd(contrast, speed, ecc);
     if (f <= 0.0) return -1e30;
     return log2(f * max(diameter_deg, 1e-9)) + u_level_bias;
 }
@@ -385,7 +388,7 @@ void patch_levels(int id, out float inner, out float outer[4], out bool culled) 
     float diameter = max(max(max(angle_deg(d[0], d[1]), angle_deg(d[1], d[2])), max(angle_deg(d[2], d[3]),
                          angle_deg(d[3], d[0]))), max(angle_deg(d[0], d[2]), angle_deg(d[1], d[3])));
     float reach = max(max(angle_deg(cd, d[0]), angle_deg(cd, d[1])), max(angle_deg(cd, d[2]), angle_deg(cd, d[3])));
-    inner = level_at(centre, reach, diameter, info.z);
+    inner = level_at(centre, reach, diameter, info.z, info.w);
     // Edges W, S, E, N from their endpoints alone, ordered west to east and south to north.
     ivec2 ends[4] = ivec2[4](ivec2(0, 3), ivec2(0, 1), ivec2(1, 2), ivec2(3, 2));
     ivec2 step[4] = ivec2[4](ivec2(-1, 0), ivec2(0, -1), ivec2(1, 0), ivec2(0, 1));
@@ -395,8 +398,9 @@ void patch_levels(int id, out float inner, out float outer[4], out bool culled) 
         vec3 mid = 0.5 * (a + b);
         vec3 md = normalize(mid - u_eye_mm);
         ivec2 nb = clamp(pq + step[e], ivec2(0), ivec2(u_patches - 1));
-        float contrast = max(info.z, texelFetch(u_patch, nb, 0).z);
-        outer[e] = level_at(mid, max(angle_deg(md, da), angle_deg(md, db)), angle_deg(da, db), contrast);
+        vec4 other = texelFetch(u_patch, nb, 0);      // f_max rises with the contrast: the larger one's
+        outer[e] = level_at(mid, max(angle_deg(md, da), angle_deg(md, db)), angle_deg(da, db),
+                            max(info.z, other.z), max(info.w, other.w));
     }
 }
 
@@ -678,7 +682,10 @@ class TessellationRenderer:
             self._height.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._height.repeat_x = self._height.repeat_y = False
         self._color = self._bake_colors() if config.shading == "texture" else None
-        info = np.stack([grid.z_min_m, grid.z_max_m, grid.contrast, np.zeros_like(grid.contrast)], axis=-1)
+        # The foveal f_max at the speed floor of each patch's contrast (the levels pass's still-head shortcut).
+        fmax_still = pc.max_visible_freq_cpd(grid.contrast.astype(np.float64), pc.MIN_SPEED_DEG_S, 0.0,
+                                             model="kelly_scaled")
+        info = np.stack([grid.z_min_m, grid.z_max_m, grid.contrast, fmax_still], axis=-1)
         self._patch = ctx.texture((grid.n_patches, grid.n_patches), 4, info.astype(np.float32).tobytes(), dtype="f4")
         self._patch.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._programs = {}
