@@ -278,9 +278,7 @@ def test_moving_eye_nodes_stay_conservative(grid, default_screen):
     sel = tree.select(model, head, axes, COV, mvp=mvp, eye_prev_mm=prev, dt_s=dt, level_bias=-1.0)
     still = tree.select(model, head, axes, COV, mvp=mvp, level_bias=-1.0)
     n, p = grid.n_patches, grid.patch_samples
-    pad = np.pad(grid.contrast.astype(float), 1, mode="edge")
-    neighbour = np.stack([pad[1:-1, :-2], pad[:-2, 1:-1], pad[1:-1, 2:], pad[2:, 1:-1]], axis=-1)
-    inner, _ = levels_of_patches(grid.corners_scene(), grid.contrast, neighbour, model, head, axes, COV,
+    inner, _ = levels_of_patches(grid.corners_scene(), grid.contrast, grid.neighbour_contrast(), model, head, axes, COV,
                                  level_bias=-1.0, eye_prev_mm=prev, dt_s=dt)
     need_gap = p * np.exp2(-np.clip(np.nan_to_num(inner, neginf=-60.0), -60.0, tree.leaf_max_level))
     assert not np.array_equal(sel.inner, still.inner) or len(sel) != len(still)      # the motion is seen

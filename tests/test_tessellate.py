@@ -333,10 +333,8 @@ def test_shader_csf_of_a_moving_eye_equals_perception(ctx430, grid, default_scre
         r._prev = (head0.copy(), 0.0)
         inner, outer, _ = r.levels(view1, proj1, model, head1, axes1, cov, t=1 / 60)
     n = grid.n_patches
-    pad = np.pad(grid.contrast.astype(float), 1, mode="edge")
-    neighbour = np.stack([pad[1:-1, :-2], pad[:-2, 1:-1], pad[1:-1, 2:], pad[2:, 1:-1]], axis=-1)
-    ref_inner, ref_outer = levels_of_patches(grid.corners_scene(), grid.contrast, neighbour, model, head1, axes1,
-                                             cov, eye_prev_mm=head0, dt_s=1 / 60)
+    ref_inner, ref_outer = levels_of_patches(grid.corners_scene(), grid.contrast, grid.neighbour_contrast(), model,
+                                             head1, axes1, cov, eye_prev_mm=head0, dt_s=1 / 60)
     assert ref_inner.shape == (n, n)
     np.testing.assert_allclose(inner, ref_inner, atol=LEVEL_ATOL)
     np.testing.assert_allclose(outer, ref_outer, atol=LEVEL_ATOL)

@@ -246,9 +246,7 @@ class PatchTree:
         self.contrast = np.concatenate([c.ravel() for c in contrast])
         self.leaf_chord_m = np.sqrt((p * grid.dx_m) ** 2 + (p * grid.dy_m) ** 2
                                     + np.concatenate([z.ravel() for z in zr]) ** 2)
-        padded = np.pad(grid.contrast.astype(np.float64), 1, mode="edge")
-        self._leaf_neighbour_contrast = np.stack([padded[1:-1, :-2], padded[:-2, 1:-1], padded[1:-1, 2:],
-                                                  padded[2:, 1:-1]], axis=-1)                 # (n, n, 4) W S E N
+        self._leaf_neighbour_contrast = grid.neighbour_contrast()                          # (n, n, 4) W S E N
         # Foveal f_max at the speed floor (a still eye), cpd, once: of each node's highest contrast, and of each
         # leaf's inner piece and edges (the contrasts levels_of_patches gives them).
         v0 = pc.MIN_SPEED_DEG_S

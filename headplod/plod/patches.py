@@ -248,6 +248,15 @@ class PatchGrid:
         n = self.heights_m.shape[0] - 1
         return (self.origin_m[0], self.origin_m[0] + n * self.dx_m, self.origin_m[1], self.origin_m[1] + n * self.dy_m)
 
+    def neighbour_contrast(self) -> np.ndarray:
+        """(n, n, 4) float64: the contrast of the patch across each edge, W S E N (the patch's own at the border).
+
+        An edge's level takes the larger contrast of its two patches (the shader clamps the neighbour's index
+        the same way), so both patches compute the same number.
+        """
+        padded = np.pad(self.contrast.astype(np.float64), 1, mode="edge")
+        return np.stack([padded[1:-1, :-2], padded[:-2, 1:-1], padded[1:-1, 2:], padded[2:, 1:-1]], axis=-1)
+
     def corners_scene(self) -> np.ndarray:
         """(n, n, 4, 3) float64 corners of every patch, scene metres, in the order SW, SE, NE, NW."""
         p, n = self.patch_samples, self.n_patches
@@ -349,9 +358,7 @@ def patch_levels(grid: PatchGrid, model: np.ndarray, eye_mm, axes, cov_deg2=None
     """
     corners = grid.corners_scene()                                               # (n, n, 4, 3)
     contrast = grid.contrast.astype(np.float64)
-    padded = np.pad(contrast, 1, mode="edge")
-    neighbour = np.stack([padded[1:-1, :-2], padded[:-2, 1:-1], padded[1:-1, 2:], padded[2:, 1:-1]], axis=-1)
-    return levels_of_patches(corners, contrast, neighbour, model, eye_mm, axes, cov_deg2, shift=shift,
+    return levels_of_patches(corners, contrast, grid.neighbour_contrast(), model, eye_mm, axes, cov_deg2, shift=shift,
                              ellipse_sigma=ellipse_sigma, speed_deg_s=speed_deg_s, level_bias=level_bias)
 
 
