@@ -120,8 +120,9 @@ class TessellationConfig:
     cull : bool
         Drop patches outside the view frustum in the control shader (True).
     smooth_normals : bool
-        Normals of a coarse level from the matching mip level (True); False:
-        every vertex's normal from its neighbouring samples.
+        With ``shading="vertex"``: normals of a coarse level from the matching
+        mip level of the heights (True); False: every vertex's normal from its
+        neighbouring samples.
     shading : {"texture", "vertex"}
         ``texture`` (default): every height sample's colour (Lambert +
         ambient times the height colour, from the sample's own normal) is
@@ -675,7 +676,7 @@ class TessellationRenderer:
         self.height_range = (float(z.min()), float(z.max()))
         n = z.shape[0]
         self._height = ctx.texture((n, n), 1, np.ascontiguousarray(z, np.float32).tobytes(), dtype="f4")
-        if config.smooth_normals:
+        if config.smooth_normals and config.shading == "vertex":     # only per-vertex shading reads the mips
             self._height.build_mipmaps()
             self._height.filter = (moderngl.LINEAR_MIPMAP_NEAREST, moderngl.LINEAR)
         else:
@@ -771,6 +772,12 @@ class TessellationRenderer:
             self._vaos[kind] = self.ctx.vertex_array(prog, [])
         return self._programs[kind]
 
+    def _last_eye(self, t):
+        """(the last frame's eye (3,) world mm, or None; the time since, s, or 0) for the angular speed at ``t``."""
+        if t is not None and self._prev is not None and self._prev[1] is not None and t > self._prev[1]:
+            return self._prev[0], float(t - self._prev[1])
+        return None, 0.0
+
     def _set_uniforms(self, prog, view, proj, model, eye_mm, axes, cov_deg2, mode, t, region_ndc):
         """Every uniform of the frame (the CPU's whole share of the selection)."""
         g, cfg = self.grid, self.config
@@ -794,10 +801,9 @@ class TessellationRenderer:
         if cov_deg2 is not None and np.any(np.asarray(cov_deg2) != 0):
             form, cov_inv = _SHIFT_FORMS[cfg.shift], np.linalg.inv(np.asarray(cov_deg2, np.float64))
         values["u_shift_form"], values["u_cov_inv"] = form, cov_inv.astype("f4").tobytes()
-        prev, dt = np.asarray(eye_mm, float), 0.0
-        if t is not None and self._prev is not None and self._prev[1] is not None and t > self._prev[1]:
-            prev, dt = self._prev[0], t - self._prev[1]
-        values["u_eye_prev_mm"], values["u_dt_s"] = tuple(prev), float(dt)
+        prev, dt = self._last_eye(t)
+        values["u_eye_prev_mm"] = tuple(np.asarray(eye_mm, float) if prev is None else prev)
+        values["u_dt_s"] = dt
         for name, value in values.items():
             if name in prog:
                 if isinstance(value, bytes):
@@ -937,9 +943,7 @@ class TessellationRenderer:
         cfg = self.config
         model = np.asarray(model, np.float64)
         mvp = np.asarray(proj, np.float64) @ np.asarray(view, np.float64) @ model
-        prev, dt = None, 0.0
-        if t is not None and self._prev is not None and self._prev[1] is not None and t > self._prev[1]:
-            prev, dt = self._prev[0], t - self._prev[1]
+        prev, dt = self._last_eye(t)
         sel = self._tree.select(model, eye_mm, axes, cov_deg2, mvp=mvp, region_ndc=region_ndc, cull=cfg.cull,
                                 shift=cfg.shift, ellipse_sigma=cfg.ellipse_sigma, level_bias=cfg.level_bias,
                                 eye_prev_mm=prev, dt_s=dt)
