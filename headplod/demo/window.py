@@ -16,21 +16,12 @@ import sys
 import numpy as np
 
 from ..render import TerrainRenderer
+from ..render.gl import FULLSCREEN_VERTEX_SHADER
 from ..render.still import mesh_options
 from .keys import action_for_key
 from .loop import DemoLoop
 from .poses import make_poses
 
-_VERTEX = """
-#version 330
-out vec2 v_uv;
-void main() {
-    // one triangle covering the window: (-1,-1), (3,-1), (-1,3)
-    vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2);
-    v_uv = p;
-    gl_Position = vec4(2.0 * p - 1.0, 0.0, 1.0);
-}
-"""
 
 _FRAGMENT = """
 #version 330
@@ -84,7 +75,7 @@ def make_window_class():
                                  saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth,
                                  foveate=getattr(args, "foveate", False))
             self.texture = self.ctx.texture(size, 3)
-            self.program = self.ctx.program(vertex_shader=_VERTEX, fragment_shader=_FRAGMENT)
+            self.program = self.ctx.program(vertex_shader=FULLSCREEN_VERTEX_SHADER, fragment_shader=_FRAGMENT)
             self.quad = self.ctx.vertex_array(self.program, [])
             self.names = _key_names(self.wnd.keys)
             self.mouse = hasattr(self.poses, "set_poi")

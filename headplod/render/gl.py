@@ -20,7 +20,19 @@ import numpy as np
 from ..plod.mesh import LEVEL_PALETTE
 from .context import moderngl
 
-__all__ = ["TerrainRenderer", "PALETTE", "VIEW_MODES", "read_rgb"]
+__all__ = ["TerrainRenderer", "PALETTE", "VIEW_MODES", "read_rgb", "FULLSCREEN_VERTEX_SHADER"]
+
+#: A vertex shader of one triangle covering the viewport, drawn with 3 vertices and no buffer:
+#: (-1,-1), (3,-1), (-1,3) in NDC; ``v_uv`` is (0, 0) at the bottom left, (1, 1) at the top right.
+FULLSCREEN_VERTEX_SHADER = """
+#version 330
+out vec2 v_uv;
+void main() {
+    vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2);
+    v_uv = p;
+    gl_Position = vec4(2.0 * p - 1.0, 0.0, 1.0);
+}
+"""
 
 #: Colours of the "levels" view, RGB uint8, (8, 3); level k uses
 #: ``PALETTE[k % 8]`` (modulated by the same Lambert shading as "shaded").

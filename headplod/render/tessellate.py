@@ -81,7 +81,7 @@ from ..plod.patch_tree import PatchTree
 from ..plod import perception as pc
 from ..plod.patches import FACTOR_RULES, PatchGrid, max_level_for, tess_factors
 from .context import moderngl
-from .gl import _FRAGMENT_SHADER, read_rgb
+from .gl import _FRAGMENT_SHADER, FULLSCREEN_VERTEX_SHADER, read_rgb
 
 __all__ = ["TessellationConfig", "TessellationRenderer", "TESS_MODES", "REQUIRED_GL", "grid_model", "head_axes",
            "render_frame"]
@@ -548,15 +548,8 @@ void main() {
 }
 """
 
-# Texture shading's bake: one fragment per height sample, its colour from its own normal (the finest level's).
-_BAKE_VERTEX = """
-#version 430
-void main() {                     // one triangle over the viewport
-    vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2);
-    gl_Position = vec4(2.0 * p - 1.0, 0.0, 1.0);
-}
-"""
-
+# Texture shading's bake (over gl.FULLSCREEN_VERTEX_SHADER): one fragment per height sample, its colour from its
+# own normal (the finest level's).
 _BAKE_FRAGMENT = """
 #version 430
 uniform sampler2D u_height;
@@ -715,7 +708,7 @@ class TessellationRenderer:
         n = self.grid.heights_m.shape[0]
         texture = ctx.texture((n, n), 4, dtype="f1")
         fbo = ctx.framebuffer(color_attachments=[texture])
-        prog = ctx.program(vertex_shader=_BAKE_VERTEX, fragment_shader=_BAKE_FRAGMENT)
+        prog = ctx.program(vertex_shader=FULLSCREEN_VERTEX_SHADER, fragment_shader=_BAKE_FRAGMENT)
         vao = ctx.vertex_array(prog, [])
         try:
             self._shade_uniforms(prog)
