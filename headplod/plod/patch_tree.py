@@ -88,7 +88,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import perception as pc
-from .patches import FACTOR_RULES, PatchGrid, levels_of_patches, max_level_for, tess_factors
+from .patches import FACTOR_RULES, PatchGrid, levels_of_patches, max_level_for, tess_factors, vertex_gap_samples
 
 __all__ = ["PatchTree", "NodeSelection", "EDGE_STEP", "OPPOSITE"]
 
@@ -386,7 +386,7 @@ class PatchTree:
         x = np.nan_to_num(level, nan=-1e3, posinf=float(self.leaf_max_level), neginf=-1e3)
         # The leaves need a vertex every P 2^-L samples: the largest whole spacing within that, and the
         # factor that keeps every gap between the node's vertices (rounded to samples) at most it.
-        spacing = np.maximum(np.floor(self.grid.patch_samples * np.exp2(-np.minimum(x, self.leaf_max_level))), 1.0)
+        spacing = vertex_gap_samples(x, self.grid.patch_samples, self.leaf_max_level)
         return np.ceil(self.node_size[ids] / spacing).astype(np.int64), culled
 
     def _leaf_levels(self, rows, cols, f):

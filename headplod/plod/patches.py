@@ -41,7 +41,7 @@ from . import perception as pc
 from .terrain import Terrain, _bspline_weights
 
 __all__ = ["height_grid", "jacksboro_grid", "grid_normals", "PatchGrid", "patch_levels", "levels_of_patches",
-           "point_speed_deg_s", "tess_factors", "FACTOR_RULES", "EDGE_NAMES", "patch_samples_for"]
+           "point_speed_deg_s", "tess_factors", "FACTOR_RULES", "EDGE_NAMES", "patch_samples_for", "vertex_gap_samples"]
 
 #: The detail's shortest wavelength on :func:`jacksboro_grid`'s grids, sample spacings: each grid has detail
 #: down to its own resolution.
@@ -464,9 +464,18 @@ def tess_factors(levels: np.ndarray, max_level: int, patch_samples: int | None =
     if patch_samples is None:
         raise ValueError("tess_factors: the 'whole' rule needs patch_samples")
     lv = np.nan_to_num(np.asarray(levels, np.float64), nan=-1.0, posinf=float(max_level), neginf=-1.0)
-    lv = np.clip(lv, -1.0, float(max_level))
-    gap = np.maximum(np.floor(patch_samples * np.exp2(-lv)), 1.0)
+    gap = vertex_gap_samples(np.maximum(lv, -1.0), patch_samples, max_level)
     return np.minimum(np.ceil(patch_samples / gap), 2 ** max_level).astype(np.int64)
+
+
+def vertex_gap_samples(levels: np.ndarray, patch_samples: int, max_level: int) -> np.ndarray:
+    """Largest whole number of samples between vertices that level L allows: floor(P 2^-min(L, max_level)), >= 1.
+
+    Level L of a patch of P samples asks for a vertex every ``P 2^-L`` samples; vertices sit on samples, so
+    the gap is rounded down. The ``whole`` factors (:func:`tess_factors`) and the patch tree's nodes
+    (``ceil(node size / gap)``) both keep every gap within it. Float64, the shape of ``levels`` (finite).
+    """
+    return np.maximum(np.floor(patch_samples * np.exp2(-np.minimum(levels, float(max_level)))), 1.0)
 
 
 def patch_samples_for(n_samples: int, image_px: int, max_tess_level: int = 64, smallest: int = 64) -> int:
