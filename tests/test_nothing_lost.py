@@ -46,8 +46,10 @@ def _one_line_error(err: str) -> str:
 
 
 def _leftovers(folder: Path) -> list[str]:
-    """Temporary files a run may leave: .part files and hidden recording folders."""
-    return sorted(p.name for p in folder.rglob("*") if p.name.endswith(".part") or ".recording-" in p.name)
+    """What a run that ended as it should leaves besides its outputs: none of .part files, hidden recording
+    folders, run markers, replaced outputs kept aside (.previous) or killed runs' outputs (.unfinished)."""
+    return sorted(p.name for p in folder.rglob("*") if p.name.endswith(".part") or ".recording-" in p.name
+                  or p.name.endswith(".headplod-run") or ".previous" in p.name or ".unfinished" in p.name)
 
 
 @pytest.fixture
@@ -93,24 +95,30 @@ def test_record_over_a_recording_is_refused_naming_the_option_and_nothing_is_tou
     assert _snapshot(old_recording) == before and keep.read_text() == "precious\n"
 
 
-def test_a_run_that_fails_midway_leaves_out_and_the_old_recording_as_they_were(sample, keep, old_recording,
-                                                                               monkeypatch, capsys):
+def test_a_run_that_fails_midway_keeps_its_outputs_and_the_old_ones_under_visible_names(sample, keep, old_recording,
+                                                                                        monkeypatch, capsys):
+    """Issue 21: an error after the start keeps what was made under the names given, keeps what it was
+    replacing under a visible .previous name, says both in one line and exits 1."""
     from headplod.live import loop
     real = loop.run_source
 
     def failing(*args, **kwargs):
-        real(*args, **{**kwargs, "max_frames": 3})      # three frames written under temporary names...
-        raise OSError("No space left on device")         # ...then the disk fills up
+        real(*args, **{**kwargs, "max_frames": 3})      # three frames written under their final names...
+        raise OSError(28, "No space left on device")     # ...then the disk fills up
 
     monkeypatch.setattr(loop, "run_source", failing)
     before = _snapshot(old_recording)
     assert cli_main(["track", "--source", str(sample), "--out", str(keep), "--record", str(old_recording),
                      "--overwrite", "-q"]) == 1
     line = _one_line_error(capsys.readouterr().err)
-    assert "No space left" in line and "left as it was" in line
-    assert keep.read_text() == "precious\n"
-    assert _snapshot(old_recording) == before
-    assert not _leftovers(old_recording.parent)
+    previous_out, previous_rec = keep.parent / "keep.previous.jsonl", old_recording.parent / "rec.previous"
+    assert "No space left" in line and "3 records in" in line and "3 frames in" in line
+    assert str(previous_out) in line and str(previous_rec) in line
+    assert len(io.read_poses(keep)) == 3 and previous_out.read_text() == "precious\n"
+    assert _check_consistent(old_recording) == 3
+    assert (old_recording / "notes.txt").read_text() == "mine\n"      # the user's file never moves
+    assert {k: v for k, v in before.items() if k != "notes.txt"} == _snapshot(previous_rec)
+    assert not (keep.parent / ".keep.jsonl.headplod-run").exists() and not (old_recording / ".headplod-run").exists()
 
 
 def test_overwrite_replaces_the_recording_at_the_end_and_keeps_other_files(sample, keep, old_recording):
@@ -122,7 +130,7 @@ def test_overwrite_replaces_the_recording_at_the_end_and_keeps_other_files(sampl
     assert len(io.read_poses(keep)) == 6 and not _leftovers(old_recording.parent)
 
 
-def test_out_is_written_whole_at_the_end_and_a_folder_is_refused(sample, tmp_path, capsys):
+def test_out_is_written_as_it_goes_and_a_folder_is_refused(sample, tmp_path, capsys):
     out = tmp_path / "poses.jsonl"
     assert cli_main(["track", "--source", str(sample), "--out", str(out), "-q"]) == 0
     assert len(io.read_poses(out)) == 12 and not _leftovers(tmp_path)
@@ -132,16 +140,25 @@ def test_out_is_written_whole_at_the_end_and_a_folder_is_refused(sample, tmp_pat
     assert "does not exist" in _one_line_error(capsys.readouterr().err)
 
 
-def test_pose_writer_replaces_on_close_and_keeps_the_old_file_on_discard(keep):
+def test_pose_writer_writes_under_the_final_name_and_keeps_the_replaced_file_aside(keep):
     record = io.pose_record(0, 0.0, False, reason="test")
+    previous = keep.parent / "keep.previous.jsonl"
+    writer = io.PoseWriter(keep)
+    assert previous.read_text() == "precious\n" and keep.read_text() == ""
+    writer.discard()                                      # before any record: the old file comes back
+    assert keep.read_text() == "precious\n" and not _leftovers(keep.parent)
     writer = io.PoseWriter(keep)
     writer.write(record)
-    assert keep.read_text() == "precious\n"              # untouched until the end
-    writer.discard()
-    assert keep.read_text() == "precious\n" and not _leftovers(keep.parent)
-    with io.PoseWriter(keep) as writer:
+    assert len(io.read_poses(keep)) == 1                  # on disk at once, under its own name
+    with pytest.raises(ValueError, match="kept"):
+        writer.discard()                                  # records are never thrown away
+    assert writer.close(complete=False) == str(previous)  # an early end keeps the replaced file, visible
+    assert previous.read_text() == "precious\n" and len(io.read_poses(keep)) == 1
+    with io.PoseWriter(keep) as writer:                   # a whole run replaces it
         writer.write(record)
-    assert len(io.read_poses(keep)) == 1 and not _leftovers(keep.parent)
+    assert len(io.read_poses(keep)) == 1
+    assert previous.read_text() == "precious\n"          # the earlier early end's is not this run's to delete
+    assert sorted(p.name for p in keep.parent.iterdir()) == ["keep.jsonl", "keep.previous.jsonl"]
 
 
 # ---------------------------------------------------------------------------
@@ -271,7 +288,7 @@ def test_a_recording_stays_consistent_over_20_timed_interrupts(long_dataset, tmp
 
 def test_the_command_stops_cleanly_on_sigint_and_sigterm(long_dataset, tmp_path):
     """The same, as a process: a command started per interrupt, 3 x SIGINT and 3 x SIGTERM (the default
-    SIGTERM would kill the process and leave the records under their temporary name)."""
+    SIGTERM would kill the process)."""
     rng = random.Random(16)
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     interrupted = 0

@@ -18,9 +18,14 @@ both images, no image is without its row):
   outright; ``io.Dataset`` then warns about them).
 
 A folder that already holds a recording is only replaced when asked
-(``overwrite=True``): the new one is recorded into a hidden folder beside it
-and takes its place when the recorder is closed, so the old recording is
-kept until then, and kept for good by :meth:`DatasetRecorder.discard`.
+(``overwrite=True``). The recording is always written in the folder itself,
+so that a run killed outright keeps every frame before it where the user
+looks; the old recording's entries are first moved to a visible folder
+beside it (``rec.previous/``), deleted when the new recording is closed
+whole and kept when it ends early (``close(complete=False)``). A killed
+run's recording found in the folder is set aside as
+``rec.unfinished-<start>/``, made consistent, and named in ``notes``
+(:mod:`headplod.io.progressive`).
 
 Frames are numbered 000000, 000001, ... in the order written, whatever their
 index in the source. Frames with an ``error`` (a camera stalled, a bad
@@ -36,7 +41,6 @@ import math
 import os
 import re
 import shutil
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,6 +50,7 @@ import cv2
 import numpy as np
 
 from .. import io
+from ..io.progressive import claim_output, killed_run
 from .base import FrameSource
 from .signals import deferred_signals
 
@@ -56,6 +61,46 @@ _TIMES_HEADER = "frame,t,t_right\n"
 _IMAGE_NAME = re.compile(r"^([0-9]{6})\.png(\.part)?$")
 #: The entries of a dataset folder that a recording owns (replaced with it; everything else is left alone).
 RECORDING_ENTRIES = ("left", "right", "times.csv", "truth.csv", _LOG_NAME, "rig.yaml", "markers.yaml", "screen.yaml")
+
+
+def _times_rows(folder: Path) -> int:
+    """Whole rows of a recording's times.csv (0 when it is missing)."""
+    try:
+        data = (Path(folder) / "times.csv").read_bytes()
+    except OSError:
+        return 0
+    return max(data.count(b"\n") - 1, 0)
+
+
+def _drop_orphans(folder: Path, rows: int) -> list[str]:
+    """Remove a recording's images without a times.csv row (index >= rows) and ``.part`` files; their names."""
+    dropped = []
+    for side in ("left", "right"):
+        d = Path(folder) / side
+        if not d.is_dir():
+            continue
+        for entry in d.iterdir():
+            m = _IMAGE_NAME.match(entry.name)
+            if m and (m.group(2) or int(m.group(1)) >= rows):
+                entry.unlink(missing_ok=True)
+                dropped.append(f"{side}/{entry.name}")
+    return dropped
+
+
+def tidy_recording(folder: str | Path) -> list[str]:
+    """Make a recording cut short by a killed process consistent: drop images without a times.csv row and
+    ``.part`` files (a cut last row is dropped too). Returns the names dropped."""
+    folder = Path(folder)
+    times = folder / "times.csv"
+    if times.is_file():
+        data = times.read_bytes()
+        if data and not data.endswith(b"\n"):          # a row cut by the kill: not a frame
+            times.write_bytes(data[: data.rfind(b"\n") + 1])
+    return _drop_orphans(folder, _times_rows(folder))
+
+
+def _count_frames(folder: Path) -> str:
+    return f"{_times_rows(folder)} frames"
 
 
 def holds_recording(folder: str | Path) -> bool:
@@ -84,13 +129,12 @@ class DatasetRecorder(io.KeptOnSuccess):
         Written as ``screen.yaml``.
     overwrite : bool
         Allow recording into a folder that already holds a recording
-        (:func:`holds_recording`). The new recording is written into a
-        hidden folder beside it and replaces the old one's entries
-        (:data:`RECORDING_ENTRIES`: ``left/``, ``right/``, ``times.csv``,
-        ``truth.csv``, which would describe other frames, ``recording.log``
-        and the YAML files) at :meth:`close`; other files in the folder are
-        kept. Until then, and after :meth:`discard`, the old recording is
-        untouched.
+        (:func:`holds_recording`). Its entries (:data:`RECORDING_ENTRIES`:
+        ``left/``, ``right/``, ``times.csv``, ``truth.csv``, which would
+        describe other frames, ``recording.log`` and the YAML files) are
+        moved to a visible folder beside it (``NAME.previous``), deleted by
+        :meth:`close` and kept by ``close(complete=False)`` and (put back)
+        by :meth:`discard`; other files in the folder are kept.
 
     Attributes
     ----------
@@ -99,8 +143,10 @@ class DatasetRecorder(io.KeptOnSuccess):
     skipped : int
         Frames not written (error frames).
     replacing : bool
-        True when an existing recording is being replaced (``overwrite``):
-        the frames go to a hidden folder until :meth:`close`.
+        True when an existing recording is being replaced (``overwrite``).
+    notes : list of str
+        Leftovers of killed runs found and kept, one line each, for the
+        caller to show.
 
     Raises
     ------
@@ -125,41 +171,59 @@ class DatasetRecorder(io.KeptOnSuccess):
         self.rig = rig
         self._times: Any = None
         self._log: Any = None
+        self._claim = None
         self.count = 0
         self.skipped = 0
         if self.folder.exists() and not self.folder.is_dir():
             raise FileExistsError(f"{self.folder}: is a file, not a folder; choose a folder for the recording")
-        self._work = self.folder                       # where the frames go until close()
-        self.replacing = False
-        if holds_recording(self.folder):
-            if not overwrite:
+        if holds_recording(self.folder) and not overwrite:
+            run = killed_run(self.folder, folder=True)
+            if run is not None and not run.alive:
                 raise FileExistsError(
-                    f"{self.folder}: already holds a recording; choose another folder, or replace it "
-                    "(overwrite=True; on the command line --overwrite)")
-            parent = self.folder.resolve().parent
-            self.replacing = True
-            self._work = Path(tempfile.mkdtemp(prefix=f".{self.folder.name}.recording-", dir=parent))
+                    f"{self.folder}: holds the recording of {run.describe()}, kept as it was (replay it with "
+                    f"'headplod track --source {self.folder}'); choose another folder, or replace it "
+                    "(overwrite=True; on the command line --overwrite: it is then kept as "
+                    f"{self.folder.name}.unfinished-...)")
+            raise FileExistsError(
+                f"{self.folder}: already holds a recording; choose another folder, or replace it "
+                "(overwrite=True; on the command line --overwrite)")
+        existing = self.folder.expanduser().resolve()
+        while not existing.exists():                   # the folder is made with its parents: the first that is
+            existing = existing.parent
+        if not os.access(existing, os.W_OK):
+            raise PermissionError(f"{self.folder}: cannot write in {existing} (permission denied)")
+        self._claim = claim_output(self.folder, what=str(self.folder), folder=True, entries=RECORDING_ENTRIES,
+                                   holds_output=holds_recording, describe=_count_frames, tidy=tidy_recording)
+        self.notes = list(self._claim.notes)
+        self.replacing = self._claim.previous is not None
         try:
             for name in ("left", "right"):
-                (self._work / name).mkdir(parents=True, exist_ok=True)
-            io.write_rig(self._work / "rig.yaml", rig)
+                (self.folder / name).mkdir(parents=True, exist_ok=True)
+            io.write_rig(self.folder / "rig.yaml", rig)
             if markers is not None:
-                io.write_markers(self._work / "markers.yaml", markers)
+                io.write_markers(self.folder / "markers.yaml", markers)
             if screen is not None:
-                io.write_screen(self._work / "screen.yaml", screen)
-            self._times = open(self._work / "times.csv", "w", newline="", encoding="utf-8")
+                io.write_screen(self.folder / "screen.yaml", screen)
+            self._times = open(self.folder / "times.csv", "w", newline="", encoding="utf-8")
             self._times.write(_TIMES_HEADER)
             self._times.flush()
         except BaseException:
-            if self._work != self.folder:
-                shutil.rmtree(self._work, ignore_errors=True)
+            if self._times is not None:
+                self._times.close()
+                self._times = None
+            self._claim.restore(self._remove_entries)
             raise
+
+    @property
+    def previous(self) -> Path | None:
+        """Where the recording this one replaces was moved (``rec.previous``), until :meth:`close`."""
+        return self._claim.previous
 
     # -- writing -------------------------------------------------------------
 
     def _note(self, line: str) -> None:
         if self._log is None:
-            self._log = open(self._work / _LOG_NAME, "a", encoding="utf-8")
+            self._log = open(self.folder / _LOG_NAME, "a", encoding="utf-8")
         self._log.write(line + "\n")
         self._log.flush()
 
@@ -221,7 +285,7 @@ class DatasetRecorder(io.KeptOnSuccess):
             return None
         index = self.count
         name = f"{index:06d}.png"
-        paths = [self._work / side / name for side in ("left", "right")]
+        paths = [self.folder / side / name for side in ("left", "right")]
         data = [self._encode_png(path, image) for path, image in zip(paths, (frame.left, frame.right))]
         parts = [path.with_name(name + ".part") for path in paths]
         row = f"{index},{t!r},{'' if t_right is None else repr(t_right)}\n"
@@ -248,50 +312,68 @@ class DatasetRecorder(io.KeptOnSuccess):
 
     def _drop_orphans(self) -> list[str]:
         """Remove images without a times.csv row (index >= count) and ``.part`` files; their names."""
-        dropped = []
-        for side in ("left", "right"):
-            d = self._work / side
-            if not d.is_dir():
-                continue
-            for entry in d.iterdir():
-                m = _IMAGE_NAME.match(entry.name)
-                if m and (m.group(2) or int(m.group(1)) >= self.count):
-                    entry.unlink(missing_ok=True)
-                    dropped.append(f"{side}/{entry.name}")
-        return dropped
+        return _drop_orphans(self.folder, self.count)
 
-    def close(self) -> None:
-        """Flush and close ``times.csv`` and ``recording.log``, drop any image without its row, and (with
-        ``overwrite``) put the new recording in the old one's place; idempotent."""
-        self._close(keep=True)
+    def _remove_entries(self) -> None:
+        for name in RECORDING_ENTRIES:
+            path = self.folder / name
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+
+    def close(self, complete: bool = True) -> str | None:
+        """Flush and close ``times.csv`` and ``recording.log`` and drop any image without its row; idempotent.
+
+        Parameters
+        ----------
+        complete : bool
+            True when the run ended as it should: the recording this one
+            replaced (``overwrite``) is deleted. False: it is kept.
+
+        Returns
+        -------
+        str or None
+            Where the replaced recording is kept (``complete`` false), else None.
+        """
+        if self._claim is None:
+            return None
+        with deferred_signals():
+            try:
+                for fh in (self._times, self._log):
+                    if fh is not None:
+                        fh.close()
+            except OSError:
+                complete = False
+                raise
+            finally:
+                self._times = None
+                self._log = None
+                if self.folder.is_dir():
+                    self._drop_orphans()
+                claim, self._claim = self._claim, None
+                kept = claim.finish(complete)
+        return kept
 
     def discard(self) -> None:
-        """Close; a recording made with ``overwrite`` is dropped and the old one kept as it was. A new
-        folder keeps the frames written (they are consistent). Idempotent."""
-        self._close(keep=False)
+        """Before any frame: remove the new recording and put back the one it replaced. Idempotent.
 
-    def _close(self, keep: bool) -> None:
-        if self._times is None and self._work == self.folder:
+        Raises
+        ------
+        ValueError
+            When frames were written: they are never thrown away (use
+            ``close(complete=False)``).
+        """
+        if self.count:
+            raise ValueError(f"{self.folder}: {self.count} frames recorded; they are kept (close(complete=False))")
+        if self._claim is None:
             return
-        with deferred_signals():
-            for fh in (self._times, self._log):
-                if fh is not None:
-                    fh.close()
-            self._times = None
-            self._log = None
-            self._drop_orphans()
-            if self._work != self.folder:
-                work, self._work = self._work, self.folder
-                if keep:
-                    for name in RECORDING_ENTRIES:
-                        old = self.folder / name
-                        if old.is_dir() and not old.is_symlink():
-                            shutil.rmtree(old)
-                        else:
-                            old.unlink(missing_ok=True)
-                        if (work / name).exists():
-                            os.replace(work / name, old)
-                shutil.rmtree(work, ignore_errors=True)
+        for fh in (self._times, self._log):
+            if fh is not None:
+                fh.close()
+        self._times = self._log = None
+        claim, self._claim = self._claim, None
+        claim.restore(self._remove_entries)
 
     def __repr__(self) -> str:
         return f"DatasetRecorder({str(self.folder)!r}, {self.count} frames, {self.skipped} skipped)"

@@ -1,10 +1,13 @@
-"""Ctrl-C and SIGTERM as a clean stop, and sections of work that a signal does not cut.
+"""Ctrl-C, SIGTERM and SIGHUP as a clean stop, and sections of work that a signal does not cut.
 
 :class:`StopSignals` (a ``with`` block around a recording or tracking loop):
-SIGINT and SIGTERM set a flag that the loop polls between frames, instead of
-raising ``KeyboardInterrupt`` (SIGINT) or killing the process (SIGTERM) in
+SIGINT, SIGTERM and SIGHUP (the terminal that started the run closed) set a
+flag that the loop polls between frames, instead of raising
+``KeyboardInterrupt`` (SIGINT) or killing the process (SIGTERM, SIGHUP) in
 the middle of a write. A second signal while the flag is set raises
-``KeyboardInterrupt``: a user who insists gets out.
+``KeyboardInterrupt``: a user who insists gets out. Once the run is closing
+its outputs (:meth:`StopSignals.finishing`), further signals are only
+noted: the closes are short and must not be cut.
 
 :func:`deferred_signals` (a ``with`` block around one step that must be
 whole, e.g. a frame's two images and its ``times.csv`` row): a signal that
@@ -24,9 +27,9 @@ from typing import Iterator
 __all__ = ["StopSignals", "deferred_signals", "STOP_SIGNALS"]
 
 #: The signals that stop a run cleanly.
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
-_NAMES = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM"}
+_NAMES = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM", signal.SIGHUP: "SIGHUP, the terminal closed"}
 
 
 def _main_thread() -> bool:
@@ -54,19 +57,28 @@ class StopSignals:
 
     def __init__(self):
         self.received: int | None = None
+        self.insisted = False
+        self._finishing = False
         self._previous: dict = {}
 
     def _handle(self, signum, frame) -> None:
         if self.received is not None:
-            raise KeyboardInterrupt         # a second signal: the user insists
+            self.insisted = True
+            if not self._finishing:
+                raise KeyboardInterrupt     # a second signal: the user insists
+            return
         self.received = signum
+
+    def finishing(self) -> None:
+        """From now on (the outputs are being closed), a signal is noted and never raises."""
+        self._finishing = True
 
     def __call__(self) -> bool:
         return self.received is not None
 
     @property
     def name(self) -> str | None:
-        """``"Ctrl-C"`` or ``"SIGTERM"`` once a signal came, else None."""
+        """``"Ctrl-C"``, ``"SIGTERM"`` or ``"SIGHUP, the terminal closed"`` once a signal came, else None."""
         return None if self.received is None else _NAMES.get(self.received, f"signal {self.received}")
 
     def __enter__(self) -> "StopSignals":

@@ -362,24 +362,20 @@ def write_atomically(path, write: Callable[[str], None], suffix: str = "") -> Pa
 
 
 class KeptOnSuccess:
-    """Context-manager behaviour of an output built under a temporary name (``close`` keeps it, ``discard`` drops it).
+    """Context-manager behaviour of a progressive output (:mod:`headplod.io.progressive`).
 
     Leaving the ``with`` block normally, or by Ctrl-C (KeyboardInterrupt: the
-    run stopped, what is whole is kept), closes the output; leaving it by an
-    error discards it, so an existing file or recording stays as it was.
+    run stopped), is a run that ended as it should: ``close()`` (what the
+    output replaced is deleted). Leaving it by an error ends it early:
+    ``close(complete=False)`` keeps both what was written, under its final
+    name, and what it replaced, under its visible ``.previous`` name.
     """
 
-    def close(self) -> None:        # pragma: no cover - each output defines it
-        raise NotImplementedError
-
-    def discard(self) -> None:      # pragma: no cover - each output defines it
+    def close(self, complete: bool = True):   # pragma: no cover - each output defines it
         raise NotImplementedError
 
     def __enter__(self):
         return self
 
     def __exit__(self, exc_type, *exc) -> None:
-        if exc_type is not None and issubclass(exc_type, Exception):
-            self.discard()
-        else:
-            self.close()
+        self.close(complete=exc_type is None or not issubclass(exc_type, Exception))

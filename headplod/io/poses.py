@@ -12,7 +12,6 @@ import math
 import operator
 import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -181,22 +180,39 @@ def pose_record(frame: int, t: float, ok: bool, position: Any = None, axes: Any 
 
 
 class PoseWriter(KeptOnSuccess):
-    """Write pose records as JSON Lines, one object per line, flushed per record.
+    """Write pose records as JSON Lines under their final name, one object per line, flushed per record.
 
     Parameters
     ----------
     path : str or Path
         Output file, or ``'-'`` for standard output (which is not closed).
-        A file is written under a temporary name in its folder
-        (``.NAME.XXXX.part``) and renamed to ``path`` by :meth:`close`, so an
-        existing file is untouched until then, and replaced whole;
-        :meth:`discard` drops the temporary file and keeps the old one.
+        A file is written under its own name from the first record on, so
+        that whatever ends the run (a crash, SIGKILL, a full disk) leaves
+        every record written before it in ``path``. An existing ``path`` is
+        first moved to a visible name beside it (``poses.previous.jsonl``,
+        :mod:`headplod.io.progressive`): :meth:`close` deletes it (the run
+        replaced it whole), ``close(complete=False)`` keeps it, and
+        :meth:`discard` puts it back. The output of a killed run found at
+        ``path`` is kept as ``poses.unfinished-<start>.jsonl``; ``notes``
+        says so.
+
+    Attributes
+    ----------
+    count : int
+        Records written.
+    notes : list of str
+        Leftovers of killed runs found and kept, one line each, for the
+        caller to show.
+    previous : Path or None
+        Where the file this one replaces was moved, until :meth:`close`.
 
     Raises
     ------
     OSError
-        When the temporary file cannot be made (the folder is missing or
-        not writable), or ``path`` is a folder.
+        When the file cannot be made (the folder is missing or not
+        writable), or ``path`` is a folder; nothing is moved then.
+    headplod.io.progressive.OutputBusy
+        When another running headplod process writes ``path``.
 
     Examples
     --------
@@ -208,14 +224,17 @@ class PoseWriter(KeptOnSuccess):
     Records must come in strictly increasing frame order (the contract's
     "one object per frame, in frame order"); :meth:`write` raises
     ``ValueError`` otherwise. Each record is one ``write`` of a whole line,
-    flushed at once.
+    flushed at once, so a file cut short ends with whole records.
     """
 
     def __init__(self, path: str | Path):
+        from .progressive import claim_output
+
         self.path = str(path)
         self._last_frame: int | None = None
-        self._tmp: str | None = None
+        self._claim = None
         self.count = 0
+        self.notes: list[str] = []
         if self.path == "-":
             self._fh = sys.stdout
             self._owned = False
@@ -223,12 +242,20 @@ class PoseWriter(KeptOnSuccess):
         target = Path(self.path).expanduser()
         if target.is_dir():
             raise IsADirectoryError(f"{self.path}: is a folder; give the file to write, e.g. {target / 'poses.jsonl'}")
-        fd, self._tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.resolve().parent)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(self._tmp, 0o666 & ~umask)             # mkstemp's 0600 is for the temporary name only
-        self._fh = os.fdopen(fd, "w", encoding="utf-8", newline="\n")
+        if not os.access(target.resolve().parent, os.W_OK):
+            raise PermissionError(f"{self.path}: the folder {target.parent} is not writable")
+        self._claim = claim_output(target, what=self.path, describe=_count_records)
+        self.notes = list(self._claim.notes)
+        try:
+            self._fh = open(target, "x", encoding="utf-8", newline="\n")
+        except BaseException:
+            self._claim.restore(lambda: None)
+            raise
         self._owned = True
+
+    @property
+    def previous(self) -> Path | None:
+        return None if self._claim is None else self._claim.previous
 
     def write(self, record: Mapping[str, Any] | None = None, **fields: Any) -> dict:
         """Validate and write one record.
@@ -261,28 +288,67 @@ class PoseWriter(KeptOnSuccess):
         self.count += 1
         return rec
 
-    def close(self) -> None:
-        """Close the file and rename it to ``path`` (standard output is only flushed); idempotent."""
-        self._close(keep=True)
+    def close(self, complete: bool = True) -> str | None:
+        """Close the file (standard output is only flushed); idempotent.
+
+        Parameters
+        ----------
+        complete : bool
+            True when the run ended as it should: the file this one replaced
+            is deleted. False (the run ended early): it is kept.
+
+        Returns
+        -------
+        str or None
+            Where the replaced file is kept (``complete`` false), else None.
+
+        Raises
+        ------
+        OSError
+            When the last flush fails (a full disk, a closed pipe); the
+            records written before stay in the file.
+        """
+        fh, self._fh = self._fh, None
+        try:
+            if fh is not None:
+                if self._owned:
+                    fh.close()
+                else:
+                    fh.flush()
+        except OSError:
+            complete = False
+            raise
+        finally:
+            kept = self._claim.finish(complete) if self._claim is not None else None
+        return kept
 
     def discard(self) -> None:
-        """Close and drop what was written; an existing ``path`` stays as it was. Idempotent."""
-        self._close(keep=False)
+        """Before any record: drop the new file and put back the one it replaced. Idempotent.
 
-    def _close(self, keep: bool) -> None:
-        if self._fh is None:
-            return
+        Raises
+        ------
+        ValueError
+            When records were written: they are never thrown away (use
+            ``close(complete=False)``).
+        """
+        if self.count:
+            raise ValueError(f"{self.path}: {self.count} records written; they are kept (close(complete=False))")
         fh, self._fh = self._fh, None
-        if not self._owned:
-            fh.flush()
-            return
-        try:
+        if fh is not None and self._owned:
             fh.close()
-            if keep:
-                os.replace(self._tmp, Path(self.path).expanduser())
-        finally:
-            if self._tmp is not None and os.path.exists(self._tmp):
-                os.unlink(self._tmp)
+        if self._claim is not None:
+            self._claim.restore(lambda: Path(self.path).expanduser().unlink(missing_ok=True))
+
+
+def _count_records(path: Path) -> str:
+    """``"42 records"``: the whole lines of a pose file (a killed run's last line may be cut)."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except OSError:
+        return "unreadable"
+    lines = data.count(b"\n")
+    return f"{lines} records"
 
 
 def _reject_constant(name: str) -> Any:

@@ -23,8 +23,11 @@ cleanly between frames: the records and frames so far are kept, whole.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import signal
 import sys
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +45,8 @@ from ..tracking.geometry import ESTIMATORS
 from ..tracking.rig_refine import RigRefineConfig
 from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
 from .frame_notes import FrameNotes, warning_kind
-from .output import DEFAULT_PIVOT_MM, OPENTRACK_FRAMES, OpentrackSender, StatusLine, check_pivot_mm, parse_host_port
+from .output import (DEFAULT_PIVOT_MM, OPENTRACK_FRAMES, ForgivingStream, OpentrackSender, StatusLine, check_pivot_mm,
+                     parse_host_port)
 
 __all__ = ["add_track_arguments", "run_track", "track_source_spec", "note_old_spelling", "EXIT_NO_FRAME_TRACKED"]
 
@@ -256,10 +260,19 @@ def _open_track_source(args, spec: str):
 
 
 def run_track(args) -> int:
-    """Run ``headplod track`` from parsed arguments; the exit status."""
+    """Run ``headplod track`` from parsed arguments; the exit status.
+
+    Standard error is wrapped so that a closed terminal (SIGHUP, then EIO
+    on every write) silences the messages without ending the run.
+    """
+    with contextlib.redirect_stderr(ForgivingStream(sys.stderr)):
+        return _run_track(args)
+
+
+def _run_track(args) -> int:
     # Imported on use: the tracker pulls in scipy.stats (~0.4 s), and `headplod --help` imports this module.
     from ..tracking.tracker import TrackerConfig
-    from .loop import make_tracker, run_source
+    from .loop import LiveStats, make_tracker, run_source
 
     detection = DetectionParams.paper() if args.paper_detection else DetectionParams(threshold_dn=args.threshold)
     if args.paper_detection and args.threshold is not None:
@@ -313,36 +326,28 @@ def run_track(args) -> int:
     writer = sender = recorder = status = tracker = None
     records = []
     notes = FrameNotes(stream=log)                      # per-frame warnings: the first of each kind, then a count
+    stats = LiveStats()
 
     def on_record(record, result):
         records.append(record)
         if writer is not None:
-            writer.write(record)
+            try:
+                writer.write(record)
+            except OSError as exc:
+                raise OutputFailed(f"--out {args.out}", exc) from exc
+        if sender is not None:
+            news = sender.news()                        # sending failed, or works again: said as it happens
+            if news:
+                print(news, file=log)
         if args.quiet or status is not None:
             return
-        line = f"frame {record['frame']:6d} "
-        if record["ok"]:
-            p, v = record["position"], record["axes"][2]
-            line += (f"ok   P1 ({p[0]:7.1f},{p[1]:7.1f},{p[2]:7.1f}) mm  "
-                     f"V ({v[0]:+.3f},{v[1]:+.3f},{v[2]:+.3f})")
-            if record["frame"] in truth:
-                tp, ta = truth[record["frame"]]
-                verr = float(evaluate.angle_deg(np.asarray(v), ta[2]))
-                line += f"  err V {verr:6.3f}° P1 {np.linalg.norm(np.asarray(p) - tp):6.3f} mm"
-            if result is not None:
-                line += f"  {result.timings_s.get('total', 0) * 1e3:5.2f} ms [{result.mode}]"
-        else:
-            line += f"no pose: {record['reason']}"
-        flags = [f for f in record.get("flags") or () if warning_kind(f) not in notes.kinds]
-        if flags:                                       # the frame's warnings are shown once, by notes
-            line += "  [" + "; ".join(flags) + "]"
-        print(line, file=log)
+        print(_frame_line(record, result, truth, notes), file=log)
 
-    stats = None
     stop = StopSignals()
-    with stop:                                          # from here, Ctrl-C and SIGTERM stop between frames
+    with stop:                                          # from here, Ctrl-C, SIGTERM and SIGHUP stop between frames
+        # Everything that can fail comes before the first frame: the files read, the tracker, the UDP socket,
+        # then the outputs (a refusal there puts back what was moved aside).
         try:
-            # Everything that can fail without writing comes first: the files read, the tracker, the UDP socket.
             markers = io.read_markers(args.markers) if args.markers else None
             screen = io.read_screen(args.screen) if args.screen else None
             tracker = make_tracker(source, config, rig=rig, markers=markers)
@@ -351,52 +356,57 @@ def run_track(args) -> int:
                 sender = OpentrackSender(*udp, pivot_mm=pivot_mm, frame=args.udp_axes)
                 print(f"udp: to {udp[0]}:{udp[1]}, the pivot ({', '.join(f'{v:.0f}' for v in pivot_mm)}) mm "
                       f"({pivot_from}), axes {args.udp_axes}", file=log)
-            # Then the outputs: a recording replaced only at the end, the records under a temporary name.
             if args.record:
                 recorder = DatasetRecorder(args.record, rig, markers=markers or source.markers,
                                            screen=screen or source.screen, overwrite=args.overwrite)
             writer = io.PoseWriter(args.out) if args.out else None
-            if args.status or (live and not args.quiet):
-                status = StatusLine(stream=log, sender=sender)
-            stats = run_source(source, screen=screen, on_record=on_record, recorder=recorder, sender=sender,
-                               pose_filter=pose_filter, status=status, max_frames=args.frames, tracker=tracker,
-                               stop=stop, notes=notes)
         except (ValueError, OSError, LookupError) as exc:
-            notes = []
-            if writer is not None:
-                writer.discard()
-                notes.append(f"--out {args.out} left as it was")
             if recorder is not None:
-                notes.append(f"--record {args.record} " + ("left as it was" if recorder.replacing else
-                                                           f"keeps the {recorder.count} frames recorded"))
-                recorder.discard()
-            print(f"headplod: {exc}" + (f" ({'; '.join(notes)})" if notes else ""), file=sys.stderr)
-            return 1
-        except KeyboardInterrupt:                       # a second Ctrl-C: stop at once, keep what is whole
-            stop.received = stop.received or signal.SIGINT
-        finally:
-            for thing in (status, recorder, sender, writer, source):
+                recorder.discard()                      # nothing recorded yet: the old recording goes back
+            for thing in (sender, source):
                 if thing is not None:
                     thing.close()
+            print(f"headplod: {exc} (nothing was written)", file=sys.stderr)
+            return 1
+        for output in (recorder, writer):
+            for note in getattr(output, "notes", None) or ():
+                print(f"note: {note}", file=log)
+        if args.status or (live and not args.quiet):
+            status = StatusLine(stream=log, sender=sender)
+        failure = None                                  # what ended the run early, after its start
+        try:
+            run_source(source, screen=screen, on_record=on_record,
+                       recorder=None if recorder is None else _Labelled(recorder, f"--record {args.record}"),
+                       sender=sender, pose_filter=pose_filter, status=status, max_frames=args.frames,
+                       tracker=tracker, stop=stop, notes=notes, stats=stats)
+        except KeyboardInterrupt:                       # a second signal: stop at once, keep what is whole
+            stop.received = stop.received or signal.SIGINT
+        except Exception as exc:                        # noqa: BLE001 - the policy below applies to every fault
+            failure = exc
+        finally:
+            stop.finishing()                            # the closes are short: a signal now cannot cut them
+            kept, close_failure = _close_outputs(args, status, recorder, sender, writer, source,
+                                                 complete=failure is None)
+            failure = failure or close_failure
     if stop():
-        print(f"headplod: stopped ({stop.name}); the {len(records)} frames so far are kept", file=sys.stderr)
+        how = ", at once on a second signal" if stop.insisted else ""
+        print(f"headplod: stopped ({stop.name}{how}); the {len(records)} frames so far are kept", file=sys.stderr)
     summary = evaluate.summarize(records, truth or None)
     name = source.name if live else Path(str(source.name)).name
     print(evaluate.format_summary(name, summary), file=log)
     notes.report()
+    _report_run(stats, sender, log, live or args.status)
+    if failure is not None:
+        if isinstance(failure, OutputFailed) and isinstance(failure.cause, BrokenPipeError) and args.out == "-":
+            _silence_stdout()                           # else Python's own flush at exit fails again, loudly
+        print(_early_end_line(failure, records, args, recorder, kept), file=sys.stderr)
+        _traceback_on_request(failure)
+        return 1
     if synthetic_preset(spec) is not None:             # a cached frame that cannot be read: render it all again
         unreadable = next((r["reason"] for r in records if not r["ok"] and r["reason"]
                            and (".png: missing" in r["reason"] or ".png: unreadable (" in r["reason"])), None)
         if unreadable is not None:
             rerender(source.dataset.folder, unreadable)
-    if stats is not None and (live or args.status):
-        s = stats.summary()
-        print(f"rate {s['rate_hz'] or 0:.1f} Hz, latency p50 {s['latency_ms_p50'] or 0:.1f} ms, "
-              f"p95 {s['latency_ms_p95'] or 0:.1f} ms, from {s['latency_from'] or '-'}", file=log)
-    if stats is not None and stats.timestamps.dropped:
-        print(stats.timestamps.summary(), file=log)
-    if sender is not None:
-        print(sender.failure_summary() or f"udp: {sender.sent} poses sent to {sender.host}:{sender.port}", file=log)
     tracked = sum(bool(r["ok"]) for r in records)
     code = _report_rig(args, tracker, tracked=tracked, log=log)
     if args.record:
@@ -408,6 +418,143 @@ def run_track(args) -> int:
               file=sys.stderr)
         return EXIT_NO_FRAME_TRACKED
     return code
+
+
+class OutputFailed(Exception):
+    """An output could not be written during the run (a full disk, a folder gone, a closed pipe).
+
+    ``what`` names it as the user did (``"--out poses.jsonl"``); ``cause`` is the OSError.
+    """
+
+    def __init__(self, what: str, cause: OSError):
+        super().__init__(f"{what}: {_os_error_text(cause)}")
+        self.what, self.cause = what, cause
+
+
+class _Labelled:
+    """A recorder whose write errors name the option it came from (:class:`OutputFailed`)."""
+
+    def __init__(self, recorder, what: str):
+        self._recorder, self._what = recorder, what
+
+    def write(self, frame):
+        try:
+            return self._recorder.write(frame)
+        except OSError as exc:
+            raise OutputFailed(self._what, exc) from exc
+
+
+def _os_error_text(exc: OSError) -> str:
+    """An OSError in a few words: its text without the file name (the option names it), or the pipe's fate."""
+    if isinstance(exc, BrokenPipeError):
+        return "the program reading it closed the pipe"
+    text = exc.strerror or str(exc) or type(exc).__name__
+    return text
+
+
+def _frame_line(record, result, truth, notes) -> str:
+    """The per-frame line of ``headplod track`` (without ``-q``)."""
+    line = f"frame {record['frame']:6d} "
+    if record["ok"]:
+        p, v = record["position"], record["axes"][2]
+        line += (f"ok   P1 ({p[0]:7.1f},{p[1]:7.1f},{p[2]:7.1f}) mm  "
+                 f"V ({v[0]:+.3f},{v[1]:+.3f},{v[2]:+.3f})")
+        if record["frame"] in truth:
+            tp, ta = truth[record["frame"]]
+            verr = float(evaluate.angle_deg(np.asarray(v), ta[2]))
+            line += f"  err V {verr:6.3f}° P1 {np.linalg.norm(np.asarray(p) - tp):6.3f} mm"
+        if result is not None:
+            line += f"  {result.timings_s.get('total', 0) * 1e3:5.2f} ms [{result.mode}]"
+    else:
+        line += f"no pose: {record['reason']}"
+    flags = [f for f in record.get("flags") or () if warning_kind(f) not in notes.kinds]
+    if flags:                                           # the frame's warnings are shown once, by notes
+        line += "  [" + "; ".join(flags) + "]"
+    return line
+
+
+def _close_outputs(args, status, recorder, sender, writer, source, complete: bool):
+    """Close everything, each on its own (one failing does not skip the others).
+
+    Returns ``(kept, failure)``: where the outputs that were being replaced are
+    kept (``{option: path}``; only when the run did not complete), and the first
+    OSError of a close as an :class:`OutputFailed` (None when all closed).
+    """
+    kept, failure = {}, None
+    for what, thing in ((None, status), (f"--record {args.record}", recorder), (None, sender),
+                        (f"--out {args.out}", writer), (None, source)):
+        if thing is None:
+            continue
+        try:
+            if what is None:
+                thing.close()
+                continue
+            previous = thing.close(complete=complete and failure is None)
+        except OSError as exc:
+            failure = failure or OutputFailed(what or "closing", exc)
+            previous = getattr(thing, "previous", None)
+        if previous:
+            kept[what] = previous
+    if failure is not None and not complete:
+        return kept, None
+    return kept, failure
+
+
+def _early_end_line(failure: BaseException, records: list, args, recorder, kept: dict) -> str:
+    """The one line of a run that ended early: what failed, and where everything made is."""
+    n = len(records)
+    if isinstance(failure, OutputFailed):
+        what = f"{failure}"
+    elif isinstance(failure, OSError):
+        what = f"{failure.filename + ': ' if failure.filename else ''}{_os_error_text(failure)}"
+    else:
+        what = (f"internal error: {type(failure).__name__}: {' '.join(str(failure).split())[:200]} "
+                "(a bug: please report it; HEADPLOD_TRACEBACK=1 shows where)")
+    where = []
+    if args.out and args.out != "-":
+        out = Path(args.out).expanduser()
+        where.append(f"{len(records)} records in {args.out}" if out.exists() else f"no records ({args.out} is gone)")
+    if recorder is not None:
+        folder = Path(args.record).expanduser()
+        where.append(f"{recorder.count} frames in {args.record}" if (folder / "times.csv").exists()
+                     else f"no recording ({args.record} is gone)")
+    for option, path in kept.items():
+        where.append(f"the {'recording' if option.startswith('--record') else 'file'} {option.split(' ', 1)[0]} "
+                     f"replaced is kept as {path}")
+    return (f"headplod: the run ended early after {n} frames: {what}"
+            + (f"; kept: {'; '.join(where)}" if where else ""))
+
+
+def _silence_stdout() -> None:
+    """Point standard output at /dev/null (its reader is gone), so nothing more is written to the dead pipe."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):   # not a real file (a test's capture): nothing to do
+        pass
+
+
+def _traceback_on_request(failure: BaseException) -> None:
+    """The traceback of a bug, when HEADPLOD_TRACEBACK is set (an environmental fault has none to show)."""
+    if os.environ.get("HEADPLOD_TRACEBACK") and not isinstance(failure, (OutputFailed, OSError)):
+        traceback.print_exception(type(failure), failure, failure.__traceback__, file=sys.stderr)
+
+
+def _report_run(stats, sender, log, rates: bool) -> None:
+    """The run's own lines at its end: rate and latency, timestamps, internal errors, UDP."""
+    if stats.frames and rates:
+        s = stats.summary()
+        print(f"rate {s['rate_hz'] or 0:.1f} Hz, latency p50 {s['latency_ms_p50'] or 0:.1f} ms, "
+              f"p95 {s['latency_ms_p95'] or 0:.1f} ms, from {s['latency_from'] or '-'}", file=log)
+    line = stats.timestamps.summary()
+    if line:
+        print(line, file=log)
+    if stats.internal_errors:
+        print(f"internal errors: {stats.internal_errors} frames could not be processed (first: "
+              f"{stats.first_internal_error}); each has ok false and the reason in its record", file=log)
+    if sender is not None:
+        print(sender.failure_summary() or f"udp: {sender.sent} poses sent to {sender.host}:{sender.port}", file=log)
 
 
 def _inside(path: Path, folder: Path) -> bool:

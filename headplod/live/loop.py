@@ -25,12 +25,20 @@ record. For a live camera that is the driver's V4L2 buffer timestamp (start
 of exposure or end of frame, as the driver decides; not mid-exposure), or
 the time ``grab()`` returned when the driver gives none (the frame's
 ``time_source``); for replay, from when the frame was asked for
-(:data:`LATENCY_FROM`, ``LiveStats.summary()['latency_from']``). Frames whose
-time is zero or not increasing are dropped before tracking
-(:func:`track_frames`), counted in ``LiveStats.timestamps``.
+(:data:`LATENCY_FROM`, ``LiveStats.summary()['latency_from']``).
+
+Every frame read gets a record. A frame whose time is zero, not finite or a
+repeat of the last is dropped before tracking (its record says why); a time
+that goes back or jumps far forward is a discontinuity, tracked from
+scratch with a flag (:func:`track_frames`, :mod:`headplod.capture.timestamps`);
+both are counted in ``LiveStats.timestamps``. An exception while making a
+frame's record is that frame's failure (``internal error: TYPE: message``),
+counted in ``LiveStats.internal_errors``; the tracker isolates its own
+(:meth:`Tracker.process <headplod.tracking.tracker.Tracker.process>`).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -55,7 +63,9 @@ class LiveStats:
     output_s: list = field(default_factory=list)     # record, filter, UDP, writing, recording
     latency_ms: list = field(default_factory=list)
     latency_from: dict = field(default_factory=dict)   # instant latencies are measured from -> frames
-    timestamps: TimestampCheck = field(default_factory=TimestampCheck)   # frames dropped for their time
+    timestamps: TimestampCheck = field(default_factory=TimestampCheck)   # frames dropped or reset for their time
+    internal_errors: int = 0                         # frames whose record could not be made (a bug), see above
+    first_internal_error: str | None = None
     wall_s: float = 0.0
 
     def summary(self) -> dict:
@@ -64,8 +74,11 @@ class LiveStats:
         ``latency_from`` names the instant the latencies are measured from
         (:data:`LATENCY_FROM`; several, with their frame counts, when they
         changed during the run); ``time_dropped`` counts the frames dropped
-        for a zero or non-increasing time and ``time_dropped_first`` is the
-        first of them (:class:`~headplod.capture.TimestampCheck`).
+        for a zero, non-finite or repeated time and ``time_dropped_first`` is
+        the first of them; ``time_jumps`` counts the discontinuities (a time
+        gone back or far forward), ``time_jumps_first`` the first
+        (:class:`~headplod.capture.TimestampCheck`); ``internal_errors``
+        the frames whose record could not be made.
         """
         lat = np.asarray(self.latency_ms, dtype=np.float64)
         track = float(np.sum(self.track_s))
@@ -73,6 +86,8 @@ class LiveStats:
             "frames": self.frames, "ok": self.ok,
             "latency_from": latency_origin(self.latency_from),
             "time_dropped": self.timestamps.dropped, "time_dropped_first": self.timestamps.first,
+            "time_jumps": self.timestamps.jumps, "time_jumps_first": self.timestamps.first_jump,
+            "internal_errors": self.internal_errors,
             "rate_hz": self.frames / self.wall_s if self.wall_s > 0 else None,
             "latency_ms_p50": float(np.percentile(lat, 50)) if lat.size else None,
             "latency_ms_p95": float(np.percentile(lat, 95)) if lat.size else None,
@@ -179,22 +194,29 @@ def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: in
 
     Notes
     -----
-    The per-frame policy, the same for every caller:
+    The per-frame policy, the same for every caller (every frame read is
+    yielded, and counts in ``max_frames``):
 
-    - a frame whose left or right time is zero or not above that camera's
-      last accepted time is dropped, as Pupil's UVC source does (see
-      :mod:`headplod.capture.timestamps`): it is neither tracked nor yielded
-      nor counted in ``max_frames``, the tracker keeps its state, and the
-      next frame yielded carries a flag ``"dropped before this frame:
-      frame 3: left time 0.066 s not after 0.066 s (frame 2)"`` (when it has
-      ``flags``, as capture frames do);
+    - a frame whose left or right time is zero, not finite, or equal to
+      that camera's last time is dropped (:mod:`headplod.capture.timestamps`):
+      it is not tracked, the tracker keeps its state, and it is yielded as an
+      error frame (``error``: ``"frame dropped: frame 3: left time 0.066 s
+      repeats frame 2's (the same image twice)"``, no images) with result
+      ``None``;
+    - a frame whose time goes back, or jumps forward more than
+      ``timestamps.max_gap_s``, is a discontinuity: the tracker is reset
+      (no motion model bridges it) and the frame tracked; its ``warning``
+      says so (``"time discontinuity: ...; tracked afresh"``);
     - a frame with ``error`` set (an image missing, unreadable or of the
       wrong size; a camera that stalled past ``timeout_s`` or was lost) is
       not tracked: the tracker is reset (the next pair is acquired afresh,
       not tracked from before the gap) and ``(frame, None)`` is yielded;
     - a tracked pair without a pose is a result with ``ok`` false and a
-      ``reason`` (the tracker's own; it does not reset the tracker);
-    - exceptions (a broken file, a programming error) are not caught.
+      ``reason`` (the tracker's own; it does not reset the tracker); the
+      tracker turns its own exceptions into such a result too
+      (``internal error: ...``);
+    - exceptions of the source (a broken file, a device gone) are not
+      caught: they end the run, whose caller keeps what was made.
 
     The generator ends when the source or the iterable ends, at
     ``max_frames``, or when ``stop()`` is true.
@@ -209,7 +231,6 @@ def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: in
         def next_frame():
             return next(iterator, None)
     check = TimestampCheck() if timestamps is None else timestamps
-    pending: list[str] = []
     count = 0
     while max_frames is None or count < max_frames:
         if stop is not None and stop():
@@ -220,15 +241,16 @@ def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: in
         if frame is None:
             return
         read_mono = time.monotonic()
-        why = check.check(frame)
-        if why is not None:
-            pending.append(why)
-            continue
-        if pending and isinstance(getattr(frame, "flags", None), list):
-            frame.flags.extend(f"dropped before this frame: {w}" for w in pending)
-        pending = []
+        verdict = check.check(frame)
         result = None
-        if frame.error is None:
+        if verdict is not None and verdict.drop:
+            t = frame.t if math.isfinite(frame.t) else check.last_time()     # a record's time must be finite
+            frame = dataclasses.replace(frame, t=t, left=None, right=None, error=f"frame dropped: {verdict.why}")
+        elif frame.error is None:
+            if verdict is not None:                  # a discontinuity: nothing from before it applies
+                tracker.reset()
+                note = f"time discontinuity: {verdict.why}; tracked afresh"
+                frame = dataclasses.replace(frame, warning=f"{frame.warning}; {note}" if frame.warning else note)
             result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
         else:
             tracker.reset()
@@ -237,6 +259,12 @@ def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: in
             times.track_end = time.perf_counter()
         count += 1
         yield frame, result
+
+
+def internal_error_reason(exc: BaseException) -> str:
+    """A frame's reason for an exception caught while processing it: ``internal error: TYPE: message``."""
+    message = " ".join(str(exc).split()) or "(no message)"
+    return f"internal error: {type(exc).__name__}: {message[:300]}"
 
 
 def result_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen | None = None,
@@ -282,7 +310,8 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
                on_record: Callable[[dict, object], None] | None = None, recorder=None, sender=None,
                pose_filter=None, status=None, max_frames: int | None = None,
                timeout_s: float = 1.0, stop: Callable[[], bool] | None = None,
-               tracker: Tracker | None = None, notes: FrameNotes | None = None) -> LiveStats:
+               tracker: Tracker | None = None, notes: FrameNotes | None = None,
+               stats: LiveStats | None = None) -> LiveStats:
     """Track every frame of a source until it ends (or ``max_frames``, or ``stop()``).
 
     The frames are read and tracked by :func:`track_frames` (its error
@@ -316,6 +345,9 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         Shown the frames' warnings (a colour image converted to gray, an
         interpolated time): the first of each kind in full, then counted.
         With or without it, a frame's warnings are in its record's ``flags``.
+    stats : LiveStats, optional
+        Filled in as the run goes (and returned), so that a caller whose run
+        ends by an exception still has what was measured.
 
     Returns
     -------
@@ -324,22 +356,28 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
     screen = screen if screen is not None else source.screen
     if tracker is None:
         tracker = make_tracker(source, config, rig=rig, markers=markers)
-    stats = LiveStats()
+    stats = LiveStats() if stats is None else stats
     times = FrameTimes()
     start = time.perf_counter()
     for frame, result in track_frames(source, tracker, max_frames=max_frames, stop=stop, timeout_s=timeout_s,
                                       times=times, timestamps=stats.timestamps):
-        if recorder is not None and frame.error is None:
-            recorder.write(frame)
-        record = result_record(frame, result, screen)
-        skew = getattr(frame, "skew_ms", None)
-        dropped = int(getattr(frame, "dropped", 0) or 0)
+        if recorder is not None:
+            recorder.write(frame)                    # an error frame is noted in recording.log, not written
         flags = list(getattr(frame, "flags", []) or [])
         flags += notes.add(frame.index, frame.warning) if notes is not None else split_frame_warning(frame.warning)
+        try:
+            record = result_record(frame, result, screen)
+            if pose_filter is not None:
+                record = pose_filter(record, frame.t)
+        except Exception as exc:                     # noqa: BLE001 - a bug in one frame's record is that frame's
+            reason = internal_error_reason(exc)
+            stats.internal_errors += 1
+            stats.first_internal_error = stats.first_internal_error or f"frame {frame.index}: {reason}"
+            record = io.pose_record(frame.index, frame.t, False, reason=reason)
+        skew = getattr(frame, "skew_ms", None)
+        dropped = int(getattr(frame, "dropped", 0) or 0)
         captured = getattr(frame, "t_monotonic_left", None)
         origin = getattr(frame, "time_source", None) if captured is not None else None
-        if pose_filter is not None:
-            record = pose_filter(record, frame.t)
         record["skew_ms"] = None if skew is None else round(float(skew), 3)
         record["dropped"] = dropped
         record["flags"] = flags
@@ -353,8 +391,10 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
             on_record(record, result)
         if status is not None:
             status.update(record, latency_ms=latency, skew_ms=skew, dropped=dropped,
-                          time_dropped=stats.timestamps.dropped, time_dropped_first=stats.timestamps.first)
+                          time_dropped=stats.timestamps.dropped + stats.timestamps.jumps,
+                          time_dropped_first=stats.timestamps.first or stats.timestamps.first_jump)
         t_done = time.perf_counter()
+        stats.wall_s = time.perf_counter() - start
         stats.frames += 1
         stats.ok += bool(record["ok"])
         stats.read_s.append(times.read_s)

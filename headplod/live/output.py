@@ -91,8 +91,10 @@ received (it also ignores datagrams holding NaN), which is the right
 behaviour for a frame without a trustworthy pose. A datagram the system
 refuses to send (a broadcast address without permission, an unreachable
 network) is counted in :attr:`OpentrackSender.failed`, its first and last
-errors kept; :class:`StatusLine` shows them, and ``headplod track`` prints
-them at the end of the run.
+errors kept; the socket is connected, so that opentrack not listening (an
+ICMP "port unreachable") shows as "opentrack not listening on HOST:PORT".
+:class:`StatusLine` shows them, ``headplod track`` prints a line as sending
+fails or recovers (:meth:`OpentrackSender.news`) and a summary at the end.
 """
 from __future__ import annotations
 
@@ -390,8 +392,19 @@ class OpentrackSender:
     failed : int
         Datagrams the socket refused (a send that failed returns False; the
         caller keeps running).
+    refused : int
+        Of those, how many for an ICMP "port unreachable": nothing listens
+        on the port (opentrack not running, or its input not started).
     first_error, last_error : str or None
         The first and the last socket error, ``"HOST:PORT: message"``.
+
+    Notes
+    -----
+    The socket is connected to opentrack's address, so that the system
+    reports an ICMP "port unreachable" for a datagram as
+    ``ConnectionRefusedError`` on the next send: :attr:`listening` is then
+    False, and :meth:`news` says so as it happens. An address that cannot
+    be reached yet (a network not up) is retried at each send.
 
     Examples
     --------
@@ -420,8 +433,57 @@ class OpentrackSender:
         self.sent = 0
         self.skipped = 0
         self.failed = 0
+        self.refused = 0
         self.first_error: str | None = None
         self.last_error: str | None = None
+        self._attempts = 0
+        self._last_refused = self._last_failed = -10 ** 9     # attempt numbers
+        self._said: str | None = None                          # the state :meth:`news` last reported
+        self._connected = False
+        self._connect()
+
+    def _connect(self) -> bool:
+        """Connect the socket to opentrack's address (a UDP connect sends nothing); False on an error, kept."""
+        try:
+            self._sock.connect(self.address)
+        except OSError as e:
+            self._fail(e)
+            return False
+        self._connected = True
+        return True
+
+    def _fail(self, e: OSError) -> None:
+        self.failed += 1
+        self._last_failed = self._attempts
+        if isinstance(e, ConnectionRefusedError):
+            self.refused += 1
+            self._last_refused = self._attempts
+        self.last_error = f"{self.host}:{self.port}: {e}"
+        if self.first_error is None:
+            self.first_error = self.last_error
+
+    @property
+    def listening(self) -> bool:
+        """False while opentrack's port answers "unreachable" (a refusal within the last 3 sends)."""
+        return self._attempts - self._last_refused > 3
+
+    def state(self) -> str | None:
+        """What is wrong with sending now, in a few words, or None when the last sends went through."""
+        if not self.listening:
+            return f"opentrack not listening on {self.host}:{self.port}"
+        if self._attempts - self._last_failed <= 3:
+            return f"sending to {self.host}:{self.port} fails: {self.last_error.split(': ', 1)[-1]}"
+        return None
+
+    def news(self) -> str | None:
+        """A line when sending went wrong, or right again, since the last call (None when nothing changed)."""
+        now = self.state()
+        if now == self._said:
+            return None
+        before, self._said = self._said, now
+        if now is not None:
+            return f"udp: {now}; poses are not received (the run goes on)"
+        return f"udp: {self.host}:{self.port} receives the poses again ({self.failed} not sent before)"
 
     def send(self, record: Mapping) -> bool:
         """Send one pose record.
@@ -450,13 +512,13 @@ class OpentrackSender:
         except ValueError:
             self.skipped += 1
             return False
+        self._attempts += 1
+        if not self._connected and not self._connect():
+            return False
         try:
-            self._sock.sendto(packet, self.address)
+            self._sock.send(packet)
         except OSError as e:
-            self.failed += 1
-            self.last_error = f"{self.host}:{self.port}: {e}"
-            if self.first_error is None:
-                self.first_error = self.last_error
+            self._fail(e)
             return False
         self.sent += 1
         return True
@@ -471,6 +533,8 @@ class OpentrackSender:
         if not self.failed:
             return None
         line = f"udp: {self.failed} of {self.failed + self.sent} datagrams not sent; first: {self.first_error}"
+        if self.refused:
+            line += f"; {self.refused} refused: opentrack was not listening on {self.host}:{self.port}"
         if self.last_error != self.first_error:
             line += f"; last: {self.last_error}"
         return line
@@ -582,6 +646,7 @@ class StatusLine:
         self.time_dropped = 0
         self.time_dropped_first: str | None = None
         self.last_failure: str | None = None
+        self.internal_errors = 0
         self.rig_message: str | None = None
         self._last_render: float | None = None
         self._last_len = 0
@@ -630,6 +695,7 @@ class StatusLine:
         else:
             self.failed += 1
             self.last_failure = record.get("reason") or "no reason given"
+            self.internal_errors += self.last_failure.startswith("internal error")
         if record.get("rig_message"):
             self.rig_message = str(record["rig_message"])
         self._times.append(now)
@@ -675,8 +741,11 @@ class StatusLine:
             ``latency_ms_p95``, ``skew_ms_median``, ``skew_ms_max`` (over the
             window; None when there is no data), ``last_failure`` and
             ``rig_message`` (the last record's, in full), ``udp_failed``
-            (datagrams not sent; None without a sender) and
-            ``udp_first_error``.
+            (datagrams not sent; None without a sender),
+            ``udp_first_error``, ``udp_state`` (what is wrong with sending
+            now, e.g. "opentrack not listening on HOST:PORT"; None when the
+            last sends went through) and ``internal_errors`` (frames whose
+            reason is an internal error).
         """
         lat = np.array([v for _, v in self._latency])
         skew = np.array([v for _, v in self._skew])
@@ -697,6 +766,8 @@ class StatusLine:
             "rig_message": self.rig_message,
             "udp_failed": None if self.sender is None else self.sender.failed,
             "udp_first_error": None if self.sender is None else self.sender.first_error,
+            "udp_state": None if self.sender is None else self.sender.state(),
+            "internal_errors": self.internal_errors,
         }
 
     def render(self) -> str:
@@ -712,8 +783,11 @@ class StatusLine:
                  f"dropped {s['dropped']}",
                  *([f"bad time {s['time_dropped']} (first: {s['time_dropped_first']})"]
                    if s["time_dropped"] else []),
-                 f"ok {num(s['ok_percent'])}%"]
-        if s["udp_failed"]:
+                 f"ok {num(s['ok_percent'])}%",
+                 *([f"internal errors {s['internal_errors']}"] if s["internal_errors"] else [])]
+        if s["udp_state"]:
+            parts.append(f"udp: {s['udp_state']}")
+        elif s["udp_failed"]:
             parts.append(f"udp: {s['udp_failed']} not sent (first: {s['udp_first_error']})")
         if s["last_failure"]:
             parts.append(f"last failure: {s['last_failure']}")
@@ -745,3 +819,36 @@ class StatusLine:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class ForgivingStream:
+    """A text stream whose writes never raise: a terminal that closed (EIO) or a pipe whose reader left
+    (EPIPE) ends the messages, not the run. Wraps ``stream``; ``broken`` tells whether a write failed."""
+
+    def __init__(self, stream: TextIO):
+        self.stream = stream
+        self.broken = False
+
+    def write(self, text: str) -> int:
+        if not self.broken:
+            try:
+                return self.stream.write(text)
+            except (OSError, ValueError):          # ValueError: the stream was closed
+                self.broken = True
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.broken:
+            try:
+                self.stream.flush()
+            except (OSError, ValueError):
+                self.broken = True
+
+    def isatty(self) -> bool:
+        try:
+            return not self.broken and self.stream.isatty()
+        except (OSError, ValueError, AttributeError):
+            return False
+
+    def __getattr__(self, name):
+        return getattr(self.stream, name)
