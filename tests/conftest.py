@@ -4,7 +4,8 @@ Each fixture is defined here once; a test module that needs a variant builds
 it from these (e.g. ``small_rig(rms_px=0.3)``) rather than copying them.
 
 - ``sweep12_dir``: the shared sample dataset (tests/data/sweep12, rendered by
-  independent code), read only; ``sample``: a writable copy of it.
+  independent code), read only; ``sample``: a writable copy of it;
+  ``long_dataset``: its frames six times over (72), to interrupt a run.
 - ``small_rig``, ``make_dataset``: a tiny 64x48 rig and contract dataset
   folders built on it, for tests of files and sources that need no markers.
 - ``synth``: synthetic presets rendered once per session.
@@ -13,6 +14,7 @@ it from these (e.g. ``small_rig(rms_px=0.3)``) rather than copying them.
 """
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -42,6 +44,22 @@ def sweep12_dir() -> Path:
 def sweep12_rig(sweep12_dir) -> io.Rig:
     """The sample dataset's rig.yaml."""
     return io.read_rig(sweep12_dir / "rig.yaml")
+
+
+@pytest.fixture(scope="session")
+def long_dataset(tmp_path_factory) -> Path:
+    """72 frames: the sample's 12, hard-linked six times over, at 30 Hz (about a second of tracking and
+    recording: long enough to interrupt). Read only."""
+    src = DATA / "sweep12"
+    dst = tmp_path_factory.mktemp("long") / "long"
+    for side in ("left", "right"):
+        (dst / side).mkdir(parents=True)
+    shutil.copy(src / "rig.yaml", dst / "rig.yaml")
+    for i in range(72):
+        for side in ("left", "right"):
+            os.link(src / side / f"{i % 12:06d}.png", dst / side / f"{i:06d}.png")
+    io.write_times(dst / "times.csv", {i: i / 30 for i in range(72)})
+    return dst
 
 
 @pytest.fixture

@@ -214,21 +214,6 @@ def _check_consistent(rec: Path) -> int:
     return len(rows)
 
 
-@pytest.fixture(scope="module")
-def long_dataset(tmp_path_factory) -> Path:
-    """72 frames: the sample's 12, hard-linked six times over (about a second of tracking and recording)."""
-    src = ROOT / "tests" / "data" / "sweep12"
-    dst = tmp_path_factory.mktemp("long") / "long"
-    for side in ("left", "right"):
-        (dst / side).mkdir(parents=True)
-    shutil.copy(src / "rig.yaml", dst / "rig.yaml")
-    for i in range(72):
-        for side in ("left", "right"):
-            os.link(src / side / f"{i % 12:06d}.png", dst / side / f"{i:06d}.png")
-    io.write_times(dst / "times.csv", {i: i / 30 for i in range(72)})
-    return dst
-
-
 def _check_interrupted_run(rec: Path, out: Path, code: int, err: str, sig) -> bool:
     """After a run cut by ``sig``: exit status, records and recording agree; whether the signal cut it."""
     n = _check_consistent(rec)

@@ -192,8 +192,44 @@ def test_send_failures_are_counted_and_shown():
         assert sender.first_error.startswith("255.255.255.255:4242: ") and "ermission" in sender.first_error
         summary = sender.failure_summary()
     assert summary.startswith("udp: 5 of 5 datagrams not sent; first: 255.255.255.255:4242:")
-    assert "udp: " in out.getvalue() and "not sent (first: 255.255.255.255:4242" in out.getvalue()
+    assert "udp: sending to 255.255.255.255:4242 fails: [Errno 13] Permission denied (" in out.getvalue()
     assert status.summary()["udp_failed"] == 5
+
+
+def test_opentrack_not_listening_shows_as_it_happens_and_recovery_too():
+    """Issue 21: a closed port (opentrack not running) answers with ICMP "port unreachable"; through a
+    connected socket that is seen at the next send, and said at once, in the status line and by news()."""
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()                                         # nothing listens on the port now
+    out = StringIO()
+    status = StatusLine(stream=out, every_s=1e-9)
+    with OpentrackSender("127.0.0.1", port) as sender:
+        status.sender = sender
+        news = []
+        for i in range(4):
+            sender.send(record([0.0, 0.0, 600.0], FACING))
+            news.append(sender.news())
+            status.update({"ok": True}, now=i * 0.1)
+        assert sender.refused >= 1 and not sender.listening
+        assert news[0] is None                            # the first datagram's refusal is known at the second
+        assert news[1] == f"udp: opentrack not listening on 127.0.0.1:{port}; poses are not received (the run goes on)"
+        assert news[2:] == [None, None]                   # said once, not per frame
+        assert f"udp: opentrack not listening on 127.0.0.1:{port}" in out.getvalue().splitlines()[-1]
+        listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        listener.bind(("127.0.0.1", port))                # opentrack starts
+        try:
+            for _ in range(5):
+                assert sender.send(record([0.0, 0.0, 600.0], FACING))
+                news.append(sender.news())
+            assert sender.listening
+            assert [n for n in news[4:] if n] == [f"udp: 127.0.0.1:{port} receives the poses again "
+                                                  f"({sender.failed} not sent before)"]
+            assert len(listener.recv(64)) == OPENTRACK_PACKET_BYTES
+        finally:
+            listener.close()
+    assert "refused: opentrack was not listening" in sender.failure_summary()
 
 
 def test_failed_record_sends_nothing(receiver):

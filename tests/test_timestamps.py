@@ -1,8 +1,9 @@
-"""Frames whose time is zero or not increasing are dropped, counted and reported (issue 15, item 8).
+"""Frame times no camera gives: zero or repeated times dropped, jumps tracked afresh; every frame a record
+(issue 15, item 8; issue 21: a clock reset or one far-future time no longer drops the rest of the run).
 
-The rule is Pupil's UVC source's (``headplod.capture.timestamps``): it is
-applied where every sequence enters the tracker, so a fake live source, a
-replayed recording and the command line drop the same frames. Images are
+The rule (``headplod.capture.timestamps``) is applied where every sequence
+enters the tracker, so a fake live source, a replayed recording and the
+command line treat the same frames the same way. Images are
 those of the shared sample dataset (tests/data/sweep12), so the tracker has
 something to track; only the times are made bad.
 """
@@ -23,7 +24,9 @@ from headplod.live.output import StatusLine
 SWEEP = Path(__file__).parent / "data" / "sweep12"
 #: The brief's times, s: a zero, two good ones, a repeat, a backward one, a good one.
 TIMES = [0.0, 0.033, 0.066, 0.066, 0.05, 0.1]
-KEPT = [1, 2, 5]
+DROPPED = [0, 3]          # zero, repeated: not tracked
+JUMPED = [4]              # gone back: tracked afresh
+KEPT = [1, 2, 4, 5]
 
 
 class ClockSource(FrameSource):
@@ -73,16 +76,29 @@ def _run(source):
     return stats, status, records
 
 
-def test_the_check_drops_zero_repeated_and_backward_times_and_names_the_first():
+def test_the_check_drops_zero_and_repeated_times_and_takes_a_backward_one_as_a_jump():
     check = TimestampCheck()
     frames = [CaptureFrame(index=i, t=t, t_right=t, left=None, right=None, t_monotonic_left=t,
                            t_monotonic_right=t) for i, t in enumerate(TIMES)]
-    kept = [f.index for f in frames if check.check(f) is None]
-    assert kept == KEPT
-    assert (check.dropped, check.zero, check.not_increasing) == (3, 1, 2)
+    verdicts = [check.check(f) for f in frames]
+    assert [i for i, v in enumerate(verdicts) if v is not None and v.drop] == DROPPED
+    assert [i for i, v in enumerate(verdicts) if v is not None and not v.drop] == JUMPED
+    assert (check.dropped, check.zero, check.repeated, check.jumps, check.back) == (2, 1, 1, 1, 1)
     assert check.first == "frame 0: left time 0 s (no timestamp)"
-    assert check.summary() == ("timestamps: 3 frames dropped (1 zero, 2 not increasing); "
-                               "first: frame 0: left time 0 s (no timestamp)")
+    assert check.first_jump == "frame 4: left time 0.05 s before 0.066 s (frame 2)"
+    assert check.summary() == ("timestamps: 2 frames dropped (1 zero, 1 repeated); first: frame 0: left time 0 s "
+                               "(no timestamp); 1 discontinuities (1 back), tracked afresh after each; first: "
+                               "frame 4: left time 0.05 s before 0.066 s (frame 2)")
+
+
+def test_a_far_future_time_or_a_clock_reset_costs_a_reset_not_the_rest_of_the_run():
+    check = TimestampCheck()
+    times = [0.1, 0.133, 1e300, 0.166, 0.2, 0.233, 0.0001, 0.033, 5.0, 5.033]
+    verdicts = [check.check(CaptureFrame(index=i, t=t, t_right=None, left=None, right=None))
+                for i, t in enumerate(times)]
+    kinds = [None if v is None else v.kind for v in verdicts]
+    assert kinds == [None, None, "gap", "back", None, None, "back", None, "gap", None]
+    assert check.dropped == 0 and check.jumps == 4
 
 
 def test_each_camera_is_checked_and_the_message_names_it():
@@ -94,8 +110,8 @@ def test_each_camera_is_checked_and_the_message_names_it():
                                     t_monotonic_left=a, t_monotonic_right=b)) for i, (a, b) in
            enumerate(zip(left, right))]
     assert why[:2] == [None, None] and why[4] is None
-    assert why[2] == "frame 2: right time 0.021 s not after 0.021 s (frame 1)"
-    assert why[3] == "frame 3: right time 0.015 s not after 0.021 s (frame 1)"
+    assert why[2].drop and why[2].why == "frame 2: right time 0.021 s repeats frame 1's (the same image twice)"
+    assert not why[3].drop and why[3].why == "frame 3: right time 0.015 s before 0.021 s (frame 1)"
 
 
 def test_error_frames_are_not_checked_and_do_not_move_the_last_time():
@@ -104,41 +120,40 @@ def test_error_frames_are_not_checked_and_do_not_move_the_last_time():
     late_error = CaptureFrame(index=1, t=9.0, t_right=None, left=None, right=None, error="stalled")
     assert check.check(good) is None and check.check(late_error) is None
     assert check.check(CaptureFrame(index=2, t=1.1, t_right=None, left=None, right=None)) is None
-    assert check.dropped == 0
+    assert check.dropped == 0 and check.jumps == 0
 
 
-def test_a_live_source_drops_them_reports_them_and_says_where_latency_starts():
+def test_a_live_source_gives_every_frame_a_record_and_says_where_latency_starts():
     source = ClockSource(TIMES)
     stats, status, records = _run(source)
-    # Dropped frames are neither tracked nor recorded nor counted as frames; the tracker keeps going.
-    assert [r["frame"] for r in records] == KEPT
-    assert stats.frames == 3 and stats.ok == 3
+    # Every frame read has a record; dropped frames say why and are not tracked; the jump is tracked afresh.
+    assert [r["frame"] for r in records] == list(range(len(TIMES)))
+    assert [r["frame"] for r in records if r["ok"]] == KEPT
+    assert records[0]["reason"] == "frame dropped: frame 0: left time 0 s (no timestamp)"
+    assert records[3]["reason"] == "frame dropped: frame 3: left time 0.066 s repeats frame 2's (the same image twice)"
+    assert any("time discontinuity: left time 0.05 s before 0.066 s (frame 2); tracked afresh" in f for f in records[4]["flags"])
+    assert stats.frames == 6 and stats.ok == 4
     s = stats.summary()
-    assert (s["time_dropped"], s["time_dropped_first"]) == (3, "frame 0: left time 0 s (no timestamp)")
+    assert (s["time_dropped"], s["time_dropped_first"]) == (2, "frame 0: left time 0 s (no timestamp)")
+    assert s["time_jumps"] == 1
     assert s["latency_from"] == LATENCY_FROM["driver"]
     assert "buffer timestamp" in s["latency_from"] and "not mid-exposure" in s["latency_from"]
-    # The next record names what was dropped before it.
-    assert records[0]["flags"] == ["dropped before this frame: frame 0: left time 0 s (no timestamp)"]
-    assert records[1]["flags"] == []
-    assert records[2]["flags"] == [
-        "dropped before this frame: frame 3: left time 0.066 s not after 0.066 s (frame 2)",
-        "dropped before this frame: frame 4: left time 0.05 s not after 0.066 s (frame 2)"]
     # The status line shows the count and the first.
     line = status.render()
     assert "bad time 3 (first: frame 0: left time 0 s (no timestamp))" in line
-    assert status.summary()["time_dropped"] == 3
 
 
-def test_a_replayed_recording_drops_the_same_frames(tmp_path):
+def test_a_replayed_recording_treats_the_same_frames_the_same_way(tmp_path):
     # times.csv: frame 0 at 0 s is the recording's origin (kept); then the brief's times from frame 1:
     # a zero (dropped: not the first frame), two good, a repeat, a backward one, a good one.
     folder = _dataset(tmp_path, [0.0] + TIMES)
     source = DatasetSource(folder)
     assert any("does not increase" in w for w in source.warnings)     # a warning, not a refusal
     stats, status, records = _run(source)
-    assert [r["frame"] for r in records] == [0] + [k + 1 for k in KEPT]
+    assert [r["frame"] for r in records] == list(range(len(TIMES) + 1))
+    assert [r["frame"] for r in records if r["ok"]] == [0] + [k + 1 for k in KEPT]
     s = stats.summary()
-    assert (stats.timestamps.zero, stats.timestamps.not_increasing) == (1, 2)
+    assert (stats.timestamps.zero, stats.timestamps.repeated, stats.timestamps.back) == (1, 1, 1)
     assert s["time_dropped_first"] == "frame 1: left time 0 s (no timestamp)"
     assert s["latency_from"] == LATENCY_FROM[None]
     assert "bad time 3" in status.render()
@@ -150,14 +165,18 @@ def test_a_replayed_recording_drops_the_same_frames(tmp_path):
         assert a["ok"] == b["ok"] and a["position"] == b["position"]
 
 
-def test_track_frames_drops_them_for_a_plain_iterable_too():
+def test_track_frames_yields_dropped_frames_as_error_frames_for_a_plain_iterable_too():
     dataset = io.Dataset(SWEEP)
     frames = [dataset.frame(i) for i in range(len(TIMES))]
     for f, t in zip(frames, [0.01, 0.02, 0.02, 0.03, 0.025, 0.04]):
         f.t, f.t_right = t, None
     check = TimestampCheck()
-    out = [f.index for f, _ in track_frames(frames, make_tracker(DatasetSource(SWEEP)), timestamps=check)]
-    assert out == [0, 1, 3, 5] and check.dropped == 2
+    out = list(track_frames(frames, make_tracker(DatasetSource(SWEEP)), timestamps=check))
+    assert [f.index for f, _ in out] == list(range(6))
+    assert [f.index for f, r in out if r is None] == [2]                  # the repeat: not tracked
+    assert out[2][0].error.startswith("frame dropped: frame 2: left time 0.02 s repeats")
+    assert "time discontinuity" in out[4][0].warning                    # 0.025 after 0.03: tracked afresh
+    assert check.dropped == 1 and check.jumps == 1
 
 
 def test_headplod_track_reports_them_at_the_end(tmp_path, capsys):
@@ -165,7 +184,8 @@ def test_headplod_track_reports_them_at_the_end(tmp_path, capsys):
     out = tmp_path / "poses.jsonl"
     assert cli_main(["track", "--source", str(folder), "--out", str(out), "--status"]) == 0
     err = capsys.readouterr().err
-    assert ("timestamps: 3 frames dropped (1 zero, 2 not increasing); first: frame 1: left time 0 s "
-            "(no timestamp)") in err
+    assert ("timestamps: 2 frames dropped (1 zero, 1 repeated); first: frame 1: left time 0 s "
+            "(no timestamp); 1 discontinuities (1 back)") in err
     assert "from the start of reading the frame (replay: no capture time)" in err
-    assert len(out.read_text().splitlines()) == 4
+    assert f"bad_times: 5/{len(TIMES) + 1} frames tracked" in err        # an honest summary: 2 frames dropped
+    assert len(out.read_text().splitlines()) == len(TIMES) + 1            # every frame read has its record

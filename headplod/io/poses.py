@@ -224,7 +224,8 @@ class PoseWriter(KeptOnSuccess):
     Records must come in strictly increasing frame order (the contract's
     "one object per frame, in frame order"); :meth:`write` raises
     ``ValueError`` otherwise. Each record is one ``write`` of a whole line,
-    flushed at once, so a file cut short ends with whole records.
+    written at once (unbuffered), and a write that fails midway is truncated
+    back, so a file cut short by a fault or a kill ends with a whole record.
     """
 
     def __init__(self, path: str | Path):
@@ -247,11 +248,12 @@ class PoseWriter(KeptOnSuccess):
         self._claim = claim_output(target, what=self.path, describe=_count_records)
         self.notes = list(self._claim.notes)
         try:
-            self._fh = open(target, "x", encoding="utf-8", newline="\n")
+            self._fh = open(target, "xb", buffering=0)  # unbuffered: a record is on disk when write returns
         except BaseException:
             self._claim.restore(lambda: None)
             raise
         self._owned = True
+        self._size = 0                                   # bytes of whole records in the file
 
     @property
     def previous(self) -> Path | None:
@@ -282,11 +284,30 @@ class PoseWriter(KeptOnSuccess):
                 f"{self.path}: frame {rec['frame']} written after frame {self._last_frame}; "
                 "records must be in increasing frame order, one per frame"
             )
-        self._fh.write(json.dumps(rec, allow_nan=False) + "\n")
-        self._fh.flush()
+        line = json.dumps(rec, allow_nan=False) + "\n"
+        if self._owned:
+            self._write_whole(line.encode("utf-8"))
+        else:
+            self._fh.write(line)
+            self._fh.flush()
         self._last_frame = rec["frame"]
         self.count += 1
         return rec
+
+    def _write_whole(self, data: bytes) -> None:
+        """Append one record's bytes, or none of them: a write the disk cuts short (full, over ``ulimit -f``)
+        is truncated back, so the file always ends with a whole record."""
+        view = memoryview(data)
+        try:
+            while view:
+                view = view[self._fh.write(view):]
+        except BaseException:
+            try:
+                os.ftruncate(self._fh.fileno(), self._size)
+            except OSError:
+                pass
+            raise
+        self._size += len(data)
 
     def close(self, complete: bool = True) -> str | None:
         """Close the file (standard output is only flushed); idempotent.

@@ -399,7 +399,7 @@ def _run_track(args) -> int:
     if failure is not None:
         if isinstance(failure, OutputFailed) and isinstance(failure.cause, BrokenPipeError) and args.out == "-":
             _silence_stdout()                           # else Python's own flush at exit fails again, loudly
-        print(_early_end_line(failure, records, args, recorder, kept), file=sys.stderr)
+        print(_early_end_line(failure, records, args, recorder, writer, kept), file=sys.stderr)
         _traceback_on_request(failure)
         return 1
     if synthetic_preset(spec) is not None:             # a cached frame that cannot be read: render it all again
@@ -500,7 +500,7 @@ def _close_outputs(args, status, recorder, sender, writer, source, complete: boo
     return kept, failure
 
 
-def _early_end_line(failure: BaseException, records: list, args, recorder, kept: dict) -> str:
+def _early_end_line(failure: BaseException, records: list, args, recorder, writer, kept: dict) -> str:
     """The one line of a run that ended early: what failed, and where everything made is."""
     n = len(records)
     if isinstance(failure, OutputFailed):
@@ -513,7 +513,7 @@ def _early_end_line(failure: BaseException, records: list, args, recorder, kept:
     where = []
     if args.out and args.out != "-":
         out = Path(args.out).expanduser()
-        where.append(f"{len(records)} records in {args.out}" if out.exists() else f"no records ({args.out} is gone)")
+        where.append(f"{writer.count} records in {args.out}" if out.exists() else f"no records ({args.out} is gone)")
     if recorder is not None:
         folder = Path(args.record).expanduser()
         where.append(f"{recorder.count} frames in {args.record}" if (folder / "times.csv").exists()

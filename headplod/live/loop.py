@@ -249,7 +249,7 @@ def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: in
         elif frame.error is None:
             if verdict is not None:                  # a discontinuity: nothing from before it applies
                 tracker.reset()
-                note = f"time discontinuity: {verdict.why}; tracked afresh"
+                note = f"time discontinuity: {verdict.why.split(': ', 1)[-1]}; tracked afresh"
                 frame = dataclasses.replace(frame, warning=f"{frame.warning}; {note}" if frame.warning else note)
             result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
         else:

@@ -440,10 +440,14 @@ class OpentrackSender:
         self._last_refused = self._last_failed = -10 ** 9     # attempt numbers
         self._said: str | None = None                          # the state :meth:`news` last reported
         self._connected = False
-        self._connect()
+        try:
+            self._sock.connect(self.address)        # a UDP connect sends nothing; an error is met again at send
+            self._connected = True
+        except OSError:
+            pass
 
     def _connect(self) -> bool:
-        """Connect the socket to opentrack's address (a UDP connect sends nothing); False on an error, kept."""
+        """Connect the socket to opentrack's address; False on an error (a datagram not sent, kept)."""
         try:
             self._sock.connect(self.address)
         except OSError as e:
@@ -786,7 +790,7 @@ class StatusLine:
                  f"ok {num(s['ok_percent'])}%",
                  *([f"internal errors {s['internal_errors']}"] if s["internal_errors"] else [])]
         if s["udp_state"]:
-            parts.append(f"udp: {s['udp_state']}")
+            parts.append(f"udp: {s['udp_state']} ({s['udp_failed']} not sent)")
         elif s["udp_failed"]:
             parts.append(f"udp: {s['udp_failed']} not sent (first: {s['udp_first_error']})")
         if s["last_failure"]:
