@@ -9,16 +9,22 @@ default: the built-in sequence, rendered on first use) or
 spellings, a positional ``DATASET`` and ``--camera LEFT RIGHT|auto``, still
 work for one release and print a note with the new one.
 
-Exit status: 0 on success, 1 when the run failed (bad files; the outputs
-are then left as they were), 2 on bad usage (nothing is written then), 3
-when the run tracked no frame at all (every frame failed, or there was none).
+Exit status: 0 on success (a fault inside one frame is that frame's ``ok:
+false``, ``internal error: TYPE: message``, and the run goes on); 1 when the
+run failed before its first frame (nothing is written then) or ended early
+(a full disk, a folder gone, a closed pipe, a bug: what was made is kept,
+and one line says where); 2 on bad usage (nothing is written then); 3 when
+the run tracked no frame at all (every frame failed, or there was none).
 
-Nothing is lost: every option is checked and the source opened before any
-output is touched; ``--out`` is written under a temporary name and renamed
-at the end of the run; ``--record`` never replaces an existing recording
-without ``--overwrite`` (and then only at the end of the run); no output may
-lie inside the dataset folder being read. Ctrl-C and SIGTERM stop the run
-cleanly between frames: the records and frames so far are kept, whole.
+Nothing is lost, nothing is hidden (``docs/outputs.md``): every option is
+checked, the source opened and the output folders found writable before
+the first frame; ``--out`` and ``--record`` are then written under their
+own names as the run goes (:mod:`headplod.io.progressive`), what they
+replace is moved to a visible ``.previous`` name (deleted when the run ends
+as it should, kept when it ends early), and the output of a killed run is
+announced and kept by the next run that writes there. No output may lie
+inside the dataset folder being read. Ctrl-C, SIGTERM and SIGHUP stop the
+run cleanly between frames: the records and frames so far are kept, whole.
 """
 from __future__ import annotations
 
@@ -53,9 +59,11 @@ __all__ = ["add_track_arguments", "run_track", "track_source_spec", "note_old_sp
 #: Exit status of a run that tracked no frame at all.
 EXIT_NO_FRAME_TRACKED = 3
 
-TRACK_EPILOG = ("exit status: 0 success; 1 the run failed (bad files; --out and --record are left as they were); "
-                "2 bad usage (nothing is written); 3 no frame was tracked (every frame failed, or there was none). "
-                "Ctrl-C or SIGTERM stops cleanly between frames: the records and frames so far are kept.")
+TRACK_EPILOG = ("exit status: 0 success (a fault in one frame is that frame's 'ok: false'); 1 the run failed "
+                "before its first frame (nothing is written) or ended early (what was made is kept, and one line "
+                "says where); 2 bad usage (nothing is written); 3 no frame was tracked (every frame failed, or "
+                "there was none). Ctrl-C, SIGTERM or SIGHUP stops cleanly between frames: the records and frames "
+                "so far are kept.")
 
 
 def note_old_spelling(old: str, new: str) -> None:
@@ -89,10 +97,10 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
                             "named in --calib, found by USB identity; see 'headplod cameras') with --calib")
     track.add_argument("dataset", nargs="?", metavar="DATASET",
                        help="old spelling of --source DATASET (goes in the next release)")
-    track.add_argument("--out", help="pose records, JSON Lines ('-' for standard output). A file is written under "
-                                     "a temporary name beside it and renamed at the end of the run (after Ctrl-C "
-                                     "too), so an existing file is replaced whole, never left half-written; not "
-                                     "inside the dataset folder being read")
+    track.add_argument("--out", help="pose records, JSON Lines ('-' for standard output), written under this "
+                                     "name as the run goes, one whole record per frame; an existing file is "
+                                     "moved to NAME.previous.jsonl first, deleted when the run ends as it should "
+                                     "and kept when it ends early; not inside the dataset folder being read")
     track.add_argument("--estimator", choices=ESTIMATORS, default="reproj",
                        help="pose estimator (default reproj, the most accurate in 'headplod bench track')")
     track.add_argument("--threshold", type=_threshold_arg, default=None, metavar="DN|adaptive",
@@ -130,8 +138,9 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
                       help="write the frames as a dataset folder while tracking (not the dataset being read, "
                            "nor inside it); a folder that holds a recording is refused unless --overwrite")
     live.add_argument("--overwrite", action="store_true",
-                      help="with --record: replace the recording already in DIR; the old one is kept until the "
-                           "run ends, and kept as it was if the run fails")
+                      help="with --record: replace the recording already in DIR; the old one is moved to "
+                           "DIR.previous first, deleted when the run ends as it should and kept when it ends "
+                           "early")
     add_udp_arguments(live)
     live.add_argument("--filter", nargs="?", const="1.0,0.02", metavar="MIN_CUTOFF,BETA",
                       help="One Euro filter on the recorded/sent poses (default off; 1.0 Hz, 0.02 when given "
