@@ -113,7 +113,7 @@ def holds_recording(folder: str | Path) -> bool:
     return (folder / "times.csv").exists()
 
 
-class DatasetRecorder(io.KeptOnSuccess):
+class DatasetRecorder(io.ProgressiveOutput):
     """Write stereo frames into a dataset folder, frame by frame.
 
     Parameters
@@ -355,17 +355,7 @@ class DatasetRecorder(io.KeptOnSuccess):
                 kept = claim.finish(complete)
         return kept
 
-    def discard(self) -> None:
-        """Before any frame: remove the new recording and put back the one it replaced. Idempotent.
-
-        Raises
-        ------
-        ValueError
-            When frames were written: they are never thrown away (use
-            ``close(complete=False)``).
-        """
-        if self.count:
-            raise ValueError(f"{self.folder}: {self.count} frames recorded; they are kept (close(complete=False))")
+    def _undo(self) -> None:
         if self._claim is None:
             return
         for fh in (self._times, self._log):

@@ -41,7 +41,7 @@ pose, a non-rotation) are programming errors and raise ``ValueError``.
 
 from __future__ import annotations
 
-from ._storage import AXES_TOL_READ, AXES_TOL_WRITE, ContractError, KeptOnSuccess, write_atomically
+from ._storage import AXES_TOL_READ, AXES_TOL_WRITE, ContractError, ProgressiveOutput, write_atomically
 from .dataset import DEFAULT_FPS, Dataset, Frame
 from .markers import (
     MARKER_TOL_MM,
@@ -68,7 +68,7 @@ from .tables import TRUTH_COLUMNS, read_times, read_truth, write_times, write_tr
 __all__ = [
     "ContractError",
     "write_atomically",
-    "KeptOnSuccess",
+    "ProgressiveOutput",
     "Rig",
     "read_rig",
     "write_rig",

@@ -361,18 +361,40 @@ def write_atomically(path, write: Callable[[str], None], suffix: str = "") -> Pa
     return target
 
 
-class KeptOnSuccess:
-    """Context-manager behaviour of a progressive output (:mod:`headplod.io.progressive`).
+class ProgressiveOutput:
+    """The interface of an output written under its final name as a run goes (:mod:`headplod.io.progressive`).
 
-    Leaving the ``with`` block normally, or by Ctrl-C (KeyboardInterrupt: the
-    run stopped), is a run that ended as it should: ``close()`` (what the
-    output replaced is deleted). Leaving it by an error ends it early:
-    ``close(complete=False)`` keeps both what was written, under its final
-    name, and what it replaced, under its visible ``.previous`` name.
+    ``close(complete)`` ends it: a run that ended as it should (``True``)
+    deletes what the output replaced; one that ended early keeps it.
+    :meth:`discard`, before anything was written, puts back what it replaced.
+    As a context manager: leaving the ``with`` block normally, or by Ctrl-C
+    (KeyboardInterrupt: the run stopped), is ``close()``; leaving it by an
+    error is ``close(complete=False)``.
+
+    Subclasses set ``count`` (what was written) and define ``close`` and
+    ``_undo`` (remove the new output, restore the replaced one).
     """
+
+    count = 0
 
     def close(self, complete: bool = True):   # pragma: no cover - each output defines it
         raise NotImplementedError
+
+    def _undo(self) -> None:                   # pragma: no cover - each output defines it
+        raise NotImplementedError
+
+    def discard(self) -> None:
+        """Before anything was written: drop the new output and put back the one it replaced. Idempotent.
+
+        Raises
+        ------
+        ValueError
+            When something was written: it is never thrown away (use
+            ``close(complete=False)``).
+        """
+        if self.count:
+            raise ValueError(f"{self!r}: {self.count} written; they are kept (close(complete=False))")
+        self._undo()
 
     def __enter__(self):
         return self

@@ -17,7 +17,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ._storage import AXES_TOL_READ, AXES_TOL_WRITE, KeptOnSuccess, _Ctx, _check_axes
+from ._storage import AXES_TOL_READ, AXES_TOL_WRITE, ProgressiveOutput, _Ctx, _check_axes
 
 # --------------------------------------------------------------------------
 # constants
@@ -179,7 +179,7 @@ def pose_record(frame: int, t: float, ok: bool, position: Any = None, axes: Any 
     return _build_record(frame, t, ok, position, axes, cov, reason, extra, AXES_TOL_WRITE)
 
 
-class PoseWriter(KeptOnSuccess):
+class PoseWriter(ProgressiveOutput):
     """Write pose records as JSON Lines under their final name, one object per line, flushed per record.
 
     Parameters
@@ -343,22 +343,15 @@ class PoseWriter(KeptOnSuccess):
             kept = self._claim.finish(complete) if self._claim is not None else None
         return kept
 
-    def discard(self) -> None:
-        """Before any record: drop the new file and put back the one it replaced. Idempotent.
-
-        Raises
-        ------
-        ValueError
-            When records were written: they are never thrown away (use
-            ``close(complete=False)``).
-        """
-        if self.count:
-            raise ValueError(f"{self.path}: {self.count} records written; they are kept (close(complete=False))")
+    def _undo(self) -> None:
         fh, self._fh = self._fh, None
         if fh is not None and self._owned:
             fh.close()
         if self._claim is not None:
             self._claim.restore(lambda: Path(self.path).expanduser().unlink(missing_ok=True))
+
+    def __repr__(self) -> str:
+        return f"PoseWriter({self.path!r}, {self.count} records)"
 
 
 def _count_records(path: Path) -> str:

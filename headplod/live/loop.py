@@ -64,7 +64,7 @@ class LiveStats:
     latency_ms: list = field(default_factory=list)
     latency_from: dict = field(default_factory=dict)   # instant latencies are measured from -> frames
     timestamps: TimestampCheck = field(default_factory=TimestampCheck)   # frames dropped or reset for their time
-    internal_errors: int = 0                         # frames whose record could not be made (a bug), see above
+    internal_errors: int = 0                         # frames failed by an exception (the tracker's or the record's)
     first_internal_error: str | None = None
     wall_s: float = 0.0
 
@@ -78,7 +78,7 @@ class LiveStats:
         the first of them; ``time_jumps`` counts the discontinuities (a time
         gone back or far forward), ``time_jumps_first`` the first
         (:class:`~headplod.capture.TimestampCheck`); ``internal_errors``
-        the frames whose record could not be made.
+        the frames failed by an exception (``internal error: ...``).
         """
         lat = np.asarray(self.latency_ms, dtype=np.float64)
         track = float(np.sum(self.track_s))
@@ -370,10 +370,10 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
             if pose_filter is not None:
                 record = pose_filter(record, frame.t)
         except Exception as exc:                     # noqa: BLE001 - a bug in one frame's record is that frame's
-            reason = internal_error_reason(exc)
+            record = io.pose_record(frame.index, frame.t, False, reason=internal_error_reason(exc))
+        if not record["ok"] and str(record["reason"]).startswith("internal error"):   # the tracker's or the above
             stats.internal_errors += 1
-            stats.first_internal_error = stats.first_internal_error or f"frame {frame.index}: {reason}"
-            record = io.pose_record(frame.index, frame.t, False, reason=reason)
+            stats.first_internal_error = stats.first_internal_error or f"frame {frame.index}: {record['reason']}"
         skew = getattr(frame, "skew_ms", None)
         dropped = int(getattr(frame, "dropped", 0) or 0)
         captured = getattr(frame, "t_monotonic_left", None)
