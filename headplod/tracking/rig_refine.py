@@ -50,16 +50,32 @@ where the motion left it, and costs one small dense solve per chunk.
   is re-solved with the prior widened to the calibration's error model; if
   that explains it, the rig changed (a bump) and the filter re-converges
   from there, else the chunk is dropped.
+
+Definiteness
+------------
+Every covariance the refiner keeps or hands out (the prior of a chunk, its
+posterior, :meth:`RigRefiner.cov`) is symmetric positive definite by
+construction: symmetrized, and its eigenvalues, in units of the prior's σ
+per component, floored (:func:`_positive_definite`). The floor (1e-9 of the
+prior's variance, raised where rounding in the prior's own units would
+otherwise reach it) is far below what the drift adds per chunk, so it only
+acts where arithmetic alone would lose definiteness: identical
+timestamps (no drift), a chunk that teaches some direction almost
+perfectly. A chunk whose system is singular, ill-conditioned or
+non-finite, or which teaches nothing observable, gives no update: the
+estimate and its covariance stay as they were, and the chunk is counted in
+:attr:`RigRefiner.skipped_chunks` by reason.
 """
 from __future__ import annotations
 
 import copy
 import math
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import scipy.linalg
 
 from .. import io
 
@@ -67,6 +83,108 @@ PARAMETERS = ("turn_x_rad", "turn_y_rad", "turn_z_rad", "shift_x_mm", "shift_y_m
               "log_focal_right", "time_offset_s")
 N_RIG = len(PARAMETERS)
 _TURN, _SHIFT, _FOCAL, _OFFSET = slice(0, 3), slice(3, 6), 6, 7
+
+# Smallest eigenvalue of a covariance, in units of the prior's variance per
+# component (σ ≥ 3e-5 of the prior's σ): far below the drift one chunk adds
+# (~1e-5..1e-3 of the prior's variance), so it acts only where arithmetic
+# would otherwise lose definiteness.
+_VARIANCE_FLOOR = 1e-9
+# Eigenvalues within this many rounding errors of the largest are not
+# trusted (see _positive_definite).
+_ROUNDING_MARGIN = 64 * np.finfo(float).eps
+# A frame's pose block (its 6x6 information, unit diagonal) or the rig's
+# system (in units of the prior) whose smallest eigenvalue is below this
+# fraction of its largest is ill-conditioned: the chunk gives no update.
+_MIN_CONDITION = 1e-12
+
+# Reasons for a chunk without an update (keys of RigRefiner.skipped_chunks).
+SKIP_UNOBSERVABLE = "nothing observable"        # e.g. a still head: the usual case, not a fault
+SKIP_NO_DATA = "no usable centres"
+SKIP_NON_FINITE = "non-finite terms"
+SKIP_SINGULAR = "singular or ill-conditioned system"
+SKIP_INCONSISTENT = "inconsistent with the rig"  # residuals far beyond the noise, and no bump explains them
+
+
+class _SkipChunk(Exception):
+    """A chunk that cannot update the rig; ``args[0]`` is one of the ``SKIP_*`` reasons."""
+
+
+def _positive_definite(M: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """``M`` (k, k) made symmetric positive definite: symmetrized, eigenvalues floored in units of ``scale``.
+
+    ``scale`` (k,) is the prior's σ per component (rad, mm, log focal, s):
+    in those units the eigenvalues are floored at ``_VARIANCE_FLOOR``, or
+    higher where rounding in ``M``'s own units could reach them
+    (``_ROUNDING_MARGIN`` × the largest eigenvalue × the spread of the
+    prior's variances), so that ``eigvalsh`` and ``cholesky`` of the result
+    see it positive definite, not only exact arithmetic. A matrix already
+    above the floor is returned symmetrized, otherwise unchanged. Raises
+    ``_SkipChunk`` for a non-finite ``M`` (or one eigh cannot decompose).
+    """
+    if not np.isfinite(M).all():
+        raise _SkipChunk(SKIP_NON_FINITE)
+    sym = 0.5 * (M + M.T)
+    units = np.outer(scale, scale)
+    try:
+        lam, U = np.linalg.eigh(sym / units)
+    except np.linalg.LinAlgError:           # eigh did not converge (finite but absurd values)
+        raise _SkipChunk(SKIP_SINGULAR) from None
+    spread = float(scale.max() / scale.min()) ** 2
+    floor = max(_VARIANCE_FLOOR, _ROUNDING_MARGIN * spread * float(lam[-1]))
+    if lam[0] >= floor:
+        return sym
+    out = (U * np.maximum(lam, floor)) @ U.T * units
+    return 0.5 * (out + out.T)
+
+
+@dataclass
+class _Solution:
+    """What :meth:`RigRefiner._solve` found for a chunk."""
+
+    increment: np.ndarray       # (8,) rig error-state increment
+    posterior: np.ndarray       # (8, 8) its covariance, SPD, inflated by the noise scale
+    chi2: float                 # Cauchy-weighted χ² of the data rows
+    rows_used: int              # centre coordinates used
+    noise_scale: float          # the median centre's χ² per degree of freedom
+    refit: dict                 # {t: (R_world_G, p1)} of the chunk's poses refitted with the increment
+    moved: np.ndarray           # (8,) bool: parameters the increment was free to move
+
+
+def _eliminate_poses(A: np.ndarray, B: np.ndarray, g: np.ndarray):
+    """A⁻¹ B (n, 6, 8) and A⁻¹ g (n, 6) for the frames' pose blocks A (n, 6, 6), B (n, 6, 8), g (n, 6).
+
+    Each block is scaled to unit diagonal and inverted by its
+    eigendecomposition (batched, no loop). Raises
+    ``_SkipChunk(SKIP_SINGULAR)`` for a pose parameter no centre moves, or
+    a block whose smallest eigenvalue is not above ``_MIN_CONDITION`` of its
+    largest (too few centres in a frame, degenerate geometry).
+    """
+    d = np.sqrt(np.diagonal(A, axis1=1, axis2=2))                   # (n, 6)
+    if not np.all(d > 0):
+        raise _SkipChunk(SKIP_SINGULAR)
+    units = d[:, :, None] * d[:, None, :]
+    lam, U = np.linalg.eigh(A / units)
+    if not np.all(lam[:, 0] > _MIN_CONDITION * lam[:, -1]):      # (the largest is ≥ 1: unit diagonal)
+        raise _SkipChunk(SKIP_SINGULAR)
+    A_inv = (U / lam[:, None, :]) @ np.swapaxes(U, 1, 2) / units
+    return A_inv @ B, np.einsum("nij,nj->ni", A_inv, g)
+
+
+def _whitened_inverse(S: np.ndarray) -> np.ndarray:
+    """Inverse (k, k) of the rig's system S in units of the prior (S = I + the data's information there).
+
+    By eigendecomposition; raises ``_SkipChunk`` when S is not finite, or
+    its smallest eigenvalue is not above ``_MIN_CONDITION`` of its largest
+    (the chunk would pin some direction to a millionth of its prior σ:
+    absurd data, not a measurement).
+    """
+    if not np.isfinite(S).all():
+        raise _SkipChunk(SKIP_NON_FINITE)
+    lam, U = np.linalg.eigh(0.5 * (S + S.T))
+    if not lam[0] > _MIN_CONDITION * lam[-1]:
+        raise _SkipChunk(SKIP_SINGULAR)
+    inv = (U / lam) @ U.T
+    return 0.5 * (inv + inv.T)
 
 
 @dataclass(frozen=True)
@@ -353,6 +471,13 @@ class RigRefiner:
         self.K1 = np.asarray(rig.K1, np.float64)
         self.offset_declared = offset_declared
         self.prior = error_model.covariance(rig, offset_declared, calibration_std)
+        scale = np.sqrt(np.diag(self.prior))
+        if not (np.isfinite(self.prior).all() and np.all(scale > 0)):
+            raise ValueError(f"the rig's error model gives no usable prior (σ per parameter {scale.tolist()}): "
+                             "every σ must be finite and > 0")
+        self._scale = scale                   # (8,) the prior's σ: the units of every covariance's floor
+        # The prior in the units the refiner compares in (its Cholesky factor's inverse).
+        self._prior_L_inv = scipy.linalg.solve_triangular(np.linalg.cholesky(self.prior), np.eye(N_RIG), lower=True)
         self.reset()
 
     def reset(self) -> None:
@@ -372,12 +497,16 @@ class RigRefiner:
         self.updates = 0
         self.bumps = []             # times (s) of detected changes of the rig
         self.refined = np.zeros(N_RIG, bool)    # parameters refined at least once
+        # Chunks that gave no update, by reason (SKIP_*), and the last one's (t of its last frame, reason).
+        self.skipped_chunks: Counter = Counter()
+        self.last_skip: tuple[float, str] | None = None
+        self.ignored_frames = 0     # frames with a non-finite time, offset or pose, not used
         # {t: (R_world_G, p1)} of the last update's frames, fitted with the rig it gave.
         self.refit_poses = {}
 
     def widen(self, t: float | None) -> None:
         """The rig changed (frames agree only with the unrefined uncertainty): re-converge from here."""
-        self.P = self.P + self.prior
+        self.P = _positive_definite(self.P + self.prior, self._scale)
         self._cov = None
         self._pending = []
         self.bumps.append(float(t) if t is not None else float("nan"))
@@ -445,13 +574,20 @@ class RigRefiner:
         """
         if not self.config.enabled or t is None:
             return False
+        R_world_G = np.asarray(R_world_G, np.float64)
+        p1_mm = np.asarray(p1_mm, np.float64).reshape(3)
+        if not (math.isfinite(t) and math.isfinite(declared_offset_s)
+                and np.isfinite(R_world_G).all() and np.isfinite(p1_mm).all()):
+            # No time, offset or pose to learn from (the centres' own NaNs are
+            # handled per centre): counted, not used.
+            self.ignored_frames += 1
+            return False
         sig = np.asarray(sigma_px, np.float64)
         if sig.ndim == 2:
             sig = np.repeat(sig[..., None], 2, axis=2)
         sig = np.where(np.isfinite(sig), np.maximum(sig, self.config.min_sigma_px), np.inf)
         frame = _Frame(float(t), float(declared_offset_s), np.asarray(centers, np.float64).copy(),
-                       np.asarray(visible, bool).copy(), sig, np.asarray(R_world_G, np.float64),
-                       np.asarray(p1_mm, np.float64).reshape(3))
+                       np.asarray(visible, bool).copy(), sig, R_world_G, p1_mm)
         self._pending.append(frame)
         if len(self._pending) < self.config.chunk_frames:
             return False
@@ -493,34 +629,58 @@ class RigRefiner:
             frames[i].velocity = (b.p1 - a.p1) / dt
 
     def _process_noise(self, t: float) -> np.ndarray:
+        """Drift (8, 8) since the last update: a random walk, variance ∝ elapsed time (0 if none elapsed)."""
         c = self.config
         elapsed = 0.0 if self._last_update_t is None else max(t - self._last_update_t, 0.0)
         q = np.array([math.radians(c.drift_turn_deg_per_sqrt_s)] * 3 + [c.drift_shift_mm_per_sqrt_s] * 3
                      + [c.drift_focal_per_sqrt_s, c.drift_offset_s_per_sqrt_s]) ** 2 * elapsed
         return np.diag(q)
 
+    def _predicted(self, t: float) -> np.ndarray:
+        """The prior (8, 8) of a chunk ending at ``t``: the last posterior plus the drift since, SPD.
+
+        Unobservable parameters must not grow without bound while the head
+        is still: a variance above the prior's is brought down to it by
+        scaling its row and column together (P ← S P S, S diagonal ≤ 1),
+        which keeps P positive definite and its correlations as they were.
+        (Capping the diagonal alone made P indefinite once an inflated
+        posterior's variances passed the prior's: issue 21, a rolling
+        shutter's residuals.)
+        """
+        P = self.P + self._process_noise(t)
+        shrink = np.sqrt(np.minimum(1.0, np.diag(self.prior) / np.diag(P)))
+        return _positive_definite(P * np.outer(shrink, shrink), self._scale)
+
+    def _skip(self, chunk: list[_Frame], reason: str) -> bool:
+        """Remember a chunk without an update (the estimate and P stay as they were)."""
+        self.skipped_chunks[reason] += 1
+        self.last_skip = (chunk[-1].t, reason)
+        return False
+
     def _update(self, chunk: list[_Frame]) -> bool:
-        prior = self.P + self._process_noise(chunk[-1].t)
-        # Unobservable parameters must not grow without bound while the head is still.
-        np.fill_diagonal(prior, np.minimum(np.diag(prior), np.diag(self.prior)))
-        solution = self._solve(chunk, prior)
-        if solution is None:
-            return False
-        increment, posterior, chi2, used, noise_scale, refit = solution
+        """One update from a chunk; True when the rig in use changed. A chunk that cannot update
+        (``SKIP_*``) leaves the estimate, its covariance and the rig in use unchanged."""
+        try:
+            prior = self._predicted(chunk[-1].t)
+            solution = self._solve(chunk, prior)
+        except _SkipChunk as skip:
+            return self._skip(chunk, skip.args[0])
         bumped = False
-        if noise_scale > self.config.inconsistency:
+        if solution.noise_scale > self.config.inconsistency:
             # The chunk disagrees with the rig: did the rig change (a bump)?
-            wide = prior + self.prior
-            retry = self._solve(chunk, wide)
-            if retry is not None and chi2 - retry[2] > self.config.bump_evidence \
-                    and retry[4] <= self.config.inconsistency:
-                increment, posterior, chi2, used, noise_scale, refit = retry
-                self.bumps.append(chunk[0].t)
-                bumped = True
-            else:
-                return False
-        self._estimate.apply(increment)
-        self.P = posterior
+            try:
+                retry = self._solve(chunk, _positive_definite(prior + self.prior, self._scale))
+            except _SkipChunk:
+                retry = None
+            if retry is None or not (solution.chi2 - retry.chi2 > self.config.bump_evidence
+                                     and retry.noise_scale <= self.config.inconsistency):
+                return self._skip(chunk, SKIP_INCONSISTENT)
+            solution = retry
+            self.bumps.append(chunk[0].t)
+            bumped = True
+        self._estimate.apply(solution.increment)
+        self.P = solution.posterior
+        self.refined |= solution.moved
         self._cov = None
         self.updates += 1
         self._last_update_t = chunk[-1].t
@@ -529,14 +689,14 @@ class RigRefiner:
         self.state = copy.copy(self._estimate)
         self._cov = None
         self.versions += 1
-        self.refit_poses = refit
+        self.refit_poses = solution.refit
         return True
 
     def _departs(self) -> bool:
         """The estimate differs from the rig in use by more than ``publish_sigma`` σ along some
         direction (eigenvectors of P, in units of the prior)."""
         d = self._estimate.error_from(self.state)
-        L_inv = np.linalg.inv(np.linalg.cholesky(self.prior))
+        L_inv = self._prior_L_inv
         lam, U = np.linalg.eigh(L_inv @ self.P @ L_inv.T)
         z = (U.T @ (L_inv @ d)) / np.sqrt(np.maximum(lam, 1e-30))
         return bool(np.abs(z).max() > self.config.publish_sigma)
@@ -550,31 +710,54 @@ class RigRefiner:
     def cov(self) -> np.ndarray:
         """Covariance (8, 8) of the error of the rig in use: the estimate's, and how far it is from it.
 
-        Computed once per change (the tracker asks for it several times a frame)."""
+        Symmetric positive definite (floored as :func:`_positive_definite`:
+        P plus an outer product can lose it to rounding when the two differ
+        by many orders). Computed once per change (the tracker asks for it
+        several times a frame)."""
         if self._cov is None:
             d = self._estimate.error_from(self.state)
-            self._cov = self.P + np.outer(d, d)
+            try:
+                self._cov = _positive_definite(self.P + np.outer(d, d), self._scale)
+            except _SkipChunk:
+                # Not reachable with finite states (every increment applied is
+                # checked finite); P alone is SPD, and the honest fallback.
+                self._cov = self.P
         return self._cov
 
-    def _solve(self, chunk: list[_Frame], prior: np.ndarray):
+    def _solve(self, chunk: list[_Frame], prior: np.ndarray) -> "_Solution":
         """Gauss-Newton with Cauchy reweighting over the chunk's poses and the rig.
 
-        Returns (rig increment (8,), posterior covariance (8, 8), χ² of the
-        data rows, number of data rows, noise scale (the median centre's χ²
-        per degree of freedom), {t: (R, p1)} of the chunk's poses refitted
-        with the increment), or None when nothing is observable.
+        ``prior`` (8, 8) is SPD (:meth:`_predicted`). Each frame's pose (6)
+        is eliminated by its own 6×6 block (the poses share nothing but the
+        rig), leaving the rig's 8×8 system: the Schur complement S = data
+        information on the rig + prior information, whose inverse is the
+        posterior. Both are solved by eigendecomposition in scaled units
+        (pose blocks to unit diagonal, the rig in units of the prior), which
+        also measures their conditioning.
+
+        Raises ``_SkipChunk(reason)`` when the chunk cannot update: nothing
+        observable, no usable centre, a non-finite term, a singular or
+        ill-conditioned pose block or rig system (below ``_MIN_CONDITION``).
         """
         c = self.config
         n = len(chunk)
-        prior_info = np.linalg.inv(prior)
+        try:
+            L = np.linalg.cholesky(prior)      # SPD by construction (_positive_definite): checked all the same
+        except np.linalg.LinAlgError:
+            raise _SkipChunk(SKIP_SINGULAR) from None
+        L_inv = scipy.linalg.solve_triangular(L, np.eye(N_RIG), lower=True)
+        prior_info = L_inv.T @ L_inv
         # Which rig parameters can this chunk teach? Decided at the start (linearization point).
         rig = np.zeros(N_RIG)
         poses = np.zeros((n, 6))
-        observable = None
+        observable = confine = None
         weights = [None] * n
         for iteration in range(c.iterations + 1):
-            H = np.zeros((6 * n + N_RIG, 6 * n + N_RIG))
-            g = np.zeros(6 * n + N_RIG)
+            A = np.zeros((n, 6, 6))            # each pose's information
+            B = np.zeros((n, 6, N_RIG))        # pose × rig
+            C = np.zeros((N_RIG, N_RIG))       # rig × rig (data only)
+            g_pose = np.zeros((n, 6))
+            g_rig = np.zeros(N_RIG)
             chi2, rows_used = 0.0, 0
             centre_r2 = []
             state = self._estimate.moved(rig)
@@ -582,7 +765,10 @@ class RigRefiner:
             for k, f in enumerate(chunk):
                 res, J_pose, J_rig, sig = self._frame_terms(f, poses[k], state, K2)
                 z = res / sig                                    # (2, 5, 2) standardized
-                seen = np.isfinite(z).all(axis=2) & f.visible
+                # A centre counts when its residual and derivatives are finite
+                # (a point on a camera's plane projects to inf).
+                seen = (np.isfinite(z).all(axis=2) & f.visible
+                        & np.isfinite(J_pose).all(axis=(2, 3)) & np.isfinite(J_rig).all(axis=(2, 3)))
                 if weights[k] is None or iteration < 2:
                     r2 = (z ** 2).sum(axis=2)
                     w = 1.0 / (1.0 + np.where(seen, r2, 0.0) / (2 * c.cauchy_scale ** 2))
@@ -594,62 +780,57 @@ class RigRefiner:
                 Jp = (J_pose[sel] / sig[sel][..., None]).reshape(-1, 6)
                 Jr = (J_rig[sel] / sig[sel][..., None]).reshape(-1, N_RIG)
                 r = zs.reshape(-1)
-                blk = slice(6 * k, 6 * k + 6)
-                H[blk, blk] += Jp.T @ (Jp * ws[:, None])
-                H[blk, 6 * n:] += Jp.T @ (Jr * ws[:, None])
-                H[6 * n:, 6 * n:] += Jr.T @ (Jr * ws[:, None])
-                g[blk] += Jp.T @ (ws * r)
-                g[6 * n:] += Jr.T @ (ws * r)
+                A[k] = Jp.T @ (Jp * ws[:, None])
+                B[k] = Jp.T @ (Jr * ws[:, None])
+                C += Jr.T @ (Jr * ws[:, None])
+                g_pose[k] = Jp.T @ (ws * r)
+                g_rig += Jr.T @ (ws * r)
                 chi2 += float((ws * r * r).sum())
                 rows_used += len(r)
                 centre_r2.append((zs ** 2).sum(axis=1))
-            H[6 * n:, :6 * n] = H[:6 * n, 6 * n:].T
+            if rows_used == 0:
+                raise _SkipChunk(SKIP_NO_DATA)
+            if not (np.isfinite(A).all() and np.isfinite(B).all() and np.isfinite(C).all()
+                    and np.isfinite(g_pose).all() and np.isfinite(g_rig).all() and math.isfinite(chi2)):
+                raise _SkipChunk(SKIP_NON_FINITE)
+            # Eliminate the poses: X = A⁻¹ B (n, 6, 8), y = A⁻¹ g (n, 6).
+            X, y = _eliminate_poses(A, B, g_pose)
+            data_info = C - np.einsum("nij,nik->jk", B, X)
+            # In units of the prior (whitened by L: the prior is I there).
+            white_info = L.T @ data_info @ L
+            white_info = 0.5 * (white_info + white_info.T)
             if observable is None:
                 # What can this chunk teach? The data's information on the rig (poses
-                # marginalized: Schur complement), in units of the prior's: directions
-                # (eigenvectors) with less than `observable_fraction` are held.
-                try:
-                    A_inv = np.linalg.inv(H[:6 * n, :6 * n])
-                except np.linalg.LinAlgError:
-                    return None
-                data_info = H[6 * n:, 6 * n:] - H[6 * n:, :6 * n] @ A_inv @ H[:6 * n, 6 * n:]
-                L = np.linalg.cholesky(prior)
-                lam, U = np.linalg.eigh(L.T @ data_info @ L)
+                # marginalized), in units of the prior's: directions (eigenvectors)
+                # with less than `observable_fraction` are held.
+                lam, U = np.linalg.eigh(white_info)
                 observable = U[:, lam >= c.observable_fraction]
                 if observable.shape[1] == 0:
-                    return None
+                    raise _SkipChunk(SKIP_UNOBSERVABLE)
                 # Rig steps are confined to the observable directions: δ ← L Π L⁻¹ δ.
-                confine = L @ observable @ observable.T @ np.linalg.inv(L)
+                confine = L @ observable @ observable.T @ L_inv
+            S_white = _whitened_inverse(np.eye(N_RIG) + white_info)      # the rig's system, inverted
             if iteration == c.iterations:
                 break
-            full_H = H.copy()
-            full_H[6 * n:, 6 * n:] += prior_info
-            full_g = g.copy()
-            full_g[6 * n:] += prior_info @ rig
-            try:
-                step = -np.linalg.solve(full_H, full_g)
-            except np.linalg.LinAlgError:
-                return None
-            poses += step[:6 * n].reshape(n, 6)
-            rig += confine @ step[6 * n:]
-        full_H = H.copy()
-        full_H[6 * n:, 6 * n:] += prior_info
-        try:
-            cov = np.linalg.inv(full_H)[6 * n:, 6 * n:]
-        except np.linalg.LinAlgError:
-            return None
+            rhs = g_rig + prior_info @ rig - np.einsum("nij,ni->j", B, y)
+            step_rig = -(L @ (S_white @ (L.T @ rhs)))
+            step_pose = -(y + X @ step_rig)
+            if not (np.isfinite(step_rig).all() and np.isfinite(step_pose).all()):
+                raise _SkipChunk(SKIP_NON_FINITE)
+            poses += step_pose
+            rig += confine @ step_rig
+        cov = L @ S_white @ L.T
         # An honest posterior: residuals larger than their σ say the noise is
         # larger. Measured robustly (the median centre's χ² with 2 dof, whose
         # median is 1.386, per degree of freedom left), so the few glints the
         # Cauchy weights already discount do not inflate it.
         dof = max(rows_used - 6 * n - observable.shape[1], 1)
-        r2 = np.concatenate(centre_r2) if centre_r2 else np.zeros(1)
+        r2 = np.concatenate(centre_r2)
         noise_scale = float(np.median(r2)) / 1.386 * rows_used / dof
-        posterior = cov * max(1.0, noise_scale)
-        moved = np.diag(confine @ prior @ confine.T) / np.diag(prior)
-        self.refined |= moved > 0.5
+        posterior = _positive_definite(cov * max(1.0, noise_scale), self._scale)
+        moved = np.diag(confine @ prior @ confine.T) / np.diag(prior) > 0.5
         refit = {f.t: (cv2.Rodrigues(poses[k, :3])[0] @ f.R, f.p1 + poses[k, 3:]) for k, f in enumerate(chunk)}
-        return rig, 0.5 * (posterior + posterior.T), chi2, rows_used, noise_scale, refit
+        return _Solution(rig, posterior, chi2, rows_used, noise_scale, refit, moved)
 
     def _frame_terms(self, f: _Frame, pose: np.ndarray, state: RigState, K2: np.ndarray):
         """Residuals (2, 5, 2) px, ∂/∂pose (2, 5, 2, 6), ∂/∂rig (2, 5, 2, 8), σ (2, 5, 2) of one frame."""

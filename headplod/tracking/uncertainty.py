@@ -39,15 +39,28 @@ hardly follows the noise either.
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import lapack
 
 from . import geometry as geo
 
 COVARIANCE_ESTIMATORS = ("first_order", "first_order_smoothed", "first_order_fixed",
                          "paper", "paper_deterministic", "paper_smoothed", "paper_fixed")
 DEFAULT_COVARIANCE = "first_order_smoothed"
+
+# rig_residual_rows: LAPACK's Cholesky factor/solve called directly (np.linalg.solve
+# costs several times more on a 6×6 system; this is on the per-frame path).
+_potrf, _potrs = lapack.dpotrf, lapack.dpotrs
+# Smallest Cholesky pivot, as a fraction of its column's weighted norm², for
+# the normal equations to be trusted (a column 1e-4 from the others' span:
+# the solve's relative error stays ~1e-8); below it, the SVD path.
+_HAT_MIN_PIVOT = 1e-8
+# Singular values (of the column-scaled, weighted J) below this fraction of
+# the largest are the fit's undetermined directions.
+_HAT_RCOND = 1e-8
 
 
 @dataclass
@@ -121,12 +134,61 @@ class CovarianceInput:
 def rig_residual_rows(pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """(I − H) J_r (n, k): what a rig change leaves in the residuals after the weighted pose fit.
 
-    ``pose_rows`` (n, 6) and ``rig_rows`` (n, k), px per unit, of the n
-    visible centre coordinates; ``weights`` (n,) = 1/σ²; H the fit's hat
-    matrix.
+    ``pose_rows`` J (n, p) (p = 6: δ rad, ε mm) and ``rig_rows`` J_r (n, k),
+    px per unit, of the n visible centre coordinates (both images, world =
+    left camera frame); ``weights`` (n,) = 1/σ², px⁻². H = J (Jᵀ W J)⁺ Jᵀ W
+    is the fit's hat matrix: the result is J_r minus its W-weighted
+    least-squares projection onto the columns of J, which is defined even
+    when J is rank-deficient (few visible markers, degenerate geometry, a
+    pose whose projections blow up): the fit then absorbs what its
+    determined directions can, and nothing along the others.
+
+    Fast path: Cholesky of the normal equations (LAPACK potrf/potrs, a
+    fraction of ``np.linalg.solve``'s overhead on 6×6), used only when every
+    pivot keeps at least ``_HAT_MIN_PIVOT`` of its column's weighted norm²
+    (scale-free; catches non-finite and near-dependent columns). Otherwise
+    a column-scaled SVD least-squares solve whose singular values below
+    ``_HAT_RCOND`` of the largest count as zero. Rows whose weight is
+    negative or non-finite, or whose J or J_r has a non-finite entry, are
+    left out of the fit; a row whose own J or J_r is non-finite comes back
+    NaN, every other row is finite for finite inputs (below ~1e150). Never
+    raises for a rank-deficient or non-finite system.
     """
-    A = pose_rows.T @ (pose_rows * weights[:, None])
-    return rig_rows - pose_rows @ np.linalg.solve(A, pose_rows.T @ (rig_rows * weights[:, None]))
+    Jw = pose_rows * weights[:, None]
+    A = pose_rows.T @ Jw
+    B = Jw.T @ rig_rows
+    if len(weights) and weights.min() >= 0.0:          # no negative weight (NaN fails too)
+        c, info = _potrf(A, 1, 0)                        # lower, upper triangle left as is
+        # Pivot over its column's norm²: scale-free; NaN fails the comparison.
+        if info == 0 and min(map(operator.truediv, (c.diagonal() ** 2).tolist(), A.diagonal().tolist()),
+                             default=1.0) > _HAT_MIN_PIVOT:
+            X, info = _potrs(c, B, 1)
+            if info == 0 and math.isfinite(X.sum()):
+                return rig_rows - pose_rows @ X
+    return rig_rows - pose_rows @ _weighted_lstsq(pose_rows, rig_rows, weights)
+
+
+def _weighted_lstsq(J: np.ndarray, Y: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """argmin_X Σ w (J X − Y)² (p, k) over the valid rows, minimum-norm on J's (near-)null space.
+
+    Columns are scaled to unit max first (rad and mm columns differ by
+    orders of magnitude, and huge rows must not overflow when weighted).
+    """
+    valid = (np.isfinite(weights) & (weights >= 0) & np.isfinite(J).all(axis=1) & np.isfinite(Y).all(axis=1))
+    s = np.sqrt(np.where(valid, weights, 0.0))[:, None]
+    Jv = np.where(valid[:, None], J, 0.0)
+    Yv = np.where(valid[:, None], Y, 0.0)
+    cj = np.abs(Jv).max(axis=0, initial=0.0)
+    cy = np.abs(Yv).max(axis=0, initial=0.0)
+    cj = np.where(cj > 0, cj, 1.0)
+    cy = np.where(cy > 0, cy, 1.0)
+    try:
+        Xs = np.linalg.lstsq(Jv / cj * s, Yv / cy * s, rcond=_HAT_RCOND)[0]
+    except np.linalg.LinAlgError:
+        # SVD without convergence (finite but absurd inputs): the fit is taken
+        # to absorb nothing, which overstates the rig's share rather than hide it.
+        return np.zeros((J.shape[1], Y.shape[1]))
+    return Xs / cj[:, None] * cy
 
 
 def with_rig_uncertainty(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray,
