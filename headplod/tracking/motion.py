@@ -12,6 +12,19 @@ the version of the rig it was fitted with: poses fitted with different rigs
 differ by the rig's change as well as the motion, and a refinement step of
 the rig must not look like a head jump (:meth:`PoseHistory.refit` brings
 them onto the new rig when it can).
+
+Velocities are differences of poses, so they are only as good as their time
+base: a pose error (or a timestamp error) δ over a base Δt makes a velocity
+error δ/Δt, and the offset's compensation multiplies it by the offset.
+Two frames 1 ms apart, or with the same time, give no velocity here: each
+difference spans at least :attr:`PoseHistory.min_base` (half the usual
+spacing of the poses, and ``min_base_s``), and, for the motion over an
+exposure offset, at least the offset itself (so the compensation moves the
+right view by at most about the pose's own error), older poses being used
+when the newest are closer than that; its covariance grows as (offset/Δt)²
+with the base it has (:meth:`PoseHistory.motion_terms`). A velocity no head
+has (beyond ``max_rate_dps`` or ``max_speed_mm_s``) says the times are not
+the images' (a 1 kHz clock on 30 fps images): it is not used.
 """
 from __future__ import annotations
 
@@ -20,7 +33,7 @@ import numpy as np
 
 
 class PoseHistory:
-    """The last three accepted poses, each with its rig version and first-order information.
+    """The last accepted poses, each with its rig version and first-order information.
 
     Parameters
     ----------
@@ -28,16 +41,31 @@ class PoseHistory:
         Extrapolate the velocity at constant acceleration from three poses
         to the middle of [t, t_right] (else the last two poses' difference,
         half a frame old).
+    min_base_s : float
+        Shortest time base of a velocity, s, whatever the frame rate (see
+        :attr:`min_base`).
+    keep : int
+        Poses kept: enough to span a minimum base twice when a few of the
+        newest are closer together than that (repeated or jittered times).
+    max_rate_dps, max_speed_mm_s : float
+        Fastest head turn (deg/s) and P1 speed (mm/s) a velocity may show;
+        beyond either, the poses and their times disagree (:meth:`rates_to`).
     """
 
-    def __init__(self, extrapolate: bool = True):
+    def __init__(self, extrapolate: bool = True, min_base_s: float = 0.004, keep: int = 8,
+                 max_rate_dps: float = 1000.0, max_speed_mm_s: float = 4000.0):
         self.extrapolate = extrapolate
+        self.min_base_s = float(min_base_s)
+        self.keep = int(keep)
+        self.max_rate = np.radians(float(max_rate_dps))
+        self.max_speed = float(max_speed_mm_s)
         self.clear()
 
     def clear(self) -> None:
-        self.poses = []        # [(t s, R_world_G (3, 3), p1 (3,) mm)], oldest first
+        self.poses = []        # [(t s, R_world_G (3, 3), p1 (3,) mm)], oldest first, t strictly increasing
         self.rigs = []         # the rig version each pose was fitted with
         self.infos = []        # their information JᵀΣ⁻¹J (6, 6) per (rad, mm), or None
+        self._spacing = None   # median time between the kept poses, s (None with fewer than two)
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -47,10 +75,24 @@ class PoseHistory:
         return self.poses[-1][0] if self.poses else None
 
     def add(self, t: float, R: np.ndarray, p1: np.ndarray, rig_version: int, info=None) -> None:
-        """Keep an accepted pose (the oldest of four is dropped)."""
-        self.poses = (self.poses + [(t, R, p1)])[-3:]
-        self.rigs = (self.rigs + [rig_version])[-3:]
-        self.infos = (self.infos + [info])[-3:]
+        """Keep an accepted pose (the oldest beyond ``keep`` is dropped).
+
+        A pose at the time of the last one replaces it (a repeated time: two
+        poses at one instant have no velocity between them); one before it
+        starts the history afresh (time went back: the older poses are not
+        this motion's past).
+        """
+        if self.poses and not t > self.poses[-1][0]:
+            if t == self.poses[-1][0]:
+                self.poses.pop(), self.rigs.pop(), self.infos.pop()
+            else:
+                self.clear()
+        self.poses = (self.poses + [(t, R, p1)])[-self.keep:]
+        self.rigs = (self.rigs + [rig_version])[-self.keep:]
+        self.infos = (self.infos + [info])[-self.keep:]
+        gaps = sorted(b[0] - a[0] for a, b in zip(self.poses, self.poses[1:]))
+        n = len(gaps)
+        self._spacing = None if not n else 0.5 * (gaps[(n - 1) // 2] + gaps[n // 2])
 
     def refit(self, poses: dict, rig_version: int) -> None:
         """Replace the poses refitted with a new rig ({t: (R, p1)}) and mark them with its version."""
@@ -65,46 +107,86 @@ class PoseHistory:
             return self.poses[-1][1:]
         return None
 
+    @property
+    def max_base(self) -> float:
+        """Longest time base of a velocity, s: 0.1 s, or 2.5 times the median spacing of the kept poses
+        at a low frame rate. A difference over longer (the poses before a run of frames without a
+        pose) is an average of a motion that has changed since, not its velocity."""
+        return 0.1 if self._spacing is None else max(0.1, 2.5 * self._spacing)
+
+    @property
+    def min_base(self) -> float:
+        """Shortest time base of a velocity, s: half the median spacing of the kept poses (a frame
+        closer to the last than that is a repeat or a timestamp glitch, not a measure of the motion),
+        and at least ``min_base_s``."""
+        return self.min_base_s if self._spacing is None else max(self.min_base_s, 0.5 * self._spacing)
+
     def predicted(self, R: np.ndarray, p1: np.ndarray):
-        """This frame's pose by constant velocity from the last two, when the last is (R, p1); else (R, p1)."""
+        """This frame's pose by constant velocity from the last two, when the last is (R, p1); else (R, p1).
+
+        A starting point for the fit (it assumes evenly spaced frames): the
+        fit, not this, decides the pose."""
         if len(self.poses) >= 2 and self.poses[-1][1] is R and self.rigs[-1] == self.rigs[-2]:
             (_, Ra, pa), (_, Rb, pb) = self.poses[-2:]
             return (Rb @ Ra.T) @ Rb, 2 * pb - pa
         return R, p1
 
+    def rates_to(self, t: float, R: np.ndarray, p1: np.ndarray, rig_version: int):
+        """(deg/s, mm/s, plausible) of the head from the kept poses (a minimum base before) to this one
+        (t, R, p1), or None when no kept pose is one to compare with. Not plausible: beyond what a head
+        does; the times do not describe the motion the images show."""
+        if not self.poses or not t > self.poses[-1][0]:
+            return None
+        seq = self._sequence(t, (R, p1), rig_version, self.min_base)
+        if seq is None or seq[-1][0] != t:
+            return None
+        rate, speed = self._rates(seq[-2], seq[-1])
+        return float(np.degrees(rate)), speed, rate <= self.max_rate and speed <= self.max_speed
+
+    @staticmethod
+    def _rates(a, b):
+        """Turn rate (rad/s) and P1 speed (mm/s) between two poses (t, R, p1, ...)."""
+        dt = b[0] - a[0]
+        return (float(np.linalg.norm(cv2.Rodrigues(b[1] @ a[1].T)[0])) / dt,
+                float(np.linalg.norm(b[2] - a[2])) / dt)
+
+    def _plausible(self, seq) -> bool:
+        """Whether the velocity of a sequence's last two poses is one a head can have."""
+        rate, speed = self._rates(seq[-2], seq[-1])
+        return rate <= self.max_rate and speed <= self.max_speed
+
     def velocity(self):
-        """(ω rad/s, v mm/s) of the head from the last two poses fitted with one rig, or None."""
-        pair = self._pair()
-        if pair is None:
+        """(ω rad/s, v mm/s) of the head from the newest two poses fitted with one rig between
+        :attr:`min_base` and :attr:`max_base` apart, or None."""
+        seq = self._sequence(None, None, None, self.min_base)
+        if seq is None or not self._plausible(seq):
             return None
-        (ta, Ra, pa), (tb, Rb, pb) = pair
+        (ta, Ra, pa, _), (tb, Rb, pb, _) = seq[-2:]
         dt = tb - ta
-        if not dt > 0:
-            return None
         return cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt, (pb - pa) / dt
 
     def right_motion(self, t, t_right, rig_version: int, current=None):
         """World-frame motion (rvec, tvec) of the head from t to t_right.
 
-        The velocity comes from the last accepted pose and ``current`` (this
-        frame's pose, R and p1) when given and both were fitted with the
-        same rig, else from the last two poses fitted with one rig. With a
-        third pose before them (same rig), it is extrapolated at constant
-        acceleration to the middle of [t, t_right]: a difference's velocity
-        is half a frame old, which at a head's turning point is most of the
-        motion over a few ms.
+        The velocity comes from ``current`` (this frame's pose, R and p1)
+        when given and fitted with the same rig as the history, else from
+        the newest pose, and an earlier one of the same rig at least
+        :attr:`min_base` and |t_right - t| before it. With a third pose as far before those
+        (same rig), it is extrapolated at constant acceleration to the
+        middle of [t, t_right]: a difference's velocity is half a frame old,
+        which at a head's turning point is most of the motion over a few ms.
         None when the cameras are synchronous or there is no recent history.
         """
         plan = self._plan(t, t_right, rig_version, current)
         if plan is None:
             return None
         seq, k, dz = plan
-        (ta, Ra, pa), (tb, Rb, pb) = seq[-2:]
+        (ta, Ra, pa, _), (tb, Rb, pb, _) = seq[-2:]
         dt = tb - ta
         w = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt             # rad/s, at (ta + tb) / 2
         v = (pb - pa) / dt                                         # mm/s
         if k is not None:
-            _, Rz, pz = seq[0]
+            _, Rz, pz, _ = seq[0]
             w = w + (w - cv2.Rodrigues(Ra @ Rz.T)[0].ravel() / dz) * k
             v = v + (v - (pa - pz) / dz) * k
         step = t_right - t
@@ -125,76 +207,117 @@ class PoseHistory:
         = α δ), and the earlier poses' errors move it by their α_i δ (``cov``
         (6, 6), rad and mm, from their first-order covariances), plus the
         extrapolation's own error, taken to be as large as its correction.
-        (0, None) when no motion is applied; ``cov`` None without
+        The α_i are 1/Δt of the differences' bases: the covariance grows as
+        the square of the offset over the base, which the minimum base
+        bounds. (0, None) when no motion is applied; ``cov`` None without
         ``covariance`` (the fit needs only the gain).
         """
         plan = self._plan(t, t_right, rig_version, current)
-        if plan is None or plan[0][-1][0] != t:
+        if plan is None:
             return 0.0, None
         seq, k, dz = plan
-        (ta, Ra, pa), (tb, Rb, pb) = seq[-2:]
+        (ta, Ra, pa, _), (tb, Rb, pb, _) = seq[-2:]
         dt = tb - ta
         alpha = [0.0] * (len(seq) - 2) + [-1.0 / dt, 1.0 / dt]
         if k is not None:
             alpha = [k / dz, -(1 + k) / dt - k / dz, (1 + k) / dt]
         step = t_right - t
-        gain = alpha[-1] * step
+        mine = current is not None and seq[-1][0] == t        # the velocity is taken from this pose too
+        gain = alpha[-1] * step if mine else 0.0
         if not covariance:
             return gain, None
-        covs = [None if i is None else _inverse(i) for i in self.infos[len(self.poses) - (len(seq) - 1):]]
+        earlier = seq[:-1] if mine else seq
+        covs = [None if entry[3] is None else _inverse(entry[3]) for entry in earlier]
         if any(c is None for c in covs):
             return 0.0, None
         model = np.zeros((6, 6))
         if k is not None:
-            _, Rz, pz = seq[0]
+            _, Rz, pz, _ = seq[0]
             correction = k * step * np.concatenate([
                 cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt - cv2.Rodrigues(Ra @ Rz.T)[0].ravel() / dz,
                 (pb - pa) / dt - (pa - pz) / dz])
             model = np.outer(correction, correction)
-        return gain, step ** 2 * sum(a * a * c for a, c in zip(alpha[:-1], covs)) + model
+        return gain, step ** 2 * sum(a * a * c for a, c in zip(alpha[:len(covs)], covs)) + model
 
     def _plan(self, t, t_right, rig_version: int, current):
         """The poses a velocity over [t, t_right] comes from, and its extrapolation: (poses oldest first,
         k, dz) with k, dz None when it is not extrapolated; None when no motion applies (synchronous
-        cameras, no two poses of one rig, or poses too old)."""
+        cameras, no two poses of one rig a minimum base apart, or poses too old).
+
+        Which poses: the fit of each frame feeds the next frames' motion, so
+        an error of a pose comes back through the right view of the frames
+        after it, multiplied by the weights the velocity gives the earlier
+        poses over the weight it gives this one. Where the right view alone
+        fixes a direction (the depth, with a wide baseline), those errors
+        grow from frame to frame unless that feedback is below one. With
+        ``current`` and x = (t_right - t) / Δt: a right image after the left
+        one (x > 0) takes the velocity from this pose and two before it,
+        extrapolated (feedback ≤ 0.6 for x ≤ 1); one before it by less than
+        a third of the base interpolates between the last pose and this one
+        (feedback |x| / (1 + x) ≤ 0.5); one earlier still sees mostly the
+        last frame's head, and a velocity from this pose would amplify that
+        frame's error (2x at x = -1/2): the velocity is the last two poses'
+        (feedback √|x| < 1).
+        """
         if t is None or t_right is None or t_right == t or not self.poses:
             return None
-        seq = self._sequence(t, current, rig_version)
+        step = t_right - t
+        # The offset's compensation is velocity × offset: over a base shorter
+        # than the offset it would move the right view by more than the
+        # poses' own errors.
+        base = max(self.min_base, abs(step))
+        seq = self._sequence(t, current, rig_version, base)
         if seq is None:
             return None
-        (ta, _, _), (tb, _, _) = seq[-2:]
+        extrapolate = self.extrapolate
+        if current is not None and seq[-1][0] == t and step < 0:
+            extrapolate = False
+            if -step / (seq[-1][0] - seq[-2][0]) > 1.0 / 3.0:
+                seq = self._sequence(t, None, rig_version, base)
+                if seq is None:
+                    return None
+                current = None
+        (ta, _, _, _), (tb, _, _, _) = seq[-2:]
         dt = tb - ta
-        if dt <= 0 or t - ta > 4 * dt or (current is None and t - tb > 3 * dt):
+        if t - ta > 4 * dt or (current is None and t - tb > 3 * dt) or not self._plausible(seq):
             return None
-        if len(seq) == 3 and self.extrapolate:
+        if len(seq) == 3 and extrapolate:
             dz = ta - seq[0][0]
-            if 0 < dz <= 2 * dt:
+            if dz <= 2 * dt:
                 # To the middle of [t, t_right], from the two velocities' times.
                 return seq, (t + 0.5 * (t_right - t) - 0.5 * (ta + tb)) / (0.5 * (tb - seq[0][0])), dz
         return seq, None, None
 
-    def _pair(self):
-        """The last two poses fitted with one rig, ((t, R, p1), (t, R, p1)), or None."""
-        for i in range(len(self.poses) - 1, 0, -1):
-            if self.rigs[i] == self.rigs[i - 1]:
-                return self.poses[i - 1], self.poses[i]
-        return None
+    def _sequence(self, t, current, rig_version, base: float):
+        """The poses of a velocity, oldest first, as (t, R, p1, info): the newest pose b (``current``
+        at ``t`` when given and the last pose was fitted with ``rig_version``), the newest earlier pose a
+        of the same rig at least ``base`` (s) and at most :attr:`max_base` before b, and the newest one z
+        as far before a, if any. When the newest pose has no such partner, the one before it is tried
+        as b, and so on. None if no pair qualifies."""
+        poses = [(*p, i) for p, i in zip(self.poses, self.infos)]
+        rigs = list(self.rigs)
+        if current is not None and rigs[-1] == rig_version and t > poses[-1][0]:
+            poses.append((t, *current, None))
+            rigs.append(rig_version)
+        times = [p[0] for p in poses]
+        longest = max(self.max_base, base)
 
-    def _sequence(self, t, current, rig_version: int):
-        """The last two or three poses (t, R, p1), oldest first, fitted with one rig, for a velocity:
-        the history and ``current`` when the last pose was fitted with ``rig_version``, else the
-        history alone; None if no two poses share a rig."""
-        if current is not None and self.rigs[-1] == rig_version:
-            poses, rigs = self.poses + [(t, *current)], self.rigs + [rig_version]
-        else:
-            poses, rigs = list(self.poses), list(self.rigs)
-        end = next((i for i in range(len(poses) - 1, 0, -1) if rigs[i] == rigs[i - 1]), None)
-        if end is None:
+        def partner(j):
+            """The newest pose of j's rig between the minimum and the maximum base before pose j, or None."""
+            for i in range(j - 1, -1, -1):
+                if rigs[i] != rigs[j] or times[j] - times[i] > longest:
+                    return None
+                if times[j] - times[i] >= base:
+                    return i
             return None
-        start = end - 1
-        if start > 0 and rigs[start - 1] == rigs[end]:
-            start -= 1
-        return poses[start:end + 1]
+
+        for b in range(len(poses) - 1, 0, -1):
+            a = partner(b)
+            if a is None:
+                continue
+            z = partner(a)
+            return [poses[i] for i in ((z, a, b) if z is not None else (a, b))]
+        return None
 
 
 def _inverse(info: np.ndarray):

@@ -13,9 +13,20 @@ Stages (each timed per frame in ``TrackResult.timings_s``):
    other view's blobs are matched to the labeled view through the same checks.
 3. ``triangulate`` and ``pose``: one of the estimators of :mod:`headplod.tracking.geometry`.
 4. ``verify``: reprojection residuals in both images and the rigid-fit error;
-   a pose that fails them is not reported (``ok`` False with a reason).
+   a pose that fails them is not reported (``ok`` False with a reason). A
+   pose that passes them only with the rig's uncertainty is corrected for
+   the rig error its residuals show, or withheld (tracked from and refining
+   the rig, not reported) when that correction, the motion over the right
+   image's exposure offset, or the covariance of V is beyond what the
+   evidence supports.
 
-Why this module is long (about 1,100 lines): :class:`Tracker` is one state
+The frames' times are checked against each other and against the motion
+(:meth:`Tracker._check_time`, :class:`~headplod.tracking.motion.PoseHistory`):
+a jump back or far ahead resets the motion state, a repeated or glitching
+time gives no velocity, and the result's ``notes`` say so. An exception
+while processing a frame is isolated to it (:meth:`Tracker.process`).
+
+Why this module is long (about 1,500 lines): :class:`Tracker` is one state
 machine over a stereo stream, and its stages share that state (the last
 centres and their windows, the rig in use and its refinement, the noise
 tolerances the rig widens, the suspects of a frame). What has no state of
@@ -27,8 +38,10 @@ from __future__ import annotations
 
 import math
 import time
+import traceback
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 import scipy.linalg
 from scipy.stats import chi2
@@ -67,6 +80,24 @@ def _scale_hint(points_mm: np.ndarray, model_mm: np.ndarray) -> str:
         return ""
     return (f"; the markers seen are {seen / model:.3g} times the size of the marker model: "
             "is markers.yaml in mm (conventions.md), and is it these glasses?")
+
+
+_REFINER_FILE = RigRefiner.__module__.rsplit(".", 1)[-1] + ".py"
+# Largest rig correction of a pose with suspect centres, mm and deg: ten times
+# a clean pose's noise at 65 cm (~0.5 mm, 0.05°); beyond, the suspects and the
+# rig cannot be told apart (Tracker._rig_consistent).
+_SUSPECT_CORRECTION_MM = 5.0
+_SUSPECT_CORRECTION_DEG = 0.5
+
+
+def _names(mask: np.ndarray) -> str:
+    """'P1 left, P3 right' for a (2, 5) bool mask of centres."""
+    return ", ".join(f"{MARKER_NAMES[m]} {('left', 'right')[c]}" for c, m in np.argwhere(mask))
+
+
+def _raised_in(exc: BaseException, filename: str) -> bool:
+    """Whether ``exc`` passed through code of the module file ``filename`` (e.g. ``rig_refine.py``)."""
+    return any(frame.f_code.co_filename.endswith(filename) for frame, _ in traceback.walk_tb(exc.__traceback__))
 
 
 def describe_offset_s(offset_s: float) -> str:
@@ -164,6 +195,45 @@ class TrackerConfig:
         the left one is not a stereo pair the head's motion can bridge: the
         frame gets no pose, and its reason names the skew (``t_right``
         seconds off is a clock problem, not a tracking one).
+    max_uncompensated_offset_s : float
+        A right image known to be exposed more than this, s, before or
+        after the left one (``t_right``, or the refinement's estimate of the
+        offset) gives no pose while the head's motion over the offset is
+        not known (the frames just after an acquisition): the head may
+        have turned by its speed times the offset (0.2° at 100°/s and 2 ms).
+        The pose is kept for the next frames' velocity.
+    max_v_sd_deg : float
+        A pose whose V is uncertain by more than this (1σ, the largest axis
+        of ``cov_deg2``), deg, is not reported: a stale rig before its
+        refinement, or a motion that is poorly known, make it a guess.
+    max_rig_correction_mm, max_rig_correction_deg : float
+        Largest move of P1 (mm) and turn of the head (deg) by which a pose
+        is corrected for the rig change its residuals show (the joint fit
+        of the pose and the rig, linearized at the pose fitted with the rig
+        as is); a larger one is not trusted to a linear step: no pose.
+    max_time_gap_s, max_time_gap_periods : float
+        A frame more than ``max_time_gap_s`` seconds, or more than
+        ``max_time_gap_periods`` frame periods (once the frame rate is
+        known), after the previous one, or before it, is a discontinuity (a
+        seek, a stall, a clock reset): the head's motion is not extrapolated
+        across it; the tracker forgets its motion state and acquires afresh,
+        and the result's ``notes`` say so.
+    min_velocity_base_s : float
+        Shortest time between the two poses of a velocity, s, beside half
+        the usual frame spacing (:class:`~headplod.tracking.motion.PoseHistory`):
+        poses closer than that (repeated or jittered times) make a velocity
+        of their noise, which the exposure offset's compensation multiplies.
+    max_head_rate_dps, max_head_speed_mm_s : float
+        Fastest turn (deg/s) and P1 speed (mm/s) of a head. Two poses whose
+        times make them faster are not one motion (the times are a clock's
+        glitch, the frames out of order): no velocity is taken across them,
+        the motion state starts afresh, and the rig's refinement does not
+        learn from that frame; the result's ``notes`` say so.
+    offset_passes : int
+        Most Gauss-Newton steps of a frame whose right image's motion is
+        taken from its own pose (an exposure offset), each with the motion
+        of the pose the step before found: the fit of the motion consistent
+        with the pose it moves.
     """
 
     estimator: str = "reproj"
@@ -193,6 +263,16 @@ class TrackerConfig:
     rig_gate_sigma: float = 3.0
     max_right_offset_periods: float = 3.0
     extrapolate_velocity: bool = True
+    max_uncompensated_offset_s: float = 0.002
+    max_v_sd_deg: float = 1.5
+    max_rig_correction_mm: float = 40.0
+    max_rig_correction_deg: float = 3.0
+    max_time_gap_s: float = 1.0
+    max_time_gap_periods: float = 10.0
+    min_velocity_base_s: float = 0.004
+    max_head_rate_dps: float = 1000.0
+    max_head_speed_mm_s: float = 4000.0
+    offset_passes: int = 6
 
     def __post_init__(self):
         if self.estimator not in ESTIMATORS:
@@ -229,6 +309,10 @@ class TrackResult:
         Seconds per stage.
     cov_deg2 : (2, 2) or None
         Covariance of (φ, θ) of V, deg² (conventions.md).
+    notes : list of str
+        What happened to the tracker's state at this frame, for a person
+        (e.g. a time discontinuity that reset the motion); in the record's
+        ``notes``.
     """
 
     ok: bool
@@ -248,6 +332,7 @@ class TrackResult:
     cov_input: CovarianceInput | None = None
     rig: dict | None = None
     rig_message: str | None = None
+    notes: list = field(default_factory=list)
 
     def record_extras(self) -> dict:
         """JSON-ready diagnostics for a pose record (the contract allows more keys)."""
@@ -256,6 +341,8 @@ class TrackResult:
             out["rig"] = self.rig
         if self.rig_message:
             out["rig_message"] = self.rig_message
+        if self.notes:
+            out["notes"] = list(self.notes)
         if self.ok:
             out["residuals_px"] = [[None if np.isnan(r) else round(float(r), 4) for r in row]
                                    for row in self.residuals_px]
@@ -302,6 +389,15 @@ class Tracker:
         self.refiner = None           # made at the first frame, when it is known whether t_right is given
         self._frame_periods = []      # recent frame periods, s, for the right time's plausibility (kept by reset)
         self._last_t = None
+        self._glitch = False          # this frame's time is a repeat, or closer to the last one's than a period
+        self._motion_note = None      # what the motion model made of this frame's time, for the result's notes
+        self._times_suspect = False   # the last velocity checked was not a head's, none since was
+        self._withheld = False
+        self._declared_offsets = []   # recent t_right - t of the frames fed to the rig's refinement, s
+        # Exceptions isolated by process(): counted, never silent (see process).
+        self.internal_errors = 0
+        self.first_internal_error: str | None = None
+        self.first_internal_traceback: str | None = None
         self._apply_rig(rig)
         self.uncertainty = make_covariance_estimator(config.uncertainty, rig, self.model_mm, self.axes_G)
         self.reset()
@@ -359,21 +455,32 @@ class Tracker:
         """Forget the previous frames (e.g. after a seek)."""
         if hasattr(self, "uncertainty"):
             self.uncertainty.reset()
+        self._prev_background = [None, None]
+        self._prev_threshold = [None, None]
+        self._disagreements = 0
+        self._reset_motion()
+
+    def _reset_motion(self) -> None:
+        """Forget the head's motion: the poses, the last markers and the right images they came with.
+
+        What a time discontinuity invalidates; the image statistics (noise,
+        background) and the rig's refinement stand.
+        """
         self._prev_centers = None     # (2, 5, 2) last accepted centres, px
         self._prev2_centers = None    # the ones before, for a constant-velocity prediction
         self._prev_visible = None
-        self._prev_background = [None, None]
-        self._prev_threshold = [None, None]
         self._prev_size = None         # (2, 5) Gaussian σ of each marker's blob, px
         self._prev_flux = None
         self._tracked_flux = self._tracked_size = None
-        self._motion = PoseHistory(self.config.extrapolate_velocity)   # the last accepted poses
+        c = self.config
+        self._motion = PoseHistory(c.extrapolate_velocity, c.min_velocity_base_s,
+                                   max_rate_dps=c.max_head_rate_dps, max_speed_mm_s=c.max_head_speed_mm_s)
         self._prev_pose = None
         self._uncompensated = False
+        self._compensated = False      # the last fit moved the right view's model by the head's motion
         self._last_right = None        # (image, t, t_right) of the previous frame's right camera
         self._declared_right = None    # the right image's time as given (times.csv, the driver), s
         self._periods = []             # recent frame periods, s
-        self._disagreements = 0
 
     # ------------------------------------------------------------------ public
     def process(self, left: np.ndarray, right: np.ndarray, t: float | None = None,
@@ -387,29 +494,163 @@ class Tracker:
         t, t_right : float, optional
             Image times in seconds (t_right only if it differs): mid-exposure for
             synthetic data, a camera's capture time live (not mid-exposure).
+
+        Returns
+        -------
+        TrackResult
+            Always, with ``timings_s["total"]``. An exception while
+            processing the frame (a singular system, an OpenCV assertion,
+            memory) is isolated to it: the frame gets ``ok`` False with the
+            reason ``"internal error: <type>: <message>"``, the tracker's
+            state is reset (:meth:`reset`; the rig's refinement loses its
+            pending frames, or restarts if its estimate is damaged), the
+            error is counted (:attr:`internal_errors`, the first one's
+            reason and traceback in :attr:`first_internal_error` and
+            :attr:`first_internal_traceback`) and the next frame is
+            processed as usual. ``KeyboardInterrupt`` and ``SystemExit``
+            are not caught.
         """
-        timings = {}
         start = time.perf_counter()
+        try:
+            result = self._process(left, right, t, t_right, start)
+        except Exception as exc:        # noqa: BLE001 -- isolated to this frame, counted, reported
+            return self._internal_error(exc, start)
+        result.timings_s.setdefault("total", time.perf_counter() - start)
+        return result
+
+    def _process(self, left, right, t, t_right, start) -> TrackResult:
+        """:meth:`process` without the isolation of exceptions."""
+        timings = {}
+        self._motion_note = None
         problem = self._check_images(left, right)
         if problem:
             return TrackResult(False, problem, timings_s={"total": time.perf_counter() - start})
+        notes = self._check_time(t)
         skew = self._implausible_offset(t, t_right)
         if skew:
             self._prev_centers = self._prev2_centers = None
-            return TrackResult(False, skew, timings_s={"total": time.perf_counter() - start})
+            return TrackResult(False, skew, timings_s={"total": time.perf_counter() - start}, notes=notes)
         if self.refiner is None:
             self._start_refiner(t, t_right)
         images, t_right = self._pair(left, right, t, t_right)
         tracking = self.config.track and self._prev_centers is not None
         result = self._attempt(images, t, t_right, timings, start, tracking)
-        if tracking and not result.ok and result.mode == "track":
+        if tracking and not result.ok and result.mode == "track" and not self._withheld:
             # The re-measured markers did not verify: detect and identify afresh.
             result = self._attempt(images, t, t_right, timings, start, False)
+        if self._motion_note:
+            notes = notes + [self._motion_note]
+        if notes:
+            result.notes = notes + result.notes
         return result
+
+    def _internal_error(self, exc: Exception, start: float) -> TrackResult:
+        """The result of a frame whose processing raised ``exc``; the state it may have damaged is reset."""
+        reason = f"internal error: {type(exc).__name__}: {str(exc).strip()}"
+        self.internal_errors += 1
+        if self.first_internal_error is None:
+            self.first_internal_error = reason
+            self.first_internal_traceback = "".join(traceback.format_exception(exc))
+        try:
+            self.reset()
+            if self.refiner is not None and _raised_in(exc, _REFINER_FILE):
+                self._restart_refiner()
+        except Exception as again:      # noqa: BLE001 -- a reset that fails too: start over entirely
+            reason += f" (and resetting failed: {type(again).__name__}: {again})"
+            self.refiner = None
+            self._apply_rig(self.calibrated_rig)
+            self.reset()
+        return TrackResult(False, reason, timings_s={"total": time.perf_counter() - start})
+
+    def _drop_refiner_pending(self) -> None:
+        """Drop the frames the rig's refinement collected towards its next update (and those it keeps for
+        velocities across updates); its estimate stands."""
+        refiner = self.refiner
+        if refiner is None:
+            return
+        # (RigRefiner has no public way to do this; these are the lists it
+        # collects them in, cleared as its widen() clears the first.)
+        refiner._pending = []
+        if hasattr(refiner, "_recent"):
+            refiner._recent.clear()
+
+    def _restart_refiner(self) -> None:
+        """After an exception inside the rig's refinement: drop the frames it was collecting, and keep
+        its estimate only if it is intact (finite, a positive definite covariance); else start it over
+        from rig.yaml."""
+        refiner = self.refiner
+        self._drop_refiner_pending()
+        intact = False
+        try:
+            P = refiner.cov()
+            state = (refiner.state.R, refiner.state.T, refiner.estimate.R, refiner.estimate.T)
+            intact = (all(np.isfinite(a).all() for a in state) and np.isfinite(P).all()
+                      and np.linalg.eigvalsh(0.5 * (P + P.T)).min() > 0)
+        except Exception:              # noqa: BLE001 -- a state that cannot even be read is not intact
+            intact = False
+        if not intact:
+            refiner.reset()
+            self._apply_rig(refiner.state.rig())
+        self._rig_gate()
+
+    def _frame_period(self) -> float | None:
+        """The usual time between frames, s (None until a step is known): the 75th percentile of the
+        last 16 steps, which neither timestamp glitches (steps of a ms) nor a few dropped frames (steps of
+        two periods) move far, while up to half of either would move a median."""
+        if not self._frame_periods:
+            return None
+        steps = sorted(self._frame_periods)
+        return steps[(3 * (len(steps) - 1)) // 4]
+
+    def _check_time(self, t) -> list:
+        """Notes on this frame's time against the previous frame's; a discontinuity resets the motion.
+
+        Back in time, or forward by more than ``max_time_gap_s`` or
+        ``max_time_gap_periods`` frame periods: the poses before it are not
+        this motion's past, and no velocity bridges the gap, so the motion
+        state is forgotten (:meth:`_reset_motion`) and the markers are
+        acquired afresh. A time equal to the previous one is noted (the
+        motion model gets no velocity from it). Keeps the recent frame
+        periods (s) for this and the right time's plausibility.
+        """
+        self._glitch = False
+        if t is None:
+            return []
+        last, self._last_t = self._last_t, t
+        if last is None:
+            return []
+        step = float(t) - float(last)
+        period = self._frame_period()
+        c = self.config
+        known = len(self._frame_periods) >= 4        # a period from fewer steps may be a glitch's
+        gap = min(c.max_time_gap_s, c.max_time_gap_periods * period) if known else c.max_time_gap_s
+        if 0 < step <= c.max_time_gap_s:
+            # Every step within the absolute bound counts towards the period,
+            # so that a period first learnt from glitches recovers.
+            self._frame_periods = (self._frame_periods + [step])[-16:]
+        if 0 < step <= gap:
+            # A step under a third of the usual period is a repeat or a late
+            # timestamp more likely than a faster camera (until the period is
+            # known, a third of the longest step so far). One a tenth of a
+            # period off the frame clock (jitter) is a time the rig's
+            # refinement must not learn velocities and offsets from.
+            usual = period if known else max(self._frame_periods, default=step)
+            self._glitch = step < 0.3 * usual or (known and abs(step - period * round(step / period)) > 0.1 * period)
+            return []
+        if step == 0:
+            self._glitch = True
+            return [f"time {t:.6f} s repeats the previous frame's: no motion measured over it"]
+        self._reset_motion()
+        if step < 0:
+            return [f"time went back {describe_offset_s(-step).replace(' after', '')} (t={t:.6f} s after "
+                    f"{last:.6f} s): motion state reset, markers acquired afresh"]
+        return [f"time jumped {describe_offset_s(step).replace(' after', '')} ahead (t={t:.6f} s after "
+                f"{last:.6f} s, more than {gap * 1e3:.0f} ms): motion state reset, markers acquired afresh"]
 
     def _attempt(self, images, t, t_right, timings, start, tracking) -> TrackResult:
         """One pass: re-measure (tracking) or detect and identify, then fit and verify."""
         match, mode, reason, blobs = None, "acquire", None, (None, None)
+        self._withheld = False         # a pose verified, kept and tracked from, but not reported
         if tracking:
             t_det = time.perf_counter()
             match = self._track_fast(images)
@@ -467,6 +708,19 @@ class Tracker:
             if (self._verify(R, p1, residuals, self._outlier(residuals, match, wide_sd), match, wide_sd) is None
                     and self._rig_explains(pose_rows, vectors, wide_rows, wide, match)):
                 reason, rig_cov, disagrees = None, wide, True
+        withheld = None
+        if (reason is None and rig_rows is not None and rig_cov is not None and self.config.estimator == "reproj"
+                and self._verify(R, p1, residuals, self._outlier(residuals, match), match) is not None):
+            # The checks passed only with the rig's uncertainty: report the
+            # pose that uncertainty implies, not the one fitted with the rig
+            # as is, or none. A withheld pose is still the markers' and the
+            # rig's evidence: it is tracked from and refines the rig (which
+            # is what brings the next poses back), it is only not reported.
+            # (The rigid and paper estimators' poses are not reprojection
+            # fits, which the correction starts from: they stay as they are.)
+            R, p1, reason, withheld = self._rig_consistent(R, p1, vectors, pose_rows, rig_rows, rig_cov, match)
+        if reason is None and withheld is None:
+            withheld = self._offset_unbridged(t, t_right)
         timings["verify"] = time.perf_counter() - t_ver
         if reason is not None:
             self._prev_centers = self._prev2_centers = None
@@ -512,12 +766,22 @@ class Tracker:
             timings["total"] = time.perf_counter() - start
             return TrackResult(False, f"no covariance of V from the {self.uncertainty.name} estimator "
                                       "(too few marker pixels?)", mode=mode, timings_s=timings, blobs=blobs)
+        sd_deg = math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0))
+        if withheld is None and sd_deg > self.config.max_v_sd_deg:
+            # Still tracked from and refining the rig: that is what narrows it.
+            withheld = (f"V uncertain to ±{sd_deg:.1f}° (1σ), more than {self.config.max_v_sd_deg:g}°: "
+                        "the rig or the motion leaves too much unknown; pose not reported")
 
         # The rig's refinement is its own stage, fed every accepted frame.
         t_ref = time.perf_counter()
         self._refine(match, t, cov_input=cov_input, R=R, p1=p1, disagrees=disagrees)
         timings["refine_rig"] = time.perf_counter() - t_ref
         timings["total"] = time.perf_counter() - start
+        if withheld is not None:
+            self._withheld = True
+            return TrackResult(False, withheld, centers_px=match.centers, residuals_px=residuals, mode=mode,
+                               timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
+                               rig=self._rig_status(), rig_message=self._rig_message(disagrees))
         return TrackResult(True, None, p1, axes, R, match.centers, residuals, match.epipolar,
                            match.fit_rms, mode, timings, blobs, match.blob_index, cov_deg2=cov, cov_input=cov_input,
                            rig=self._rig_status(), rig_message=self._rig_message(disagrees))
@@ -531,15 +795,10 @@ class Tracker:
         by seconds of head motion, so the frame gets no pose, and the
         reason names the skew rather than the reprojection error it causes.
         """
-        if t is None:
-            return None
-        if self._last_t is not None and 0 < t - self._last_t < 1.0:
-            self._frame_periods = (self._frame_periods + [t - self._last_t])[-8:]
-        self._last_t = t
-        if t_right is None:
+        if t is None or t_right is None:
             return None
         offset_s = float(t_right) - float(t)
-        period_s = float(np.median(self._frame_periods)) if self._frame_periods else 1.0 / 30.0
+        period_s = self._frame_period() or 1.0 / 30.0
         k = self.config.max_right_offset_periods
         bound_s = max(k * period_s, 0.1)
         if not abs(offset_s) > bound_s:
@@ -596,7 +855,9 @@ class Tracker:
         M, _ = self._rig_after_fit(pose_rows, rows, match.visible, self._sigma(match))
         var = np.einsum("ij,jk,ik->i", M, P, M).reshape(-1, 2).sum(axis=1)
         sd = np.full(match.visible.shape, np.nan)
-        sd[match.visible] = np.sqrt(np.maximum(var, 0.0))
+        # A spread that cannot be computed (a degenerate fit) widens nothing:
+        # NaN would make the checks skip the centre.
+        sd[match.visible] = np.sqrt(np.where(np.isfinite(var), np.maximum(var, 0.0), 0.0))
         return rows, sd, pose_rows
 
     @staticmethod
@@ -629,6 +890,86 @@ class Tracker:
         # floor): what is left must be small against what the rig removed.
         return left <= max(float(chi2.ppf(0.999, dof)), 0.1 * before)
 
+    def _offset_unbridged(self, t, t_right) -> str | None:
+        """Why the pose is withheld when the right image is known to be exposed at another time than the
+        left one and the head's motion over that offset is not known (no recent poses, or none whose
+        velocity a head can have): the right view saw the head elsewhere, by an unknown amount. None
+        otherwise.
+
+        Only the reproj estimator compensates the offset. The pose is still
+        remembered, so the next frame has the velocity.
+        """
+        c = self.config
+        if (c.estimator != "reproj" or not c.compensate_offset or t is None or t_right is None
+                or self._compensated or not abs(t_right - t) > c.max_uncompensated_offset_s):
+            return None
+        return (f"the right image is exposed {describe_offset_s(t_right - t)} the left one and the head's "
+                "motion over that is not known (no recent poses give a head's velocity): pose not reported")
+
+    def _rig_consistent(self, R, p1, vectors, pose_rows, rig_rows, P, match):
+        """The pose of the joint fit of the pose and a rig change e (prior P), from the pose fitted with
+        the rig as is: (R, p1, reason, withheld), the last two None for a pose to report.
+
+        The checks let a frame through when the rig's uncertainty can explain
+        its residuals; the pose fitted with the rig as is then carries that
+        rig error: a camera turned 1° since rig.yaml, or a baseline 5% off,
+        moves P1 by tens of mm at 65 cm (the fit trades the two views'
+        disagreement off between them), and a motion compensation that
+        drifted does the same. Linearized at the fit (residual vectors r
+        (2, 5, 2) px, pose rows J (2, 5, 2, 6), rig rows J_r (2, 5, 2, k)):
+        the MAP rig change is ê = −P Mᵀ (M P Mᵀ + W⁻¹)⁻¹ r with M = (I − H) J_r
+        what the fit leaves of a rig change, and the pose moves by
+        −(JᵀWJ)⁻¹ JᵀW J_r ê (what the fit had absorbed of it).
+
+        Applied only where the images show a rig change (the χ² it removes
+        beyond ``chi2.ppf(0.999, k)``); noise is left to the plain fit.
+        Refused (``reason``: the frame is not trusted at all, e.g. the left
+        and right images exchanged): a change beyond the rig's uncertainty
+        (Mahalanobis² in P beyond the same quantile: not a rig error the
+        model allows). Withheld (``withheld``: tracked from and refining the
+        rig, not reported): a correction too large for the linearization
+        (``max_rig_correction_mm``, ``max_rig_correction_deg``).
+        """
+        cfg = self.config
+        vis = match.visible
+        sigma = np.maximum(self._sigma(match), cfg.outlier_min_sigma_px)[vis]
+        sw = np.repeat(1.0 / sigma, 2)                                   # √W, px⁻¹
+        J = pose_rows[vis].reshape(-1, 6) * sw[:, None]
+        Jr = rig_rows[vis].reshape(-1, rig_rows.shape[-1]) * sw[:, None]
+        r = vectors[vis].reshape(-1) * sw
+        if not (np.isfinite(J).all() and np.isfinite(Jr).all() and np.isfinite(r).all() and np.isfinite(P).all()):
+            return R, p1, "the rig's share of the residuals cannot be computed at this pose (degenerate fit)", None
+        # G = (JᵀWJ)⁺ JᵀW J_r by least squares (defined when few markers make J rank-deficient).
+        G = np.linalg.lstsq(J, Jr, rcond=1e-10)[0]
+        M = Jr - J @ G
+        S = M @ P @ M.T + np.eye(len(r))                                  # whitened: W⁻¹ = I
+        u = np.linalg.solve(S, r)
+        removed = float(r @ r - r @ u)                                    # χ² the MAP rig change explains
+        k = rig_rows.shape[-1]
+        quantile = float(chi2.ppf(0.999, k))
+        if not removed > quantile:
+            return R, p1, None, None
+        MPu = P @ (M.T @ u)
+        e = -MPu
+        mahalanobis2 = float((M.T @ u) @ MPu)
+        delta = -G @ e                                                    # (δ rad, ε mm)
+        turn = math.degrees(float(np.linalg.norm(delta[:3])))
+        shift = float(np.linalg.norm(delta[3:]))
+        if mahalanobis2 > quantile:
+            return R, p1, (f"the images disagree with the rig beyond its uncertainty ({math.sqrt(mahalanobis2):.1f}σ; "
+                           f"the pose would move {shift:.0f} mm, {turn:.1f}°): rig.yaml stale or the camera moved?"), None
+        if match.excess_px is not None and (shift > _SUSPECT_CORRECTION_MM or turn > _SUSPECT_CORRECTION_DEG):
+            # Some centres disagreed with the others (a glint, an occlusion,
+            # a stray blob taken for a marker): the residuals they leave are
+            # as well a rig change as not, and the correction follows them.
+            return R, p1, (f"a rig error and the centres that disagree ({_names(match.excess_px > 0)}) both "
+                           f"explain these residuals, and they move the pose {shift:.0f} mm, {turn:.1f}° apart: "
+                           "not trusted"), None
+        if shift > cfg.max_rig_correction_mm or turn > cfg.max_rig_correction_deg:
+            return R, p1, None, (f"the rig's error moves this pose by {shift:.0f} mm, {turn:.1f}°, more than a "
+                                 f"linear correction is trusted for: pose not reported until the rig is refined")
+        return cv2.Rodrigues(delta[:3])[0] @ R, p1 + delta[3:], None, None
+
     def _refine(self, match, t, cov_input, R, p1, disagrees) -> None:
         """Feed an accepted frame to the rig's refinement; use the refined rig when it changes."""
         refiner = self.refiner
@@ -643,7 +984,10 @@ class Tracker:
                 self._rig_gate()
             return
         self._disagreements = 0
-        if not self.config.rig_refine.enabled:
+        if not self.config.rig_refine.enabled or self._glitch:
+            # A frame whose time is a repeat or a glitch, or does not fit the
+            # motion, would teach the refinement a velocity, and an exposure
+            # offset, that are not the head's.
             return
         inner = getattr(self.uncertainty, "inner", self.uncertainty)
         if hasattr(inner, "variances"):
@@ -652,6 +996,11 @@ class Tracker:
             sigma = np.repeat(self._sigma(match)[..., None], 2, axis=2)
         declared = self._declared_right
         offset = (declared - t) if (declared is not None and t is not None) else 0.0
+        recent, self._declared_offsets = self._declared_offsets, (self._declared_offsets + [offset])[-16:]
+        if len(recent) >= 4 and abs(offset - sorted(recent)[len(recent) // 2]) > self.config.rig_errors.offset_declared_s:
+            # A declared offset off the usual one by more than its own σ: the
+            # times jitter, and the refinement would take that for the rig.
+            return
         if refiner.add_frame(t, offset, match.centers, match.visible, sigma, R, p1):
             self._apply_rig(refiner.state.rig())
             # The recent poses, refitted with the new rig by the update itself:
@@ -982,6 +1331,7 @@ class Tracker:
             return R, p1, residuals, JtJ, vectors
         sigma = self._sigma(match) if self.config.weighted_fit else None
         motion = self._right_motion(t, t_right) if self.config.compensate_offset else None
+        self._compensated = motion is not None
         fit = geo.refine_reprojection(match.R, match.t, self.model_mm, match.centers[0], match.centers[1],
                                       match.visible[0], match.visible[1], self.rig, right_motion=motion,
                                       sigma_px=sigma, cameras=self._cameras)
@@ -989,14 +1339,28 @@ class Tracker:
             # Second pass: the velocity from the last pose to this one lags by
             # half a frame instead of one and a half.
             # The velocity is taken from this pose too: the fit's right rows
-            # carry that gain, which makes it the maximum-likelihood fit
-            # (more passes change nothing measurable).
-            motion = self._right_motion(t, t_right, current=fit[:2])
-            if motion is not None:
+            # carry that gain, which makes it the maximum-likelihood fit.
+            # refine_reprojection holds the motion fixed while it steps the
+            # pose, so a fit of several steps ends where the motion of its
+            # starting pose, not of its own, fits best: a first pose
+            # displaced by a lagging velocity (a turning head, a late right
+            # image) was carried on by the gain instead of corrected. One
+            # Gauss-Newton step per pass, the motion taken afresh from the
+            # pose before each, is Gauss-Newton on the consistent model.
+            for _ in range(max(self.config.offset_passes, 1)):
+                motion = self._right_motion(t, t_right, current=fit[:2])
+                if motion is None:
+                    break
+                self._compensated = True
                 gain, _ = self._motion_terms(t, t_right, fit[:2], covariance=False)
+                before_R, before_p = fit[0], fit[1]
                 fit = geo.refine_reprojection(fit[0], fit[1], self.model_mm, match.centers[0], match.centers[1],
                                               match.visible[0], match.visible[1], self.rig, right_motion=motion,
-                                              sigma_px=sigma, cameras=self._cameras, right_gain=gain)
+                                              sigma_px=sigma, cameras=self._cameras, right_gain=gain,
+                                              iterations=0)
+                # Settled: a step of 0.01 mm and 1e-5 rad, far below the noise.
+                if np.abs(fit[1] - before_p).max() < 0.01 and np.abs(fit[0] - before_R).max() < 1e-5:
+                    break
         return fit
 
     def _outlier(self, residuals, match: _Match, rig_sd=None):
@@ -1137,5 +1501,22 @@ class Tracker:
             if blobs[cam] is not None and len(blobs[cam]):
                 self._prev_threshold[cam] = blobs[cam].threshold_dn
         if t is not None:
+            rates = self._motion.rates_to(t, R, p1, self._rig_version())
+            if rates is not None and not rates[2]:
+                # The times do not describe the motion the images show (a
+                # glitching clock, frames out of order): the poses before
+                # this one are no past to take a velocity from, and the rig's
+                # refinement, which learns the exposure offset from velocities
+                # over the frames' times, must not learn from them, nor from
+                # the next frames until a velocity is plausible again.
+                self._motion.clear()
+                self._times_suspect = True
+                self._drop_refiner_pending()
+                self._motion_note = (f"the head would have turned {rates[0]:.0f}°/s and moved {rates[1]:.0f} mm/s "
+                                     "since the last poses by these times: not a motion a head makes; "
+                                     "motion state reset")
+            elif rates is not None:
+                self._times_suspect = False
+            self._glitch = self._glitch or (self._times_suspect and (rates is None or not rates[2]))
             self._motion.add(t, R, p1, self._rig_version(), info)
 
