@@ -28,6 +28,8 @@ the images' (a 1 kHz clock on 30 fps images): it is not used.
 """
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
@@ -147,8 +149,10 @@ class PoseHistory:
     def _rates(a, b):
         """Turn rate (rad/s) and P1 speed (mm/s) between two poses (t, R, p1, ...)."""
         dt = b[0] - a[0]
-        return (float(np.linalg.norm(cv2.Rodrigues(b[1] @ a[1].T)[0])) / dt,
-                float(np.linalg.norm(b[2] - a[2])) / dt)
+        # The angle from the trace: cos θ = (tr(R_b R_aᵀ) − 1) / 2 = (Σ R_b ∘ R_a − 1) / 2.
+        cos = 0.5 * (float(np.vdot(b[1], a[1])) - 1.0)
+        d = b[2] - a[2]
+        return math.acos(min(max(cos, -1.0), 1.0)) / dt, math.sqrt(float(d @ d)) / dt
 
     def _plausible(self, seq) -> bool:
         """Whether the velocity of a sequence's last two poses is one a head can have."""
@@ -159,11 +163,14 @@ class PoseHistory:
         """(ω rad/s, v mm/s) of the head from the newest two poses fitted with one rig between
         :attr:`min_base` and :attr:`max_base` apart, or None."""
         seq = self._sequence(None, None, None, self.min_base)
-        if seq is None or not self._plausible(seq):
+        if seq is None:
             return None
         (ta, Ra, pa, _), (tb, Rb, pb, _) = seq[-2:]
         dt = tb - ta
-        return cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt, (pb - pa) / dt
+        w, v = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt, (pb - pa) / dt
+        if math.sqrt(w @ w) > self.max_rate or math.sqrt(v @ v) > self.max_speed:
+            return None
+        return w, v
 
     def right_motion(self, t, t_right, rig_version: int, current=None):
         """World-frame motion (rvec, tvec) of the head from t to t_right.
@@ -294,29 +301,37 @@ class PoseHistory:
         of the same rig at least ``base`` (s) and at most :attr:`max_base` before b, and the newest one z
         as far before a, if any. When the newest pose has no such partner, the one before it is tried
         as b, and so on. None if no pair qualifies."""
-        poses = [(*p, i) for p, i in zip(self.poses, self.infos)]
-        rigs = list(self.rigs)
-        if current is not None and rigs[-1] == rig_version and t > poses[-1][0]:
-            poses.append((t, *current, None))
-            rigs.append(rig_version)
-        times = [p[0] for p in poses]
+        poses, rigs, n = self.poses, self.rigs, len(self.poses)
+        # Index n is ``current`` (a pose after the kept ones), when it is one.
+        extra = current is not None and rigs[-1] == rig_version and t > poses[-1][0]
         longest = max(self.max_base, base)
 
         def partner(j):
             """The newest pose of j's rig between the minimum and the maximum base before pose j, or None."""
+            tj, rj = (t, rig_version) if j == n else (poses[j][0], rigs[j])
             for i in range(j - 1, -1, -1):
-                if rigs[i] != rigs[j] or times[j] - times[i] > longest:
+                gap = tj - poses[i][0]
+                if rigs[i] != rj or gap > longest:
                     return None
-                if times[j] - times[i] >= base:
+                if gap >= base:
                     return i
             return None
 
-        for b in range(len(poses) - 1, 0, -1):
+        b = n if extra else n - 1
+        if b >= 2:
+            # The usual case, regular frames of one rig: b, b - 1 and b - 2.
+            tb = t if extra else poses[b][0]
+            ta, tz = poses[b - 1][0], poses[b - 2][0]
+            if (rigs[b - 2] == rigs[b - 1] == (rig_version if extra else rigs[b])
+                    and base <= tb - ta <= longest and base <= ta - tz <= longest):
+                last = (t, current[0], current[1], None) if extra else (*poses[b], self.infos[b])
+                return [(*poses[b - 2], self.infos[b - 2]), (*poses[b - 1], self.infos[b - 1]), last]
+        for b in range(b, 0, -1):
             a = partner(b)
-            if a is None:
-                continue
-            z = partner(a)
-            return [poses[i] for i in ((z, a, b) if z is not None else (a, b))]
+            if a is not None:
+                z = partner(a)
+                return [(t, current[0], current[1], None) if i == n else (*poses[i], self.infos[i])
+                        for i in ((z, a, b) if z is not None else (a, b))]
         return None
 
 
