@@ -16,11 +16,15 @@ What must hold for every frame of every case:
 - no exception escapes ``process`` and none is isolated by it
   (``tracker.internal_errors == 0``: the isolation must not hide bugs);
 - a pose reported ``ok`` is within 20 mm (P1) and 5° (V) of the truth at
-  the left image's time. Why those bounds: they are far outside the honest
-  errors of any case here (tenths of a mm and degree; a few mm and tenths
-  of a degree with a stale rig or uncompensated motion) and inside what a
+  the left image's time. Why those bounds: they are outside the honest
+  errors of every case here (tenths of a mm and degree on clean streams;
+  up to ~10 mm and ~3° on a stale rig before its refinement, where the
+  pose's covariance says so: V's σ is capped at 2°) and inside what a
   wrong identification, a diverged fit or a motion model extrapolated past
-  its evidence gives (tens of mm, tens of degrees).
+  its evidence gives (tens to hundreds of mm, tens of degrees).
+
+Budget: ~2,400 frames, ~15-25 s on two busy cores, most of it tracking;
+the two renders take ~3 s.
 
 The fraction of frames tracked per class is printed (``pytest -s``), and
 floored for the classes whose evidence supports a pose on most frames, so
@@ -36,7 +40,6 @@ import numpy as np
 import pytest
 
 from headplod import io
-from headplod.tracking import tracker as tracker_module
 from headplod.tracking.motion import PoseHistory
 from headplod.tracking.rig_refine import RigRefineConfig, RigRefiner
 from headplod.tracking.tracker import Tracker, TrackerConfig
@@ -90,7 +93,7 @@ def _render(preset: str, n: int, seed: int) -> Grid:
 
 @pytest.fixture(scope="module")
 def grids():
-    """The base motions, rendered once for the module (about 3 s)."""
+    """The base motions, rendered once for the module (~3 s: 320 stereo pairs at 640x480)."""
     return [_render(name, n, SEED + i) for i, (name, n) in enumerate(BASES)]
 
 
@@ -504,8 +507,11 @@ def test_repeated_times_divide_nothing_by_zero(grids):
             r = tracker.process(left, right, t, t + 0.008)    # and a declared 8 ms offset to bridge
             assert tracker.internal_errors == 0, tracker.first_internal_traceback
             if r.ok:
+                # A repeated time hides a frame of motion from the velocity: the 8 ms offset's
+                # compensation may miss up to a quarter of a frame's motion on this 140°/s sweep
+                # (~1°, a few mm), against ~0.2 mm, 0.1° with true times.
                 pos, ang = _errors(r, grid, i)
-                assert pos < 2.0 and ang < 0.5, (k, pos, ang)
+                assert pos < 4.0 and ang < 1.0, (k, pos, ang)
             if k % 3 == 2:
                 assert any("repeats the previous frame's" in n for n in r.notes)
     velocity = tracker._motion.velocity()

@@ -88,6 +88,10 @@ _REFINER_FILE = RigRefiner.__module__.rsplit(".", 1)[-1] + ".py"
 # rig cannot be told apart (Tracker._rig_consistent).
 _SUSPECT_CORRECTION_MM = 5.0
 _SUSPECT_CORRECTION_DEG = 0.5
+# Largest 1σ of P1 after a rig correction, mm: with five markers in both views
+# a frame knows it to 0.2-1 mm; beyond 1.5 mm (a hidden marker, a weak view)
+# the correction is as much noise as rig (Tracker._rig_consistent).
+_CORRECTED_P1_SD_MM = 1.5
 
 
 def _names(mask: np.ndarray) -> str:
@@ -264,7 +268,7 @@ class TrackerConfig:
     max_right_offset_periods: float = 3.0
     extrapolate_velocity: bool = True
     max_uncompensated_offset_s: float = 0.002
-    max_v_sd_deg: float = 1.5
+    max_v_sd_deg: float = 2.0
     max_rig_correction_mm: float = 40.0
     max_rig_correction_deg: float = 3.0
     max_time_gap_s: float = 1.0
@@ -389,7 +393,8 @@ class Tracker:
         self.refiner = None           # made at the first frame, when it is known whether t_right is given
         self._frame_periods = []      # recent frame periods, s, for the right time's plausibility (kept by reset)
         self._last_t = None
-        self._glitch = False          # this frame's time is a repeat, or closer to the last one's than a period
+        self._glitch = False          # this frame's time is no clock's (a repeat, a glitch, jitter): not for the refinement
+        self._time_glitch = False     # ... a repeat or a step of a fraction of a period: not for the motion either
         self._motion_note = None      # what the motion model made of this frame's time, for the result's notes
         self._times_suspect = False   # the last velocity checked was not a head's, none since was
         self._withheld = False
@@ -613,7 +618,7 @@ class Tracker:
         motion model gets no velocity from it). Keeps the recent frame
         periods (s) for this and the right time's plausibility.
         """
-        self._glitch = False
+        self._glitch = self._time_glitch = False
         if t is None:
             return []
         last, self._last_t = self._last_t, t
@@ -635,10 +640,11 @@ class Tracker:
             # period off the frame clock (jitter) is a time the rig's
             # refinement must not learn velocities and offsets from.
             usual = period if known else max(self._frame_periods, default=step)
-            self._glitch = step < 0.3 * usual or (known and abs(step - period * round(step / period)) > 0.1 * period)
+            self._time_glitch = step < 0.3 * usual
+            self._glitch = self._time_glitch or (known and abs(step - period * round(step / period)) > 0.1 * period)
             return []
         if step == 0:
-            self._glitch = True
+            self._glitch = self._time_glitch = True
             return [f"time {t:.6f} s repeats the previous frame's: no motion measured over it"]
         self._reset_motion()
         if step < 0:
@@ -709,6 +715,7 @@ class Tracker:
                     and self._rig_explains(pose_rows, vectors, wide_rows, wide, match)):
                 reason, rig_cov, disagrees = None, wide, True
         withheld = None
+        fitted = (R, p1)               # the pose fitted with the rig in use, before any correction
         if (reason is None and rig_rows is not None and rig_cov is not None and self.config.estimator == "reproj"
                 and self._verify(R, p1, residuals, self._outlier(residuals, match), match) is not None):
             # The checks passed only with the rig's uncertainty: report the
@@ -716,6 +723,10 @@ class Tracker:
             # as is, or none. A withheld pose is still the markers' and the
             # rig's evidence: it is tracked from and refines the rig (which
             # is what brings the next poses back), it is only not reported.
+            # The motion history and the refinement keep the pose fitted with
+            # the rig in use, as for every other frame: a correction that
+            # comes and goes would be motion to the one and, to the other,
+            # a pose of another rig than the one it linearizes at.
             # (The rigid and paper estimators' poses are not reprojection
             # fits, which the correction starts from: they stay as they are.)
             R, p1, reason, withheld = self._rig_consistent(R, p1, vectors, pose_rows, rig_rows, rig_cov, match)
@@ -728,8 +739,8 @@ class Tracker:
             return TrackResult(False, reason, centers_px=match.centers, residuals_px=residuals, mode=mode,
                                timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
                                rig=self._rig_status(), rig_message=self._rig_message())
-        motion_gain, motion_cov = self._motion_terms(t, t_right, (R, p1))
-        self._remember(match, t, R, p1, blobs, mode, JtJ)
+        motion_gain, motion_cov = self._motion_terms(t, t_right, fitted)
+        self._remember(match, t, *fitted, blobs, mode, JtJ)
         timings["mean_pose"] = time.perf_counter() - start
 
         # The uncertainty of V is its own stage (the mean pose is done).
@@ -774,7 +785,7 @@ class Tracker:
 
         # The rig's refinement is its own stage, fed every accepted frame.
         t_ref = time.perf_counter()
-        self._refine(match, t, cov_input=cov_input, R=R, p1=p1, disagrees=disagrees)
+        self._refine(match, t, cov_input=cov_input, R=fitted[0], p1=fitted[1], disagrees=disagrees)
         timings["refine_rig"] = time.perf_counter() - t_ref
         timings["total"] = time.perf_counter() - start
         if withheld is not None:
@@ -958,6 +969,15 @@ class Tracker:
         if mahalanobis2 > quantile:
             return R, p1, (f"the images disagree with the rig beyond its uncertainty ({math.sqrt(mahalanobis2):.1f}σ; "
                            f"the pose would move {shift:.0f} mm, {turn:.1f}°): rig.yaml stale or the camera moved?"), None
+        # How well this frame alone knows the corrected P1: the pose's own
+        # covariance plus what the rig's posterior leaves (mm²).
+        rig_post = P - P @ M.T @ np.linalg.solve(S, M @ P)
+        p1_sd = math.sqrt(max(float(np.trace(np.linalg.pinv(J.T @ J)[3:, 3:] + (G @ rig_post @ G.T)[3:, 3:])), 0.0))
+        if p1_sd > _CORRECTED_P1_SD_MM:
+            # Few markers (one hidden) or a weak view: the rig's error and the
+            # pose's trade off, and the correction follows noise or a stray blob.
+            return R, p1, (f"the markers seen do not tell the rig's error from the pose (a correction of "
+                           f"{shift:.0f} mm, {turn:.1f}°, known to ±{p1_sd:.1f} mm): not trusted"), None
         if match.excess_px is not None and (shift > _SUSPECT_CORRECTION_MM or turn > _SUSPECT_CORRECTION_DEG):
             # Some centres disagreed with the others (a glint, an occlusion,
             # a stray blob taken for a marker): the residuals they leave are
@@ -1500,7 +1520,10 @@ class Tracker:
         for cam in range(2):
             if blobs[cam] is not None and len(blobs[cam]):
                 self._prev_threshold[cam] = blobs[cam].threshold_dn
-        if t is not None:
+        if t is not None and not self._time_glitch:
+            # (A frame whose time repeats the last one's, or follows it by a
+            # fraction of a period, was exposed at an unknown time: its pose
+            # would put the motion at the wrong instant.)
             rates = self._motion.rates_to(t, R, p1, self._rig_version())
             if rates is not None and not rates[2]:
                 # The times do not describe the motion the images show (a
