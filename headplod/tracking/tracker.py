@@ -83,14 +83,13 @@ def _scale_hint(points_mm: np.ndarray, model_mm: np.ndarray) -> str:
 
 
 _REFINER_FILE = RigRefiner.__module__.rsplit(".", 1)[-1] + ".py"
-# Largest rig correction of a pose with suspect centres, mm and deg: ten times
-# a clean pose's noise at 65 cm (~0.5 mm, 0.05°); beyond, the suspects and the
-# rig cannot be told apart (Tracker._rig_consistent).
-_SUSPECT_CORRECTION_MM = 5.0
-_SUSPECT_CORRECTION_DEG = 0.5
-# Largest 1σ of P1 after a rig correction, mm: with five markers in both views
-# a frame knows it to 0.2-1 mm; beyond 1.5 mm (a hidden marker, a weak view)
-# the correction is as much noise as rig (Tracker._rig_consistent).
+# A rig correction beyond these (mm, deg: ten times a clean pose's noise at
+# 65 cm, ~0.5 mm and 0.05°) is refused when the frame cannot tell it from noise
+# or a stray blob: with suspect centres, or P1 known to worse than 1.5 mm (1σ)
+# after it; with five markers in both views a frame knows it to 0.2-1 mm
+# (Tracker._rig_consistent).
+_AMBIGUOUS_CORRECTION_MM = 5.0
+_AMBIGUOUS_CORRECTION_DEG = 0.5
 _CORRECTED_P1_SD_MM = 1.5
 
 
@@ -268,9 +267,9 @@ class TrackerConfig:
     max_right_offset_periods: float = 3.0
     extrapolate_velocity: bool = True
     max_uncompensated_offset_s: float = 0.002
-    max_v_sd_deg: float = 2.0
+    max_v_sd_deg: float = 1.5
     max_rig_correction_mm: float = 40.0
-    max_rig_correction_deg: float = 3.0
+    max_rig_correction_deg: float = 1.5
     max_time_gap_s: float = 1.0
     max_time_gap_periods: float = 10.0
     min_velocity_base_s: float = 0.004
@@ -393,8 +392,10 @@ class Tracker:
         self.refiner = None           # made at the first frame, when it is known whether t_right is given
         self._frame_periods = []      # recent frame periods, s, for the right time's plausibility (kept by reset)
         self._last_t = None
-        self._glitch = False          # this frame's time is no clock's (a repeat, a glitch, jitter): not for the refinement
-        self._time_glitch = False     # ... a repeat or a step of a fraction of a period: not for the motion either
+        # This frame's time is no clock's (a repeat, a glitch, jitter): not for
+        # the refinement; a repeat or a step of a fraction of a period: not for
+        # the motion history either.
+        self._glitch = self._time_glitch = False
         self._motion_note = None      # what the motion model made of this frame's time, for the result's notes
         self._times_suspect = False   # the last velocity checked was not a head's, none since was
         self._withheld = False
@@ -934,12 +935,15 @@ class Tracker:
 
         Applied only where the images show a rig change (the χ² it removes
         beyond ``chi2.ppf(0.999, k)``); noise is left to the plain fit.
-        Refused (``reason``: the frame is not trusted at all, e.g. the left
-        and right images exchanged): a change beyond the rig's uncertainty
-        (Mahalanobis² in P beyond the same quantile: not a rig error the
-        model allows). Withheld (``withheld``: tracked from and refining the
-        rig, not reported): a correction too large for the linearization
-        (``max_rig_correction_mm``, ``max_rig_correction_deg``).
+        Refused (``reason``: the frame is not trusted at all): a change
+        beyond the rig's uncertainty (Mahalanobis² in P beyond the same
+        quantile: not a rig error the model allows; e.g. the left and right
+        images exchanged), or a correction beyond 5 mm or 0.5° that the
+        frame cannot tell from noise or a stray blob: one centre left out
+        explains as much, P1 is known to worse than 1.5 mm (1σ) after it (a
+        hidden marker, a weak view), or the robust fit found centres suspect. Withheld (``withheld``: tracked from and
+        refining the rig, not reported): a correction too large for the
+        linearization (``max_rig_correction_mm``, ``max_rig_correction_deg``).
         """
         cfg = self.config
         vis = match.visible
@@ -967,24 +971,43 @@ class Tracker:
         turn = math.degrees(float(np.linalg.norm(delta[:3])))
         shift = float(np.linalg.norm(delta[3:]))
         if mahalanobis2 > quantile:
-            return R, p1, (f"the images disagree with the rig beyond its uncertainty ({math.sqrt(mahalanobis2):.1f}σ; "
-                           f"the pose would move {shift:.0f} mm, {turn:.1f}°): rig.yaml stale or the camera moved?"), None
-        # How well this frame alone knows the corrected P1: the pose's own
-        # covariance plus what the rig's posterior leaves (mm²).
-        rig_post = P - P @ M.T @ np.linalg.solve(S, M @ P)
-        p1_sd = math.sqrt(max(float(np.trace(np.linalg.pinv(J.T @ J)[3:, 3:] + (G @ rig_post @ G.T)[3:, 3:])), 0.0))
-        if p1_sd > _CORRECTED_P1_SD_MM:
-            # Few markers (one hidden) or a weak view: the rig's error and the
-            # pose's trade off, and the correction follows noise or a stray blob.
-            return R, p1, (f"the markers seen do not tell the rig's error from the pose (a correction of "
-                           f"{shift:.0f} mm, {turn:.1f}°, known to ±{p1_sd:.1f} mm): not trusted"), None
-        if match.excess_px is not None and (shift > _SUSPECT_CORRECTION_MM or turn > _SUSPECT_CORRECTION_DEG):
-            # Some centres disagreed with the others (a glint, an occlusion,
-            # a stray blob taken for a marker): the residuals they leave are
-            # as well a rig change as not, and the correction follows them.
-            return R, p1, (f"a rig error and the centres that disagree ({_names(match.excess_px > 0)}) both "
-                           f"explain these residuals, and they move the pose {shift:.0f} mm, {turn:.1f}° apart: "
-                           "not trusted"), None
+            return R, p1, (f"the images disagree with the rig beyond its uncertainty "
+                           f"({math.sqrt(mahalanobis2):.1f}σ; the pose would move {shift:.0f} mm, {turn:.1f}°): "
+                           "rig.yaml stale or the camera moved?"), None
+        if shift > _AMBIGUOUS_CORRECTION_MM or turn > _AMBIGUOUS_CORRECTION_DEG:
+            Q = np.linalg.pinv(J.T @ J)                                   # the pose's covariance, (rad, mm)²
+            # One wrong centre (a stray blob taken for a marker) against one
+            # rig change: the χ² that leaving out each centre would remove
+            # (block deletion, r_cᵀ (I − H_cc)⁻¹ r_c, at the fit) beside the
+            # χ² the rig change removes. A stale rig moves every centre a
+            # little and no single one explains it (a third of it, at most
+            # three quarters, on stale rigs up to 3° and 10%).
+            Jc = J.reshape(-1, 2, 6)
+            rc = r.reshape(-1, 2)
+            lever = np.eye(2) - np.einsum("cij,jk,clk->cil", Jc, Q, Jc)
+            single = float(np.einsum("ci,ci->c", rc, np.linalg.solve(lever, rc[..., None])[..., 0]).max())
+            if single >= removed:
+                return R, p1, (f"one centre explains these residuals as well as a rig error, and the two move "
+                               f"the pose {shift:.0f} mm, {turn:.1f}° apart: a stray blob taken for a marker? "
+                               "Not trusted"), None
+            # How well this frame alone knows the corrected P1: the pose's own
+            # covariance plus what the rig's posterior leaves (mm²).
+            rig_post = P - P @ M.T @ np.linalg.solve(S, M @ P)
+            p1_var = Q[3:, 3:] + (G @ rig_post @ G.T)[3:, 3:]
+            p1_sd = math.sqrt(max(float(np.trace(p1_var)), 0.0))
+            if p1_sd > _CORRECTED_P1_SD_MM:
+                # Few markers (one hidden) or a weak view: the rig's error and
+                # the pose's trade off, and the correction follows noise or a
+                # stray blob as readily as the rig.
+                return R, p1, (f"the markers seen do not tell the rig's error from the pose (a correction of "
+                               f"{shift:.0f} mm, {turn:.1f}°, known to ±{p1_sd:.1f} mm): not trusted"), None
+            if match.excess_px is not None:
+                # Some centres disagreed with the others (a glint, an
+                # occlusion, a stray blob taken for a marker): what they leave
+                # is as well a rig change as not.
+                return R, p1, (f"a rig error and the centres that disagree ({_names(match.excess_px > 0)}) both "
+                               f"explain these residuals, and they move the pose {shift:.0f} mm, {turn:.1f}° "
+                               "apart: not trusted"), None
         if shift > cfg.max_rig_correction_mm or turn > cfg.max_rig_correction_deg:
             return R, p1, None, (f"the rig's error moves this pose by {shift:.0f} mm, {turn:.1f}°, more than a "
                                  f"linear correction is trusted for: pose not reported until the rig is refined")
@@ -1017,7 +1040,8 @@ class Tracker:
         declared = self._declared_right
         offset = (declared - t) if (declared is not None and t is not None) else 0.0
         recent, self._declared_offsets = self._declared_offsets, (self._declared_offsets + [offset])[-16:]
-        if len(recent) >= 4 and abs(offset - sorted(recent)[len(recent) // 2]) > self.config.rig_errors.offset_declared_s:
+        usual = sorted(recent)[len(recent) // 2] if recent else offset
+        if len(recent) >= 4 and abs(offset - usual) > self.config.rig_errors.offset_declared_s:
             # A declared offset off the usual one by more than its own σ: the
             # times jitter, and the refinement would take that for the rig.
             return
