@@ -559,6 +559,9 @@ def _report_run(stats, sender, log, rates: bool) -> None:
     line = stats.timestamps.summary()
     if line:
         print(line, file=log)
+    if stats.time_jumps:
+        print(f"timestamps: {stats.time_jumps} discontinuities (a time gone back or far ahead), tracked afresh "
+              f"after each; first: {stats.first_time_jump}", file=log)
     if stats.internal_errors:
         print(f"internal errors: {stats.internal_errors} frames could not be processed (first: "
               f"{stats.first_internal_error}); each has ok false and the reason in its record", file=log)

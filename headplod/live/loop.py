@@ -28,10 +28,11 @@ the time ``grab()`` returned when the driver gives none (the frame's
 (:data:`LATENCY_FROM`, ``LiveStats.summary()['latency_from']``).
 
 Every frame read gets a record. A frame whose time is zero, not finite or a
-repeat of the last is dropped before tracking (its record says why); a time
-that goes back or jumps far forward is a discontinuity, tracked from
-scratch with a flag (:func:`track_frames`, :mod:`headplod.capture.timestamps`);
-both are counted in ``LiveStats.timestamps``. An exception while making a
+repeat of the last is dropped before tracking (its record says why;
+:func:`track_frames`, :mod:`headplod.capture.timestamps`), counted in
+``LiveStats.timestamps``; a time that goes back or jumps far forward is a
+discontinuity the tracker tracks afresh (the record's ``flags`` say so),
+counted in ``LiveStats.time_jumps``. An exception while making a
 frame's record is that frame's failure (``internal error: TYPE: message``),
 counted in ``LiveStats.internal_errors``; the tracker isolates its own
 (:meth:`Tracker.process <headplod.tracking.tracker.Tracker.process>`).
@@ -48,7 +49,7 @@ import numpy as np
 
 from .. import io
 from ..capture.timestamps import TimestampCheck
-from ..tracking.tracker import Tracker, TrackerConfig, TrackResult
+from ..tracking.tracker import Tracker, TrackerConfig, TrackResult, internal_error_reason
 from .frame_notes import FrameNotes, split_frame_warning
 
 
@@ -64,6 +65,8 @@ class LiveStats:
     latency_ms: list = field(default_factory=list)
     latency_from: dict = field(default_factory=dict)   # instant latencies are measured from -> frames
     timestamps: TimestampCheck = field(default_factory=TimestampCheck)   # frames dropped or reset for their time
+    time_jumps: int = 0                              # frames whose time went back or far ahead (the tracker's count)
+    first_time_jump: str | None = None
     internal_errors: int = 0                         # frames failed by an exception (the tracker's or the record's)
     first_internal_error: str | None = None
     wall_s: float = 0.0
@@ -75,9 +78,9 @@ class LiveStats:
         (:data:`LATENCY_FROM`; several, with their frame counts, when they
         changed during the run); ``time_dropped`` counts the frames dropped
         for a zero, non-finite or repeated time and ``time_dropped_first`` is
-        the first of them; ``time_jumps`` counts the discontinuities (a time
-        gone back or far forward), ``time_jumps_first`` the first
-        (:class:`~headplod.capture.TimestampCheck`); ``internal_errors``
+        the first of them (:class:`~headplod.capture.TimestampCheck`);
+        ``time_jumps`` counts the discontinuities (a time gone back or far
+        forward, tracked afresh), ``time_jumps_first`` the first; ``internal_errors``
         the frames failed by an exception (``internal error: ...``).
         """
         lat = np.asarray(self.latency_ms, dtype=np.float64)
@@ -86,7 +89,7 @@ class LiveStats:
             "frames": self.frames, "ok": self.ok,
             "latency_from": latency_origin(self.latency_from),
             "time_dropped": self.timestamps.dropped, "time_dropped_first": self.timestamps.first,
-            "time_jumps": self.timestamps.jumps, "time_jumps_first": self.timestamps.first_jump,
+            "time_jumps": self.time_jumps, "time_jumps_first": self.first_time_jump,
             "internal_errors": self.internal_errors,
             "rate_hz": self.frames / self.wall_s if self.wall_s > 0 else None,
             "latency_ms_p50": float(np.percentile(lat, 50)) if lat.size else None,
@@ -202,11 +205,8 @@ def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: in
       it is not tracked, the tracker keeps its state, and it is yielded as an
       error frame (``error``: ``"frame dropped: frame 3: left time 0.066 s
       repeats frame 2's (the same image twice)"``, no images) with result
-      ``None``;
-    - a frame whose time goes back, or jumps forward more than
-      ``timestamps.max_gap_s``, is a discontinuity: the tracker is reset
-      (no motion model bridges it) and the frame tracked; its ``warning``
-      says so (``"time discontinuity: ...; tracked afresh"``);
+      ``None``; a time that goes back or jumps far ahead is the tracker's to
+      handle (it resets its motion and says so in the result's ``notes``);
     - a frame with ``error`` set (an image missing, unreadable or of the
       wrong size; a camera that stalled past ``timeout_s`` or was lost) is
       not tracked: the tracker is reset (the next pair is acquired afresh,
@@ -241,16 +241,12 @@ def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: in
         if frame is None:
             return
         read_mono = time.monotonic()
-        verdict = check.check(frame)
+        dropped = check.check(frame)
         result = None
-        if verdict is not None and verdict.drop:
+        if dropped is not None:
             t = frame.t if math.isfinite(frame.t) else check.last_time()     # a record's time must be finite
-            frame = dataclasses.replace(frame, t=t, left=None, right=None, error=f"frame dropped: {verdict.why}")
+            frame = dataclasses.replace(frame, t=t, left=None, right=None, error=f"frame dropped: {dropped}")
         elif frame.error is None:
-            if verdict is not None:                  # a discontinuity: nothing from before it applies
-                tracker.reset()
-                note = f"time discontinuity: {verdict.why.split(': ', 1)[-1]}; tracked afresh"
-                frame = dataclasses.replace(frame, warning=f"{frame.warning}; {note}" if frame.warning else note)
             result = tracker.process(frame.left, frame.right, frame.t, frame.t_right)
         else:
             tracker.reset()
@@ -259,12 +255,6 @@ def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: in
             times.track_end = time.perf_counter()
         count += 1
         yield frame, result
-
-
-def internal_error_reason(exc: BaseException) -> str:
-    """A frame's reason for an exception caught while processing it: ``internal error: TYPE: message``."""
-    message = " ".join(str(exc).split()) or "(no message)"
-    return f"internal error: {type(exc).__name__}: {message[:300]}"
 
 
 def result_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen | None = None,
@@ -380,7 +370,7 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         origin = getattr(frame, "time_source", None) if captured is not None else None
         record["skew_ms"] = None if skew is None else round(float(skew), 3)
         record["dropped"] = dropped
-        record["flags"] = flags
+        record["flags"] = flags + list(record.pop("notes", None) or ())   # the frame's, then the tracker's
         if sender is not None:
             sender.send(record)
         now_mono = time.monotonic()
@@ -389,10 +379,12 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         record["latency_ms"] = round(latency, 3)
         if on_record is not None:
             on_record(record, result)
+        stats.time_jumps = getattr(tracker, "time_jumps", 0)
+        stats.first_time_jump = getattr(tracker, "first_time_jump", None)
         if status is not None:
             status.update(record, latency_ms=latency, skew_ms=skew, dropped=dropped,
-                          time_dropped=stats.timestamps.dropped + stats.timestamps.jumps,
-                          time_dropped_first=stats.timestamps.first or stats.timestamps.first_jump)
+                          time_dropped=stats.timestamps.dropped + stats.time_jumps,
+                          time_dropped_first=stats.timestamps.first or stats.first_time_jump)
         t_done = time.perf_counter()
         stats.wall_s = time.perf_counter() - start
         stats.frames += 1

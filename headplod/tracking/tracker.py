@@ -107,7 +107,16 @@ def describe_offset_s(offset_s: float) -> str:
     """``t_right - t`` in words: ``"5.0 s after"``, ``"120 ms before"``."""
     side = "after" if offset_s >= 0 else "before"
     size = abs(offset_s)
+    if size >= 1e4:                                    # a clock's wild value, not a skew: no 300 digits
+        return f"{size:.3g} s {side}"
     return f"{size:.1f} s {side}" if size >= 1.0 else f"{size * 1e3:.0f} ms {side}"
+
+
+def internal_error_reason(exc: BaseException) -> str:
+    """A frame's reason for an exception caught while processing it: ``internal error: TYPE: message``
+    (the message on one line, at most 300 characters)."""
+    message = " ".join(str(exc).split()) or "(no message)"
+    return f"internal error: {type(exc).__name__}: {message[:300]}"
 
 
 @dataclass(frozen=True)
@@ -392,6 +401,8 @@ class Tracker:
         self.refiner = None           # made at the first frame, when it is known whether t_right is given
         self._frame_periods = []      # recent frame periods, s, for the right time's plausibility (kept by reset)
         self._last_t = None
+        self.time_jumps = 0           # discontinuities of the frame time (back, or far ahead): motion reset
+        self.first_time_jump: str | None = None
         # This frame's time is no clock's (a repeat, a glitch, jitter): not for
         # the refinement; a repeat or a step of a fraction of a period: not for
         # the motion history either.
@@ -552,7 +563,7 @@ class Tracker:
 
     def _internal_error(self, exc: Exception, start: float) -> TrackResult:
         """The result of a frame whose processing raised ``exc``; the state it may have damaged is reset."""
-        reason = f"internal error: {type(exc).__name__}: {str(exc).strip()}"
+        reason = internal_error_reason(exc)
         self.internal_errors += 1
         if self.first_internal_error is None:
             self.first_internal_error = reason
@@ -649,10 +660,14 @@ class Tracker:
             return [f"time {t:.6f} s repeats the previous frame's: no motion measured over it"]
         self._reset_motion()
         if step < 0:
-            return [f"time went back {describe_offset_s(-step).replace(' after', '')} (t={t:.6f} s after "
-                    f"{last:.6f} s): motion state reset, markers acquired afresh"]
-        return [f"time jumped {describe_offset_s(step).replace(' after', '')} ahead (t={t:.6f} s after "
-                f"{last:.6f} s, more than {gap * 1e3:.0f} ms): motion state reset, markers acquired afresh"]
+            note = (f"time went back {describe_offset_s(-step).replace(' after', '')} (t={t:.6g} s after "
+                    f"{last:.6g} s): motion state reset, markers acquired afresh")
+        else:
+            note = (f"time jumped {describe_offset_s(step).replace(' after', '')} ahead (t={t:.6g} s after "
+                    f"{last:.6g} s, more than {gap * 1e3:.0f} ms): motion state reset, markers acquired afresh")
+        self.time_jumps += 1
+        self.first_time_jump = self.first_time_jump or note
+        return [note]
 
     def _attempt(self, images, t, t_right, timings, start, tracking) -> TrackResult:
         """One pass: re-measure (tracking) or detect and identify, then fit and verify."""
