@@ -304,6 +304,7 @@ class _Frame:
     p1: np.ndarray                # (3,) tracked P1, mm
     omega: np.ndarray | None = None   # (3,) head angular velocity, world, rad/s
     velocity: np.ndarray | None = None  # (3,) P1 velocity, mm/s
+    motion_known: bool = True     # False: its time does not fit the motion; no velocity from or across it
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -566,11 +567,15 @@ class RigRefiner:
 
     # ----------------------------------------------------------------- update
     def add_frame(self, t: float | None, declared_offset_s: float, centers: np.ndarray, visible: np.ndarray,
-                  sigma_px: np.ndarray, R_world_G: np.ndarray, p1_mm: np.ndarray) -> bool:
+                  sigma_px: np.ndarray, R_world_G: np.ndarray, p1_mm: np.ndarray, motion_known: bool = True) -> bool:
         """Take one tracked frame; True when the rig in use changed (:attr:`state`, :attr:`refit_poses`).
 
         ``centers`` (2, 5, 2) px, ``visible`` (2, 5), ``sigma_px`` (2, 5, 2)
         or (2, 5): each centre's noise, px; the pose is the tracker's.
+        ``motion_known`` False: the frame's time does not describe the head's
+        motion (a clock too fast, independent poses), so no velocity is taken
+        from or across it; it still tells the rig's geometry, not the
+        exposure offset (which is seen only through a velocity).
         """
         if not self.config.enabled or t is None:
             return False
@@ -587,7 +592,7 @@ class RigRefiner:
             sig = np.repeat(sig[..., None], 2, axis=2)
         sig = np.where(np.isfinite(sig), np.maximum(sig, self.config.min_sigma_px), np.inf)
         frame = _Frame(float(t), float(declared_offset_s), np.asarray(centers, np.float64).copy(),
-                       np.asarray(visible, bool).copy(), sig, R_world_G, p1_mm)
+                       np.asarray(visible, bool).copy(), sig, R_world_G, p1_mm, motion_known=bool(motion_known))
         self._pending.append(frame)
         if len(self._pending) < self.config.chunk_frames:
             return False
@@ -602,6 +607,18 @@ class RigRefiner:
                 f.R, f.p1 = self.refit_poses.get(f.t, (f.R, f.p1))
         self._recent.extend(chunk[-2:])
         return changed
+
+    def forget_motion(self) -> None:
+        """The times of the frames collected so far do not describe the head's motion (a clock glitch, frames
+        out of order): they keep telling the geometry, but no velocity is taken from or across them."""
+        for f in self._pending:
+            f.motion_known = False
+        self._recent.clear()
+
+    def drop_pending(self) -> None:
+        """Drop the frames collected towards the next update (after a failure inside it); the estimate stands."""
+        self._pending = []
+        self._recent.clear()
 
     def flush(self) -> bool:
         """Use the frames waiting for a full chunk (end of a recording)."""
@@ -618,9 +635,12 @@ class RigRefiner:
         gaps = np.diff(times)
         period = float(np.median(gaps)) if len(gaps) else 0.0
         limit = self.config.max_gap_frames * period
+        known = [f.motion_known for f in frames]
         for i in range(len(frames) - len(chunk), len(frames)):
-            lo = i - 1 if i > 0 and 0 < times[i] - times[i - 1] <= limit else i
-            hi = i + 1 if i + 1 < len(frames) and 0 < times[i + 1] - times[i] <= limit else i
+            if not known[i]:
+                continue
+            lo = i - 1 if i > 0 and known[i - 1] and 0 < times[i] - times[i - 1] <= limit else i
+            hi = i + 1 if i + 1 < len(frames) and known[i + 1] and 0 < times[i + 1] - times[i] <= limit else i
             if hi == lo:
                 continue
             a, b = frames[lo], frames[hi]

@@ -407,6 +407,7 @@ class Tracker:
         # the refinement; a repeat or a step of a fraction of a period: not for
         # the motion history either.
         self._glitch = self._time_glitch = False
+        self._motion_unknown = False   # this frame's time does not fit the motion (set by _remember)
         self._motion_note = None      # what the motion model made of this frame's time, for the result's notes
         self._times_suspect = False   # the last velocity checked was not a head's, none since was
         self._withheld = False
@@ -580,16 +581,15 @@ class Tracker:
         return TrackResult(False, reason, timings_s={"total": time.perf_counter() - start})
 
     def _drop_refiner_pending(self) -> None:
-        """Drop the frames the rig's refinement collected towards its next update (and those it keeps for
-        velocities across updates); its estimate stands."""
-        refiner = self.refiner
-        if refiner is None:
-            return
-        # (RigRefiner has no public way to do this; these are the lists it
-        # collects them in, cleared as its widen() clears the first.)
-        refiner._pending = []
-        if hasattr(refiner, "_recent"):
-            refiner._recent.clear()
+        """Drop the frames the rig's refinement collected towards its next update; its estimate stands."""
+        if self.refiner is not None:
+            self.refiner.drop_pending()
+
+    def _refiner_pending_without_motion(self) -> None:
+        """The frames the refinement collected came at times that do not fit the motion: it keeps them for
+        the geometry, without their velocities (the exposure offset is learnt only from velocities)."""
+        if self.refiner is not None:
+            self.refiner.forget_motion()
 
     def _restart_refiner(self) -> None:
         """After an exception inside the rig's refinement: drop the frames it was collecting, and keep
@@ -1043,9 +1043,10 @@ class Tracker:
             return
         self._disagreements = 0
         if not self.config.rig_refine.enabled or self._glitch:
-            # A frame whose time is a repeat or a glitch, or does not fit the
-            # motion, would teach the refinement a velocity, and an exposure
-            # offset, that are not the head's.
+            # A frame whose time is a repeat or a glitch would teach the
+            # refinement a velocity, and an exposure offset, that are not the
+            # head's. (One whose time does not fit the motion still tells the
+            # rig's geometry: it goes in without a velocity, below.)
             return
         inner = getattr(self.uncertainty, "inner", self.uncertainty)
         if hasattr(inner, "variances"):
@@ -1060,7 +1061,8 @@ class Tracker:
             # A declared offset off the usual one by more than its own σ: the
             # times jitter, and the refinement would take that for the rig.
             return
-        if refiner.add_frame(t, offset, match.centers, match.visible, sigma, R, p1):
+        if refiner.add_frame(t, offset, match.centers, match.visible, sigma, R, p1,
+                             motion_known=not self._motion_unknown):
             self._apply_rig(refiner.state.rig())
             # The recent poses, refitted with the new rig by the update itself:
             # the velocity and prediction go on without a jump.
@@ -1573,12 +1575,12 @@ class Tracker:
                 # the next frames until a velocity is plausible again.
                 self._motion.clear()
                 self._times_suspect = True
-                self._drop_refiner_pending()
+                self._refiner_pending_without_motion()
                 self._motion_note = (f"the head would have turned {rates[0]:.0f}°/s and moved {rates[1]:.0f} mm/s "
                                      "since the last poses by these times: not a motion a head makes; "
                                      "motion state reset")
             elif rates is not None:
                 self._times_suspect = False
-            self._glitch = self._glitch or (self._times_suspect and (rates is None or not rates[2]))
+            self._motion_unknown = self._times_suspect and (rates is None or not rates[2])
             self._motion.add(t, R, p1, self._rig_version(), info)
 
