@@ -697,6 +697,16 @@ class Tracker:
                                and (not self._motion or t - self._motion.last_time() > 0.2))
         R, p1, residuals, JtJ, vectors = self._estimate(match, t, t_right)
         velocity = self._motion.velocity()
+        if velocity is not None and t is not None:
+            # The velocity of the last poses is this frame's motion only if
+            # this pose continues it: one a head cannot reach from them (the
+            # check _remember makes afterwards) says the motion here is not
+            # known. The rig's exposure offset, not yet learnt, times that
+            # velocity would otherwise widen the checks by pixels (25 ms at
+            # 1000°/s) and let a glint or an occlusion through.
+            rates = self._motion.rates_to(t, R, p1, self._rig_version())
+            if rates is not None and not rates[2]:
+                velocity = None
         rig_rows = rig_sd = pose_rows = None
         # The rig's share only widens the checks: a frame that passes them on
         # image noise alone (the usual case) needs no rig terms before its covariance.
