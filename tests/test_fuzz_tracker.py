@@ -19,7 +19,7 @@ What must hold for every frame of every case:
   the left image's time. Why those bounds: they are outside the honest
   errors of every case here (tenths of a mm and degree on clean streams;
   up to ~10 mm and ~3° on a stale rig before its refinement, where the
-  pose's covariance says so: V's σ is capped at 1.5°) and inside what a
+  pose's covariance says so: V's σ is capped at 2°) and inside what a
   wrong identification, a diverged fit or a motion model extrapolated past
   its evidence gives (tens to hundreds of mm, tens of degrees).
 
