@@ -334,6 +334,7 @@ def test_hidden_leftovers_of_earlier_versions_are_brought_to_light(long_dataset,
     err = capsys.readouterr().err
     kept = sorted(tmp_path.glob("poses.unfinished-*.jsonl"))
     assert not hidden.exists() and len(kept) == 1 and io.read_poses(kept[0])[0]["reason"] == "kept"
+    assert "unknown" not in kept[0].name                 # named by when the leftover was last written
     assert f"found the hidden output of an earlier, interrupted run (1 records); kept as {kept[0]}" in err
 
 

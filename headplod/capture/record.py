@@ -187,11 +187,6 @@ class DatasetRecorder(io.ProgressiveOutput):
             raise FileExistsError(
                 f"{self.folder}: already holds a recording; choose another folder, or replace it "
                 "(overwrite=True; on the command line --overwrite)")
-        existing = self.folder.expanduser().resolve()
-        while not existing.exists():                   # the folder is made with its parents: the first that is
-            existing = existing.parent
-        if not os.access(existing, os.W_OK):
-            raise PermissionError(f"{self.folder}: cannot write in {existing} (permission denied)")
         self._claim = claim_output(self.folder, what=str(self.folder), folder=True, entries=RECORDING_ENTRIES,
                                    holds_output=holds_recording, describe=_count_frames, tidy=tidy_recording)
         self.notes = list(self._claim.notes)

@@ -243,8 +243,6 @@ class PoseWriter(ProgressiveOutput):
         target = Path(self.path).expanduser()
         if target.is_dir():
             raise IsADirectoryError(f"{self.path}: is a folder; give the file to write, e.g. {target / 'poses.jsonl'}")
-        if not os.access(target.resolve().parent, os.W_OK):
-            raise PermissionError(f"{self.path}: the folder {target.parent} is not writable")
         self._claim = claim_output(target, what=self.path, describe=_count_records)
         self.notes = list(self._claim.notes)
         try:

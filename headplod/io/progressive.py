@@ -76,16 +76,18 @@ def previous_name(path: str | Path) -> Path:
     return _free(path.parent, stem, "previous", suffix)
 
 
-def unfinished_name(path: str | Path, started: str | None = None) -> Path:
+def unfinished_name(path: str | Path, started: str | None = None, written: str | Path | None = None) -> Path:
     """The visible, free name a killed run's output is kept under: ``poses.unfinished-<start>.jsonl``.
 
     ``started`` is the run's start as ``YYYYmmddTHHMMSS`` (UTC); without it,
-    the output's modification time.
+    the last modification of ``written`` (the leftover itself; default
+    ``path``) stands for it.
     """
     path = Path(path)
     if not started:
         try:
-            started = _dt.datetime.fromtimestamp(path.stat().st_mtime, _dt.timezone.utc).strftime("%Y%m%dT%H%M%S")
+            mtime = Path(written if written is not None else path).stat().st_mtime
+            started = _dt.datetime.fromtimestamp(mtime, _dt.timezone.utc).strftime("%Y%m%dT%H%M%S")
         except OSError:
             started = "unknown"
     stem, suffix = _split(path)
@@ -265,10 +267,17 @@ def claim_output(path: str | Path, *, what: str, folder: bool = False, entries: 
     ------
     OutputBusy
         When a live headplod process is writing ``path``.
+    PermissionError
+        When the folder cannot be written (checked first: nothing is moved then).
     OSError
-        When the folder cannot be written (nothing is moved then).
+        When a move or the marker fails (what was moved is put back).
     """
     path = Path(path).expanduser()
+    existing = path.resolve() if folder else path.resolve().parent
+    while not existing.exists():                    # a folder output is made with its parents: the first that is
+        existing = existing.parent
+    if not os.access(existing, os.W_OK):
+        raise PermissionError(f"{what}: the folder {existing} is not writable")
     claim = OutputClaim(path, folder, _entries=entries)
     holds = holds_output or (lambda p: p.exists())
     run = killed_run(path, folder)
@@ -290,7 +299,7 @@ def claim_output(path: str | Path, *, what: str, folder: bool = False, entries: 
             claim.notes.append(f"{what}: the output that run was replacing is kept as {run.previous}")
         _marker_path(path, folder).unlink(missing_ok=True)
     for old in _hidden_leftovers(path, folder):
-        kept = unfinished_name(path)
+        kept = unfinished_name(path, written=old)
         os.replace(old, kept)
         if folder and tidy is not None:
             tidy(kept)

@@ -457,8 +457,7 @@ def _os_error_text(exc: OSError) -> str:
     """An OSError in a few words: its text without the file name (the option names it), or the pipe's fate."""
     if isinstance(exc, BrokenPipeError):
         return "the program reading it closed the pipe"
-    text = exc.strerror or str(exc) or type(exc).__name__
-    return text
+    return exc.strerror or str(exc) or type(exc).__name__
 
 
 def _frame_line(record, result, truth, notes) -> str:

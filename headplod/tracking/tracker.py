@@ -586,23 +586,12 @@ class Tracker:
             self.reset()
         return TrackResult(False, reason, timings_s={"total": time.perf_counter() - start})
 
-    def _drop_refiner_pending(self) -> None:
-        """Drop the frames the rig's refinement collected towards its next update; its estimate stands."""
-        if self.refiner is not None:
-            self.refiner.drop_pending()
-
-    def _refiner_pending_without_motion(self) -> None:
-        """The frames the refinement collected came at times that do not fit the motion: it keeps them for
-        the geometry, without their velocities (the exposure offset is learnt only from velocities)."""
-        if self.refiner is not None:
-            self.refiner.forget_motion()
-
     def _restart_refiner(self) -> None:
         """After an exception inside the rig's refinement: drop the frames it was collecting, and keep
         its estimate only if it is intact (finite, a positive definite covariance); else start it over
         from rig.yaml."""
         refiner = self.refiner
-        self._drop_refiner_pending()
+        refiner.drop_pending()
         intact = False
         try:
             P = refiner.cov()
@@ -1591,7 +1580,8 @@ class Tracker:
                 # the next frames until a velocity is plausible again.
                 self._motion.clear()
                 self._times_suspect = True
-                self._refiner_pending_without_motion()
+                if self.refiner is not None:     # its frames so far keep the geometry, lose their velocities
+                    self.refiner.forget_motion()
                 self._motion_note = (f"the head would have turned {rates[0]:.0f}°/s and moved {rates[1]:.0f} mm/s "
                                      "since the last poses by these times: not a motion a head makes; "
                                      "motion state reset")
