@@ -289,6 +289,10 @@ def test_sigkill_keeps_the_records_under_their_name_and_the_next_run_announces_t
     assert len(records) >= 10
     assert (out.parent / "poses.previous.jsonl").read_text() == "precious\n"
     assert (rec.parent / "rec.previous" / "times.csv").exists()
+    # Without --overwrite the killed run's recording is refused, and the refusal says whose it is.
+    assert cli_main(["track", "--source", str(long_dataset), "--record", str(rec), "-q"]) == 2
+    line = _one_line_error(capsys.readouterr().err)
+    assert f"holds the recording of a run that did not finish (pid {proc.pid}" in line and "--overwrite" in line
     # The next run that writes there announces what it found and keeps it under visible names.
     assert cli_main(["track", "--source", str(long_dataset), "--out", str(out), "--record", str(rec),
                      "--overwrite", "--frames", "3", "-q"]) == 0

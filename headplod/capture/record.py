@@ -54,7 +54,7 @@ from ..io.progressive import claim_output, killed_run
 from .base import FrameSource
 from .signals import deferred_signals
 
-__all__ = ["DatasetRecorder", "RecordingSummary", "record", "holds_recording", "RECORDING_ENTRIES"]
+__all__ = ["DatasetRecorder", "RecordingSummary", "record", "holds_recording", "recording_held", "RECORDING_ENTRIES"]
 
 _LOG_NAME = "recording.log"
 _TIMES_HEADER = "frame,t,t_right\n"
@@ -101,6 +101,22 @@ def tidy_recording(folder: str | Path) -> list[str]:
 
 def _count_frames(folder: Path) -> str:
     return f"{_times_rows(folder)} frames"
+
+
+def recording_held(folder: str | Path) -> str | None:
+    """What recording ``folder`` already holds, in words for a refusal (None when it holds none).
+
+    ``"already holds a recording"``, or, for the recording of a killed run
+    (:func:`headplod.io.progressive.killed_run`), whose it is and how to
+    replay it; replacing it keeps it as ``NAME.unfinished-<start>``.
+    """
+    if not holds_recording(folder):
+        return None
+    run = killed_run(folder, folder=True)
+    if run is not None and not run.alive:
+        return (f"holds the recording of {run.describe()}, kept as it was (replay it with 'headplod track "
+                f"--source {folder}'; replacing it keeps it as {Path(folder).name}.unfinished-...)")
+    return "already holds a recording"
 
 
 def holds_recording(folder: str | Path) -> bool:
@@ -176,17 +192,10 @@ class DatasetRecorder(io.ProgressiveOutput):
         self.skipped = 0
         if self.folder.exists() and not self.folder.is_dir():
             raise FileExistsError(f"{self.folder}: is a file, not a folder; choose a folder for the recording")
-        if holds_recording(self.folder) and not overwrite:
-            run = killed_run(self.folder, folder=True)
-            if run is not None and not run.alive:
-                raise FileExistsError(
-                    f"{self.folder}: holds the recording of {run.describe()}, kept as it was (replay it with "
-                    f"'headplod track --source {self.folder}'); choose another folder, or replace it "
-                    "(overwrite=True; on the command line --overwrite: it is then kept as "
-                    f"{self.folder.name}.unfinished-...)")
-            raise FileExistsError(
-                f"{self.folder}: already holds a recording; choose another folder, or replace it "
-                "(overwrite=True; on the command line --overwrite)")
+        held = recording_held(self.folder)
+        if held and not overwrite:
+            raise FileExistsError(f"{self.folder}: {held}; choose another folder, or replace it (overwrite=True; on "
+                                  "the command line --overwrite)")
         self._claim = claim_output(self.folder, what=str(self.folder), folder=True, entries=RECORDING_ENTRIES,
                                    holds_output=holds_recording, describe=_count_frames, tidy=tidy_recording)
         self.notes = list(self._claim.notes)

@@ -40,7 +40,7 @@ import numpy as np
 
 from .. import io
 from ..argtypes import frame_count
-from ..capture import RECORDING_ENTRIES, DatasetRecorder, holds_recording, open_source, source_kind, synthetic_preset
+from ..capture import RECORDING_ENTRIES, DatasetRecorder, open_source, recording_held, source_kind, synthetic_preset
 from ..capture.signals import StopSignals
 from ..capture.synthetic import ensure_dataset, rerender
 from ..capture.v4l2 import FOURCCS
@@ -636,9 +636,10 @@ def _check_outputs(args, spec: str | None = None, source=None, rig=None) -> None
         if source is None:
             if target.exists() and not target.is_dir():
                 raise _Usage(f"--record {args.record}: is a file; give a folder for the recording")
-            if holds_recording(target) and not args.overwrite:
-                raise _Usage(f"--record {args.record}: already holds a recording; choose another folder, or add "
-                             "--overwrite to replace it (the old one is kept until the run ends)")
+            held = recording_held(target)
+            if held and not args.overwrite:
+                raise _Usage(f"--record {args.record}: {held}; choose another folder, or add --overwrite to "
+                             "replace it")
             if args.overwrite and record in (Path.cwd().resolve(), Path.home().resolve(), Path(record.anchor)):
                 raise _Usage(f"--record {args.record}: is the current, home or root folder; record into a "
                              "folder of its own")
