@@ -172,6 +172,45 @@ class PoseHistory:
             return None
         return w, v
 
+    def velocity_at(self, t: float, rig_version: int, current=None):
+        """(ω rad/s, v mm/s, cov (6, 6) or None) of the head at time ``t``, or None.
+
+        For a rolling shutter's rows, each exposed at its own time around
+        ``t``. The velocity of the newest two poses of one rig (``current``,
+        this frame's pose at ``t``, last when given), extrapolated to ``t``
+        at constant acceleration when a third pose is as far before them
+        (a difference's velocity is half a frame old). ``cov``: the poses'
+        first-order covariances through the difference (1/Δt² each; this
+        frame's own taken as the last one's), plus the extrapolation's own
+        error taken as large as its correction; None when a pose used has
+        none.
+        """
+        if t is None:
+            return None
+        seq = self._sequence(t, current, rig_version, self.min_base)
+        if seq is None or not self._plausible(seq):
+            return None
+        (ta, Ra, pa, ia), (tb, Rb, pb, ib) = seq[-2:]
+        dt = tb - ta
+        if t - tb > 3 * dt:
+            return None                          # the motion since has changed
+        w = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt
+        v = (pb - pa) / dt
+        correction = np.zeros(6)
+        if len(seq) == 3 and self.extrapolate:
+            tz, Rz, pz, _ = seq[0]
+            dz = ta - tz
+            if dz <= 2 * dt:
+                k = (t - 0.5 * (ta + tb)) / (0.5 * (tb - tz))
+                correction = k * np.concatenate([w - cv2.Rodrigues(Ra @ Rz.T)[0].ravel() / dz, v - (pa - pz) / dz])
+                w, v = w + correction[:3], v + correction[3:]
+        infos = [ia, ib if ib is not None else ia]
+        covs = [None if i is None else _inverse(i) for i in infos]
+        cov = None
+        if all(c is not None for c in covs):
+            cov = (covs[0] + covs[1]) / dt ** 2 + np.outer(correction, correction)
+        return w, v, cov
+
     def right_motion(self, t, t_right, rig_version: int, current=None):
         """World-frame motion (rvec, tvec) of the head from t to t_right.
 

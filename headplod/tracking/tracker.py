@@ -247,6 +247,19 @@ class TrackerConfig:
         glitch, the frames out of order): no velocity is taken across them,
         the motion state starts afresh, and the rig's refinement does not
         learn from that frame; the result's ``notes`` say so.
+    readout_s : float or None
+        The cameras' rolling-shutter readout, s: the time from the exposure
+        of an image's first row to its last (0: a global shutter). None:
+        not known; the refinement starts from the frame period × 0.92 (a
+        webcam's active rows over its total rows) with σ half of that, and
+        estimates it from the head's image motion
+        (:func:`~headplod.tracking.rig_refine.readout_prior`). A value
+        given here is trusted to 5% (0.2 ms for a global shutter).
+    compensate_rolling_shutter : bool
+        Take each marker centre back to the image's time t through the
+        head's velocity (reproj estimator): row r of an image H rows high
+        is exposed at t + (r − (H − 1)/2) × readout / (H − 1) (t is the
+        middle row's time, the dataset contract's mid-exposure).
     offset_passes : int
         Most Gauss-Newton steps of a frame whose right image's motion is
         taken from its own pose (an exposure offset), each with the motion
@@ -291,10 +304,14 @@ class TrackerConfig:
     max_head_rate_dps: float = 1000.0
     max_head_speed_mm_s: float = 4000.0
     offset_passes: int = 6
+    readout_s: float | None = None
+    compensate_rolling_shutter: bool = True
 
     def __post_init__(self):
         if self.estimator not in ESTIMATORS:
             raise ValueError(f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
+        if self.readout_s is not None and not (math.isfinite(self.readout_s) and 0.0 <= self.readout_s < 1.0):
+            raise ValueError(f"readout_s must be a time in [0, 1) s, got {self.readout_s!r}")
 
 
 @dataclass
@@ -383,6 +400,13 @@ class _Match:
     flux: np.ndarray = None         # (2, 5) blob flux, DN·px
     shot_var: np.ndarray = None     # (2, 5, 2) centroid variance of x, y per unit shot-noise factor, px²/DN
     excess_px: np.ndarray = None    # (2, 5) error of a suspect centre beyond its noise (a fused glint), px
+    # A rolling shutter exposes each row at its own time: each centre's
+    # displacement by the head's motion from the image's time t to its row's
+    # time (2, 5, 2) px, which the fit takes off the measured centre, and
+    # that displacement's 1σ from the velocity's uncertainty (2, 5) px, per
+    # coordinate. None: not compensated (a global shutter, no motion known).
+    shutter_shift_px: np.ndarray = None
+    shutter_sd_px: np.ndarray = None
 
 
 class Tracker:
@@ -752,7 +776,7 @@ class Tracker:
             # fits, which the correction starts from: they stay as they are.)
             R, p1, reason, withheld = self._rig_consistent(R, p1, vectors, pose_rows, rig_rows, rig_cov, match)
         if reason is None and withheld is None:
-            withheld = self._offset_unbridged(t, t_right)
+            withheld = self._offset_unbridged(t, t_right) or self._shutter_unbridged(match)
         timings["verify"] = time.perf_counter() - t_ver
         if reason is not None:
             self._prev_centers = self._prev2_centers = None
@@ -789,7 +813,7 @@ class Tracker:
         cov_input = CovarianceInput(images, match.centers, match.visible, match.sigma_px, residuals, JtJ,
                                     R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
                                     vectors, t, match.shot_var,
-                                    pose_rows, rig_rows, rig_cov, self._rig_version(), match.excess_px)
+                                    pose_rows, rig_rows, rig_cov, self._rig_version(), self._excess(match))
         t_est = time.perf_counter()
         timings["covariance_input"] = t_est - t_cov
         cov = self.uncertainty(cov_input)
@@ -1398,10 +1422,12 @@ class Tracker:
         sigma = self._sigma(match) if self.config.weighted_fit else None
         motion = self._right_motion(t, t_right) if self.config.compensate_offset else None
         self._compensated = motion is not None
-        fit = geo.refine_reprojection(match.R, match.t, self.model_mm, match.centers[0], match.centers[1],
+        rolling = self._rolling_shutter(match, t)
+        fit = geo.refine_reprojection(match.R, match.t, self.model_mm, *self._fit_centers(match),
                                       match.visible[0], match.visible[1], self.rig, right_motion=motion,
                                       sigma_px=sigma, cameras=self._cameras)
-        if self.config.compensate_offset and t_right is not None and t_right != t:
+        offset = self.config.compensate_offset and t_right is not None and t_right != t
+        if offset or rolling:
             # Second pass: the velocity from the last pose to this one lags by
             # half a frame instead of one and a half.
             # The velocity is taken from this pose too: the fit's right rows
@@ -1413,14 +1439,22 @@ class Tracker:
             # image) was carried on by the gain instead of corrected. One
             # Gauss-Newton step per pass, the motion taken afresh from the
             # pose before each, is Gauss-Newton on the consistent model.
+            # The rolling shutter's displacements are taken afresh likewise
+            # (their gain, the rows' time over the velocity's base, is below
+            # a half and left out of the rows).
             for _ in range(max(self.config.offset_passes, 1)):
-                motion = self._right_motion(t, t_right, current=fit[:2])
-                if motion is None:
+                motion, gain = None, 0.0
+                if offset:
+                    motion = self._right_motion(t, t_right, current=fit[:2])
+                    if motion is not None:
+                        self._compensated = True
+                        gain, _ = self._motion_terms(t, t_right, fit[:2], covariance=False)
+                if rolling:
+                    rolling = self._rolling_shutter(match, t, current=fit[:2])
+                if motion is None and not rolling:
                     break
-                self._compensated = True
-                gain, _ = self._motion_terms(t, t_right, fit[:2], covariance=False)
                 before_R, before_p = fit[0], fit[1]
-                fit = geo.refine_reprojection(fit[0], fit[1], self.model_mm, match.centers[0], match.centers[1],
+                fit = geo.refine_reprojection(fit[0], fit[1], self.model_mm, *self._fit_centers(match),
                                               match.visible[0], match.visible[1], self.rig, right_motion=motion,
                                               sigma_px=sigma, cameras=self._cameras, right_gain=gain,
                                               iterations=0)
@@ -1428,6 +1462,82 @@ class Tracker:
                 if np.abs(fit[1] - before_p).max() < 0.01 and np.abs(fit[0] - before_R).max() < 1e-5:
                     break
         return fit
+
+    # ---------------------------------------------------------- rolling shutter
+    def readout_s(self) -> float:
+        """The rolling shutter's readout in use, s (first row to last; 0: a global shutter)."""
+        state = self.refiner.state if self.refiner is not None else None
+        if state is not None and hasattr(state, "readout_s"):
+            return float(state.readout_s)
+        return float(self.config.readout_s or 0.0)
+
+    def _row_times(self, centers: np.ndarray) -> np.ndarray:
+        """Each centre's exposure time relative to its image's time (2, 5), s.
+
+        Row r of an image H rows high is exposed at (r − (H − 1)/2) ×
+        readout / (H − 1) after the image's time (the middle row's)."""
+        height = int(self.rig.image_size[1])
+        return (centers[..., 1] - 0.5 * (height - 1)) * (self.readout_s() / max(height - 1, 1))
+
+    def _rolling_shutter(self, match: _Match, t, current=None) -> bool:
+        """Set ``match.shutter_shift_px`` and ``shutter_sd_px`` from the head's velocity at ``t``
+        (:meth:`PoseHistory.velocity_at`, with ``current`` = (R, p1) this frame's pose when known);
+        True when the centres are compensated.
+
+        A centre at row r was exposed δ_r after t (:meth:`_row_times`): the
+        head's image there is displaced by u̇ δ_r, u̇ = ∂x/∂pose · (ω, v) its
+        image velocity, which the fit takes off. The velocity's covariance Σ_v
+        adds δ_r² ∂x/∂pose Σ_v ∂x/∂poseᵀ to each centre's variance (the
+        readout's own uncertainty is the rig's, through its Jacobian column).
+        """
+        match.shutter_shift_px = match.shutter_sd_px = None
+        if (not self.config.compensate_rolling_shutter or self.config.estimator != "reproj" or t is None
+                or not self.readout_s()):
+            return False
+        motion = self._motion.velocity_at(t, self._rig_version(), current)
+        if motion is None:
+            return False
+        omega, velocity, cov = motion
+        R, p1 = current if current is not None else (match.R, match.t)
+        rows = geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras)     # (2, 5, 2, 6)
+        rows = np.nan_to_num(rows)
+        delay = self._row_times(match.centers)                                                 # (2, 5) s
+        match.shutter_shift_px = (rows @ np.concatenate([omega, velocity])) * delay[..., None]
+        if cov is not None:
+            var = np.einsum("cmij,jk,cmik->cm", rows, cov, rows) * 0.5 * delay ** 2            # per coordinate
+            match.shutter_sd_px = np.sqrt(np.maximum(var, 0.0))
+        return True
+
+    def _shutter_unbridged(self, match: _Match) -> str | None:
+        """Why the pose is withheld when a rolling shutter exposed the markers' rows more than
+        ``max_uncompensated_offset_s`` from the image's time and the head's motion is not known to
+        take them back (the first frame after an acquisition); None otherwise. The pose is
+        remembered, so the next frame has the velocity."""
+        c = self.config
+        if (not c.compensate_rolling_shutter or c.estimator != "reproj" or match.shutter_shift_px is not None
+                or not self.readout_s()):
+            return None
+        delay = np.abs(self._row_times(match.centers))[match.visible]
+        if not delay.size or not delay.max() > c.max_uncompensated_offset_s:
+            return None
+        return (f"the rolling shutter exposed the markers' rows up to {delay.max() * 1e3:.1f} ms from the image's "
+                "time and the head's motion over that is not known yet (no recent poses): pose not reported")
+
+    @staticmethod
+    def _excess(match: _Match):
+        """Each centre's error beyond its image noise (2, 5), px, or None: a suspect's excess and the rolling
+        shutter compensation's uncertainty."""
+        if match.shutter_sd_px is None:
+            return match.excess_px
+        if match.excess_px is None:
+            return match.shutter_sd_px
+        return np.hypot(match.excess_px, match.shutter_sd_px)
+
+    def _fit_centers(self, match: _Match):
+        """The centres the pose is fitted to (left (5, 2), right (5, 2)) px: measured, less the rolling
+        shutter's displacement when compensated."""
+        centers = match.centers if match.shutter_shift_px is None else match.centers - match.shutter_shift_px
+        return centers[0], centers[1]
 
     def _outlier(self, residuals, match: _Match, rig_sd=None):
         """(camera, marker) of the worst centre if it is an outlier, else None.
@@ -1523,6 +1633,8 @@ class Tracker:
         sigma = np.maximum(match.sigma_px, self.config.min_centroid_sigma_px)
         if match.excess_px is not None:
             sigma = np.hypot(sigma, match.excess_px)
+        if match.shutter_sd_px is not None:
+            sigma = np.hypot(sigma, match.shutter_sd_px)
         return sigma
 
     def _residuals(self, R, p1, match: _Match) -> np.ndarray:
@@ -1531,9 +1643,10 @@ class Tracker:
         res = np.full((2, 5, 2), np.nan)
         pl = geo.project(pts, np.eye(3), np.zeros(3), self.rig.K1, self.rig.D1)
         pr = geo.project(pts, self.rig.R, self.rig.T, self.rig.K2, self.rig.D2)
+        centers = self._fit_centers(match)
         for cam, proj in ((0, pl), (1, pr)):
             vis = match.visible[cam]
-            res[cam, vis] = proj[vis] - match.centers[cam, vis]
+            res[cam, vis] = proj[vis] - centers[cam][vis]
         return res
 
     def _right_motion(self, t, t_right, current=None):
