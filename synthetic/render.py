@@ -48,6 +48,21 @@ Scene model
   over ``exposure_s`` around t), right image at ``t + right_time_offset_s``,
   specular glints near the glasses, lamps (bright extended blobs at a 3D
   position), occluded markers.
+- Rolling shutter (``readout_s``, ``right_readout_s``; s): the rows of an
+  image h rows high are exposed one after the other, row r at
+  ``t_cam + (r - (h - 1) / 2) * readout_s / (h - 1)`` (``t_cam``: t for the
+  left image, t + ``right_time_offset_s`` for the right one; the middle row
+  is at ``t_cam``, which stays the mid-exposure time of the image).  Row by
+  row: each pixel row of a marker's region of interest is covered by the
+  disk in the pose of that row's time (the disk's conic and radiance per
+  row; with motion blur the row's sub-exposures are centred on its time),
+  so a moving blob is sheared and stretched as a real webcam's is.  The
+  optical PSF then blurs the patch as a whole: it mixes rows ≈ 2 px apart,
+  exposed ≈ 0.1 ms apart, which moves no centroid (the blur is symmetric).
+  0 keeps the global-shutter path unchanged.
+- MJPEG (``jpeg_quality``): after the 8-bit rounding each image goes through
+  ``cv2.imencode('.jpg')`` / ``cv2.imdecode`` (grayscale), as a webcam's
+  MJPEG mode does (webcams' quality ≈ 60-85 with libjpeg's tables).
 
 Everything random comes from the ``numpy.random.Generator`` passed in, plus
 ``ambient_seed`` for the static background; rendering is deterministic.
@@ -128,6 +143,16 @@ class RenderOptions:
     exposure_s : exposure time, s (0 = instantaneous).
     motion_samples : number of sub-exposures averaged over ``exposure_s``.
     right_time_offset_s : the right image is taken at t + this offset, s.
+    readout_s : rolling shutter: the time from the exposure of the first
+        image row to that of the last, s (0 = global shutter; ordinary USB
+        webcams 0.015-0.033 s).  Row r of an image h rows high is exposed at
+        ``t_cam + (r - (h - 1) / 2) * readout_s / (h - 1)``: the middle row
+        is at the camera's time (t, or t + ``right_time_offset_s``), so a
+        frame's time stays mid-exposure of the image.
+    right_readout_s : the right camera's readout time, s; None: ``readout_s``.
+    jpeg_quality : None, or the MJPEG quality (1..100, libjpeg tables; webcams
+        ≈ 60-85): after the 8-bit rounding each image is encoded with
+        ``cv2.imencode('.jpg')`` and decoded, as a webcam's MJPEG mode does.
     glints : (min, max) number of specular glints per image.
     glint_peak_dn : (min, max) peak level of a glint, DN.
     glint_sigma_px : (min, max) Gaussian sigma of a glint, px.
@@ -159,6 +184,9 @@ class RenderOptions:
     exposure_s: float = 0.0
     motion_samples: int = 1
     right_time_offset_s: float = 0.0
+    readout_s: float = 0.0
+    right_readout_s: Optional[float] = None
+    jpeg_quality: Optional[int] = None
     glints: Tuple[int, int] = (0, 0)
     glint_peak_dn: Tuple[float, float] = (250.0, 700.0)
     glint_sigma_px: Tuple[float, float] = (0.3, 0.55)
@@ -171,6 +199,12 @@ class RenderOptions:
     def replace(self, **kw) -> "RenderOptions":
         """A copy with some fields changed."""
         return replace(self, **kw)
+
+    def readout_for(self, cam_index: int) -> float:
+        """Readout time (s) of camera 0 (left) or 1 (right)."""
+        if cam_index == 1 and self.right_readout_s is not None:
+            return float(self.right_readout_s)
+        return float(self.readout_s)
 
     def occluded_set(self) -> set:
         """``occluded`` normalized to {(camera_index, marker_index)}."""
@@ -386,6 +420,16 @@ def disk_conic(c: np.ndarray, n: np.ndarray, radius: float) -> np.ndarray:
     return Q / np.abs(Q).max()
 
 
+def _disk_conics(c: np.ndarray, n: np.ndarray, radius: float) -> np.ndarray:
+    """:func:`disk_conic` of many disks: c, n (N, 3) -> (N, 3, 3)."""
+    c = np.asarray(c, float)
+    n = np.asarray(n, float)
+    nc = np.einsum("ij,ij->i", n, c)
+    M = nc[:, None, None] * np.eye(3) - c[:, :, None] * n[:, None, :]
+    Q = np.swapaxes(M, 1, 2) @ M - radius * radius * n[:, :, None] * n[:, None, :]
+    return Q / np.abs(Q).max(axis=(1, 2), keepdims=True)
+
+
 def _halfplane_square_area(nx: np.ndarray, ny: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Area of the unit square [-1/2, 1/2]² where ``nx x + ny y <= s``.
 
@@ -423,7 +467,9 @@ def _coverage(und_corners: np.ndarray, H: int, W: int, S: int, c: np.ndarray, n:
         coordinates (i - 1/2, j - 1/2) relative to the ROI origin).
     H, W : ROI size, px.
     S : cells per pixel along each axis.
-    c, n : disk centre (mm) and unit normal in the camera frame.
+    c, n : disk centre (mm) and unit normal in the camera frame, (3,); or
+        (H, 3), one per pixel row of the ROI (a rolling shutter exposes
+        each row at its own time: the disk's pose per row).
     radius : disk radius, mm.
 
     Returns
@@ -435,7 +481,11 @@ def _coverage(und_corners: np.ndarray, H: int, W: int, S: int, c: np.ndarray, n:
     C = C - o
     # conic in local coordinates p = (xi, eta, 1): d = T p
     T = np.array([[1.0, 0.0, o[0]], [0.0, 1.0, o[1]], [0.0, 0.0, 1.0]])
-    Q = T.T @ disk_conic(c, n, radius) @ T
+    if np.ndim(c) == 1:
+        Q = T.T @ disk_conic(c, n, radius) @ T
+    else:   # a conic per pixel row, broadcast over (H, S, W, S)
+        Q = (T.T @ _disk_conics(c, n, radius) @ T).reshape(H, 1, 1, 1, 3, 3)
+        Q = np.moveaxis(Q, (-2, -1), (0, 1))
     a = (np.arange(S, dtype=np.float64) + 0.5) / S
     b = 1.0 - a
     Cx = C[:, :-1, None, :] * b[None, None, :, None] + C[:, 1:, None, :] * a[None, None, :, None]
@@ -477,16 +527,22 @@ def _gauss_kernel_size(sigma: float) -> int:
 
 def _render_markers_into(layer: np.ndarray, cam: CameraModel, cam_index: int, model_points_mm: np.ndarray,
                          diameter_mm: float, pose_fn: PoseFn, times: Sequence[float],
-                         options: RenderOptions) -> list:
+                         options: RenderOptions, readout_s: float = 0.0) -> list:
     """Add the (blurred, motion-averaged) marker images of one camera into ``layer``.
 
     For each marker, the coverage of every sub-exposure is computed on its
     tight box (S x S cells per pixel), weighted by its radiance and summed in
     one buffer covering the union of the boxes plus the PSF margin; the
     buffer is blurred, integrated over the pixels and added to ``layer``.
+    ``times`` are the sub-exposure times of the middle row; with
+    ``readout_s`` > 0 (rolling shutter) each row is exposed at its own time
+    (:func:`_render_markers_rolling`).
 
     Returns the list of world marker positions (5, 3) at each sub-time.
     """
+    if readout_s > 0.0 and layer.shape[0] > 1:
+        return _render_markers_rolling(layer, cam, cam_index, model_points_mm, diameter_mm, pose_fn, times,
+                                       options, readout_s)
     h, w = layer.shape
     S = int(options.supersample)
     sigma = float(options.blur_sigma_px)
@@ -509,8 +565,18 @@ def _render_markers_into(layer: np.ndarray, cam: CameraModel, cam_index: int, mo
             x1, y1 = min(x1, w - 1 + pad), min(y1, h - 1 + pad)
             if x1 >= x0 and y1 >= y0:
                 jobs.append((i, c, n, L, x0, y0, x1, y1))
+    _paste_disks(layer, cam, jobs, S, sigma, pad, radius, weight)
+    return positions
+
+
+def _paste_disks(layer: np.ndarray, cam: CameraModel, jobs: list, S: int, sigma: float, pad: int, radius: float,
+                 weight: float) -> None:
+    """Render ``jobs`` ``(marker, c, n, L, x0, y0, x1, y1)`` (one per marker and sub-exposure; c, n, L
+    scalars of the instant, or per row of the box: (H, 3), (H, 3), (H,)) into ``layer``: each marker's
+    coverages summed in one buffer, blurred by the PSF, integrated over the pixels and added."""
     if not jobs:
-        return positions
+        return
+    h, w = layer.shape
     # one undistortion call for the pixel corners of all boxes
     grids = []
     for (_, _, _, _, x0, y0, x1, y1) in jobs:
@@ -533,7 +599,10 @@ def _render_markers_into(layer: np.ndarray, cam: CameraModel, cam_index: int, mo
             H, W = y1 - y0 + 1, x1 - x0 + 1
             cov = _coverage(und[offs[k]:offs[k + 1]], H, W, S, c, n, radius)
             oy, ox = (y0 - by0) * S, (x0 - bx0) * S
-            buf[oy:oy + H * S, ox:ox + W * S] += np.float32(L * weight) * cov
+            if np.ndim(L) == 0:
+                buf[oy:oy + H * S, ox:ox + W * S] += np.float32(L * weight) * cov
+            else:   # a radiance per pixel row
+                buf[oy:oy + H * S, ox:ox + W * S] += np.repeat((L * weight).astype(np.float32), S)[:, None] * cov
         if sigma > 0:
             buf = cv2.GaussianBlur(buf, (ks, ks), sigma * S, borderType=cv2.BORDER_CONSTANT)
         patch = _area_down(buf, S)
@@ -542,6 +611,180 @@ def _render_markers_into(layer: np.ndarray, cam: CameraModel, cam_index: int, mo
         cx1, cy1 = min(bx1, w - 1), min(by1, h - 1)
         if cx1 >= cx0 and cy1 >= cy0:
             layer[cy0:cy1 + 1, cx0:cx1 + 1] += patch[cy0 - by0:cy1 - by0 + 1, cx0 - bx0:cx1 - bx0 + 1]
+
+
+class _RowClock:
+    """A rolling shutter's poses: the marker geometry of one camera when pixel row ``r`` is exposed at
+    ``t + (r - (h - 1) / 2) * readout_s / (h - 1)`` for a sub-exposure time ``t`` of the middle row.
+
+    Poses are evaluated exactly every :attr:`KNOT` rows (``KNOT * readout_s / (h - 1)``: 0.25 ms at
+    30 ms over 480 rows) and the disk centres and normals interpolated linearly between (the error is
+    the motion's curvature over 0.25 ms: < 1e-5 mm for a head); where a centre moves more than
+    :attr:`JUMP_MM` between two knots (a pose function with jumps, such as independent random poses),
+    every row between them is evaluated exactly.  Poses are cached per (t, row): markers on the same
+    rows share them.
+    """
+
+    KNOT = 4
+    JUMP_MM = 1.0
+
+    def __init__(self, cam: CameraModel, model: np.ndarray, pose_fn: PoseFn, h: int, readout_s: float,
+                 radius: float, options: RenderOptions, skip):
+        self.cam, self.model, self.pose_fn = cam, model, pose_fn
+        self.row_s = float(readout_s) / (h - 1)
+        self.mid = 0.5 * (h - 1)
+        self.radius, self.options, self.skip = radius, options, skip
+        self._states: dict = {}
+        self._uv: dict = {}
+
+    def state(self, t: float, row: int):
+        """(world positions (5, 3), R_world_from_G, camera-frame centres (5, 3), camera-frame normal) at
+        ``row``'s time."""
+        key = (t, row)
+        st = self._states.get(key)
+        if st is None:
+            Rwg, p1 = self.pose_fn(t + (row - self.mid) * self.row_s)
+            Rwg = np.asarray(Rwg, float)
+            pw = self.model @ Rwg.T + np.asarray(p1, float).reshape(3)
+            st = self._states[key] = (pw, Rwg, self.cam.to_cam(pw), self.cam.R @ Rwg[:, 2])
+        return st
+
+    def centres_uv(self, t: float, row: int) -> np.ndarray:
+        """Image points (5, 2) px of the disk centres at ``row``'s time (NaN behind the camera)."""
+        key = (t, row)
+        uv = self._uv.get(key)
+        if uv is None:
+            cs = self.state(t, row)[2]
+            front = cs[:, 2] > 1.0
+            uv = np.full((5, 2), np.nan)
+            if front.any():
+                uv[front] = _project_cam(self.cam, cs[front])
+            self._uv[key] = uv
+        return uv
+
+    def knot(self, row: float, up: Optional[bool] = None) -> int:
+        """The knot row nearest ``row`` (``up`` True / False: the next one at or above / below it)."""
+        K = self.KNOT
+        if up is None:
+            return int(np.floor(row / K + 0.5)) * K
+        return int(np.ceil(row / K)) * K if up else int(np.floor(row / K)) * K
+
+    def centre_row(self, t: float, m: int, row: int, exact: bool = False) -> int:
+        """The row marker m's image centre is on at that row's own time (fixed point from ``row``); to the
+        nearest knot unless ``exact`` (a box needs no more: a knot is ≤ 2 rows, 0.13 ms at 30 ms, away)."""
+        snap = (lambda v: int(np.floor(v + 0.5))) if exact else self.knot
+        row = snap(row)
+        for _ in range(8):
+            v = self.centres_uv(t, row)[m, 1]
+            if not np.isfinite(v):
+                break
+            nxt = snap(v)
+            if nxt == row:
+                break
+            row = nxt
+        return row
+
+    def boxes(self, t: float) -> dict:
+        """marker -> pixel box (x0, y0, x1, y1) holding the marker's sheared image: the disk's tight box
+        at the middle row's time moved with its centre to the row that centre is on at its own time, and
+        widened to the box's moves at the times of its first and last rows (and 1 px)."""
+        mid = self.knot(self.mid)
+        pw, Rwg, _, _ = self.state(t, mid)
+        uv0 = self.centres_uv(t, mid)
+        out = {}
+        for job in _disk_jobs(self.cam, pw, Rwg[:, 2], self.radius, self.options, self.skip):
+            m = job[0]
+            x0, y0, x1, y1 = job[4:]
+            row = self.centre_row(t, m, int(np.floor(uv0[m, 1] + 0.5)))
+            d = self.centres_uv(t, row)[m] - uv0[m]
+            if not np.all(np.isfinite(d)):
+                d = np.zeros(2)
+            bx0, by0 = int(np.floor(x0 + d[0])), int(np.floor(y0 + d[1]))
+            bx1, by1 = int(np.ceil(x1 + d[0])), int(np.ceil(y1 + d[1]))
+            for r in (self.knot(by0, up=False), self.knot(by1, up=True)):
+                e = self.centres_uv(t, r)[m] - uv0[m]
+                if np.all(np.isfinite(e)):
+                    bx0, by0 = min(bx0, int(np.floor(x0 + e[0]))), min(by0, int(np.floor(y0 + e[1])))
+                    bx1, by1 = max(bx1, int(np.ceil(x1 + e[0]))), max(by1, int(np.ceil(y1 + e[1])))
+            out[m] = (bx0 - 1, by0 - 1, bx1 + 1, by1 + 1)
+        return out
+
+    def rows_geometry(self, t: float, m: int, y0: int, y1: int):
+        """Marker m's centre and normal (camera frame) and radiance at the times of rows y0..y1:
+        (H, 3), (H, 3), (H,); None when it is nowhere in front of the camera."""
+        K = self.KNOT
+        k0, k1 = (y0 // K) * K, -((-y1) // K) * K
+        knots = list(range(k0, k1 + 1, K)) if k1 > k0 else [k0, k0 + K]
+        Ck = np.array([self.state(t, r)[2][m] for r in knots])
+        Nk = np.array([self.state(t, r)[3] for r in knots])
+        rows = np.arange(y0, y1 + 1)
+        seg = np.minimum((rows - knots[0]) // K, len(knots) - 2)
+        f = ((rows - knots[0]) - seg * K)[:, None] / K
+        C = (1.0 - f) * Ck[seg] + f * Ck[seg + 1]
+        N = (1.0 - f) * Nk[seg] + f * Nk[seg + 1]
+        jumps = np.linalg.norm(np.diff(Ck, axis=0), axis=1) > self.JUMP_MM
+        if jumps.any():     # rows between knots a pose jumps between: each at its own pose
+            for i in np.nonzero(jumps[seg])[0]:
+                _, _, cs, n_c = self.state(t, int(rows[i]))
+                C[i], N[i] = cs[m], n_c
+        N /= np.linalg.norm(N, axis=1, keepdims=True)
+        d = np.linalg.norm(C, axis=1)
+        cos_a = -np.einsum("ij,ij->i", N, C) / d
+        ok = (cos_a > 0.0) & (C[:, 2] > self.radius + 1.0)
+        if not ok.any():
+            return None
+        o = self.options
+        L = np.where(ok, o.peak_dn_at_ref * o.brightness_scale * np.maximum(cos_a, 0.0) ** o.k_angle
+                     * (o.d_ref_mm / d) ** 2, 0.0)
+        if not ok.all():    # rows where the disk is behind the camera: no light, and a harmless conic
+            good = np.nonzero(ok)[0]
+            near = good[np.abs(np.arange(len(rows))[:, None] - good[None, :]).argmin(axis=1)]
+            C, N = C[near], N[near]
+        return C, N, L
+
+    def marker_positions(self, t: float) -> np.ndarray:
+        """World positions (5, 3) of the markers, each at the time of the row its image centre is on."""
+        mid = int(round(self.mid))
+        out = np.empty((5, 3))
+        for m in range(5):
+            v = self.centres_uv(t, mid)[m, 1]
+            row = self.centre_row(t, m, int(np.floor(v + 0.5)), exact=True) if np.isfinite(v) else mid
+            out[m] = self.state(t, row)[0][m]
+        return out
+
+
+def _render_markers_rolling(layer: np.ndarray, cam: CameraModel, cam_index: int, model_points_mm: np.ndarray,
+                            diameter_mm: float, pose_fn: PoseFn, times: Sequence[float], options: RenderOptions,
+                            readout_s: float) -> list:
+    """:func:`_render_markers_into` with a rolling shutter: every pixel row of a marker's box is
+    covered by the disk as it is at that row's time (for each sub-exposure, centred on the row's time),
+    so the blob is sheared and stretched by the motion; then blurred by the PSF as a whole.
+
+    Returns the list of world marker positions (5, 3) at each sub-time of the middle row.
+    """
+    h, w = layer.shape
+    S = int(options.supersample)
+    sigma = float(options.blur_sigma_px)
+    pad = int(np.ceil(4.0 * sigma)) + 1 if sigma > 0 else 0
+    radius = 0.5 * float(diameter_mm)
+    skip = {m for (ci, m) in options.occluded_set() if ci == cam_index}
+    model = np.asarray(model_points_mm, float).reshape(5, 3)
+    clock = _RowClock(cam, model, pose_fn, h, readout_s, radius, options, skip)
+    jobs = []
+    positions = []
+    for t in times:
+        t = float(t)
+        Rwg, p1 = pose_fn(t)
+        positions.append(model @ np.asarray(Rwg, float).T + np.asarray(p1, float).reshape(3))
+        for m, (x0, y0, x1, y1) in sorted(clock.boxes(t).items()):
+            x0, y0 = max(x0, -pad), max(y0, -pad)
+            x1, y1 = min(x1, w - 1 + pad), min(y1, h - 1 + pad)
+            if x1 < x0 or y1 < y0:
+                continue
+            geo = clock.rows_geometry(t, m, y0, y1)
+            if geo is not None:
+                jobs.append((m, geo[0], geo[1], geo[2], x0, y0, x1, y1))
+    _paste_disks(layer, cam, jobs, S, sigma, pad, radius, 1.0 / len(times))
     return positions
 
 
@@ -767,19 +1010,32 @@ def render_signal(cam: CameraModel, cam_index: int, model_points_mm: np.ndarray,
                                   int(options.ambient_seed), cam_index))
     else:
         layer.fill(0.0)
+    readout = options.readout_for(cam_index)
     _render_markers_into(layer, cam, cam_index, model_points_mm, diameter_mm, pose_fn,
-                         _sub_times(t, options), options)
+                         _sub_times(t, options), options, readout)
     if options.lamps:
         _add_lamps(layer, cam, options)
     if rng is not None and (options.glints[1] > 0 or options.fused_glints[1] > 0):
-        Rwg, p1 = pose_fn(t)
-        pw = np.asarray(model_points_mm, float) @ np.asarray(Rwg, float).T + np.asarray(p1, float)
+        if readout > 0.0 and h > 1:   # each marker where its (sheared) image is: at its own row's time
+            pw = _RowClock(cam, np.asarray(model_points_mm, float).reshape(5, 3), pose_fn, h, readout,
+                           0.5 * float(diameter_mm), options, set()).marker_positions(float(t))
+        else:
+            Rwg, p1 = pose_fn(t)
+            pw = np.asarray(model_points_mm, float) @ np.asarray(Rwg, float).T + np.asarray(p1, float)
         _add_glints(layer, cam, pw, options, rng)
         _add_fused_glints(layer, cam, pw, options, rng)
     return layer
 
 
-def _render_views(setup_or_rig, model_points_mm, diameter_mm, pose_fn, t, options, rng, convert):
+def _mjpeg(img: np.ndarray, quality: int) -> np.ndarray:
+    """An 8-bit image through a JPEG encoder and decoder (grayscale, libjpeg quality ``quality``)."""
+    ok, data = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError(f"JPEG encoding failed (quality {quality})")
+    return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+
+
+def _render_views(setup_or_rig, model_points_mm, diameter_mm, pose_fn, t, options, rng, convert, jpeg=False):
     options = RenderOptions() if options is None else options
     rng = np.random.default_rng(0) if rng is None else rng
     cams = rig_cameras(setup_or_rig)
@@ -789,7 +1045,10 @@ def _render_views(setup_or_rig, model_points_mm, diameter_mm, pose_fn, t, option
         w, h = cam.size
         sig = render_signal(cam, ci, model_points_mm, diameter_mm, pose_fn, tc, options, rng,
                             out=_workspace("signal", (h, w)))
-        out.append(convert(_sensor(sig, options, rng)))
+        img = convert(_sensor(sig, options, rng))
+        if jpeg and options.jpeg_quality is not None:
+            img = _mjpeg(img, options.jpeg_quality)
+        out.append(img)
     return out[0], out[1]
 
 
@@ -798,7 +1057,8 @@ def render_pair_float(setup_or_rig, model_points_mm: np.ndarray, diameter_mm: fl
                       rng: Optional[np.random.Generator] = None) -> Tuple[np.ndarray, np.ndarray]:
     """Like :func:`render_pair` but returns the float32 images (DN) before
     rounding and clipping (with noise when ``options.noise``).  For the same
-    ``rng`` state, ``render_pair`` output is these images rounded and clipped."""
+    ``rng`` state, ``render_pair`` output is these images rounded and clipped
+    (and, with ``options.jpeg_quality``, through the JPEG codec)."""
     return _render_views(setup_or_rig, model_points_mm, diameter_mm, pose_fn, t, options, rng, np.copy)
 
 
@@ -815,7 +1075,8 @@ def render_pair(setup_or_rig, model_points_mm: np.ndarray, diameter_mm: float, p
     diameter_mm : marker disk diameter, mm.
     pose_fn : ``pose_fn(t) -> (R_world_from_G (3, 3), p1_world_mm (3,))``,
         t in seconds.  Called at the sub-exposure times (motion blur) and at
-        ``t + right_time_offset_s`` for the right image.
+        ``t + right_time_offset_s`` for the right image; with a rolling
+        shutter (``readout_s``) also at each image row's time.
     t : time of the left image (mid-exposure), s.
     options : :class:`RenderOptions` (defaults when None).
     rng : ``np.random.Generator`` for noise and glints (``default_rng(0)``
@@ -826,4 +1087,4 @@ def render_pair(setup_or_rig, model_points_mm: np.ndarray, diameter_mm: float, p
     -------
     (left, right) : uint8 arrays of shape (h, w).
     """
-    return _render_views(setup_or_rig, model_points_mm, diameter_mm, pose_fn, t, options, rng, _to_u8)
+    return _render_views(setup_or_rig, model_points_mm, diameter_mm, pose_fn, t, options, rng, _to_u8, jpeg=True)
