@@ -309,10 +309,12 @@ class _Frame:
 
 def _skew(v: np.ndarray) -> np.ndarray:
     """[v]× for v (..., 3) → (..., 3, 3)."""
-    z = np.zeros(np.shape(v)[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+    v = np.asarray(v)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
 
 
 class RigState:
@@ -767,47 +769,40 @@ class RigRefiner:
             raise _SkipChunk(SKIP_SINGULAR) from None
         L_inv = scipy.linalg.solve_triangular(L, np.eye(N_RIG), lower=True)
         prior_info = L_inv.T @ L_inv
+        data = _ChunkData.of(chunk)
         # Which rig parameters can this chunk teach? Decided at the start (linearization point).
         rig = np.zeros(N_RIG)
         poses = np.zeros((n, 6))
         observable = confine = None
-        weights = [None] * n
+        weights = None
         for iteration in range(c.iterations + 1):
-            A = np.zeros((n, 6, 6))            # each pose's information
-            B = np.zeros((n, 6, N_RIG))        # pose × rig
-            C = np.zeros((N_RIG, N_RIG))       # rig × rig (data only)
-            g_pose = np.zeros((n, 6))
-            g_rig = np.zeros(N_RIG)
-            chi2, rows_used = 0.0, 0
-            centre_r2 = []
             state = self._estimate.moved(rig)
-            K2 = state.K2()
-            for k, f in enumerate(chunk):
-                res, J_pose, J_rig, sig = self._frame_terms(f, poses[k], state, K2)
-                z = res / sig                                    # (2, 5, 2) standardized
+            res, J_pose, J_rig = self._chunk_terms(data, poses, state)
+            sig = data.sigma
+            with np.errstate(invalid="ignore"):
+                z = res / sig                                    # (n, 2, m, 2) standardized
                 # A centre counts when its residual and derivatives are finite
                 # (a point on a camera's plane projects to inf).
-                seen = (np.isfinite(z).all(axis=2) & f.visible
-                        & np.isfinite(J_pose).all(axis=(2, 3)) & np.isfinite(J_rig).all(axis=(2, 3)))
-                if weights[k] is None or iteration < 2:
-                    r2 = (z ** 2).sum(axis=2)
-                    w = 1.0 / (1.0 + np.where(seen, r2, 0.0) / (2 * c.cauchy_scale ** 2))
-                    weights[k] = np.where(seen, w, 0.0)
-                w = weights[k]
-                sel = seen
-                zs = z[sel]                                      # (q, 2)
-                ws = np.repeat(w[sel], 2)
-                Jp = (J_pose[sel] / sig[sel][..., None]).reshape(-1, 6)
-                Jr = (J_rig[sel] / sig[sel][..., None]).reshape(-1, N_RIG)
-                r = zs.reshape(-1)
-                A[k] = Jp.T @ (Jp * ws[:, None])
-                B[k] = Jp.T @ (Jr * ws[:, None])
-                C += Jr.T @ (Jr * ws[:, None])
-                g_pose[k] = Jp.T @ (ws * r)
-                g_rig += Jr.T @ (ws * r)
-                chi2 += float((ws * r * r).sum())
-                rows_used += len(r)
-                centre_r2.append((zs ** 2).sum(axis=1))
+                seen = (np.isfinite(z).all(axis=3) & data.visible
+                        & np.isfinite(J_pose).all(axis=(3, 4)) & np.isfinite(J_rig).all(axis=(3, 4)))
+                r2 = np.where(seen, (z ** 2).sum(axis=3), 0.0)          # (n, 2, m)
+                if weights is None or iteration < 2:
+                    weights = np.where(seen, 1.0 / (1.0 + r2 / (2 * c.cauchy_scale ** 2)), 0.0)
+                # Unseen centres' rows are zeros (weight 0, and no NaN to multiply by it).
+                w = np.repeat(np.where(seen, weights, 0.0)[..., None], 2, axis=3).reshape(n, -1)   # (n, k)
+                r = np.where(seen[..., None], z, 0.0).reshape(n, -1)
+                scaled = 1.0 / sig[..., None]
+                Jp = np.where(seen[..., None, None], J_pose * scaled, 0.0).reshape(n, -1, 6)
+                Jr = np.where(seen[..., None, None], J_rig * scaled, 0.0).reshape(n, -1, N_RIG)
+            Jp_t = np.swapaxes(Jp, 1, 2)
+            A = Jp_t @ (Jp * w[..., None])                        # each pose's information (n, 6, 6)
+            B = Jp_t @ (Jr * w[..., None])                        # pose × rig (n, 6, 8)
+            Jr_all, w_all, r_all = Jr.reshape(-1, N_RIG), w.reshape(-1), r.reshape(-1)
+            C = Jr_all.T @ (Jr_all * w_all[:, None])              # rig × rig (data only)
+            g_pose = np.einsum("nki,nk->ni", Jp, w * r)
+            g_rig = Jr_all.T @ (w_all * r_all)
+            chi2 = float((w_all * r_all * r_all).sum())
+            rows_used = 2 * int(seen.sum())
             if rows_used == 0:
                 raise _SkipChunk(SKIP_NO_DATA)
             if not (np.isfinite(A).all() and np.isfinite(B).all() and np.isfinite(C).all()
@@ -845,38 +840,67 @@ class RigRefiner:
         # median is 1.386, per degree of freedom left), so the few glints the
         # Cauchy weights already discount do not inflate it.
         dof = max(rows_used - 6 * n - observable.shape[1], 1)
-        r2 = np.concatenate(centre_r2)
+        r2 = r2[seen]                            # the last pass's, of the centres it used
         noise_scale = float(np.median(r2)) / 1.386 * rows_used / dof
         posterior = _positive_definite(cov * max(1.0, noise_scale), self._scale)
         moved = np.diag(confine @ prior @ confine.T) / np.diag(prior) > 0.5
         refit = {f.t: (cv2.Rodrigues(poses[k, :3])[0] @ f.R, f.p1 + poses[k, 3:]) for k, f in enumerate(chunk)}
         return _Solution(rig, posterior, chi2, rows_used, noise_scale, refit, moved)
 
-    def _frame_terms(self, f: _Frame, pose: np.ndarray, state: RigState, K2: np.ndarray):
-        """Residuals (2, 5, 2) px, ∂/∂pose (2, 5, 2, 6), ∂/∂rig (2, 5, 2, 8), σ (2, 5, 2) of one frame."""
+    def _chunk_terms(self, data: "_ChunkData", poses: np.ndarray, state: RigState):
+        """Residuals (n, 2, 5, 2) px, ∂/∂pose (n, 2, 5, 2, 6) and ∂/∂rig (n, 2, 5, 2, 8) of a chunk's frames.
+
+        All frames at once: one ``cv2.projectPoints`` per camera over every
+        frame's points (already in the camera's frame, rvec = tvec = 0, so the
+        derivatives with respect to tvec are those with respect to the point).
+        """
         model = self.model_mm
-        R = cv2.Rodrigues(pose[:3])[0] @ f.R
-        p1 = f.p1 + pose[3:]
-        lever = model @ R.T
-        world = lever + p1
-        m = len(model)
-        res = np.full((2, m, 2), np.nan)
-        J_pose = np.zeros((2, m, 2, 6))
-        J_rig = np.zeros((2, m, 2, N_RIG))
-        dX_dpose = np.concatenate([-_skew(lever), np.broadcast_to(np.eye(3), (m, 3, 3))], axis=2)   # (m, 3, 6)
+        n, m = len(poses), len(model)
+        turn = np.stack([cv2.Rodrigues(np.ascontiguousarray(v))[0] for v in poses[:, :3]])
+        R = turn @ data.R                                               # (n, 3, 3)
+        p1 = data.p1 + poses[:, 3:]
+        lever = np.einsum("mj,nij->nmi", model, R)                      # model @ Rᵀ per frame (n, m, 3)
+        world = lever + p1[:, None, :]
+        dX_dpose = np.concatenate([-_skew(lever), np.broadcast_to(np.eye(3), (n, m, 3, 3))], axis=3)  # (n, m, 3, 6)
+        res = np.empty((n, 2, m, 2))
+        J_pose = np.empty((n, 2, m, 2, 6))
+        J_rig = np.zeros((n, 2, m, 2, N_RIG))
         px, jac = cv2.projectPoints(world.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.K1, self.D[0])
-        jac = jac.reshape(-1, 2, jac.shape[1])
-        res[0] = px.reshape(-1, 2) - f.centers[0]
-        J_pose[0] = jac[:, :, 3:6] @ dX_dpose
-        dt = f.declared_offset_s + state.offset_s
-        motion = None
-        world_r = world
-        if f.omega is not None:
-            motion = np.cross(f.omega, lever) + f.velocity
-            world_r = world + dt * motion
-        pr, d_cam, d_logf, cam = project_right(world_r, state.R, state.T, K2, self.D[1])
-        res[1] = pr - f.centers[1]
-        d_world = d_cam @ state.R                                     # (m, 2, 3)
-        J_pose[1] = d_world @ dX_dpose
-        J_rig[1] = _right_rig_columns(d_cam, d_logf, cam, state.R, motion)
-        return res, J_pose, J_rig, f.sigma
+        d_left = jac.reshape(n, m, 2, -1)[..., 3:6]                      # ∂px/∂X (n, m, 2, 3)
+        res[:, 0] = px.reshape(n, m, 2) - data.centers[:, 0]
+        J_pose[:, 0] = d_left @ dX_dpose
+        # The right image's exposure, relative to the left one's: the head moved
+        # meanwhile (no motion known: zero, and the offset's column is zero).
+        motion = np.einsum("nij,nmj->nmi", _skew(data.omega), lever) + data.velocity[:, None, :]  # ω × lever + v (n, m, 3)
+        dt = data.declared + state.offset_s
+        world_r = world + dt[:, None, None] * motion
+        pr, d_cam, d_logf, cam = project_right(world_r.reshape(-1, 3), state.R, state.T, state.K2(), self.D[1])
+        res[:, 1] = pr.reshape(n, m, 2) - data.centers[:, 1]
+        d_world = d_cam @ state.R                                         # (n·m, 2, 3)
+        J_pose[:, 1] = d_world.reshape(n, m, 2, 3) @ dX_dpose
+        J_rig[:, 1] = _right_rig_columns(d_cam, d_logf, cam, state.R, motion.reshape(-1, 3)).reshape(n, m, 2, N_RIG)
+        return res, J_pose, J_rig
+
+
+@dataclass
+class _ChunkData:
+    """A chunk's frames stacked for :meth:`RigRefiner._chunk_terms` (n frames)."""
+
+    R: np.ndarray            # (n, 3, 3) tracked R_world_G
+    p1: np.ndarray           # (n, 3) mm
+    centers: np.ndarray      # (n, 2, 5, 2) px
+    visible: np.ndarray      # (n, 2, 5)
+    sigma: np.ndarray        # (n, 2, 5, 2) px
+    declared: np.ndarray     # (n,) s
+    omega: np.ndarray        # (n, 3) rad/s, zero where the motion is unknown
+    velocity: np.ndarray     # (n, 3) mm/s, likewise
+
+    @classmethod
+    def of(cls, chunk: list[_Frame]) -> "_ChunkData":
+        moving = [f.omega is not None and f.velocity is not None for f in chunk]
+        zero = np.zeros(3)
+        return cls(np.stack([f.R for f in chunk]), np.stack([f.p1 for f in chunk]),
+                   np.stack([f.centers for f in chunk]), np.stack([f.visible for f in chunk]),
+                   np.stack([f.sigma for f in chunk]), np.array([f.declared_offset_s for f in chunk]),
+                   np.stack([f.omega if k else zero for f, k in zip(chunk, moving)]),
+                   np.stack([f.velocity if k else zero for f, k in zip(chunk, moving)]))
