@@ -42,6 +42,14 @@ def non_negative(text: str) -> float:
     return value
 
 
+def readout_ms(text: str) -> float:
+    """An argparse type: a rolling shutter's readout in ms (first row to last), 0 to 1000 (0: a global shutter)."""
+    value = non_negative(text)
+    if not value < 1000.0:
+        raise argparse.ArgumentTypeError(f"a readout is under a second (a frame's rows), got {text!r} ms")
+    return value
+
+
 #: Levels ``--max-level`` accepts (as :data:`headplod.render.still.MAX_LEVELS`; kept here so the parser
 #: does not import the renderer).
 MAX_LEVEL_RANGE = (1, 8)

@@ -59,7 +59,7 @@ GOALS = [
     ("median V error ≤ 0.3° at 120 cm", ["far 120 cm"], "v_err_deg_median", 0.3),
     ("zero wrong identifications (V off by > 5°)", [s[0] for s in TRACK_SETS], "wrong_identifications", 0),
 ]
-RATIO_GOAL = 30.0
+RATIO_GOAL = 25.0
 
 
 def run_estimator(frames, dataset: io.Dataset, estimator: str) -> dict:

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io
-from ..argtypes import frame_count
+from ..argtypes import frame_count, readout_ms
 from ..capture import RECORDING_ENTRIES, DatasetRecorder, open_source, recording_held, source_kind, synthetic_preset
 from ..capture.signals import StopSignals
 from ..capture.synthetic import ensure_dataset, rerender
@@ -118,6 +118,10 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
                        help="refine the rig online from the tracked glasses (right camera's turn and shift, "
                             "baseline scale, right focal length, exposure offset); rig.yaml is never "
                             "overwritten (default on)")
+    track.add_argument("--readout-ms", type=readout_ms, default=None, metavar="MS",
+                       help="the cameras' rolling-shutter readout, ms: the time from an image's first row to its "
+                            "last (0 for a global-shutter camera). Default: estimated online, starting from the "
+                            "frame period (nearly every USB webcam exposes its rows one after another)")
     track.add_argument("--save-rig", metavar="FILE",
                        help="at the end of the run, write the refined rig to FILE (a new rig.yaml; not the "
                             "rig.yaml being read, nor inside the dataset or --record folder). Nothing is "
@@ -288,6 +292,7 @@ def _run_track(args) -> int:
         detection = DetectionParams(threshold_dn=args.threshold, smooth_px=9, subtract_background=False)
     config = TrackerConfig(estimator=args.estimator, detection=detection, track=not args.no_tracking,
                            uncertainty=args.uncertainty,
+                           readout_s=None if args.readout_ms is None else args.readout_ms * 1e-3,
                            rig_refine=RigRefineConfig(enabled=args.refine_rig == "on"))
     pose_filter = None
     if args.filter:
