@@ -12,6 +12,14 @@
                   rendered with (a stale calibration, unsynchronized
                   cameras): the true rig per frame range and the true
                   exposure offset, kept aside like truth.csv
+      webcam_truth.json  only for scenes with ordinary webcams' faults
+                  (Scene.webcam_truth, synthetic.imperfect): rolling
+                  shutter, per-frame exposure offset and auto exposure,
+                  dropped and repeated frames, true exposure times
+
+A scene's ``stamps`` (timestamps with jitter) are what ``times.csv`` lists
+and what truth.csv refers to; its ``repeats`` are frames whose image pair is
+an earlier frame's again (the same bytes).
 """
 from __future__ import annotations
 
@@ -68,11 +76,18 @@ def write_dataset(
     write_screen(folder / "screen.yaml", s.screen_size_px, s.top_left, s.top_right, s.bottom_left)
 
     offset = float(scene.options.right_time_offset_s)
-    declared = offset != 0.0 and getattr(scene, "declare_time_offset", True)
+    n_opts = scene.n_frames if getattr(scene, "frame_options", None) is not None else 0
+    offsets = {offset} | {float(scene.options_for(k).right_time_offset_s) for k in range(n_opts)}
+    declared = offsets != {0.0} and getattr(scene, "declare_time_offset", True)
     n = scene.n_frames
     times_lines = ["frame,t,t_right" if declared else "frame,t"]
     setup_for = getattr(scene, "setup_for", lambda k: s)
     truth_lines = [TRUTH_HEADER]
+    repeats = getattr(scene, "repeats", None) or {}
+    sources = set(repeats.values())
+    kept: dict = {}                 # frames whose images a later frame repeats
+    stamps = getattr(scene, "stamps", None)
+    stamps_right = getattr(scene, "stamps_right", None)
 
     def _write(path: Path, img: np.ndarray) -> None:
         if not cv2.imwrite(str(path), img):
@@ -84,14 +99,23 @@ def write_dataset(
         for k, t in enumerate(scene.times):
             t = float(t)
             options = scene.options_for(k) if hasattr(scene, "options_for") else scene.options
-            left, right = render_pair(setup_for(k), scene.model_points_mm, scene.diameter_mm, scene.pose_fn, t,
-                                      options, frame_rng(seed, k))
+            if k in repeats:
+                left, right = kept[repeats[k]]
+            else:
+                left, right = render_pair(setup_for(k), scene.model_points_mm, scene.diameter_mm, scene.pose_fn, t,
+                                          options, frame_rng(seed, k))
+            if k in sources:
+                kept[k] = (left, right)
             pending.append(pool.submit(_write, folder / "left" / f"{k:06d}.png", left))
             pending.append(pool.submit(_write, folder / "right" / f"{k:06d}.png", right))
             while len(pending) > 8:
                 pending.popleft().result()
+            if stamps is not None:
+                t = float(stamps[k])
             if declared:
-                times_lines.append(f"{k},{t:.6f},{t + offset:.6f}")
+                t_right = (float(stamps_right[k]) if stamps_right is not None
+                           else t + float(options.right_time_offset_s))
+                times_lines.append(f"{k},{t:.6f},{t_right:.6f}")
             else:
                 times_lines.append(f"{k},{t:.6f}")
             p1, axes = scene.truth(t)
@@ -105,6 +129,9 @@ def write_dataset(
     truth_rig = _rig_truth(scene, n, offset)
     if truth_rig is not None:
         (folder / "rig_truth.json").write_text(json.dumps(truth_rig, indent=1) + "\n")
+    webcam = getattr(scene, "webcam_truth", None)
+    if webcam is not None:
+        (folder / "webcam_truth.json").write_text(json.dumps(webcam, indent=1) + "\n")
     return folder
 
 
@@ -113,7 +140,9 @@ def _rig_truth(scene: Scene, n: int, offset: float):
 
     ``segments``: [{first_frame, R (3x3), T (3,) mm, K1, K2 (3x3)}] in frame
     order (more than one when a camera was bumped during the recording);
-    ``time_offset_s``: the right exposure minus the left one, s.
+    ``time_offset_s``: the right exposure minus the left one, s; when it
+    changes from frame to frame (free-running clocks) their mean, and
+    ``time_offset_s_per_frame`` each frame's.
     """
     stale = getattr(scene, "calibrated_setup", None) is not None or getattr(scene, "frame_setups", None) is not None
     undeclared = offset != 0.0 and not getattr(scene, "declare_time_offset", True)
@@ -127,4 +156,10 @@ def _rig_truth(scene: Scene, n: int, offset: float):
                              "T": np.asarray(rig.T, float).reshape(3).tolist(),
                              "K1": np.asarray(rig.K1, float).tolist(), "K2": np.asarray(rig.K2, float).tolist()})
             last = rig
-    return {"segments": segments, "time_offset_s": offset}
+    out = {"segments": segments, "time_offset_s": offset}
+    if getattr(scene, "frame_options", None) is not None:
+        per_frame = [float(scene.options_for(k).right_time_offset_s) for k in range(n)]
+        if any(v != offset for v in per_frame):
+            out["time_offset_s"] = float(np.mean(per_frame))
+            out["time_offset_s_per_frame"] = per_frame
+    return out

@@ -627,6 +627,8 @@ class _RowClock:
 
     KNOT = 4
     JUMP_MM = 1.0
+    #: pixels added around a box (0: the boxes hold the blobs whole; 3 changes no pixel of fast_motion)
+    MARGIN = 0
 
     def __init__(self, cam: CameraModel, model: np.ndarray, pose_fn: PoseFn, h: int, readout_s: float,
                  radius: float, options: RenderOptions, skip):
@@ -687,7 +689,7 @@ class _RowClock:
     def boxes(self, t: float) -> dict:
         """marker -> pixel box (x0, y0, x1, y1) holding the marker's sheared image: the disk's tight box
         at the middle row's time moved with its centre to the row that centre is on at its own time, and
-        widened to the box's moves at the times of its first and last rows (and 1 px)."""
+        widened to the box's moves at the times of its first and last rows."""
         mid = self.knot(self.mid)
         pw, Rwg, _, _ = self.state(t, mid)
         uv0 = self.centres_uv(t, mid)
@@ -706,7 +708,8 @@ class _RowClock:
                 if np.all(np.isfinite(e)):
                     bx0, by0 = min(bx0, int(np.floor(x0 + e[0]))), min(by0, int(np.floor(y0 + e[1])))
                     bx1, by1 = max(bx1, int(np.ceil(x1 + e[0]))), max(by1, int(np.ceil(y1 + e[1])))
-            out[m] = (bx0 - 1, by0 - 1, bx1 + 1, by1 + 1)
+            g = self.MARGIN
+            out[m] = (bx0 - g, by0 - g, bx1 + g, by1 + g)
         return out
 
     def rows_geometry(self, t: float, m: int, y0: int, y1: int):

@@ -77,6 +77,16 @@ class Scene:
         time (``t_right``); unsynchronized webcams do not.
     frame_setups : optional list of per-frame true rigs (a camera bumped
         during the recording) overriding ``setup`` for rendering.
+    stamps : optional (N,) times written as ``t`` in ``times.csv`` when
+        they are not the exposure times ``times`` (a host's timestamps, with
+        jitter), s; truth.csv refers to them (the contract: truth at t).
+    stamps_right : optional (N,) times written as ``t_right`` (when the
+        offset is declared), s; None: ``t + right_time_offset_s``.
+    repeats : optional {frame: earlier frame}: frames whose image pair is
+        the earlier frame's again (a driver delivering a buffer twice).
+    webcam_truth : optional JSON-able dict written as ``webcam_truth.json``
+        (:mod:`synthetic.imperfect`: readout, per-frame offsets, exposure
+        steps, dropped and repeated frames), kept aside like truth.csv.
     """
 
     name: str
@@ -91,6 +101,10 @@ class Scene:
     calibrated_setup: Optional[Setup] = None
     declare_time_offset: bool = True
     frame_setups: Optional[list] = None
+    stamps: Optional[np.ndarray] = None
+    stamps_right: Optional[np.ndarray] = None
+    repeats: Optional[Dict[int, int]] = None
+    webcam_truth: Optional[dict] = None
 
     def setup_for(self, frame: int) -> Setup:
         """The true rig of one frame (the cameras may be bumped during a recording)."""
@@ -99,6 +113,10 @@ class Scene:
     def options_for(self, frame: int) -> RenderOptions:
         """Render options of one frame (distractors may change per frame)."""
         return self.frame_options[frame] if self.frame_options is not None else self.options
+
+    def stamp(self, frame: int) -> float:
+        """The time ``times.csv`` lists for a frame (``t``; truth.csv refers to it), s."""
+        return float(self.stamps[frame] if self.stamps is not None else self.times[frame])
 
     @property
     def n_frames(self) -> int:
@@ -547,6 +565,13 @@ def imperfect_rig(n_frames: Optional[int] = None, seed: int = 0, **faults) -> Sc
     return make(n_frames=n_frames, seed=seed, **faults)
 
 
+def ordinary_webcams(n_frames: Optional[int] = None, seed: int = 0, **changes) -> Scene:
+    """Two ordinary USB webcams, everything at once (:func:`synthetic.imperfect.ordinary_webcams`)."""
+    from .imperfect import ordinary_webcams as make
+
+    return make(n_frames=n_frames, seed=seed, **changes)
+
+
 PRESETS: Dict[str, Callable[..., Scene]] = {
     "looking_around": looking_around,
     "static": static,
@@ -566,6 +591,7 @@ PRESETS: Dict[str, Callable[..., Scene]] = {
     "custom_model": custom_model,
     "random_mixed": random_mixed,
     "imperfect_rig": imperfect_rig,
+    "ordinary_webcams": ordinary_webcams,
 }
 
 
@@ -579,6 +605,7 @@ ALIASES: Dict[str, str] = {
     "wide": "wide_hd",
     "custom": "custom_model",
     "curved": "custom_model",
+    "webcams": "ordinary_webcams",
 }
 
 
