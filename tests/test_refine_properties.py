@@ -22,7 +22,7 @@ from hypothesis import given, settings, strategies as st
 from headplod import io
 from headplod.tracking import geometry as geo
 from headplod.tracking import rig_refine
-from headplod.tracking.rig_refine import RigRefiner, RigState, rig_jacobian_rows
+from headplod.tracking.rig_refine import N_RIG, RigRefiner, RigState, rig_jacobian_rows
 from headplod.tracking.uncertainty import rig_residual_rows
 
 RIG = io.read_rig(Path(__file__).parent / "data" / "sweep12" / "rig.yaml")
@@ -55,7 +55,9 @@ def _project(points, R, T, K, D):
 
 def _centres(t, motion, amp=1.0, right_dt=0.0, rolling_s=0.0, rig=RIG):
     """Exact centres (2, 5, 2) px: the left image exposed at t, the right at t + right_dt (s); with a
-    rolling shutter each marker is where the head was when its row (of the image's height) was exposed."""
+    rolling shutter (rows read out over ``rolling_s``, the middle row at the frame's time: row r of H at
+    (r − (H−1)/2) rolling_s/(H−1)) each marker is where the head was when its row was exposed (the row
+    it has at the frame's time: tests/test_rig_refine_readout.py solves for the exact row)."""
     centres = np.empty((2, 5, 2))
     height = rig.image_size[1]
     views = ((np.eye(3), np.zeros(3), rig.K1, rig.D1), (rig.R, rig.T, rig.K2, rig.D2))
@@ -64,7 +66,7 @@ def _centres(t, motion, amp=1.0, right_dt=0.0, rolling_s=0.0, rig=RIG):
         R, p = _pose(tc, motion, amp)
         px = _project(MODEL @ R.T + p, Rc, Tc, K, D)
         if rolling_s:
-            for k, row_dt in enumerate(rolling_s * (px[:, 1] / height - 0.5)):
+            for k, row_dt in enumerate(rolling_s * (px[:, 1] - 0.5 * (height - 1)) / (height - 1)):
                 Rk, pk = _pose(tc + row_dt, motion, amp)
                 px[k] = _project(MODEL[k:k + 1] @ Rk.T + pk, Rc, Tc, K, D)[0]
         centres[cam] = px
@@ -72,7 +74,7 @@ def _centres(t, motion, amp=1.0, right_dt=0.0, rolling_s=0.0, rig=RIG):
 
 
 def _assert_spd(M):
-    assert M.shape == (8, 8)
+    assert M.shape == (N_RIG, N_RIG)
     assert np.isfinite(M).all()
     np.testing.assert_array_equal(M, M.T)
     assert np.linalg.eigvalsh(M).min() > 0
@@ -217,9 +219,9 @@ def test_predicted_prior_caps_variances_without_losing_definiteness():
     chunk must be SPD, with the variances capped and the correlation kept."""
     ref = RigRefiner(RIG, MODEL)
     sd = np.sqrt(np.diag(ref.prior))
-    corr = np.eye(8)
+    corr = np.eye(N_RIG)
     corr[5, 6] = corr[6, 5] = 0.98
-    ratio = np.ones(8)
+    ratio = np.ones(N_RIG)
     ratio[5], ratio[6] = 1.2, 1.1
     ref.P = corr * np.outer(sd * ratio, sd * ratio)
     _assert_spd(ref.P)
@@ -239,11 +241,11 @@ def test_cov_stays_definite_in_raw_units_for_an_absurd_departure():
     ref = RigRefiner(RIG, MODEL)
     sd = np.sqrt(np.diag(ref.prior))
     rng = np.random.default_rng(0)
-    u = rng.normal(size=8)
+    u = rng.normal(size=N_RIG)
     u /= np.linalg.norm(u)
     ref.P = rig_refine._positive_definite(ref.prior - np.outer(sd * u, sd * u), sd)
     _assert_spd(ref.P)
-    departure = np.zeros(8)
+    departure = np.zeros(N_RIG)
     departure[3:6] = 1e5 * sd[3:6] * rng.normal(size=3)
     ref._estimate = ref.state.moved(departure)
     ref._cov = None
@@ -259,8 +261,8 @@ def test_positive_definite_floor():
     ref = RigRefiner(RIG, MODEL)
     sd = np.sqrt(np.diag(ref.prior))
     rng = np.random.default_rng(1)
-    U = np.linalg.qr(rng.normal(size=(8, 8)))[0]
-    lam = np.array([-1e-3, 0.0, 1e-12, 1e-6, 0.1, 0.5, 1.0, 2.0])
+    U = np.linalg.qr(rng.normal(size=(N_RIG, N_RIG)))[0]
+    lam = np.array([-1e-3, 0.0, 1e-12, 1e-6, 0.1, 0.5, 1.0, 1.5, 2.0])
     M = (U * lam) @ U.T * np.outer(sd, sd)
     out = rig_refine._positive_definite(M, sd)
     _assert_spd(out)
@@ -270,7 +272,7 @@ def test_positive_definite_floor():
     good = ref.prior + 0.1 * np.outer(sd, sd)
     np.testing.assert_array_equal(rig_refine._positive_definite(good, sd), good)
     with pytest.raises(rig_refine._SkipChunk):
-        rig_refine._positive_definite(np.full((8, 8), np.nan), sd)
+        rig_refine._positive_definite(np.full((N_RIG, N_RIG), np.nan), sd)
 
 
 # --------------------------------------------------------------------------- the rig's residual rows
@@ -291,8 +293,13 @@ def _rows(R, p1, visible, dt, omega, velocity, sigma):
     """The pose's and the rig's rows over the visible coordinates, and their weights, as the tracker
     builds them (``Tracker._rig_after_fit``)."""
     pose = geo.reprojection_rows(R, p1, MODEL, visible, CAMERAS)
-    rig = rig_jacobian_rows(R, p1, MODEL, RigState(RIG), np.asarray(RIG.D2), dt, omega, velocity)
-    return (pose[visible].reshape(-1, 6), rig[visible].reshape(-1, 8),
+    world = MODEL @ R.T + p1
+    rows = np.stack([_project(world, np.eye(3), np.zeros(3), RIG.K1, RIG.D1)[:, 1],
+                     _project(world, RIG.R, RIG.T, RIG.K2, RIG.D2)[:, 1]])
+    state = RigState(RIG, readout_s=0.03)
+    rig = rig_jacobian_rows(R, p1, MODEL, state, np.asarray(RIG.D2), dt, omega, velocity, rows_px=rows,
+                            image_height=RIG.image_size[1])
+    return (pose[visible].reshape(-1, 6), rig[visible].reshape(-1, N_RIG),
             np.repeat(1.0 / np.square(sigma[visible]), 2))
 
 
@@ -363,4 +370,4 @@ def test_rig_residual_rows_with_non_finite_inputs():
     expected = rig_residual_rows(J[good], Jr[good], w[good])
     np.testing.assert_allclose(M[good], expected, rtol=1e-6, atol=1e-9 * np.abs(Jr[good]).max())
     # No row at all: an empty answer, not an error.
-    assert rig_residual_rows(J[:0], Jr[:0], w[:0]).shape == (0, 8)
+    assert rig_residual_rows(J[:0], Jr[:0], w[:0]).shape == (0, N_RIG)

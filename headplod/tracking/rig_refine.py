@@ -7,7 +7,7 @@ determined, and two webcams without hardware sync expose milliseconds apart.
 The five markers are a rigid object of known size seen by both cameras, so
 every tracked frame constrains the rig.
 
-Error state (8 parameters, relative to the current estimate)
+Error state (9 parameters, relative to the current estimate)
 --------------------------------------------------------------
 ``ω`` (3, rad)
     Turn of the right camera about its own centre, in its frame:
@@ -24,12 +24,26 @@ Error state (8 parameters, relative to the current estimate)
 ``δt`` (1, s)
     Exposure of the right image minus that of the left one, added to what
     ``times.csv`` or the driver says (``t_right``).
+``ρ`` (1, s)
+    Readout time of the cameras' rolling shutter: the time from the
+    exposure of an image's first row to that of its last (0: a global
+    shutter; USB webcams 15-33 ms). Both cameras are taken to be the same
+    model with the same readout. A frame's time (``t``, and ``t_right``)
+    is the exposure of the image's MIDDLE row: row ``r`` of an image ``H``
+    rows high (``rig.image_size`` is (width, height)) is exposed at
+    ``t + (r − (H−1)/2) ρ/(H−1)``. Each marker centre is the model point
+    moved by the head's motion over that time (the centre's measured row
+    gives its time: known, and no circular dependency), so ρ is seen only
+    when the head moves, through how the markers' rows spread in time
+    (a time common to all of a frame's markers is a pose). Its prior
+    (:func:`readout_prior`) comes from the frame period (most webcams read
+    out for ~92% of it) or from the user.
 
 Estimator
 ---------
 An iterated, chunked recursive filter (:class:`RigRefiner`): every
 ``chunk_frames`` tracked frames, a Gauss-Newton solve over those frames'
-poses (6 each) and the 8 rig parameters, with the prior from the last
+poses (6 each) and the 9 rig parameters, with the prior from the last
 solve (its covariance plus the drift expected since), iteratively
 reweighted with a Cauchy loss so a frame with a glint or a wrong centre
 does not pull the rig. The frames' poses are marginalized out; the rig's
@@ -80,9 +94,38 @@ import scipy.linalg
 from .. import io
 
 PARAMETERS = ("turn_x_rad", "turn_y_rad", "turn_z_rad", "shift_x_mm", "shift_y_mm", "shift_z_mm",
-              "log_focal_right", "time_offset_s")
+              "log_focal_right", "time_offset_s", "readout_s")
 N_RIG = len(PARAMETERS)
-_TURN, _SHIFT, _FOCAL, _OFFSET = slice(0, 3), slice(3, 6), 6, 7
+_TURN, _SHIFT, _FOCAL, _OFFSET, _READOUT = slice(0, 3), slice(3, 6), 6, 7, 8
+
+# A webcam's sensor reads its rows out over the active part of the frame
+# period and idles over the vertical blanking: active rows / total rows is
+# typically ~0.92 (e.g. 480 of 525 lines for VGA timing, 720 of 750 for
+# 720p, 1080 of 1125 for 1080p), so the readout is ~92% of the frame period.
+READOUT_ACTIVE_FRACTION = 0.92
+# The readout's prior until the frame period (or the user) tells better:
+# centred on a global shutter, wide enough for any webcam's 15-33 ms.
+READOUT_PRIOR_UNKNOWN = (0.0, 0.015)
+
+
+def readout_prior(frame_period_s: float | None, user_readout_s: float | None) -> tuple[float, float]:
+    """Prior (mean, σ), s, of the cameras' rolling-shutter readout time.
+
+    A value the user gives (``user_readout_s``; 0 = global shutter
+    cameras) is taken as known: σ 5% of it or 0.5 ms, whichever is larger
+    (0.2 ms for a global shutter). Else, from the frame period: mean =
+    period × :data:`READOUT_ACTIVE_FRACTION`, σ 50% of that (cameras read
+    out faster than their frame rate needs, and some drivers add blanking).
+    Neither known (or not finite and > 0): :data:`READOUT_PRIOR_UNKNOWN`.
+    """
+    if user_readout_s is not None and math.isfinite(user_readout_s) and user_readout_s >= 0:
+        if user_readout_s == 0:
+            return 0.0, 2e-4
+        return float(user_readout_s), max(0.05 * float(user_readout_s), 5e-4)
+    if frame_period_s is not None and math.isfinite(frame_period_s) and frame_period_s > 0:
+        mean = READOUT_ACTIVE_FRACTION * float(frame_period_s)
+        return mean, 0.5 * mean
+    return READOUT_PRIOR_UNKNOWN
 
 # Smallest eigenvalue of a covariance, in units of the prior's variance per
 # component (σ ≥ 3e-5 of the prior's σ): far below the drift one chunk adds
@@ -141,17 +184,17 @@ def _positive_definite(M: np.ndarray, scale: np.ndarray) -> np.ndarray:
 class _Solution:
     """What :meth:`RigRefiner._solve` found for a chunk."""
 
-    increment: np.ndarray       # (8,) rig error-state increment
-    posterior: np.ndarray       # (8, 8) its covariance, SPD, inflated by the noise scale
+    increment: np.ndarray       # (9,) rig error-state increment
+    posterior: np.ndarray       # (9, 9) its covariance, SPD, inflated by the noise scale
     chi2: float                 # Cauchy-weighted χ² of the data rows
     rows_used: int              # centre coordinates used
     noise_scale: float          # the median centre's χ² per degree of freedom
     refit: dict                 # {t: (R_world_G, p1)} of the chunk's poses refitted with the increment
-    moved: np.ndarray           # (8,) bool: parameters the increment was free to move
+    moved: np.ndarray           # (9,) bool: parameters the increment was free to move
 
 
 def _eliminate_poses(A: np.ndarray, B: np.ndarray, g: np.ndarray):
-    """A⁻¹ B (n, 6, 8) and A⁻¹ g (n, 6) for the frames' pose blocks A (n, 6, 6), B (n, 6, 8), g (n, 6).
+    """A⁻¹ B (n, 6, 9) and A⁻¹ g (n, 6) for the frames' pose blocks A (n, 6, 6), B (n, 6, 9), g (n, 6).
 
     Each block is scaled to unit diagonal and inverted by its
     eigendecomposition (batched, no loop). Raises
@@ -203,6 +246,10 @@ class RigErrorModel:
     offset_undeclared_s, offset_declared_s : float
         Exposure offset between the cameras when ``times.csv``/the driver
         gives no right time (webcams without sync), and when it does.
+    readout_s : float or None
+        The cameras' rolling-shutter readout time if the user knows it
+        (0: global shutter cameras), s; None: from the frame period
+        (:func:`readout_prior`, :meth:`RigRefiner.set_readout_prior`).
     """
 
     turn_deg: float = 0.5
@@ -210,12 +257,24 @@ class RigErrorModel:
     focal_fraction: float = 0.01
     offset_undeclared_s: float = 0.025
     offset_declared_s: float = 0.002
+    readout_s: float | None = None
 
-    def covariance(self, rig, offset_declared: bool, calibration_std: dict | None = None) -> np.ndarray:
-        """Prior covariance (8, 8) of the error state; the calibration's own σ (if written) add in quadrature."""
+    def readout_prior(self, frame_period_s: float | None = None) -> tuple[float, float]:
+        """Prior (mean, σ), s, of the readout time (:func:`readout_prior` with the user's value, if any)."""
+        return readout_prior(frame_period_s, self.readout_s)
+
+    def covariance(self, rig, offset_declared: bool, calibration_std: dict | None = None,
+                   readout_sd_s: float | None = None) -> np.ndarray:
+        """Prior covariance (9, 9) of the error state; the calibration's own σ (if written) add in quadrature.
+
+        ``readout_sd_s``: the readout's σ, s (default: :meth:`readout_prior`'s
+        before the frame period is known)."""
         baseline = float(np.linalg.norm(rig.T))
+        if readout_sd_s is None:
+            readout_sd_s = self.readout_prior()[1]
         sd = np.array([math.radians(self.turn_deg)] * 3 + [self.shift_fraction * baseline] * 3
-                      + [self.focal_fraction, self.offset_declared_s if offset_declared else self.offset_undeclared_s])
+                      + [self.focal_fraction, self.offset_declared_s if offset_declared else self.offset_undeclared_s,
+                         readout_sd_s])
         if calibration_std:
             # (headplod.io.rig_calibration_std.) The calibration's σ of the rotation
             # vector's components stands, at this size, for the σ of a small turn
@@ -250,7 +309,7 @@ class RigRefineConfig:
     min_sigma_px : float
         Floor of a centre's σ, px.
     drift_turn_deg_per_sqrt_s, drift_shift_mm_per_sqrt_s, drift_focal_per_sqrt_s,
-    drift_offset_s_per_sqrt_s : float
+    drift_offset_s_per_sqrt_s, drift_readout_s_per_sqrt_s : float
         Random-walk drift of the rig allowed between updates: what lets the
         estimate follow a slowly changing rig (warming cameras, a webcam's
         clock drift).
@@ -265,7 +324,7 @@ class RigRefineConfig:
         The rig in use follows the refinement's estimate when they differ by
         more than this many σ of the estimate along some direction.
     bump_evidence : float
-        Fall of the chunk's cost (χ², 8 dof) that re-solving with the
+        Fall of the chunk's cost (χ², 9 dof) that re-solving with the
         widened prior must bring to accept a change of the rig.
     max_gap_frames : float
         Velocities (for the time offset) come from neighbours at most this
@@ -283,6 +342,7 @@ class RigRefineConfig:
     drift_shift_mm_per_sqrt_s: float = 0.02
     drift_focal_per_sqrt_s: float = 1e-4
     drift_offset_s_per_sqrt_s: float = 2e-4
+    drift_readout_s_per_sqrt_s: float = 1e-5
     observable_fraction: float = 0.05
     inconsistency: float = 4.0
     publish_sigma: float = 3.0
@@ -318,7 +378,7 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 
 class RigState:
-    """The rig as currently estimated: the right camera's R, T, focal scale and the exposure offset.
+    """The rig as currently estimated: the right camera's R, T, focal scale, the exposure offset and readout.
 
     Attributes
     ----------
@@ -328,23 +388,27 @@ class RigState:
         Log scale of the right camera's focal lengths relative to ``rig.yaml``.
     offset_s : float
         Right exposure minus left, beyond what the timestamps say, s.
+    readout_s : float
+        Rolling-shutter readout time of both cameras (first row to last), s.
     """
 
-    def __init__(self, rig):
+    def __init__(self, rig, readout_s: float = 0.0):
         self.calibrated = rig
         self.R = np.asarray(rig.R, np.float64).copy()
         self.T = np.asarray(rig.T, np.float64).reshape(3).copy()
         self.log_focal = 0.0
         self.offset_s = 0.0
+        self.readout_s = float(readout_s)
 
     def apply(self, increment: np.ndarray) -> None:
-        """Add an error-state increment (8,) to the estimate."""
+        """Add an error-state increment (9,) to the estimate."""
         turn = cv2.Rodrigues(np.asarray(increment[_TURN], np.float64))[0]
         self.R = turn @ self.R
         self.R = cv2.Rodrigues(cv2.Rodrigues(self.R)[0])[0]
         self.T = turn @ self.T + increment[_SHIFT]
         self.log_focal += float(increment[_FOCAL])
         self.offset_s += float(increment[_OFFSET])
+        self.readout_s += float(increment[_READOUT])
 
     def K2(self) -> np.ndarray:
         K = np.asarray(self.calibrated.K2, np.float64).copy()
@@ -353,17 +417,18 @@ class RigState:
         return K
 
     def error_from(self, other: "RigState") -> np.ndarray:
-        """The error-state increment (8,) that moves ``other`` onto this estimate."""
+        """The error-state increment (9,) that moves ``other`` onto this estimate."""
         turn = cv2.Rodrigues(self.R @ other.R.T)[0].ravel()
         out = np.zeros(N_RIG)
         out[_TURN] = turn
         out[_SHIFT] = self.T - cv2.Rodrigues(turn)[0] @ other.T
         out[_FOCAL] = self.log_focal - other.log_focal
         out[_OFFSET] = self.offset_s - other.offset_s
+        out[_READOUT] = self.readout_s - other.readout_s
         return out
 
     def moved(self, increment: np.ndarray) -> "RigState":
-        """A copy moved by an error-state increment (8,); this estimate is left as it is."""
+        """A copy moved by an error-state increment (9,); this estimate is left as it is."""
         out = copy.copy(self)
         out.apply(increment)
         return out
@@ -373,12 +438,14 @@ class RigState:
         cal = self.calibrated
         extra = dict(cal.extra)
         extra["refined_time_offset_ms"] = round(self.offset_s * 1e3, 4)
+        extra["refined_readout_ms"] = round(self.readout_s * 1e3, 4)
         if cal.path:
             extra["refined_from"] = str(cal.path)
         return io.Rig(cal.image_size, cal.K1, cal.D1, self.K2(), cal.D2, self.R, self.T, extra=extra)
 
     def differences(self) -> dict:
-        """How the estimate differs from ``rig.yaml``: turn (deg), baseline scale, focal scale, offset (ms)."""
+        """How the estimate differs from ``rig.yaml``: turn (deg), baseline scale, focal scale, offset (ms),
+        and the rolling shutter's readout (ms)."""
         cal = self.calibrated
         turn = cv2.Rodrigues(self.R @ np.asarray(cal.R, np.float64).T)[0].ravel()
         centre = -self.R.T @ self.T
@@ -388,7 +455,8 @@ class RigState:
                 "baseline_scale": float(np.linalg.norm(self.T) / np.linalg.norm(cal.T)),
                 "centre_shift_mm": float(np.linalg.norm(centre - centre_cal)),
                 "focal_scale": float(math.exp(self.log_focal)),
-                "offset_ms": self.offset_s * 1e3}
+                "offset_ms": self.offset_s * 1e3,
+                "readout_ms": self.readout_s * 1e3}
 
 
 def project_right(points_world: np.ndarray, R: np.ndarray, T: np.ndarray, K: np.ndarray, D: np.ndarray):
@@ -412,37 +480,107 @@ def project_right(points_world: np.ndarray, R: np.ndarray, T: np.ndarray, K: np.
     return px.reshape(-1, 2), d_cam, d_logf, cam
 
 
+def row_fractions(rows_px: np.ndarray, image_height: int | None) -> np.ndarray:
+    """Each centre's exposure relative to its frame's time, in readouts: (r − (H−1)/2) / (H−1).
+
+    ``rows_px`` (any shape): the centres' measured rows (y), px. A
+    non-finite row (a centre not seen), or no height (H ≤ 1), gives 0: the
+    frame's time; a row beyond the image (no measured centre is) its edge's,
+    ±0.5.
+    """
+    rows = np.asarray(rows_px, np.float64)
+    if image_height is None or not image_height > 1:
+        return np.zeros(rows.shape)
+    frac = (rows - 0.5 * (image_height - 1)) / (image_height - 1)
+    return np.where(np.isfinite(frac), np.clip(frac, -0.5, 0.5), 0.0)
+
+
+def _stereo_terms(world: np.ndarray, motion: np.ndarray, frac: np.ndarray, right_dt, state: RigState,
+                  K1: np.ndarray, D1: np.ndarray, D2: np.ndarray, left: bool = True):
+    """Both cameras' projections of points seen through rolling shutters, and their derivatives.
+
+    ``world`` (k, 3) mm: the points at the frame's time (its images' middle
+    rows); ``motion`` (k, 3) mm/s: their world velocity (zeros: unknown);
+    ``frac`` (2, k): each centre's row time in readouts (:func:`row_fractions`);
+    ``right_dt`` (k,) or scalar, s: the right image's time minus the left's
+    (declared + offset). Left camera: the points at ``frac[0] ρ``; right:
+    at ``right_dt + frac[1] ρ`` (ρ = ``state.readout_s``), moved linearly.
+
+    Returns px (2, k, 2), ∂px/∂(world point) (2, k, 2, 3), and
+    ∂px/∂(rig error state) (2, k, 2, 9): the left rows' only non-zero column
+    is the readout's. ``left`` False: the left camera's px and derivatives
+    are left NaN, its rig rows zero (for callers that need the right's only).
+    """
+    k = len(world)
+    readout = state.readout_s
+    px = np.full((2, k, 2), np.nan)
+    d_world = np.full((2, k, 2, 3), np.nan)
+    J_rig = np.zeros((2, k, 2, N_RIG))
+    if left:
+        world_l = world + (frac[0] * readout)[:, None] * motion
+        pl, jac = cv2.projectPoints(world_l.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K1, D1)
+        d_left = jac.reshape(k, 2, -1)[..., 3:6]                        # the left camera's frame is the world's
+        px[0], d_world[0] = pl.reshape(k, 2), d_left
+        J_rig[0, :, :, _READOUT] = np.einsum("kij,kj->ki", d_left, motion) * frac[0][:, None]
+    world_r = world + (right_dt + frac[1] * readout)[:, None] * motion
+    pr, d_cam, d_logf, cam = project_right(world_r, state.R, state.T, state.K2(), D2)
+    px[1], d_world[1] = pr, d_cam @ state.R
+    J_rig[1] = _right_rig_columns(d_cam, d_logf, cam, state.R, motion, frac[1])
+    return px, d_world, J_rig
+
+
 def rig_jacobian_rows(R_world_G: np.ndarray, p1_mm: np.ndarray, model_mm: np.ndarray, state: RigState,
                       D2: np.ndarray, right_dt_s: float = 0.0, omega: np.ndarray | None = None,
-                      velocity: np.ndarray | None = None) -> np.ndarray:
-    """∂(projected centre)/∂(rig error state) at a pose: (2, 5, 2, 8), left rows zero.
+                      velocity: np.ndarray | None = None, rows_px: np.ndarray | None = None,
+                      image_height: int | None = None) -> np.ndarray:
+    """∂(projected centre)/∂(rig error state) at a pose: (2, 5, 2, 9).
 
     ``omega`` (rad/s) and ``velocity`` (mm/s) are the head's motion in the
-    world frame; without them the time offset's column is zero.
+    world frame; without them the time offset's and the readout's columns
+    are zero. ``right_dt_s``: the right image's time minus the left's (the
+    declared offset plus the estimated one). ``rows_px`` (2, 5): the
+    centres' measured rows (y, px; NaN for a centre not seen), with
+    ``image_height`` (px; default ``state.calibrated.image_size[1]``):
+    each point is moved by the head's motion over its row's time in each
+    camera (:func:`_stereo_terms`, with ``state.readout_s``), and the
+    readout's column is filled in both cameras. Without ``rows_px`` the
+    left rows are zero and the readout's column too (no rolling shutter
+    modelled), as before the readout was a parameter.
     """
-    world = model_mm @ R_world_G.T + p1_mm
-    motion = None
-    if omega is not None and velocity is not None:
-        motion = np.cross(omega, world - p1_mm) + velocity
-        world = world + right_dt_s * motion
-    _, d_cam, d_logf, cam = project_right(world, state.R, state.T, state.K2(), D2)
-    rows = np.zeros((2, len(model_mm), 2, N_RIG))
-    rows[1] = _right_rig_columns(d_cam, d_logf, cam, state.R, motion)
-    return rows
+    lever = model_mm @ R_world_G.T
+    world = lever + p1_mm
+    m = len(model_mm)
+    moving = omega is not None and velocity is not None
+    motion = np.cross(omega, lever) + velocity if moving else np.zeros((m, 3))
+    if rows_px is not None and moving:
+        if image_height is None:
+            image_height = state.calibrated.image_size[1]
+        frac = row_fractions(np.asarray(rows_px, np.float64).reshape(2, m), image_height)
+    else:
+        frac = np.zeros((2, m))
+    cal = state.calibrated
+    _, _, J_rig = _stereo_terms(world, motion, frac, right_dt_s, state, np.asarray(cal.K1, np.float64),
+                                np.asarray(cal.D1, np.float64), D2, left=rows_px is not None and moving)
+    return J_rig
 
 
-def _right_rig_columns(d_cam, d_logf, cam, R_right, motion):
-    """∂(right projections)/∂(rig error state) (n, 2, 8) from :func:`project_right`'s derivatives.
+def _right_rig_columns(d_cam, d_logf, cam, R_right, motion, frac=None):
+    """∂(right projections)/∂(rig error state) (n, 2, 9) from :func:`project_right`'s derivatives.
 
     ``motion`` (n, 3), mm/s: each point's world velocity (None: the time
-    offset's column is zero).
+    offset's and readout's columns are zero); ``frac`` (n,): its row's
+    time in readouts (:func:`row_fractions`; None: the readout's column is
+    zero).
     """
     cols = np.zeros(d_cam.shape[:2] + (N_RIG,))
     cols[:, :, _TURN] = np.einsum("nij,njk->nik", d_cam, -_skew(cam))
     cols[:, :, _SHIFT] = d_cam
     cols[:, :, _FOCAL] = d_logf
     if motion is not None:
-        cols[:, :, _OFFSET] = np.einsum("nij,jk,nk->ni", d_cam, R_right, motion)
+        speed = np.einsum("nij,jk,nk->ni", d_cam, R_right, motion)        # ∂px/∂t
+        cols[:, :, _OFFSET] = speed
+        if frac is not None:
+            cols[:, :, _READOUT] = speed * np.asarray(frac)[:, None]
     return cols
 
 
@@ -461,11 +599,16 @@ class RigRefiner:
         Whether the right image's time is given (``t_right``).
     calibration_std : dict, optional
         The calibration's own standard deviations (``headplod calibrate``).
+    readout_prior : (mean_s, sd_s), optional
+        Prior of the rolling shutter's readout time, s (default
+        ``error_model.readout_prior()``: the user's value if the error model
+        has one, else :data:`READOUT_PRIOR_UNKNOWN` until
+        :meth:`set_readout_prior` tells the frame period's).
     """
 
     def __init__(self, rig, model_mm, config: RigRefineConfig = RigRefineConfig(),
                  error_model: RigErrorModel = RigErrorModel(), offset_declared: bool = False,
-                 calibration_std: dict | None = None):
+                 calibration_std: dict | None = None, readout_prior: tuple[float, float] | None = None):
         self.config = config
         self.error_model = error_model
         self.model_mm = np.asarray(model_mm, np.float64)
@@ -473,24 +616,64 @@ class RigRefiner:
         self.D = (np.asarray(rig.D1, np.float64), np.asarray(rig.D2, np.float64))
         self.K1 = np.asarray(rig.K1, np.float64)
         self.offset_declared = offset_declared
-        self.prior = error_model.covariance(rig, offset_declared, calibration_std)
-        scale = np.sqrt(np.diag(self.prior))
-        if not (np.isfinite(self.prior).all() and np.all(scale > 0)):
-            raise ValueError(f"the rig's error model gives no usable prior (σ per parameter {scale.tolist()}): "
-                             "every σ must be finite and > 0")
-        self._scale = scale                   # (8,) the prior's σ: the units of every covariance's floor
-        # The prior in the units the refiner compares in (its Cholesky factor's inverse).
-        self._prior_L_inv = scipy.linalg.solve_triangular(np.linalg.cholesky(self.prior), np.eye(N_RIG), lower=True)
+        size = getattr(rig, "image_size", None)
+        self.image_height = int(size[1]) if size is not None else None     # rows, for the rolling shutter
+        mean, sd = error_model.readout_prior() if readout_prior is None else readout_prior
+        self.readout_mean_s = self._checked_readout(mean, sd)
+        self.prior = error_model.covariance(rig, offset_declared, calibration_std, readout_sd_s=float(sd))
+        self._set_prior(self.prior)
         self.reset()
 
+    @staticmethod
+    def _checked_readout(mean_s, sd_s) -> float:
+        if not (math.isfinite(mean_s) and math.isfinite(sd_s) and sd_s > 0):
+            raise ValueError(f"the readout's prior needs a finite mean and a finite σ > 0 (got {mean_s}, {sd_s})")
+        return float(mean_s)
+
+    def _set_prior(self, prior: np.ndarray) -> None:
+        """The prior and what derives from it: the units of every covariance's floor, its Cholesky inverse."""
+        scale = np.sqrt(np.diag(prior))
+        if not (np.isfinite(prior).all() and np.all(scale > 0)):
+            raise ValueError(f"the rig's error model gives no usable prior (σ per parameter {scale.tolist()}): "
+                             "every σ must be finite and > 0")
+        self.prior = prior
+        self._scale = scale                   # (9,) the prior's σ: the units of every covariance's floor
+        # The prior in the units the refiner compares in (its Cholesky factor's inverse).
+        self._prior_L_inv = scipy.linalg.solve_triangular(np.linalg.cholesky(prior), np.eye(N_RIG), lower=True)
+
+    def set_readout_prior(self, mean_s: float, sd_s: float) -> bool:
+        """Set the readout's prior (mean, σ, s), e.g. :func:`readout_prior` once the frame period is known.
+
+        Only until the first update: the estimate's and the rig in use's
+        readout become ``mean_s``, the prior's σ ``sd_s`` (and with it the
+        units of the floors, the comparisons, and P's readout row and column,
+        scaled as its σ: a widened P stays as wide). Returns False, changing
+        nothing, once an update has used the old prior (the estimate has
+        learnt since; :meth:`reset` starts over with the prior set last).
+        """
+        mean_s = self._checked_readout(mean_s, sd_s)
+        if self.updates:
+            return False
+        prior = self.prior.copy()
+        ratio = np.ones(N_RIG)
+        ratio[_READOUT] = sd_s / math.sqrt(prior[_READOUT, _READOUT])
+        prior[_READOUT, :] = prior[:, _READOUT] = 0.0
+        prior[_READOUT, _READOUT] = sd_s ** 2
+        self._set_prior(prior)
+        self.P = self.P * np.outer(ratio, ratio)
+        self.readout_mean_s = mean_s
+        self.state.readout_s = self._estimate.readout_s = mean_s
+        self._cov = None
+        return True
+
     def reset(self) -> None:
-        """Back to ``rig.yaml`` and its error model."""
+        """Back to ``rig.yaml`` and its error model (the readout's prior as set last)."""
         # The filter's estimate moves with every update; the rig in use
         # (``state``) follows it only when they differ by more than the
         # estimate's noise, so a still head or a perfect rig does not shake
         # the poses with the refinement's own noise.
-        self.state = RigState(self.calibrated)
-        self._estimate = RigState(self.calibrated)
+        self.state = RigState(self.calibrated, self.readout_mean_s)
+        self._estimate = RigState(self.calibrated, self.readout_mean_s)
         self.P = self.prior.copy()
         self.versions = 0           # changes of the rig in use
         self._cov = None            # cov(), until P or either rig changes
@@ -516,7 +699,7 @@ class RigRefiner:
 
     # ---------------------------------------------------------------- queries
     def sigma(self) -> np.ndarray:
-        """1σ of the error of the rig in use (8,): rad ×3, mm ×3, log focal, s."""
+        """1σ of the error of the rig in use (9,): rad ×3, mm ×3, log focal, offset s, readout s."""
         return np.sqrt(np.maximum(np.diag(self.cov()), 0.0))
 
     def converged(self) -> bool:
@@ -534,6 +717,8 @@ class RigRefiner:
             parts.append(f"right focal x{d['focal_scale']:.3f}")
         if self.refined[_OFFSET] or abs(d["offset_ms"]) > 0.05:
             parts.append(f"time offset {d['offset_ms']:.1f} ms ±{sd[_OFFSET] * 1e3:.1f}")
+        if self.refined[_READOUT] or abs(d["readout_ms"]) > 0.05:
+            parts.append(f"rolling shutter {d['readout_ms']:.1f} ms ±{sd[_READOUT] * 1e3:.1f}")
         state = "refined" if self.converged() else "refining"
         if self.bumps:
             state += f", rig changed at t={self.bumps[-1]:.1f} s"
@@ -564,6 +749,7 @@ class RigRefiner:
                 "focal_scale": round(d["focal_scale"], 5), "offset_ms": round(d["offset_ms"], 3),
                 "turn_sd_deg": round(float(np.degrees(sd[_TURN].max())), 4),
                 "offset_sd_ms": round(float(sd[_OFFSET] * 1e3), 3),
+                "readout_ms": round(d["readout_ms"], 3), "readout_sd_ms": round(float(sd[_READOUT] * 1e3), 3),
                 "state": "refined" if self.converged() else "refining", "updates": self.updates,
                 "bumps": len(self.bumps)}
 
@@ -651,15 +837,16 @@ class RigRefiner:
             frames[i].velocity = (b.p1 - a.p1) / dt
 
     def _process_noise(self, t: float) -> np.ndarray:
-        """Drift (8, 8) since the last update: a random walk, variance ∝ elapsed time (0 if none elapsed)."""
+        """Drift (9, 9) since the last update: a random walk, variance ∝ elapsed time (0 if none elapsed)."""
         c = self.config
         elapsed = 0.0 if self._last_update_t is None else max(t - self._last_update_t, 0.0)
         q = np.array([math.radians(c.drift_turn_deg_per_sqrt_s)] * 3 + [c.drift_shift_mm_per_sqrt_s] * 3
-                     + [c.drift_focal_per_sqrt_s, c.drift_offset_s_per_sqrt_s]) ** 2 * elapsed
+                     + [c.drift_focal_per_sqrt_s, c.drift_offset_s_per_sqrt_s,
+                        c.drift_readout_s_per_sqrt_s]) ** 2 * elapsed
         return np.diag(q)
 
     def _predicted(self, t: float) -> np.ndarray:
-        """The prior (8, 8) of a chunk ending at ``t``: the last posterior plus the drift since, SPD.
+        """The prior (9, 9) of a chunk ending at ``t``: the last posterior plus the drift since, SPD.
 
         Unobservable parameters must not grow without bound while the head
         is still: a variance above the prior's is brought down to it by
@@ -730,7 +917,7 @@ class RigRefiner:
         return self._estimate
 
     def cov(self) -> np.ndarray:
-        """Covariance (8, 8) of the error of the rig in use: the estimate's, and how far it is from it.
+        """Covariance (9, 9) of the error of the rig in use: the estimate's, and how far it is from it.
 
         Symmetric positive definite (floored as :func:`_positive_definite`:
         P plus an outer product can lose it to rounding when the two differ
@@ -749,9 +936,9 @@ class RigRefiner:
     def _solve(self, chunk: list[_Frame], prior: np.ndarray) -> "_Solution":
         """Gauss-Newton with Cauchy reweighting over the chunk's poses and the rig.
 
-        ``prior`` (8, 8) is SPD (:meth:`_predicted`). Each frame's pose (6)
+        ``prior`` (9, 9) is SPD (:meth:`_predicted`). Each frame's pose (6)
         is eliminated by its own 6×6 block (the poses share nothing but the
-        rig), leaving the rig's 8×8 system: the Schur complement S = data
+        rig), leaving the rig's 9×9 system: the Schur complement S = data
         information on the rig + prior information, whose inverse is the
         posterior. Both are solved by eigendecomposition in scaled units
         (pose blocks to unit diagonal, the rig in units of the prior), which
@@ -769,7 +956,7 @@ class RigRefiner:
             raise _SkipChunk(SKIP_SINGULAR) from None
         L_inv = scipy.linalg.solve_triangular(L, np.eye(N_RIG), lower=True)
         prior_info = L_inv.T @ L_inv
-        data = _ChunkData.of(chunk)
+        data = _ChunkData.of(chunk, self.image_height)
         # Which rig parameters can this chunk teach? Decided at the start (linearization point).
         rig = np.zeros(N_RIG)
         poses = np.zeros((n, 6))
@@ -796,7 +983,7 @@ class RigRefiner:
                 Jr = np.where(seen[..., None, None], J_rig * scaled, 0.0).reshape(n, -1, N_RIG)
             Jp_t = np.swapaxes(Jp, 1, 2)
             A = Jp_t @ (Jp * w[..., None])                        # each pose's information (n, 6, 6)
-            B = Jp_t @ (Jr * w[..., None])                        # pose × rig (n, 6, 8)
+            B = Jp_t @ (Jr * w[..., None])                        # pose × rig (n, 6, 9)
             Jr_all, w_all, r_all = Jr.reshape(-1, N_RIG), w.reshape(-1), r.reshape(-1)
             C = Jr_all.T @ (Jr_all * w_all[:, None])              # rig × rig (data only)
             g_pose = np.einsum("nki,nk->ni", Jp, w * r)
@@ -808,7 +995,7 @@ class RigRefiner:
             if not (np.isfinite(A).all() and np.isfinite(B).all() and np.isfinite(C).all()
                     and np.isfinite(g_pose).all() and np.isfinite(g_rig).all() and math.isfinite(chi2)):
                 raise _SkipChunk(SKIP_NON_FINITE)
-            # Eliminate the poses: X = A⁻¹ B (n, 6, 8), y = A⁻¹ g (n, 6).
+            # Eliminate the poses: X = A⁻¹ B (n, 6, 9), y = A⁻¹ g (n, 6).
             X, y = _eliminate_poses(A, B, g_pose)
             data_info = C - np.einsum("nij,nik->jk", B, X)
             # In units of the prior (whitened by L: the prior is I there).
@@ -848,11 +1035,14 @@ class RigRefiner:
         return _Solution(rig, posterior, chi2, rows_used, noise_scale, refit, moved)
 
     def _chunk_terms(self, data: "_ChunkData", poses: np.ndarray, state: RigState):
-        """Residuals (n, 2, 5, 2) px, ∂/∂pose (n, 2, 5, 2, 6) and ∂/∂rig (n, 2, 5, 2, 8) of a chunk's frames.
+        """Residuals (n, 2, 5, 2) px, ∂/∂pose (n, 2, 5, 2, 6) and ∂/∂rig (n, 2, 5, 2, 9) of a chunk's frames.
 
         All frames at once: one ``cv2.projectPoints`` per camera over every
         frame's points (already in the camera's frame, rvec = tvec = 0, so the
         derivatives with respect to tvec are those with respect to the point).
+        Each centre is the model point at its row's time (:func:`_stereo_terms`):
+        the head moved meanwhile (no motion known: not moved, and the offset's
+        and readout's columns are zero).
         """
         model = self.model_mm
         n, m = len(poses), len(model)
@@ -862,24 +1052,14 @@ class RigRefiner:
         lever = np.einsum("mj,nij->nmi", model, R)                      # model @ Rᵀ per frame (n, m, 3)
         world = lever + p1[:, None, :]
         dX_dpose = np.concatenate([-_skew(lever), np.broadcast_to(np.eye(3), (n, m, 3, 3))], axis=3)  # (n, m, 3, 6)
-        res = np.empty((n, 2, m, 2))
-        J_pose = np.empty((n, 2, m, 2, 6))
-        J_rig = np.zeros((n, 2, m, 2, N_RIG))
-        px, jac = cv2.projectPoints(world.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.K1, self.D[0])
-        d_left = jac.reshape(n, m, 2, -1)[..., 3:6]                      # ∂px/∂X (n, m, 2, 3)
-        res[:, 0] = px.reshape(n, m, 2) - data.centers[:, 0]
-        J_pose[:, 0] = d_left @ dX_dpose
-        # The right image's exposure, relative to the left one's: the head moved
-        # meanwhile (no motion known: zero, and the offset's column is zero).
-        motion = np.einsum("nij,nmj->nmi", _skew(data.omega), lever) + data.velocity[:, None, :]  # ω × lever + v (n, m, 3)
-        dt = data.declared + state.offset_s
-        world_r = world + dt[:, None, None] * motion
-        pr, d_cam, d_logf, cam = project_right(world_r.reshape(-1, 3), state.R, state.T, state.K2(), self.D[1])
-        res[:, 1] = pr.reshape(n, m, 2) - data.centers[:, 1]
-        d_world = d_cam @ state.R                                         # (n·m, 2, 3)
-        J_pose[:, 1] = d_world.reshape(n, m, 2, 3) @ dX_dpose
-        J_rig[:, 1] = _right_rig_columns(d_cam, d_logf, cam, state.R, motion.reshape(-1, 3)).reshape(n, m, 2, N_RIG)
-        return res, J_pose, J_rig
+        motion = np.einsum("nij,nmj->nmi", _skew(data.omega), lever) + data.velocity[:, None, :]  # ω × lever + v
+        right_dt = np.repeat(data.declared + state.offset_s, m)
+        frac = np.swapaxes(data.frac, 0, 1).reshape(2, n * m)
+        px, d_world, J_rig = _stereo_terms(world.reshape(-1, 3), motion.reshape(-1, 3), frac, right_dt, state,
+                                           self.K1, self.D[0], self.D[1])
+        res = np.swapaxes(px.reshape(2, n, m, 2), 0, 1) - data.centers
+        J_pose = np.swapaxes(d_world.reshape(2, n, m, 2, 3), 0, 1) @ dX_dpose[:, None]
+        return res, J_pose, np.swapaxes(J_rig.reshape(2, n, m, 2, N_RIG), 0, 1)
 
 
 @dataclass
@@ -894,13 +1074,16 @@ class _ChunkData:
     declared: np.ndarray     # (n,) s
     omega: np.ndarray        # (n, 3) rad/s, zero where the motion is unknown
     velocity: np.ndarray     # (n, 3) mm/s, likewise
+    frac: np.ndarray         # (n, 2, 5) each centre's row time in readouts (row_fractions)
 
     @classmethod
-    def of(cls, chunk: list[_Frame]) -> "_ChunkData":
+    def of(cls, chunk: list[_Frame], image_height: int | None) -> "_ChunkData":
         moving = [f.omega is not None and f.velocity is not None for f in chunk]
         zero = np.zeros(3)
+        centers = np.stack([f.centers for f in chunk])
         return cls(np.stack([f.R for f in chunk]), np.stack([f.p1 for f in chunk]),
-                   np.stack([f.centers for f in chunk]), np.stack([f.visible for f in chunk]),
+                   centers, np.stack([f.visible for f in chunk]),
                    np.stack([f.sigma for f in chunk]), np.array([f.declared_offset_s for f in chunk]),
                    np.stack([f.omega if k else zero for f, k in zip(chunk, moving)]),
-                   np.stack([f.velocity if k else zero for f, k in zip(chunk, moving)]))
+                   np.stack([f.velocity if k else zero for f, k in zip(chunk, moving)]),
+                   row_fractions(centers[..., 1], image_height))

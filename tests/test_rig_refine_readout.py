@@ -1,0 +1,219 @@
+"""The rolling shutter's readout time as the rig's 9th parameter.
+
+Frames are synthetic and exact, as in ``tests/test_refine_properties.py``:
+the default marker model posed by a chosen motion and projected by the
+sample rig (640 x 480 px) into both cameras, no images. The cameras have a
+rolling shutter by the dataset's contract: a frame's time is the exposure
+of the image's MIDDLE row, and row r of an image H rows high is exposed at
+t + (r − (H−1)/2) · readout / (H−1). Each centre is where its marker was
+when the centre's own row was exposed (solved for by fixed-point
+iteration), the right image ``offset`` later than the left one.
+"""
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from headplod import io
+from headplod.tracking import rig_refine
+from headplod.tracking.rig_refine import (N_RIG, PARAMETERS, READOUT_ACTIVE_FRACTION, RigErrorModel, RigRefiner,
+                                          RigState, readout_prior, rig_jacobian_rows)
+
+RIG = io.read_rig(Path(__file__).parent / "data" / "sweep12" / "rig.yaml")
+MODEL = io.default_marker_model().points_mm
+FACING = cv2.Rodrigues(np.array([np.pi, 0.0, 0.0]))[0]     # G's z towards the cameras
+CENTRE = np.array([-170.0, 0.0, 650.0])                     # between the cameras, 65 cm away
+ALL_VISIBLE = np.ones((2, 5), bool)
+HEIGHT = RIG.image_size[1]
+READOUT = PARAMETERS.index("readout_s")
+OFFSET = PARAMETERS.index("time_offset_s")
+VIEWS = ((np.eye(3), np.zeros(3), RIG.K1, RIG.D1), (RIG.R, RIG.T, RIG.K2, RIG.D2))
+
+
+def _pose(t: float, motion: str, amp: float = 1.0):
+    """R_world_G (3, 3), P1 (3,) mm of the head at t (s): still, or a general motion of ±0.3-0.5·amp rad
+    and ±20-60·amp mm (tests/test_refine_properties.py's)."""
+    if motion == "still":
+        return FACING, CENTRE.copy()
+    turn = amp * np.array([0.3 * np.sin(1.3 * t), 0.5 * np.sin(1.7 * t), 0.1 * np.sin(0.9 * t)])
+    shift = amp * np.array([60 * np.sin(1.1 * t), 20 * np.sin(0.8 * t), 40 * np.sin(0.6 * t)])
+    return cv2.Rodrigues(turn)[0] @ FACING, CENTRE + shift
+
+
+def _project(points, R, T, K, D):
+    return cv2.projectPoints(points.reshape(-1, 1, 3), cv2.Rodrigues(np.asarray(R, float))[0],
+                             np.asarray(T, float).reshape(3), np.asarray(K, float), np.asarray(D, float))[0].reshape(-1, 2)
+
+
+def _row_time(row, readout_s):
+    return (row - 0.5 * (HEIGHT - 1)) * readout_s / (HEIGHT - 1)
+
+
+def _centres(t, motion, amp, offset_s, readout_s):
+    """Exact centres (2, 5, 2) px of a rolling-shutter rig: each marker where it was when its own row
+    was exposed (the row is the centre's: solved by fixed-point iteration to 1e-9 px)."""
+    out = np.empty((2, 5, 2))
+    for cam, (Rc, Tc, K, D) in enumerate(VIEWS):
+        t_cam = t + (offset_s if cam else 0.0)
+        for k in range(5):
+            row = 0.5 * (HEIGHT - 1)
+            for _ in range(50):
+                R, p1 = _pose(t_cam + _row_time(row, readout_s), motion, amp)
+                px = _project(MODEL[k:k + 1] @ R.T + p1, Rc, Tc, K, D)[0]
+                done = abs(px[1] - row) < 1e-9
+                row = px[1]
+                if done:
+                    break
+            else:
+                raise AssertionError("the row did not converge")
+            out[cam, k] = px
+    return out
+
+
+def _run(readout_s, offset_s, motion="general", amp=2.0, seconds=5.0, noise_px=0.02, seed=0, **kwargs):
+    """The refiner fed ``seconds`` of frames at 30 fps (exact poses, noisy centres); the right time
+    undeclared. The readout's prior from the frame period (or the user's), as the tracker sets it."""
+    rng = np.random.default_rng(seed)
+    user = kwargs.get("error_model", RigErrorModel()).readout_s
+    ref = RigRefiner(RIG, MODEL, readout_prior=readout_prior(1 / 30, user), **kwargs)
+    sigma = np.full((2, 5), max(noise_px, 0.02))
+    for i in range(int(round(seconds * 30))):
+        t = i / 30
+        centres = _centres(t, motion, amp, offset_s, readout_s) + rng.normal(0.0, noise_px, (2, 5, 2))
+        ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, *_pose(t, motion, amp))
+    ref.flush()
+    return ref
+
+
+# --------------------------------------------------------------------------- the prior
+
+
+def test_readout_prior_rule():
+    mean, sd = readout_prior(1 / 30, None)
+    assert mean == pytest.approx(READOUT_ACTIVE_FRACTION / 30) and sd == pytest.approx(0.5 * mean)
+    assert readout_prior(1 / 30, 0.021) == pytest.approx((0.021, 1.05e-3))        # the user's: 5%
+    assert readout_prior(None, 0.004) == pytest.approx((0.004, 5e-4))             # ... or 0.5 ms
+    assert readout_prior(1 / 30, 0.0) == pytest.approx((0.0, 2e-4))               # a global shutter
+    assert readout_prior(None, None) == rig_refine.READOUT_PRIOR_UNKNOWN
+    assert readout_prior(float("nan"), None) == rig_refine.READOUT_PRIOR_UNKNOWN
+    assert RigErrorModel(readout_s=0.02).readout_prior(1 / 60) == pytest.approx((0.02, 1e-3))
+
+
+def test_refiner_takes_the_readout_prior():
+    ref = RigRefiner(RIG, MODEL)
+    assert ref.prior.shape == (N_RIG, N_RIG) == (9, 9) and ref.estimate.readout_s == 0.0
+    assert math.sqrt(ref.prior[READOUT, READOUT]) == rig_refine.READOUT_PRIOR_UNKNOWN[1]
+    user = RigRefiner(RIG, MODEL, error_model=RigErrorModel(readout_s=0.025))
+    assert user.state.readout_s == user.estimate.readout_s == 0.025
+    assert math.sqrt(user.prior[READOUT, READOUT]) == pytest.approx(1.25e-3)
+    given = RigRefiner(RIG, MODEL, readout_prior=(0.03, 0.004))
+    assert given.estimate.readout_s == 0.03 and math.sqrt(given.prior[READOUT, READOUT]) == pytest.approx(0.004)
+    with pytest.raises(ValueError):
+        RigRefiner(RIG, MODEL, readout_prior=(0.03, 0.0))
+
+
+def test_set_readout_prior_until_the_first_update():
+    ref = RigRefiner(RIG, MODEL)
+    ref.widen(0.0)                                       # P twice the prior: stays twice
+    before = ref.P.copy()
+    assert ref.set_readout_prior(0.0307, 0.015)
+    assert ref.state.readout_s == ref.estimate.readout_s == 0.0307
+    assert ref.prior[READOUT, READOUT] == pytest.approx(0.015 ** 2)
+    assert ref.P[READOUT, READOUT] == pytest.approx(2 * 0.015 ** 2)
+    np.testing.assert_array_equal(ref.P[:READOUT, :READOUT], before[:READOUT, :READOUT])
+    assert ref._scale[READOUT] == pytest.approx(0.015)
+    np.testing.assert_allclose(ref._prior_L_inv @ ref.prior @ ref._prior_L_inv.T, np.eye(N_RIG), atol=1e-12)
+    assert ref.cov()[READOUT, READOUT] == pytest.approx(2 * 0.015 ** 2)
+    ref.reset()                                          # back to rig.yaml, with the readout's prior set last
+    assert ref.estimate.readout_s == 0.0307 and ref.P[READOUT, READOUT] == pytest.approx(0.015 ** 2)
+    # Once an update has used the prior, it stays.
+    ref = _run(0.0, 0.0, seconds=0.6)
+    assert ref.updates >= 1
+    P = ref.P.copy()
+    assert not ref.set_readout_prior(0.01, 0.001)
+    np.testing.assert_array_equal(ref.P, P)
+
+
+# --------------------------------------------------------------------------- the model's derivatives
+
+
+def _linear_model(R, p1, omega, velocity, rows, right_dt, state):
+    """Both cameras' centres by the refiner's model: each point moved linearly over its row's time."""
+    lever = MODEL @ R.T
+    motion = np.cross(omega, lever) + velocity
+    out = np.empty((2, 5, 2))
+    for cam, (_, _, K, D) in enumerate(VIEWS):
+        dt = (right_dt if cam else 0.0) + _row_time(rows[cam], state.readout_s)
+        world = lever + p1 + dt[:, None] * motion
+        Rc, Tc = (np.eye(3), np.zeros(3)) if cam == 0 else (state.R, state.T)
+        out[cam] = _project(world, Rc, Tc, state.K2() if cam else K, D)
+    return out
+
+
+@pytest.mark.parametrize("readout_s", [0.0, 0.03])
+def test_rig_jacobian_rows_readout_column_in_both_cameras(readout_s):
+    R, p1 = _pose(1.3, "general", 2.0)
+    omega, velocity = np.array([0.4, -1.1, 0.3]), np.array([120.0, -60.0, 40.0])
+    rows = _centres(1.3, "general", 2.0, 0.01, readout_s)[..., 1]
+    state = RigState(RIG, readout_s=readout_s)
+    J = rig_jacobian_rows(R, p1, MODEL, state, np.asarray(RIG.D2), 0.01, omega, velocity, rows_px=rows,
+                          image_height=HEIGHT)
+    assert J.shape == (2, 5, 2, 9)
+    # The left camera's rows: the readout's column only, and not zero with a moving head.
+    assert np.all(J[0, :, :, :READOUT] == 0) and np.abs(J[0, :, :, READOUT]).max() > 1.0
+    h = 1e-6
+    plus, minus = RigState(RIG, readout_s=readout_s + h), RigState(RIG, readout_s=readout_s - h)
+    numeric = (_linear_model(R, p1, omega, velocity, rows, 0.01, plus)
+               - _linear_model(R, p1, omega, velocity, rows, 0.01, minus)) / (2 * h)
+    np.testing.assert_allclose(J[..., READOUT], numeric, rtol=1e-5, atol=1e-3)
+    # The offset's column: the right camera's image speed; the readout's is it times the row's fraction.
+    frac = (rows[1] - 0.5 * (HEIGHT - 1)) / (HEIGHT - 1)
+    np.testing.assert_allclose(J[1, :, :, READOUT], J[1, :, :, OFFSET] * frac[:, None], rtol=1e-12)
+    # Without the rows (or without motion): as before the readout, left rows zero.
+    old = rig_jacobian_rows(R, p1, MODEL, RigState(RIG), np.asarray(RIG.D2), 0.01, omega, velocity)
+    assert np.all(old[0] == 0) and np.all(old[..., READOUT] == 0)
+    still = rig_jacobian_rows(R, p1, MODEL, state, np.asarray(RIG.D2), 0.01, rows_px=rows)
+    assert np.all(still[..., OFFSET] == 0) and np.all(still[..., READOUT] == 0)
+
+
+# --------------------------------------------------------------------------- recovery
+
+
+@pytest.mark.parametrize("readout_s, offset_s", [(0.0, 0.0), (0.0, 0.012), (0.015, 0.0), (0.015, 0.008),
+                                                 (0.03, 0.0), (0.03, 0.010)])
+def test_refiner_recovers_readout_and_offset(readout_s, offset_s):
+    """5 s of a varied head motion (turns up to ±1 rad, moves of ±120 mm), centres to 0.02 px: the
+    readout within 5% or 1 ms and the undeclared offset within 1 ms, each within 3σ of its own."""
+    ref = _run(readout_s, offset_s)
+    est = ref.estimate
+    sd = np.sqrt(np.diag(ref.P))
+    assert ref.refined[READOUT] and ref.refined[OFFSET] and not ref.skipped_chunks
+    err_readout, err_offset = est.readout_s - readout_s, est.offset_s - offset_s
+    assert abs(err_readout) <= max(0.05 * readout_s, 1e-3), (err_readout, sd[READOUT])
+    assert abs(err_readout) <= 3 * sd[READOUT] and sd[READOUT] < 1e-3
+    assert abs(err_offset) <= 1e-3 and abs(err_offset) <= 3 * sd[OFFSET]
+    status = ref.status()
+    assert status["readout_sd_ms"] == pytest.approx(ref.sigma()[READOUT] * 1e3, abs=1e-3)
+    assert "rolling shutter" in ref.describe()
+    assert ref.state.rig().extra["refined_readout_ms"] == round(ref.state.readout_s * 1e3, 4)
+
+
+def test_still_head_leaves_the_readout_at_its_prior():
+    """A still head shows no row's time: the readout is not refined, the estimate stays at the prior's mean
+    (the turn and shift are still learnt)."""
+    for motion, amp in (("still", 1.0), ("general", 0.0)):
+        ref = _run(0.03, 0.01, motion=motion, amp=amp, seconds=2.0)
+        mean = READOUT_ACTIVE_FRACTION / 30
+        assert not ref.refined[READOUT] and not ref.refined[OFFSET]
+        assert ref.estimate.readout_s == mean and ref.state.readout_s == mean
+        assert ref.P[READOUT, READOUT] == pytest.approx(ref.prior[READOUT, READOUT], rel=1e-6)
+        assert ref.status()["readout_ms"] == round(mean * 1e3, 3)
+
+
+def test_a_global_shutter_rig_stays_global():
+    """Global-shutter cameras (readout 0, as the user says): nothing to learn, and the moving head's
+    offset is recovered as well as with a free readout."""
+    ref = _run(0.0, 0.01, error_model=RigErrorModel(readout_s=0.0))
+    assert abs(ref.estimate.readout_s) < 3e-4 and abs(ref.estimate.offset_s - 0.01) < 1e-3
