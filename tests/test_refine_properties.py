@@ -93,16 +93,24 @@ def _assert_same(a, b):
         np.testing.assert_array_equal(x, y)
 
 
-def _add(ref: RigRefiner, t, declared, centres, visible, sigma, R, p1):
-    """add_frame, then the invariants: SPD covariances; a skipped chunk changed nothing."""
-    completes = len(ref._pending) == ref.config.chunk_frames - 1
-    before = _snapshot(ref) if completes else None
+def _checked(ref: RigRefiner, call):
+    """A call of the refiner, then the invariants: SPD covariances; a skipped chunk changed nothing.
+    (A chunk's update runs over the add_frame calls after the one completing it: any call may end one.)"""
+    before = _snapshot(ref)
     skipped = sum(ref.skipped_chunks.values())
-    ref.add_frame(t, declared, centres, visible, sigma, R, p1)
+    call()
     _assert_spd(ref.cov())
     _assert_spd(ref.P)
-    if completes and sum(ref.skipped_chunks.values()) > skipped:
+    if sum(ref.skipped_chunks.values()) > skipped:
         _assert_same(_snapshot(ref), before)
+
+
+def _add(ref: RigRefiner, t, declared, centres, visible, sigma, R, p1):
+    _checked(ref, lambda: ref.add_frame(t, declared, centres, visible, sigma, R, p1))
+
+
+def _flush(ref: RigRefiner):
+    _checked(ref, ref.flush)
 
 
 # --------------------------------------------------------------------------- the refiner
@@ -127,6 +135,7 @@ def test_refiner_stays_definite_whatever_the_motion(motion, amp, step, right_dt,
             centres[rng.integers(2), rng.integers(5)] += 50.0 * np.array([0.6, 0.8])
         R, p1 = _pose(t, motion, amp)
         _add(ref, t, right_dt if declared else 0.0, centres, ALL_VISIBLE, sigma, R, p1)
+    _flush(ref)                     # the last chunk's update
     # Every chunk either updated the rig or was counted with its reason.
     assert ref.updates + sum(ref.skipped_chunks.values()) == 3
     assert set(ref.skipped_chunks) <= {rig_refine.SKIP_UNOBSERVABLE, rig_refine.SKIP_NO_DATA,
@@ -156,6 +165,7 @@ def test_refiner_stays_definite_on_extreme_values(depth, lateral, sigma_exp, off
         centres = centres + rng.normal(0.0, min(10.0 ** sigma_exp, 1.0), centres.shape)
         centres[i % 2, i % 5] += off_px
         _add(ref, t, right_dt, centres, vis, sigma, R, p1)
+    _flush(ref)
     assert ref.updates + sum(ref.skipped_chunks.values()) == 2
 
 
@@ -174,6 +184,7 @@ def test_singular_chunk_leaves_the_state_unchanged():
             if blank:
                 centres[:] = np.nan
             _add(ref, t, 0.0, centres, visible, sigma, *_pose(t, "general"))
+        _flush(ref)                 # the last chunk's update (the frames make whole chunks)
 
     feed(16)
     assert ref.updates == 2 and not ref.skipped_chunks
@@ -209,6 +220,7 @@ def test_rolling_shutter_sequence_keeps_the_prior_definite():
         t = i / 30
         centres = _centres(t, "general", amp=4.0, rolling_s=0.03) + rng.normal(0.0, 0.05, (2, 5, 2))
         _add(ref, t, 0.0, centres, ALL_VISIBLE, sigma, *_pose(t, "general", 4.0))
+    _flush(ref)
     assert ref.updates >= 8            # of 10 chunks: the refinement still runs
     assert ref.updates + sum(ref.skipped_chunks.values()) == 10
 

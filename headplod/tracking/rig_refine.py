@@ -65,6 +65,35 @@ where the motion left it, and costs one small dense solve per chunk.
   that explains it, the rig changed (a bump) and the filter re-converges
   from there, else the chunk is dropped.
 
+Timing
+------
+No frame waits for a chunk's solve. The ``add_frame`` call that completes
+a chunk only takes its frames and their velocities; the update is a job,
+a generator that stops before each Gauss-Newton pass (one pass evaluates
+the chunk's frames all at once, ~0.4 ms on one core; an update takes
+``iterations + 1`` passes, twice that when it tests for a bump), and each
+later ``add_frame`` call runs ``passes_per_frame`` passes of it
+(:meth:`RigRefiner.advance` runs it from elsewhere, :meth:`RigRefiner.flush`
+to its end). The call that finishes it applies the result and returns
+True when the rig in use changed. The work per call is a fixed count,
+never a time: results are the same whatever the machine's speed. A job
+still under way when the next chunk completes (with a small chunk, or a
+bump's retry at one pass a frame) is finished first, so each update starts
+from the last one's result, as when solved at once (``synchronous``).
+``widen``, ``reset`` and ``drop_pending`` drop the job (nothing of it is
+applied before its end); ``set_readout_prior`` restarts it. A copy of the
+refiner (``copy``, ``pickle``) restarts it from its chunk. No thread: the
+GIL would make it compete with the tracking thread for the interpreter
+anyway, and when its result landed would depend on the machine's speed.
+
+The frames given while a job runs were tracked with the rig in use before
+its result. When the result changes that rig, they are moved onto the new
+one by the change the update made to its chunk's last pose (a rigid motion
+of the world, nearly the same for poses a few frames apart): that is where
+their own chunk's solve starts from, what their velocities are differenced
+with, and what :attr:`RigRefiner.refit_poses` gives the tracker for them.
+Velocities difference poses of one rig only (a rig's change is not motion).
+
 Definiteness
 ------------
 Every covariance the refiner keeps or hands out (the prior of a chunk, its
@@ -331,6 +360,14 @@ class RigRefineConfig:
         many frame periods apart.
     recalibrate_turn_deg, recalibrate_scale, recalibrate_offset_s : float
         Beyond these, the status recommends recalibrating.
+    synchronous : bool
+        Solve a chunk in the ``add_frame`` call that completes it (offline
+        use, tests) instead of over the next calls (module docstring,
+        "Timing").
+    passes_per_frame : int
+        Gauss-Newton passes (each over all of a chunk's frames) of the update
+        under way run per ``add_frame`` call: a chunk's update takes
+        ``iterations + 1`` passes (twice that to test for a bump).
     """
 
     enabled: bool = True
@@ -351,6 +388,8 @@ class RigRefineConfig:
     recalibrate_turn_deg: float = 1.0
     recalibrate_scale: float = 0.03
     recalibrate_offset_s: float = 0.02
+    synchronous: bool = False
+    passes_per_frame: int = 2
 
 
 @dataclass
@@ -365,6 +404,14 @@ class _Frame:
     omega: np.ndarray | None = None   # (3,) head angular velocity, world, rad/s
     velocity: np.ndarray | None = None  # (3,) P1 velocity, mm/s
     motion_known: bool = True     # False: its time does not fit the motion; no velocity from or across it
+    rig_version: int = 0          # RigRefiner.versions of the rig its pose was fitted with
+    refit: tuple | None = None    # (version, R, p1): its pose refitted with a newer rig, by an update
+
+    def newest(self):
+        """(R, p1): the pose fitted with the newest rig known for this frame."""
+        if self.refit is not None and self.refit[0] > self.rig_version:
+            return self.refit[1], self.refit[2]
+        return self.R, self.p1
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -649,11 +696,17 @@ class RigRefiner:
         units of the floors, the comparisons, and P's readout row and column,
         scaled as its σ: a widened P stays as wide). Returns False, changing
         nothing, once an update has used the old prior (the estimate has
-        learnt since; :meth:`reset` starts over with the prior set last).
+        learnt since; :meth:`reset` starts over with the prior set last). An
+        update under way (none applied yet) starts over on its chunk with the
+        new prior.
         """
         mean_s = self._checked_readout(mean_s, sd_s)
         if self.updates:
             return False
+        if self._job is not None:
+            chunk = self._job.chunk
+            self._cancel_job()
+            self._job = _Job(chunk, self._update_steps(chunk))
         prior = self.prior.copy()
         ratio = np.ones(N_RIG)
         ratio[_READOUT] = sd_s / math.sqrt(prior[_READOUT, _READOUT])
@@ -689,11 +742,21 @@ class RigRefiner:
         self.ignored_frames = 0     # frames with a non-finite time, offset or pose, not used
         # {t: (R_world_G, p1)} of the last update's frames, fitted with the rig it gave.
         self.refit_poses = {}
+        self._cancel_job()          # the update under way, if any (module docstring, "Timing")
+        self._job: _Job | None = None
+        # Work done (each pass evaluates every frame of its chunk): in all, and in the last call of
+        # add_frame, advance or flush.
+        self.passes = 0
+        self.frame_terms = 0
+        self.last_call_passes = 0
+        self._call_start = 0
 
     def widen(self, t: float | None) -> None:
-        """The rig changed (frames agree only with the unrefined uncertainty): re-converge from here."""
+        """The rig changed (frames agree only with the unrefined uncertainty): re-converge from here.
+        The update under way, if any, is dropped with the frames collected (they saw the rig before)."""
         self.P = _positive_definite(self.P + self.prior, self._scale)
         self._cov = None
+        self._cancel_job()
         self._pending = []
         self.bumps.append(float(t) if t is not None else float("nan"))
 
@@ -755,7 +818,8 @@ class RigRefiner:
 
     # ----------------------------------------------------------------- update
     def add_frame(self, t: float | None, declared_offset_s: float, centers: np.ndarray, visible: np.ndarray,
-                  sigma_px: np.ndarray, R_world_G: np.ndarray, p1_mm: np.ndarray, motion_known: bool = True) -> bool:
+                  sigma_px: np.ndarray, R_world_G: np.ndarray, p1_mm: np.ndarray, motion_known: bool = True,
+                  rig_version: int | None = None) -> bool:
         """Take one tracked frame; True when the rig in use changed (:attr:`state`, :attr:`refit_poses`).
 
         ``centers`` (2, 5, 2) px, ``visible`` (2, 5), ``sigma_px`` (2, 5, 2)
@@ -764,9 +828,42 @@ class RigRefiner:
         motion (a clock too fast, independent poses), so no velocity is taken
         from or across it; it still tells the rig's geometry, not the
         exposure offset (which is seen only through a velocity).
+        ``rig_version``: the :attr:`versions` of the rig the pose was fitted
+        with (default: the rig in use): velocities difference poses of one
+        rig (as tracked, or moved onto a newer rig by an update).
+
+        The call then runs ``passes_per_frame`` passes of the update under
+        way, if any (module docstring, "Timing"): True when that finished it
+        and the rig in use changed; :attr:`refit_poses` then holds the poses
+        of its chunk's frames refitted with the new rig, and those of the
+        frames given since (this one included), tracked with the old rig,
+        moved onto the new one. A frame that completes a chunk starts its
+        update, to be run by the next calls (in this one with
+        ``config.synchronous``).
         """
-        if not self.config.enabled or t is None:
+        if not self.config.enabled:
             return False
+        frame = self._frame(t, declared_offset_s, centers, visible, sigma_px, R_world_G, p1_mm, motion_known,
+                            self.versions if rig_version is None else int(rig_version))
+        if frame is not None:
+            self._pending.append(frame)
+        # The update under way, with this frame among those it moves onto a new rig.
+        changed = self._call(self.config.passes_per_frame)
+        if len(self._pending) < self.config.chunk_frames:
+            return changed
+        # A job still under way is finished first: the next one starts from its result.
+        changed = self._run(None) or changed
+        self._start_job()
+        if self.config.synchronous:
+            changed = self._run(None) or changed
+        self.last_call_passes = self.passes - self._call_start
+        return changed
+
+    def _frame(self, t, declared_offset_s, centers, visible, sigma_px, R_world_G, p1_mm, motion_known,
+               version) -> "_Frame | None":
+        """The frame to keep, or None (no time; a non-finite time, offset or pose: counted)."""
+        if t is None:
+            return None
         R_world_G = np.asarray(R_world_G, np.float64)
         p1_mm = np.asarray(p1_mm, np.float64).reshape(3)
         if not (math.isfinite(t) and math.isfinite(declared_offset_s)
@@ -774,67 +871,148 @@ class RigRefiner:
             # No time, offset or pose to learn from (the centres' own NaNs are
             # handled per centre): counted, not used.
             self.ignored_frames += 1
-            return False
+            return None
         sig = np.asarray(sigma_px, np.float64)
         if sig.ndim == 2:
             sig = np.repeat(sig[..., None], 2, axis=2)
         sig = np.where(np.isfinite(sig), np.maximum(sig, self.config.min_sigma_px), np.inf)
-        frame = _Frame(float(t), float(declared_offset_s), np.asarray(centers, np.float64).copy(),
-                       np.asarray(visible, bool).copy(), sig, R_world_G, p1_mm, motion_known=bool(motion_known))
-        self._pending.append(frame)
-        if len(self._pending) < self.config.chunk_frames:
-            return False
-        chunk, self._pending = self._pending, []
-        self._velocities(chunk)
-        changed = self._update(chunk)
-        if changed:
-            # The next frames are tracked with the new rig: the frames kept for
-            # their velocities must be too (a rig change is not motion).
-            self._recent.clear()
-            for f in chunk[-2:]:
-                f.R, f.p1 = self.refit_poses.get(f.t, (f.R, f.p1))
-        self._recent.extend(chunk[-2:])
-        return changed
+        return _Frame(float(t), float(declared_offset_s), np.asarray(centers, np.float64).copy(),
+                      np.asarray(visible, bool).copy(), sig, R_world_G, p1_mm, motion_known=bool(motion_known),
+                      rig_version=version)
+
+    def advance(self, passes: int | None = None) -> bool:
+        """Run ``passes`` Gauss-Newton passes of the update under way (None: to its end), e.g. from a frame
+        that gives no pose to add; True when that finished it and the rig in use changed."""
+        return self._call(passes)
+
+    @property
+    def busy(self) -> bool:
+        """Whether an update is under way (its chunk taken, its result not applied yet)."""
+        return self._job is not None
 
     def forget_motion(self) -> None:
         """The times of the frames collected so far do not describe the head's motion (a clock glitch, frames
-        out of order): they keep telling the geometry, but no velocity is taken from or across them."""
+        out of order): they keep telling the geometry, but no velocity is taken from or across them.
+        An update under way keeps its chunk's velocities (taken before: a synchronous update would have
+        used them already)."""
         for f in self._pending:
             f.motion_known = False
         self._recent.clear()
 
     def drop_pending(self) -> None:
-        """Drop the frames collected towards the next update (after a failure inside it); the estimate stands."""
+        """Drop the frames collected towards the next update and the update under way, if any (after a
+        failure inside either); the estimate stands."""
+        self._cancel_job()
         self._pending = []
         self._recent.clear()
 
     def flush(self) -> bool:
-        """Use the frames waiting for a full chunk (end of a recording)."""
-        if len(self._pending) < 2:
-            return False
+        """Finish the update under way, then use the frames waiting for a full chunk (end of a recording).
+        True when the rig in use changed (:attr:`refit_poses`: the last change's)."""
+        self._call_start = self.passes
+        changed = self._run(None)
+        if len(self._pending) >= 2:
+            self._start_job()
+            changed = self._run(None) or changed
+        self.last_call_passes = self.passes - self._call_start
+        return changed
+
+    # ------------------------------------------------------------------ jobs
+    def _call(self, passes: int | None) -> bool:
+        """Run the update under way for at most ``passes`` passes (None: to its end), as one call's work."""
+        self._call_start = self.passes
+        changed = self._run(passes)
+        self.last_call_passes = self.passes - self._call_start
+        return changed
+
+    def _start_job(self) -> None:
+        """The pending frames become a chunk and its update a job (not run yet)."""
         chunk, self._pending = self._pending, []
         self._velocities(chunk)
-        return self._update(chunk)
+        self._recent.extend(chunk[-2:])
+        self._job = _Job(chunk, self._update_steps(chunk))
+
+    def _run(self, passes: int | None) -> bool:
+        """Run the job for up to ``passes`` more passes (None: to its end); True when it finished and
+        changed the rig in use. An exception inside the job ends it (its chunk is lost) and propagates."""
+        start = self.passes
+        while self._job is not None and (passes is None or self.passes - start < passes):
+            try:
+                next(self._job.steps)
+            except StopIteration as end:
+                self._job = None
+                return bool(end.value)
+            except BaseException:
+                self._job = None
+                raise
+        return False
+
+    def __getstate__(self):
+        # A generator cannot be copied or pickled: a copy restarts the update
+        # under way from its chunk (the same result; its passes run again).
+        state = self.__dict__.copy()
+        job = state.pop("_job", None)
+        state["_job_chunk"] = None if job is None else job.chunk
+        return state
+
+    def __setstate__(self, state):
+        chunk = state.pop("_job_chunk", None)
+        self.__dict__.update(state)
+        self._job = None if chunk is None else _Job(chunk, self._update_steps(chunk))
+
+    def _cancel_job(self) -> None:
+        """Forget the update under way (its chunk's frames unused); nothing of it was applied."""
+        job = getattr(self, "_job", None)      # (none yet in the first reset)
+        self._job = None
+        if job is not None:
+            job.steps.close()
 
     def _velocities(self, chunk: list[_Frame]) -> None:
-        """Head velocities by central differences of the tracked poses (one-sided at the ends)."""
+        """Head velocities by central differences of the tracked poses (one-sided at the ends).
+
+        The poses differenced are of one rig (a change of the rig is not
+        motion): a neighbour's as tracked, or as refitted by the update that
+        changed the rig (:attr:`_Frame.refit`), whichever was fitted with the
+        rig of the frame's own pose. A frame with no such neighbour (a lone
+        frame tracked with the old rig while the update that changed it ran)
+        takes its neighbours' poses as tracked all the same: a rig's step is
+        a smaller error than no velocity at all, which would tell the solve
+        the head stood still while the right image was exposed later.
+        """
         frames = list(self._recent) + chunk
         times = np.array([f.t for f in frames])
         gaps = np.diff(times)
         period = float(np.median(gaps)) if len(gaps) else 0.0
         limit = self.config.max_gap_frames * period
         known = [f.motion_known for f in frames]
+
+        def pose(f: _Frame, version: int | None):
+            if version is None or f.rig_version == version:
+                return f.R, f.p1
+            if f.refit is not None and f.refit[0] == version:
+                return f.refit[1], f.refit[2]
+            return None
+
         for i in range(len(frames) - len(chunk), len(frames)):
             if not known[i]:
                 continue
-            lo = i - 1 if i > 0 and known[i - 1] and 0 < times[i] - times[i - 1] <= limit else i
-            hi = i + 1 if i + 1 < len(frames) and known[i + 1] and 0 < times[i + 1] - times[i] <= limit else i
-            if hi == lo:
+            near_lo = i > 0 and known[i - 1] and 0 < times[i] - times[i - 1] <= limit
+            near_hi = i + 1 < len(frames) and known[i + 1] and 0 < times[i + 1] - times[i] <= limit
+            if not (near_lo or near_hi):
                 continue
-            a, b = frames[lo], frames[hi]
-            dt = b.t - a.t
-            frames[i].omega = cv2.Rodrigues(b.R @ a.R.T)[0].ravel() / dt
-            frames[i].velocity = (b.p1 - a.p1) / dt
+            f = frames[i]
+            version = f.refit[0] if f.refit is not None and f.refit[0] > f.rig_version else f.rig_version
+            lo = pose(frames[i - 1], version) if near_lo else None
+            hi = pose(frames[i + 1], version) if near_hi else None
+            if lo is None and hi is None:
+                version = None                  # no neighbour of this rig: the poses as tracked
+                lo = pose(frames[i - 1], None) if near_lo else None
+                hi = pose(frames[i + 1], None) if near_hi else None
+            a = (times[i - 1], *lo) if lo is not None else (times[i], *pose(f, version))
+            b = (times[i + 1], *hi) if hi is not None else (times[i], *pose(f, version))
+            dt = b[0] - a[0]
+            f.omega = cv2.Rodrigues(b[1] @ a[1].T)[0].ravel() / dt
+            f.velocity = (b[2] - a[2]) / dt
 
     def _process_noise(self, t: float) -> np.ndarray:
         """Drift (9, 9) since the last update: a random walk, variance ∝ elapsed time (0 if none elapsed)."""
@@ -867,18 +1045,29 @@ class RigRefiner:
         return False
 
     def _update(self, chunk: list[_Frame]) -> bool:
-        """One update from a chunk; True when the rig in use changed. A chunk that cannot update
-        (``SKIP_*``) leaves the estimate, its covariance and the rig in use unchanged."""
+        """One update from a chunk, all at once (no job; the job runs :meth:`_update_steps`)."""
+        steps = self._update_steps(chunk)
+        while True:
+            try:
+                next(steps)
+            except StopIteration as end:
+                return bool(end.value)
+
+    def _update_steps(self, chunk: list[_Frame]):
+        """One update from a chunk, as a generator that stops before each Gauss-Newton pass; it returns
+        True when the rig in use changed. A chunk that cannot update (``SKIP_*``) leaves the estimate,
+        its covariance and the rig in use unchanged. Nothing is changed before the last pass: a job
+        closed before its end leaves no trace."""
         try:
             prior = self._predicted(chunk[-1].t)
-            solution = self._solve(chunk, prior)
+            solution = yield from self._solve(chunk, prior)
         except _SkipChunk as skip:
             return self._skip(chunk, skip.args[0])
         bumped = False
         if solution.noise_scale > self.config.inconsistency:
             # The chunk disagrees with the rig: did the rig change (a bump)?
             try:
-                retry = self._solve(chunk, _positive_definite(prior + self.prior, self._scale))
+                retry = yield from self._solve(chunk, _positive_definite(prior + self.prior, self._scale))
             except _SkipChunk:
                 retry = None
             if retry is None or not (solution.chi2 - retry.chi2 > self.config.bump_evidence
@@ -898,7 +1087,30 @@ class RigRefiner:
         self.state = copy.copy(self._estimate)
         self._cov = None
         self.versions += 1
-        self.refit_poses = solution.refit
+        # The frames given while the job ran were tracked with the old rig:
+        # moved onto the new one by the change the update made to the chunk's
+        # last pose (a rigid motion of the world, nearly the same for poses a
+        # few frames apart), as the start of their own chunk's solve, for
+        # velocities with the frames tracked from now on, and for the tracker
+        # (refit_poses).
+        last = chunk[-1]
+        moved = {}
+        if self._pending and last.t in solution.refit:
+            R_old, p_old = last.newest()                # the pose the solve started from
+            R_new, p_new = solution.refit[last.t]
+            turn = R_new @ R_old.T
+            shift = p_new - turn @ p_old
+            for f in self._pending:
+                R, p1 = f.newest()
+                f.refit = (self.versions, turn @ R, turn @ p1 + shift)
+                moved[f.t] = f.refit[1:]
+        # The chunk's last frames, kept for the next chunk's velocities, keep
+        # their pose refitted with the new rig too (_velocities differences
+        # poses of one rig).
+        for f in chunk[-2:]:
+            if f.t in solution.refit:
+                f.refit = (self.versions, *solution.refit[f.t])
+        self.refit_poses = {**solution.refit, **moved}
         return True
 
     def _departs(self) -> bool:
@@ -933,8 +1145,9 @@ class RigRefiner:
                 self._cov = self.P
         return self._cov
 
-    def _solve(self, chunk: list[_Frame], prior: np.ndarray) -> "_Solution":
-        """Gauss-Newton with Cauchy reweighting over the chunk's poses and the rig.
+    def _solve(self, chunk: list[_Frame], prior: np.ndarray):
+        """Gauss-Newton with Cauchy reweighting over the chunk's poses and the rig: a generator that stops
+        (yields) before each pass over the chunk's frames and returns the :class:`_Solution`.
 
         ``prior`` (9, 9) is SPD (:meth:`_predicted`). Each frame's pose (6)
         is eliminated by its own 6×6 block (the poses share nothing but the
@@ -963,8 +1176,11 @@ class RigRefiner:
         observable = confine = None
         weights = None
         for iteration in range(c.iterations + 1):
+            yield
             state = self._estimate.moved(rig)
             res, J_pose, J_rig = self._chunk_terms(data, poses, state)
+            self.passes += 1
+            self.frame_terms += n
             sig = data.sigma
             with np.errstate(invalid="ignore"):
                 z = res / sig                                    # (n, 2, m, 2) standardized
@@ -1031,7 +1247,8 @@ class RigRefiner:
         noise_scale = float(np.median(r2)) / 1.386 * rows_used / dof
         posterior = _positive_definite(cov * max(1.0, noise_scale), self._scale)
         moved = np.diag(confine @ prior @ confine.T) / np.diag(prior) > 0.5
-        refit = {f.t: (cv2.Rodrigues(poses[k, :3])[0] @ f.R, f.p1 + poses[k, 3:]) for k, f in enumerate(chunk)}
+        refit = {f.t: (cv2.Rodrigues(poses[k, :3])[0] @ data.R[k], data.p1[k] + poses[k, 3:])
+                 for k, f in enumerate(chunk)}
         return _Solution(rig, posterior, chi2, rows_used, noise_scale, refit, moved)
 
     def _chunk_terms(self, data: "_ChunkData", poses: np.ndarray, state: RigState):
@@ -1063,6 +1280,14 @@ class RigRefiner:
 
 
 @dataclass
+class _Job:
+    """An update under way: its chunk, and the generator running it (:meth:`RigRefiner._update_steps`)."""
+
+    chunk: list
+    steps: object
+
+
+@dataclass
 class _ChunkData:
     """A chunk's frames stacked for :meth:`RigRefiner._chunk_terms` (n frames)."""
 
@@ -1081,7 +1306,8 @@ class _ChunkData:
         moving = [f.omega is not None and f.velocity is not None for f in chunk]
         zero = np.zeros(3)
         centers = np.stack([f.centers for f in chunk])
-        return cls(np.stack([f.R for f in chunk]), np.stack([f.p1 for f in chunk]),
+        start = [f.newest() for f in chunk]              # each pose from the newest rig it is known with
+        return cls(np.stack([R for R, _ in start]), np.stack([p1 for _, p1 in start]),
                    centers, np.stack([f.visible for f in chunk]),
                    np.stack([f.sigma for f in chunk]), np.array([f.declared_offset_s for f in chunk]),
                    np.stack([f.omega if k else zero for f, k in zip(chunk, moving)]),
