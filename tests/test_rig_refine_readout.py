@@ -51,11 +51,11 @@ def _row_time(row, readout_s):
     return (row - 0.5 * (HEIGHT - 1)) * readout_s / (HEIGHT - 1)
 
 
-def _centres(t, motion, amp, offset_s, readout_s):
+def _centres(t, motion, amp, offset_s, readout_s, views=VIEWS):
     """Exact centres (2, 5, 2) px of a rolling-shutter rig: each marker where it was when its own row
     was exposed (the row is the centre's: solved by fixed-point iteration to 1e-9 px)."""
     out = np.empty((2, 5, 2))
-    for cam, (Rc, Tc, K, D) in enumerate(VIEWS):
+    for cam, (Rc, Tc, K, D) in enumerate(views):
         t_cam = t + (offset_s if cam else 0.0)
         for k in range(5):
             row = 0.5 * (HEIGHT - 1)
@@ -217,3 +217,232 @@ def test_a_global_shutter_rig_stays_global():
     offset is recovered as well as with a free readout."""
     ref = _run(0.0, 0.01, error_model=RigErrorModel(readout_s=0.0))
     assert abs(ref.estimate.readout_s) < 3e-4 and abs(ref.estimate.offset_s - 0.01) < 1e-3
+
+
+# --------------------------------------------------------------------------- the solve spread over frames
+#
+# A chunk's update runs as a job over the add_frame calls after the one completing it, a fixed number of
+# Gauss-Newton passes per call (RigRefineConfig.passes_per_frame): the work per call is counted, never
+# timed, and the results are those of solving at once (RigRefineConfig.synchronous).
+
+
+def _stream(seconds=6.0, seed=5):
+    """Frames of a stale rig (right camera turned 0.3°, baseline 2% long, the right image 10 ms late,
+    a 20 ms rolling shutter), a glint now and then, a frame without a pose, and the bar bumped by 0.6°
+    at 3 s: [(t, centres, R, p1)]."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(int(round(seconds * 30))):
+        t = i / 30
+        turn = cv2.Rodrigues(np.radians(0.3) * np.array([0.24, 0.96, 0.14]))[0]
+        if t >= 3.0:
+            turn = cv2.Rodrigues(np.radians(0.6) * np.array([0.0, 0.0, 1.0]))[0] @ turn
+        centres = _centres_on(t, 0.010, 0.020, turn, 1.02) + rng.normal(0.0, 0.03, (2, 5, 2))
+        if i % 23 == 5:
+            centres[1, 2] += 25.0                       # a glint
+        R, p1 = _pose(t, "general", 2.0)
+        if i == 40:
+            R = np.full((3, 3), np.nan)                 # no pose: counted, not used
+        out.append((t, centres, R, p1))
+    return out
+
+
+def _centres_on(t, offset_s, readout_s, turn, scale):
+    """_centres with the right camera turned by ``turn`` and the baseline scaled (the true rig)."""
+    right = (turn @ RIG.R, scale * turn @ np.asarray(RIG.T).ravel(), RIG.K2, RIG.D2)
+    return _centres(t, "general", 2.0, offset_s, readout_s, views=(VIEWS[0], right))
+
+
+STREAM = None
+
+
+def _feed(config, frames=None, hook=None):
+    """A refiner fed the stream (poses independent of its rig), flushed at the end. Returns it, the
+    passes run in each add_frame call, and what each update (or skip) left: [(calls so far, record)]."""
+    global STREAM
+    if STREAM is None:
+        STREAM = _stream()
+    ref = RigRefiner(RIG, MODEL, config, readout_prior=readout_prior(1 / 30, None))
+    sigma = np.full((2, 5), 0.03)
+    passes, results = [], []
+    done = 0
+    for k, (t, centres, R, p1) in enumerate(STREAM if frames is None else frames):
+        ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1, independent_pose=True)
+        passes.append(ref.last_call_passes)
+        if hook is not None:
+            ref = hook(k, ref) or ref
+        if ref.updates + sum(ref.skipped_chunks.values()) > done:
+            done = ref.updates + sum(ref.skipped_chunks.values())
+            results.append(_record(ref))
+    for finish in (ref.advance, ref.flush):       # the update under way, then the frames short of a chunk
+        finish()
+        if ref.updates + sum(ref.skipped_chunks.values()) > done:
+            done = ref.updates + sum(ref.skipped_chunks.values())
+            results.append(_record(ref))
+    return ref, passes, results
+
+
+def _record(ref):
+    est, use = ref.estimate, ref.state
+    return dict(estimate=np.concatenate([est.R.ravel(), est.T, [est.log_focal, est.offset_s, est.readout_s]]),
+                state=np.concatenate([use.R.ravel(), use.T, [use.log_focal, use.offset_s, use.readout_s]]),
+                P=ref.P.copy(), cov=ref.cov().copy(), updates=ref.updates, versions=ref.versions,
+                skipped=dict(ref.skipped_chunks), bumps=list(ref.bumps), refined=ref.refined.copy(),
+                refit={t: np.concatenate([R.ravel(), p]) for t, (R, p) in ref.refit_poses.items()})
+
+
+def _assert_same_results(a, b, atol=1e-9):
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        assert x.keys() == y.keys()
+        for key in x:
+            if key == "refit":
+                assert x[key].keys() == y[key].keys()
+                for t in x[key]:
+                    np.testing.assert_allclose(x[key][t], y[key][t], rtol=0, atol=atol)
+            elif isinstance(x[key], np.ndarray):
+                np.testing.assert_allclose(x[key], y[key], rtol=1e-9, atol=atol * np.abs(y[key]).max())
+            else:
+                assert x[key] == y[key], key
+
+
+@pytest.fixture(scope="module")
+def synchronous():
+    return _feed(rig_refine.RigRefineConfig(synchronous=True))
+
+
+def test_incremental_solve_is_bounded_and_equals_the_synchronous_one(synchronous):
+    sync_ref, sync_passes, sync_results = synchronous
+    ref, passes, results = _feed(rig_refine.RigRefineConfig())
+    # The stream taught something, through both paths of an update: a bump's retry and skips.
+    assert sync_ref.updates >= 15 and sync_ref.bumps and sync_ref.versions >= 2 and sync_ref.ignored_frames == 1
+    assert max(sync_passes) >= 2 * (sync_ref.config.iterations + 1)   # the retry, at once
+    # No call ran more than passes_per_frame passes; the one completing a chunk none.
+    budget = ref.config.passes_per_frame
+    assert max(passes) == budget
+    assert passes[7] == passes[15] == passes[23] == 0      # the calls completing the first chunks
+    assert ref.frame_terms <= ref.passes * ref.config.chunk_frames
+    # The same work, spread, and the same results, update by update.
+    assert ref.passes == sync_ref.passes and ref.frame_terms == sync_ref.frame_terms
+    _assert_same_results(results, sync_results)
+    assert not ref.busy
+
+
+def test_a_job_still_running_is_finished_first(synchronous):
+    """One pass a frame: a bump's retry (10 passes) outlasts its chunk's 7 following frames; the next
+    chunk's completion finishes it first, and the results stay those of the synchronous solve."""
+    _, _, sync_results = synchronous
+    ref, passes, results = _feed(rig_refine.RigRefineConfig(passes_per_frame=1))
+    assert max(passes) > 1                             # the finish-first call
+    assert sorted(set(passes))[:2] == [0, 1]
+    _assert_same_results(results, sync_results)
+
+
+def test_a_copy_or_a_readout_prior_restarts_the_job_with_the_same_result(synchronous):
+    import copy
+    import pickle
+    _, _, sync_results = synchronous
+    seen = {}
+
+    def hook(k, ref):
+        if ref.busy and "copy" not in seen:
+            seen["copy"] = k
+            return copy.deepcopy(pickle.loads(pickle.dumps(ref)))     # mid-job: restarted from its chunk
+        return None
+
+    _, _, results = _feed(rig_refine.RigRefineConfig(), hook=hook)
+    assert "copy" in seen
+    _assert_same_results(results, sync_results)
+    # The readout's prior set while the first update runs: it starts over, as if the prior were given.
+    frames = STREAM[:24]
+    given, _, expected = _feed(rig_refine.RigRefineConfig(synchronous=True), frames=frames)
+
+    def set_prior(k, ref):
+        if ref.busy and ref.updates == 0 and "prior" not in seen:
+            seen["prior"] = k
+            ref.set_readout_prior(*readout_prior(1 / 30, None))
+        return None
+
+    # (The refiners of _feed start with the frame period's prior: set again, to the same value.)
+    _, _, results = _feed(rig_refine.RigRefineConfig(), frames=frames, hook=set_prior)
+    assert "prior" in seen
+    _assert_same_results(results, expected)
+
+
+@pytest.mark.parametrize("how", ["widen", "reset", "drop_pending", "forget_motion"])
+def test_widen_reset_drop_pending_with_a_job_running(how):
+    ref = RigRefiner(RIG, MODEL)
+    sigma = np.full((2, 5), 0.03)
+    for k, (t, centres, R, p1) in enumerate(_stream(seconds=0.5)[:9]):
+        ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1)
+    assert ref.busy and ref.updates == 0 and len(ref._pending) == 1
+    before = (ref.estimate.R.copy(), ref.P.copy())
+    if how == "widen":
+        ref.widen(0.3)
+    elif how == "forget_motion":
+        ref.forget_motion()
+    else:
+        getattr(ref, how)()
+    if how == "forget_motion":
+        # The job's chunk keeps its velocities and runs on; only the pending frame lost its motion.
+        assert ref.busy and not ref._pending[0].motion_known
+        ref.flush()
+        assert ref.updates == 1
+        return
+    # Dropped: nothing of it applied, nothing left to run.
+    assert not ref.busy and ref.updates == 0 and not ref._pending
+    np.testing.assert_array_equal(ref.estimate.R, before[0])
+    assert not ref.advance() and not ref.flush() and ref.updates == 0
+
+
+def test_an_exception_inside_the_job_ends_it(monkeypatch):
+    ref = RigRefiner(RIG, MODEL)
+    sigma = np.full((2, 5), 0.03)
+    frames = _stream(seconds=1.0)
+
+    def singular(self, chunk, prior):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    for t, centres, R, p1 in frames[:8]:
+        ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1)
+    assert ref.busy
+    monkeypatch.setattr(RigRefiner, "_solve", singular)
+    t, centres, R, p1 = frames[8]
+    with pytest.raises(np.linalg.LinAlgError):
+        ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1)
+    assert not ref.busy and ref.updates == 0
+    ref.drop_pending()
+    monkeypatch.undo()
+    for t, centres, R, p1 in frames[9:17]:
+        ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1)
+    ref.flush()
+    assert ref.updates == 1
+
+
+def test_frames_given_during_a_job_are_moved_onto_the_new_rig():
+    """Poses tracked with the rig in use (the default): when a job's result changes it, the frames given
+    since (tracked with the old rig; this call's included) are moved onto the new one, and refit_poses
+    gives them to the tracker with the chunk's."""
+    ref = RigRefiner(RIG, MODEL, readout_prior=readout_prior(1 / 30, None))
+    sigma = np.full((2, 5), 0.03)
+    frames = _stream(seconds=1.0)
+    for k, (t, centres, R, p1) in enumerate(frames):
+        if ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1):
+            break
+    else:
+        raise AssertionError("the rig in use never changed")
+    assert ref.versions == 1 and k > 8
+    chunk_times = [f[0] for f in frames[:8]]
+    since = [f[0] for f in frames[8:k + 1]]
+    assert sorted(ref.refit_poses) == chunk_times + since
+    for f in ref._pending:
+        assert f.rig_version == 0 and f.refit[0] == 1
+        np.testing.assert_array_equal(f.newest()[1], ref.refit_poses[f.t][1])
+    # The move is the change of the chunk's last pose: a rigid motion, the same for every frame.
+    last_t = chunk_times[-1]
+    R_old, p_old = frames[7][2], frames[7][3]
+    R_new, p_new = ref.refit_poses[last_t]
+    turn = R_new @ R_old.T
+    for t, _, R, p1 in frames[8:k + 1]:
+        np.testing.assert_allclose(ref.refit_poses[t][0], turn @ R, atol=1e-12)
+        np.testing.assert_allclose(ref.refit_poses[t][1], turn @ p1 + p_new - turn @ p_old, atol=1e-9)

@@ -404,7 +404,7 @@ class _Frame:
     omega: np.ndarray | None = None   # (3,) head angular velocity, world, rad/s
     velocity: np.ndarray | None = None  # (3,) P1 velocity, mm/s
     motion_known: bool = True     # False: its time does not fit the motion; no velocity from or across it
-    rig_version: int = 0          # RigRefiner.versions of the rig its pose was fitted with
+    rig_version: int = 0          # RigRefiner.versions of the rig its pose was fitted with (_INDEPENDENT: none)
     refit: tuple | None = None    # (version, R, p1): its pose refitted with a newer rig, by an update
 
     def newest(self):
@@ -412,6 +412,10 @@ class _Frame:
         if self.refit is not None and self.refit[0] > self.rig_version:
             return self.refit[1], self.refit[2]
         return self.R, self.p1
+
+
+# _Frame.rig_version of a pose that does not depend on the rig (add_frame(independent_pose=True)).
+_INDEPENDENT = -1
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -819,7 +823,7 @@ class RigRefiner:
     # ----------------------------------------------------------------- update
     def add_frame(self, t: float | None, declared_offset_s: float, centers: np.ndarray, visible: np.ndarray,
                   sigma_px: np.ndarray, R_world_G: np.ndarray, p1_mm: np.ndarray, motion_known: bool = True,
-                  rig_version: int | None = None) -> bool:
+                  independent_pose: bool = False) -> bool:
         """Take one tracked frame; True when the rig in use changed (:attr:`state`, :attr:`refit_poses`).
 
         ``centers`` (2, 5, 2) px, ``visible`` (2, 5), ``sigma_px`` (2, 5, 2)
@@ -828,9 +832,11 @@ class RigRefiner:
         motion (a clock too fast, independent poses), so no velocity is taken
         from or across it; it still tells the rig's geometry, not the
         exposure offset (which is seen only through a velocity).
-        ``rig_version``: the :attr:`versions` of the rig the pose was fitted
-        with (default: the rig in use): velocities difference poses of one
-        rig (as tracked, or moved onto a newer rig by an update).
+        The pose is taken to be fitted with the rig in use (:attr:`state`):
+        velocities difference poses of one rig (as tracked, or moved onto a
+        newer rig by an update). ``independent_pose``: it does not depend on
+        the rig (a simulation's, another system's): used as given, never
+        moved.
 
         The call then runs ``passes_per_frame`` passes of the update under
         way, if any (module docstring, "Timing"): True when that finished it
@@ -844,7 +850,7 @@ class RigRefiner:
         if not self.config.enabled:
             return False
         frame = self._frame(t, declared_offset_s, centers, visible, sigma_px, R_world_G, p1_mm, motion_known,
-                            self.versions if rig_version is None else int(rig_version))
+                            _INDEPENDENT if independent_pose else self.versions)
         if frame is not None:
             self._pending.append(frame)
         # The update under way, with this frame among those it moves onto a new rig.
@@ -987,7 +993,7 @@ class RigRefiner:
         known = [f.motion_known for f in frames]
 
         def pose(f: _Frame, version: int | None):
-            if version is None or f.rig_version == version:
+            if version is None or f.rig_version in (version, _INDEPENDENT):
                 return f.R, f.p1
             if f.refit is not None and f.refit[0] == version:
                 return f.refit[1], f.refit[2]
@@ -1044,15 +1050,6 @@ class RigRefiner:
         self.last_skip = (chunk[-1].t, reason)
         return False
 
-    def _update(self, chunk: list[_Frame]) -> bool:
-        """One update from a chunk, all at once (no job; the job runs :meth:`_update_steps`)."""
-        steps = self._update_steps(chunk)
-        while True:
-            try:
-                next(steps)
-            except StopIteration as end:
-                return bool(end.value)
-
     def _update_steps(self, chunk: list[_Frame]):
         """One update from a chunk, as a generator that stops before each Gauss-Newton pass; it returns
         True when the rig in use changed. A chunk that cannot update (``SKIP_*``) leaves the estimate,
@@ -1101,9 +1098,10 @@ class RigRefiner:
             turn = R_new @ R_old.T
             shift = p_new - turn @ p_old
             for f in self._pending:
-                R, p1 = f.newest()
-                f.refit = (self.versions, turn @ R, turn @ p1 + shift)
-                moved[f.t] = f.refit[1:]
+                if f.rig_version != _INDEPENDENT:
+                    R, p1 = f.newest()
+                    f.refit = (self.versions, turn @ R, turn @ p1 + shift)
+                    moved[f.t] = f.refit[1:]
         # The chunk's last frames, kept for the next chunk's velocities, keep
         # their pose refitted with the new rig too (_velocities differences
         # poses of one rig).
