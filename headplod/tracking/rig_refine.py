@@ -50,7 +50,7 @@ does not pull the rig. The frames' poses are marginalized out; the rig's
 posterior covariance carries what they taught. Compared with
 ``scipy.optimize.least_squares`` over a sliding window of overlapping
 frames, this uses every frame once (no double counting between windows),
-keeps what a still head cannot teach (the time offset, the focal scale)
+keeps what a still head cannot teach (the time offset, the readout, the focal scale)
 where the motion left it, and costs one small dense solve per chunk.
 
 - Parameters the chunk's motion does not make observable (their
@@ -746,8 +746,7 @@ class RigRefiner:
         self.ignored_frames = 0     # frames with a non-finite time, offset or pose, not used
         # {t: (R_world_G, p1)} of the last update's frames, fitted with the rig it gave.
         self.refit_poses = {}
-        self._cancel_job()          # the update under way, if any (module docstring, "Timing")
-        self._job: _Job | None = None
+        self._cancel_job()          # the update under way (self._job), if any (module docstring, "Timing")
         # Work done (each pass evaluates every frame of its chunk): in all, and in the last call of
         # add_frame, advance or flush.
         self.passes = 0
