@@ -51,7 +51,7 @@ from .geometry import ESTIMATORS
 from .detect import Blobs, DetectionParams, centroids_near, detect_blobs, estimate_background, shot_variance
 from .identify import ModelRule, find_hypotheses
 from .motion import PoseHistory
-from .rig_refine import RigErrorModel, RigRefineConfig, RigRefiner, rig_jacobian_rows
+from .rig_refine import RigErrorModel, RigRefineConfig, RigRefiner, readout_prior, rig_jacobian_rows
 from .uncertainty import DEFAULT_COVARIANCE, CovarianceInput, make_covariance_estimator, rig_residual_rows
 
 # Read-only constants of the tracking path (copied before any change).
@@ -193,6 +193,12 @@ class TrackerConfig:
     rig_errors : RigErrorModel
         How far the real rig may be from ``rig.yaml`` before any refinement
         (1σ): with the calibration's own σ, the prior of the refinement.
+    rig_far : RigErrorModel
+        How far off a ``rig.yaml`` may be and still be corrected from one
+        frame (1σ): a frame that fails against a rig no frame has yet
+        confirmed is fitted with the rig under this prior
+        (:meth:`RigRefiner.bootstrap`); one whose residuals that explains
+        down to the noise starts the refinement from the rig it gave.
     extrapolate_velocity : bool
         The head's velocity for the right image's exposure offset is
         extrapolated at constant acceleration from three poses (else the
@@ -260,6 +266,10 @@ class TrackerConfig:
         head's velocity (reproj estimator): row r of an image H rows high
         is exposed at t + (r − (H − 1)/2) × readout / (H − 1) (t is the
         middle row's time, the dataset contract's mid-exposure).
+    prior_head_rate_dps, prior_head_speed_mm_s : float
+        A head's motion (1σ per axis: deg/s, mm/s of P1) when no recent
+        poses tell it: what the first frame after an acquisition's pose may
+        be off by, over a rolling shutter's row delays.
     offset_passes : int
         Most Gauss-Newton steps of a frame whose right image's motion is
         taken from its own pose (an exposure offset), each with the motion
@@ -291,6 +301,8 @@ class TrackerConfig:
     robust_max_suspects: int = 4
     rig_refine: RigRefineConfig = field(default_factory=RigRefineConfig)
     rig_errors: RigErrorModel = field(default_factory=RigErrorModel)
+    rig_far: RigErrorModel = field(default_factory=lambda: RigErrorModel(turn_deg=5.0, shift_fraction=0.15,
+                                                                         focal_fraction=0.05))
     rig_gate_sigma: float = 3.0
     max_right_offset_periods: float = 3.0
     extrapolate_velocity: bool = True
@@ -306,6 +318,8 @@ class TrackerConfig:
     offset_passes: int = 6
     readout_s: float | None = None
     compensate_rolling_shutter: bool = True
+    prior_head_rate_dps: float = 50.0
+    prior_head_speed_mm_s: float = 150.0
 
     def __post_init__(self):
         if self.estimator not in ESTIMATORS:
@@ -407,6 +421,8 @@ class _Match:
     # coordinate. None: not compensated (a global shutter, no motion known).
     shutter_shift_px: np.ndarray = None
     shutter_sd_px: np.ndarray = None
+    shutter_delay_s: np.ndarray = None   # (2, 5) each centre's row time after t, s
+    shutter_cov: np.ndarray = None       # (6, 6) covariance of the head's velocity over those delays
 
 
 class Tracker:
@@ -441,6 +457,10 @@ class Tracker:
         self._motion_note = None      # what the motion model made of this frame's time, for the result's notes
         self._times_suspect = False   # the last velocity checked was not a head's, none since was
         self._withheld = False
+        self._last_fit = None         # (match, R, p1) of the last frame fitted but not reported, for _bootstrap_rig
+        self._previous_images = None  # (left, right) of the last frame, to recognize a repeated buffer
+        self._bootstrap_note = None
+        self._readout_prior_set = False
         self._declared_offsets = []   # recent t_right - t of the frames fed to the rig's refinement, s
         # Exceptions isolated by process(): counted, never silent (see process).
         self.internal_errors = 0
@@ -493,7 +513,7 @@ class Tracker:
         self.fit_tol_mm = float(np.hypot(c.fit_tol_mm, 0.35 * k))
 
     def _rig_cov(self, wide: bool = False):
-        """Covariance (8, 8) of the rig's error state now (None before the first frame)."""
+        """Covariance (9, 9) of the rig's error state now (None before the first frame)."""
         if self.refiner is None:
             return None
         P = self.refiner.cov()
@@ -573,6 +593,9 @@ class Tracker:
         problem = self._check_images(left, right)
         if problem:
             return TrackResult(False, problem, timings_s={"total": time.perf_counter() - start})
+        repeated = self._repeated_images(left, right)
+        if repeated:
+            return TrackResult(False, repeated, timings_s={"total": time.perf_counter() - start})
         notes = self._check_time(t)
         skew = self._implausible_offset(t, t_right)
         if skew:
@@ -580,17 +603,82 @@ class Tracker:
             return TrackResult(False, skew, timings_s={"total": time.perf_counter() - start}, notes=notes)
         if self.refiner is None:
             self._start_refiner(t, t_right)
+        self._set_readout_prior()
         images, t_right = self._pair(left, right, t, t_right)
         tracking = self.config.track and self._prev_centers is not None
         result = self._attempt(images, t, t_right, timings, start, tracking)
         if tracking and not result.ok and result.mode == "track" and not self._withheld:
             # The re-measured markers did not verify: detect and identify afresh.
             result = self._attempt(images, t, t_right, timings, start, False)
+        if not result.ok and self._bootstrap_rig(t):
+            # rig.yaml is far from the rig: the frame fitted jointly with the
+            # rig gave one that explains it. Tracked afresh with that rig,
+            # whose uncertainty the pose's covariance carries.
+            result = self._attempt(images, t, t_right, timings, start, False)
+            result.notes = result.notes + [self._bootstrap_note]
         if self._motion_note:
             notes = notes + [self._motion_note]
         if notes:
             result.notes = notes + result.notes
         return result
+
+    def _repeated_images(self, left: np.ndarray, right: np.ndarray) -> str | None:
+        """Why a frame is refused when a camera delivered the very image it delivered last (a driver or
+        a capture loop handing the same buffer out twice): that image was exposed a frame earlier than
+        its time says, so no pose may be made from it. None for new images. (Two exposures are never
+        identical to the bit: sensor noise, and MJPEG's coding of it, differ.)"""
+        previous, self._previous_images = self._previous_images, (left, right)
+        if previous is None:
+            return None
+        same = [a is b or (a.shape == b.shape and np.array_equal(a, b)) for a, b in zip(previous, (left, right))]
+        if not any(same):
+            return None
+        which = "both cameras" if all(same) else ("the left camera" if same[0] else "the right camera")
+        return (f"{which} delivered the same image as in the last frame (a repeated buffer, not a new exposure): "
+                "no pose from it")
+
+    def _set_readout_prior(self) -> None:
+        """Give the rig's refinement the rolling shutter's prior once it can be had: the user's readout
+        (``readout_s``) at once, else from the frame period once two periods are known."""
+        refiner = self.refiner
+        if refiner is None or self._readout_prior_set or not hasattr(refiner, "set_readout_prior"):
+            return
+        period = float(np.median(self._frame_periods)) if len(self._frame_periods) >= 2 else None
+        if self.config.readout_s is None and period is None:
+            return
+        if refiner.updates:
+            self._readout_prior_set = True     # learnt already: the prior is the refinement's business
+            return
+        mean, sd = readout_prior(period, self.config.readout_s)
+        if self.config.readout_s is None:
+            # Not given: compensate nothing until the motion shows a readout,
+            # σ the longest a webcam's can be (wrongly compensating a global
+            # shutter by 30 ms costs as much as not compensating a rolling one).
+            mean, sd = 0.0, math.hypot(mean, sd)
+        refiner.set_readout_prior(mean, sd)
+        self._readout_prior_set = True
+
+    def _bootstrap_rig(self, t) -> bool:
+        """When a frame fails against a rig.yaml no frame has yet confirmed (before the refinement's
+        first update), fit its pose and the rig together under the far-off prior ``rig_far``
+        (:meth:`RigRefiner.bootstrap`): a rig.yaml far off (the right camera turned 3°, a board 10%
+        off) then gives poses from the first frame instead of none, or wrong ones. True when the
+        refinement now starts from the rig this frame gave; the note says what it found."""
+        refiner, last = self.refiner, self._last_fit
+        self._last_fit = None
+        if (refiner is None or last is None or refiner.updates or not self.config.rig_refine.enabled
+                or self.config.estimator != "reproj" or not hasattr(refiner, "bootstrap")):
+            return False
+        match, R, p1 = last
+        if not match.visible.all():
+            return False           # a hidden marker leaves too little to tell the rig from the pose
+        if not refiner.bootstrap(t, match.centers, match.visible, self._sigma(match), R, p1, self.config.rig_far):
+            return False
+        self._apply_rig(refiner.state.rig())
+        self._reset_motion()
+        self._bootstrap_note = ("rig.yaml is far from the rig these images show: the rig was estimated from this "
+                                f"frame's markers ({refiner.describe()}); the pose carries its uncertainty")
+        return True
 
     def _internal_error(self, exc: Exception, start: float) -> TrackResult:
         """The result of a frame whose processing raised ``exc``; the state it may have damaged is reset."""
@@ -776,8 +864,10 @@ class Tracker:
             # fits, which the correction starts from: they stay as they are.)
             R, p1, reason, withheld = self._rig_consistent(R, p1, vectors, pose_rows, rig_rows, rig_cov, match)
         if reason is None and withheld is None:
-            withheld = self._offset_unbridged(t, t_right) or self._shutter_unbridged(match)
+            withheld = self._offset_unbridged(t, t_right)
         timings["verify"] = time.perf_counter() - t_ver
+        if reason is not None or withheld is not None:
+            self._last_fit = (match, *fitted)
         if reason is not None:
             self._prev_centers = self._prev2_centers = None
             timings["total"] = time.perf_counter() - start
@@ -807,13 +897,23 @@ class Tracker:
             else:
                 rig_rows = np.concatenate([rig_rows, right_rows], axis=-1)
                 rig_cov = scipy.linalg.block_diag(rig_cov, motion_cov)
+        if match.shutter_cov is not None:
+            # ... and so does what is unknown of the velocity that took each
+            # row back to t (the rolling shutter): rows δ_r ∂x/∂pose.
+            shutter_rows = np.nan_to_num(geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras))
+            shutter_rows = shutter_rows * match.shutter_delay_s[..., None, None]
+            if rig_rows is None or rig_cov is None:
+                rig_rows, rig_cov = shutter_rows, match.shutter_cov
+            else:
+                rig_rows = np.concatenate([rig_rows, shutter_rows], axis=-1)
+                rig_cov = scipy.linalg.block_diag(rig_cov, match.shutter_cov)
         axes = self.axes_G @ R.T
         if match.shot_var is None:      # the tracking path leaves the shot-noise term to this stage
             match.shot_var = shot_variance(images, match.centers, self._tracked_sizes, self._prev_background)
         cov_input = CovarianceInput(images, match.centers, match.visible, match.sigma_px, residuals, JtJ,
                                     R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
                                     vectors, t, match.shot_var,
-                                    pose_rows, rig_rows, rig_cov, self._rig_version(), self._excess(match))
+                                    pose_rows, rig_rows, rig_cov, self._rig_version(), match.excess_px)
         t_est = time.perf_counter()
         timings["covariance_input"] = t_est - t_cov
         cov = self.uncertainty(cov_input)
@@ -891,7 +991,7 @@ class Tracker:
         return (left, right), (t_right if t_right is not None else t) + offset
 
     def _rig_terms(self, R, p1, t, t_right, velocity, P, match, spread: bool = True):
-        """Rig Jacobian rows (2, 5, 2, 8) at the pose, each centre's 1σ residual from the rig (2, 5), px
+        """Rig Jacobian rows (2, 5, 2, 9) at the pose, each centre's 1σ residual from the rig (2, 5), px
         (None unless ``spread``), and the pose's own Jacobian rows (2, 5, 2, 6)
         (:func:`geometry.reprojection_rows`).
 
@@ -905,7 +1005,8 @@ class Tracker:
             return None, None, pose_rows
         dt = (t_right - t) if (t is not None and t_right is not None) else 0.0
         omega, v = velocity if velocity is not None else (None, None)
-        rows = rig_jacobian_rows(R, p1, self.model_mm, self.refiner.state, self._cameras.D[1], dt, omega, v)
+        rows = rig_jacobian_rows(R, p1, self.model_mm, self.refiner.state, self._cameras.D[1], dt, omega, v,
+                                 rows_px=match.centers[..., 1], image_height=int(self.rig.image_size[1]))
         if not spread:
             return rows, None, pose_rows
         M, _ = self._rig_after_fit(pose_rows, rows, match.visible, self._sigma(match))
@@ -1049,9 +1150,13 @@ class Tracker:
                 # Some centres disagreed with the others (a glint, an
                 # occlusion, a stray blob taken for a marker): what they leave
                 # is as well a rig change as not.
-                return R, p1, (f"a rig error and the centres that disagree ({_names(match.excess_px > 0)}) both "
-                               f"explain these residuals, and they move the pose {shift:.0f} mm, {turn:.1f}° "
-                               "apart: not trusted"), None
+                # Withheld, not refused: the markers are identified either way,
+                # and the refinement, robust to the few centres that disagree,
+                # is what tells the two apart (refused, a stale rig with a
+                # glint in every frame was never refined: no pose at all).
+                return R, p1, None, (f"a rig error and the centres that disagree ({_names(match.excess_px > 0)}) "
+                                     f"both explain these residuals, and they move the pose {shift:.0f} mm, "
+                                     f"{turn:.1f}° apart: pose not reported until the rig is refined")
         if shift > cfg.max_rig_correction_mm or turn > cfg.max_rig_correction_deg:
             return R, p1, None, (f"the rig's error moves this pose by {shift:.0f} mm, {turn:.1f}°, more than a "
                                  f"linear correction is trusted for: pose not reported until the rig is refined")
@@ -1480,58 +1585,46 @@ class Tracker:
         return (centers[..., 1] - 0.5 * (height - 1)) * (self.readout_s() / max(height - 1, 1))
 
     def _rolling_shutter(self, match: _Match, t, current=None) -> bool:
-        """Set ``match.shutter_shift_px`` and ``shutter_sd_px`` from the head's velocity at ``t``
+        """Set ``match``'s rolling-shutter terms from the head's velocity at ``t``
         (:meth:`PoseHistory.velocity_at`, with ``current`` = (R, p1) this frame's pose when known);
         True when the centres are compensated.
 
         A centre at row r was exposed δ_r after t (:meth:`_row_times`): the
         head's image there is displaced by u̇ δ_r, u̇ = ∂x/∂pose · (ω, v) its
-        image velocity, which the fit takes off. The velocity's covariance Σ_v
-        adds δ_r² ∂x/∂pose Σ_v ∂x/∂poseᵀ to each centre's variance (the
-        readout's own uncertainty is the rig's, through its Jacobian column).
+        image velocity, which the fit takes off (``shutter_shift_px``). What
+        is not known of the velocity (its covariance Σ_v, or, when no recent
+        poses give one, a head's typical motion ``prior_head_rate_dps``,
+        ``prior_head_speed_mm_s``) is a nuisance of the pose: the rows
+        δ_r ∂x/∂pose with covariance Σ_v (``shutter_delay_s``,
+        ``shutter_cov``), marginalized in the covariance of V like the rig's
+        error; each centre's share, ``shutter_sd_px``, widens the checks.
+        (The readout's own uncertainty is the rig's, through its column.)
         """
-        match.shutter_shift_px = match.shutter_sd_px = None
+        match.shutter_shift_px = match.shutter_sd_px = match.shutter_cov = match.shutter_delay_s = None
         if (not self.config.compensate_rolling_shutter or self.config.estimator != "reproj" or t is None
                 or not self.readout_s()):
             return False
         motion = self._motion.velocity_at(t, self._rig_version(), current)
-        if motion is None:
-            return False
-        omega, velocity, cov = motion
         R, p1 = current if current is not None else (match.R, match.t)
-        rows = geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras)     # (2, 5, 2, 6)
-        rows = np.nan_to_num(rows)
-        delay = self._row_times(match.centers)                                                 # (2, 5) s
-        match.shutter_shift_px = (rows @ np.concatenate([omega, velocity])) * delay[..., None]
-        if cov is not None:
-            var = np.einsum("cmij,jk,cmik->cm", rows, cov, rows) * 0.5 * delay ** 2            # per coordinate
-            match.shutter_sd_px = np.sqrt(np.maximum(var, 0.0))
-        return True
+        rows = np.nan_to_num(geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras))  # (2,5,2,6)
+        delay = self._row_times(match.centers)                                                             # (2, 5) s
+        if motion is None:
+            cov = self._prior_motion_cov
+        else:
+            omega, velocity, cov = motion
+            match.shutter_shift_px = (rows @ np.concatenate([omega, velocity])) * delay[..., None]
+            if cov is None:
+                cov = self._prior_motion_cov
+        match.shutter_delay_s, match.shutter_cov = delay, cov
+        var = np.einsum("cmij,jk,cmik->cm", rows, cov, rows) * 0.5 * delay ** 2                           # per coordinate
+        match.shutter_sd_px = np.sqrt(np.maximum(var, 0.0))
+        return match.shutter_shift_px is not None
 
-    def _shutter_unbridged(self, match: _Match) -> str | None:
-        """Why the pose is withheld when a rolling shutter exposed the markers' rows more than
-        ``max_uncompensated_offset_s`` from the image's time and the head's motion is not known to
-        take them back (the first frame after an acquisition); None otherwise. The pose is
-        remembered, so the next frame has the velocity."""
+    @property
+    def _prior_motion_cov(self) -> np.ndarray:
+        """A head's motion when no recent poses tell it (6, 6): (rad/s)² ×3, (mm/s)² ×3."""
         c = self.config
-        if (not c.compensate_rolling_shutter or c.estimator != "reproj" or match.shutter_shift_px is not None
-                or not self.readout_s()):
-            return None
-        delay = np.abs(self._row_times(match.centers))[match.visible]
-        if not delay.size or not delay.max() > c.max_uncompensated_offset_s:
-            return None
-        return (f"the rolling shutter exposed the markers' rows up to {delay.max() * 1e3:.1f} ms from the image's "
-                "time and the head's motion over that is not known yet (no recent poses): pose not reported")
-
-    @staticmethod
-    def _excess(match: _Match):
-        """Each centre's error beyond its image noise (2, 5), px, or None: a suspect's excess and the rolling
-        shutter compensation's uncertainty."""
-        if match.shutter_sd_px is None:
-            return match.excess_px
-        if match.excess_px is None:
-            return match.shutter_sd_px
-        return np.hypot(match.excess_px, match.shutter_sd_px)
+        return np.diag([math.radians(c.prior_head_rate_dps) ** 2] * 3 + [c.prior_head_speed_mm_s ** 2] * 3)
 
     def _fit_centers(self, match: _Match):
         """The centres the pose is fitted to (left (5, 2), right (5, 2)) px: measured, less the rolling
@@ -1581,7 +1674,7 @@ class Tracker:
         A robust (Cauchy, scale ``robust_cauchy_sigma`` σ) fit of the
         residual vectors (2, 5, 2) px by a pose change and a rig change
         within its prior ``rig_cov``, linearized at the fitted pose
-        (``pose_rows`` (2, 5, 2, 6), ``rig_rows`` (2, 5, 2, 8) or None): a
+        (``pose_rows`` (2, 5, 2, 6), ``rig_rows`` (2, 5, 2, 9) or None): a
         rig error displaces the centres of a view coherently and is
         explained by the rig's columns; a glint fused with a marker, or a
         partial occlusion, displaces one centre and is not. The centres
