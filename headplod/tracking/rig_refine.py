@@ -169,6 +169,12 @@ _ROUNDING_MARGIN = 64 * np.finfo(float).eps
 # fraction of its largest is ill-conditioned: the chunk gives no update.
 _MIN_CONDITION = 1e-12
 
+# 99.9th percentile of χ² with 7 degrees of freedom (scipy.stats.chi2.ppf(0.999, 7)): the most a
+# bootstrap may move the rig, in its far prior's σ (turn 3, shift 3, focal 1).
+_CHI2_7DOF_999 = 24.32
+# Most a centre of a bootstrap's frames may be off its joint fit, in its σ (both coordinates).
+_BOOTSTRAP_MAX_Z = 5.0
+
 # Reasons for a chunk without an update (keys of RigRefiner.skipped_chunks).
 SKIP_UNOBSERVABLE = "nothing observable"        # e.g. a still head: the usual case, not a fault
 SKIP_NO_DATA = "no usable centres"
@@ -738,6 +744,7 @@ class RigRefiner:
         self._recent: deque = deque(maxlen=3)   # last frames, for velocities across chunks
         self._last_update_t = None
         self.updates = 0
+        self.bootstrapped_at: float | None = None   # time (s) of the frame a far-off rig.yaml was replaced from
         self.bumps = []             # times (s) of detected changes of the rig
         self.refined = np.zeros(N_RIG, bool)    # parameters refined at least once
         # Chunks that gave no update, by reason (SKIP_*), and the last one's (t of its last frame, reason).
@@ -863,6 +870,88 @@ class RigRefiner:
             changed = self._run(None) or changed
         self.last_call_passes = self.passes - self._call_start
         return changed
+
+    def bootstrap(self, frames: list, far: RigErrorModel, rounds: int = 3) -> bool:
+        """Start from the rig a few frames show, when ``rig.yaml`` is too far off for its error model.
+
+        Before any update a rig.yaml whose right camera is turned 3°, or whose
+        baseline is 10% off, is 6σ or 5σ outside the prior: every frame
+        disagrees with it, none is accepted, and the refinement, which
+        learns from accepted frames, never starts. Yet one frame decides the
+        pose without the rig (the left camera sees five markers of known
+        geometry) and the rig from that pose (the right camera sees them
+        too). This is the chunk solve (:meth:`_solve`) over ``frames`` under
+        the prior ``far`` (a turn, shift and focal error model wide enough),
+        relinearized ``rounds`` times from where the last ended (the
+        directions a solve may move are decided where it starts, and a 3°
+        error is far from linear). The exposure offset and the readout keep
+        their prior: no velocity is taken (the frames failed, and their
+        motion is not known).
+
+        ``frames``: (t s, centers (2, 5, 2) px, visible (2, 5), sigma_px
+        (2, 5) or (2, 5, 2) px, R_world_G, p1 mm), consecutive frames, each
+        pose fitted with the rig in use. Accepted when every frame's every
+        centre comes within ``_BOOTSTRAP_MAX_Z`` σ of where the joint fit
+        puts it (a median test would let one stray blob taken for a marker
+        through, and a free rig absorbs much), and the change is one ``far``
+        allows (χ² with 7 dof, 99.9%): the estimate and the rig in use become
+        it, with the solve's posterior as its covariance, and the pending
+        frames and any update under way are dropped (they were tracked with
+        the old rig). Only before the first update and once: False after
+        it, or when the frames do not agree on a rig; nothing is changed then.
+        """
+        if not self.config.enabled or self.updates or self.bootstrapped_at is not None:
+            return False
+        chunk = [self._frame(t, 0.0, c, v, sg, R, p1, False, self.versions) for t, c, v, sg, R, p1 in frames]
+        if not chunk or any(f is None for f in chunk):
+            return False
+        prior = far.covariance(self.calibrated, self.offset_declared, readout_sd_s=float(self._scale[_READOUT]))
+        for k in (_OFFSET, _READOUT):
+            prior[k, :] = prior[:, k] = 0.0
+            prior[k, k] = self.prior[k, k]
+        start = self._estimate
+        estimate = copy.copy(start)
+        solution = None
+        try:
+            for _ in range(max(int(rounds), 1)):
+                self._estimate = estimate
+                steps = self._solve(chunk, prior)
+                while True:
+                    try:
+                        next(steps)
+                    except StopIteration as end:
+                        solution = end.value
+                        break
+                estimate = estimate.moved(solution.increment)
+                for f in chunk:
+                    f.R, f.p1 = solution.refit[f.t]
+                if solution.noise_scale <= self.config.inconsistency:
+                    break
+        except _SkipChunk:
+            return False
+        finally:
+            self._estimate = start
+        if solution is None or not solution.noise_scale <= self.config.inconsistency:
+            return False
+        data = _ChunkData.of(chunk, self.calibrated.image_size[1])
+        res = self._chunk_terms(data, np.zeros((len(chunk), 6)), estimate)[0]
+        z = np.hypot(*np.moveaxis(res / data.sigma, -1, 0))[data.visible]
+        if not (np.isfinite(z).all() and z.max() <= _BOOTSTRAP_MAX_Z):
+            return False
+        change = estimate.error_from(start)
+        if not float(change @ np.linalg.lstsq(prior, change, rcond=None)[0]) <= _CHI2_7DOF_999:
+            return False
+        self._cancel_job()
+        self._pending = []
+        self._recent.clear()
+        self._estimate = estimate
+        self.state = copy.copy(estimate)
+        self.P = _positive_definite(solution.posterior, self._scale)
+        self._cov = None
+        self.versions += 1
+        self.refit_poses = {f.t: (f.R, f.p1) for f in chunk}
+        self.bootstrapped_at = chunk[-1].t
+        return True
 
     def _frame(self, t, declared_offset_s, centers, visible, sigma_px, R_world_G, p1_mm, motion_known,
                version) -> "_Frame | None":

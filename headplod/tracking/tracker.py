@@ -90,6 +90,9 @@ _REFINER_FILE = RigRefiner.__module__.rsplit(".", 1)[-1] + ".py"
 # (Tracker._rig_consistent).
 _AMBIGUOUS_CORRECTION_MM = 5.0
 _AMBIGUOUS_CORRECTION_DEG = 0.5
+# Refusals that a rig far from rig.yaml explains (see Tracker._bootstrap_rig).
+_RIG_FAILURES = ("reprojection error", "the images disagree with the rig", "the rig's error moves this pose")
+_BOOTSTRAP_FRAMES = 2
 _CORRECTED_P1_SD_MM = 1.5
 
 
@@ -460,6 +463,7 @@ class Tracker:
         self._last_fit = None         # (match, R, p1) of the last frame fitted but not reported, for _bootstrap_rig
         self._previous_images = None  # (left, right) of the last frame, to recognize a repeated buffer
         self._bootstrap_note = None
+        self._bootstrap_fits = []      # consecutive frames that failed against the rig, for _bootstrap_rig
         self._readout_prior_set = False
         self._declared_offsets = []   # recent t_right - t of the frames fed to the rig's refinement, s
         # Exceptions isolated by process(): counted, never silent (see process).
@@ -610,7 +614,7 @@ class Tracker:
         if tracking and not result.ok and result.mode == "track" and not self._withheld:
             # The re-measured markers did not verify: detect and identify afresh.
             result = self._attempt(images, t, t_right, timings, start, False)
-        if not result.ok and self._bootstrap_rig(t):
+        if self._bootstrap_rig(t):
             # rig.yaml is far from the rig: the frame fitted jointly with the
             # rig gave one that explains it. Tracked afresh with that rig,
             # whose uncertainty the pose's covariance carries.
@@ -659,25 +663,39 @@ class Tracker:
         self._readout_prior_set = True
 
     def _bootstrap_rig(self, t) -> bool:
-        """When a frame fails against a rig.yaml no frame has yet confirmed (before the refinement's
-        first update), fit its pose and the rig together under the far-off prior ``rig_far``
-        (:meth:`RigRefiner.bootstrap`): a rig.yaml far off (the right camera turned 3°, a board 10%
-        off) then gives poses from the first frame instead of none, or wrong ones. True when the
-        refinement now starts from the rig this frame gave; the note says what it found."""
+        """When consecutive frames fail against a rig.yaml no frame has yet confirmed (before the
+        refinement's first update), fit their poses and the rig together under the far-off prior
+        ``rig_far`` (:meth:`RigRefiner.bootstrap`): a rig.yaml far off (the right camera turned 3°, a
+        board 10% off) then gives poses from the second frame on instead of none, or wrong ones. Two
+        frames, not one: a stray blob taken for a marker in one frame does not agree with the next
+        one's rig. True when the refinement now starts from the rig they gave; the note says what it
+        found."""
         refiner, last = self.refiner, self._last_fit
         self._last_fit = None
-        if (refiner is None or last is None or refiner.updates or not self.config.rig_refine.enabled
-                or self.config.estimator != "reproj" or not hasattr(refiner, "bootstrap")):
+        if (last is None or refiner is None or refiner.updates or refiner.bootstrapped_at is not None
+                or not self.config.rig_refine.enabled or self.config.estimator != "reproj" or t is None):
+            self._bootstrap_fits = []
             return False
         match, R, p1 = last
-        if not match.visible.all():
-            return False           # a hidden marker leaves too little to tell the rig from the pose
-        if not refiner.bootstrap(t, match.centers, match.visible, self._sigma(match), R, p1, self.config.rig_far):
+        if not match.visible.all() or self._uncompensated or (
+                self._declared_right is not None and abs(self._declared_right - t) > self.config.max_uncompensated_offset_s
+                and not self._compensated):
+            # A hidden marker leaves too little to tell the rig from the pose;
+            # a right view that saw the head at another time, by a motion not
+            # known yet, would be taken for the rig.
+            self._bootstrap_fits = []
             return False
+        self._bootstrap_fits = (self._bootstrap_fits + [(t, match.centers, match.visible, self._sigma(match), R, p1)])
+        self._bootstrap_fits = self._bootstrap_fits[-_BOOTSTRAP_FRAMES:]
+        if len(self._bootstrap_fits) < _BOOTSTRAP_FRAMES:
+            return False
+        if not refiner.bootstrap(self._bootstrap_fits, self.config.rig_far):
+            return False
+        self._bootstrap_fits = []
         self._apply_rig(refiner.state.rig())
-        self._reset_motion()
-        self._bootstrap_note = ("rig.yaml is far from the rig these images show: the rig was estimated from this "
-                                f"frame's markers ({refiner.describe()}); the pose carries its uncertainty")
+        self._bootstrap_note = ("rig.yaml is far from the rig these images show: the rig was estimated from the "
+                                f"markers of this frame and the last ({refiner.describe()}); the pose carries its "
+                                "uncertainty")
         return True
 
     def _internal_error(self, exc: Exception, start: float) -> TrackResult:
@@ -866,7 +884,7 @@ class Tracker:
         if reason is None and withheld is None:
             withheld = self._offset_unbridged(t, t_right)
         timings["verify"] = time.perf_counter() - t_ver
-        if reason is not None or withheld is not None:
+        if (reason or withheld or "").startswith(_RIG_FAILURES):
             self._last_fit = (match, *fitted)
         if reason is not None:
             self._prev_centers = self._prev2_centers = None
