@@ -269,6 +269,8 @@ class TrackerConfig:
         head's velocity (reproj estimator): row r of an image H rows high
         is exposed at t + (r − (H − 1)/2) × readout / (H − 1) (t is the
         middle row's time, the dataset contract's mid-exposure).
+    min_readout_s : float
+        A refined readout below this, s, is not compensated (:meth:`Tracker.readout_s`).
     prior_head_rate_dps, prior_head_speed_mm_s : float
         A head's motion (1σ per axis: deg/s, mm/s of P1) when no recent
         poses tell it: what the first frame after an acquisition's pose may
@@ -321,6 +323,7 @@ class TrackerConfig:
     offset_passes: int = 6
     readout_s: float | None = None
     compensate_rolling_shutter: bool = True
+    min_readout_s: float = 0.0005
     prior_head_rate_dps: float = 50.0
     prior_head_speed_mm_s: float = 150.0
 
@@ -1588,10 +1591,21 @@ class Tracker:
 
     # ---------------------------------------------------------- rolling shutter
     def readout_s(self) -> float:
-        """The rolling shutter's readout in use, s (first row to last; 0: a global shutter)."""
-        state = self.refiner.state if self.refiner is not None else None
-        if state is not None and hasattr(state, "readout_s"):
-            return float(state.readout_s)
+        """The rolling shutter's readout the centres are compensated for, s (first row to last; 0: a
+        global shutter, or none known yet).
+
+        The refinement's estimate once it is known to be a readout: beyond
+        twice its σ and ``min_readout_s``. Below that the compensation would
+        move the centres by less than their noise (0.5 ms at 300 px/s and
+        the image's edge: 0.07 px) or by the estimate's own noise, and costs
+        a frame's work; what is unknown of it is the rig's uncertainty,
+        through its column, all the same. Without the refinement: the
+        configured readout."""
+        refiner = self.refiner
+        if refiner is not None and self.config.rig_refine.enabled:
+            readout = float(refiner.state.readout_s)
+            sd = float(refiner.sigma()[8])
+            return readout if readout > max(2.0 * sd, self.config.min_readout_s) else 0.0
         return float(self.config.readout_s or 0.0)
 
     def _row_times(self, centers: np.ndarray) -> np.ndarray:
