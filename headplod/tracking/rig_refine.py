@@ -791,7 +791,8 @@ class RigRefiner:
         if self.refined[_OFFSET] or abs(d["offset_ms"]) > 0.05:
             parts.append(f"time offset {d['offset_ms']:.1f} ms ±{sd[_OFFSET] * 1e3:.1f}")
         if self.refined[_READOUT] or abs(d["readout_ms"]) > 0.05:
-            parts.append(f"rolling shutter {d['readout_ms']:.1f} ms ±{sd[_READOUT] * 1e3:.1f}")
+            # (A readout is never negative; an estimate below 0 is a global shutter seen through noise.)
+            parts.append(f"rolling shutter {max(d['readout_ms'], 0.0):.1f} ms ±{sd[_READOUT] * 1e3:.1f}")
         state = "refined" if self.converged() else "refining"
         if self.bumps:
             state += f", rig changed at t={self.bumps[-1]:.1f} s"
