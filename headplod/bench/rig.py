@@ -73,6 +73,8 @@ RIG_SETS = [
 FUSED_SETS = ["fused glints", "rolling shutter 30 ms + stale rig + glints", "ordinary webcams (everything)"]
 PERFECT_SETS = ["global shutter, perfect rig", "rolling shutter 15 ms", "rolling shutter 30 ms"]
 WEBCAM_SETS = ["ordinary webcams (everything)"]
+#: Sets with a still head: nothing there shows a readout (nor needs one).
+STILL_SETS = ["still head + stale rig"]
 #: Sets whose readout is checked (rolling shutters, and the global shutter that must come out 0).
 READOUT_GOAL = (0.001, 0.05)       # recovered within 1 ms or 5%, after 5 s
 WRONG_POSITION_MM = 20.0
@@ -92,7 +94,8 @@ RIG_GOALS = [
      "<=", 0.8),
     ("mean NEES within 1.5-3", "not perfect", "nees_mean", "in", (1.5, 3.0)),
     ("mean NEES within 1.5-2.6 (perfect rigs)", PERFECT_SETS, "nees_mean", "in", (1.5, 2.6)),
-    ("readout recovered within 1 ms or 5% at the end", None, "readout_ok", ">=", 1),
+    ("readout recovered within 1 ms or 5% at the end (moving heads)", "moving", "readout_ok", ">=", 1),
+    ("no pose from a repeated buffer", None, "repeated_with_pose", "<=", 0),
     ("slowest tracked frame (99th percentile) ≤ 3x the median", None, "frame_p99_to_median", "<=", 3.0),
 ]
 
@@ -127,12 +130,15 @@ def truth_segment(rig_truth: dict, frame: int) -> dict:
     return active
 
 
-def truth_readout_s(folder) -> float:
-    """The true rolling-shutter readout of a dataset (``webcam_truth.json``), s; 0 without one."""
+def webcam_truth(folder) -> dict:
+    """What a dataset's webcams did (``webcam_truth.json``): the rolling shutter's readout (s; 0 without the
+    file) and the frames whose images repeat the frame before (a buffer handed out twice)."""
     path = Path(folder) / "webcam_truth.json"
     if not path.exists():
-        return 0.0
-    return float(json.loads(path.read_text()).get("readout_s", 0.0))
+        return {"readout_s": 0.0, "repeated_frames": set()}
+    data = json.loads(path.read_text())
+    return {"readout_s": float(data.get("readout_s", 0.0)),
+            "repeated_frames": {int(d["frame"]) for d in data.get("duplicates", [])}}
 
 
 def rig_errors(R, T, K2, offset_s, truth_seg: dict, true_offset_s: float) -> dict:
@@ -173,13 +179,16 @@ def run_rig_set(folder, settle_s: float = SETTLE_S, estimator: str | None = None
         raise ValueError(f"{folder}: no rig_truth.json (not an imperfect_rig dataset)")
     config = TrackerConfig() if estimator is None else TrackerConfig(estimator=estimator)
     tracker = Tracker(dataset.rig, dataset.markers, config)
-    true_readout = truth_readout_s(folder)
+    webcams = webcam_truth(folder)
+    true_readout = webcams["readout_s"]
     series = {k: [] for k in SERIES_KEYS}
+    repeated = []
     baselines = []
     t0 = None
     for frame, result in track_frames(dataset, tracker):
         row = dict.fromkeys(SERIES_KEYS, float("nan"))
         row["frame"], row["ok"] = frame.index, False
+        row["repeated"] = frame.index in webcams["repeated_frames"]
         if frame.t is not None:
             t0 = frame.t if t0 is None else t0
             row["t"] = frame.t - t0
@@ -214,7 +223,8 @@ def run_rig_set(folder, settle_s: float = SETTLE_S, estimator: str | None = None
                     row["readout_sd_ms"] = float(sd[8] * 1e3)
         for k in SERIES_KEYS:
             series[k].append(row[k])
-    out = _summarize(series, settle_s)
+        repeated.append(row["repeated"])
+    out = _summarize(series, settle_s, np.asarray(repeated, bool))
     baseline = float(np.median(baselines)) if baselines else float("nan")
     out["threshold_pass_ms"] = baseline * 1e3
     out["mean_pose_ratio_to_threshold"] = out["mean_pose_ms"] / out["threshold_pass_ms"]
@@ -236,9 +246,12 @@ def _nanmedian(values) -> float | None:
     return float(np.median(values)) if len(values) else None
 
 
-def _summarize(series: dict, settle_s: float) -> dict:
-    """Summary of a set's series (see :func:`run_rig_set`)."""
+def _summarize(series: dict, settle_s: float, repeated=None) -> dict:
+    """Summary of a set's series (see :func:`run_rig_set`). ``repeated`` (frames,) bool: frames whose images
+    repeat the frame before's; refusing them is right (no new exposure), so the share of frames with a pose
+    is over the others."""
     ok = np.asarray(series["ok"], bool)
+    fresh = ~np.asarray(repeated, bool) if repeated is not None and len(repeated) == len(ok) else np.ones(len(ok), bool)
     t = np.asarray(series["t"], float)
     v = np.asarray(series["v_err_deg"], float)
     p = np.asarray(series["pos_err_mm"], float)
@@ -246,7 +259,8 @@ def _summarize(series: dict, settle_s: float) -> dict:
     settled = t >= settle_s - 1e-9
     out = {
         "frames": int(len(ok)), "ok": int(ok.sum()),
-        "pose_fraction": float(ok.mean()) if len(ok) else 0.0,
+        "pose_fraction": float(ok[fresh].mean()) if fresh.any() else 0.0,
+        "repeated_frames": int((~fresh).sum()), "repeated_with_pose": int(ok[~fresh].sum()),
         "wrong_poses": int(np.sum((np.nan_to_num(v) > evaluate.WRONG_IDENTIFICATION_DEG)
                                   | (np.nan_to_num(p) > WRONG_POSITION_MM))),
         "v_err_deg_median": _nanmedian(v), "pos_err_mm_median": _nanmedian(p),
@@ -318,6 +332,8 @@ def rig_goals(results: dict) -> list[dict]:
             names = [n for n in results if n not in FUSED_SETS]
         elif sets == "not webcam":
             names = [n for n in results if n not in WEBCAM_SETS]
+        elif sets == "moving":
+            names = [n for n in results if n not in STILL_SETS]
         elif sets == "not perfect":
             names = [n for n in results if n not in PERFECT_SETS]
         else:
