@@ -65,7 +65,9 @@ def test_first_order_is_calibrated_on_a_still_head(synth):
 
 def test_smoothed_covariance_is_steady_for_a_still_head(synth):
     traces = np.array([np.trace(r.cov_deg2) for r, _ in covariances(synth("static", 40, distance_mm=600.0))])
-    change = np.abs(np.diff(traces[10:])) / traces[10:-1]
+    # From frame 16: the rig's first update (its chunk of 8 frames solved over the next few) has shrunk the
+    # rig's share by then, a real change of what is known.
+    change = np.abs(np.diff(traces[16:])) / traces[16:-1]
     assert change.mean() < 0.05
 
 

@@ -146,3 +146,18 @@ def test_readout_option_is_validated_and_reaches_the_tracker(synth, tmp_path, ca
     truth = ds.truth
     v = [float(evaluate.angle_deg(np.array(r["axes"][2]), truth[r["frame"]][1][2])) for r in records if r["ok"]]
     assert len(v) >= 18 and np.median(v) <= 0.1
+
+
+def test_the_tracker_names_its_states(synth):
+    """acquire → track on the markers; rig.yaml → refining on the rig, as the frames go."""
+    ds = synth("imperfect_rig", 40, rotation_deg=0.3)
+    tracker = Tracker(ds.rig, ds.markers)
+    assert tracker.state() == ("acquire", "rig.yaml")
+    states = []
+    for f in ds:
+        tracker.process(f.left, f.right, f.t, f.t_right)
+        states.append(tracker.state())
+    assert states[0][0] == "track" and states[0][1] == "rig.yaml"
+    assert states[-1] == ("track", "refining") or states[-1] == ("track", "refined")
+    tracker.reset()
+    assert tracker.state()[0] == "acquire"

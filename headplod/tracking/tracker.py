@@ -26,13 +26,33 @@ a jump back or far ahead resets the motion state, a repeated or glitching
 time gives no velocity, and the result's ``notes`` say so. An exception
 while processing a frame is isolated to it (:meth:`Tracker.process`).
 
-Why this module is long (about 1,500 lines): :class:`Tracker` is one state
-machine over a stereo stream, and its stages share that state (the last
-centres and their windows, the rig in use and its refinement, the noise
-tolerances the rig widens, the suspects of a frame). What has no state of
-its own lives elsewhere: detection, identification, geometry, the head's
-recent motion (:mod:`.motion`), the covariance (:mod:`.uncertainty`) and
-the rig's refinement (:mod:`.rig_refine`).
+States. The tracker is in one of two states for the markers, and one of
+three for the rig:
+
+- *acquire* (no lock): detect every blob and identify the five markers;
+  *track* (a :class:`_Lock` on the last accepted frame's markers):
+  re-measure them in small windows, and acquire when that fails. Only an
+  accepted pose with every marker seen makes a lock; every refusal drops it.
+- the rig: *as rig.yaml says* (no update yet; two consecutive frames that
+  fail against it may replace it by the rig they show,
+  :meth:`Tracker._bootstrap_rig`), *refining* (the online refinement's
+  updates, every 8 tracked frames, solved over the following frames),
+  *refined* (its turn and shift known to a tenth of their prior; a bump
+  widens them again). :meth:`Tracker.state` names both.
+
+A frame is one pass (:meth:`Tracker._attempt`): measure
+(:meth:`Tracker._measure`), fit and check (:meth:`Tracker._fit`, a
+:class:`_Fit`), the covariance of V (:meth:`Tracker._covariance_input`), the
+rig's refinement (:meth:`Tracker._refine`); a pass that fails while
+tracking is repeated acquiring.
+
+Why this module is long (about 1,800 lines): :class:`Tracker` is one state
+machine over a stereo stream, and its stages share that state (the lock,
+the rig in use and its refinement, the noise tolerances the rig widens,
+the suspects of a frame, the rolling shutter's compensation). What has no
+state of its own lives elsewhere: detection, identification, geometry, the
+head's recent motion (:mod:`.motion`), the covariance (:mod:`.uncertainty`)
+and the rig's refinement (:mod:`.rig_refine`). Issue 23 splits it further.
 """
 from __future__ import annotations
 
@@ -418,6 +438,7 @@ class _Match:
     fit_rms: float
     sigma_px: np.ndarray = None     # (2, 5) expected centroid noise, px
     flux: np.ndarray = None         # (2, 5) blob flux, DN·px
+    size: np.ndarray = None         # (2, 5) Gaussian σ of each blob as re-measured while tracking, px
     shot_var: np.ndarray = None     # (2, 5, 2) centroid variance of x, y per unit shot-noise factor, px²/DN
     excess_px: np.ndarray = None    # (2, 5) error of a suspect centre beyond its noise (a fused glint), px
     # A rolling shutter exposes each row at its own time: each centre's
@@ -429,6 +450,53 @@ class _Match:
     shutter_sd_px: np.ndarray = None
     shutter_delay_s: np.ndarray = None   # (2, 5) each centre's row time after t, s
     shutter_cov: np.ndarray = None       # (6, 6) covariance of the head's velocity over those delays
+
+
+@dataclass
+class _Lock:
+    """What tracking re-measures: the markers of the last accepted frame (the tracker is in its *track*
+    state while it has one, and *acquires* — detects and identifies from scratch — while it has none)."""
+
+    centers: np.ndarray                 # (2, 5, 2) last accepted centres, px
+    previous: np.ndarray | None         # (2, 5, 2) the ones before, for a constant-velocity prediction
+    size: np.ndarray                    # (2, 5) Gaussian σ of each marker's blob, px
+    flux: np.ndarray | None             # (2, 5) fluxes, DN·px; None after a full detection (measured otherwise)
+
+    def predicted(self) -> np.ndarray:
+        """Where the markers should be in this frame (2, 5, 2) px: at constant image velocity."""
+        return self.centers if self.previous is None else 2 * self.centers - self.previous
+
+
+@dataclass
+class _Fit:
+    """A frame's pose as fitted and checked: what the fit stage (:meth:`Tracker._fit`) hands on.
+
+    ``R``, ``p1``: the pose to report (corrected for the rig error its
+    residuals show, when that applies); ``fitted``: (R, p1) as fitted with
+    the rig in use, which the motion history and the refinement keep;
+    ``residuals`` (2, 5) px, ``vectors`` (2, 5, 2) px, ``JtJ`` (6, 6) of the
+    fit; ``velocity`` the head's (ω, v) for the rig's terms, or None;
+    ``rig_rows`` (2, 5, 2, k), ``rig_sd`` (2, 5) px, ``pose_rows`` (2, 5, 2,
+    6), ``rig_cov`` (k, k): the rig's share, when computed; ``reason``: why
+    no pose at all; ``withheld``: why a pose that is tracked from and refines
+    the rig is not reported; ``disagrees``: it fits only the rig's wider,
+    unrefined uncertainty (a bump?).
+    """
+
+    R: np.ndarray
+    p1: np.ndarray
+    fitted: tuple
+    residuals: np.ndarray
+    vectors: np.ndarray
+    JtJ: np.ndarray
+    velocity: tuple | None
+    rig_rows: np.ndarray | None
+    rig_sd: np.ndarray | None
+    pose_rows: np.ndarray | None
+    rig_cov: np.ndarray | None
+    reason: str | None = None
+    withheld: str | None = None
+    disagrees: bool = False
 
 
 class Tracker:
@@ -541,12 +609,7 @@ class Tracker:
         What a time discontinuity invalidates; the image statistics (noise,
         background) and the rig's refinement stand.
         """
-        self._prev_centers = None     # (2, 5, 2) last accepted centres, px
-        self._prev2_centers = None    # the ones before, for a constant-velocity prediction
-        self._prev_visible = None
-        self._prev_size = None         # (2, 5) Gaussian σ of each marker's blob, px
-        self._prev_flux = None
-        self._tracked_flux = self._tracked_size = None
+        self._lock: _Lock | None = None   # the markers to re-measure (track), or None (acquire)
         c = self.config
         self._motion = PoseHistory(c.extrapolate_velocity, c.min_velocity_base_s,
                                    max_rate_dps=c.max_head_rate_dps, max_speed_mm_s=c.max_head_speed_mm_s)
@@ -558,6 +621,15 @@ class Tracker:
         self._periods = []             # recent frame periods, s
 
     # ------------------------------------------------------------------ public
+    def state(self) -> tuple[str, str]:
+        """(markers, rig): 'track' or 'acquire'; 'rig.yaml', 'refining' or 'refined' (module docstring)."""
+        markers = "track" if self._lock is not None and self.config.track else "acquire"
+        refiner = self.refiner
+        if refiner is None or not self.config.rig_refine.enabled or (not refiner.updates
+                                                                       and refiner.bootstrapped_at is None):
+            return markers, "rig.yaml"
+        return markers, "refined" if refiner.converged() else "refining"
+
     def process(self, left: np.ndarray, right: np.ndarray, t: float | None = None,
                 t_right: float | None = None) -> TrackResult:
         """Track one stereo pair.
@@ -606,13 +678,13 @@ class Tracker:
         notes = self._check_time(t)
         skew = self._implausible_offset(t, t_right)
         if skew:
-            self._prev_centers = self._prev2_centers = None
+            self._lock = None
             return TrackResult(False, skew, timings_s={"total": time.perf_counter() - start}, notes=notes)
         if self.refiner is None:
             self._start_refiner(t, t_right)
         self._set_readout_prior()
         images, t_right = self._pair(left, right, t, t_right)
-        tracking = self.config.track and self._prev_centers is not None
+        tracking = self.config.track and self._lock is not None
         result = self._attempt(images, t, t_right, timings, start, tracking)
         if tracking and not result.ok and result.mode == "track" and not self._withheld:
             # The re-measured markers did not verify: detect and identify afresh.
@@ -798,9 +870,66 @@ class Tracker:
         return [note]
 
     def _attempt(self, images, t, t_right, timings, start, tracking) -> TrackResult:
-        """One pass: re-measure (tracking) or detect and identify, then fit and verify."""
-        match, mode, reason, blobs = None, "acquire", None, (None, None)
+        """One pass: measure (track or acquire), fit and check, the covariance of V, the rig's refinement."""
         self._withheld = False         # a pose verified, kept and tracked from, but not reported
+        match, mode, reason, blobs = self._measure(images, tracking, timings)
+        if match is None:
+            self._lock = None
+            timings["total"] = time.perf_counter() - start
+            return TrackResult(False, reason, mode=mode, timings_s=timings, blobs=blobs)
+        fit = self._fit(match, t, t_right, timings)
+        if (fit.reason or fit.withheld or "").startswith(_RIG_FAILURES):
+            self._last_fit = (match, *fit.fitted)          # for _bootstrap_rig
+        if fit.reason is not None:
+            self._lock = None
+            timings["total"] = time.perf_counter() - start
+            return TrackResult(False, fit.reason, centers_px=match.centers, residuals_px=fit.residuals, mode=mode,
+                               timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
+                               rig=self._rig_status(), rig_message=self._rig_message())
+        motion_gain, motion_cov = self._motion_terms(t, t_right, fit.fitted)
+        self._remember(match, t, *fit.fitted, blobs, mode, fit.JtJ)
+        timings["mean_pose"] = time.perf_counter() - start
+
+        # The uncertainty of V is its own stage (the mean pose is done).
+        t_cov = time.perf_counter()
+        cov_input = self._covariance_input(images, match, fit, t, t_right, motion_gain, motion_cov)
+        timings["covariance_input"] = time.perf_counter() - t_cov
+        cov = self.uncertainty(cov_input)
+        timings["covariance"] = time.perf_counter() - t_cov
+        if not np.isfinite(cov).all() or np.linalg.det(cov) <= 0:
+            timings["total"] = time.perf_counter() - start
+            return TrackResult(False, f"no covariance of V from the {self.uncertainty.name} estimator "
+                                      "(too few marker pixels?)", mode=mode, timings_s=timings, blobs=blobs)
+        withheld = fit.withheld
+        sd_deg = math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0))
+        if withheld is None and sd_deg > self.config.max_v_sd_deg:
+            # Still tracked from and refining the rig: that is what narrows it.
+            withheld = (f"V uncertain to ±{sd_deg:.1f}° (1σ), more than {self.config.max_v_sd_deg:g}°: "
+                        "the rig or the motion leaves too much unknown; pose not reported")
+
+        # The rig's refinement is its own stage, fed every accepted frame.
+        t_ref = time.perf_counter()
+        self._refine(match, t, cov_input=cov_input, R=fit.fitted[0], p1=fit.fitted[1], disagrees=fit.disagrees)
+        timings["refine_rig"] = time.perf_counter() - t_ref
+        timings["total"] = time.perf_counter() - start
+        if withheld is not None:
+            self._withheld = True
+            return TrackResult(False, withheld, centers_px=match.centers, residuals_px=fit.residuals, mode=mode,
+                               timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
+                               rig=self._rig_status(), rig_message=self._rig_message(fit.disagrees))
+        axes = self.axes_G @ fit.R.T
+        return TrackResult(True, None, fit.p1, axes, fit.R, match.centers, fit.residuals, match.epipolar,
+                           match.fit_rms, mode, timings, blobs, match.blob_index, cov_deg2=cov, cov_input=cov_input,
+                           rig=self._rig_status(), rig_message=self._rig_message(fit.disagrees))
+
+    def _measure(self, images, tracking: bool, timings: dict):
+        """The markers of this frame: (match or None, mode, reason for none, blobs).
+
+        *Track* (``tracking``: a lock on the last frame's markers): re-measure
+        them in small windows; *acquire* (no lock, or the re-measure failed):
+        detect every blob and identify the five markers.
+        """
+        match, mode, reason, blobs = None, "acquire", None, (None, None)
         if tracking:
             t_det = time.perf_counter()
             match = self._track_fast(images)
@@ -814,11 +943,10 @@ class Tracker:
             match, reason = self._identify(blobs)
             timings["identify"] = timings.get("identify", 0.0) + time.perf_counter() - t_id
             mode = "acquire"
-        if match is None:
-            self._prev_centers = self._prev2_centers = None
-            timings["total"] = time.perf_counter() - start
-            return TrackResult(False, reason, mode=mode, timings_s=timings, blobs=blobs)
+        return match, mode, reason, blobs
 
+    def _fit(self, match: _Match, t, t_right, timings: dict) -> _Fit:
+        """Fit the pose to the markers and check it against the images and the rig (:class:`_Fit`)."""
         t_pose = time.perf_counter()
         self._uncompensated = (t_right is not None and t is not None and t_right != t
                                and self._right_motion(t, t_right) is None
@@ -887,22 +1015,17 @@ class Tracker:
         if reason is None and withheld is None:
             withheld = self._offset_unbridged(t, t_right)
         timings["verify"] = time.perf_counter() - t_ver
-        if (reason or withheld or "").startswith(_RIG_FAILURES):
-            self._last_fit = (match, *fitted)
-        if reason is not None:
-            self._prev_centers = self._prev2_centers = None
-            timings["total"] = time.perf_counter() - start
-            return TrackResult(False, reason, centers_px=match.centers, residuals_px=residuals, mode=mode,
-                               timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
-                               rig=self._rig_status(), rig_message=self._rig_message())
-        motion_gain, motion_cov = self._motion_terms(t, t_right, fitted)
-        self._remember(match, t, *fitted, blobs, mode, JtJ)
-        timings["mean_pose"] = time.perf_counter() - start
+        return _Fit(R, p1, fitted, residuals, vectors, JtJ, velocity, rig_rows, rig_sd, pose_rows, rig_cov,
+                    reason, withheld, disagrees)
 
-        # The uncertainty of V is its own stage (the mean pose is done).
-        t_cov = time.perf_counter()
+    def _covariance_input(self, images, match: _Match, fit: _Fit, t, t_right, motion_gain,
+                          motion_cov) -> CovarianceInput:
+        """What the estimator of V's covariance needs: the centres and their noise, the fit, and the nuisances
+        the pose is uncertain by beside the image noise (the rig's error, the motion that moved the right
+        view, the rolling shutter's velocity), each as rows (2, 5, 2, k) with a covariance (k, k)."""
+        R, p1, rig_rows, pose_rows, rig_cov = fit.R, fit.p1, fit.rig_rows, fit.pose_rows, fit.rig_cov
         if pose_rows is None:
-            rig_rows, _, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match,
+            rig_rows, _, pose_rows = self._rig_terms(R, p1, t, t_right, fit.velocity, self._rig_cov(), match,
                                                      spread=False)
         right_rows = np.zeros_like(pose_rows)
         right_rows[1] = pose_rows[1]
@@ -930,38 +1053,11 @@ class Tracker:
                 rig_cov = scipy.linalg.block_diag(rig_cov, match.shutter_cov)
         axes = self.axes_G @ R.T
         if match.shot_var is None:      # the tracking path leaves the shot-noise term to this stage
-            match.shot_var = shot_variance(images, match.centers, self._tracked_sizes, self._prev_background)
-        cov_input = CovarianceInput(images, match.centers, match.visible, match.sigma_px, residuals, JtJ,
-                                    R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
-                                    vectors, t, match.shot_var,
-                                    pose_rows, rig_rows, rig_cov, self._rig_version(), match.excess_px)
-        t_est = time.perf_counter()
-        timings["covariance_input"] = t_est - t_cov
-        cov = self.uncertainty(cov_input)
-        timings["covariance"] = time.perf_counter() - t_cov
-        if not np.isfinite(cov).all() or np.linalg.det(cov) <= 0:
-            timings["total"] = time.perf_counter() - start
-            return TrackResult(False, f"no covariance of V from the {self.uncertainty.name} estimator "
-                                      "(too few marker pixels?)", mode=mode, timings_s=timings, blobs=blobs)
-        sd_deg = math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0))
-        if withheld is None and sd_deg > self.config.max_v_sd_deg:
-            # Still tracked from and refining the rig: that is what narrows it.
-            withheld = (f"V uncertain to ±{sd_deg:.1f}° (1σ), more than {self.config.max_v_sd_deg:g}°: "
-                        "the rig or the motion leaves too much unknown; pose not reported")
-
-        # The rig's refinement is its own stage, fed every accepted frame.
-        t_ref = time.perf_counter()
-        self._refine(match, t, cov_input=cov_input, R=fitted[0], p1=fitted[1], disagrees=disagrees)
-        timings["refine_rig"] = time.perf_counter() - t_ref
-        timings["total"] = time.perf_counter() - start
-        if withheld is not None:
-            self._withheld = True
-            return TrackResult(False, withheld, centers_px=match.centers, residuals_px=residuals, mode=mode,
-                               timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
-                               rig=self._rig_status(), rig_message=self._rig_message(disagrees))
-        return TrackResult(True, None, p1, axes, R, match.centers, residuals, match.epipolar,
-                           match.fit_rms, mode, timings, blobs, match.blob_index, cov_deg2=cov, cov_input=cov_input,
-                           rig=self._rig_status(), rig_message=self._rig_message(disagrees))
+            match.shot_var = shot_variance(images, match.centers, match.size, self._prev_background)
+        return CovarianceInput(images, match.centers, match.visible, match.sigma_px, fit.residuals, fit.JtJ,
+                               R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
+                               fit.vectors, t, match.shot_var,
+                               pose_rows, rig_rows, rig_cov, self._rig_version(), match.excess_px)
 
     # ------------------------------------------------------------------ the rig
     def _implausible_offset(self, t, t_right) -> str | None:
@@ -1292,14 +1388,12 @@ class Tracker:
     # ----------------------------------------------------------- identification
     def _track_fast(self, images) -> _Match | None:
         """Re-measure the previous frame's markers in small windows; None to re-acquire."""
-        prev = self._prev_centers
-        predicted = prev + (prev - self._prev2_centers) if self._prev2_centers is not None else prev
-        size = self._prev_size
+        lock = self._lock
+        predicted, size = lock.predicted(), lock.size
         # Window: the blob (±3 σ) plus the prediction's error.
         side = 2 * int(np.ceil(3 * size.max() + self.config.track_margin_px / 2)) + 1
         centers, found, flux, sigma, size, _, shot_var = centroids_near(images, predicted, side, self._prev_background,
                                                                         self._prev_threshold, size)
-        self._tracked_sizes = size
         if not found.all():
             return None
         # (Two windows locked onto one blob leave a residual of a marker
@@ -1307,11 +1401,11 @@ class Tracker:
         # A glint or a neighbour entering a window adds flux to one marker:
         # re-identify rather than let it pull the centroid. Head motion
         # changes all markers of a view alike, so compare with the median.
-        if self._prev_flux is not None:
+        if lock.flux is not None:
             # Allowed: the configured change plus 3σ of the relative flux
             # noise of the dimmest marker (Gaussian-weighted flux: σ_n √π s,
             # s the blob's σ), around the median change of the five.
-            changes = np.sort(flux / self._prev_flux, axis=1).tolist()
+            changes = np.sort(flux / lock.flux, axis=1).tolist()
             dimmest = (flux.min(axis=1) / size.max(axis=1)).tolist()
             for cam in (0, 1):
                 low, _, median, _, high = changes[cam]
@@ -1322,16 +1416,15 @@ class Tracker:
                 limit = self.config.track_flux_change * math.exp(min(4.24 * rel, 5.0))
                 if not (median / limit <= low and high <= median * limit):
                     return None
-        self._tracked_flux, self._tracked_size = flux, size
         visible, index = _ALL_VISIBLE, _NO_BLOB
         if self.config.estimator == "reproj":
             # The labels are carried over, and the reprojection fit started
             # from the last pose verifies them: no triangulation needed.
             R, t = self._predicted_pose()
-            return _Match(centers, visible, index, _NAN5, _NAN53, R, t, float("nan"), sigma, flux, shot_var)
+            return _Match(centers, visible, index, _NAN5, _NAN53, R, t, float("nan"), sigma, flux, size, shot_var)
         match = self._match_from_centers(centers, visible, index)
         if match is not None:
-            match.sigma_px, match.flux, match.shot_var = sigma, flux, shot_var
+            match.sigma_px, match.flux, match.size, match.shot_var = sigma, flux, size, shot_var
         return match
 
     def _predicted_pose(self):
@@ -1510,7 +1603,7 @@ class Tracker:
             flux[cam, visible[cam]] = blobs[cam].flux_dn[index[cam, visible[cam]]]
             if blobs[cam].shot_var is not None:
                 shot[cam, visible[cam]] = blobs[cam].shot_var[index[cam, visible[cam]]]
-        return _Match(centers, visible, index, epi, points, R, t, float(rms), sigma, flux, shot)
+        return _Match(centers, visible, index, epi, points, R, t, float(rms), sigma, flux, shot_var=shot)
 
     def _facing_cameras(self, R, t) -> np.ndarray:
         """The glasses' front (V) must face the cameras: retro-reflectors are seen only from the front."""
@@ -1787,20 +1880,17 @@ class Tracker:
     def _remember(self, match: _Match, t, R, p1, blobs, mode, info=None) -> None:
         self._prev_pose = (R, p1)
         if not match.visible.all():
-            self._prev_centers = self._prev2_centers = None    # re-identify while a marker is hidden
+            self._lock = None                      # re-identify while a marker is hidden
+        elif mode == "track":
+            self._lock = _Lock(match.centers, self._lock.centers if self._lock is not None else None,
+                               match.size, match.flux)
         else:
-            continuing = self._prev_centers is not None
-            self._prev2_centers = self._prev_centers if continuing else None
-            self._prev_centers = match.centers
-            if mode == "track":
-                self._prev_flux, self._prev_size = self._tracked_flux, self._tracked_size
-            else:
-                # Fluxes of a full detection are measured differently: the
-                # first tracked frame skips the flux comparison.
-                self._prev_flux = None
-                self._prev_size = np.stack([np.sqrt(np.maximum(blobs[cam].flux_dn[match.blob_index[cam]]
-                                                               / np.maximum(blobs[cam].peak_dn[match.blob_index[cam]], 1e-6),
-                                                               1.0) / (2 * np.pi)) for cam in range(2)])
+            # Fluxes of a full detection are measured differently: the first
+            # tracked frame skips the flux comparison.
+            size = np.stack([np.sqrt(np.maximum(blobs[cam].flux_dn[match.blob_index[cam]]
+                                                / np.maximum(blobs[cam].peak_dn[match.blob_index[cam]], 1e-6),
+                                                1.0) / (2 * np.pi)) for cam in range(2)])
+            self._lock = _Lock(match.centers, self._lock.centers if self._lock is not None else None, size, None)
         for cam in range(2):
             if blobs[cam] is not None and len(blobs[cam]):
                 self._prev_threshold[cam] = blobs[cam].threshold_dn
