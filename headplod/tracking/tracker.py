@@ -709,7 +709,10 @@ class Tracker:
         previous, self._previous_images = self._previous_images, (left, right)
         if previous is None:
             return None
-        same = [a is b or (a.shape == b.shape and np.array_equal(a, b)) for a, b in zip(previous, (left, right))]
+        # A sparse grid first: two exposures differ in noise nearly everywhere, so it
+        # tells new images at once (the whole images are compared only when it matches).
+        same = [a is b or (a.shape == b.shape and np.array_equal(a[::17, ::13], b[::17, ::13])
+                           and np.array_equal(a, b)) for a, b in zip(previous, (left, right))]
         if not any(same):
             return None
         which = "both cameras" if all(same) else ("the left camera" if same[0] else "the right camera")
