@@ -14,7 +14,6 @@ a table, goals and chart of their own.
 """
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
@@ -29,6 +28,7 @@ from ..live.loop import result_record, track_frames
 from ..progress import Progress
 from ..tracking.tracker import ESTIMATORS, Tracker, TrackerConfig
 from .baseline import threshold_baseline_s
+from .outputs import write_json
 
 # (set name, synthetic preset, frames in full / quick runs, what the goals say about it)
 TRACK_SETS = [
@@ -149,9 +149,8 @@ def run_track_bench(json_path=None, chart_path=None, quick: bool = False, sets=N
         print(rig["text"])
         out_json["imperfect_rig"] = rig["json"]
     if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        with open(json_path, "w") as fh:
-            json.dump(out_json, fh, indent=2)
+        out_json["quick"] = bool(quick)
+        write_json(json_path, out_json)              # whole or untouched
         print(f"results: {json_path}", file=sys.stderr)
     if chart_path:
         if results:
