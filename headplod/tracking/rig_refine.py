@@ -959,8 +959,8 @@ class RigRefiner:
         """The frame to keep, or None (no time; a non-finite time, offset or pose: counted)."""
         if t is None:
             return None
-        R_world_G = np.asarray(R_world_G, np.float64)
-        p1_mm = np.asarray(p1_mm, np.float64).reshape(3)
+        R_world_G = np.array(R_world_G, np.float64)     # copies: the caller may reuse its arrays
+        p1_mm = np.array(p1_mm, np.float64).reshape(3)
         if not (math.isfinite(t) and math.isfinite(declared_offset_s)
                 and np.isfinite(R_world_G).all() and np.isfinite(p1_mm).all()):
             # No time, offset or pose to learn from (the centres' own NaNs are
