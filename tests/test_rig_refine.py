@@ -79,7 +79,8 @@ def test_bump_mid_sequence_is_detected_and_reconverged():
     assert len(truth["segments"]) == 2
     assert tracker.refiner.bumps, "the bump was not detected"
     assert 60 / 30 <= tracker.refiner.bumps[0] <= 90 / 30
-    assert _turn_error_deg(tracker.refiner.state.R, truth["segments"][1]) < 0.05
+    # What the refinement recovered (the rig in use follows it within 3σ, as in the test above).
+    assert _turn_error_deg(tracker.refiner.estimate.R, truth["segments"][1]) < 0.05
     assert sum(r.ok for _, r in results) >= 0.97 * len(results)
     assert max(evaluate.angle_deg(r.axes[2], ds.truth[f.index][1][2]) for f, r in results if r.ok) < 5.0
 

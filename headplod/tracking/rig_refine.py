@@ -348,6 +348,12 @@ class RigRefineConfig:
         Random-walk drift of the rig allowed between updates: what lets the
         estimate follow a slowly changing rig (warming cameras, a webcam's
         clock drift).
+    refit_velocity_change : float
+        After a chunk's solve, its frames' velocities are taken again from
+        the poses it refitted; when one changed by more than this (rad/s of
+        the turn rate, or 100 times it in mm/s: 6°/s, 10 mm/s; a refitted
+        pose's own noise makes up to ~3°/s), the chunk is solved again with
+        them.
     observable_fraction : float
         A parameter is refined only when the chunk's information on it is at
         least this fraction of the prior's.
@@ -386,6 +392,7 @@ class RigRefineConfig:
     drift_focal_per_sqrt_s: float = 1e-4
     drift_offset_s_per_sqrt_s: float = 2e-4
     drift_readout_s_per_sqrt_s: float = 1e-5
+    refit_velocity_change: float = 0.1
     observable_fraction: float = 0.05
     inconsistency: float = 4.0
     publish_sigma: float = 3.0
@@ -1109,6 +1116,38 @@ class RigRefiner:
             f.omega = cv2.Rodrigues(b[1] @ a[1].T)[0].ravel() / dt
             f.velocity = (b[2] - a[2]) / dt
 
+    def _refit_velocities(self, chunk: list[_Frame], refit: dict) -> bool:
+        """The chunk's velocities as central differences of its refitted poses ({t: (R, p1)}, one rig), where a
+        frame has a refitted neighbour (else its velocity stays); True when one changed by more than
+        ``refit_velocity_change`` (rad/s of the turn rate, or 100x that in mm/s)."""
+        times = np.array([f.t for f in chunk])
+        gaps = np.diff(times)
+        if not len(gaps):
+            return False
+        limit = self.config.max_gap_frames * float(np.median(gaps))
+        new = {}
+        changed = False
+        for i, f in enumerate(chunk):
+            if not f.motion_known or f.omega is None or f.t not in refit:
+                continue
+            lo = i - 1 if (i > 0 and chunk[i - 1].motion_known and chunk[i - 1].t in refit
+                           and 0 < times[i] - times[i - 1] <= limit) else i
+            hi = i + 1 if (i + 1 < len(chunk) and chunk[i + 1].motion_known and chunk[i + 1].t in refit
+                           and 0 < times[i + 1] - times[i] <= limit) else i
+            if lo == hi:
+                continue
+            (Ra, pa), (Rb, pb) = refit[chunk[lo].t], refit[chunk[hi].t]
+            dt = times[hi] - times[lo]
+            omega = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt
+            velocity = (pb - pa) / dt
+            change = max(float(np.abs(omega - f.omega).max()), float(np.abs(velocity - f.velocity).max()) / 100.0)
+            changed |= change > self.config.refit_velocity_change
+            new[i] = (omega, velocity)
+        if changed:                  # else the velocities stay: those the solve used
+            for i, (omega, velocity) in new.items():
+                chunk[i].omega, chunk[i].velocity = omega, velocity
+        return changed
+
     def _process_noise(self, t: float) -> np.ndarray:
         """Drift (9, 9) since the last update: a random walk, variance ∝ elapsed time (0 if none elapsed)."""
         c = self.config
@@ -1162,6 +1201,18 @@ class RigRefiner:
             solution = retry
             self.bumps.append(chunk[0].t)
             bumped = True
+            prior = _positive_definite(prior + self.prior, self._scale)
+        if self._refit_velocities(chunk, solution.refit):
+            # The velocities (of the exposure offset's and the readout's
+            # columns) were differences of the poses as tracked, one of which
+            # a glint or a stale rig may have put a degree off: a velocity of
+            # 45°/s that no head had, whose frame then decides the offset.
+            # Solved again with the differences of the poses this solve
+            # refitted (one rig, glints down-weighted).
+            try:
+                solution = yield from self._solve(chunk, prior)
+            except _SkipChunk as skip:
+                return self._skip(chunk, skip.args[0])
         self._estimate.apply(solution.increment)
         self.P = solution.posterior
         self.refined |= solution.moved
