@@ -102,7 +102,7 @@ def test_readout_prior_rule():
 
 
 def test_refiner_takes_the_readout_prior():
-    ref = RigRefiner(RIG, MODEL)
+    ref = RigRefiner(RIG, MODEL, JOB)
     assert ref.prior.shape == (N_RIG, N_RIG) == (9, 9) and ref.estimate.readout_s == 0.0
     assert math.sqrt(ref.prior[READOUT, READOUT]) == rig_refine.READOUT_PRIOR_UNKNOWN[1]
     user = RigRefiner(RIG, MODEL, error_model=RigErrorModel(readout_s=0.025))
@@ -115,7 +115,7 @@ def test_refiner_takes_the_readout_prior():
 
 
 def test_set_readout_prior_until_the_first_update():
-    ref = RigRefiner(RIG, MODEL)
+    ref = RigRefiner(RIG, MODEL, JOB)
     ref.widen(0.0)                                       # P twice the prior: stays twice
     before = ref.P.copy()
     assert ref.set_readout_prior(0.0307, 0.015)
@@ -256,6 +256,10 @@ def _centres_on(t, offset_s, readout_s, turn, scale):
 STREAM = None
 
 
+#: The job's mechanics are tested on every update, the first too (which the default solves at once).
+JOB = rig_refine.RigRefineConfig(first_at_once=False)
+
+
 def _feed(config, frames=None, hook=None):
     """A refiner fed the stream (poses independent of its rig), flushed at the end. Returns it, the
     passes run in each add_frame call, and what each update (or skip) left: [(calls so far, record)]."""
@@ -313,7 +317,7 @@ def synchronous():
 
 def test_incremental_solve_is_bounded_and_equals_the_synchronous_one(synchronous):
     sync_ref, sync_passes, sync_results = synchronous
-    ref, passes, results = _feed(rig_refine.RigRefineConfig())
+    ref, passes, results = _feed(JOB)
     # The stream taught something, through both paths of an update: a bump's retry and skips.
     assert sync_ref.updates >= 15 and sync_ref.bumps and sync_ref.versions >= 2 and sync_ref.ignored_frames == 1
     assert max(sync_passes) >= 2 * (sync_ref.config.iterations + 1)   # the retry, at once
@@ -332,7 +336,7 @@ def test_a_job_still_running_is_finished_first(synchronous):
     """One pass a frame: a bump's retry (10 passes) outlasts its chunk's 7 following frames; the next
     chunk's completion finishes it first, and the results stay those of the synchronous solve."""
     _, _, sync_results = synchronous
-    ref, passes, results = _feed(rig_refine.RigRefineConfig(passes_per_frame=1))
+    ref, passes, results = _feed(rig_refine.RigRefineConfig(passes_per_frame=1, first_at_once=False))
     assert max(passes) > 1                             # the finish-first call
     assert sorted(set(passes))[:2] == [0, 1]
     _assert_same_results(results, sync_results)
@@ -350,7 +354,7 @@ def test_a_copy_or_a_readout_prior_restarts_the_job_with_the_same_result(synchro
             return copy.deepcopy(pickle.loads(pickle.dumps(ref)))     # mid-job: restarted from its chunk
         return None
 
-    _, _, results = _feed(rig_refine.RigRefineConfig(), hook=hook)
+    _, _, results = _feed(JOB, hook=hook)
     assert "copy" in seen
     _assert_same_results(results, sync_results)
     # The readout's prior set while the first update runs: it starts over, as if the prior were given.
@@ -364,14 +368,14 @@ def test_a_copy_or_a_readout_prior_restarts_the_job_with_the_same_result(synchro
         return None
 
     # (The refiners of _feed start with the frame period's prior: set again, to the same value.)
-    _, _, results = _feed(rig_refine.RigRefineConfig(), frames=frames, hook=set_prior)
+    _, _, results = _feed(JOB, frames=frames, hook=set_prior)
     assert "prior" in seen
     _assert_same_results(results, expected)
 
 
 @pytest.mark.parametrize("how", ["widen", "reset", "drop_pending", "forget_motion"])
 def test_widen_reset_drop_pending_with_a_job_running(how):
-    ref = RigRefiner(RIG, MODEL)
+    ref = RigRefiner(RIG, MODEL, JOB)
     sigma = np.full((2, 5), 0.03)
     for k, (t, centres, R, p1) in enumerate(_stream(seconds=0.5)[:9]):
         ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1)
@@ -396,7 +400,7 @@ def test_widen_reset_drop_pending_with_a_job_running(how):
 
 
 def test_an_exception_inside_the_job_ends_it(monkeypatch):
-    ref = RigRefiner(RIG, MODEL)
+    ref = RigRefiner(RIG, MODEL, JOB)
     sigma = np.full((2, 5), 0.03)
     frames = _stream(seconds=1.0)
 
@@ -423,7 +427,7 @@ def test_frames_given_during_a_job_are_moved_onto_the_new_rig():
     """Poses tracked with the rig in use (the default): when a job's result changes it, the frames given
     since (tracked with the old rig; this call's included) are moved onto the new one, and refit_poses
     gives them to the tracker with the chunk's."""
-    ref = RigRefiner(RIG, MODEL, readout_prior=readout_prior(1 / 30, None))
+    ref = RigRefiner(RIG, MODEL, JOB, readout_prior=readout_prior(1 / 30, None))
     sigma = np.full((2, 5), 0.03)
     frames = _stream(seconds=1.0)
     for k, (t, centres, R, p1) in enumerate(frames):
@@ -446,3 +450,14 @@ def test_frames_given_during_a_job_are_moved_onto_the_new_rig():
     for t, _, R, p1 in frames[8:k + 1]:
         np.testing.assert_allclose(ref.refit_poses[t][0], turn @ R, atol=1e-12)
         np.testing.assert_allclose(ref.refit_poses[t][1], turn @ p1 + p_new - turn @ p_old, atol=1e-9)
+
+
+def test_the_first_update_is_solved_at_once_and_the_next_ones_over_the_frames_after():
+    """first_at_once (the default): the call that completes the first chunk solves it (until then the rig is
+    only rig.yaml); every later update is a job over the following calls, at most passes_per_frame each."""
+    config = rig_refine.RigRefineConfig()
+    ref, passes, results = _feed(config)
+    first = next(k for k, p in enumerate(passes) if p)
+    assert first == config.chunk_frames - 1 and passes[first] > config.passes_per_frame
+    assert max(passes[first + 1:]) <= config.passes_per_frame
+    assert ref.updates >= 5
