@@ -161,3 +161,21 @@ def test_the_tracker_names_its_states(synth):
     assert states[-1] == ("track", "refining") or states[-1] == ("track", "refined")
     tracker.reset()
     assert tracker.state()[0] == "acquire"
+
+
+def test_a_saved_rig_brings_its_readout(synth, tmp_path):
+    """--save-rig keeps the readout with the refined rig (not in rig.yaml); tracking with that rig starts from
+    it: compensated from the first frames, even with the refinement off."""
+    ds = synth("imperfect_rig", 150, readout_s=0.03, base="yaw_sweep")
+    saved = tmp_path / "refined.yaml"
+    assert cli_main(["track", "--source", str(ds.folder), "--save-rig", str(saved), "-q"]) == 0
+    rig = io.read_rig(saved)
+    assert abs(float(np.ravel(rig.extra["refined_readout_ms"])[0]) - 30.0) <= 1.5
+    assert "refined_readout_ms" not in io.read_rig(ds.folder / "rig.yaml").extra
+    tracker = Tracker(rig, ds.markers, TrackerConfig(rig_refine=RigRefineConfig(enabled=False)))
+    assert tracker.readout_s() == pytest.approx(float(np.ravel(rig.extra["refined_readout_ms"])[0]) * 1e-3)
+    _, off = _track(ds, TrackerConfig(rig_refine=RigRefineConfig(enabled=False)))
+    tracker_results = [(f, tracker.process(f.left, f.right, f.t, f.t_right)) for f in ds]
+    v_saved, _, _ = _errors(ds, tracker_results)
+    v_off, _, _ = _errors(ds, off)
+    assert np.median(v_saved[:30]) < 0.6 * np.median(v_off[:30])

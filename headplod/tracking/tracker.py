@@ -719,6 +719,18 @@ class Tracker:
         return (f"{which} delivered the same image as in the last frame (a repeated buffer, not a new exposure): "
                 "no pose from it")
 
+    def _given_readout_s(self) -> float | None:
+        """The readout known before any frame, s: ``readout_s`` (``--readout-ms``), else the one a rig saved
+        by ``--save-rig`` learnt (``refined_readout_ms``: the same cameras read out as they did); None."""
+        if self.config.readout_s is not None:
+            return float(self.config.readout_s)
+        saved = self.calibrated_rig.extra.get("refined_readout_ms")
+        try:
+            value = float(np.ravel(saved)[0]) * 1e-3
+        except (TypeError, ValueError, IndexError):
+            return None
+        return max(value, 0.0) if math.isfinite(value) and value < 1.0 else None
+
     def _set_readout_prior(self) -> None:
         """Give the rig's refinement the rolling shutter's prior once it can be had: the user's readout
         (``readout_s``) at once, else from the frame period once two periods are known."""
@@ -726,13 +738,14 @@ class Tracker:
         if refiner is None or self._readout_prior_set or not hasattr(refiner, "set_readout_prior"):
             return
         period = float(np.median(self._frame_periods)) if len(self._frame_periods) >= 2 else None
-        if self.config.readout_s is None and period is None:
+        if self._given_readout_s() is None and period is None:
             return
         if refiner.updates:
             self._readout_prior_set = True     # learnt already: the prior is the refinement's business
             return
-        mean, sd = readout_prior(period, self.config.readout_s)
-        if self.config.readout_s is None:
+        given = self._given_readout_s()
+        mean, sd = readout_prior(period, given)
+        if given is None:
             # Not given: compensate nothing until the motion shows a readout,
             # σ the longest a webcam's can be (wrongly compensating a global
             # shutter by 30 ms costs as much as not compensating a rolling one).
@@ -1702,7 +1715,7 @@ class Tracker:
             readout = float(refiner.state.readout_s)
             sd = float(refiner.sigma()[8])
             return readout if readout > max(2.0 * sd, self.config.min_readout_s) else 0.0
-        return float(self.config.readout_s or 0.0)
+        return self._given_readout_s() or 0.0
 
     def _row_times(self, centers: np.ndarray) -> np.ndarray:
         """Each centre's exposure time relative to its image's time (2, 5), s.
