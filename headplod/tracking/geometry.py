@@ -244,6 +244,15 @@ class StereoCameras:
         World (left camera) frame to each camera frame.
     rvec, tvec : tuple of (3, 1)
         The same as OpenCV vectors.
+    R_project : (2, 3, 3)
+        The rotations OpenCV projects with (the Rodrigues of ``rvec``).
+    t_project : (2, 3)
+        ``tvec`` as rows, mm.
+    chain : (2, 6, 6)
+        ``blockdiag(R_cam_world[c], R_cam_world[c])``: takes projectPoints'
+        derivatives w.r.t. its rotation vector (at 0) and translation, for
+        points given in the camera's axes, to those w.r.t. the head's (δ, ε)
+        (see :func:`_fill_rows`).
     """
 
     def __init__(self, rig):
@@ -252,13 +261,13 @@ class StereoCameras:
         self.R_cam_world = np.stack([np.eye(3), np.asarray(rig.R, np.float64)])
         self.rvec = (np.zeros((3, 1)), cv2.Rodrigues(self.R_cam_world[1])[0])
         self.tvec = (np.zeros((3, 1)), np.reshape(rig.T, (3, 1)).astype(np.float64))
-
-    def per_point(self, n: int) -> np.ndarray:
-        """(2n, 3, 3): each camera's rotation repeated for n points per camera (cached)."""
-        cache = self.__dict__.setdefault("_per_point", {})
-        if n not in cache:
-            cache[n] = np.repeat(self.R_cam_world, n, axis=0)
-        return cache[n]
+        # The constants of _fill_rows. (The projections rotate by the
+        # Rodrigues of rvec, as OpenCV did before; the derivatives by
+        # R_cam_world, as the chain rule did: rig.R as given.)
+        self.R_project = np.stack([np.eye(3), cv2.Rodrigues(self.rvec[1])[0]])
+        self.t_project = np.stack([np.zeros(3), self.tvec[1].ravel()])
+        self.chain = np.zeros((2, 6, 6))
+        self.chain[:, :3, :3] = self.chain[:, 3:, 3:] = self.R_cam_world
 
     def with_right_motion(self, right_motion):
         """The same rig with the right camera seeing the world moved by (rvec, tvec) first."""
@@ -266,10 +275,20 @@ class StereoCameras:
             return self
         moved = object.__new__(StereoCameras)
         moved.K, moved.D = self.K, self.D
-        r, t = cv2.composeRT(np.reshape(right_motion[0], (3, 1)), np.reshape(right_motion[1], (3, 1)),
-                             self.rvec[1], self.tvec[1])[:2]
-        moved.rvec, moved.tvec = (self.rvec[0], r), (self.tvec[0], t)
-        moved.R_cam_world = np.stack([self.R_cam_world[0], cv2.Rodrigues(r)[0]])
+        # composeRT's composition (motion first, then the rig): R_1 M and
+        # R_1 t_m + t_1, without the ten derivative matrices composeRT also
+        # computes (most of its time). It runs per fit with a late right image.
+        R_right = self.R_project[1] @ cv2.Rodrigues(np.asarray(right_motion[0], np.float64).reshape(3))[0]
+        rotations = self.R_project.copy()
+        rotations[1] = R_right
+        shifts = self.t_project.copy()
+        shifts[1] += self.R_project[1] @ np.reshape(right_motion[1], 3)
+        chain = self.chain.copy()
+        chain[1, :3, :3] = chain[1, 3:, 3:] = R_right
+        moved.R_cam_world = moved.R_project = rotations
+        moved.t_project, moved.chain = shifts, chain
+        moved.rvec = (self.rvec[0], cv2.Rodrigues(R_right)[0])
+        moved.tvec = (self.tvec[0], shifts[1].reshape(3, 1))
         return moved
 
 
@@ -281,10 +300,9 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
     """Refine a head pose by Gauss-Newton on the reprojection error in both images.
 
     The pose is updated as R ← exp([δ]×) R, p1 ← p1 + ε (δ a rotation vector
-    in the world frame, rad; ε in mm). The Jacobian of a projected point x
-    is ∂x/∂X_cam · R_cam_world · [(R m) × · | I] with ∂x/∂X_cam read off
-    OpenCV's projectPoints (its derivative w.r.t. the translation vector):
-    two projectPoints calls per step and no rotation-vector chain rule.
+    in the world frame, rad; ε in mm). The Jacobian of the projected points
+    is read off OpenCV's projectPoints (see :func:`_fill_rows`): two
+    projectPoints calls per step.
 
     Parameters
     ----------
@@ -325,31 +343,37 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
         plain JᵀJ in px² per (rad, mm)² without it), for first-order
         covariance propagation, and the residual vectors (2, 5, 2).
     """
+    # Runs once or more per tracked frame on 10 centres: numpy's per-call
+    # overhead, not the arithmetic, sets its time, so the Jacobian and the
+    # residuals share one (2m, 7) array and one product gives JᵀJ and Jᵀr.
     cams = (cameras if cameras is not None else StereoCameras(rig)).with_right_motion(right_motion)
     visible = (np.asarray(visible_left, bool), np.asarray(visible_right, bool))
     model = np.asarray(model_mm, dtype=np.float64)
     n = len(model)
     counts = (int(np.count_nonzero(visible[0])), int(np.count_nonzero(visible[1])))
-    everything = counts == (n, n)
-    if everything:             # the tracking case: no selection to make
+    m = counts[0] + counts[1]
+    if counts == (n, n):             # the tracking case: no selection to make
+        selection = None
         obs = np.concatenate([obs_left_px, obs_right_px], axis=None)
         sig = None if sigma_px is None else np.ravel(sigma_px)
     else:
+        selection = visible
         obs = np.concatenate([obs_left_px[visible[0]], obs_right_px[visible[1]]]).ravel()
         sig = None if sigma_px is None else np.concatenate([sigma_px[0][visible[0]], sigma_px[1][visible[1]]])
-    # Per observation: its camera's rotation, for the chain rule.
-    R_cams = cams.per_point(n) if everything else np.repeat(cams.R_cam_world, counts, axis=0)   # (m, 3, 3)
-    weight = np.ones(2 * sum(counts)) if sig is None else np.repeat(1.0 / np.maximum(sig, 1e-4), 2)
+    chain = cams.chain
+    if right_gain:
+        chain = chain.copy()
+        chain[1] *= 1.0 + right_gain
+    # Per centre (m, 1, 1): 1/σ on both of its rows.
+    weight = None if sig is None else (1.0 / np.maximum(sig, 1e-4))[:, None, None]
     R = np.asarray(R_world_G, dtype=np.float64)
     p1 = np.asarray(p1_world_mm, dtype=np.float64).ravel()
-    selection = None if everything else visible
-    right_rows = slice(2 * counts[0], None)
+    rows = np.empty((2 * m, 7))          # [J | r]: Jacobian w.r.t. (δ, ε), residual, px
+    res = None
     for _ in range(iterations + 1):
-        res, J = _residuals_and_jacobian(R, p1, model, selection, cams, R_cams, obs)
-        if right_gain:
-            J[right_rows] *= 1.0 + right_gain
-        Jw = J * weight[:, None]
-        ok, step = cv2.solve(Jw.T @ Jw, -(Jw.T @ (res * weight))[:, None], flags=cv2.DECOMP_CHOLESKY)
+        _fill_rows(R, p1, model, selection, cams, chain, obs, rows)
+        normal = _normal_matrix(rows, weight)
+        ok, step = cv2.solve(normal[:6, :6], -normal[:6, 6:], flags=cv2.DECOMP_CHOLESKY)
         if not ok:
             break
         step = step.ravel()
@@ -362,68 +386,93 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
         # predicted pose one step usually suffices.
         small = max(map(abs, rot)) < 3e-3 and max(map(abs, shift)) < 2.0
         if small:
-            res = res + J @ step
+            res = rows[:, 6] + rows[:, :6] @ step
         R = cv2.Rodrigues(step[:3])[0] @ R
         p1 = p1 + step[3:]
         if small:
             break
     else:
-        res, J = _residuals_and_jacobian(R, p1, model, selection, cams, R_cams, obs)
-        if right_gain:
-            J[right_rows] *= 1.0 + right_gain
+        _fill_rows(R, p1, model, selection, cams, chain, obs, rows)
+        normal = _normal_matrix(rows, weight)
+    if res is None:
+        res = rows[:, 6].copy()
     # Products of rotations drift off SO(3) by rounding; frames chain them.
     R = cv2.Rodrigues(cv2.Rodrigues(R)[0])[0]
-    vectors = np.full((2, len(model), 2), np.nan)
-    vectors[0, visible[0]] = res[:2 * counts[0]].reshape(-1, 2)
-    vectors[1, visible[1]] = res[2 * counts[0]:].reshape(-1, 2)
-    Jw = J * weight[:, None]
-    return PoseFit(R, p1, np.hypot(vectors[..., 0], vectors[..., 1]), Jw.T @ Jw, vectors)
-
-
-_LEVI_CIVITA = np.zeros((3, 3, 3))
-_LEVI_CIVITA[0, 1, 2] = _LEVI_CIVITA[1, 2, 0] = _LEVI_CIVITA[2, 0, 1] = 1.0
-_LEVI_CIVITA[0, 2, 1] = _LEVI_CIVITA[2, 1, 0] = _LEVI_CIVITA[1, 0, 2] = -1.0
-
-
-def _residuals_and_jacobian(R, p1, model, visible, cams, R_cams, obs):
-    """Stacked residuals (2m,) px and their Jacobian (2m, 6) w.r.t. (δ, ε).
-
-    ``visible`` is a pair of (n,) bool masks, or None when every centre of
-    both images is seen (the tracking case: no selection to make).
-    """
-    rotated = model @ R.T                                          # R m, world frame
-    world = rotated + p1
-    proj, jac = [], []
-    for cam in (0, 1):
-        seen = world if visible is None else world[visible[cam]]
-        if len(seen):
-            pts, dpts = cv2.projectPoints(seen.reshape(-1, 1, 3), cams.rvec[cam], cams.tvec[cam],
-                                          cams.K[cam], cams.D[cam])
-            proj.append(pts.reshape(-1))
-            jac.append(dpts[:, 3:6])                               # ∂x/∂t = ∂x/∂X_cam
-    res = np.concatenate(proj) - obs
-    dx_dcam = np.concatenate(jac).reshape(-1, 2, 3)                # (m, 2, 3)
-    dx_dworld = dx_dcam @ R_cams                                   # (m, 2, 3)
-    if visible is None:
-        lever = np.concatenate([rotated, rotated])
+    if selection is None:
+        vectors = res.reshape(2, n, 2)
     else:
-        lever = np.concatenate([rotated[visible[0]], rotated[visible[1]]])
-    # a · (δ × r) = δ · (r × a): the rotation columns are r × (each row a),
-    # (r × a)_j = ε_jkl r_k a_l (np.cross is ten times slower on these sizes).
-    d_rot = dx_dworld @ np.einsum("mk,jkl->mlj", lever, _LEVI_CIVITA)
-    return res, np.concatenate([d_rot, dx_dworld], axis=2).reshape(-1, 6)
+        vectors = np.full((2, n, 2), np.nan)
+        vectors[0, visible[0]] = res[:2 * counts[0]].reshape(-1, 2)
+        vectors[1, visible[1]] = res[2 * counts[0]:].reshape(-1, 2)
+    return PoseFit(R, p1, np.hypot(vectors[..., 0], vectors[..., 1]), np.ascontiguousarray(normal[:6, :6]), vectors)
+
+
+def _normal_matrix(rows: np.ndarray, weight) -> np.ndarray:
+    """[[JᵀWJ, JᵀWr], [rᵀWJ, rᵀWr]] (7, 7) of rows [J | r] (2m, 7): J (2m, 6), r (2m,) px.
+
+    ``weight`` (m, 1, 1) is 1/σ of each centre (px⁻¹), on both of its rows
+    (W = weight²); None: W = I.
+    """
+    if weight is not None:
+        rows = (rows.reshape(-1, 2, 7) * weight).reshape(-1, 7)
+    return rows.T @ rows
+
+
+_ZERO_RVEC = np.zeros(3)
+
+
+def _fill_rows(R, p1, model, visible, cams, chain, obs, out) -> None:
+    """Fill ``out`` (2m, 7): the Jacobian rows (2m, 6) of the projected centres w.r.t. (δ, ε)
+    (px per rad, px per mm), then the residuals (2m,), projected minus ``obs`` (2m,), px.
+
+    ``R`` (3, 3), ``p1`` (3,) mm: the pose; ``model`` (n, 3) mm; ``visible``
+    a pair of (n,) bool masks, or None when every centre of both images is
+    seen (the tracking case: no selection to make); ``cams`` a
+    :class:`StereoCameras`, ``chain`` its ``chain`` (2, 6, 6), possibly
+    with a camera's rows scaled. Rows: left camera's visible centres, then
+    the right's, x and y of each.
+
+    Each camera c projects the model as the points R_c R m (the model turned
+    into the camera's orientation, R_c = ``cams.R_project[c]``) with rotation
+    vector 0 and translation R_c p1 + t_c: the same points in the camera.
+    OpenCV's derivatives w.r.t. that rotation vector and translation are
+    then w.r.t. a turn δ_c about p1 and a shift ε_c, both in camera axes,
+    and δ_c = R_c δ, ε_c = R_c ε: one (6, 6) product per camera (``chain``),
+    instead of the chain rule through each point's lever arm.
+    """
+    turned = cams.R_project @ R                                    # (2, 3, 3)
+    points = model @ turned.transpose(0, 2, 1)                     # (2, n, 3)
+    shifts = cams.R_project @ p1 + cams.t_project                  # (2, 3)
+    row = 0
+    for cam in (0, 1):
+        seen = points[cam] if visible is None else points[cam][visible[cam]]
+        if not len(seen):
+            continue
+        end = row + 2 * len(seen)
+        pts, dpts = cv2.projectPoints(seen, _ZERO_RVEC, shifts[cam], cams.K[cam], cams.D[cam])
+        np.matmul(dpts[:, :6], chain[cam], out=out[row:end, :6])
+        np.subtract(pts.reshape(-1), obs[row:end], out=out[row:end, 6])
+        row = end
+
+
+def _jacobian_rows(R_world_G, p1_world_mm, model_mm, visible, cameras):
+    """Jacobian rows (2m, 6) w.r.t. (δ, ε) of the visible centres at a pose (:func:`_fill_rows`),
+    and the visibility as a pair of (n,) bool arrays."""
+    vis = (np.asarray(visible[0], bool), np.asarray(visible[1], bool))
+    m = int(vis[0].sum() + vis[1].sum())
+    out = np.empty((2 * m, 7))
+    _fill_rows(np.asarray(R_world_G, np.float64), np.asarray(p1_world_mm, np.float64).ravel(),
+               np.asarray(model_mm, np.float64), vis, cameras, cameras.chain, np.zeros(2 * m), out)
+    return out[:, :6], vis
 
 
 def reprojection_rows(R_world_G, p1_world_mm, model_mm, visible, cameras) -> np.ndarray:
     """Jacobian rows (2, 5, 2, 6) of each projected centre w.r.t. (δ, ε) at a pose (NaN if hidden)."""
-    vis = (np.asarray(visible[0], bool), np.asarray(visible[1], bool))
-    counts = (int(vis[0].sum()), int(vis[1].sum()))
-    R_cams = np.repeat(cameras.R_cam_world, counts, axis=0)
-    _, J = _residuals_and_jacobian(np.asarray(R_world_G, np.float64), np.asarray(p1_world_mm, np.float64).ravel(),
-                                   np.asarray(model_mm, np.float64), vis, cameras, R_cams, np.zeros(2 * sum(counts)))
+    J, vis = _jacobian_rows(R_world_G, p1_world_mm, model_mm, visible, cameras)
+    n0 = 2 * int(vis[0].sum())
     rows = np.full((2, len(model_mm), 2, 6), np.nan)
-    rows[0, vis[0]] = J[:2 * counts[0]].reshape(-1, 2, 6)
-    rows[1, vis[1]] = J[2 * counts[0]:].reshape(-1, 2, 6)
+    rows[0, vis[0]] = J[:n0].reshape(-1, 2, 6)
+    rows[1, vis[1]] = J[n0:].reshape(-1, 2, 6)
     return rows
 
 
@@ -432,12 +481,7 @@ def reprojection_jacobian(R_world_G, p1_world_mm, model_mm, visible_left, visibl
     """Jᵀ Σ⁻¹ J (6, 6) of the reprojection residuals at a pose, w.r.t. (δ, ε) as in
     :func:`refine_reprojection` (plain JᵀJ without ``sigma_px`` (2, 5))."""
     cams = cameras if cameras is not None else StereoCameras(rig)
-    visible = (np.asarray(visible_left, bool), np.asarray(visible_right, bool))
-    counts = (int(visible[0].sum()), int(visible[1].sum()))
-    R_cams = np.repeat(cams.R_cam_world, counts, axis=0)
-    _, J = _residuals_and_jacobian(np.asarray(R_world_G, np.float64), np.asarray(p1_world_mm, np.float64).ravel(),
-                                   np.asarray(model_mm, np.float64), visible, cams, R_cams,
-                                   np.zeros(2 * sum(counts)))
+    J, visible = _jacobian_rows(R_world_G, p1_world_mm, model_mm, (visible_left, visible_right), cams)
     if sigma_px is not None:
         sig = np.concatenate([sigma_px[0][visible[0]], sigma_px[1][visible[1]]])
         J = J * np.repeat(1.0 / np.maximum(sig, 1e-4), 2)[:, None]
