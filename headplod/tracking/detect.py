@@ -22,6 +22,7 @@ Pipeline (Martinez et al. 2008, §4.1, with the changes that make it accurate):
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
@@ -365,6 +366,35 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
     return centers, flux, peak, area, border_peak, spread, shot
 
 
+def _window_constants(side: int):
+    """Per window side (px), cached: the offsets ``arange(side)`` (side,) float32 and the border mask
+    (side², ) float32, 1 on the window's one-pixel edge."""
+    constants = _WINDOW_CONSTANTS.get(side)
+    if constants is None:
+        border = np.ones((side, side), np.float32)
+        border[1:-1, 1:-1] = 0
+        constants = _WINDOW_CONSTANTS[side] = (np.arange(side, dtype=np.float32), border.reshape(-1))
+    return constants
+
+
+_WINDOW_CONSTANTS: dict = {}
+
+
+def _border_levels(windows: np.ndarray) -> np.ndarray:
+    """Mean of each window's one-pixel edge (n,) float32, DN, of integer-valued windows (n, s, s) float32.
+
+    One matrix-vector product with the edge's mask: the pixels are whole DN,
+    so every partial sum is an integer below 2²⁴ (s ≤ 256) and exact in
+    float32 in any order (the same value as summing the edge any other way).
+    """
+    n, side = windows.shape[:2]
+    if side > 256:              # partial sums could round: the plain sums (never met: windows are ~30 px)
+        total = windows.sum(axis=(1, 2)) - windows[:, 1:-1, 1:-1].sum(axis=(1, 2))
+    else:
+        total = windows.reshape(n, side * side) @ _window_constants(side)[1]
+    return total * np.float32(1.0 / (4 * side - 4))
+
+
 def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=False, with_shot=True,
                                 converged_px=0.0):
     """Gaussian-windowed centroids of background-subtracted windows (n, s, s).
@@ -380,6 +410,15 @@ def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=Fals
     ``converged_px`` in a step: from a start δ off, one step leaves about
     δ³/(2 s²), far below the noise for δ ≤ 0.05 px.
 
+    Parameters
+    ----------
+    signal : (n, s, s) float32
+        Windows less their background, DN.
+    start : (n, 2) float32
+        Starting centres (x, y) in window pixels.
+    size : (n,)
+        Gaussian σ of each blob, px.
+
     Returns centres (n, 2) in window pixels and ``spread`` (n,), with
     var(c_x) + var(c_y) = σ_n² · spread for pixel noise σ_n: first-order
     propagation, var(c_x) = σ_n² Σ g² (x − c)² / D_x²; with ``with_total``
@@ -387,50 +426,75 @@ def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=Fals
     variance of c_x and c_y per unit shot-noise factor κ (pixel variance κ I),
     Σ g² (x − c)² I / D_x², shape (n, 2).
     """
+    # The arithmetic is float32 and runs per frame on ~10 windows: numpy's
+    # per-call overhead, not the pixels, sets its time, so the sums of both
+    # axes share calls. Each number is still computed by the same operations
+    # in the same order as one sum per quantity would (rows are summed one by
+    # one either way), so the centres are the same to the bit.
     n, side = signal.shape[:2]
-    ramp = np.arange(side, dtype=np.float32)
+    ramp = _window_constants(side)[0]
     c = np.asarray(start, dtype=np.float32)
-    inv_size2 = (1.0 / size.astype(np.float32) ** 2)[:, None, None]
+    inv_size2 = 1.0 / size.astype(np.float32) ** 2                    # (n,) 1/s², px⁻²
+    inv_size2_col = inv_size2[:, None]
+    # −½/s² is exact (a power of two), so d² · (−½/s²) rounds as (−½ d²)/s² would.
+    neg_half = (-0.5 * inv_size2)[:, None, None]
+    # Per window and axis the offsets' powers (1, d, d²) side by side: one
+    # product and one sum give Σ w, Σ w d and Σ w d² of weights w (n, 2, s).
+    powers = np.empty((n, 2, 3, side), np.float32)
+    powers[:, :, 0] = 1.0
+    d, d2 = powers[:, :, 1], powers[:, :, 2]                          # (n, 2, side): x then y offsets
+    g = np.empty((n, 2, side), np.float32)
     proj = np.empty((n, 2, side), np.float32)
+    passes = max(iterations, 1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        for _ in range(max(iterations, 1)):
-            d = ramp - c[:, :, None]                           # (n, 2, side): x then y offsets
-            d2 = d * d
-            g = np.exp(-0.5 * d2 * inv_size2)
+        for i in range(passes):
+            np.subtract(ramp, c[:, :, None], out=d)
+            np.multiply(d, d, out=d2)
+            np.multiply(d2, neg_half, out=g)
+            np.exp(g, out=g)
             np.matmul(g[:, 1, None, :], signal, out=proj[:, 0:1, :])      # Σ_y g(y) I(y, x)
             np.matmul(signal, g[:, 0, :, None], out=proj[:, 1, :, None])  # Σ_x g(x) I(y, x)
             proj *= g
-            total = proj[:, 0].sum(axis=1)
+            moments = (proj[:, :, None, :] * powers).sum(axis=3)          # (n, 2, 3): Σ w, Σ w d, Σ w d²
+            total = moments[:, 0, 0]
             # Newton's derivative per axis, kept ≥ T/4 (a blob much longer
             # than the window would otherwise make the step explode).
-            slope = total[:, None] - (proj * d2).sum(axis=2) * inv_size2[:, :, 0]
+            slope = total[:, None] - moments[:, :, 2] * inv_size2_col
             slope = np.maximum(slope, 0.25 * total[:, None])
-            step = (proj * d).sum(axis=2) / slope
+            if not iterations:          # 0: only the weights at the given centres
+                break
+            step = moments[:, :, 1] / slope
             np.minimum(step, 1.0, out=step)
             np.maximum(step, -1.0, out=step)
-            if iterations:              # 0: only the weights at the given centres
-                c = c + step
-                if converged_px and float(np.abs(step).max()) <= converged_px:
+            c = c + step
+            # Converged when no step exceeds converged_px (after the last
+            # pass the test would change nothing); a NaN step (an empty
+            # window) never has. On 2n numbers Python's builtins beat two
+            # numpy reductions.
+            if converged_px and i + 1 < passes:
+                moves = step.ravel().tolist()
+                if not math.isnan(sum(moves)) and max(map(abs, moves)) <= converged_px:
                     break
         # Noise propagation at the last weights (the final step is far below σ_c).
-        g2 = g * g
-        g2d2 = (g2 * d2).sum(axis=2)
-        g2 = g2.sum(axis=2)                                    # (n, 2): Σ g(x)², Σ g(y)²
+        g2 = np.multiply(g, g, out=g)
+        squares = g2[:, :, None, :] * powers                              # g², g² d, g² d²
+        sums = squares.sum(axis=3)                                         # (n, 2, 3)
         total = total.astype(np.float64)
         slope = slope.astype(np.float64)
-        spread = g2d2[:, 0] * g2[:, 1] / slope[:, 0] ** 2 + g2d2[:, 1] * g2[:, 0] / slope[:, 1] ** 2
+        slope2 = slope ** 2
+        # var(c_x) ∝ Σ g(x)² (x − c)² · Σ g(y)² / D_x², and likewise for y.
+        shares = sums[:, :, 2] * sums[:, ::-1, 0] / slope2
+        spread = shares[:, 0] + shares[:, 1]
         shot = None
         if with_total and with_shot:
             positive = np.maximum(signal, 0)
-            gx2, gy2 = g[:, 0] ** 2, g[:, 1] ** 2
-            right = np.stack([gx2 * d2[:, 0], gx2], axis=2)                   # (n, side, 2)
-            left = np.stack([gy2, gy2 * d2[:, 1]], axis=1)                    # (n, 2, side)
-            terms = left @ (positive @ right)                                 # (n, 2, 2)
-            shot = np.stack([terms[:, 0, 0], terms[:, 1, 1]], axis=1).astype(np.float64) / slope ** 2
+            right = np.stack([squares[:, 0, 2], g2[:, 0]], axis=2)        # (n, side, 2): gx² dx², gx²
+            left = np.ascontiguousarray(squares[:, 1, ::2])               # (n, 2, side): gy², gy² dy²
+            terms = left @ (positive @ right)                              # (n, 2, 2)
+            shot = np.stack([terms[:, 0, 0], terms[:, 1, 1]], axis=1).astype(np.float64) / slope2
     if with_total:
         return c.astype(np.float64), spread, total, shot
     return c.astype(np.float64), spread
-
 
 
 def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, thresholds_dn,
@@ -466,30 +530,44 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
     None unless ``with_shot``: the tracking path leaves it to the covariance
     stage, :func:`shot_variance`).
     """
+    # Runs every tracked frame on 2 x 5 windows of ~27² px: numpy's per-call
+    # overhead sets its time, so per-image values broadcast as (k, 1) rather
+    # than being repeated per window, and no sum is taken that a cheaper
+    # exact one can replace.
     k, n = np.shape(guesses_px)[:2]
+    m = k * n
     height, width = images[0].shape
     side = int(min(side_px, width, height))
-    sigma = np.repeat(np.array([backgrounds[0][1], backgrounds[-1][1]][:k], np.float32), n)
-    contrast = np.repeat(np.array([thresholds_dn[j] - backgrounds[j][0] for j in range(k)], np.float32), n)
-    guesses = np.reshape(guesses_px, (k * n, 2))
+    ramp = _window_constants(side)[0]
+    # Per image (k, 1) float32: pixel noise σ, the noise floor 2σ and the
+    # least peak, 0.6 of the detection contrast, DN.
+    noise, contrast = np.array([[backgrounds[0][1], backgrounds[-1][1]][:k],
+                                [thresholds_dn[j] - backgrounds[j][0] for j in range(k)]], np.float32)[:, :, None]
+    noise_floor = 2.0 * noise
+    least_peak = 0.6 * contrast
+    guesses = np.reshape(guesses_px, (m, 2))
     found = np.isfinite(guesses).all(axis=1)
     origin = np.where(found[:, None], guesses, 0.0).astype(np.int64)
     origin -= side // 2
     np.minimum(np.maximum(origin, 0, out=origin), (width - side, height - side), out=origin)
     ox, oy = origin[:, 0], origin[:, 1]
-    windows = np.concatenate([_window_view(img, side)[oy[j * n:(j + 1) * n], ox[j * n:(j + 1) * n]]
-                              for j, img in enumerate(images)]).astype(np.float32)
-    level = (windows.sum(axis=(1, 2)) - windows[:, 1:-1, 1:-1].sum(axis=(1, 2))) * (1.0 / (4 * side - 4))
-    signal = windows - level[:, None, None]
+    windows = np.empty((m, side, side), np.float32)
+    for j, img in enumerate(images):             # one gather per image (k ≤ 2)
+        np.copyto(windows[j * n:(j + 1) * n], _window_view(img, side)[oy[j * n:(j + 1) * n], ox[j * n:(j + 1) * n]])
+    level = _border_levels(windows)
+    signal = np.subtract(windows, level[:, None, None], out=windows)
     # Start from the plain centroid of what stands above the noise: robust to
     # a prediction several pixels off, which the Gaussian window is not.
-    bright = signal - (2.0 * sigma)[:, None, None]
+    # Its column sums add the rows one after another whatever the layout;
+    # rows first (side, m, side) makes that a few long additions instead of
+    # m·side short ones (the same additions in the same order: the same bits).
+    bright = np.subtract(signal.reshape(k, n, side, side), noise_floor[:, :, None, None]).reshape(m, side, side)
     np.maximum(bright, 0, out=bright)
-    ramp = np.arange(side, dtype=np.float32)
-    start = np.empty((k * n, 2), np.float32)
+    bright_rows = np.ascontiguousarray(bright.transpose(1, 0, 2))     # (side, m, side)
+    start = np.empty((m, 2), np.float32)
     with np.errstate(invalid="ignore", divide="ignore"):
         mass = bright.sum(axis=(1, 2))
-        np.matmul(bright.sum(axis=1), ramp, out=start[:, 0])
+        np.matmul(bright_rows.sum(axis=0), ramp, out=start[:, 0])
         np.matmul(bright.sum(axis=2), ramp, out=start[:, 1])
         start /= mass[:, None]
     # From the plain centroid one Newton step is enough for a still head
@@ -500,20 +578,24 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
                                                              with_total=True, with_shot=with_shot,
                                                              converged_px=0.08)
     peak = signal.max(axis=(1, 2))
+    signal[:, 1:-1, 1:-1] = 0
+    edge = signal.max(axis=(1, 2))
     # Found: converged inside the window, bright enough, and wholly inside it
     # (nothing bright on the window's edge).
     # Where a marker is expected, a peak of 0.6 of the detection contrast
     # (3σ with the default 5σ) is enough: nothing else is being searched for.
     # The centre must stay inside the window, and nothing bright may touch
     # the window's edge (the blob lies wholly inside).
-    signal[:, 1:-1, 1:-1] = 0
-    found &= ((peak >= 0.6 * contrast) & (signal.max(axis=(1, 2)) <= 0.15 * peak + 2.0 * sigma)
-              & (np.abs(local - 0.5 * (side - 1)).max(axis=1) < 0.5 * side - 2))
+    offset = np.abs(local - 0.5 * (side - 1))
+    peak = peak.reshape(k, n)
+    found = (found.reshape(k, n) & (peak >= least_peak) & (edge.reshape(k, n) <= 0.15 * peak + noise_floor)
+             & (np.maximum(offset[:, 0], offset[:, 1]).reshape(k, n) < 0.5 * side - 2))
+    half_spread = (spread / 2).reshape(k, n)
+    total = total.reshape(k, n)
     with np.errstate(invalid="ignore", divide="ignore"):
-        centroid_sigma = sigma * np.sqrt(spread / 2)
+        centroid_sigma = noise * np.sqrt(half_spread)
         size = np.sqrt(np.maximum(2 * total / peak, 1.0) / (2 * np.pi))
-    return ((local + origin).reshape(k, n, 2), found.reshape(k, n), total.reshape(k, n),
-            centroid_sigma.reshape(k, n), size.reshape(k, n), (spread / 2).reshape(k, n),
+    return ((local + origin).reshape(k, n, 2), found, total, centroid_sigma, size, half_spread,
             None if shot is None else shot.reshape(k, n, 2))
 
 
