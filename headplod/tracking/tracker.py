@@ -711,8 +711,14 @@ class Tracker:
             return None
         # A sparse grid first: two exposures differ in noise nearly everywhere, so it
         # tells new images at once (the whole images are compared only when it matches).
-        same = [a is b or (a.shape == b.shape and np.array_equal(a[::17, ::13], b[::17, ::13])
-                           and np.array_equal(a, b)) for a, b in zip(previous, (left, right))]
+        # An image without any variation (a covered lens, black or clipped) repeats
+        # without being a repeated buffer: it tells nothing either way.
+        def repeats(a, b):
+            grid = a[::17, ::13]
+            return (a.shape == b.shape and np.array_equal(grid, b[::17, ::13]) and int(grid.max()) != int(grid.min())
+                    and np.array_equal(a, b))
+
+        same = [repeats(a, b) for a, b in zip(previous, (left, right))]
         if not any(same):
             return None
         which = "both cameras" if all(same) else ("the left camera" if same[0] else "the right camera")
