@@ -1,10 +1,10 @@
 """The tracking fast paths' shortcuts against the plain computations they replace.
 
-``geometry``: the pose fit reads its Jacobian off projectPoints' derivatives
-w.r.t. a camera-aligned frame (:func:`geometry._fill_rows`) instead of the
-chain rule through each marker's lever arm, and composes a late right
-image's motion without composeRT; both must give the same derivatives and
-cameras. ``detect``: a window's edge mean comes from one matrix product,
+``geometry``: the pose fit projects each camera's points already turned
+into its axes and takes the rotation columns as lever × translation row in
+one go (:func:`geometry._fill_rows`), and composes a late right image's
+motion without composeRT; both must give the derivatives of the
+projections and the cameras composeRT gives. ``detect``: a window's edge mean comes from one matrix product,
 and the Gaussian-windowed centroid shares sums between both axes; both must
 give the same numbers to the bit. (Speed itself is measured by ``headplod
 bench track``, not asserted here.)
@@ -62,6 +62,17 @@ def test_jacobian_rows_are_the_projections_derivatives(seed):
     hidden = geo.reprojection_rows(R, p1, MODEL, visible, cameras)
     assert np.isnan(hidden[1, seed % 5]).all()
     np.testing.assert_allclose(hidden[visible], rows[visible], rtol=1e-12, atol=1e-12)
+
+
+def test_jacobian_rows_keep_exact_zeros():
+    """A turn about a marker's own lever moves it by exactly nothing: facing the cameras
+    (a half turn about x), P0, P1 and P2 lie on G's x axis, and their rows' δ_x column is 0 to the
+    bit in both views, as the chain rule gives it (rig_residual_rows relies on exact dependence)."""
+    rows = geo.reprojection_rows(FACING, np.array([-170.0, 0.0, 150.0]), MODEL, np.ones((2, 5), bool),
+                                 geo.StereoCameras(RIG))
+    assert np.all(rows[:, :3, :, 0] == 0.0)
+    assert np.all(rows[:, 1, :, :3] == 0.0)                     # P1: no lever at all
+    assert np.all(np.abs(rows[:, 3:, :, 0]) > 1e-3)
 
 
 @pytest.mark.parametrize("seed", range(4))

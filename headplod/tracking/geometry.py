@@ -248,11 +248,6 @@ class StereoCameras:
         The rotations OpenCV projects with (the Rodrigues of ``rvec``).
     t_project : (2, 3)
         ``tvec`` as rows, mm.
-    chain : (2, 6, 6)
-        ``blockdiag(R_cam_world[c], R_cam_world[c])``: takes projectPoints'
-        derivatives w.r.t. its rotation vector (at 0) and translation, for
-        points given in the camera's axes, to those w.r.t. the head's (δ, ε)
-        (see :func:`_fill_rows`).
     """
 
     def __init__(self, rig):
@@ -261,13 +256,11 @@ class StereoCameras:
         self.R_cam_world = np.stack([np.eye(3), np.asarray(rig.R, np.float64)])
         self.rvec = (np.zeros((3, 1)), cv2.Rodrigues(self.R_cam_world[1])[0])
         self.tvec = (np.zeros((3, 1)), np.reshape(rig.T, (3, 1)).astype(np.float64))
-        # The constants of _fill_rows. (The projections rotate by the
-        # Rodrigues of rvec, as OpenCV did before; the derivatives by
-        # R_cam_world, as the chain rule did: rig.R as given.)
+        # For _fill_rows: the projections rotate by the Rodrigues of rvec,
+        # as OpenCV did when given rvec; the derivatives by R_cam_world
+        # (rig.R as given), as before.
         self.R_project = np.stack([np.eye(3), cv2.Rodrigues(self.rvec[1])[0]])
         self.t_project = np.stack([np.zeros(3), self.tvec[1].ravel()])
-        self.chain = np.zeros((2, 6, 6))
-        self.chain[:, :3, :3] = self.chain[:, 3:, 3:] = self.R_cam_world
 
     def with_right_motion(self, right_motion):
         """The same rig with the right camera seeing the world moved by (rvec, tvec) first."""
@@ -283,10 +276,8 @@ class StereoCameras:
         rotations[1] = R_right
         shifts = self.t_project.copy()
         shifts[1] += self.R_project[1] @ np.reshape(right_motion[1], 3)
-        chain = self.chain.copy()
-        chain[1, :3, :3] = chain[1, 3:, 3:] = R_right
         moved.R_cam_world = moved.R_project = rotations
-        moved.t_project, moved.chain = shifts, chain
+        moved.t_project = shifts
         moved.rvec = (self.rvec[0], cv2.Rodrigues(R_right)[0])
         moved.tvec = (self.tvec[0], shifts[1].reshape(3, 1))
         return moved
@@ -360,7 +351,7 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
         selection = visible
         obs = np.concatenate([obs_left_px[visible[0]], obs_right_px[visible[1]]]).ravel()
         sig = None if sigma_px is None else np.concatenate([sigma_px[0][visible[0]], sigma_px[1][visible[1]]])
-    chain = cams.chain
+    chain = cams.R_cam_world
     if right_gain:
         chain = chain.copy()
         chain[1] *= 1.0 + right_gain
@@ -419,6 +410,10 @@ def _normal_matrix(rows: np.ndarray, weight) -> np.ndarray:
 
 
 _ZERO_RVEC = np.zeros(3)
+# r × a = r_yzx a_zxy − r_zxy a_yzx: the levers' coordinates (y, z, x, z, x, y) and the columns of
+# a row's a (its ε part, columns 3-5) in the order (z, x, y, y, z, x).
+_YZX_ZXY = np.array([1, 2, 0, 2, 0, 1])
+_A_ZXY_YZX = 3 + np.array([2, 0, 1, 1, 2, 0])
 
 
 def _fill_rows(R, p1, model, visible, cams, chain, obs, out) -> None:
@@ -428,31 +423,54 @@ def _fill_rows(R, p1, model, visible, cams, chain, obs, out) -> None:
     ``R`` (3, 3), ``p1`` (3,) mm: the pose; ``model`` (n, 3) mm; ``visible``
     a pair of (n,) bool masks, or None when every centre of both images is
     seen (the tracking case: no selection to make); ``cams`` a
-    :class:`StereoCameras`, ``chain`` its ``chain`` (2, 6, 6), possibly
-    with a camera's rows scaled. Rows: left camera's visible centres, then
-    the right's, x and y of each.
+    :class:`StereoCameras`; ``chain`` its ``R_cam_world`` (2, 3, 3), the
+    right camera's possibly scaled (by 1 + ``right_gain``: its rows follow).
+    Rows: the left camera's visible centres, then the right's, x and y of
+    each.
 
-    Each camera c projects the model as the points R_c R m (the model turned
-    into the camera's orientation, R_c = ``cams.R_project[c]``) with rotation
-    vector 0 and translation R_c p1 + t_c: the same points in the camera.
-    OpenCV's derivatives w.r.t. that rotation vector and translation are
-    then w.r.t. a turn δ_c about p1 and a shift ε_c, both in camera axes,
-    and δ_c = R_c δ, ε_c = R_c ε: one (6, 6) product per camera (``chain``),
-    instead of the chain rule through each point's lever arm.
+    A marker at lever r = R m from P1 moves by δ × r + ε, so a row's
+    derivative w.r.t. ε is a = ∂x/∂X_cam · R_c (projectPoints' derivative
+    w.r.t. its translation, times ``chain``) and w.r.t. δ is r × a
+    (a · (δ × r) = δ · (r × a)). Each camera projects the levers turned into
+    its axes, with rotation vector 0 and translation R_c p1 + t_c: the same
+    points in the camera as R_c (R m + p1) + t_c.
     """
-    turned = cams.R_project @ R                                    # (2, 3, 3)
-    points = model @ turned.transpose(0, 2, 1)                     # (2, n, 3)
-    shifts = cams.R_project @ p1 + cams.t_project                  # (2, 3)
+    levers = model @ R.T                                           # (n, 3) r = R m, mm
+    shifts = cams.R_project @ p1 + cams.t_project                  # (2, 3) R_c p1 + t_c
+    turned = levers @ cams.R_project.transpose(0, 2, 1)            # (2, n, 3) R_c r
     row = 0
     for cam in (0, 1):
-        seen = points[cam] if visible is None else points[cam][visible[cam]]
+        seen = turned[cam] if visible is None else turned[cam][visible[cam]]
         if not len(seen):
             continue
         end = row + 2 * len(seen)
         pts, dpts = cv2.projectPoints(seen, _ZERO_RVEC, shifts[cam], cams.K[cam], cams.D[cam])
-        np.matmul(dpts[:, :6], chain[cam], out=out[row:end, :6])
+        np.matmul(dpts[:, 3:6], chain[cam], out=out[row:end, 3:6])
         np.subtract(pts.reshape(-1), obs[row:end], out=out[row:end, 6])
         row = end
+    # The rotation columns r × a in one go: each row's lever's cycled
+    # coordinates (one gather from the levers, cached per visibility) against
+    # the row's. (Computed from a as the chain rule did, they keep its exact
+    # zeros, e.g. a lever along the axis of δ.)
+    cycled = levers.take(_lever_index(visible, len(model)))        # (2m, 6) r_yzx | r_zxy
+    products = cycled * out[:, _A_ZXY_YZX]                         # × a_zxy | a_yzx
+    np.subtract(products[:, :3], products[:, 3:], out=out[:, :3])
+
+
+_LEVER_INDEX: dict = {}
+
+
+def _lever_index(visible, n: int) -> np.ndarray:
+    """Flat indices (2m, 6) into the levers (n, 3) giving each row's lever's coordinates (y, z, x, z, x, y);
+    rows as in :func:`_fill_rows`. Cached for all visible (``visible`` None)."""
+    if visible is None and n in _LEVER_INDEX:
+        return _LEVER_INDEX[n]
+    seen = [np.arange(n)] * 2 if visible is None else [np.flatnonzero(v) for v in visible]
+    markers = np.repeat(np.concatenate(seen), 2)                   # one per row
+    index = markers[:, None] * 3 + _YZX_ZXY
+    if visible is None:
+        _LEVER_INDEX[n] = index
+    return index
 
 
 def _jacobian_rows(R_world_G, p1_world_mm, model_mm, visible, cameras):
@@ -462,7 +480,7 @@ def _jacobian_rows(R_world_G, p1_world_mm, model_mm, visible, cameras):
     m = int(vis[0].sum() + vis[1].sum())
     out = np.empty((2 * m, 7))
     _fill_rows(np.asarray(R_world_G, np.float64), np.asarray(p1_world_mm, np.float64).ravel(),
-               np.asarray(model_mm, np.float64), vis, cameras, cameras.chain, np.zeros(2 * m), out)
+               np.asarray(model_mm, np.float64), vis, cameras, cameras.R_cam_world, np.zeros(2 * m), out)
     return out[:, :6], vis
 
 
