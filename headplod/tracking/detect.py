@@ -426,6 +426,18 @@ def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=Fals
     variance of c_x and c_y per unit shot-noise factor κ (pixel variance κ I),
     Σ g² (x − c)² I / D_x², shape (n, 2).
     """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c, spread, total, shot = _windowed_centroid(signal, start, size, iterations, with_total, with_shot,
+                                                    converged_px)
+    if with_total:
+        return c.astype(np.float64), spread, total, shot
+    return c.astype(np.float64), spread
+
+
+def _windowed_centroid(signal, start, size, iterations, with_total, with_shot, converged_px):
+    """:func:`_gaussian_windowed_centroid` without its ``np.errstate`` (the caller holds one: it
+    costs a context switch of numpy's error state per call): centres (n, 2) float32, spread (n,),
+    total (n,) float64 and shot (n, 2) or None, whatever ``with_total``."""
     # The arithmetic is float32 and runs per frame on ~10 windows: numpy's
     # per-call overhead, not the pixels, sets its time, so the sums of both
     # axes share calls. Each number is still computed by the same operations
@@ -434,7 +446,7 @@ def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=Fals
     n, side = signal.shape[:2]
     ramp = _window_constants(side)[0]
     c = np.asarray(start, dtype=np.float32)
-    inv_size2 = 1.0 / size.astype(np.float32) ** 2                    # (n,) 1/s², px⁻²
+    inv_size2 = 1.0 / np.square(size, dtype=np.float32)                # (n,) 1/s², px⁻², s in float32
     inv_size2_col = inv_size2[:, None]
     # −½/s² is exact (a power of two), so d² · (−½/s²) rounds as (−½ d²)/s² would.
     neg_half = (-0.5 * inv_size2)[:, None, None]
@@ -446,55 +458,51 @@ def _gaussian_windowed_centroid(signal, start, size, iterations, with_total=Fals
     g = np.empty((n, 2, side), np.float32)
     proj = np.empty((n, 2, side), np.float32)
     passes = max(iterations, 1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        for i in range(passes):
-            np.subtract(ramp, c[:, :, None], out=d)
-            np.multiply(d, d, out=d2)
-            np.multiply(d2, neg_half, out=g)
-            np.exp(g, out=g)
-            np.matmul(g[:, 1, None, :], signal, out=proj[:, 0:1, :])      # Σ_y g(y) I(y, x)
-            np.matmul(signal, g[:, 0, :, None], out=proj[:, 1, :, None])  # Σ_x g(x) I(y, x)
-            proj *= g
-            moments = (proj[:, :, None, :] * powers).sum(axis=3)          # (n, 2, 3): Σ w, Σ w d, Σ w d²
-            total = moments[:, 0, 0]
-            # Newton's derivative per axis, kept ≥ T/4 (a blob much longer
-            # than the window would otherwise make the step explode).
-            slope = total[:, None] - moments[:, :, 2] * inv_size2_col
-            slope = np.maximum(slope, 0.25 * total[:, None])
-            if not iterations:          # 0: only the weights at the given centres
+    for i in range(passes):
+        np.subtract(ramp, c[:, :, None], out=d)
+        np.multiply(d, d, out=d2)
+        np.multiply(d2, neg_half, out=g)
+        np.exp(g, out=g)
+        np.matmul(g[:, 1, None, :], signal, out=proj[:, 0:1, :])      # Σ_y g(y) I(y, x)
+        np.matmul(signal, g[:, 0, :, None], out=proj[:, 1, :, None])  # Σ_x g(x) I(y, x)
+        proj *= g
+        moments = (proj[:, :, None, :] * powers).sum(axis=3)          # (n, 2, 3): Σ w, Σ w d, Σ w d²
+        total = moments[:, 0, 0]
+        # Newton's derivative per axis, kept ≥ T/4 (a blob much longer
+        # than the window would otherwise make the step explode).
+        slope = total[:, None] - moments[:, :, 2] * inv_size2_col
+        slope = np.maximum(slope, 0.25 * total[:, None])
+        if not iterations:          # 0: only the weights at the given centres
+            break
+        step = moments[:, :, 1] / slope
+        np.minimum(step, 1.0, out=step)
+        np.maximum(step, -1.0, out=step)
+        c = c + step
+        # Converged when no step exceeds converged_px (after the last
+        # pass the test would change nothing); a NaN step (an empty
+        # window) never has. On 2n numbers Python's builtins beat two
+        # numpy reductions.
+        if converged_px and i + 1 < passes:
+            moves = step.ravel().tolist()
+            if not math.isnan(sum(moves)) and max(map(abs, moves)) <= converged_px:
                 break
-            step = moments[:, :, 1] / slope
-            np.minimum(step, 1.0, out=step)
-            np.maximum(step, -1.0, out=step)
-            c = c + step
-            # Converged when no step exceeds converged_px (after the last
-            # pass the test would change nothing); a NaN step (an empty
-            # window) never has. On 2n numbers Python's builtins beat two
-            # numpy reductions.
-            if converged_px and i + 1 < passes:
-                moves = step.ravel().tolist()
-                if not math.isnan(sum(moves)) and max(map(abs, moves)) <= converged_px:
-                    break
-        # Noise propagation at the last weights (the final step is far below σ_c).
-        g2 = np.multiply(g, g, out=g)
-        squares = g2[:, :, None, :] * powers                              # g², g² d, g² d²
-        sums = squares.sum(axis=3)                                         # (n, 2, 3)
-        total = total.astype(np.float64)
-        slope = slope.astype(np.float64)
-        slope2 = slope ** 2
-        # var(c_x) ∝ Σ g(x)² (x − c)² · Σ g(y)² / D_x², and likewise for y.
-        shares = sums[:, :, 2] * sums[:, ::-1, 0] / slope2
-        spread = shares[:, 0] + shares[:, 1]
-        shot = None
-        if with_total and with_shot:
-            positive = np.maximum(signal, 0)
-            right = np.stack([squares[:, 0, 2], g2[:, 0]], axis=2)        # (n, side, 2): gx² dx², gx²
-            left = np.ascontiguousarray(squares[:, 1, ::2])               # (n, 2, side): gy², gy² dy²
-            terms = left @ (positive @ right)                              # (n, 2, 2)
-            shot = np.stack([terms[:, 0, 0], terms[:, 1, 1]], axis=1).astype(np.float64) / slope2
-    if with_total:
-        return c.astype(np.float64), spread, total, shot
-    return c.astype(np.float64), spread
+    # Noise propagation at the last weights (the final step is far below σ_c).
+    g2 = np.multiply(g, g, out=g)
+    squares = g2[:, :, None, :] * powers                              # g², g² d, g² d²
+    sums = squares.sum(axis=3)                                         # (n, 2, 3)
+    total = total.astype(np.float64)
+    slope2 = np.square(slope, dtype=np.float64)                        # D², squared in float64
+    # var(c_x) ∝ Σ g(x)² (x − c)² · Σ g(y)² / D_x², and likewise for y.
+    shares = sums[:, :, 2] * sums[:, ::-1, 0] / slope2
+    spread = shares[:, 0] + shares[:, 1]
+    shot = None
+    if with_total and with_shot:
+        positive = np.maximum(signal, 0)
+        right = np.stack([squares[:, 0, 2], g2[:, 0]], axis=2)        # (n, side, 2): gx² dx², gx²
+        left = np.ascontiguousarray(squares[:, 1, ::2])               # (n, 2, side): gy², gy² dy²
+        terms = left @ (positive @ right)                              # (n, 2, 2)
+        shot = np.stack([terms[:, 0, 0], terms[:, 1, 1]], axis=1).astype(np.float64) / slope2
+    return c, spread, total, shot
 
 
 def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, thresholds_dn,
@@ -541,8 +549,8 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
     ramp = _window_constants(side)[0]
     # Per image (k, 1) float32: pixel noise σ, the noise floor 2σ and the
     # least peak, 0.6 of the detection contrast, DN.
-    noise, contrast = np.array([[backgrounds[0][1], backgrounds[-1][1]][:k],
-                                [thresholds_dn[j] - backgrounds[j][0] for j in range(k)]], np.float32)[:, :, None]
+    noise, contrast = np.array([backgrounds[0][1], backgrounds[-1][1]][:k]
+                               + [thresholds_dn[j] - backgrounds[j][0] for j in range(k)], np.float32).reshape(2, k, 1)
     noise_floor = 2.0 * noise
     least_peak = 0.6 * contrast
     guesses = np.reshape(guesses_px, (m, 2))
@@ -565,37 +573,36 @@ def centroids_near(images, guesses_px: np.ndarray, side_px: int, backgrounds, th
     np.maximum(bright, 0, out=bright)
     bright_rows = np.ascontiguousarray(bright.transpose(1, 0, 2))     # (side, m, side)
     start = np.empty((m, 2), np.float32)
+    # One error state for the rest (an empty window divides by zero: its NaNs are not found).
     with np.errstate(invalid="ignore", divide="ignore"):
         mass = bright.sum(axis=(1, 2))
         np.matmul(bright_rows.sum(axis=0), ramp, out=start[:, 0])
         np.matmul(bright.sum(axis=2), ramp, out=start[:, 1])
         start /= mass[:, None]
-    # From the plain centroid one Newton step is enough for a still head
-    # (the start is within ~0.05 px); a moving or asymmetric blob needs the
-    # second. (The constant-velocity prediction is a worse start: measured
-    # 0.08 px off for a still head, about a pixel in the yaw sweep.)
-    local, spread, total, shot = _gaussian_windowed_centroid(signal, start, np.reshape(size_px, -1), 2,
-                                                             with_total=True, with_shot=with_shot,
-                                                             converged_px=0.08)
-    peak = signal.max(axis=(1, 2))
-    signal[:, 1:-1, 1:-1] = 0
-    edge = signal.max(axis=(1, 2))
-    # Found: converged inside the window, bright enough, and wholly inside it
-    # (nothing bright on the window's edge).
-    # Where a marker is expected, a peak of 0.6 of the detection contrast
-    # (3σ with the default 5σ) is enough: nothing else is being searched for.
-    # The centre must stay inside the window, and nothing bright may touch
-    # the window's edge (the blob lies wholly inside).
-    offset = np.abs(local - 0.5 * (side - 1))
-    peak = peak.reshape(k, n)
-    found = (found.reshape(k, n) & (peak >= least_peak) & (edge.reshape(k, n) <= 0.15 * peak + noise_floor)
-             & (np.maximum(offset[:, 0], offset[:, 1]).reshape(k, n) < 0.5 * side - 2))
-    half_spread = (spread / 2).reshape(k, n)
-    total = total.reshape(k, n)
-    with np.errstate(invalid="ignore", divide="ignore"):
+        # From the plain centroid one Newton step is enough for a still head
+        # (the start is within ~0.05 px); a moving or asymmetric blob needs the
+        # second. (The constant-velocity prediction is a worse start: measured
+        # 0.08 px off for a still head, about a pixel in the yaw sweep.)
+        local, spread, total, shot = _windowed_centroid(signal, start, np.reshape(size_px, -1), 2, True, with_shot,
+                                                        0.08)
+        peak = signal.max(axis=(1, 2))
+        signal[:, 1:-1, 1:-1] = 0
+        edge = signal.max(axis=(1, 2))
+        # Found: converged inside the window, bright enough, and wholly inside it
+        # (nothing bright on the window's edge).
+        # Where a marker is expected, a peak of 0.6 of the detection contrast
+        # (3σ with the default 5σ) is enough: nothing else is being searched for.
+        # The centre must stay inside the window, and nothing bright may touch
+        # the window's edge (the blob lies wholly inside).
+        offset = np.abs(np.subtract(local, 0.5 * (side - 1), dtype=np.float64))
+        peak = peak.reshape(k, n)
+        found = (found.reshape(k, n) & (peak >= least_peak) & (edge.reshape(k, n) <= 0.15 * peak + noise_floor)
+                 & (np.maximum(offset[:, 0], offset[:, 1]).reshape(k, n) < 0.5 * side - 2))
+        half_spread = (spread / 2).reshape(k, n)
+        total = total.reshape(k, n)
         centroid_sigma = noise * np.sqrt(half_spread)
         size = np.sqrt(np.maximum(2 * total / peak, 1.0) / (2 * np.pi))
-    return ((local + origin).reshape(k, n, 2), found, total, centroid_sigma, size, half_spread,
+    return (np.add(local, origin, dtype=np.float64).reshape(k, n, 2), found, total, centroid_sigma, size, half_spread,
             None if shot is None else shot.reshape(k, n, 2))
 
 
