@@ -533,6 +533,7 @@ class Tracker:
         self._withheld = False
         self._last_fit = None         # (match, R, p1) of the last frame fitted but not reported, for _bootstrap_rig
         self._previous_images = None  # (left, right) of the last frame, to recognize a repeated buffer
+        self._rates = None            # (t, R, p1, rig version, rates_to) of the last pose _fit checked
         self._bootstrap_note = None
         self._bootstrap_fits = []      # consecutive frames that failed against the rig, for _bootstrap_rig
         self._readout_prior_set = False
@@ -714,8 +715,10 @@ class Tracker:
         # An image without any variation (a covered lens, black or clipped) repeats
         # without being a repeated buffer: it tells nothing either way.
         def repeats(a, b):
-            grid = a[::17, ::13]
-            return (a.shape == b.shape and np.array_equal(grid, b[::17, ::13]) and int(grid.max()) != int(grid.min())
+            if a.shape != b.shape:
+                return False
+            row = a[a.shape[0] // 2]          # one contiguous row first: cheaper than a scattered grid
+            return (np.array_equal(row, b[b.shape[0] // 2]) and int(row.max()) != int(row.min())
                     and np.array_equal(a, b))
 
         same = [repeats(a, b) for a, b in zip(previous, (left, right))]
@@ -983,6 +986,7 @@ class Tracker:
             # velocity would otherwise widen the checks by pixels (25 ms at
             # 1000°/s) and let a glint or an occlusion through.
             rates = self._motion.rates_to(t, R, p1, self._rig_version())
+            self._rates = (t, R, p1, self._rig_version(), rates)       # _remember's check, if the pose stays
             if rates is not None and not rates[2]:
                 velocity = None
         rig_rows = rig_sd = pose_rows = None
@@ -990,7 +994,8 @@ class Tracker:
         # image noise alone (the usual case) needs no rig terms before its covariance.
         outlier = self._outlier(residuals, match)
         suspect = self._suspect(residuals, match)
-        if suspect or outlier is not None or self._verify(R, p1, residuals, None, match) is not None:
+        plain = self._verify(R, p1, residuals, None, match)          # the image noise alone
+        if suspect or outlier is not None or plain is not None:
             rig_rows, rig_sd, pose_rows = self._rig_terms(R, p1, t, t_right, velocity, self._rig_cov(), match)
             outlier = self._outlier(residuals, match, rig_sd)
         if suspect and self.config.estimator == "reproj":
@@ -1007,7 +1012,8 @@ class Tracker:
         timings["pose"] = time.perf_counter() - t_pose
 
         t_ver = time.perf_counter()
-        reason = self._verify(R, p1, residuals, outlier, match, rig_sd)
+        # (With no rig terms and no outlier the checks are the plain ones, done above.)
+        reason = plain if (rig_sd is None and outlier is None) else self._verify(R, p1, residuals, outlier, match, rig_sd)
         rig_cov = self._rig_cov()
         disagrees = False
         if reason is not None and self.refiner is not None:
@@ -1920,7 +1926,11 @@ class Tracker:
             # (A frame whose time repeats the last one's, or follows it by a
             # fraction of a period, was exposed at an unknown time: its pose
             # would put the motion at the wrong instant.)
-            rates = self._motion.rates_to(t, R, p1, self._rig_version())
+            cached = self._rates
+            if cached is not None and cached[0] == t and cached[1] is R and cached[2] is p1 and cached[3] == self._rig_version():
+                rates = cached[4]                            # _fit made this check on this very pose
+            else:
+                rates = self._motion.rates_to(t, R, p1, self._rig_version())
             if rates is not None and not rates[2]:
                 # The times do not describe the motion the images show (a
                 # glitching clock, frames out of order): the poses before
