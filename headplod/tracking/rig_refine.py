@@ -94,6 +94,18 @@ their own chunk's solve starts from, what their velocities are differenced
 with, and what :attr:`RigRefiner.refit_poses` gives the tracker for them.
 Velocities difference poses of one rig only (a rig's change is not motion).
 
+The rig's error for the uncertainty of V
+----------------------------------------
+:meth:`RigRefiner.cov` (P + ddᵀ) keeps the error model as it is: what the
+checks must allow. The covariance of V takes the rig in use's error as the
+data know it (:meth:`RigRefiner.error_distribution`): the error model's
+scale (how far off this calibration is, against calibrations in general)
+learnt from how far the data find the rig from rig.yaml (hierarchical
+Bayes, :func:`scaled_error_distribution`), the data's noise checked against
+the updates' innovations (:meth:`RigRefiner.data_scale`), and a mean: what
+the rig in use is off by. A right rig.yaml's share shrinks as the data
+confirm it; a wrong one's stays P + ddᵀ.
+
 Definiteness
 ------------
 Every covariance the refiner keeps or hands out (the prior of a chunk, its
@@ -126,6 +138,9 @@ PARAMETERS = ("turn_x_rad", "turn_y_rad", "turn_z_rad", "shift_x_mm", "shift_y_m
               "log_focal_right", "time_offset_s", "readout_s")
 N_RIG = len(PARAMETERS)
 _TURN, _SHIFT, _FOCAL, _OFFSET, _READOUT = slice(0, 3), slice(3, 6), 6, 7, 8
+# The parameters a calibration gets more or less right (error_distribution learns their error model's
+# scale): the right camera's turn, shift and focal length.
+_GEOMETRY = np.arange(N_RIG) < 7
 
 # A webcam's sensor reads its rows out over the active part of the frame
 # period and idles over the vertical blanking: active rows / total rows is
@@ -175,6 +190,17 @@ _CHI2_7DOF_999 = 24.32
 # Most a centre of a bootstrap's frames may be off its joint fit, in its σ (both coordinates).
 _BOOTSTRAP_MAX_Z = 5.0
 
+# The error model's scale τ (its σ times τ) over which scaled_error_distribution averages:
+# log-spaced, from a rig a ten-thousandth as far off as the error model says to one ten times as far
+# (τ's half-normal prior leaves nothing beyond; the data never need it: a parameter they teach keeps
+# its posterior whatever τ).
+_SCALE_GRID = np.exp(np.linspace(math.log(1e-4), math.log(10.0), 81))
+
+# RigRefiner.data_scale: each update's normalized innovation squared is kept with this weight per update
+# after it (forgetting over ~10 updates, ~3 s), and the sums start from this many degrees of freedom at 1.
+_CONSISTENCY_KEEP = 0.9
+_CONSISTENCY_PRIOR_DOF = 10.0
+
 # Reasons for a chunk without an update (keys of RigRefiner.skipped_chunks).
 SKIP_UNOBSERVABLE = "nothing observable"        # e.g. a still head: the usual case, not a fault
 SKIP_NO_DATA = "no usable centres"
@@ -213,6 +239,84 @@ def _positive_definite(M: np.ndarray, scale: np.ndarray) -> np.ndarray:
         return sym
     out = (U * np.maximum(lam, floor)) @ U.T * units
     return 0.5 * (out + out.T)
+
+
+def scaled_error_distribution(P: np.ndarray, prior: np.ndarray, estimate_from_reference: np.ndarray,
+                              in_use_from_reference: np.ndarray, scaled: np.ndarray,
+                              drift: np.ndarray | None = None, data_scale: float = 1.0):
+    """Mean (k,) and covariance (k, k) of the error of the rig in use (the true rig minus it, error
+    state) when the error model's scale is learnt from the data too (hierarchical Bayes).
+
+    The refinement's estimate and its covariance ``P`` (k, k) are the
+    posterior of the rig under the prior ``prior`` (k, k), centred on the
+    reference (rig.yaml, the readout's prior mean): the data's information
+    on the rig is P⁻¹ − prior⁻¹, and its information vector P⁻¹ (estimate −
+    reference). The error model's σ of the parameters ``scaled`` (k,) bool
+    (the geometry: how far a bumped bar turns, how far off a printed board
+    is) are a guess about calibrations in general; this rig's may be
+    smaller (a right calibration) or larger: they are taken as τ times the
+    model's, τ half-normal with scale 1 (E τ² = 1: without data, the error
+    model as it is). The data give τ's likelihood (the marginal likelihood
+    of the linear-Gaussian model, on a grid :data:`_SCALE_GRID`), and the
+    rig's posterior is averaged over τ's posterior: for each τ, Gaussian
+    with covariance (S(τ)⁻¹ + data)⁻¹, S(τ) the prior with the scaled
+    parameters' σ times τ, and mean that times the information vector. The
+    other parameters (the exposure offset, the readout: priors that only
+    say how little is known) keep their prior. A rig the data find off by
+    as much as the error model says (or more) keeps P and the estimate; one
+    the data find where rig.yaml put it, within their noise, shrinks both
+    to what a rig right all along would leave. ``data_scale``: the data's
+    noise over what the refinement assumed (a variance ratio; the data's
+    information is divided by it). ``drift`` (k, k), diagonal: the drift
+    since the refinement began, which τ does not scale, part of the prior
+    (the posterior P is taken to be the prior plus the drift, narrowed by the
+    data).
+
+    ``estimate_from_reference``, ``in_use_from_reference`` (k,): the
+    estimate and the rig in use minus the reference (error state). Works in
+    units of the prior (whitened by its Cholesky factor; ``prior`` is
+    diagonal, so the whitening keeps ``scaled`` apart). With τ = 1 and
+    ``data_scale`` 1 the result is the refinement's own: P, and the
+    estimate minus the rig in use.
+    """
+    k = len(P)
+    L0 = np.linalg.cholesky(prior)
+    Li = scipy.linalg.solve_triangular(L0, np.eye(k), lower=True)
+    # The drift since the start, in units of the prior: added to the prior's variances (P0 and the drift
+    # are diagonal), whatever τ (a rig's drift is not its calibration's error).
+    q = np.zeros(k) if drift is None else np.maximum(np.diag(Li @ drift @ Li.T), 0.0)
+    A = Li @ P @ Li.T
+    a, U = np.linalg.eigh(0.5 * (A + A.T))
+    a = np.maximum(a, 1e-15)
+    # The data's information: P⁻¹ less the prior's (with the drift), whitened; where P is the prior's or
+    # wider (an inflated posterior, a widened prior) nothing was learnt.
+    info = (U / a) @ U.T - np.diag(1.0 / (1.0 + q))
+    lam, V = np.linalg.eigh(0.5 * (info + info.T))
+    if not np.any(lam > 0.0):
+        # No data: the error model as it is (τ's prior has E τ² = 1).
+        return estimate_from_reference - in_use_from_reference, 0.5 * (P + P.T)
+    info = (V * (np.maximum(lam, 0.0) / data_scale)) @ V.T
+    b = (U / (a * data_scale)) @ (U.T @ (Li @ estimate_from_reference))   # its information vector
+    s = Li @ in_use_from_reference
+    tau2 = _SCALE_GRID ** 2
+    var = np.where(np.asarray(scaled, bool)[None, :], tau2[:, None], 1.0) + q[None, :]   # (grid, k) prior
+    root = np.sqrt(var)
+    # (S⁻¹ + info)⁻¹ = D (I + D info D)⁻¹ D with D = S^½; det(I + D info D) gives the likelihood.
+    M = np.eye(k)[None] + root[:, :, None] * info[None] * root[:, None, :]
+    Lm = np.linalg.cholesky(M)
+    logdet = 2.0 * np.log(np.diagonal(Lm, axis1=1, axis2=2)).sum(axis=1)
+    Minv = np.linalg.inv(M)
+    cov = root[:, :, None] * Minv * root[:, None, :]                      # (grid, k, k)
+    mean = cov @ b                                                          # (grid, k)
+    log_w = -0.5 * logdet + 0.5 * mean @ b - 0.5 * tau2 + np.log(_SCALE_GRID)   # half-normal(1), d log τ
+    w = np.exp(log_w - log_w.max())
+    w /= w.sum()
+    err = mean - s[None, :]                                                 # truth − rig in use
+    first = w @ err
+    second = np.einsum("g,gij->ij", w, cov) + (err * w[:, None]).T @ err
+    spread = second - np.outer(first, first)
+    out = L0 @ spread @ L0.T
+    return L0 @ first, 0.5 * (out + out.T)
 
 
 @dataclass
@@ -753,6 +857,11 @@ class RigRefiner:
         self.P = self.prior.copy()
         self.versions = 0           # changes of the rig in use
         self._cov = None            # cov(), until P or either rig changes
+        # error_distribution()'s (cov() it was computed with, mean, covariance, has_data()).
+        self._error = None
+        self._start_t: float | None = None   # time (s) of the first frame kept: the drift is counted from it
+        self._consistency = np.zeros(2)      # forgetting sums of the updates' NIS and degrees of freedom
+        self._prior_fresh = True             # the next update's prior is the error model's, not a posterior
         self._pending: list[_Frame] = []
         self._recent: deque = deque(maxlen=3)   # last frames, for velocities across chunks
         self._last_update_t = None
@@ -779,6 +888,7 @@ class RigRefiner:
         The update under way, if any, is dropped with the frames collected (they saw the rig before)."""
         self.P = _positive_definite(self.P + self.prior, self._scale)
         self._cov = None
+        self._prior_fresh = True
         self._cancel_job()
         self._pending = []
         self.bumps.append(float(t) if t is not None else float("nan"))
@@ -980,6 +1090,8 @@ class RigRefiner:
             # handled per centre): counted, not used.
             self.ignored_frames += 1
             return None
+        if self._start_t is None:
+            self._start_t = float(t)
         sig = np.asarray(sigma_px, np.float64)
         if sig.ndim == 2:
             sig = np.repeat(sig[..., None], 2, axis=2)
@@ -1156,8 +1268,12 @@ class RigRefiner:
 
     def _process_noise(self, t: float) -> np.ndarray:
         """Drift (9, 9) since the last update: a random walk, variance ∝ elapsed time (0 if none elapsed)."""
-        c = self.config
         elapsed = 0.0 if self._last_update_t is None else max(t - self._last_update_t, 0.0)
+        return self._process_noise_over(elapsed)
+
+    def _process_noise_over(self, elapsed: float) -> np.ndarray:
+        """Drift (9, 9) over ``elapsed`` s: the random walk of config ``drift_*``."""
+        c = self.config
         q = np.array([math.radians(c.drift_turn_deg_per_sqrt_s)] * 3 + [c.drift_shift_mm_per_sqrt_s] * 3
                      + [c.drift_focal_per_sqrt_s, c.drift_offset_s_per_sqrt_s,
                         c.drift_readout_s_per_sqrt_s]) ** 2 * elapsed
@@ -1219,6 +1335,9 @@ class RigRefiner:
                 solution = yield from self._solve(chunk, prior)
             except _SkipChunk as skip:
                 return self._skip(chunk, skip.args[0])
+        if not (bumped or self._prior_fresh):
+            self._count_consistency(prior, solution)
+        self._prior_fresh = False
         self._estimate.apply(solution.increment)
         self.P = solution.posterior
         self.refined |= solution.moved
@@ -1257,6 +1376,52 @@ class RigRefiner:
         self.refit_poses = {**solution.refit, **moved}
         return True
 
+    def _count_consistency(self, prior: np.ndarray, solution: "_Solution") -> None:
+        """Add an update's normalized innovation squared to the forgetting sums :meth:`data_scale` reads.
+
+        For a consistent filter the increment Δ of an update has covariance
+        prior − posterior (both (9, 9), the chunk's): Δᵀ (prior − posterior)⁺ Δ
+        is χ² with as many degrees of freedom as directions the chunk taught
+        (those whose variance fell by more than a thousandth of the largest
+        fall, in units of the prior's σ). Counted only for updates whose
+        prior was a posterior (not the error model's: there the increment
+        measures how far off rig.yaml is, :func:`scaled_error_distribution`'s
+        business), and not for a bump's (the rig changed).
+        """
+        units = np.outer(self._scale, self._scale)
+        D = (prior - solution.posterior) / units
+        lam, U = np.linalg.eigh(0.5 * (D + D.T))
+        keep = lam > 1e-3 * max(float(lam[-1]), 0.0)
+        if not keep.any() or not np.isfinite(lam).all():
+            return
+        z = U[:, keep].T @ (solution.increment / self._scale)
+        nis = float(np.sum(z ** 2 / lam[keep]))
+        if np.isfinite(nis):
+            self._consistency = _CONSISTENCY_KEEP * self._consistency + np.array([nis, float(keep.sum())])
+
+    def data_scale(self) -> float:
+        """How much the data's errors exceed what the refinement assumed: a variance ratio (1: as assumed).
+
+        Covariance matching on the updates' innovations (Mehra 1972): the
+        forgetting sums (:data:`_CONSISTENCY_KEEP` per update, ~10 updates)
+        of their normalized innovations squared over their degrees of
+        freedom (:meth:`_count_consistency`), with a prior of
+        :data:`_CONSISTENCY_PRIOR_DOF` degrees of freedom at 1. Below 1 when
+        the centres' σ the chunks were weighted with overstate their noise
+        (the noise model learnt while the rig was off) or the drift allowed
+        overstates the rig's: the estimate then moves less than P says. It
+        scales the data's information in :meth:`error_distribution` only;
+        the refinement itself, its checks and :meth:`cov` keep P as it is."""
+        nis, dof = self._consistency
+        return float(np.clip((_CONSISTENCY_PRIOR_DOF + nis) / (_CONSISTENCY_PRIOR_DOF + dof), 0.05, 20.0))
+
+    def has_data(self) -> bool:
+        """Whether the refinement has learnt anything of the rig since its error model was (re)set: False
+        before the first update and after :meth:`widen` (P then is the error model's, or wider, in
+        every direction)."""
+        self.error_distribution()
+        return self._error[3]
+
     def _departs(self) -> bool:
         """The estimate differs from the rig in use by more than ``publish_sigma`` σ along some
         direction (eigenvectors of P, in units of the prior)."""
@@ -1288,6 +1453,44 @@ class RigRefiner:
                 # checked finite); P alone is SPD, and the honest fallback.
                 self._cov = self.P
         return self._cov
+
+    def error_distribution(self) -> tuple[np.ndarray, np.ndarray]:
+        """Mean (9,) and covariance (9, 9) of the error of the rig in use (the true rig minus it, in the
+        error state's units: rad ×3, mm ×3, log focal, s ×2), for the uncertainty of V.
+
+        :meth:`cov` (P + ddᵀ, d the estimate minus the rig in use) is what
+        the checks allow for: the error model as it is, however well the
+        data agree with rig.yaml. Here the error model's scale is learnt
+        too (:func:`scaled_error_distribution`): when the data find the rig
+        where rig.yaml put it within their noise (a right calibration), d is
+        the estimate's own noise and P the error model's σ narrowed by data
+        that never saw it wrong; both shrink to what a right rig leaves, and
+        the mean is what the rig in use (if it followed the estimate's noise)
+        is off from it. A rig found off keeps P and d. The data's
+        information is taken :meth:`data_scale` times less than the
+        refinement assumed, and the drift since the first frame (config
+        ``drift_*``) is added as the data narrow it. Computed once per
+        change of :meth:`cov`."""
+        cov = self.cov()
+        if self._error is None or self._error[0] is not cov:
+            reference = RigState(self.calibrated, self.readout_mean_s)
+            drift = None
+            if self._start_t is not None and self._last_update_t is not None:
+                drift = self._process_noise_over(max(self._last_update_t - self._start_t, 0.0))
+            try:
+                mean, spread = scaled_error_distribution(self.P, self.prior, self._estimate.error_from(reference),
+                                                         self.state.error_from(reference), _GEOMETRY, drift,
+                                                         self.data_scale())
+                spread = _positive_definite(spread, self._scale)
+            except (np.linalg.LinAlgError, _SkipChunk):
+                # (Not reached with a finite state and an SPD P; the error model as it is, then.)
+                mean, spread = self._estimate.error_from(self.state), self.P
+            if not (np.isfinite(mean).all() and np.isfinite(spread).all()):
+                mean, spread = self._estimate.error_from(self.state), self.P
+            A = self._prior_L_inv @ self.P @ self._prior_L_inv.T
+            learnt = bool(np.linalg.eigvalsh(0.5 * (A + A.T))[0] < 1.0 - 1e-6)
+            self._error = (cov, mean, spread, learnt)
+        return self._error[1].copy(), self._error[2].copy()
 
     def _solve(self, chunk: list[_Frame], prior: np.ndarray):
         """Gauss-Newton with Cauchy reweighting over the chunk's poses and the rig: a generator that stops

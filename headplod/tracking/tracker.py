@@ -1055,6 +1055,13 @@ class Tracker:
         if pose_rows is None:
             rig_rows, _, pose_rows = self._rig_terms(R, p1, t, t_right, fit.velocity, self._rig_cov(), match,
                                                      spread=False)
+        rig_mean, rig_parameters = None, 0
+        if rig_rows is not None and rig_cov is not None and self.refiner is not None and not fit.disagrees:
+            # V's uncertainty takes the rig's error as the data know it, the
+            # error model's scale learnt too (a right rig.yaml's share shrinks);
+            # the checks keep the error model as it is.
+            rig_mean, rig_cov = self.refiner.error_distribution()
+            rig_parameters = len(rig_mean)
         right_rows = np.zeros_like(pose_rows)
         right_rows[1] = pose_rows[1]
         if motion_gain:
@@ -1079,13 +1086,17 @@ class Tracker:
             else:
                 rig_rows = np.concatenate([rig_rows, shutter_rows], axis=-1)
                 rig_cov = scipy.linalg.block_diag(rig_cov, match.shutter_cov)
+        if rig_mean is not None:
+            rig_mean = np.concatenate([rig_mean, np.zeros(rig_cov.shape[0] - len(rig_mean))])   # the motion's: 0
         axes = self.axes_G @ R.T
         if match.shot_var is None:      # the tracking path leaves the shot-noise term to this stage
             match.shot_var = shot_variance(images, match.centers, match.size, self._prev_background)
         return CovarianceInput(images, match.centers, match.visible, match.sigma_px, fit.residuals, fit.JtJ,
                                R, p1, axes, tuple(self._prev_threshold), tuple(self._prev_background),
                                fit.vectors, t, match.shot_var,
-                               pose_rows, rig_rows, rig_cov, self._rig_version(), match.excess_px)
+                               pose_rows, rig_rows, rig_cov, self._rig_version(), match.excess_px,
+                               rig_mean, not (R is fit.fitted[0] and p1 is fit.fitted[1]), rig_parameters,
+                               self.refiner is None or self.refiner.has_data())
 
     # ------------------------------------------------------------------ the rig
     def _implausible_offset(self, t, t_right) -> str | None:

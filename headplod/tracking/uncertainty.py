@@ -19,7 +19,11 @@ Estimators, all fed the same :class:`CovarianceInput` by the tracker:
   reprojection fit to (φ, θ); the noise model's two coefficients (pixel
   noise, shot noise) are fitted to the residuals' frame-to-frame changes, so
   it follows the physics of the images rather than one renderer's settings
-  (:class:`FirstOrder`).
+  (:class:`FirstOrder`). Beside the noise, the nuisances the pose is fitted
+  with as they are (the rig's error as the refinement knows it, the motion
+  that moved the right view, the rolling shutter's velocity): their
+  uncertainty, and the bias this frame's residuals show of them
+  (:func:`pose_error_covariance`).
 - ``*_smoothed``: for ``first_order``, each centre's noise variance is
   averaged over ~5 frames while the Jacobian stays the current frame's (a
   steady input for the PLOD module that still follows a moving head); for
@@ -108,6 +112,24 @@ class CovarianceInput:
         Error of a suspect centre beyond its noise (a glint fused with the
         marker), px, 0 for the others: added to its variance, and kept out
         of the noise model's learning.
+    rig_mean : (k,), optional
+        Mean of the nuisance parameters' error (the rig's: what the
+        refinement believes the rig in use is off by; 0 for the motion's),
+        in ``rig_rows``' units; None: 0 (``rig_cov`` is then their second
+        moment).
+    rig_parameters : int
+        How many of the leading nuisance parameters are the rig's (their
+        error is the same in every frame while the rig in use and what is
+        known of it are); 0: none (``rig_mean`` then refers to no rig).
+    rig_known : bool
+        Whether the refinement has taught anything of the rig yet; False:
+        the rig's covariance is its error model's, whose scale this frame's
+        residuals then tell (:func:`rig_scale_from_frame`).
+    pose_corrected : bool
+        The pose reported is the joint fit of the pose and a rig change,
+        not the fit with the rig as is (the tracker corrects it when the
+        residuals show the rig's error): what the residuals show of the
+        nuisances is then taken off the pose already.
     """
 
     images: tuple
@@ -129,6 +151,10 @@ class CovarianceInput:
     rig_cov: np.ndarray = None
     rig_version: int = 0
     excess_px: np.ndarray = None
+    rig_mean: np.ndarray = None
+    pose_corrected: bool = False
+    rig_parameters: int = 0
+    rig_known: bool = True
 
 
 def rig_residual_rows(pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -196,12 +222,14 @@ def with_rig_uncertainty(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.n
     """The pose's information (6, 6) once the rig's own uncertainty is marginalized.
 
     The rig's error e ~ N(0, P) moves every centre by J_r e, correlated
-    across centres and frames alike; with the rig as 8 nuisance parameters
+    across centres and frames alike; with the rig as k nuisance parameters
     beside the pose (prior information P⁻¹), the pose's information is the
     Schur complement I_pp − I_pr (I_rr + P⁻¹)⁻¹ I_rp, which equals
     Jᵀ (Σ + J_r P J_rᵀ)⁻¹ J. ``pose_rows`` (m, 2, 6), ``rig_rows``
     (m, 2, k) (any nuisance parameters, ``rig_cov`` (k, k)), ``weights``
-    (m, 2) = 1/σ² of each centre coordinate.
+    (m, 2) = 1/σ² of each centre coordinate. That is the covariance of the
+    joint fit of the pose and e; the pose fitted with e as it is carries
+    more (:func:`pose_error_covariance`, which the estimators use).
     """
     i_pr = np.einsum("mij,mik,mi->jk", pose_rows, rig_rows, weights)
     i_rr = np.einsum("mij,mik,mi->jk", rig_rows, rig_rows, weights)
@@ -211,6 +239,133 @@ def with_rig_uncertainty(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.n
     i_rr = i_rr[np.ix_(keep, keep)] + np.linalg.inv(rig_cov[np.ix_(keep, keep)])
     i_pr = i_pr[:, keep]
     return info - i_pr @ np.linalg.solve(i_rr, i_pr.T)
+
+
+# The scales τ of an error model's σ over which rig_scale_from_frame averages: log-spaced from a
+# ten-thousandth to ten times (τ's half-normal prior leaves nothing beyond). The same prior as the rig
+# refinement's (rig_refine.scaled_error_distribution).
+_SCALE_GRID = np.exp(np.linspace(math.log(1e-4), math.log(10.0), 81))
+
+
+def _frame_information(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray,
+                       residuals: np.ndarray):
+    """What one frame's residuals say of the nuisances' error e, the pose marginalized: (X (6, k) = G J_r,
+    F (k, k) = Mᵀ W M its information, h (k,) = −Mᵀ W r its information vector), M = (I − H) J_r.
+
+    Shapes and units as :func:`nuisance_posterior`. The residuals r are
+    projected minus measured: r = −M e − (I − H) n, hence the sign of h.
+    """
+    i_pr = np.einsum("mij,mik,mi->jk", pose_rows, rig_rows, weights)
+    i_rr = np.einsum("mij,mik,mi->jk", rig_rows, rig_rows, weights)
+    X = np.linalg.solve(info, i_pr)                         # G J_r: what the fit absorbs of e
+    F = i_rr - i_pr.T @ X
+    # −Mᵀ W r = −(J_rᵀ W r − (G J_r)ᵀ Jᵀ W r)
+    wr = weights * residuals
+    h = -(np.einsum("mik,mi->k", rig_rows, wr) - X.T @ np.einsum("mij,mi->j", pose_rows, wr))
+    return X, 0.5 * (F + F.T), h
+
+
+def nuisance_posterior(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray,
+                       rig_cov: np.ndarray, residuals: np.ndarray, rig_mean: np.ndarray | None = None):
+    """What one frame's residuals say of the nuisance parameters' error e, beside their prior.
+
+    The pose is fitted with the nuisances as they are (the rig in use, the
+    motion as extrapolated): an error e moves the centres by J_r e, the fit
+    absorbs part of it, δp = G (J_r e + n) with G = (Jᵀ W J)⁻¹ Jᵀ W, and
+    leaves the rest in the residuals, r = −(I − H)(J_r e + n) (projected
+    minus measured), H = J G. With e's prior N(μ, C) (``rig_mean`` μ,
+    default 0; ``rig_cov`` C), given r: e ~ N(ê, C_post), C_post = (C⁻¹ +
+    Mᵀ W M)⁻¹ and ê = C_post (C⁻¹ μ − Mᵀ W r), M = (I − H) J_r.
+
+    ``info`` (6, 6) = Jᵀ W J; ``pose_rows`` (m, 2, 6) J, ``rig_rows``
+    (m, 2, k) J_r, ``weights`` (m, 2) W = 1/σ², px⁻², ``residuals`` (m, 2)
+    px, of the m centres used. Returns (X (6, k) = G J_r, C_post (k, k), ê
+    (k,)); parameters whose variance is 0 are held at their mean (their
+    rows and columns of C_post are 0, ê is μ there).
+    """
+    k = rig_rows.shape[-1]
+    keep = np.diag(rig_cov) > 0
+    mu = np.zeros(k) if rig_mean is None else np.asarray(rig_mean, np.float64).reshape(k)
+    X = np.zeros((6, k))
+    C_post = np.zeros((k, k))
+    e = mu.copy()
+    if not keep.any():
+        return X, C_post, e
+    Xk, F, h = _frame_information(info, pose_rows, rig_rows[..., keep], weights, residuals)
+    C_inv = np.linalg.inv(rig_cov[np.ix_(keep, keep)])
+    post = np.linalg.inv(C_inv + F)
+    post = 0.5 * (post + post.T)
+    X[:, keep] = Xk
+    C_post[np.ix_(keep, keep)] = post
+    e[keep] = post @ (C_inv @ mu[keep] + h)
+    return X, C_post, e
+
+
+def rig_scale_from_frame(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray,
+                         rig_cov: np.ndarray, residuals: np.ndarray, rig_mean: np.ndarray | None = None) -> float:
+    """E[τ² | this frame's residuals] for a rig whose error is N(μ, τ² C), known only by its error model.
+
+    Before the refinement has taught anything (the first frames, and after
+    the rig was found changed), the rig's covariance C is the error model's
+    (a turn of 0.5°, a baseline 2% off, an exposure offset of 25 ms...):
+    right for calibrations in general, and several times what a right
+    rig.yaml is off by. This frame's residuals show the rig's error along
+    the directions the pose fit does not absorb (:func:`_frame_information`),
+    most of them at many times the image noise: they tell how far off this
+    rig is against its error model. With τ half-normal of scale 1 (E τ² =
+    1: the error model as it is without data; the same prior as the rig
+    refinement's) and the linear-Gaussian likelihood of the residuals,
+    τ's posterior is evaluated on :data:`_SCALE_GRID`; its mean of τ² is
+    returned, the factor for C.
+
+    ``info`` (6, 6) = Jᵀ W J; ``pose_rows`` (m, 2, 6), ``rig_rows`` (m, 2, k)
+    of the rig's parameters alone, ``weights`` (m, 2) 1/σ², px⁻²;
+    ``rig_cov`` C (k, k), SPD, and ``rig_mean`` μ (k,) (default 0) in the
+    rig's units; ``residuals`` (m, 2) px, projected minus measured.
+    """
+    k = rig_rows.shape[-1]
+    mu = np.zeros(k) if rig_mean is None else np.asarray(rig_mean, np.float64).reshape(k)
+    _, F, h = _frame_information(info, pose_rows, rig_rows, weights, residuals)
+    # In units of C (e = μ + L z, z ~ N(0, τ² I)), in the eigenbasis of the frame's information there,
+    # the frame's estimate of each component is c ~ N(0, τ² + 1/f).
+    L = np.linalg.cholesky(rig_cov)
+    f, V = np.linalg.eigh(L.T @ F @ L)
+    taught = f > 1e-9 * max(float(f[-1]), 1e-300)
+    if not taught.any():
+        return 1.0
+    c = (V.T @ (L.T @ (h - F @ mu)))[taught] / f[taught]
+    v = 1.0 / f[taught]
+    tau2 = _SCALE_GRID ** 2
+    total = tau2[:, None] + v[None, :]
+    log_w = -0.5 * (np.log(total) + c ** 2 / total).sum(axis=1) - 0.5 * tau2 + np.log(_SCALE_GRID)
+    w = np.exp(log_w - log_w.max())
+    return float((w * tau2).sum() / w.sum())
+
+
+def pose_error_covariance(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.ndarray, weights: np.ndarray,
+                          rig_cov: np.ndarray, residuals: np.ndarray, rig_mean: np.ndarray | None = None,
+                          corrected: bool = False) -> np.ndarray:
+    """Second moment (6, 6) of the error of the pose fitted with the nuisance parameters as they are
+    (δ rad, ε mm), given this frame's residuals.
+
+    With e | r ~ N(ê, C_post) (:func:`nuisance_posterior`, whose arguments
+    these are) and the pose's noise G n independent of the residuals (a
+    weighted fit's residuals are orthogonal to its parameters), δp = G (J_r
+    e + n) has second moment (Jᵀ W J)⁻¹ + G J_r (C_post + ê êᵀ) J_rᵀ Gᵀ.
+    Without the ê êᵀ term this is :func:`with_rig_uncertainty`'s Schur
+    complement, the covariance of the joint fit of the pose and e: the fit
+    with e as it is also carries what the residuals show of e. A frame
+    whose residuals show the rig off (a stale rig before the refinement
+    caught up, an exposure offset not yet learnt at 1 m/s) gets that bias
+    in its covariance; one whose residuals show nothing, the nuisances'
+    uncertainty alone. ``corrected``: the pose reported was moved by that
+    estimate already (the tracker's joint fit): the term is left out.
+    """
+    cov_pose = np.linalg.inv(info)
+    X, C_post, e = nuisance_posterior(info, pose_rows, rig_rows, weights, rig_cov, residuals, rig_mean)
+    spread = C_post if corrected else C_post + np.outer(e, e)
+    out = cov_pose + X @ spread @ X.T
+    return 0.5 * (out + out.T)
 
 
 def view_angles_deg(directions: np.ndarray, axes: np.ndarray) -> np.ndarray:
@@ -236,6 +391,14 @@ class FirstOrder:
     frame (a centroid bias). Markers differ in brightness and blobs in shape,
     which separates a from κ. Then cov(δ) = (Σ Jᵀ diag(1/σ²) J)⁻¹ is mapped
     to (φ, θ).
+
+    The nuisances (``rig_rows``, ``rig_cov``, ``rig_mean``: the rig's error,
+    the motion's) add their share: the second moment of what they move the
+    pose fitted with them as they are, given this frame's residuals
+    (:func:`pose_error_covariance`). While the rig is known only by its
+    error model, this frame's residuals tell that model's scale
+    (:func:`rig_scale_from_frame`). A centre's residual that the nuisances'
+    error explains does not count against the centre.
 
     Parameters
     ----------
@@ -268,6 +431,8 @@ class FirstOrder:
         self.coefficients = np.array([[2.0, 0.0], [2.0, 0.0]])   # prior until the residuals speak: a = 2, κ = 0
         self._previous = None
         self._smoothed = None
+        self._smoothed_share = None       # (2, 2) deg²: the nuisances' share of V's covariance, averaged
+        self._share_key = None            # what was known of the rig when it was
 
     @staticmethod
     def _terms(x: CovarianceInput):
@@ -312,16 +477,67 @@ class FirstOrder:
         seen = x.visible & np.isfinite(variance).all(axis=2)
         rows = x.jacobian_rows[seen]                                  # (m, 2, 6)
         variance = np.maximum(variance[seen], 1e-10)                  # (m, 2)
-        # A centre whose residual the noise model cannot explain (a glint
-        # fused with the marker, a partial occlusion) is worse than the model
-        # says: its variance grows by its squared residual beyond what chance
-        # gives 1% of centres (χ² with 2 dof: 9.21).
-        excess = (x.residual_vectors_px[seen] ** 2 / variance).sum(axis=1) / _CHI2_2DOF_99
+        residuals = np.nan_to_num(x.residual_vectors_px[seen])          # (m, 2)
+        nuisance = x.rig_rows is not None and x.rig_cov is not None
+        if nuisance:
+            nuisance_rows, nuisance_cov = x.rig_rows[seen], x.rig_cov
+            info0 = np.einsum("mij,mik,mi->jk", rows, rows, 1.0 / variance)
+            r = x.rig_parameters
+            if r and not x.rig_known:
+                # The rig known only by its error model (no data yet): this
+                # frame's residuals say how far off it is (rig_scale_from_frame).
+                try:
+                    scale = rig_scale_from_frame(info0, rows, nuisance_rows[..., :r], 1.0 / variance,
+                                                 nuisance_cov[:r, :r], residuals,
+                                                 None if x.rig_mean is None else x.rig_mean[:r])
+                    nuisance_cov = nuisance_cov.copy()
+                    nuisance_cov[:r, :r] *= scale
+                except np.linalg.LinAlgError:
+                    pass
+            # What the nuisances' error, as these residuals show it, explains
+            # of them (the rig's share is not the centre's fault).
+            X, _, e = nuisance_posterior(info0, rows, nuisance_rows, 1.0 / variance, nuisance_cov, residuals,
+                                         x.rig_mean)
+            unexplained = residuals + nuisance_rows @ e - rows @ (X @ e)
+        else:
+            unexplained = residuals
+        # A centre whose residual neither the noise model nor the nuisances
+        # explain (a glint fused with the marker, a partial occlusion) is
+        # worse than the model says: its variance grows by its squared
+        # residual beyond what chance gives 1% of centres (χ² with 2 dof: 9.21).
+        excess = (unexplained ** 2 / variance).sum(axis=1) / _CHI2_2DOF_99
         weights = 1.0 / (variance * np.maximum(excess, 1.0)[:, None])
         info = np.einsum("mij,mik,mi->jk", rows, rows, weights)
-        if x.rig_rows is not None and x.rig_cov is not None:
-            info = with_rig_uncertainty(info, rows, x.rig_rows[seen], weights, x.rig_cov)
-        return geo.view_angle_covariance(x.R_world_G, info, 1.0, self.axes_G)
+        cov = geo.view_angle_covariance(x.R_world_G, info, 1.0, self.axes_G)
+        if not nuisance:
+            return cov
+        # The pose is the fit with the nuisances as they are: what its
+        # residuals show of their error is a bias of this pose, not only an
+        # uncertainty (pose_error_covariance).
+        full = np.linalg.inv(pose_error_covariance(info, rows, nuisance_rows, weights, nuisance_cov, residuals,
+                                                   x.rig_mean, x.pose_corrected))
+        share = geo.view_angle_covariance(x.R_world_G, full, 1.0, self.axes_G) - cov
+        if self.smoothing_frames:
+            # The nuisances' share is noisy from frame to frame where the
+            # noise is not: what one frame's residuals show of the rig's
+            # error, and the head's velocity (the last poses' noise, for a
+            # still head) that the exposure offset's and the readout's
+            # uncertainty multiply. Averaged like the centres' noise, in V's
+            # own (φ, θ) (the head frame's), it is as steady; started afresh
+            # whenever what is known of the rig changes (a refinement's
+            # update, a new rig in use: a real change, not to be dragged).
+            r = x.rig_parameters
+            key = (x.rig_version, x.rig_known,
+                   None if not r or x.rig_mean is None else np.asarray(x.rig_mean)[:r].tobytes(),
+                   x.rig_cov[:r, :r].tobytes() if r else None)
+            if self._smoothed_share is None or key != self._share_key:
+                self._smoothed_share = share
+            else:
+                rate = 1.0 / self.smoothing_frames
+                self._smoothed_share = (1 - rate) * self._smoothed_share + rate * share
+            self._share_key = key
+            share = self._smoothed_share
+        return cov + share
 
     def _update(self, x: CovarianceInput) -> None:
         v_bg, v_shot = self._terms(x)
