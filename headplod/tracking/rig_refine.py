@@ -1321,7 +1321,6 @@ class RigRefiner:
                                      and retry.noise_scale <= self.config.inconsistency):
                 return self._skip(chunk, SKIP_INCONSISTENT)
             solution = retry
-            self.bumps.append(chunk[0].t)
             bumped = True
             prior = _positive_definite(prior + self.prior, self._scale)
         if self._refit_velocities(chunk, solution.refit):
@@ -1335,6 +1334,8 @@ class RigRefiner:
                 solution = yield from self._solve(chunk, prior)
             except _SkipChunk as skip:
                 return self._skip(chunk, skip.args[0])
+        if bumped:                   # (only now: a chunk skipped above changes nothing)
+            self.bumps.append(chunk[0].t)
         if not (bumped or self._prior_fresh):
             self._count_consistency(prior, solution)
         self._prior_fresh = False
