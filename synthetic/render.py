@@ -525,6 +525,17 @@ def _gauss_kernel_size(sigma: float) -> int:
     return 2 * int(np.ceil(4.0 * sigma)) + 1
 
 
+def _marker_setup(layer: np.ndarray, cam_index: int, model_points_mm, diameter_mm: float, options: RenderOptions):
+    """What drawing one camera's markers needs: the layer's (h, w) px, the sub-pixel cells per pixel S, the
+    PSF's σ (px) and margin (px), the disks' radius (mm), the occluded markers of this camera, the model (5, 3)."""
+    h, w = layer.shape
+    sigma = float(options.blur_sigma_px)
+    pad = int(np.ceil(4.0 * sigma)) + 1 if sigma > 0 else 0
+    skip = {m for (ci, m) in options.occluded_set() if ci == cam_index}
+    return (h, w, int(options.supersample), sigma, pad, 0.5 * float(diameter_mm), skip,
+            np.asarray(model_points_mm, float).reshape(5, 3))
+
+
 def _render_markers_into(layer: np.ndarray, cam: CameraModel, cam_index: int, model_points_mm: np.ndarray,
                          diameter_mm: float, pose_fn: PoseFn, times: Sequence[float],
                          options: RenderOptions, readout_s: float = 0.0) -> list:
@@ -543,14 +554,8 @@ def _render_markers_into(layer: np.ndarray, cam: CameraModel, cam_index: int, mo
     if readout_s > 0.0 and layer.shape[0] > 1:
         return _render_markers_rolling(layer, cam, cam_index, model_points_mm, diameter_mm, pose_fn, times,
                                        options, readout_s)
-    h, w = layer.shape
-    S = int(options.supersample)
-    sigma = float(options.blur_sigma_px)
-    pad = int(np.ceil(4.0 * sigma)) + 1 if sigma > 0 else 0
-    radius = 0.5 * float(diameter_mm)
-    skip = {m for (ci, m) in options.occluded_set() if ci == cam_index}
+    h, w, S, sigma, pad, radius, skip, model = _marker_setup(layer, cam_index, model_points_mm, diameter_mm, options)
     weight = 1.0 / len(times)
-    model = np.asarray(model_points_mm, float).reshape(5, 3)
     jobs = []
     positions = []
     for t in times:
@@ -765,13 +770,7 @@ def _render_markers_rolling(layer: np.ndarray, cam: CameraModel, cam_index: int,
 
     Returns the list of world marker positions (5, 3) at each sub-time of the middle row.
     """
-    h, w = layer.shape
-    S = int(options.supersample)
-    sigma = float(options.blur_sigma_px)
-    pad = int(np.ceil(4.0 * sigma)) + 1 if sigma > 0 else 0
-    radius = 0.5 * float(diameter_mm)
-    skip = {m for (ci, m) in options.occluded_set() if ci == cam_index}
-    model = np.asarray(model_points_mm, float).reshape(5, 3)
+    h, w, S, sigma, pad, radius, skip, model = _marker_setup(layer, cam_index, model_points_mm, diameter_mm, options)
     clock = _RowClock(cam, model, pose_fn, h, readout_s, radius, options, skip)
     jobs = []
     positions = []

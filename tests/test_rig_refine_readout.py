@@ -21,30 +21,12 @@ from headplod.tracking import rig_refine
 from headplod.tracking.rig_refine import (N_RIG, PARAMETERS, READOUT_ACTIVE_FRACTION, RigErrorModel, RigRefiner,
                                           RigState, readout_prior, rig_jacobian_rows)
 
-RIG = io.read_rig(Path(__file__).parent / "data" / "sweep12" / "rig.yaml")
-MODEL = io.default_marker_model().points_mm
-FACING = cv2.Rodrigues(np.array([np.pi, 0.0, 0.0]))[0]     # G's z towards the cameras
-CENTRE = np.array([-170.0, 0.0, 650.0])                     # between the cameras, 65 cm away
-ALL_VISIBLE = np.ones((2, 5), bool)
+# The sample rig, the default model and the head's motions of the property tests (one definition).
+from test_refine_properties import ALL_VISIBLE, CENTRE, FACING, MODEL, RIG, _pose, _project  # noqa: E402,F401
 HEIGHT = RIG.image_size[1]
 READOUT = PARAMETERS.index("readout_s")
 OFFSET = PARAMETERS.index("time_offset_s")
 VIEWS = ((np.eye(3), np.zeros(3), RIG.K1, RIG.D1), (RIG.R, RIG.T, RIG.K2, RIG.D2))
-
-
-def _pose(t: float, motion: str, amp: float = 1.0):
-    """R_world_G (3, 3), P1 (3,) mm of the head at t (s): still, or a general motion of ±0.3-0.5·amp rad
-    and ±20-60·amp mm (tests/test_refine_properties.py's)."""
-    if motion == "still":
-        return FACING, CENTRE.copy()
-    turn = amp * np.array([0.3 * np.sin(1.3 * t), 0.5 * np.sin(1.7 * t), 0.1 * np.sin(0.9 * t)])
-    shift = amp * np.array([60 * np.sin(1.1 * t), 20 * np.sin(0.8 * t), 40 * np.sin(0.6 * t)])
-    return cv2.Rodrigues(turn)[0] @ FACING, CENTRE + shift
-
-
-def _project(points, R, T, K, D):
-    return cv2.projectPoints(points.reshape(-1, 1, 3), cv2.Rodrigues(np.asarray(R, float))[0],
-                             np.asarray(T, float).reshape(3), np.asarray(K, float), np.asarray(D, float))[0].reshape(-1, 2)
 
 
 def _row_time(row, readout_s):
