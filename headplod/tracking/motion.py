@@ -34,6 +34,12 @@ import cv2
 import numpy as np
 
 
+def pose_rates(R_a: np.ndarray, p_a: np.ndarray, R_b: np.ndarray, p_b: np.ndarray, dt: float):
+    """(ω rad/s (3,), v mm/s (3,)): the head's velocity from pose a to pose b, ``dt`` s later (world frame;
+    ω a rotation about P1, v of P1; the difference's, so at the middle of the two times)."""
+    return cv2.Rodrigues(R_b @ R_a.T)[0].ravel() / dt, (p_b - p_a) / dt
+
+
 class PoseHistory:
     """The last accepted poses, each with its rig version and first-order information.
 
@@ -167,7 +173,7 @@ class PoseHistory:
             return None
         (ta, Ra, pa, _), (tb, Rb, pb, _) = seq[-2:]
         dt = tb - ta
-        w, v = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt, (pb - pa) / dt
+        w, v = pose_rates(Ra, pa, Rb, pb, dt)
         if math.sqrt(w @ w) > self.max_rate or math.sqrt(v @ v) > self.max_speed:
             return None
         return w, v
@@ -194,8 +200,7 @@ class PoseHistory:
         dt = tb - ta
         if t - tb > 3 * dt:
             return None                          # the motion since has changed
-        w = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt
-        v = (pb - pa) / dt
+        w, v = pose_rates(Ra, pa, Rb, pb, dt)
         correction = np.zeros(6)
         if len(seq) == 3 and self.extrapolate:
             tz, Rz, pz, _ = seq[0]
@@ -229,8 +234,7 @@ class PoseHistory:
         seq, k, dz = plan
         (ta, Ra, pa, _), (tb, Rb, pb, _) = seq[-2:]
         dt = tb - ta
-        w = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt             # rad/s, at (ta + tb) / 2
-        v = (pb - pa) / dt                                         # mm/s
+        w, v = pose_rates(Ra, pa, Rb, pb, dt)                      # rad/s, mm/s at (ta + tb) / 2
         if k is not None:
             _, Rz, pz, _ = seq[0]
             w = w + (w - cv2.Rodrigues(Ra @ Rz.T)[0].ravel() / dz) * k

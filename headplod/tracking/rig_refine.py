@@ -133,6 +133,7 @@ import numpy as np
 import scipy.linalg
 
 from .. import io
+from .motion import pose_rates
 
 PARAMETERS = ("turn_x_rad", "turn_y_rad", "turn_z_rad", "shift_x_mm", "shift_y_mm", "shift_z_mm",
               "log_focal_right", "time_offset_s", "readout_s")
@@ -1230,9 +1231,7 @@ class RigRefiner:
                 hi = pose(frames[i + 1], None) if near_hi else None
             a = (times[i - 1], *lo) if lo is not None else (times[i], *pose(f, version))
             b = (times[i + 1], *hi) if hi is not None else (times[i], *pose(f, version))
-            dt = b[0] - a[0]
-            f.omega = cv2.Rodrigues(b[1] @ a[1].T)[0].ravel() / dt
-            f.velocity = (b[2] - a[2]) / dt
+            f.omega, f.velocity = pose_rates(a[1], a[2], b[1], b[2], b[0] - a[0])
 
     def _refit_velocities(self, chunk: list[_Frame], refit: dict) -> bool:
         """The chunk's velocities as central differences of its refitted poses ({t: (R, p1)}, one rig), where a
@@ -1254,10 +1253,7 @@ class RigRefiner:
                            and 0 < times[i + 1] - times[i] <= limit) else i
             if lo == hi:
                 continue
-            (Ra, pa), (Rb, pb) = refit[chunk[lo].t], refit[chunk[hi].t]
-            dt = times[hi] - times[lo]
-            omega = cv2.Rodrigues(Rb @ Ra.T)[0].ravel() / dt
-            velocity = (pb - pa) / dt
+            omega, velocity = pose_rates(*refit[chunk[lo].t], *refit[chunk[hi].t], times[hi] - times[lo])
             change = max(float(np.abs(omega - f.omega).max()), float(np.abs(velocity - f.velocity).max()) / 100.0)
             changed |= change > self.config.refit_velocity_change
             new[i] = (omega, velocity)

@@ -46,13 +46,13 @@ A frame is one pass (:meth:`Tracker._attempt`): measure
 rig's refinement (:meth:`Tracker._refine`); a pass that fails while
 tracking is repeated acquiring.
 
-Why this module is long (about 1,800 lines): :class:`Tracker` is one state
+Why this module is long (about 1,950 lines): :class:`Tracker` is one state
 machine over a stereo stream, and its stages share that state (the lock,
 the rig in use and its refinement, the noise tolerances the rig widens,
 the suspects of a frame, the rolling shutter's compensation). What has no
 state of its own lives elsewhere: detection, identification, geometry, the
 head's recent motion (:mod:`.motion`), the covariance (:mod:`.uncertainty`)
-and the rig's refinement (:mod:`.rig_refine`). Issue 23 splits it further.
+and the rig's refinement (:mod:`.rig_refine`).
 """
 from __future__ import annotations
 
@@ -217,11 +217,11 @@ class TrackerConfig:
         How far the real rig may be from ``rig.yaml`` before any refinement
         (1σ): with the calibration's own σ, the prior of the refinement.
     rig_far : RigErrorModel
-        How far off a ``rig.yaml`` may be and still be corrected from one
-        frame (1σ): a frame that fails against a rig no frame has yet
-        confirmed is fitted with the rig under this prior
-        (:meth:`RigRefiner.bootstrap`); one whose residuals that explains
-        down to the noise starts the refinement from the rig it gave.
+        How far off a ``rig.yaml`` may be and still be corrected from the
+        first frames (1σ): two consecutive frames that fail against a rig
+        no frame has yet confirmed are fitted with the rig under this prior
+        (:meth:`RigRefiner.bootstrap`); when that explains them down to the
+        noise, the refinement starts from the rig they gave.
     extrapolate_velocity : bool
         The head's velocity for the right image's exposure offset is
         extrapolated at constant acceleration from three poses (else the
@@ -279,11 +279,12 @@ class TrackerConfig:
     readout_s : float or None
         The cameras' rolling-shutter readout, s: the time from the exposure
         of an image's first row to its last (0: a global shutter). None:
-        not known; the refinement starts from the frame period × 0.92 (a
-        webcam's active rows over its total rows) with σ half of that, and
-        estimates it from the head's image motion
-        (:func:`~headplod.tracking.rig_refine.readout_prior`). A value
-        given here is trusted to 5% (0.2 ms for a global shutter).
+        the one a rig saved by ``--save-rig`` learnt, else not known: the
+        refinement starts from 0 with σ as long as a webcam's readout can
+        be (the frame period × 0.92, a webcam's active rows over its total
+        rows; :func:`~headplod.tracking.rig_refine.readout_prior`) and
+        estimates it from the head's image motion. A value given here is
+        trusted to 5% or 0.5 ms (0.2 ms for a global shutter).
     compensate_rolling_shutter : bool
         Take each marker centre back to the image's time t through the
         head's velocity (reproj estimator): row r of an image H rows high
@@ -710,7 +711,7 @@ class Tracker:
         previous, self._previous_images = self._previous_images, (left, right)
         if previous is None:
             return None
-        # A sparse grid first: two exposures differ in noise nearly everywhere, so it
+        # One row first: two exposures differ in noise nearly everywhere, so it
         # tells new images at once (the whole images are compared only when it matches).
         # An image without any variation (a covered lens, black or clipped) repeats
         # without being a repeated buffer: it tells nothing either way.
@@ -744,15 +745,15 @@ class Tracker:
         """Give the rig's refinement the rolling shutter's prior once it can be had: the user's readout
         (``readout_s``) at once, else from the frame period once two periods are known."""
         refiner = self.refiner
-        if refiner is None or self._readout_prior_set or not hasattr(refiner, "set_readout_prior"):
+        if refiner is None or self._readout_prior_set:
             return
         period = float(np.median(self._frame_periods)) if len(self._frame_periods) >= 2 else None
-        if self._given_readout_s() is None and period is None:
+        given = self._given_readout_s()
+        if given is None and period is None:
             return
         if refiner.updates:
             self._readout_prior_set = True     # learnt already: the prior is the refinement's business
             return
-        given = self._given_readout_s()
         mean, sd = readout_prior(period, given)
         if given is None:
             # Not given: compensate nothing until the motion shows a readout,
@@ -1062,6 +1063,7 @@ class Tracker:
             # the checks keep the error model as it is.
             rig_mean, rig_cov = self.refiner.error_distribution()
             rig_parameters = len(rig_mean)
+        plain_rows = pose_rows                 # ∂x/∂pose, before the motion's gain below
         right_rows = np.zeros_like(pose_rows)
         right_rows[1] = pose_rows[1]
         if motion_gain:
@@ -1079,8 +1081,7 @@ class Tracker:
         if match.shutter_cov is not None:
             # ... and so does what is unknown of the velocity that took each
             # row back to t (the rolling shutter): rows δ_r ∂x/∂pose.
-            shutter_rows = np.nan_to_num(geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras))
-            shutter_rows = shutter_rows * match.shutter_delay_s[..., None, None]
+            shutter_rows = np.nan_to_num(plain_rows) * match.shutter_delay_s[..., None, None]
             if rig_rows is None or rig_cov is None:
                 rig_rows, rig_cov = shutter_rows, match.shutter_cov
             else:
@@ -1740,13 +1741,13 @@ class Tracker:
             return readout if readout > max(2.0 * sd, self.config.min_readout_s) else 0.0
         return self._given_readout_s() or 0.0
 
-    def _row_times(self, centers: np.ndarray) -> np.ndarray:
-        """Each centre's exposure time relative to its image's time (2, 5), s.
+    def _row_times(self, centers: np.ndarray, readout_s: float) -> np.ndarray:
+        """Each centre's exposure time relative to its image's time (2, 5), s, for a readout (s).
 
         Row r of an image H rows high is exposed at (r − (H − 1)/2) ×
         readout / (H − 1) after the image's time (the middle row's)."""
         height = int(self.rig.image_size[1])
-        return (centers[..., 1] - 0.5 * (height - 1)) * (self.readout_s() / max(height - 1, 1))
+        return (centers[..., 1] - 0.5 * (height - 1)) * (readout_s / max(height - 1, 1))
 
     def _rolling_shutter(self, match: _Match, t, current=None) -> bool:
         """Set ``match``'s rolling-shutter terms from the head's velocity at ``t``
@@ -1765,13 +1766,15 @@ class Tracker:
         (The readout's own uncertainty is the rig's, through its column.)
         """
         match.shutter_shift_px = match.shutter_sd_px = match.shutter_cov = match.shutter_delay_s = None
-        if (not self.config.compensate_rolling_shutter or self.config.estimator != "reproj" or t is None
-                or not self.readout_s()):
+        if not self.config.compensate_rolling_shutter or self.config.estimator != "reproj" or t is None:
+            return False
+        readout = self.readout_s()
+        if not readout:
             return False
         motion = self._motion.velocity_at(t, self._rig_version(), current)
         R, p1 = current if current is not None else (match.R, match.t)
         rows = np.nan_to_num(geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras))  # (2,5,2,6)
-        delay = self._row_times(match.centers)                                                             # (2, 5) s
+        delay = self._row_times(match.centers, readout)                                                    # (2, 5) s
         if motion is None:
             cov = self._prior_motion_cov
         else:
@@ -1918,18 +1921,18 @@ class Tracker:
 
     def _remember(self, match: _Match, t, R, p1, blobs, mode, info=None) -> None:
         self._prev_pose = (R, p1)
+        previous = self._lock.centers if self._lock is not None else None
         if not match.visible.all():
             self._lock = None                      # re-identify while a marker is hidden
         elif mode == "track":
-            self._lock = _Lock(match.centers, self._lock.centers if self._lock is not None else None,
-                               match.size, match.flux)
+            self._lock = _Lock(match.centers, previous, match.size, match.flux)
         else:
             # Fluxes of a full detection are measured differently: the first
             # tracked frame skips the flux comparison.
             size = np.stack([np.sqrt(np.maximum(blobs[cam].flux_dn[match.blob_index[cam]]
                                                 / np.maximum(blobs[cam].peak_dn[match.blob_index[cam]], 1e-6),
                                                 1.0) / (2 * np.pi)) for cam in range(2)])
-            self._lock = _Lock(match.centers, self._lock.centers if self._lock is not None else None, size, None)
+            self._lock = _Lock(match.centers, previous, size, None)
         for cam in range(2):
             if blobs[cam] is not None and len(blobs[cam]):
                 self._prev_threshold[cam] = blobs[cam].threshold_dn
