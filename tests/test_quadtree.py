@@ -122,8 +122,8 @@ def test_node_bounds_are_conservative_for_random_views(default_screen, hills):
         cov = None if trial % 3 == 0 else np.diag(rng.uniform(0.01, 4.0, 2))
         view = View(head + rng.uniform(-150, 150, 3), rng.uniform([-300, -300], [W + 300, H + 300]), cov, None)
         _, info = flat.select(view)
-        _, eye, axes, c = tree._frame(view)
-        frame = tree._frame_context(eye, axes, c)
+        cv = tree.condition(view)
+        frame = tree._frame_context(cv.eye_mm, cv.axes, cv.cov_deg2)
         faces = np.arange(len(hills["centroids"]))
         for d, nodes in enumerate(tree.tree.ancestors(faces)):
             culled, bound = tree._node_bounds(d, nodes, frame)

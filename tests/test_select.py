@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from headplod.plod.select import MODES, LevelSelector, SelectorConfig, View
+from headplod.plod.view import head_axes
 
 MAX_LEVEL = 5
 
@@ -76,7 +77,7 @@ def test_fixed_uncertainty_gives_the_2_sigma_ellipse_full_detail(field):
     sel = make(field, uncertainty="fixed", hysteresis=False)
     view = View(eye, poi, cov)
     levels, info = sel.select(view)
-    offsets = pc.view_offsets_deg(sel.centroids_mm, eye, sel.head_axes(view))
+    offsets = pc.view_offsets_deg(sel.centroids_mm, eye, head_axes(sel.screen, eye, poi))
     maha = np.sqrt(np.einsum("ij,jk,ik->i", offsets, np.linalg.inv(cov), offsets))
     inside = maha <= 2.0
     assert inside.sum() > 20

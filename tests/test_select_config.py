@@ -21,6 +21,8 @@ PREVIOUS = {
     "jump_poi_px": 30.0, "jump_poi_sigma": 5.0, "cull_margin_edges": 1.5,
     # Added since (issue 13's paper-conditions run): eager refinement near a moving POI.
     "hysteresis_eager_deg": 5.0, "hysteresis_eager_deg_s": 3.0,
+    # Moved from the demo into the view conditioning (issue 23): the demo's SACCADE_DEG_S.
+    "saccade_hold_deg_s": 180.0,
 }
 
 
@@ -198,7 +200,7 @@ BAD = [
     ("smoothing_s", math.inf), ("smoothing_s", 0.0), ("eye_beta", -0.05), ("poi_beta", None),
     ("jump_eye_mm", 0.0), ("jump_poi_px", -30.0), ("jump_poi_sigma", -5.0), ("cull_margin_edges", True),
     ("cull_margin_edges", -1.5), ("hysteresis_eager_deg", -1.0), ("hysteresis_eager_deg", math.nan),
-    ("hysteresis_eager_deg_s", -3.0),
+    ("hysteresis_eager_deg_s", -3.0), ("saccade_hold_deg_s", 0.0), ("saccade_hold_deg_s", math.nan),
 ]
 
 

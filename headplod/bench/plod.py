@@ -62,6 +62,7 @@ from ..plod import perception as pc
 from ..plod.csf import CSF_MODELS
 from ..plod.contrast import project_to_screen_px, readback_contrast
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
+from ..plod.view import head_axes
 from ..render import TerrainRenderer, create_context, off_axis_projection, overlay_poi, screen_frame
 from ..render.still import TerrainScene, px_per_deg_at, default_head
 from .outputs import write_json
@@ -253,7 +254,7 @@ def ellipse_coverage(b: _Bench, sigma_deg=ELLIPSE_SIGMA_DEG, out_dir: Path | Non
                              ("fixed", "fixed", "ellipse")):
         selector = b.scene.selector("csf", unc, hysteresis=False, shift=shift)
         levels, info = selector.select(View(b.head, b.poi, cov, 0.0))
-        axes = selector.head_axes(View(b.head, b.poi, cov, 0.0))
+        axes = head_axes(b.screen, b.head, b.poi)
         offsets = pc.view_offsets_deg(selector.centroids_mm, b.head, axes)
         # The triangle's nearest point to the POI: its centroid pulled in by half its angular size.
         half = 0.5 * np.degrees(2 * np.arctan(selector.edge_len_mm[:, 0] / (2 * info["distance_mm"])))

@@ -371,7 +371,10 @@ class QuadtreeSelector(LevelSelector):
         cfg = self.config
         if cfg.mode == "full":
             return super().select(view)
-        view, eye, axes, cov = self._frame(view)
+        view = self.condition(view)
+        eye, axes, cov = view.eye_mm, view.axes, view.cov_deg2
+        if view.restart and self.hysteresis is not None:
+            self.hysteresis.reset()
         tree = self.tree
         frame = self._frame_context(eye, axes, cov)
         hot = self._hot if (self.hysteresis is not None and self.hysteresis.levels is not None) else None
@@ -402,11 +405,7 @@ class QuadtreeSelector(LevelSelector):
         ecc[inside], continuous[inside] = self._criterion(seen, eye, shifted, distance[inside],
                                                           directions[inside], speed[inside])
         if self.hysteresis is not None:
-            eager = None
-            if self._gaze_speed(view.t, axes[2]) > cfg.hysteresis_eager_deg_s:
-                with np.errstate(invalid="ignore"):
-                    eager = ecc < cfg.hysteresis_eager_deg
-            row_levels = self.hysteresis.update_rows(rows, continuous, self.max_level, eager=eager)
+            row_levels = self.hysteresis.update_rows(rows, continuous, self.max_level, eager=self._eager(view, ecc))
             levels = np.clip(self.hysteresis.levels, 0, self.max_level).astype(np.int64)
             self._hot = self._mark_hot(rows[row_levels > 0])
         else:
@@ -415,8 +414,7 @@ class QuadtreeSelector(LevelSelector):
         self.last_stats = {"nodes_visited": int(sum(visited)), "nodes_per_depth": [0] * start + visited,
                            "leaves": int(len(frontier)), "triangles_evaluated": int(len(rows))}
         return levels, {"rows": rows, "eccentricity_deg": ecc, "speed_deg_s": speed, "distance_mm": distance,
-                        "continuous": continuous, "poi_px": np.asarray(view.poi_px, dtype=np.float64),
-                        "cov_deg2": cov}
+                        "continuous": continuous, "poi_px": view.poi_px, "cov_deg2": cov}
 
     def _mark_hot(self, faces):
         """Per depth, (4^d,) bool: the nodes holding a triangle of ``faces`` (those above level 0)."""

@@ -36,13 +36,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..filters import OneEuroFilter
 from . import perception as pc
+from .view import UNCERTAINTY_MODES, ConditionedView, UncertaintyPolicy, View, ViewConditioner  # noqa: F401
 
 MODES = ("csf", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full")
 """The level-selection criteria (:attr:`SelectorConfig.mode`), in the order the tools list them."""
-UNCERTAINTY_MODES = ("none", "fixed", "adaptive", "smoothed")
-"""Which covariance the selection uses (:attr:`SelectorConfig.uncertainty`, :class:`UncertaintyPolicy`)."""
 
 
 @dataclass(frozen=True)
@@ -119,7 +117,11 @@ class SelectorConfig:
         of the tracker's σ of V on the screen when that is larger.
     jump_poi_sigma : float
         That multiple of the noise of the POI's prediction (√6 σ of V: see
-        ``LevelSelector._smoothed_view``), standard deviations (5.0).
+        ``ViewConditioner._filter``), standard deviations (5.0).
+    saccade_hold_deg_s : float
+        Speed of the raw POI's direction seen from the eye above which the
+        frame step keeps the last levels, deg/s (180: a saccade, during
+        which vision is suppressed; :class:`headplod.plod.view.ConditionedView`).
     cull_margin_edges : float
         Frustum culling: a base triangle whose centroid projects farther
         outside the screen than this many of its level-0 edge lengths is
@@ -147,6 +149,7 @@ class SelectorConfig:
     jump_eye_mm: float = 20.0
     jump_poi_px: float = 30.0
     jump_poi_sigma: float = 5.0
+    saccade_hold_deg_s: float = 180.0
     cull_margin_edges: float = 1.5
 
     def __post_init__(self):
@@ -166,6 +169,7 @@ class SelectorConfig:
                 ("smoothing_s", 0.0, False, "s"), ("eye_beta", 0.0, True, "Hz per mm/s"),
                 ("poi_beta", 0.0, True, "Hz per px/s"), ("jump_eye_mm", 0.0, False, "mm"),
                 ("jump_poi_px", 0.0, False, "px"), ("jump_poi_sigma", 0.0, True, "sigma"),
+                ("saccade_hold_deg_s", 0.0, False, "deg/s"),
                 ("cull_margin_edges", 0.0, True, "level-0 edges")):
             value = getattr(self, name)
             ok = (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
@@ -174,49 +178,6 @@ class SelectorConfig:
                 bound = ("any finite number" if low == -math.inf
                          else f"a finite number {'>=' if closed else '>'} {low:g}")
                 raise ValueError(f"SelectorConfig.{name} must be {bound} ({unit}), got {value!r}")
-
-
-@dataclass
-class View:
-    """One frame's view of the screen.
-
-    Attributes
-    ----------
-    eye_mm : (3,)
-        Eye (head) position, world frame, mm.
-    poi_px : (2,)
-        Point of interest on the screen, screen pixels.
-    cov_deg2 : (2, 2) or None
-        Covariance of (φ, θ) of the viewing direction, deg².
-    t : float
-        Time, s.
-    """
-
-    eye_mm: np.ndarray
-    poi_px: np.ndarray
-    cov_deg2: np.ndarray | None = None
-    t: float = 0.0
-
-
-class UncertaintyPolicy:
-    """Which covariance the selection uses: none, the largest seen (fixed), this frame's, or smoothed."""
-
-    def __init__(self, mode: str = "adaptive", smoothing_frames: float = 15):
-        if mode not in UNCERTAINTY_MODES:
-            raise ValueError(f"uncertainty mode must be one of {UNCERTAINTY_MODES}, got {mode!r}")
-        self.mode, self.smoothing_frames = mode, smoothing_frames
-        self.fixed = None
-        self.smoothed = None
-
-    def __call__(self, cov):
-        if self.mode == "none" or cov is None:
-            return None if self.mode == "none" else (self.fixed if self.mode == "fixed" else self.smoothed)
-        cov = np.asarray(cov, dtype=np.float64)
-        if self.fixed is None or np.trace(cov) > np.trace(self.fixed):
-            self.fixed = cov
-        rate = 1.0 / self.smoothing_frames
-        self.smoothed = cov if self.smoothed is None else (1 - rate) * self.smoothed + rate * cov
-        return {"fixed": self.fixed, "adaptive": cov, "smoothed": self.smoothed}[self.mode]
 
 
 class LevelSelector:
@@ -267,29 +228,27 @@ class LevelSelector:
         self.screen = screen
         width, height = screen.size_px
         self.px_per_mm = width / float(np.linalg.norm(np.asarray(screen.top_right) - screen.top_left))
-        self.policy = UncertaintyPolicy(config.uncertainty, config.uncertainty_smoothing_frames)
+        # A raw View given to select() is conditioned here; the frame step conditions once per frame
+        # (headplod.render.frame) and passes the ConditionedView to every back end.
+        self.conditioner = ViewConditioner(screen, config)
         # Eq. 4 and the screen-space error round up; Ohshima's eq. 6 takes the
         # finest level whose edges are long enough, which rounds down.
         self.rounding = "floor" if config.mode == "acuity" else "ceil"
         self.hysteresis = (pc.Hysteresis(len(centroids_scene), margin=config.hysteresis_margin,
                                          rounding=self.rounding) if config.hysteresis else None)
         self._previous = None          # (t, eye_mm, directions (F, 3))
-        self._previous_gaze = None     # (t, unit vector from the eye to the smoothed POI)
         self._foveal_fmax = None       # (contrast, seen, speed, foveal f_max) of the last frame
-        self._smooth = None            # the eye and POI filters and the last raw eye and POI
 
-    def head_axes(self, view: View) -> np.ndarray:
-        """Rows Ξ, Ψ, V of the head frame looking from the eye at the POI (Ξ along the screen's rows)."""
-        poi_mm = self.screen.pixel_to_world(np.asarray(view.poi_px, dtype=np.float64))
-        v = poi_mm - view.eye_mm
-        v /= np.linalg.norm(v)
-        right = np.asarray(self.screen.top_right, float) - np.asarray(self.screen.top_left, float)
-        xi = right - v * (right @ v)
-        xi /= np.linalg.norm(xi)
-        return np.stack([xi, np.cross(v, xi), v])
+    def condition(self, view: View | ConditionedView) -> ConditionedView:
+        """``view`` conditioned by this selector's :class:`ViewConditioner` (a raw :class:`View`), or as given."""
+        return view if isinstance(view, ConditionedView) else self.conditioner(view)
 
-    def select(self, view: View):
+    def select(self, view: View | ConditionedView):
         """Levels (F,) int, and the continuous levels and per-triangle features used (dict).
+
+        ``view``: the frame's :class:`ConditionedView` (from the frame step's
+        conditioner), or a raw :class:`View`, conditioned here first (one call
+        per frame either way: the conditioner's filters advance).
 
         The features are NaN for base triangles outside the view (frustum-culled: level 0).
         ``full`` computes nothing: every base triangle at the finest level, features NaN.
@@ -304,7 +263,10 @@ class LevelSelector:
             return (np.full(n, self.max_level, dtype=np.int64),
                     {"eccentricity_deg": nan, "speed_deg_s": nan.copy(), "distance_mm": nan.copy(),
                      "continuous": np.full(n, float(self.max_level))})
-        view, eye, axes, cov = self._frame(view)
+        view = self.condition(view)
+        eye, axes, cov = view.eye_mm, view.axes, view.cov_deg2
+        if view.restart and self.hysteresis is not None:
+            self.hysteresis.reset()
         rel = self.centroids_mm - eye
         distance = np.linalg.norm(rel, axis=1)
         directions = rel / distance[:, None]
@@ -321,28 +283,19 @@ class LevelSelector:
         ecc[seen], continuous[seen] = self._criterion(seen, eye, shifted[seen], distance[seen], directions[seen],
                                                       speed[seen])
         if self.hysteresis is not None:
-            eager = None
-            if self._gaze_speed(view.t, axes[2]) > cfg.hysteresis_eager_deg_s:
-                with np.errstate(invalid="ignore"):      # NaN eccentricity: culled, not eager
-                    eager = ecc < cfg.hysteresis_eager_deg
-            levels = self.hysteresis.update(continuous, self.max_level, eager=eager)
+            levels = self.hysteresis.update(continuous, self.max_level, eager=self._eager(view, ecc))
         else:
             levels = pc.round_level(continuous, self.rounding, self.max_level)
         levels = np.clip(levels, 0, self.max_level).astype(np.int64)
         return levels, {"eccentricity_deg": ecc, "speed_deg_s": speed, "distance_mm": distance,
-                        "continuous": continuous, "poi_px": np.asarray(view.poi_px, dtype=np.float64),
-                        "cov_deg2": cov}
+                        "continuous": continuous, "poi_px": view.poi_px, "cov_deg2": cov}
 
-    def _frame(self, view: View):
-        """The frame's smoothed view, eye (3,) world mm, head axes (3, 3) and covariance (deg², or None).
-
-        Advances the filters and the uncertainty policy: call once per frame.
-        """
-        view = self._smoothed_view(view)
-        eye = np.asarray(view.eye_mm, dtype=np.float64)
-        axes = self.head_axes(view)
-        cov = self.policy(view.cov_deg2)
-        return view, eye, axes, cov
+    def _eager(self, view: ConditionedView, ecc):
+        """(n,) bool for the hysteresis: triangles within ``hysteresis_eager_deg`` of a moving POI; None if still."""
+        if not view.moving:
+            return None
+        with np.errstate(invalid="ignore"):      # NaN eccentricity: culled, not eager
+            return ecc < self.config.hysteresis_eager_deg
 
     def _criterion(self, seen, eye, shifted, distance, directions, speed):
         """Eccentricities (S,) deg and continuous levels (S,) of the base triangles ``seen`` (S,) int.
@@ -430,76 +383,6 @@ class LevelSelector:
                       & (xy[:, 1] >= -margin) & (xy[:, 1] <= height + margin))
         return ~inside                                   # NaN (not in front of the eye): outside
 
-    def _smoothed_view(self, view: View) -> View:
-        """Eye and POI through One Euro filters (the tracker's noise out, real motion through).
-
-        Tracker noise moves the eye and the POI by a fraction of a degree per
-        frame; unfiltered, that reads as tens of degrees per second of head
-        motion and as eccentricity jitter, and triangles near a level boundary
-        flicker (Ohshima et al. smooth the gaze for the same reason). A plain
-        exponential average would lag a moving head by speed x time constant
-        (190 mm at 750 mm/s with 0.25 s): the One Euro filter raises its
-        cutoff with the speed, so a steady movement passes with little lag.
-        A jump larger than the noise (by default 20 mm for the eye; for the
-        POI 30 px or five of the tracker's σ of V on the screen, whichever is
-        larger: ``SelectorConfig.jump_*``) is a real movement: its filter
-        and the hysteresis restart, so the levels follow within the frame.
-        The jump is measured from where the last two raw samples were heading
-        (constant velocity), not from the last sample: a steady pursuit of
-        30-40 px per frame is not a jump, whereas measured from the last
-        sample it restarted the filters on every other frame, and the levels
-        alternated between the raw and the filtered POI (170 reversals per
-        frame on the mountains view, ``headplod bench paper``).
-        """
-        eye = np.asarray(view.eye_mm, dtype=np.float64)
-        poi = np.asarray(view.poi_px, dtype=np.float64)
-        if view.t is None:
-            return view
-        cfg = self.config
-        if self._smooth is None:
-            cutoff = 1.0 / (2 * math.pi * cfg.smoothing_s)
-            self._smooth = {"eye": OneEuroFilter(cutoff, beta=cfg.eye_beta),
-                            "poi": OneEuroFilter(cutoff, beta=cfg.poi_beta), "raw": None, "velocity": None}
-        raw, velocity = self._smooth["raw"], self._smooth["velocity"]
-        self._smooth["raw"] = (view.t, eye, poi)
-        if raw is not None:
-            dt = view.t - raw[0]
-            predicted_eye, predicted_poi = raw[1], raw[2]
-            if velocity is not None and 0 < dt < 0.5:
-                predicted_eye = predicted_eye + velocity[0] * dt
-                predicted_poi = predicted_poi + velocity[1] * dt
-            self._smooth["velocity"] = ((eye - raw[1]) / dt, (poi - raw[2]) / dt) if dt > 0 else None
-            # The prediction from two noisy samples has sqrt(1 + 4 + 1) times their noise.
-            poi_noise_px = cfg.jump_poi_px
-            if view.cov_deg2 is not None:
-                lam = float(np.linalg.eigvalsh(np.asarray(view.cov_deg2, dtype=np.float64))[-1])
-                reach_mm = float(np.linalg.norm(self.screen.pixel_to_world(poi) - eye))
-                poi_noise_px = max(poi_noise_px, cfg.jump_poi_sigma * math.sqrt(6.0) * reach_mm
-                                   * math.tan(math.radians(math.sqrt(max(lam, 0.0)))) * self.px_per_mm)
-            # Each filter restarts on its own jump only: restarting the eye's on a saccade of the
-            # POI would move the filtered eye by its lag at once, a speed spike that coarsened
-            # half the terrain for a frame.
-            jumped = False
-            for name, value, predicted, limit in (("eye", eye, predicted_eye, cfg.jump_eye_mm),
-                                                  ("poi", poi, predicted_poi, poi_noise_px)):
-                if np.linalg.norm(value - predicted) > limit:
-                    self._smooth[name].reset()
-                    jumped = True
-            if jumped:
-                self._smooth["velocity"] = None       # a jump's step is not a velocity to extrapolate
-                if self.hysteresis is not None:
-                    self.hysteresis.reset()
-        eye = self._smooth["eye"](eye, view.t)
-        poi = self._smooth["poi"](poi, view.t)
-        return View(eye, poi, view.cov_deg2, view.t)
-
-    def _gaze_speed(self, t, gaze) -> float:
-        """Angular speed (deg/s) of the direction to the smoothed POI since the last view; 0 on the first."""
-        previous, self._previous_gaze = self._previous_gaze, (t, gaze)
-        if previous is None or t is None or previous[0] is None or t <= previous[0]:
-            return 0.0
-        return math.degrees(math.acos(min(1.0, float(gaze @ previous[1])))) / (t - previous[0])
-
     def _angular_speed(self, t, eye, directions):
         """Angular speed (deg/s) of each triangle's direction from the eye since the last view, ≥ 0.1."""
         previous, self._previous = self._previous, (t, eye, directions)
@@ -510,8 +393,8 @@ class LevelSelector:
         return np.maximum(np.degrees(np.arccos(cos)) / dt, pc.MIN_SPEED_DEG_S)
 
     def reset(self):
+        """Forget the last frame: the conditioner's filters, the speeds and the hysteresis."""
+        self.conditioner.reset()
         self._previous = None
-        self._previous_gaze = None
-        self._smooth = None
         if self.hysteresis is not None:
             self.hysteresis.reset()
