@@ -120,6 +120,41 @@ def load_jacksboro_dem() -> DemGrid:
                    lon_west, lat_south, dlon, dlat)
 
 
+def _padded_spline_coefficients(z) -> np.ndarray:
+    """Cubic B-spline coefficients of a grid, padded by 2 samples on every side, flattened.
+
+    The result is ``np.pad(ndi.spline_filter(z, order=3, mode="mirror"), 2,
+    mode="reflect").ravel()`` bit for bit, made in one array: the filter
+    runs in place on the padded array's interior (a 1-D pass at a time, line
+    by line), and the border is filled by the reflect rule afterwards, so no
+    unpadded coefficient grid or float64 temporary of the grid's size is made.
+    Padding by 2 keeps every 4 x 4 stencil of a clamped query in range.
+
+    Parameters
+    ----------
+    z : (ny, nx) float
+        Grid values (metres for the DEM; any unit for the envelope).
+
+    Returns
+    -------
+    (ny + 4) * (nx + 4) float64
+        Row-major: padded row ``i + 2`` column ``j + 2`` holds sample (i, j)'s coefficient.
+    """
+    ny, nx = z.shape
+    padded = np.empty((ny + 4, nx + 4))
+    inner = padded[2:-2, 2:-2]
+    inner[...] = z
+    ndi.spline_filter(inner, order=3, output=inner, mode="mirror")
+    # The reflect rule (the edge sample is the mirror, not repeated): pad[1] = z[1], pad[0] = z[2], both ends.
+    for lo, hi in ((1, 3), (0, 4)):
+        padded[2:-2, lo] = padded[2:-2, hi]
+        padded[2:-2, -1 - lo] = padded[2:-2, -1 - hi]
+    for lo, hi in ((1, 3), (0, 4)):
+        padded[lo] = padded[hi]
+        padded[-1 - lo] = padded[-1 - hi]
+    return padded.ravel()
+
+
 def _bspline_weights(t):
     """Cubic B-spline weights of the 4 taps (i-1, i, i+1, i+2) and their derivatives.
 
@@ -175,6 +210,12 @@ class Terrain:
         Multiplier of the detail amplitude (1 = the DEM spectrum's extrapolation).
     origin_m : (2,)
         Scene (x, y) of sample [0, 0], metres.
+    copy : bool
+        False: ``elevation_m``, when it is a C-contiguous float64 grid (or
+        float32 with ``detail=False``) and ``vertical_exaggeration`` is 1,
+        is kept as ``dem_z_m`` itself instead of a float64 copy (the caller
+        hands it over and must not change it afterwards). True (default):
+        ``dem_z_m`` is always the Terrain's own float64 array.
 
     Attributes
     ----------
@@ -182,8 +223,11 @@ class Terrain:
         (xmin, xmax, ymin, ymax), metres.
     dem_x_m : (nx,) ; dem_y_m : (ny,)
         Scene coordinates of the DEM columns and rows.
-    dem_z_m : (ny, nx)
+    dem_z_m : (ny, nx) float64, or float32 (``copy=False`` with a float32 grid)
         DEM elevation times the exaggeration: what ``dem_heights`` returns there.
+        A float32 grid is not widened (its values are exact as they are; the
+        spline coefficients are float64 either way, the same as from the
+        widened grid).
     nyquist_cpm : (2,)
         DEM Nyquist frequencies (1/(2 dx), 1/(2 dy)), cycles per metre.
     spectral_exponent : float
@@ -205,8 +249,14 @@ class Terrain:
 
     def __init__(self, elevation_m, dx_m: float, dy_m: float, *, vertical_exaggeration: float = 1.0,
                  detail: bool = True, seed: int = 0, detail_min_wavelength_m: float = 60.0,
-                 detail_waves_per_octave: int = 24, detail_gain: float = 1.0, origin_m=(0.0, 0.0)):
-        z = np.asarray(elevation_m, dtype=np.float64)
+                 detail_waves_per_octave: int = 24, detail_gain: float = 1.0, origin_m=(0.0, 0.0),
+                 copy: bool = True):
+        z = np.asarray(elevation_m)
+        # copy=False, no exaggeration: the caller's grid is kept as it is (no second grid; module notes).
+        owned = (not copy and z.flags.c_contiguous and float(vertical_exaggeration) == 1.0
+                 and (z.dtype == np.float64 or (z.dtype == np.float32 and not detail)))
+        if not owned:
+            z = np.asarray(z, dtype=np.float64)
         if z.ndim != 2 or min(z.shape) < 4:
             raise ValueError(f"elevation_m must be a 2-D grid of at least 4 x 4 samples, got shape {z.shape}")
         if not np.all(np.isfinite(z)):
@@ -224,7 +274,7 @@ class Terrain:
         x0, y0 = float(origin_m[0]), float(origin_m[1])
         self.dem_x_m = x0 + self.dx_m * np.arange(nx)
         self.dem_y_m = y0 + self.dy_m * np.arange(ny)
-        self.dem_z_m = z * self.vertical_exaggeration
+        self.dem_z_m = z if owned else z * self.vertical_exaggeration
         self.extent = (x0, float(self.dem_x_m[-1]), y0, float(self.dem_y_m[-1]))
         self.nyquist_cpm = np.array([0.5 / self.dx_m, 0.5 / self.dy_m])
         self.detail = bool(detail)
@@ -238,17 +288,13 @@ class Terrain:
         if not self.detail:
             # No detail: no roughness envelope, spectrum or waves (their cost grows with the grid:
             # a 4k x 4k DEM took 28 s and 3.8 GB with them, for nothing that is drawn).
-            # Pad by 2 with the mirror rule so that every 4x4 stencil of a clamped query is in range.
-            self._coef = [np.pad(ndi.spline_filter(self.dem_z_m, order=3, mode="mirror"), 2, mode="reflect").ravel()]
+            self._coef = [_padded_spline_coefficients(self.dem_z_m)]
             self.spectral_exponent = float("nan")
             self._make_waves(-np.inf, int(detail_waves_per_octave))
         else:
             envelope = self._roughness_envelope(self.dem_z_m)
-            coef = np.stack([ndi.spline_filter(self.dem_z_m, order=3, mode="mirror"),
-                             ndi.spline_filter(envelope, order=3, mode="mirror")], axis=-1)
-            # Pad by 2 with the mirror rule so that every 4x4 stencil of a clamped query is in range.
-            padded = np.pad(coef, ((2, 2), (2, 2), (0, 0)), mode="reflect")
-            self._coef = [np.ascontiguousarray(padded[..., c]).ravel() for c in range(2)]   # DEM, envelope
+            self._coef = [_padded_spline_coefficients(self.dem_z_m), _padded_spline_coefficients(envelope)]
+            del envelope
             self.spectral_exponent, log_p0 = self._fit_spectrum(self.dem_z_m)
             self._make_waves(log_p0, int(detail_waves_per_octave))
         self._centre = np.array([(self.extent[0] + self.extent[1]) / 2, (self.extent[2] + self.extent[3]) / 2])

@@ -36,9 +36,21 @@ GeoTIFF's nodata value, NaN or infinite, -32768, any value beyond ±1e30, alpha
 = 0) are filled from the nearest valid sample (``scipy.ndimage
 .distance_transform_edt``'s indices), with the count; a grid with no valid
 sample is refused. Limits: at least 4 x 4 samples, at most
-:data:`MAX_SAMPLES` (8192 x 8192; the terrain is built in about 40 bytes a
-sample, ~2.7 GB at the limit), spacing between 1 mm and 10 km, heights
+:data:`MAX_SAMPLES` (8192 x 8192), spacing between 1 mm and 10 km, heights
 within ±1000 km after scaling.
+
+Memory
+------
+The heights are float32 where that is exact (float32 files, integers of
+up to 16 bits, no ``height_scale``), float64 otherwise: the file's own
+array lives only until the heights are made, the checks run without a
+float temporary of the grid's size, and :func:`terrain_from_file` hands
+the heights to the :class:`Terrain` as its ``dem_z_m`` (``copy=False``)
+rather than widening or copying them. The built terrain then holds the
+heights (4 or 8 bytes a sample) and the padded float64 spline
+coefficients (8 bytes a sample), and its building adds no other grid.
+Filling no-data samples takes the nearest-sample indices, two int32
+grids, while it runs.
 """
 from __future__ import annotations
 
@@ -56,7 +68,7 @@ from .terrain import Terrain, metres_per_degree
 
 #: File endings and the reader each one selects.
 TERRAIN_FORMATS = {".tif": "geotiff", ".tiff": "geotiff", ".png": "png", ".npy": "npy"}
-#: Largest grid read, samples (8192 x 8192): building the Terrain takes about 40 bytes a sample (~2.7 GB here).
+#: Largest grid read, samples (8192 x 8192): the built Terrain holds 16 bytes a sample (module notes: Memory).
 MAX_SAMPLES = 8192 * 8192
 #: Smallest grid side, samples (the Terrain's cubic spline needs 4).
 MIN_SIDE = 4
@@ -112,8 +124,11 @@ class TerrainGrid:
 
     Attributes
     ----------
-    elevation_m : (ny, nx) float64
+    elevation_m : (ny, nx) float32 or float64
         Heights, metres; row 0 south, column 0 west; finite everywhere.
+        float32 when the file's values are float32 (or narrower) or
+        integers of up to 16 bits and ``height_scale`` is 1 (exact as they
+        are), float64 otherwise.
     dx_m, dy_m : float
         Sample spacing east and north, metres.
     path : str
@@ -193,12 +208,12 @@ def read_terrain_file(path, options: TerrainFileOptions = TerrainFileOptions()) 
     notes = []
     reader = {"geotiff": _read_geotiff, "png": _read_png, "npy": _read_npy}[kind]
     raw, invalid, found, dx_m, dy_m, crs = reader(path, options, notes)
-    heights = _as_heights(path, raw, notes)
+    heights = _as_heights(path, raw, notes, options.height_scale)
     del raw
     filled = _fill_invalid(path, heights, invalid, found, notes)
     if options.height_scale != 1.0:
-        heights *= options.height_scale
-    peak = float(np.max(np.abs(heights)))
+        heights *= options.height_scale         # float64 (_as_heights)
+    peak = max(float(heights.max()), -float(heights.min()))      # max |height| without an |heights| grid
     if not peak <= MAX_ABS_HEIGHT_M:
         raise TerrainFileError(f"{path}: heights reach {peak:.3g} m (after --height-scale "
                                f"{options.height_scale:g}), beyond ±{MAX_ABS_HEIGHT_M:g} m; check --height-scale "
@@ -220,9 +235,14 @@ def terrain_from_file(path, options: TerrainFileOptions = TerrainFileOptions(), 
     DEM and the built-in mesh's finest spacing, and a person's own terrain
     should show their data, not invented relief. ``terrain.dem_info`` stays
     None; the grid (without its array) is ``terrain.source``.
+
+    The heights are handed over, not copied (``Terrain(..., copy=False)``):
+    without a vertical exaggeration the returned grid's ``elevation_m`` is
+    the terrain's ``dem_z_m`` itself (one grid, not two, float32 where
+    :class:`TerrainGrid` says so); neither may be modified.
     """
     grid = read_terrain_file(path, options)
-    terrain = Terrain(grid.elevation_m, grid.dx_m, grid.dy_m, **{"detail": False, **terrain_options})
+    terrain = Terrain(grid.elevation_m, grid.dx_m, grid.dy_m, **{"detail": False, "copy": False, **terrain_options})
     terrain.source = grid.__class__(None, grid.dx_m, grid.dy_m, grid.path, grid.kind, grid.notes, grid.crs,
                                     grid.filled)
     return terrain, grid
@@ -238,7 +258,7 @@ def _check_shape(path, shape) -> None:
                                f"{MIN_SIDE} x {MIN_SIDE}")
     if ny * nx > MAX_SAMPLES:
         raise TerrainFileError(f"{path}: {nx} x {ny} = {nx * ny:,} samples is over the limit of {MAX_SAMPLES:,} "
-                               f"(8192 x 8192, ~2.7 GB to build); crop or downsample it "
+                               f"(8192 x 8192); crop or downsample it "
                                "(e.g. gdal_translate -outsize 50% 50%)")
 
 
@@ -253,12 +273,19 @@ def _check_dtype(path, dtype) -> None:
         raise TerrainFileError(f"{path}: holds {dtype} values, not numbers; give a numeric grid")
 
 
-def _as_heights(path, raw, notes) -> np.ndarray:
-    """``raw`` (checked dtype) as float64; a note for 8-bit data."""
+def _as_heights(path, raw, notes, height_scale: float = 1.0) -> np.ndarray:
+    """``raw`` (checked dtype) as a new C-contiguous grid of heights; a note for 8-bit data.
+
+    float32 when that holds every value exactly and they are not scaled
+    (``height_scale`` 1; float16/float32 files, integers of up to 16 bits):
+    the same numbers as float64 in half the bytes. float64 otherwise.
+    """
     if raw.dtype.itemsize == 1:
         notes.append(f"{path.name}: 8-bit heights have only 256 levels (terraces on gentle slopes); "
                      "a 16-bit or float file keeps the detail")
-    return np.array(raw, dtype=np.float64)
+    kind, size = raw.dtype.kind, raw.dtype.itemsize
+    exact32 = height_scale == 1.0 and ((kind == "f" and size <= 4) or (kind in "iu" and size <= 2))
+    return np.array(raw, dtype=np.float32 if exact32 else np.float64)
 
 
 def _fill_invalid(path, heights, invalid, found, notes) -> int:
@@ -287,7 +314,8 @@ def _invalid(raw, nodata=None) -> tuple[np.ndarray, list[str]]:
         if bad.any():
             invalid |= bad
             found.append("NaN/inf")
-        big = np.abs(raw) > SENTINEL_ABS
+        big = raw > SENTINEL_ABS               # |raw| > SENTINEL_ABS, without an |raw| grid
+        big |= raw < -SENTINEL_ABS
         big &= ~bad
         if big.any():
             invalid |= big
