@@ -17,7 +17,8 @@ from headplod.capture.v4l2 import FOURCCS
 from headplod.cli import main as cli_main
 from headplod.plod.select import MODES, UNCERTAINTY_MODES
 from headplod.render.gl import VIEW_MODES
-from headplod.render.still import CONTRAST_SOURCES, RENDER_MODES
+from headplod.render.frame import BACKENDS
+from headplod.render.still import CONTRAST_SOURCES
 from headplod.tracking.tracker import ESTIMATORS
 from headplod.tracking.uncertainty import COVARIANCE_ESTIMATORS
 
@@ -70,12 +71,13 @@ def test_cli_keeps_no_function_local_imports():
     (["track"], "--estimator", ESTIMATORS),
     (["track"], "--uncertainty", COVARIANCE_ESTIMATORS),
     (["track"], "--fourcc", FOURCCS),
-    (["render"], "--mode", RENDER_MODES),
+    (["render"], "--mode", MODES),
+    (["render"], "--backend", BACKENDS),
     (["render"], "--uncertainty", UNCERTAINTY_MODES),
     (["render"], "--view", tuple(VIEW_MODES)),
     (["render"], "--contrast", CONTRAST_SOURCES),
     (["calibrate"], "--board", BOARD_KINDS),
-    (["demo"], "--mode", RENDER_MODES),
+    (["demo"], "--mode", MODES),
     (["demo"], "--uncertainty", UNCERTAINTY_MODES),
     (["demo"], "--view", tuple(VIEW_MODES)),
 ])

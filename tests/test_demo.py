@@ -332,14 +332,14 @@ def test_loops_side_by_side_keep_their_own_mesh_state(terrain_scene, renderer, d
 
 
 def test_demo_loop_draws_raymask_frames_and_a_still_poi_repeats_them(gl_context):
-    """Mode raymask in the demo's loop: a frame per pose, the mask about the filtered POI; a still POI, same frame."""
+    """The raymask back end in the demo's loop: a frame per pose, the mask about the filtered POI; a still POI, same frame."""
     from headplod.demo import loop as lp
     from headplod.render.still import TerrainScene
 
     screen = lp.default_screen()
     scene = TerrainScene.build(screen)
     poses = lp.MousePoses(screen, cov_deg2=np.diag([0.01, 0.01]))
-    demo = lp.DemoLoop(scene, poses, size=(320, 180), mode="raymask", uncertainty="adaptive", hud=False)
+    demo = lp.DemoLoop(scene, poses, size=(320, 180), backend="raymask", uncertainty="adaptive", hud=False)
     frames = [demo.step() for _ in range(4)]
     assert all(f is not None and f.image.shape == (180, 320, 3) for f in frames)
     assert frames[-1].stage_ms["render"] > 0           # (at 320x180 the inset covers the frame: no rings)

@@ -91,7 +91,7 @@ def test_level_7_frames_show_the_dem_near_the_poi(default_screen, fine_dem, gl_c
         b = lp.DemoLoop(scene, lp.MousePoses(default_screen, path=still), r2, mode="csf", uncertainty="adaptive",
                         viewpoint="mountains", hud=False)
         assert a.base_scene.mesh._pieces_cache is b.base_scene.mesh._pieces_cache is scene.mesh._pieces_cache
-        assert "raymask" not in a._modes and "full" in a._modes            # level 7: full still fits
+        assert "raymask" not in a._backends and "full" in a._modes            # level 7: full still fits
         results = []
         for _ in still:
             results.append(a.step())
@@ -144,8 +144,8 @@ def test_headless_demo_at_level_7_stays_within_the_cache_budget(tmp_path, fine_d
     (["--max-level", "5.5"], "whole number"), (["--cache-mb", "64"], "lazy mesh only"),
     (["--max-level", "7", "--cache-mb", "0.1"], "1..65536"),
     (["--max-level", "8", "--mode", "full"], "--max-level 7 or lower"),
-    (["--max-level", "6", "--mode", "raymask"], "lazy mesh does not keep"),
-    (["--lazy", "--mode", "raymask"], "lazy mesh does not keep")])
+    (["--max-level", "6", "--backend", "raymask"], "lazy mesh does not keep"),
+    (["--lazy", "--backend", "raymask"], "lazy mesh does not keep")])
 def test_bad_mesh_options_exit_2_with_one_line_before_writing(tmp_path, capsys, command, extra, words):
     out = tmp_path / "out"
     target = ["--headless", "--out", str(out)] if command == "demo" else ["--out", str(out / "x.png")]

@@ -144,7 +144,7 @@ def test_the_inset_matches_full_and_a_still_view_repeats_exactly(raymask_setup, 
 
     size = raymask_setup["size"]
     full, _ = render_still(default_screen, mode="full", scene=terrain_scene, renderer=raymask_setup["full"], size=size)
-    frames = [render_still(default_screen, mode="raymask", scene=terrain_scene, size=size,
+    frames = [render_still(default_screen, backend="raymask", scene=terrain_scene, size=size,
                            raymask_renderer=raymask_setup["ray"])[0] for _ in range(3)]
     assert all(np.array_equal(frames[0], f) for f in frames[1:])          # a still view: identical frames
     ppd = px_per_deg_at(default_screen, default_head(default_screen), size)
@@ -209,13 +209,13 @@ def test_render_command_draws_raymask_and_refuses_what_it_cannot(tmp_path, gl_co
     from headplod.cli import main as cli_main
 
     out, stats = tmp_path / "ray.png", tmp_path / "ray.json"
-    assert cli_main(["render", "--mode", "raymask", "--size", "320,180", "--inset-deg", "10", "--no-silhouettes",
+    assert cli_main(["render", "--backend", "raymask", "--size", "320,180", "--inset-deg", "10", "--no-silhouettes",
                      "--out", str(out), "--stats", str(stats)]) == 0
     s = json.loads(stats.read_text())
-    assert s["mode"] == "raymask" and s["raymask"]["inset_deg"] == 10 and s["raymask"]["silhouettes"] is False
+    assert s["backend"] == "raymask" and s["raymask"]["inset_deg"] == 10 and s["raymask"]["silhouettes"] is False
     assert s["raymask"]["rays"] == s["raymask"]["fill_rays"] + s["raymask"]["ring_rays"]   # none per pixel
     assert 0 < s["raymask"]["rays"] < 320 * 180 * 2 and s["render_ms"] > 0
     assert out.stat().st_size > 1000
-    assert cli_main(["render", "--mode", "raymask", "--inset-deg", "31", "--out", str(out)]) == 2
-    assert cli_main(["render", "--mode", "raymask", "--foveate", "--out", str(out)]) == 2
+    assert cli_main(["render", "--backend", "raymask", "--inset-deg", "31", "--out", str(out)]) == 2
+    assert cli_main(["render", "--backend", "raymask", "--foveate", "--out", str(out)]) == 2
     assert "does not take --foveate" in capsys.readouterr().err

@@ -18,7 +18,7 @@ interleaved with the others, and a picture per viewpoint shows the layers.
 ``--max-level N`` (1..8, default 5) sets the finest level; above 5 the
 scene's mesh is :class:`headplod.plod.lazy_mesh.LazyAdaptiveMesh`, one
 piece cache shared by every run (``--cache-mb`` bounds it together).
-``--mode raymask`` is refused with the lazy mesh (exit 2); at level 8 the
+``--backend raymask`` is refused with the lazy mesh (exit 2); at level 8 the
 ``full`` runs (134 M triangles) are skipped with a warning, as with
 ``--no-full``, and ``--mode full`` is refused.
 
@@ -41,8 +41,9 @@ from ..argtypes import frame_count
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..progress import Progress
 from ..render import TerrainRenderer, create_context
-from ..render.still import (FULL_MAX_LEVEL, RENDER_MODES, add_mesh_arguments, mesh_options,
-                            mesh_options_problem, mesh_stats)
+from ..plod.select import MODES
+from ..render.frame import capability_table, options_problem
+from ..render.still import FULL_MAX_LEVEL, add_mesh_arguments, mesh_options, mesh_options_problem, mesh_stats
 from . import loop as lp
 from .keys import key_help
 from .poses import make_poses
@@ -105,7 +106,10 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     src.add_argument("--growth", type=float, default=lp.GROWTH_DEG2_PER_S, metavar="DEG2_PER_S",
                      help=f"covariance growth while tracking is lost, deg²/s (default {lp.GROWTH_DEG2_PER_S:g})")
     view = parser.add_argument_group("view")
-    view.add_argument("--mode", default="csf", choices=RENDER_MODES,
+    view.add_argument("--backend", default="mesh", choices=lp.DEMO_BACKENDS,
+                      help="what draws the frames (default mesh; raymask: Murphy & Duchowski's rays, no levels); "
+                           "what each supports is in the table below")
+    view.add_argument("--mode", default="csf", choices=MODES,
                       help="LOD criterion (window: the initial one; headless: the one compared with full)")
     view.add_argument("--uncertainty", default="adaptive", choices=lp.SCENARIOS,
                       help="uncertainty scenario (window: initial; default adaptive)")
@@ -131,6 +135,8 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     head.add_argument("--scenarios", type=_names(lp.SCENARIOS), default=list(lp.SCENARIOS),
                       help="comma-separated uncertainty scenarios to run with --mode (default all four)")
     head.add_argument("--no-full", action="store_true", help="skip the 'full' runs (no frame-rate ratio)")
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = "what each back end supports:\n" + capability_table()
     return parser
 
 
@@ -202,10 +208,11 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
             tee = lp.TeePoses(make_poses(args, screen=screen, frames=args.frames), len(plan))
             demos, written = [], []
             for k, (vp, mode, scenario, foveate) in enumerate(plan):
+                backend = getattr(args, "backend", "mesh") if mode == args.mode else "mesh"
                 demos.append(lp.DemoLoop(scene, tee.consumer(k), renderers[k], mode=mode, uncertainty=scenario,
                                          viewpoint=vp, view_mode="shaded", hud=True,
                                          saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth,
-                                         foveate=foveate))
+                                         foveate=foveate, backend=backend))
                 written.append([])
             try:
                 for k, result in _interleaved(demos, args.frames):
@@ -367,10 +374,10 @@ def run_demo(args) -> int:
     if args.frames < 1:
         print("headplod demo: --frames must be at least 1", file=sys.stderr)
         return 2
-    if args.mode == "raymask" and args.foveate:
-        print("headplod demo: --mode raymask draws its own falling resolution; drop --foveate", file=sys.stderr)
-        return 2
-    problem = mesh_options_problem(args, (args.mode,))
+    backend = getattr(args, "backend", "mesh")
+    problem = options_problem(backend, mode=args.mode, uncertainty=args.uncertainty, view_mode=args.view,
+                              foveate=args.foveate)
+    problem = problem or mesh_options_problem(args, ("raymask",) if backend == "raymask" else (args.mode,))
     if problem:
         print(f"headplod demo: {problem}", file=sys.stderr)
         return 2

@@ -27,10 +27,12 @@ Per frame
    (seen from the eye) the previous levels are kept — no re-selection, the
    frame is still rendered with the current head-coupled projection (they
    skipped rendering; keeping the image head-coupled costs nothing extra
-   here). Head tremor is handled in the selector, whose One Euro filters on
-   the eye and POI and hysteresis on the levels keep small motions from
-   switching levels (:meth:`headplod.plod.select.LevelSelector._smoothed_view`).
-4. Levels → :meth:`AdaptiveMesh.update_indices` (only base triangles whose
+   here). Head tremor is handled by the view conditioning, whose One Euro
+   filters on the eye and POI, and the selector's hysteresis on the levels,
+   keep small motions from switching levels (:mod:`headplod.plod.view`).
+4. The frame itself is the one frame step, :class:`headplod.render.frame.FrameStep`,
+   the same that ``headplod render`` and the benchmarks run: levels →
+   :meth:`AdaptiveMesh.update_indices` (only base triangles whose
    case changed are rebuilt, as indices into the mesh's vertex table, which
    is uploaded once) → upload of the indices, skipped when the mesh did not
    change → off-axis indexed render → HUD.
@@ -39,8 +41,8 @@ Per frame
    above 5, or ``--lazy``) there is no whole table: a frame whose cases
    changed gets a new compact table (the pieces it draws, from the shared
    piece cache) and indices into it, both uploaded; a frame whose cases did
-   not change uploads nothing. ``raymask`` (rays against the whole ``full``
-   mesh) is not offered with it, nor ``full`` above
+   not change uploads nothing. The ``raymask`` back end (rays against the
+   whole ``full`` mesh) is not offered with it, nor ``full`` above
    :data:`headplod.render.still.FULL_MAX_LEVEL`.
 """
 from __future__ import annotations
@@ -61,27 +63,27 @@ from calib import DEFAULT_SCREEN
 
 from .. import io
 from ..capture import open_source
-from ..plod.select import UNCERTAINTY_MODES, View
+from ..plod.select import MODES, UNCERTAINTY_MODES, SelectorConfig
+from ..plod.view import View, poi_direction
 from ..render import TerrainRenderer, create_context, off_axis_projection
 from ..plod.raymask import RayMaskConfig
-from ..render.foveate import FoveatedRenderer, FoveationConfig, LayerAnchor, layer_plan
-from ..render.gl import VIEW_MODES as _GL_VIEW_MODES
-from ..render.still import RENDER_MODES, full_fits, px_per_deg_at, default_head, uses_table
+from ..render.foveate import FoveatedRenderer, FoveationConfig, LayerAnchor
+from ..render.frame import FAR_MM, NEAR_MM, VIEW_MODES, FrameStep, MeshBackend, RayMaskBackend, px_per_deg_at
+from ..render.still import full_fits, default_head, uses_table
 from . import viewpoints as vps
 from .hud import HudInfo, draw_hud, draw_picture_overlay
 
 #: Uncertainty scenarios: the paper's three (none, fixed, adaptive) and smoothed.
 SCENARIOS = tuple(UNCERTAINTY_MODES)
-#: Views of the terrain: the renderer's (:data:`headplod.render.gl.VIEW_MODES`).
-VIEW_MODES = tuple(_GL_VIEW_MODES)
-#: Ohshima et al.: above this POI speed the eye is in a saccade and sees no detail.
-SACCADE_DEG_S = 180.0
+#: Ohshima et al.: above this POI speed the eye is in a saccade and sees no detail (the view
+#: conditioning's ``SelectorConfig.saccade_hold_deg_s``).
+SACCADE_DEG_S = SelectorConfig.saccade_hold_deg_s
+#: The demo's back ends (:data:`headplod.render.frame.CAPABILITIES`).
+DEMO_BACKENDS = ("mesh", "raymask")
 #: Growth of the covariance's diagonal while tracking is lost, deg²/s (σ reaches 2° after 1 s).
 GROWTH_DEG2_PER_S = 4.0
 #: Cap of each diagonal term of a grown covariance, deg² (σ 20°).
 MAX_HELD_VAR_DEG2 = 400.0
-#: Clip planes of the head-coupled projection, mm from the eye along the screen normal.
-NEAR_MM, FAR_MM = 50.0, 5000.0
 #: Stage names of a frame, in order.
 STAGES = ("pose", "select", "build", "upload", "render", "readback", "hud")
 
@@ -562,12 +564,6 @@ class PoseHold:
                     lost_s=lost_s)
 
 
-def poi_direction(screen, eye_mm, poi_px) -> np.ndarray:
-    """Unit vector (3,) from the eye to the POI on the screen, world frame."""
-    d = screen.pixel_to_world(np.asarray(poi_px, dtype=np.float64)) - np.asarray(eye_mm, dtype=np.float64)
-    return d / np.linalg.norm(d)
-
-
 # --------------------------------------------------------------------------
 # the loop
 # --------------------------------------------------------------------------
@@ -584,8 +580,8 @@ class FrameResult:
         Pose time, s.
     image : (H, W, 3) uint8
         RGB, row 0 at the top; with the HUD when it is on.
-    levels : (F,) int64
-        Level per base triangle.
+    levels : (F,) int64 or None
+        Level per base triangle (None for the raymask back end).
     triangles : int
     stage_ms : dict
         Wall time per stage (``STAGES``), ms.
@@ -603,6 +599,8 @@ class FrameResult:
     lazy_stats : dict or None
         A lazy mesh's build of the frame: ``rebuilt_faces``, ``generated_pieces``, ``vertices`` (None for
         the whole-table mesh).
+    view : headplod.plod.view.ConditionedView
+        The conditioned view the frame was made for.
     """
 
     index: int
@@ -617,6 +615,7 @@ class FrameResult:
     poi_speed_deg_s: float
     cache_bytes: int | None = None
     lazy_stats: dict | None = None
+    view: object = None
 
     @property
     def tracking_lost(self) -> str | None:
@@ -664,6 +663,10 @@ class RunStats:
 class DemoLoop:
     """The viewer without a window: one :meth:`step` per frame.
 
+    Each frame is the one frame step (:class:`headplod.render.frame.FrameStep`)
+    of the current (viewpoint, back end, mode, scenario), around a pose
+    source, the held pose of a lost tracker, and the HUD.
+
     Parameters
     ----------
     scene : headplod.render.still.TerrainScene
@@ -677,22 +680,22 @@ class DemoLoop:
         when its selection changed).
     size : (2,) int
         Image size (width, height), px, when the renderer is made here.
-    mode, uncertainty, viewpoint, view_mode : str
-        Initial settings (``DEMO_MODES`` or any of ``render.still.RENDER_MODES``: ``raymask`` too,
-        ``SCENARIOS``, ``viewpoints.VIEWPOINTS``, ``VIEW_MODES``).
+    mode, uncertainty, viewpoint, view_mode, backend : str
+        Initial settings (:data:`headplod.plod.select.MODES`, ``SCENARIOS``,
+        ``viewpoints.VIEWPOINTS``, ``VIEW_MODES``, :data:`DEMO_BACKENDS`).
     hud : bool
         Draw the heads-up display.
     saccade_deg_s : float
-        POI speed above which the previous levels are kept.
+        POI speed above which the previous levels are kept, deg/s.
     growth_deg2_per_s : float
         Covariance growth while tracking is lost (:class:`PoseHold`).
     selector_options : dict, optional
-        Passed to every :class:`LevelSelector`.
+        Other :class:`SelectorConfig` fields for every frame step.
     foveate : bool
         Draw the frame as foveated resolution layers (:mod:`headplod.render.foveate`)
-        centred on the selector's filtered POI, widened by the scenario's
-        covariance, both held by a :class:`LayerAnchor` (a still head: a
-        still frame). The renderer must have ``samples=0``.
+        centred on the conditioned POI, widened by the scenario's covariance,
+        both held by a :class:`LayerAnchor` (a still head: a still frame). The
+        renderer must have ``samples=0``.
     foveation : FoveationConfig, optional
         The layers' settings (default ``FoveationConfig()``).
     """
@@ -700,7 +703,7 @@ class DemoLoop:
     def __init__(self, scene, poses: PoseSource, renderer=None, *, size=(1280, 720), mode="csf",
                  uncertainty="adaptive", viewpoint="overview", view_mode="shaded", hud=True,
                  saccade_deg_s=SACCADE_DEG_S, growth_deg2_per_s=GROWTH_DEG2_PER_S, selector_options=None,
-                 foveate=False, foveation: FoveationConfig | None = None):
+                 foveate=False, foveation: FoveationConfig | None = None, backend: str = "mesh"):
         # Its own build state over the scene's shared tables: loops run side by side (the
         # headless demo interleaves them) each rebuild only what their own selection changes.
         self.base_scene = dataclasses.replace(scene, mesh=scene.mesh.share())
@@ -717,46 +720,48 @@ class DemoLoop:
         self.foveation = foveation or FoveationConfig()
         self.foveated = FoveatedRenderer(renderer, self.foveation) if foveate else None
         self.anchor = LayerAnchor()
-        self._fovea_view = None            # (filtered POI screen px, covariance deg² or None) of the levels
         # The lazy mesh keeps no whole full mesh for raymask's rays, and full above FULL_MAX_LEVEL does not fit.
         mesh = scene.mesh
-        self._modes = tuple(m for m in RENDER_MODES if not (m == "raymask" and not uses_table(mesh))
-                            and not (m == "full" and not full_fits(mesh)))
-        self.raymask = RayMaskConfig()      # the settings of mode "raymask"
+        self._modes = tuple(m for m in MODES if not (m == "full" and not full_fits(mesh)))
+        self._backends = tuple(b for b in DEMO_BACKENDS if not (b == "raymask" and not uses_table(mesh)))
+        self.raymask = RayMaskConfig()      # the settings of the raymask back end
         self._raymask_renderer = None
         self.settings = {}
+        self.set("backend", backend)
         self.set("mode", mode)
         self.set("uncertainty", uncertainty)
         self.set("viewpoint", viewpoint)
         self.set("view_mode", view_mode)
         self.hud = bool(hud)
-        self.saccade_deg_s = float(saccade_deg_s)
         centre = np.array(self.screen.size_px, dtype=np.float64) / 2
         self.hold = PoseHold(default_head(self.screen), centre, growth_deg2_per_s)
-        self.selector_options = dict(selector_options or {})
+        self.selector_options = {"saccade_hold_deg_s": float(saccade_deg_s), **dict(selector_options or {})}
         self.stats = RunStats()
         self.index = 0
         self.last: FrameResult | None = None
-        self._selectors: dict = {}
+        self._steps: dict = {}
         self._scenes: dict = {}
         self._active = None
-        self._levels = None
-        self._previous_poi = None          # (t, unit direction from the eye)
-        self._uploaded = None
         self._frame_times = deque(maxlen=30)
+
+    @property
+    def saccade_deg_s(self) -> float:
+        return self.selector_options["saccade_hold_deg_s"]
 
     # -- settings ---------------------------------------------------------------
 
     def set(self, key: str, value) -> None:
-        """Change a setting: ``mode``, ``uncertainty``, ``viewpoint``, ``view_mode`` or ``hud``."""
-        allowed = {"mode": self._modes, "uncertainty": SCENARIOS, "viewpoint": tuple(vps.VIEWPOINTS),
-                   "view_mode": VIEW_MODES}
+        """Change a setting: ``backend``, ``mode``, ``uncertainty``, ``viewpoint``, ``view_mode`` or ``hud``."""
+        allowed = {"backend": self._backends, "mode": self._modes, "uncertainty": SCENARIOS,
+                   "viewpoint": tuple(vps.VIEWPOINTS), "view_mode": VIEW_MODES}
         if key == "hud":
             self.hud = bool(value)
             return
         if key not in allowed:
             raise ValueError(f"unknown setting {key!r}; expected one of {sorted(allowed) + ['hud']}")
         if value not in allowed[key]:
+            if key == "mode" and value == "raymask":
+                raise ValueError("raymask is a back end, not a mode: set backend to 'raymask'")
             raise ValueError(f"{key} must be one of {allowed[key]}, got {value!r}")
         self.settings[key] = value
 
@@ -786,20 +791,38 @@ class DemoLoop:
             self._scenes[name] = vps.place(self.base_scene, name)
         return self._scenes[name]
 
-    def selector(self):
-        """The level selector of the current (viewpoint, mode, uncertainty), made once and cached."""
-        key = (self.settings["viewpoint"], self.settings["mode"], self.settings["uncertainty"])
-        sel = self._selectors.get(key)
-        if sel is None:
-            # raymask selects no levels: the csf selector gives it the filtered POI and the scenario's covariance.
-            criterion = "csf" if key[1] == "raymask" else key[1]
-            sel = self._selectors[key] = self.scene.selector(criterion, key[2], **self.selector_options)
+    def frame_step(self) -> FrameStep:
+        """The frame step of the current (viewpoint, back end, mode, scenario), made once and cached."""
+        s = self.settings
+        key = (s["viewpoint"], s["backend"], s["mode"], s["uncertainty"])
+        step = self._steps.get(key)
+        if step is None:
+            scene = self.scene
+            config = SelectorConfig(mode=s["mode"], uncertainty=s["uncertainty"], **self.selector_options)
+            if s["backend"] == "raymask":
+                backend = RayMaskBackend(self._raymask(), self.screen, self.raymask)
+            else:
+                backend = MeshBackend(scene.mesh, scene.selector(s["mode"], s["uncertainty"], config), self.renderer,
+                                      self.screen, foveated=self.foveated, anchor=self.anchor,
+                                      foveation=self.foveation)
+            step = self._steps[key] = FrameStep(backend, self.screen, config)
         if key != self._active:
-            sel.reset()                      # stale smoothing and hysteresis from its last use
+            step.reset()                     # stale smoothing, hysteresis, layers and levels from its last use
             self._active = key
-            self._levels = None              # a new criterion selects at once, saccade or not
-            self.anchor.reset()
-        return sel
+        return step
+
+    def selector(self):
+        """The level selector of the current settings (None for the raymask back end)."""
+        return getattr(self.frame_step().backend, "selector", None)
+
+    def _raymask(self):
+        """The loop's ray-mask renderer, made when first asked for (its shaders compile then)."""
+        if self._raymask_renderer is None:
+            from ..render.raymask import RayMaskRenderer
+
+            self._raymask_renderer = RayMaskRenderer(self.renderer.ctx, self.base_scene.mesh,
+                                                     size=tuple(self.renderer.size))
+        return self._raymask_renderer
 
     # -- one frame ----------------------------------------------------------------
 
@@ -811,58 +834,13 @@ class DemoLoop:
             return None
         pose = self.hold(raw)
         t1 = time.perf_counter()
-        selector = self.selector()
-        direction = poi_direction(self.screen, pose.eye_mm, pose.poi_px)
-        speed = 0.0
-        if self._previous_poi is not None and pose.t > self._previous_poi[0]:
-            cos = float(np.clip(direction @ self._previous_poi[1], -1.0, 1.0))
-            speed = math.degrees(math.acos(cos)) / (pose.t - self._previous_poi[0])
-        self._previous_poi = (pose.t, direction)
-        skipped = self._levels is not None and speed > self.saccade_deg_s
-        if not skipped:
-            self._levels, info = selector.select(View(pose.eye_mm, pose.poi_px, pose.cov_deg2, pose.t))
-            # The layers follow the POI the levels were chosen for (filtered), not the raw one.
-            self._fovea_view = (info.get("poi_px", pose.poi_px), info.get("cov_deg2", pose.cov_deg2))
-        t2 = time.perf_counter()
-        scene = self.scene
-        if self.settings["mode"] == "raymask":
-            image, stage, triangles = self._render_raymask(pose, scene)
-            stage = {"pose": (t1 - t0) * 1e3, "select": (t2 - t1) * 1e3 + stage["mask"], "build": 0.0,
-                     "upload": 0.0, "render": stage["render"], "readback": 0.0, "hud": 0.0}
-            return self._finish(FrameResult(self.index, pose.t, image, self._levels, triangles, stage,
-                                            (time.perf_counter() - t0) * 1e3, pose, bool(skipped), float(speed)),
-                                t0)
-        mesh = scene.mesh
-        indices, tri_levels = mesh.update_indices(self._levels)
-        t3 = time.perf_counter()
-        new_table = self.renderer.tag is not mesh.vertex_positions
-        if new_table:                                          # the vertex table, once per renderer
-            self.renderer.upload(mesh.vertex_positions, mesh.vertex_normals, tri_levels, indices,
-                                 tag=mesh.vertex_positions)
-        if self.foveated is not None and (new_table or self._uploaded is not indices):
-            self.foveated.set_mesh(indices, tri_levels, mesh.face_per_triangle(), (mesh.corners, mesh.z_range))
-        elif not new_table and self._uploaded is not indices:  # a new selection: only its indices and levels move
-            self.renderer.set_indices(indices, tri_levels)
-        self._uploaded = indices
-        t4 = time.perf_counter()
-        view, proj = off_axis_projection(pose.eye_mm, self.screen, NEAR_MM, FAR_MM)
-        if self.foveated is not None:
-            image = self._render_foveated(view, proj, scene.model, pose)
-            renderer = self.foveated
-        else:
-            image = self.renderer.render(view, proj, scene.model, view_mode=self.settings["view_mode"])
-            renderer = self.renderer
-        t5 = time.perf_counter()
-        stage = {"pose": (t1 - t0) * 1e3, "select": (t2 - t1) * 1e3, "build": (t3 - t2) * 1e3,
-                 "upload": (t4 - t3) * 1e3, "render": renderer.last_render_ms,
-                 "readback": renderer.last_readback_ms, "hud": 0.0}
-        if self.foveated is not None:            # the layers' face spans and index re-sort
-            stage["upload"] += self.foveated.last_sort_ms
-        result = FrameResult(self.index, pose.t, image, self._levels, int(len(tri_levels)), stage,
-                             (t5 - t0) * 1e3, pose, bool(skipped), float(speed),
-                             None if uses_table(mesh) else int(mesh.cache_bytes),
-                             None if uses_table(mesh) else {k: int(mesh.stats.get(k, 0)) for k in
-                                                            ("rebuilt_faces", "generated_pieces", "vertices")})
+        out = self.frame_step()(View(pose.eye_mm, pose.poi_px, pose.cov_deg2, pose.t), self.scene.model,
+                                self.settings["view_mode"])
+        lazy = out.details.get("lazy")
+        result = FrameResult(self.index, pose.t, out.image, out.levels, out.triangles,
+                             {"pose": (t1 - t0) * 1e3, **out.stage_ms, "hud": 0.0},
+                             (time.perf_counter() - t0) * 1e3, pose, out.held, out.view.poi_speed_deg_s,
+                             out.details.get("cache_bytes"), lazy, view=out.view)
         return self._finish(result, t0)
 
     def _finish(self, result: FrameResult, t0: float) -> FrameResult:
@@ -880,33 +858,6 @@ class DemoLoop:
         self.last = result
         return result
 
-    def _render_raymask(self, pose, scene):
-        """Mode ``raymask``: Murphy & Duchowski's hybrid frame about the filtered POI, widened by the scenario's
-        covariance; (image (H, W, 3) uint8, {"mask", "render"} ms, triangles rasterised)."""
-        from ..render.raymask import RayMaskRenderer        # its shaders are compiled only when asked for
-
-        w, h = self.renderer.size
-        if self._raymask_renderer is None:
-            self._raymask_renderer = RayMaskRenderer(self.renderer.ctx, self.base_scene.mesh, size=(w, h))
-        rr = self._raymask_renderer
-        poi, cov = self._fovea_view if self._fovea_view is not None else (pose.poi_px, pose.cov_deg2)
-        view, proj = off_axis_projection(pose.eye_mm, self.screen, NEAR_MM, FAR_MM)
-        mask = rr.mask(self.screen, pose.eye_mm, np.asarray(poi, dtype=np.float64),
-                       px_per_deg_at(self.screen, pose.eye_mm, (w, h)), cov, self.raymask)
-        image = rr.render(mask, view, proj, scene.model, self.raymask)
-        return image, {"mask": rr.last_mask_ms, "render": rr.last_stats["render_ms"]}, 2 * rr.last_stats["drawn_quads"]
-
-    def _render_foveated(self, view, proj, model, pose) -> np.ndarray:
-        """The foveated frame, its layers about the held filtered POI (image px) and widened by the held covariance."""
-        w, h = self.renderer.size
-        scale = np.array([w, h], dtype=np.float64) / np.array(self.screen.size_px, dtype=np.float64)
-        poi_screen, cov = self._fovea_view if self._fovea_view is not None else (pose.poi_px, pose.cov_deg2)
-        ppd = px_per_deg_at(self.screen, pose.eye_mm, (w, h))
-        poi, layers = self.anchor.update(np.asarray(poi_screen, dtype=np.float64) * scale,
-                                         layer_plan(ppd, cov, self.foveation), ppd)
-        return self.foveated.render(view, proj, model, poi, ppd, cov, view_mode=self.settings["view_mode"],
-                                    layers=layers)
-
     def hud_info(self, result: FrameResult):
         """The HUD's content for a frame."""
         w, h = self.renderer.size
@@ -915,7 +866,8 @@ class DemoLoop:
         fps = 1e3 / float(np.mean(self._frame_times)) if self._frame_times else 1e3 / result.frame_ms
         return HudInfo(fps=fps, stage_ms=dict(result.stage_ms), frame_ms=result.frame_ms,
                        triangles=result.triangles,
-                       mode=self.settings["mode"] + (" +foveate" if self.foveated is not None else ""),
+                       mode=("raymask" if self.settings["backend"] == "raymask" else self.settings["mode"])
+                       + (" +foveate" if self.foveated is not None else ""),
                        uncertainty=self.settings["uncertainty"], viewpoint=self.settings["viewpoint"],
                        view_mode=self.settings["view_mode"], source=self.poses.name,
                        poi_image_px=pose.poi_px * scale, cov_deg2=pose.cov_deg2,

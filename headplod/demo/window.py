@@ -73,7 +73,7 @@ def make_window_class():
             self.loop = DemoLoop(scene, self.poses, TerrainRenderer(self.ctx, size=size), mode=args.mode,
                                  uncertainty=args.uncertainty, viewpoint=args.viewpoint, view_mode=args.view,
                                  saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth,
-                                 foveate=getattr(args, "foveate", False))
+                                 foveate=getattr(args, "foveate", False), backend=getattr(args, "backend", "mesh"))
             self.texture = self.ctx.texture(size, 3)
             self.program = self.ctx.program(vertex_shader=FULLSCREEN_VERTEX_SHADER, fragment_shader=_FRAGMENT)
             self.quad = self.ctx.vertex_array(self.program, [])

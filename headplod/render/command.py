@@ -1,6 +1,7 @@
 """``headplod render``: its arguments (:func:`add_render_arguments`) and its run (:func:`run_render`).
 
-    headplod render --mode MODE|raymask [--inset-deg D] [--no-silhouettes] [--uncertainty U] [--head X,Y,Z] [--poi X,Y] [--cov PP,PT,TT]
+    headplod render [--backend mesh|tessellation|raymask] [--mode MODE] [--uncertainty U]
+                    [--head X,Y,Z] [--poi X,Y] [--cov PP,PT,TT] [--inset-deg D] [--no-silhouettes]
                     [--size W,H] [--view shaded|wire|levels] --out IMAGE.png [--stats STATS.json]
                     [--export MESH.glb|.ply|.obj|.stl]
                     [--terrain DEM.tif|HEIGHTS.png|HEIGHTS.npy [--spacing-m D|DX,DY] [--height-scale S]]
@@ -25,18 +26,19 @@ from ..plod.export import check_export_path
 from ..argtypes import floats
 from ..plod.raymask import RayMaskConfig
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
-from ..plod.select import UNCERTAINTY_MODES
-from .gl import VIEW_MODES
-from .still import (CONTRAST_SOURCES, RENDER_MODES, MeshOptions, add_mesh_arguments, mesh_options,
-                    mesh_options_problem, render_still)
+from ..plod.select import MODES, UNCERTAINTY_MODES
+from .frame import BACKENDS, VIEW_MODES, capability_table, options_problem
+from .still import (CONTRAST_SOURCES, MeshOptions, add_mesh_arguments, mesh_options, mesh_options_problem,
+                    render_still, scene_model)
 
 __all__ = ["add_render_arguments", "run_render"]
 
 
 def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add ``render``'s options to a (sub)parser; returns it."""
-    render.add_argument("--mode", default="csf", choices=RENDER_MODES,
-                        help="a level-selection mode, or raymask: Murphy & Duchowski's rays through a CSF ray mask")
+    render.add_argument("--backend", choices=BACKENDS, default="mesh",
+                        help="what draws the frame (default mesh); what each supports is in the table below")
+    render.add_argument("--mode", default="csf", choices=MODES, help="level-selection mode (default csf)")
     render.add_argument("--uncertainty", default="adaptive", choices=UNCERTAINTY_MODES)
     render.add_argument("--head", type=floats(3), help="eye position X,Y,Z in the world frame, mm "
                                                          "(default: 600 mm in front of the screen centre)")
@@ -57,10 +59,6 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     render.add_argument("--no-silhouettes", action="store_true",
                         help="raymask: rasterise the quads that straddle a silhouette instead of casting "
                              "every pixel in them")
-    render.add_argument("--backend", choices=("mesh", "tessellation"), default="mesh",
-                        help="mesh: levels selected on the CPU, an adaptive mesh (default); tessellation: the "
-                             "built-in terrain as a height texture, per-patch CSF levels in the tessellation "
-                             "control shader (GL 4.3; --mode csf or full, shaded view only)")
     render.add_argument("--grid-samples", type=int, default=1025,
                         help="tessellation: samples per side of the terrain's height grid (the built-in one or "
                              "--terrain's, resampled), 1 + a multiple of 64 (default 1025: 2M triangles at full "
@@ -74,7 +72,9 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
                                                          "scene metres, faces coloured by level)")
     add_terrain_arguments(render)
-    add_mesh_arguments(render.add_argument_group("mesh (backend mesh)"))
+    add_mesh_arguments(render.add_argument_group("mesh (backends mesh and raymask)"))
+    render.formatter_class = argparse.RawDescriptionHelpFormatter
+    render.epilog = "what each back end supports:\n" + capability_table()
     return render
 
 
@@ -112,6 +112,12 @@ def run_render(args) -> int:
         except ValueError as exc:
             print(f"headplod: --export {exc}", file=sys.stderr)
             return 2
+    problem = options_problem(args.backend, mode=args.mode, uncertainty=args.uncertainty, view_mode=args.view,
+                              foveate=args.foveate, contrast=args.contrast, export=args.export is not None,
+                              terrain=args.terrain is not None)
+    if problem:
+        print(f"headplod: {problem}", file=sys.stderr)
+        return 2
     if args.backend == "tessellation":
         given = [name for name, on in (("--max-level", args.max_level is not None), ("--lazy", args.lazy),
                                        ("--cache-mb", args.cache_mb is not None)) if on]
@@ -120,18 +126,12 @@ def run_render(args) -> int:
                   "--grid-samples)", file=sys.stderr)
             return 2
         return _run_tessellation(args, screen, cov, size)
-    problem = mesh_options_problem(args, (args.mode,))
+    problem = mesh_options_problem(args, ("raymask",) if args.backend == "raymask" else (args.mode,))
     if problem:
         print(f"headplod: {problem}", file=sys.stderr)
         return 2
     raymask = None
-    if args.mode == "raymask":
-        bad = [name for name, on in (("--foveate", args.foveate), ("--export", args.export is not None),
-                                     ("--contrast readback", args.contrast != "shading"),
-                                     (f"--view {args.view}", args.view != "shaded")) if on]
-        if bad:
-            print(f"headplod: --mode raymask does not take {', '.join(bad)}", file=sys.stderr)
-            return 2
+    if args.backend == "raymask":
         try:
             raymask = RayMaskConfig(inset_deg=args.inset_deg, silhouettes=not args.no_silhouettes)
         except ValueError as exc:
@@ -154,7 +154,7 @@ def run_render(args) -> int:
         _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
                                 poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
                                 stats_path=args.stats, contrast=args.contrast, export=args.export,
-                                foveate=args.foveate, raymask=raymask, scene=scene)
+                                foveate=args.foveate, raymask=raymask, scene=scene, backend=args.backend)
     except OSError as exc:           # a folder that cannot be written: nothing half-written is left
         print(f"headplod: could not write the output: {exc.strerror or exc} ({exc.filename or args.out})",
               file=sys.stderr)
@@ -179,17 +179,9 @@ def _run_tessellation(args, screen, cov, size) -> int:
     """``headplod render --backend tessellation``: one frame of :mod:`headplod.render.tessellate`."""
     from ..plod.patches import PatchGrid, height_grid, jacksboro_grid, patch_samples_for
     from .context import create_context
-    from .still import write_outputs
-    from .tessellate import TESS_MODES, TessellationConfig, TessellationRenderer, grid_model, render_frame
+    from .still import fit_scale
+    from .tessellate import TessellationConfig, TessellationRenderer
 
-    bad = [name for name, on in (("--foveate", args.foveate), ("--export", args.export is not None),
-                                 ("--contrast readback", args.contrast != "shading"),
-                                 (f"--view {args.view}", args.view != "shaded"),
-                                 (f"--mode {args.mode}", args.mode not in TESS_MODES)) if on]
-    if bad:
-        print(f"headplod: --backend tessellation does not take {', '.join(bad)} (modes: {', '.join(TESS_MODES)})",
-              file=sys.stderr)
-        return 2
     config = TessellationConfig()
     if getattr(args, "selection", None) is not None:
         config = replace(config, hierarchy=args.selection == "tree")
@@ -214,15 +206,20 @@ def _run_tessellation(args, screen, cov, size) -> int:
         z, dx, dy = height_grid(terrain, n)
         origin = (terrain.extent[0], terrain.extent[2])
     grid = PatchGrid.build(z, dx, dy, config.patch_samples, origin_m=origin)
+    # Placed as the mesh back end places the same terrain (a --terrain file framed by its fit).
+    if terrain is None:
+        model = scene_model(grid.extent, float(np.median(z[::8, ::8])), screen)
+    else:
+        model = scene_model(grid.extent, float(np.median(terrain.dem_z_m)), screen, fit_scale(terrain))
     with TessellationRenderer(create_context(require=430), grid, size=size, config=config) as renderer:
-        image, stats = render_frame(renderer, screen, grid_model(grid, screen), args.head, args.poi, cov,
-                                    mode=args.mode)
-    try:                             # each file whole or not at all, as the mesh back end's
-        write_outputs(image, {**stats, "grid_samples": n, "patch_samples": config.patch_samples, "size": list(size)},
-                       args.out, args.stats)
-    except (OSError, ValueError) as exc:
-        print(f"headplod: could not write the output: {getattr(exc, 'strerror', None) or exc}", file=sys.stderr)
-        return 1
+        try:                         # each file whole or not at all, as the mesh back end's
+            _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
+                                    poi_px=args.poi, cov_deg2=cov, size=size, out=args.out, stats_path=args.stats,
+                                    backend="tessellation", renderer=renderer, model=model,
+                                    details={"grid_samples": n, "patch_samples": config.patch_samples})
+        except (OSError, ValueError) as exc:
+            print(f"headplod: could not write the output: {getattr(exc, 'strerror', None) or exc}", file=sys.stderr)
+            return 1
     print(f"{stats['triangles']} triangles ({grid.full_triangles} at full detail); select {stats['select_ms']:.1f} ms, "
           f"render {stats['render_ms']:.1f} ms; image: {args.out}", file=sys.stderr)
     return 0

@@ -363,7 +363,7 @@ class TerrainRenderer:
                          f"or {n_vertices} (per vertex)")
 
     def upload(self, positions: Any, normals: Any, levels: Any = None, indices: Any = None, *,
-               tag: Any = None) -> None:
+               tag: Any = None, height_range: Any = None) -> None:
         """Replace the mesh.
 
         Parameters
@@ -384,6 +384,10 @@ class TerrainRenderer:
             Kept as :attr:`tag`: lets callers sharing the renderer tell
             whether the vertices on the GPU are still theirs (e.g. a mesh's
             vertex table, uploaded once for :meth:`set_indices`).
+        height_range : (2,) float, optional
+            Scene z of the low and high terrain colours. Give the terrain's
+            own range so a height keeps its colour whichever vertices a frame
+            uploads; default: the range of ``positions``.
 
         Raises
         ------
@@ -417,7 +421,10 @@ class TerrainRenderer:
             for mode, prog in self.programs.items():
                 self._vaos[mode, False] = self.ctx.vertex_array(
                     prog, [(b["position"], "3f", "in_position"), (b["normal"], "3f", "in_normal")])
-        if n:
+        if height_range is not None:
+            lo, hi = (float(v) for v in height_range)
+            self.height_range = (lo, hi if hi > lo else lo + 1.0)
+        elif n:
             z = pos[:, 2]
             lo, hi = float(z.min()), float(z.max())
             self.height_range = (lo, hi if hi > lo else lo + 1.0)

@@ -1,8 +1,9 @@
-"""One PLOD frame: select levels for a view, build the mesh, render it (``headplod render``).
+"""The terrain scene (:class:`TerrainScene`) and ``headplod render``'s one frame (:func:`render_still`).
 
-The terrain scene (:class:`TerrainScene`) and the one-frame renderer sit here,
-on top of ``headplod.plod`` (selection and meshes, pure numpy) and
-:mod:`headplod.render.gl` (GL).
+The frame itself is made by the one frame step, :mod:`headplod.render.frame`,
+as the demo and the benchmarks make theirs; here are the scene it draws (the
+terrain, its meshes and where it sits behind the screen), the mesh options of
+the command lines and the one-frame outputs.
 """
 from __future__ import annotations
 
@@ -22,13 +23,15 @@ from ..plod.export import check_export_path, export_mesh
 from ..plod.lazy_mesh import DEFAULT_CACHE_BYTES, LazyAdaptiveMesh
 from ..plod.mesh import AdaptiveMesh, BaseMesh
 from ..plod.raymask import RayMaskConfig
-from ..plod.select import MODES, LevelSelector, SelectorConfig, View
+from ..plod.select import LevelSelector, SelectorConfig
 from ..plod.terrain import Terrain
-from .foveate import FoveatedRenderer
+from ..plod.view import View
 from .context import create_context
+from .foveate import FoveatedRenderer, LayerAnchor
+from .frame import px_per_deg_at
 from .gl import TerrainRenderer
 from .overlay import overlay_poi
-from .projection import off_axis_projection, scene_to_world
+from .projection import scene_to_world
 
 # Where the terrain sits: its centre 250 mm behind the screen, 30 km shown as
 # about 600 mm, seen from above at 35° (pitch 55° from the "window" pose).
@@ -38,13 +41,6 @@ PITCH_DEG = 55.0
 #: The span the scale and the demo's viewpoints were chosen for: the built-in terrain's longer side, m.
 #: Another terrain is scaled by ``fit = FRAME_SPAN_M / its span`` (:func:`fit_scale`) to be framed alike.
 FRAME_SPAN_M = 31_700.0
-
-#: What ``render_still(mode=...)`` and ``headplod render --mode`` draw: the level-selection modes of
-#: :data:`headplod.plod.select.MODES` (a mesh per frame), and ``raymask``, Murphy & Duchowski's hybrid
-#: renderer (:mod:`headplod.render.raymask`: rays through a CSF ray mask, no level selection). ``raymask``
-#: is not a selector mode: it selects no levels, so the selectors, their config and the benches that
-#: iterate over ``MODES`` stay as they are.
-RENDER_MODES = MODES + ("raymask",)
 
 #: Finest level of the meshes (``--max-level``): 1..8 (8: 134 M triangles at full detail on the 32 x 32 base).
 MAX_LEVELS = range(1, 9)
@@ -106,10 +102,7 @@ class TerrainScene:
             mesh = LazyAdaptiveMesh(base, terrain, max_level=max_level, cache_bytes=cache_bytes)
         else:
             mesh = AdaptiveMesh(base, terrain, max_level=max_level)
-        x0, x1, y0, y1 = terrain.extent
-        centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, float(np.median(terrain.dem_z_m))])
-        model = np.asarray(scene_to_world(SCALE_MM_PER_M * fit, centre, screen, depth_mm=DEPTH_MM,
-                                          pitch_deg=PITCH_DEG).matrix, dtype=np.float64)
+        model = scene_model(terrain.extent, float(np.median(terrain.dem_z_m)), screen, fit)
         return cls(terrain, mesh, model, screen, fit)
 
     def selector(self, mode: str, uncertainty: str, config: SelectorConfig | None = None, *,
@@ -134,6 +127,19 @@ class TerrainScene:
             grid_shape = (len(np.unique(vertices[:, 1])) - 1, len(np.unique(vertices[:, 0])) - 1)
             return QuadtreeSelector(*args, corners_scene=m.corners, grid_shape=grid_shape)
         return LevelSelector(*args, corners_scene=m.corners)
+
+
+def scene_model(extent, centre_z_m: float, screen, fit: float = 1.0) -> np.ndarray:
+    """(4, 4) scene (m) → world (mm) placing a terrain behind the screen, as every back end places it.
+
+    ``extent`` (x0, x1, y0, y1) scene m; the terrain's centre at height
+    ``centre_z_m`` sits :data:`DEPTH_MM` behind the screen centre, at
+    ``SCALE_MM_PER_M * fit`` mm per m, seen from above at :data:`PITCH_DEG`.
+    """
+    x0, x1, y0, y1 = extent
+    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, float(centre_z_m)])
+    return np.asarray(scene_to_world(SCALE_MM_PER_M * fit, centre, screen, depth_mm=DEPTH_MM,
+                                     pitch_deg=PITCH_DEG).matrix, dtype=np.float64)
 
 
 def builtin_terrain_options(max_level: int) -> dict:
@@ -231,7 +237,7 @@ def mesh_options_problem(args, modes) -> str | None:
     """Why the mesh options cannot work with the ``modes`` a command will draw (one line), or None.
 
     - ``--cache-mb`` without the lazy mesh: it has no cache.
-    - ``raymask`` with the lazy mesh: it casts rays against the height field of the whole ``full`` mesh,
+    - the ``raymask`` back end with the lazy mesh: it casts rays against the height field of the whole ``full`` mesh,
       which the lazy mesh never holds (at level 8 it would be 67 M samples); use the default mesh.
     - ``full`` above :data:`FULL_MAX_LEVEL`: 134 M triangles at level 8 do not fit (~3 GB a frame).
 
@@ -247,7 +253,7 @@ def mesh_options_problem(args, modes) -> str | None:
     if getattr(args, "cache_mb", None) is not None and not lazy:
         return "--cache-mb applies to the lazy mesh only (--max-level above 5, or --lazy)"
     if "raymask" in modes and lazy:
-        return ("--mode raymask casts rays against the whole full-detail mesh, which the lazy mesh does not "
+        return ("--backend raymask casts rays against the whole full-detail mesh, which the lazy mesh does not "
                 f"keep; use --max-level {TABLE_MAX_LEVEL} or lower without --lazy")
     if "full" in modes and level > FULL_MAX_LEVEL:
         return (f"--mode full at --max-level {level} would draw {2048 * 4 ** level:,} triangles (about "
@@ -305,157 +311,134 @@ def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
 def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_px=None, cov_deg2=None,
                  size=(1280, 720), view_mode="shaded", out=None, stats_path=None, scene=None, renderer=None,
                  contrast="shading", export=None, foveate=False, raymask: RayMaskConfig | None = None,
-                 raymask_renderer=None):
-    """Render one frame and return (image (H, W, 3) uint8 RGB, stats dict).
+                 raymask_renderer=None, backend: str = "mesh", model=None, selector_options=None, details=None):
+    """Render one frame through the frame step (:class:`headplod.render.frame.FrameStep`); (image
+    (H, W, 3) uint8 RGB, stats dict).
 
-    ``mode="raymask"``: Murphy & Duchowski's hybrid renderer
-    (:mod:`headplod.render.raymask`) with the settings ``raymask``
-    (default ``RayMaskConfig()``); ``raymask_renderer`` (a
-    :class:`headplod.render.raymask.RayMaskRenderer` of this scene's mesh
-    and ``size``) is reused when given, so its height field and last ray
-    mask are not rebuilt. Only the shaded view; no ``foveate``, read-back
-    contrast or ``export`` (there is no mesh). Its stats give ``rays`` (and
-    per pass), ``triangles`` (of the intermediate mesh), ``select_ms`` (the
-    ray mask, 0 when reused for the same view), ``build_ms`` 0 and
-    ``render_ms`` (cast, classify, rasterise).
+    ``backend`` (:data:`headplod.render.frame.BACKENDS`; what each takes:
+    :data:`headplod.render.frame.CAPABILITIES`, checked here):
 
-    ``foveate``: draw the frame as foveated resolution layers around the POI
-    (:mod:`headplod.render.foveate`); the stats then give the layers and
-    ``render_ms`` is theirs, composite included.
+    - ``mesh``: ``scene`` (default: the built-in :class:`TerrainScene`) and
+      ``renderer`` (a :class:`TerrainRenderer` of ``size``; made here when None);
+    - ``tessellation``: ``renderer`` is a
+      :class:`headplod.render.tessellate.TessellationRenderer` and ``model``
+      (4, 4) its grid's scene → world mm (:func:`scene_model`);
+    - ``raymask``: Murphy & Duchowski's hybrid renderer with the settings
+      ``raymask`` (default ``RayMaskConfig()``); ``raymask_renderer`` is
+      reused when given (its height field and last masks are kept).
 
-    ``export``: also write the frame's mesh to this file (:mod:`headplod.plod.export`:
-    ``.glb``, ``.ply``, ``.obj``, ``.stl``); its ending and folder are
-    checked before anything is rendered.
-
-    ``contrast="readback"``: the paper's way (eq. 2): a first frame with the
-    shading contrast is read back, each base triangle's contrast is taken
-    from a 10x10 window of its luminance around the triangle's projected
-    centroid, and the frame is selected and rendered again with it
-    (``readback_ms`` in the stats: the read-back and the filters).
+    ``head_mm`` (3,) world mm (default :func:`default_head`), ``poi_px`` (2,)
+    screen px (default the centre), ``cov_deg2`` (2, 2) deg² or None.
+    ``foveate``: foveated resolution layers about the POI
+    (:mod:`headplod.render.foveate`). ``export``: also write the frame's mesh
+    to this file (:mod:`headplod.plod.export`), its ending and folder checked
+    first. ``contrast="readback"``: the paper's eq. 2, each base triangle's
+    contrast read from a 10x10 window of a first frame's luminance
+    (``readback_ms`` in the stats). ``selector_options``: other
+    :class:`SelectorConfig` fields. ``details``: more entries for the stats.
     """
+    from .frame import FrameStep, TessellationBackend, options_problem
+
+    problem = options_problem(backend, mode=mode, uncertainty=uncertainty, view_mode=view_mode, foveate=foveate,
+                              contrast=contrast, export=export is not None)
+    if problem:
+        raise ValueError(f"render_still: {problem}")
     if export is not None:
         export = check_export_path(export)
-    scene = scene or TerrainScene.build(screen)
     head = default_head(screen) if head_mm is None else np.asarray(head_mm, dtype=np.float64)
     poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
-    if contrast not in CONTRAST_SOURCES:
-        raise ValueError(f"render_still: contrast must be one of {', '.join(CONTRAST_SOURCES)}, got {contrast!r}")
-    if mode not in RENDER_MODES:
-        raise ValueError(f"render_still: mode must be one of {', '.join(RENDER_MODES)}, got {mode!r}")
-    if mode == "raymask" and not uses_table(scene.mesh):
-        raise ValueError("render_still: mode 'raymask' needs the whole-table AdaptiveMesh (max_level <= 5, not lazy)")
-    if mode == "full" and not full_fits(scene.mesh):
-        raise ValueError(f"render_still: mode 'full' at max_level {scene.mesh.max_level} does not fit "
-                         f"(at most {FULL_MAX_LEVEL})")
-    if mode == "raymask":
-        return _render_raymask(screen, scene, head, poi, cov_deg2, size, view_mode, out, stats_path, renderer,
-                               contrast, export, foveate, raymask or RayMaskConfig(), raymask_renderer)
-    selector = scene.selector(mode, uncertainty, hysteresis=False)
-    if renderer is None:
-        renderer = TerrainRenderer(create_context(), size=tuple(size))
-    view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
-
-    poi_image = poi * np.array(size) / np.array(screen.size_px)     # the POI in image pixels
-    px_per_deg = px_per_deg_at(screen, head, size)
-
-    def frame(render_mode, draw=True):
-        """Select, build, upload and (with ``draw``) render; (image or None, levels per triangle, select s,
-        build s, levels per face)."""
-        t0 = time.perf_counter()
-        levels, _ = selector.select(View(head, poi, cov_deg2, 0.0))
-        t1 = time.perf_counter()
-        if draw and uses_table(scene.mesh):
-            positions, normals, tri_levels = scene.mesh.update(levels)
-            t2 = time.perf_counter()
-            renderer.upload(positions, normals, tri_levels)
-        else:   # foveated: the vertex table and indices, for the layers' subsets; a lazy mesh: its frame table
-            indices, tri_levels = scene.mesh.update_indices(levels)
-            t2 = time.perf_counter()
-            renderer.upload(scene.mesh.vertex_positions, scene.mesh.vertex_normals, tri_levels, indices)
-        image = renderer.render(view, proj, scene.model, view_mode=render_mode) if draw else None
-        return image, tri_levels, t1 - t0, t2 - t1, levels
-
-    readback_ms = None
-    if contrast == "readback":
-        shaded = frame("shaded")[0]
-        t3 = time.perf_counter()
-        centroids_px = project_to_screen_px(selector.centroids_mm, head, screen)
-        selector.contrast = readback_contrast(shaded, centroids_px, screen.size_px, fallback=scene.mesh.contrast)
-        readback_ms = renderer.last_readback_ms + (time.perf_counter() - t3) * 1e3
-    image, tri_levels, select_s, build_s, face_levels = frame(view_mode, draw=not foveate)
-    layers = None
-    if foveate:
-        foveated = FoveatedRenderer(renderer)
-        try:
-            mesh = scene.mesh
-            foveated.set_mesh(mesh.update_indices(face_levels)[0], tri_levels, mesh.face_per_triangle(),
-                              (mesh.corners, mesh.z_range))
-            image = foveated.render(view, proj, scene.model, poi_image, px_per_deg, cov_deg2, view_mode=view_mode)
-            render_ms, layers = foveated.last_render_ms, foveated.last_layers
-        finally:
-            foveated.release()
+    config = dataclasses.replace(SelectorConfig(), mode=mode, uncertainty=uncertainty, **(selector_options or {}))
+    if backend == "tessellation":
+        if renderer is None or model is None:
+            raise ValueError("render_still: backend 'tessellation' needs its TessellationRenderer and model")
+        step = FrameStep(TessellationBackend(renderer, mode), screen, config)
+        scene = None
     else:
-        render_ms = renderer.last_render_ms
+        scene = scene or TerrainScene.build(screen)
+        model = scene.model
+        if backend == "raymask" and not uses_table(scene.mesh):
+            raise ValueError("render_still: the raymask back end needs the whole-table mesh "
+                             "(max_level <= 5, not lazy)")
+        if mode == "full" and not full_fits(scene.mesh):
+            raise ValueError(f"render_still: mode 'full' at max_level {scene.mesh.max_level} does not fit "
+                             f"(at most {FULL_MAX_LEVEL})")
+        step = FrameStep(_backend_for_scene(backend, scene, config, size, renderer, foveate, raymask,
+                                            raymask_renderer), screen, config)
+    view = View(head, poi, cov_deg2, 0.0)
+    readback_ms = None
+    try:
+        if contrast == "readback":
+            readback_ms = _read_back_contrast(step, view, scene)
+        result = step(view, model, view_mode)
+    finally:
+        if foveate:
+            step.backend.foveated.release()
+    image = result.image
+    px_per_deg = px_per_deg_at(screen, head, size)
+    poi_image = poi * np.array(size) / np.array(screen.size_px)     # the POI in image pixels
     if cov_deg2 is not None or view_mode == "levels":
         image = overlay_poi(image, poi_image, cov_deg2, px_per_deg)
-    counts = np.bincount(tri_levels, minlength=scene.mesh.max_level + 1)
-    stats = {"mode": mode, "uncertainty": uncertainty, "view": view_mode, "size": list(size),
-             "head_mm": head.round(2).tolist(), "poi_px": poi.round(2).tolist(),
-             "triangles": int(len(tri_levels)), "select_ms": select_s * 1e3, "build_ms": build_s * 1e3,
-             "render_ms": render_ms, "triangles_per_level": counts.tolist(),
-             "contrast": contrast, "mesh": mesh_stats(scene.mesh)}
-    if layers is not None:
-        stats["foveate_layers"] = [{"scale": l.scale, "inner_deg": round(l.inner_deg, 3),
-                                    "outer_deg": None if math.isinf(l.outer_deg) else round(l.outer_deg, 3)}
-                                   for l in layers]
+    stats = _frame_stats(result, backend, mode, uncertainty, view_mode, size, head, poi, contrast, scene)
     if readback_ms is not None:
         stats["readback_ms"] = readback_ms
-    source = getattr(scene.terrain, "source", None)       # a --terrain file (plod.terrain_file)
+    stats.update(details or {})
+    write_outputs(image, stats, out, stats_path)
+    if export is not None:
+        export_mesh(scene.mesh, result.levels, export)
+    return image, stats
+
+
+def _backend_for_scene(backend, scene, config, size, renderer, foveate, raymask, raymask_renderer):
+    """The mesh or raymask back end of a one-frame render (``render_still``'s arguments)."""
+    from .frame import MeshBackend, RayMaskBackend
+
+    if backend == "raymask":
+        from .raymask import RayMaskRenderer
+
+        rr = raymask_renderer
+        if rr is None:
+            ctx = renderer.ctx if renderer is not None else create_context()
+            rr = RayMaskRenderer(ctx, scene.mesh, size=tuple(size))
+        elif tuple(rr.size) != tuple(int(v) for v in size):
+            raise ValueError(f"render_still: raymask_renderer is {rr.size}, the image {tuple(size)}")
+        return RayMaskBackend(rr, scene.screen, raymask)
+    if renderer is None:
+        renderer = TerrainRenderer(create_context(), size=tuple(size))
+    foveated = FoveatedRenderer(renderer) if foveate else None
+    return MeshBackend(scene.mesh, scene.selector(config.mode, config.uncertainty, config), renderer, scene.screen,
+                       foveated=foveated, anchor=LayerAnchor() if foveate else None,
+                       foveation=foveated.config if foveate else None)
+
+
+def _read_back_contrast(step, view, scene) -> float:
+    """The paper's eq. 2: a first frame drawn, each base triangle's contrast read back; its ms."""
+    selector = step.backend.selector
+    shaded = step(view, scene.model, "shaded").image
+    t0 = time.perf_counter()
+    centroids_px = project_to_screen_px(selector.centroids_mm, np.asarray(view.eye_mm, float), scene.screen)
+    selector.contrast = readback_contrast(shaded, centroids_px, scene.screen.size_px, fallback=scene.mesh.contrast)
+    ms = step.backend.renderer.last_readback_ms + (time.perf_counter() - t0) * 1e3
+    step.reset()
+    return ms
+
+
+def _frame_stats(result, backend, mode, uncertainty, view_mode, size, head, poi, contrast, scene) -> dict:
+    """The stats of one rendered frame (``render_still``'s; ms, triangles, levels)."""
+    stats = {"backend": backend, "mode": mode, "uncertainty": uncertainty, "view": view_mode, "size": list(size),
+             "head_mm": head.round(2).tolist(), "poi_px": poi.round(2).tolist(), "triangles": result.triangles,
+             "select_ms": result.stage_ms["select"], "build_ms": result.stage_ms["build"],
+             "render_ms": result.stage_ms["render"], "contrast": contrast, **result.details}
+    if result.triangle_levels is not None:
+        stats["triangles_per_level"] = np.bincount(result.triangle_levels,
+                                                   minlength=scene.mesh.max_level + 1).tolist()
+    if scene is not None and backend == "mesh":
+        stats["mesh"] = mesh_stats(scene.mesh)
+    source = getattr(scene.terrain, "source", None) if scene is not None else None    # a --terrain file
     if source is not None:
         stats["terrain"] = {"path": source.path, "kind": source.kind, "shape": list(scene.terrain.shape),
                             "spacing_m": [source.dx_m, source.dy_m], "filled_samples": source.filled,
                             "fit": scene.fit}
-    write_outputs(image, stats, out, stats_path)
-    if export is not None:
-        export_mesh(scene.mesh, face_levels, export)
-    return image, stats
-
-
-def _render_raymask(screen, scene, head, poi, cov_deg2, size, view_mode, out, stats_path, renderer, contrast,
-                    export, foveate, config, raymask_renderer):
-    """``render_still``'s ``raymask`` mode (arguments checked and defaulted by it)."""
-    from .raymask import RayMaskRenderer
-
-    for bad, text in ((view_mode != "shaded", f"view_mode {view_mode!r} (only 'shaded')"),
-                      (foveate, "foveate"), (contrast != "shading", f"contrast {contrast!r}"),
-                      (export is not None, "export (there is no mesh)")):
-        if bad:
-            raise ValueError(f"render_still: mode 'raymask' does not support {text}")
-    rr = raymask_renderer
-    if rr is None:
-        ctx = renderer.ctx if renderer is not None else create_context()
-        rr = RayMaskRenderer(ctx, scene.mesh, size=tuple(size))
-    elif tuple(rr.size) != tuple(int(v) for v in size):
-        raise ValueError(f"render_still: raymask_renderer is {rr.size}, the image {tuple(size)}")
-    view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
-    px_per_deg = px_per_deg_at(screen, head, size)
-    mask = rr.mask(screen, head, poi, px_per_deg, cov_deg2, config)
-    image = rr.render(mask, view, proj, scene.model, config)
-    poi_image = poi * np.array(size) / np.array(screen.size_px)
-    if cov_deg2 is not None:
-        image = overlay_poi(image, poi_image, cov_deg2, px_per_deg)
-    st = rr.last_stats
-    stats = {"mode": "raymask", "uncertainty": None, "view": view_mode, "size": list(size),
-             "head_mm": head.round(2).tolist(), "poi_px": poi.round(2).tolist(),
-             "triangles": 2 * st["drawn_quads"], "select_ms": rr.last_mask_ms, "build_ms": 0.0,
-             "render_ms": st["render_ms"], "contrast": contrast,
-             "raymask": {**{k: v for k, v in st.items() if k != "render_ms"},
-                         "inset_deg": config.inset_deg, "csf_model": config.csf_model,
-                         "mask_contrast": config.contrast, "silhouettes": bool(config.silhouettes),
-                         "fill_radius_deg": round(mask.r_fill_deg, 3), "rings": int(len(mask.rings_deg)),
-                         "angles": int(mask.n_angles)}}
-    write_outputs(image, stats, out, stats_path)
-    return image, stats
+    return stats
 
 
 def write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> None:
@@ -479,12 +462,3 @@ def write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> 
     if stats_path:
         Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
         write_atomically(stats_path, lambda name: Path(name).write_text(json.dumps(stats, indent=2)))
-
-
-def px_per_deg_at(screen, head, size) -> float:
-    """Image pixels per degree of visual angle at the screen centre, seen from the head."""
-    centre = screen.pixel_to_world(np.array(screen.size_px, dtype=np.float64) / 2.0)
-    width_mm = float(np.linalg.norm(np.asarray(screen.top_right) - screen.top_left))
-    distance = float(np.linalg.norm(centre - head))
-    mm_per_deg = distance * np.tan(np.radians(1.0))
-    return mm_per_deg * size[0] / width_mm

@@ -1,0 +1,391 @@
+"""One PLOD frame, the same for ``headplod render``, the demo and every benchmark.
+
+A frame is one step (:class:`FrameStep`):
+
+1. **condition** the tracker's view once (:class:`headplod.plod.view.ViewConditioner`:
+   filters, uncertainty scenario, head axes, hysteresis and saccade state);
+2. **select** levels from the conditioned view (a selector; the last levels
+   are kept during a saccade);
+3. **draw** through a back end, which builds and uploads what the levels ask
+   for and renders it from the raw eye (the camera is where the eye is; only
+   the levels are smoothed).
+
+The back ends sit behind one small interface (:class:`Backend`) and say what
+they support in one table (:data:`CAPABILITIES`), which ``--help``, the docs
+and the command lines' checks all read:
+
+- ``mesh``: a level per base triangle (:class:`headplod.plod.select.LevelSelector`)
+  over an adaptive mesh (whole table or lazy pieces), drawn indexed by
+  :class:`headplod.render.gl.TerrainRenderer`, optionally as foveated layers;
+- ``tessellation``: the same criterion per patch on the GPU
+  (:class:`headplod.render.tessellate.TessellationRenderer`);
+- ``raymask``: Murphy & Duchowski's rays through a CSF ray mask
+  (:class:`headplod.render.raymask.RayMaskRenderer`), no levels.
+
+Frames and units: world = left camera frame, mm; screen px; images (H, W, 3)
+uint8 RGB, row 0 at the top; times in the stats in ms.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..plod.select import MODES, SelectorConfig
+from ..plod.view import UNCERTAINTY_MODES, ConditionedView, View, ViewConditioner
+from .projection import off_axis_projection
+
+__all__ = ["NEAR_MM", "FAR_MM", "VIEW_MODES", "BACKENDS", "BackendCapabilities", "CAPABILITIES", "options_problem",
+           "capability_table", "FrameOutput", "Backend", "MeshBackend", "TessellationBackend", "RayMaskBackend",
+           "FrameStep", "px_per_deg_at"]
+
+#: Near and far planes of every frame's off-axis projection, mm from the eye.
+NEAR_MM, FAR_MM = 50.0, 5000.0
+#: How the mesh back end colours the image: shading, shading with triangle edges, or a colour per level.
+VIEW_MODES = ("shaded", "wire", "levels")
+
+
+@dataclass(frozen=True)
+class BackendCapabilities:
+    """What one back end supports; :func:`options_problem` checks options against it.
+
+    Attributes
+    ----------
+    name : str
+    summary : str
+        One line for ``--help`` and the docs.
+    modes : tuple of str
+        Level-selection modes (:data:`headplod.plod.select.MODES`) it draws.
+    scenarios : tuple of str
+        Uncertainty scenarios (:data:`headplod.plod.view.UNCERTAINTY_MODES`).
+    view_modes : tuple of str
+        Image colourings (:data:`VIEW_MODES`).
+    foveate : bool
+        Draws foveated resolution layers (``--foveate``).
+    own_terrain : bool
+        Takes a person's terrain file (``--terrain``).
+    hysteresis : bool
+        Keeps a piece's level within a dead band (a still head: no change).
+    contrast_sources : tuple of str
+        Where the contrast of the CSF comes from (``shading``; ``readback``: the paper's read-back window).
+    export : bool
+        Writes the frame's mesh (``--export``).
+    finest_level : str
+        What sets its finest detail.
+    """
+
+    name: str
+    summary: str
+    modes: tuple
+    scenarios: tuple
+    view_modes: tuple
+    foveate: bool
+    own_terrain: bool
+    hysteresis: bool
+    contrast_sources: tuple
+    export: bool
+    finest_level: str
+
+
+CAPABILITIES = {
+    "mesh": BackendCapabilities(
+        "mesh", "a level per base triangle over an adaptive mesh, drawn indexed", MODES, UNCERTAINTY_MODES,
+        VIEW_MODES, foveate=True, own_terrain=True, hysteresis=True, contrast_sources=("shading", "readback"),
+        export=True, finest_level="--max-level 1..8 (above 5: lazy pieces; full up to 7)"),
+    "tessellation": BackendCapabilities(
+        "tessellation", "the CSF per patch on the GPU, tessellated from a height texture", ("csf", "full"),
+        UNCERTAINTY_MODES, ("shaded",), foveate=False, own_terrain=True, hysteresis=False,
+        contrast_sources=("shading",), export=False, finest_level="one vertex per height sample (--grid-samples)"),
+    "raymask": BackendCapabilities(
+        "raymask", "Murphy & Duchowski: rays through a CSF ray mask, no levels", ("csf",), UNCERTAINTY_MODES,
+        ("shaded",), foveate=False, own_terrain=True, hysteresis=False, contrast_sources=("shading",),
+        export=False, finest_level="the whole-table mesh's finest level (--max-level up to 5)"),
+}
+#: The back ends, in the order the tools list them.
+BACKENDS = tuple(CAPABILITIES)
+
+
+def options_problem(backend: str, *, mode: str = "csf", uncertainty: str = "adaptive", view_mode: str = "shaded",
+                    foveate: bool = False, contrast: str = "shading", export: bool = False,
+                    terrain: bool = False) -> str | None:
+    """One line saying which option ``backend`` does not support, or None when it supports them all."""
+    if backend not in CAPABILITIES:
+        return f"unknown back end {backend!r}; choose one of {', '.join(BACKENDS)}"
+    cap = CAPABILITIES[backend]
+    bad = [text for text, ok in (
+        (f"--mode {mode} (modes: {', '.join(cap.modes)})", mode in cap.modes),
+        (f"--uncertainty {uncertainty}", uncertainty in cap.scenarios),
+        (f"--view {view_mode} (views: {', '.join(cap.view_modes)})", view_mode in cap.view_modes),
+        ("--foveate", cap.foveate or not foveate),
+        (f"--contrast {contrast}", contrast in cap.contrast_sources),
+        ("--export", cap.export or not export),
+        ("--terrain", cap.own_terrain or not terrain)) if not ok]
+    return f"--backend {backend} does not take {', '.join(bad)}" if bad else None
+
+
+def capability_table(markdown: bool = False) -> str:
+    """The capability table as text (``--help``; ``markdown``: for the docs)."""
+    rows = [("back end", "modes", "scenarios", "views", "foveate", "own terrain", "hysteresis", "finest level")]
+    for cap in CAPABILITIES.values():
+        rows.append((cap.name, ", ".join(cap.modes) if cap.modes != MODES else "all",
+                     "all" if cap.scenarios == UNCERTAINTY_MODES else ", ".join(cap.scenarios),
+                     ", ".join(cap.view_modes), "yes" if cap.foveate else "no", "yes" if cap.own_terrain else "no",
+                     "yes" if cap.hysteresis else "no", cap.finest_level))
+    if markdown:
+        lines = ["| " + " | ".join(r) + " |" for r in rows]
+        lines.insert(1, "|" + "---|" * len(rows[0]))
+        return "\n".join(lines)
+    widths = [max(len(r[k]) for r in rows) for k in range(len(rows[0]) - 1)]
+    return "\n".join("  ".join(v.ljust(w) for v, w in zip(r[:-1], widths)) + "  " + r[-1] for r in rows)
+
+
+def px_per_deg_at(screen, eye_mm, size) -> float:
+    """Image pixels per degree of visual angle at the screen centre, seen from ``eye_mm`` (3,) world mm.
+
+    ``size`` (width, height) image px.
+    """
+    centre = screen.pixel_to_world(np.array(screen.size_px, dtype=np.float64) / 2.0)
+    width_mm = float(np.linalg.norm(np.asarray(screen.top_right) - screen.top_left))
+    distance = float(np.linalg.norm(centre - np.asarray(eye_mm, dtype=np.float64)))
+    return distance * np.tan(np.radians(1.0)) * size[0] / width_mm
+
+
+@dataclass
+class FrameOutput:
+    """One frame's image and what made it.
+
+    Attributes
+    ----------
+    image : (H, W, 3) uint8
+        RGB, row 0 at the top.
+    view : ConditionedView
+        The conditioned view the frame was made for.
+    levels : (F,) int64 or None
+        Level per base triangle (``mesh``); None where the back end keeps its levels on the GPU or has none.
+    triangle_levels : (T,) uint8 or None
+        Level per drawn triangle (``mesh``).
+    triangles : int
+        Triangles drawn (rasterised, for ``raymask``; generated, for ``tessellation``).
+    held : bool
+        The last levels were kept (a saccade).
+    stage_ms : dict
+        ``select``, ``build``, ``upload``, ``render``, ``readback``: ms.
+    details : dict
+        The back end's own figures (layers, draw calls, ray counts, lazy cache: JSON-ready).
+    """
+
+    image: np.ndarray
+    view: ConditionedView
+    levels: np.ndarray | None
+    triangle_levels: np.ndarray | None
+    triangles: int
+    held: bool
+    stage_ms: dict
+    details: dict = field(default_factory=dict)
+
+
+class Backend:
+    """What a back end does in a frame: select (or not) and draw. Subclasses set ``name``.
+
+    ``select(cv)`` returns levels (or None when the back end selects on the GPU or not at all);
+    ``draw(cv, levels, camera, model, view_mode)`` returns (image, triangles drawn, stage ms, details).
+    ``camera`` is (view (4, 4), proj (4, 4)) from the raw eye; ``model`` (4, 4) scene → world mm.
+    """
+
+    name = ""
+
+    @property
+    def capabilities(self) -> BackendCapabilities:
+        return CAPABILITIES[self.name]
+
+    def select(self, cv: ConditionedView):
+        return None
+
+    def draw(self, cv: ConditionedView, levels, camera, model, view_mode: str):
+        raise NotImplementedError
+
+    def reset(self) -> None:
+        """Forget per-run state (a new setting or a new run)."""
+
+
+class MeshBackend(Backend):
+    """Levels per base triangle over an adaptive mesh, drawn indexed (optionally as foveated layers).
+
+    Parameters
+    ----------
+    mesh : headplod.plod.mesh.AdaptiveMesh or LazyAdaptiveMesh
+        This back end's own build state (:meth:`share` of a scene's mesh when several run side by side).
+    selector : headplod.plod.select.LevelSelector
+    renderer : headplod.render.gl.TerrainRenderer
+    foveated : headplod.render.foveate.FoveatedRenderer or None
+        Draw foveated layers about the conditioned POI, held by ``anchor``.
+    anchor : headplod.render.foveate.LayerAnchor or None
+    foveation : headplod.render.foveate.FoveationConfig or None
+    screen : headplod.io.Screen
+    """
+
+    name = "mesh"
+
+    def __init__(self, mesh, selector, renderer, screen, *, foveated=None, anchor=None, foveation=None):
+        self.mesh, self.selector, self.renderer, self.screen = mesh, selector, renderer, screen
+        self.foveated, self.anchor, self.foveation = foveated, anchor, foveation
+        self._uploaded = None          # the index array the renderer (or the layers) last received
+
+    def select(self, cv):
+        return self.selector.select(cv)[0]
+
+    def reset(self) -> None:
+        self.selector.reset()
+        if self.anchor is not None:
+            self.anchor.reset()
+
+    def draw(self, cv, levels, camera, model, view_mode):
+        t0 = time.perf_counter()
+        mesh = self.mesh
+        indices, tri_levels = mesh.update_indices(levels)
+        t1 = time.perf_counter()
+        self._upload(indices, tri_levels)
+        t2 = time.perf_counter()
+        details = {}
+        if self.foveated is not None:
+            image = self._draw_foveated(cv, camera, model, view_mode)
+            renderer = self.foveated
+            details["foveate_layers"] = [{"scale": l.scale, "inner_deg": round(l.inner_deg, 3),
+                                          "outer_deg": None if np.isinf(l.outer_deg) else round(l.outer_deg, 3)}
+                                         for l in self.anchor.layers]
+        else:
+            image = self.renderer.render(*camera, model, view_mode=view_mode)
+            renderer = self.renderer
+        stage = {"build": (t1 - t0) * 1e3, "upload": (t2 - t1) * 1e3, "render": renderer.last_render_ms,
+                 "readback": renderer.last_readback_ms}
+        if self.foveated is not None:            # the layers' face spans and index re-sort
+            stage["upload"] += self.foveated.last_sort_ms
+        if _is_lazy(mesh):
+            details["cache_bytes"] = int(mesh.cache_bytes)
+            details["lazy"] = {k: int(mesh.stats.get(k, 0)) for k in ("rebuilt_faces", "generated_pieces",
+                                                                       "vertices")}
+        return image, tri_levels, stage, details
+
+    def _upload(self, indices, tri_levels) -> None:
+        """The vertex table once per renderer; then only a new selection's indices and levels."""
+        mesh, renderer = self.mesh, self.renderer
+        new_table = renderer.tag is not mesh.vertex_positions
+        if new_table:
+            # The colours span the whole terrain's heights, not the uploaded vertices': a height keeps
+            # its colour whichever pieces a frame draws (and on either kind of mesh).
+            z_range = (float(mesh.z_range[:, 0].min()), float(mesh.z_range[:, 1].max()))
+            renderer.upload(mesh.vertex_positions, mesh.vertex_normals, tri_levels, indices, tag=mesh.vertex_positions,
+                            height_range=z_range)
+        if self.foveated is not None and (new_table or self._uploaded is not indices):
+            self.foveated.set_mesh(indices, tri_levels, mesh.face_per_triangle(), (mesh.corners, mesh.z_range))
+        elif not new_table and self._uploaded is not indices:
+            renderer.set_indices(indices, tri_levels)
+        self._uploaded = indices
+
+    def _draw_foveated(self, cv, camera, model, view_mode):
+        """The layers about the conditioned POI (held by the anchor), widened by the scenario's covariance."""
+        from .foveate import layer_plan
+
+        w, h = self.renderer.size
+        scale = np.array([w, h], dtype=np.float64) / np.array(self.screen.size_px, dtype=np.float64)
+        ppd = px_per_deg_at(self.screen, cv.raw_eye_mm, (w, h))
+        poi, layers = self.anchor.update(cv.poi_px * scale, layer_plan(ppd, cv.cov_deg2, self.foveation), ppd)
+        return self.foveated.render(*camera, model, poi, ppd, cv.cov_deg2, view_mode=view_mode, layers=layers)
+
+
+def _is_lazy(mesh) -> bool:
+    from ..plod.lazy_mesh import LazyAdaptiveMesh      # TODO(issue 23): the mesh's own kind attribute
+
+    return isinstance(mesh, LazyAdaptiveMesh)
+
+
+class TessellationBackend(Backend):
+    """The CSF per patch on the GPU; ``mode`` ``csf`` or ``full`` (the reference).
+
+    ``renderer``: a :class:`headplod.render.tessellate.TessellationRenderer`.
+    """
+
+    name = "tessellation"
+
+    def __init__(self, renderer, mode: str = "csf", *, region_ndc=None, supersample: int = 1):
+        self.renderer, self.mode = renderer, mode
+        self.region_ndc, self.supersample = region_ndc, supersample
+
+    def draw(self, cv, levels, camera, model, view_mode):
+        r = self.renderer
+        image = r.render(*camera, model, cv, mode=self.mode, region_ndc=self.region_ndc,
+                         supersample=self.supersample)
+        stage = {"select": r.last_setup_ms, "render": r.last_render_ms}
+        return image, None, stage, {"draw_calls": r.last_draw_calls, "patches": r.last_nodes,
+                                    "triangles": int(r.last_triangles)}
+
+
+class RayMaskBackend(Backend):
+    """Murphy & Duchowski's hybrid frame about the conditioned POI, widened by the scenario's covariance.
+
+    ``renderer``: a :class:`headplod.render.raymask.RayMaskRenderer`; ``config``: its
+    :class:`headplod.plod.raymask.RayMaskConfig`; ``screen``: the screen.
+    """
+
+    name = "raymask"
+
+    def __init__(self, renderer, screen, config=None):
+        from ..plod.raymask import RayMaskConfig
+
+        self.renderer, self.screen = renderer, screen
+        self.config = config or RayMaskConfig()
+
+    def draw(self, cv, levels, camera, model, view_mode):
+        rr = self.renderer
+        mask = rr.mask(self.screen, cv.raw_eye_mm, cv.poi_px, px_per_deg_at(self.screen, cv.raw_eye_mm, rr.size),
+                       cv.cov_deg2, self.config)
+        image = rr.render(mask, *camera, model, self.config)
+        st = rr.last_stats
+        details = {"raymask": {**{k: v for k, v in st.items() if k != "render_ms"},
+                               "inset_deg": self.config.inset_deg, "csf_model": self.config.csf_model,
+                               "mask_contrast": self.config.contrast, "silhouettes": bool(self.config.silhouettes),
+                               "fill_radius_deg": round(mask.r_fill_deg, 3), "rings": int(len(mask.rings_deg)),
+                               "angles": int(mask.n_angles)},
+                   "triangles": 2 * int(st["drawn_quads"])}
+        return image, None, {"select": rr.last_mask_ms, "render": st["render_ms"]}, details
+
+
+class FrameStep:
+    """One PLOD frame from a raw view (module notes): condition, select, draw.
+
+    Parameters
+    ----------
+    backend : Backend
+    screen : headplod.io.Screen
+    config : SelectorConfig
+        The view conditioning's settings (its filters, scenario, saccade hold).
+    """
+
+    def __init__(self, backend: Backend, screen, config: SelectorConfig = SelectorConfig()):
+        self.backend, self.screen, self.config = backend, screen, config
+        self.conditioner = ViewConditioner(screen, config)
+        self.levels = None             # the last levels (kept during a saccade)
+
+    def reset(self) -> None:
+        """Forget the filters, the scenario's memory, the hysteresis and the last levels."""
+        self.conditioner.reset()
+        self.backend.reset()
+        self.levels = None
+
+    def __call__(self, view: View, model, view_mode: str = "shaded") -> FrameOutput:
+        """The frame of ``view`` (raw :class:`View`) with the scene placed by ``model`` (4, 4) scene → world mm."""
+        t0 = time.perf_counter()
+        cv = self.conditioner(view)
+        held = cv.saccade and self.levels is not None
+        if not held:
+            self.levels = self.backend.select(cv)
+        t1 = time.perf_counter()
+        camera = off_axis_projection(cv.raw_eye_mm, self.screen, near_mm=NEAR_MM, far_mm=FAR_MM)
+        image, tri_levels, stage, details = self.backend.draw(cv, self.levels, camera, model, view_mode)
+        stage = {"select": 0.0, "build": 0.0, "upload": 0.0, "readback": 0.0, **stage}
+        stage["select"] += (t1 - t0) * 1e3
+        triangles = details.pop("triangles", None)
+        if triangles is None:
+            triangles = 0 if tri_levels is None else int(len(tri_levels))
+        return FrameOutput(image, cv, self.levels, tri_levels, int(triangles), bool(held), stage, details)
