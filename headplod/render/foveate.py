@@ -21,15 +21,12 @@ covers, each from the triangles of the base faces that can reach its ring,
 and composited on the CPU while reading back, with a smooth blend
 ``blend_deg`` wide at each border; the fovea stays at full resolution.
 
-What it costs on llvmpipe (2 cores, 1280x720, the demo's frames): the
-layers' draws take less than the plain frame's on the close views
-(mountains: render 16.7 against 18.9 ms at load 2, 18-38 against 34-52 ms
-under the other jobs' load 4-7; overview: about the same), but the face
-spans and indirect commands (about 1 ms more than a plain index upload per
-frame) and the composite (about 2 ms more than a plain read-back) take
+What it costs on llvmpipe (measured by ``headplod bench plod``'s foveated
+part): the layers' draws can take less than the plain frame's on the close
+views, but the face spans, the indirect commands and the composite take
 part or all of it back. A frame there is bound by the per-triangle set-up
 on the main thread, which the layers do not reduce (the faces on a border
-are drawn twice); the pixels they save are filled by two raster threads.
+are drawn twice); the pixels they save are filled by the raster threads.
 """
 from __future__ import annotations
 
@@ -119,8 +116,8 @@ def _ecc_for_frequency(freq_cpd: float, config: FoveationConfig) -> float:
 
     f_max falls with e: the first point of a table made once per config
     (:func:`_fmax_table`) where f_max <= ``freq_cpd``, so at most one step
-    (0.028 %) beyond the crossing, never before it. (A scalar bisection cost
-    3.4 ms a frame.)
+    of the table beyond the crossing, never before it (a scalar bisection
+    per frame cost more than the rest of the plan).
     """
     grid, f = _fmax_table(config)
     if f[0] <= freq_cpd:
@@ -333,8 +330,8 @@ class FoveatedRenderer:
     is upsampled x2 (bilinear, as GL's texture filter: pixel centres at
     half-integers) and the next layer is cross-faded in across its border
     (``blend_deg``, a smoothstep); the fovea last, at full resolution. On
-    llvmpipe a full-screen GPU pass sampling two layers cost 9-18 ms at
-    1280x720; this costs a few ms.
+    llvmpipe a full-screen GPU pass sampling two layers cost several times
+    more than this.
 
     With the mesh given to :meth:`set_mesh` with each triangle's base face
     and the faces' bounding prisms, each layer draws only the triangles of
@@ -493,7 +490,7 @@ class FoveatedRenderer:
         order = np.argsort(tri_key, kind="stable")
         counts = np.bincount(tri_key, minlength=n * n + 1)
         starts = np.concatenate([[0], np.cumsum(counts)])
-        # np.take gathers whole rows ~4x faster than idx[order] (0.17 against 0.68 ms for 65k).
+        # np.take gathers whole rows several times faster than idx[order].
         self.renderer._set_checked_indices(np.take(idx, order, axis=0).reshape(-1), lv[order])  # checked in set_mesh
         self._uploaded_plain = False
         ranges = []

@@ -211,8 +211,8 @@ def _as_array(name: str, value: Any, dtype, shape_tail: tuple[int, ...]) -> np.n
 def read_rgb(framebuffer, rgba: np.ndarray) -> np.ndarray:
     """A framebuffer's image as (H, W, 3) uint8 RGB, row 0 at the top, read through ``rgba`` (H, W, 4) uint8.
 
-    RGBA is GL's native layout: reading it is ~10x faster on llvmpipe than
-    RGB; one cvtColor drops alpha and (reading the rows bottom-up) flips.
+    RGBA is GL's native layout: llvmpipe reads it much faster than RGB; one
+    cvtColor drops alpha and (reading the rows bottom-up) flips.
     """
     framebuffer.read_into(rgba, components=4)
     return cv2.cvtColor(rgba[::-1], cv2.COLOR_RGBA2RGB)
@@ -266,8 +266,8 @@ class TerrainRenderer:
     vertex table once (``AdaptiveMesh.vertex_positions``/``vertex_normals``)
     and give each new selection's indices to :meth:`set_indices`. On
     llvmpipe a shared vertex is also shaded once per batch rather than once
-    per triangle (measured 1.3-1.5x faster draws than the soup of the same
-    triangles).
+    per triangle, so the draw is faster than the soup of the same triangles
+    (``headplod bench plod`` measures the frame).
     """
 
     def __init__(self, ctx: "moderngl.Context", size: tuple[int, int] = (1280, 720), *,
