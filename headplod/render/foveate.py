@@ -580,6 +580,29 @@ class FoveatedRenderer:
         scales = np.array([l.scale for l in layers])
         r.prepare(view, proj, model, view_mode)
         ts = time.perf_counter()
+        ranges, indirect = self._subsets(view, proj, model, view_mode, subsets, poi_gl, regions, scales)
+        self.last_sort_ms = (time.perf_counter() - ts) * 1e3
+        self.last_triangles_per_layer = [
+            (r.n_triangles if rk is None else int(sum(c for _, c in rk))) if ik is None else ik[2]
+            for rk, ik in zip(ranges, indirect)]
+        ctx.finish()
+        t0 = time.perf_counter()
+        rects, stage_ms = self._draw_layers(view_mode, ranges, indirect, poi_gl, regions, scales, t0)
+        ctx.finish()
+        t1 = time.perf_counter()
+        image = self._composite(rects, regions, blend_px, poi)
+        t2 = time.perf_counter()
+        stage_ms["composite"] = (t2 - t1) * 1e3
+        self.last_stage_ms = stage_ms
+        self.last_render_ms = (t1 - t0) * 1e3
+        self.last_readback_ms = (t2 - t1) * 1e3
+        return image
+
+    def _subsets(self, view, proj, model, view_mode, subsets, poi_gl, regions, scales):
+        """Each layer's draw: (ranges per layer (list of (first, count)) or None for the whole mesh,
+        indirect commands per layer or None); sorts the mesh's faces by layer span when needed."""
+        r, n = self.renderer, self.config.max_layers
+        w, h = r.size
         ranges = [None] * n
         indirect = [None] * n
         mesh = self._mesh
@@ -610,12 +633,27 @@ class FoveatedRenderer:
             r._set_checked_indices(mesh[0].reshape(-1), mesh[1])      # the mesh in its own order
             self._order_key = self._ranges = None
             self._uploaded_plain = True
-        self.last_sort_ms = (time.perf_counter() - ts) * 1e3
-        self.last_triangles_per_layer = [
-            (r.n_triangles if rk is None else int(sum(c for _, c in rk))) if ik is None else ik[2]
-            for rk, ik in zip(ranges, indirect)]
-        ctx.finish()
-        t0 = time.perf_counter()
+        return ranges, indirect
+
+    def _layer_rect(self, k, poi_gl, regions, scales):
+        """The rectangle (x0, y0, width, height) of layer k's framebuffer that its disc (and its filter) reaches."""
+        w, h = self.renderer.size
+        (lw, lh), s = self._targets[k][1].size, scales[k]
+        hi = regions[k, 1]
+        if not math.isfinite(hi):
+            return (0, 0, lw, lh)
+        # Only the square of the disc this layer shows (and its filter's reach) is shaded.
+        reach = hi + 2.0 / s + 1.0
+        x0 = max(int(math.floor((poi_gl[0] - reach) * lw / w)), 0)
+        y0 = max(int(math.floor((poi_gl[1] - reach) * lh / h)), 0)
+        x1 = min(int(math.ceil((poi_gl[0] + reach) * lw / w)), lw)
+        y1 = min(int(math.ceil((poi_gl[1] + reach) * lh / h)), lh)
+        return (x0, y0, max(x1 - x0, 0), max(y1 - y0, 0))
+
+    def _draw_layers(self, view_mode, ranges, indirect, poi_gl, regions, scales, t0):
+        """Draw every layer into its framebuffer; (rects per layer, stage ms of the profile)."""
+        r, n = self.renderer, self.config.max_layers
+        w, h = r.size
         stage_ms = {}
         rects = [None] * n
         # Coarsest first, the fovea last, without waiting in between: llvmpipe rasterizes a
@@ -624,18 +662,7 @@ class FoveatedRenderer:
         for k in range(n - 1, -1, -1):
             fbo = self._targets[k][1]
             (lw, lh), s = fbo.size, scales[k]
-            hi = regions[k, 1]
-            if math.isfinite(hi):
-                # Only the square of the disc this layer shows (and its filter's reach) is shaded.
-                reach = hi + 2.0 / s + 1.0
-                x0 = max(int(math.floor((poi_gl[0] - reach) * lw / w)), 0)
-                y0 = max(int(math.floor((poi_gl[1] - reach) * lh / h)), 0)
-                x1 = min(int(math.ceil((poi_gl[0] + reach) * lw / w)), lw)
-                y1 = min(int(math.ceil((poi_gl[1] + reach) * lh / h)), lh)
-                rect = (x0, y0, max(x1 - x0, 0), max(y1 - y0, 0))
-            else:
-                rect = (0, 0, lw, lh)
-            rects[k] = rect
+            rect = rects[k] = self._layer_rect(k, poi_gl, regions, scales)
             cull = None
             if self.cull and ranges[k] is not None:
                 # Drop, before set-up, the triangles outside the rectangle (2 px beyond it, so
@@ -648,17 +675,9 @@ class FoveatedRenderer:
             r.draw(fbo, (0, 0, lw, lh), view_mode, scissor=None if rect == (0, 0, lw, lh) else rect,
                    ranges=ranges[k], cull=cull, indirect=None if indirect[k] is None else indirect[k][:2])
             if self.profile:
-                ctx.finish()
+                r.ctx.finish()
                 stage_ms["layer%d" % k] = (time.perf_counter() - t0) * 1e3 - sum(stage_ms.values())
-        ctx.finish()
-        t1 = time.perf_counter()
-        image = self._composite(rects, regions, blend_px, poi)
-        t2 = time.perf_counter()
-        stage_ms["composite"] = (t2 - t1) * 1e3
-        self.last_stage_ms = stage_ms
-        self.last_render_ms = (t1 - t0) * 1e3
-        self.last_readback_ms = (t2 - t1) * 1e3
-        return image
+        return rects, stage_ms
 
     def _composite(self, rects, regions, blend_px: float, poi) -> np.ndarray:
         """Read the layers back and blend them, coarsest first; (H, W, 3) uint8 RGB, top row first."""
