@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 
 from .. import io
+from ..io import write_atomically
 from ..argtypes import frame_count
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..progress import Progress
@@ -187,90 +188,19 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
         renderer = TerrainRenderer(create_context(), size=tuple(args.size))
     elif tuple(renderer.size) != tuple(args.size):
         raise ValueError(f"run_headless: the renderer is {renderer.size}, --size is {tuple(args.size)}")
-    # Per viewpoint, the scenarios and full run interleaved (one frame of each in turn) on one
-    # tracked sequence: the same poses for all, and the speed ratios measured back to back.
-    groups = []
-    for vp in args.viewpoints:
-        plan = [(vp, args.mode, sc, False) for sc in args.scenarios]
-        if getattr(args, "foveate", False):
-            plan += [(vp, args.mode, sc, True) for sc in args.scenarios]
-        if not args.no_full and args.mode != "full":
-            plan.append((vp, "full", "none", False))
-        groups.append(plan)
+    groups = _plan(args)
     # One renderer per run of a group: each keeps its mesh on the GPU between its frames.
     renderers = [renderer] + [TerrainRenderer(renderer.ctx, size=tuple(args.size))
                               for _ in range(max(len(g) for g in groups) - 1)]
     progress = Progress(sum(len(g) for g in groups) * args.frames, "demo", stream=err)
-    keep = {max(0, int(round(f * args.frames)) - 1) for f in _PNG_AT}
     runs, pictures = [], {}
     try:
         for plan in groups:
-            tee = lp.TeePoses(make_poses(args, screen=screen, frames=args.frames), len(plan))
-            demos, written = [], []
-            for k, (vp, mode, scenario, foveate) in enumerate(plan):
-                backend = getattr(args, "backend", "mesh") if mode == args.mode else "mesh"
-                demos.append(lp.DemoLoop(scene, tee.consumer(k), renderers[k], mode=mode, uncertainty=scenario,
-                                         viewpoint=vp, view_mode="shaded", hud=True,
-                                         saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth,
-                                         foveate=foveate, backend=backend))
-                written.append([])
-            try:
-                for k, result in _interleaved(demos, args.frames):
-                    stem = "_".join(plan[k][:3]) + ("_foveate" if plan[k][3] else "")
-                    if result.index in keep:
-                        path = folder / "frames" / f"{stem}_{result.index:03d}.png"
-                        cv2.imwrite(str(path), cv2.cvtColor(result.image, cv2.COLOR_RGB2BGR))
-                        written[k].append(str(path))
-                    progress.step(f"{stem} {result.frame_ms:.0f} ms")
-            finally:
-                tee.close()
-            for k, (vp, mode, scenario, foveate) in enumerate(plan):
-                demo = demos[k]
-                if demo.last is None:
-                    raise RuntimeError(f"the pose source gave no frame ({source_name})")
-                if foveate and (scenario == "adaptive" or f"{vp} foveate" not in pictures):
-                    path = folder / f"viewpoint_{vp}_layers.png"
-                    caption = (f"{vp}: {mode} --foveate, {scenario}, level colours; layer borders (scale), "
-                               "POI and 2-sigma ellipse")
-                    cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
-                    pictures[f"{vp} foveate"] = str(path)
-                if mode == args.mode and not foveate and (scenario == "adaptive" or vp not in pictures):
-                    pose = demo.last.pose
-                    sigma = np.sqrt(np.max(np.diag(pose.cov_deg2))) if pose.cov_deg2 is not None else 0
-                    caption = (f"{vp}: {mode}, {scenario}, level colours; POI and 2-sigma ellipse "
-                               f"(sigma {sigma:.2f} deg)")
-                    path = folder / f"viewpoint_{vp}_levels.png"
-                    cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
-                    pictures[vp] = str(path)
-                s = demo.stats
-                mesh = {**mesh_stats(demo.base_scene.mesh), "cache_bytes_max": max(s.cache_bytes, default=None)}
-                mesh.pop("cache_bytes", None)
-                runs.append({"viewpoint": vp, "mode": mode, "uncertainty": scenario, "foveate": foveate,
-                             **s.summary(), "mesh": mesh,
-                             "per_frame": {"frame_ms": [round(v, 3) for v in s.frame_ms],
-                                           "triangles": [int(v) for v in s.triangles],
-                                           **({"lazy": s.lazy, "cache_bytes": s.cache_bytes} if s.lazy else {}),
-                                           "stage_ms": {name: [round(x, 3) for x in v]
-                                                        for name, v in s.stage_ms.items()}},
-                             "frames_png": written[k]})
+            runs += _run_group(args, plan, scene, screen, renderers, folder, progress, pictures, source_name)
     finally:
         for extra in renderers[1:]:
             extra.release()
-    ratios = {}
-    for run in runs:
-        full = next((r for r in runs if r["viewpoint"] == run["viewpoint"] and r["mode"] == "full"), None)
-        run["fps_ratio_to_full"] = None if full is None or run is full else run["fps"] / full["fps"]
-    for vp in args.viewpoints:
-        full = next((r for r in runs if r["viewpoint"] == vp and r["mode"] == "full"), None)
-        for foveate in (False, True):
-            mine = [r for r in runs if r["viewpoint"] == vp and r["mode"] == args.mode and r["foveate"] == foveate]
-            if mine and full is not None:
-                ref = next((r for r in mine if r["uncertainty"] == "adaptive"), mine[0])
-                ratios[vp + (" foveate" if foveate else "")] = {
-                    "mode": args.mode + (" --foveate" if foveate else ""), "uncertainty": ref["uncertainty"],
-                    "fps": ref["fps"], "full_fps": full["fps"], "ratio": ref["fps"] / full["fps"],
-                    "ratio_range": [min(r["fps"] for r in mine) / full["fps"],
-                                    max(r["fps"] for r in mine) / full["fps"]]}
+    ratios = _ratios(runs, args)
     summary = {"size": list(args.size), "frames_per_run": args.frames, "poses": source_name,
                "mode": args.mode, "viewpoints": {vp: VIEWPOINTS[vp].description for vp in args.viewpoints},
                "fps_ratio_to_full": ratios, "pictures": pictures, "runs": runs, "mesh": mesh_stats(scene.mesh),
@@ -287,9 +217,103 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
     write_chart(runs, args.viewpoints, chart, title=f"{args.size[0]}x{args.size[1]}, {source_name}")
     summary["chart"] = str(chart)
     summary["wall_s"] = round(time.perf_counter() - start, 1)
-    (folder / "summary.json").write_text(json.dumps(summary, indent=1))
+    write_atomically(folder / "summary.json", lambda name: Path(name).write_text(json.dumps(summary, indent=1)))
     print_table(summary, out)
     return summary
+
+
+def _plan(args) -> list:
+    """Per viewpoint, the runs (viewpoint, mode, scenario, foveate): the scenarios, again foveated, then full.
+
+    The runs of a group are interleaved (one frame of each in turn) on one tracked sequence: the same
+    poses for all, and the speed ratios measured back to back.
+    """
+    groups = []
+    for vp in args.viewpoints:
+        plan = [(vp, args.mode, sc, False) for sc in args.scenarios]
+        if getattr(args, "foveate", False):
+            plan += [(vp, args.mode, sc, True) for sc in args.scenarios]
+        if not args.no_full and args.mode != "full":
+            plan.append((vp, "full", "none", False))
+        groups.append(plan)
+    return groups
+
+
+def _run_group(args, plan, scene, screen, renderers, folder, progress, pictures, source_name) -> list:
+    """Run one viewpoint's runs interleaved; their records (and pictures added to ``pictures``)."""
+    keep = {max(0, int(round(f * args.frames)) - 1) for f in _PNG_AT}
+    tee = lp.TeePoses(make_poses(args, screen=screen, frames=args.frames), len(plan))
+    demos, written = [], []
+    for k, (vp, mode, scenario, foveate) in enumerate(plan):
+        backend = getattr(args, "backend", "mesh") if mode == args.mode else "mesh"
+        demos.append(lp.DemoLoop(scene, tee.consumer(k), renderers[k], mode=mode, uncertainty=scenario,
+                                 viewpoint=vp, view_mode="shaded", hud=True, saccade_deg_s=args.saccade_deg_s,
+                                 growth_deg2_per_s=args.growth, foveate=foveate, backend=backend))
+        written.append([])
+    try:
+        for k, result in _interleaved(demos, args.frames):
+            stem = "_".join(plan[k][:3]) + ("_foveate" if plan[k][3] else "")
+            if result.index in keep:
+                path = folder / "frames" / f"{stem}_{result.index:03d}.png"
+                cv2.imwrite(str(path), cv2.cvtColor(result.image, cv2.COLOR_RGB2BGR))
+                written[k].append(str(path))
+            progress.step(f"{stem} {result.frame_ms:.0f} ms")
+    finally:
+        tee.close()
+    records = []
+    for k, (vp, mode, scenario, foveate) in enumerate(plan):
+        demo = demos[k]
+        if demo.last is None:
+            raise RuntimeError(f"the pose source gave no frame ({source_name})")
+        _pictures(args, demo, vp, mode, scenario, foveate, folder, pictures)
+        s = demo.stats
+        mesh = {**mesh_stats(demo.base_scene.mesh), "cache_bytes_max": max(s.cache_bytes, default=None)}
+        mesh.pop("cache_bytes", None)
+        records.append({"viewpoint": vp, "mode": mode, "uncertainty": scenario, "foveate": foveate,
+                        **s.summary(), "mesh": mesh,
+                        "per_frame": {"frame_ms": [round(v, 3) for v in s.frame_ms],
+                                      "triangles": [int(v) for v in s.triangles],
+                                      **({"lazy": s.lazy, "cache_bytes": s.cache_bytes} if s.lazy else {}),
+                                      "stage_ms": {name: [round(x, 3) for x in v] for name, v in s.stage_ms.items()}},
+                        "frames_png": written[k]})
+    return records
+
+
+def _pictures(args, demo, vp, mode, scenario, foveate, folder, pictures) -> None:
+    """A viewpoint's level-colour picture (and its layers' with --foveate), from the adaptive run or the first."""
+    if foveate and (scenario == "adaptive" or f"{vp} foveate" not in pictures):
+        path = folder / f"viewpoint_{vp}_layers.png"
+        caption = (f"{vp}: {mode} --foveate, {scenario}, level colours; layer borders (scale), "
+                   "POI and 2-sigma ellipse")
+        cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
+        pictures[f"{vp} foveate"] = str(path)
+    if mode == args.mode and not foveate and (scenario == "adaptive" or vp not in pictures):
+        pose = demo.last.pose
+        sigma = np.sqrt(np.max(np.diag(pose.cov_deg2))) if pose.cov_deg2 is not None else 0
+        caption = f"{vp}: {mode}, {scenario}, level colours; POI and 2-sigma ellipse (sigma {sigma:.2f} deg)"
+        path = folder / f"viewpoint_{vp}_levels.png"
+        cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
+        pictures[vp] = str(path)
+
+
+def _ratios(runs, args) -> dict:
+    """Each run's frame rate over full's on its viewpoint (in the records), and per viewpoint the mode's."""
+    ratios = {}
+    for run in runs:
+        full = next((r for r in runs if r["viewpoint"] == run["viewpoint"] and r["mode"] == "full"), None)
+        run["fps_ratio_to_full"] = None if full is None or run is full else run["fps"] / full["fps"]
+    for vp in args.viewpoints:
+        full = next((r for r in runs if r["viewpoint"] == vp and r["mode"] == "full"), None)
+        for foveate in (False, True):
+            mine = [r for r in runs if r["viewpoint"] == vp and r["mode"] == args.mode and r["foveate"] == foveate]
+            if mine and full is not None:
+                ref = next((r for r in mine if r["uncertainty"] == "adaptive"), mine[0])
+                ratios[vp + (" foveate" if foveate else "")] = {
+                    "mode": args.mode + (" --foveate" if foveate else ""), "uncertainty": ref["uncertainty"],
+                    "fps": ref["fps"], "full_fps": full["fps"], "ratio": ref["fps"] / full["fps"],
+                    "ratio_range": [min(r["fps"] for r in mine) / full["fps"],
+                                    max(r["fps"] for r in mine) / full["fps"]]}
+    return ratios
 
 
 def _rss_mb() -> float:
