@@ -1,0 +1,155 @@
+"""The one frame step (headplod.render.frame): the settings mean the same on every back end.
+
+Every back end × uncertainty scenario runs the same fixed pose sequence:
+
+- ``none`` ignores the covariance: the frames are the same whatever covariance the tracker gives;
+- ``fixed``, ``adaptive`` and ``smoothed`` move the detail the same way on every back end: a larger
+  covariance never draws less, and after the covariance drops, ``fixed`` keeps the most, ``adaptive``
+  the least and ``smoothed`` lies between;
+- every back end reads the same conditioned view (one conditioning step per frame).
+"""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from headplod.plod.select import SelectorConfig
+from headplod.plod.view import UNCERTAINTY_MODES, View
+from headplod.render.frame import (BACKENDS, CAPABILITIES, FrameStep, MeshBackend, RayMaskBackend, capability_table,
+                                   options_problem)
+
+SIZE = (320, 180)
+RAYMASK_SIZE = (640, 360)     # below about 10 px/deg the ray mask casts a ray through every pixel whatever the view
+SMALL = np.diag([0.05 ** 2, 0.05 ** 2])          # a tracker's σ of V at 60 cm, deg²
+LARGE = np.diag([1.5 ** 2, 3.0 ** 2])
+FRAMES = 6
+DROP_AT = 3                                       # the covariance drops from LARGE to SMALL here
+
+
+def _poses(screen, cov_before, cov_after=None):
+    """A head drifting slowly (tracker-like noise, fixed seed) looking near the screen centre."""
+    from headplod.render.still import default_head
+
+    rng = np.random.default_rng(7)
+    head = default_head(screen)
+    centre = np.array(screen.size_px, float) / 2 + [120.0, -60.0]
+    cov_after = cov_before if cov_after is None else cov_after
+    return [View(head + rng.normal(0, 0.3, 3), centre + rng.normal(0, 2.0, 2),
+                 cov_before if k < DROP_AT else cov_after, k / 30) for k in range(FRAMES)]
+
+
+@pytest.fixture(scope="module")
+def backends(gl_context, terrain_scene):
+    """Back-end factories: name -> callable(config) -> Backend, all on the same scene and size."""
+    from headplod.render.gl import TerrainRenderer
+    from headplod.render.raymask import RayMaskRenderer
+
+    renderer = TerrainRenderer(gl_context, size=SIZE)
+    rays = RayMaskRenderer(gl_context, terrain_scene.mesh, size=RAYMASK_SIZE)
+    scene = terrain_scene
+
+    def mesh(config):
+        return MeshBackend(scene.mesh.share(), scene.selector(config.mode, config.uncertainty, config), renderer,
+                           scene.screen)
+
+    def raymask(config):
+        return RayMaskBackend(rays, scene.screen)
+
+    yield {"mesh": mesh, "raymask": raymask}
+    rays.release()
+    renderer.release()
+
+
+def _run(factory, screen, model, scenario, poses):
+    config = SelectorConfig(uncertainty=scenario)
+    step = FrameStep(factory(config), screen, config)
+    return [step(v, model) for v in poses]
+
+
+def _detail(out) -> float:
+    """How much detail a frame asks for: the mesh's mean level, or the ray mask's rays (the inset's and the
+    rings'; the silhouettes' depend on the terrain under the rays, not on the mask)."""
+    if out.levels is not None:
+        return float(out.levels.mean())
+    return float(out.details["raymask"]["fill_rays"] + out.details["raymask"]["ring_rays"])
+
+
+@pytest.mark.parametrize("name", ["mesh", "raymask"])
+def test_none_ignores_the_covariance(backends, terrain_scene, name):
+    screen, model = terrain_scene.screen, terrain_scene.model
+    runs = [_run(backends[name], screen, model, "none", _poses(screen, cov)) for cov in (None, SMALL, LARGE)]
+    for a, b in zip(runs[0], runs[2]):
+        assert a.view.cov_deg2 is None and b.view.cov_deg2 is None
+        np.testing.assert_array_equal(a.image, b.image)
+        if a.levels is not None:
+            np.testing.assert_array_equal(a.levels, b.levels)
+    assert all(np.array_equal(a.image, b.image) for a, b in zip(runs[0], runs[1]))
+
+
+@pytest.mark.parametrize("name", ["mesh", "raymask"])
+@pytest.mark.parametrize("scenario", ["fixed", "adaptive", "smoothed"])
+def test_a_larger_covariance_never_draws_less(backends, terrain_scene, name, scenario):
+    screen, model = terrain_scene.screen, terrain_scene.model
+    small = _run(backends[name], screen, model, scenario, _poses(screen, SMALL))
+    large = _run(backends[name], screen, model, scenario, _poses(screen, LARGE))
+    for s, l in zip(small, large):
+        assert _detail(l) >= _detail(s)
+    assert sum(map(_detail, large)) > sum(map(_detail, small))
+
+
+@pytest.mark.parametrize("name", ["mesh", "raymask"])
+def test_after_the_covariance_drops_fixed_keeps_most_and_adaptive_least(backends, terrain_scene, name):
+    screen, model = terrain_scene.screen, terrain_scene.model
+    poses = _poses(screen, LARGE, SMALL)
+    detail = {sc: [_detail(o) for o in _run(backends[name], screen, model, sc, poses)[DROP_AT + 1:]]
+              for sc in ("fixed", "adaptive", "smoothed")}
+    # The ray mask's count moves in steps of its rings and angles: a ray or ten either way of 230k.
+    slack = 1.0 if name == "mesh" else 1 - 1e-4
+    for f, a, s in zip(detail["fixed"], detail["adaptive"], detail["smoothed"]):
+        assert f >= s * slack and s >= a * slack
+    assert sum(detail["fixed"]) > sum(detail["adaptive"])
+
+
+def test_every_back_end_reads_the_same_conditioned_view(backends, terrain_scene):
+    screen, model = terrain_scene.screen, terrain_scene.model
+    poses = _poses(screen, LARGE, SMALL)
+    views = {name: [o.view for o in _run(backends[name], screen, model, "smoothed", poses)] for name in backends}
+    for a, b in zip(views["mesh"], views["raymask"]):
+        for f in dataclasses.fields(a):
+            x, y = getattr(a, f.name), getattr(b, f.name)
+            if isinstance(x, np.ndarray):
+                np.testing.assert_array_equal(x, y)
+            else:
+                assert x == y, f.name
+    # The conditioning did something: the filtered eye is not the raw one after the first frame.
+    assert not np.array_equal(views["mesh"][-1].eye_mm, views["mesh"][-1].raw_eye_mm)
+
+
+def test_a_saccade_keeps_the_last_levels(backends, terrain_scene):
+    screen, model = terrain_scene.screen, terrain_scene.model
+    config = SelectorConfig(uncertainty="none")
+    step = FrameStep(backends["mesh"](config), screen, config)
+    poses = _poses(screen, None)
+    first = step(poses[0], model)
+    jump = dataclasses.replace(poses[1], poi_px=poses[0].poi_px + [900.0, 0.0])   # ~30° in 1/30 s
+    held = step(jump, model)
+    assert held.held and held.view.saccade and held.view.poi_speed_deg_s > config.saccade_hold_deg_s
+    np.testing.assert_array_equal(held.levels, first.levels)
+    after = step(dataclasses.replace(poses[2], poi_px=jump.poi_px), model)        # the eye has landed
+    assert not after.held and not np.array_equal(after.levels, first.levels)
+
+
+def test_the_capability_table_is_what_the_commands_check():
+    for name in BACKENDS:
+        cap = CAPABILITIES[name]
+        assert options_problem(name, mode=cap.modes[0]) is None
+        for scenario in UNCERTAINTY_MODES:
+            assert (options_problem(name, mode=cap.modes[0], uncertainty=scenario) is None) == \
+                (scenario in cap.scenarios)
+        assert (options_problem(name, mode=cap.modes[0], foveate=True) is None) == cap.foveate
+        assert (options_problem(name, mode=cap.modes[0], export=True) is None) == cap.export
+        for view in ("shaded", "wire", "levels"):
+            assert (options_problem(name, mode=cap.modes[0], view_mode=view) is None) == (view in cap.view_modes)
+    assert "does not take --mode sse" in options_problem("tessellation", mode="sse")
+    table = capability_table()
+    assert all(name in table for name in BACKENDS) and len(table.splitlines()) == len(BACKENDS) + 1
