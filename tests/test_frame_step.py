@@ -153,3 +153,12 @@ def test_the_capability_table_is_what_the_commands_check():
     assert "does not take --mode sse" in options_problem("tessellation", mode="sse")
     table = capability_table()
     assert all(name in table for name in BACKENDS) and len(table.splitlines()) == len(BACKENDS) + 1
+
+
+def test_the_docs_show_the_capability_table_of_the_code():
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "plod-backends.md").read_text()
+    start = text.index("<!-- capability table")
+    body = text[text.index("\n", start) + 1:text.index("<!-- end of capability table -->")].strip()
+    assert body == capability_table(markdown=True)
