@@ -21,7 +21,7 @@ from hypothesis import given, settings, strategies as st
 
 from headplod import io
 from headplod.tracking import geometry as geo
-from headplod.tracking import rig_refine
+from headplod.tracking import rig_refine, rig_solve
 from headplod.tracking.rig_refine import N_RIG, RigRefiner, RigState, rig_jacobian_rows
 from headplod.tracking.uncertainty import rig_residual_rows
 
@@ -257,7 +257,7 @@ def test_cov_stays_definite_in_raw_units_for_an_absurd_departure():
     rng = np.random.default_rng(0)
     u = rng.normal(size=N_RIG)
     u /= np.linalg.norm(u)
-    ref.P = rig_refine._positive_definite(ref.prior - np.outer(sd * u, sd * u), sd)
+    ref.P = rig_solve._positive_definite(ref.prior - np.outer(sd * u, sd * u), sd)
     _assert_spd(ref.P)
     departure = np.zeros(N_RIG)
     departure[3:6] = 1e5 * sd[3:6] * rng.normal(size=3)
@@ -278,15 +278,15 @@ def test_positive_definite_floor():
     U = np.linalg.qr(rng.normal(size=(N_RIG, N_RIG)))[0]
     lam = np.array([-1e-3, 0.0, 1e-12, 1e-6, 0.1, 0.5, 1.0, 1.5, 2.0])
     M = (U * lam) @ U.T * np.outer(sd, sd)
-    out = rig_refine._positive_definite(M, sd)
+    out = rig_solve._positive_definite(M, sd)
     _assert_spd(out)
     floored = np.linalg.eigvalsh(out / np.outer(sd, sd))
-    assert floored.min() >= rig_refine._VARIANCE_FLOOR * (1 - 1e-6)
+    assert floored.min() >= rig_solve._VARIANCE_FLOOR * (1 - 1e-6)
     np.testing.assert_allclose(floored[3:], lam[3:], rtol=1e-6)          # the rest untouched
     good = ref.prior + 0.1 * np.outer(sd, sd)
-    np.testing.assert_array_equal(rig_refine._positive_definite(good, sd), good)
-    with pytest.raises(rig_refine._SkipChunk):
-        rig_refine._positive_definite(np.full((N_RIG, N_RIG), np.nan), sd)
+    np.testing.assert_array_equal(rig_solve._positive_definite(good, sd), good)
+    with pytest.raises(rig_solve._SkipChunk):
+        rig_solve._positive_definite(np.full((N_RIG, N_RIG), np.nan), sd)
 
 
 # --------------------------------------------------------------------------- the rig's residual rows

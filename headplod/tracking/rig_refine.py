@@ -7,37 +7,6 @@ determined, and two webcams without hardware sync expose milliseconds apart.
 The five markers are a rigid object of known size seen by both cameras, so
 every tracked frame constrains the rig.
 
-Error state (9 parameters, relative to the current estimate)
---------------------------------------------------------------
-``ω`` (3, rad)
-    Turn of the right camera about its own centre, in its frame:
-    ``R ← exp([ω]×) R``, ``T ← exp([ω]×) T``.
-``τ`` (3, mm)
-    Shift of the right camera's translation: ``T ← T + τ`` (a baseline
-    scale is ``τ`` along ``T``).
-``s`` (1)
-    Log scale of the right camera's focal lengths: ``fx, fy ← e^s fx, e^s fy``.
-    The left camera's focal length is the reference: together with the
-    markers' size it fixes the depth scale, and a common focal scale of both
-    cameras is observable only through perspective, which five markers 14 cm
-    apart at 65 cm barely show.
-``δt`` (1, s)
-    Exposure of the right image minus that of the left one, added to what
-    ``times.csv`` or the driver says (``t_right``).
-``ρ`` (1, s)
-    Readout time of the cameras' rolling shutter: the time from the
-    exposure of an image's first row to that of its last (0: a global
-    shutter; USB webcams 15-33 ms). Both cameras are taken to be the same
-    model with the same readout. A frame's time (``t``, and ``t_right``)
-    is the exposure of the image's MIDDLE row: row ``r`` of an image ``H``
-    rows high (``rig.image_size`` is (width, height)) is exposed at
-    ``t + (r − (H−1)/2) ρ/(H−1)``. Each marker centre is the model point
-    moved by the head's motion over that time (the centre's measured row
-    gives its time: known, and no circular dependency), so ρ is seen only
-    when the head moves, through how the markers' rows spread in time
-    (a time common to all of a frame's markers is a pose). Its prior
-    (:func:`readout_prior`) comes from the frame period (most webcams read
-    out for ~92% of it) or from the user.
 
 Estimator
 ---------
@@ -94,32 +63,16 @@ their own chunk's solve starts from, what their velocities are differenced
 with, and what :attr:`RigRefiner.refit_poses` gives the tracker for them.
 Velocities difference poses of one rig only (a rig's change is not motion).
 
-The rig's error for the uncertainty of V
-----------------------------------------
-:meth:`RigRefiner.cov` (P + ddᵀ) keeps the error model as it is: what the
-checks must allow. The covariance of V takes the rig in use's error as the
-data know it (:meth:`RigRefiner.error_distribution`): the error model's
-scale (how far off this calibration is, against calibrations in general)
-learnt from how far the data find the rig from rig.yaml (hierarchical
-Bayes, :func:`scaled_error_distribution`), the data's noise checked against
-the updates' innovations (:meth:`RigRefiner.data_scale`), and a mean: what
-the rig in use is off by. A right rig.yaml's share shrinks as the data
-confirm it; a wrong one's stays P + ddᵀ.
-
-Definiteness
-------------
-Every covariance the refiner keeps or hands out (the prior of a chunk, its
-posterior, :meth:`RigRefiner.cov`) is symmetric positive definite by
-construction: symmetrized, and its eigenvalues, in units of the prior's σ
-per component, floored (:func:`_positive_definite`). The floor (1e-9 of the
-prior's variance, raised where rounding in the prior's own units would
-otherwise reach it) is far below what the drift adds per chunk, so it only
-acts where arithmetic alone would lose definiteness: identical
-timestamps (no drift), a chunk that teaches some direction almost
-perfectly. A chunk whose system is singular, ill-conditioned or
-non-finite, or which teaches nothing observable, gives no update: the
-estimate and its covariance stay as they were, and the chunk is counted in
-:attr:`RigRefiner.skipped_chunks` by reason.
+Modules
+-------
+This module holds the refiner (:class:`RigRefiner`) and the job it runs
+the updates as. The rest of the refinement: the error state, the rig as
+estimated and the projections' derivatives (:mod:`.rig_state`); the error
+model, the readout's prior and the error model's scale the data teach
+(:mod:`.rig_priors`); the frames kept and their velocities
+(:mod:`.rig_frames`); the chunk solve's steps and the definiteness of every
+covariance (:mod:`.rig_solve`); the settings (:mod:`.rig_refine_config`).
+Their public names are importable from here too.
 """
 from __future__ import annotations
 
@@ -128,635 +81,29 @@ import math
 from collections import Counter, deque
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 import scipy.linalg
 
-from .. import io
-from .motion import pose_rates
-
-PARAMETERS = ("turn_x_rad", "turn_y_rad", "turn_z_rad", "shift_x_mm", "shift_y_mm", "shift_z_mm",
-              "log_focal_right", "time_offset_s", "readout_s")
-N_RIG = len(PARAMETERS)
-_TURN, _SHIFT, _FOCAL, _OFFSET, _READOUT = slice(0, 3), slice(3, 6), 6, 7, 8
-# The parameters a calibration gets more or less right (error_distribution learns their error model's
-# scale): the right camera's turn, shift and focal length.
-_GEOMETRY = np.arange(N_RIG) < 7
-
-# A webcam's sensor reads its rows out over the active part of the frame
-# period and idles over the vertical blanking: active rows / total rows is
-# typically ~0.92 (e.g. 480 of 525 lines for VGA timing, 720 of 750 for
-# 720p, 1080 of 1125 for 1080p), so the readout is ~92% of the frame period.
-READOUT_ACTIVE_FRACTION = 0.92
-# The readout's prior until the frame period (or the user) tells better:
-# centred on a global shutter, wide enough for any webcam's 15-33 ms.
-READOUT_PRIOR_UNKNOWN = (0.0, 0.015)
-
-
-def readout_prior(frame_period_s: float | None, user_readout_s: float | None) -> tuple[float, float]:
-    """Prior (mean, σ), s, of the cameras' rolling-shutter readout time.
-
-    A value the user gives (``user_readout_s``; 0 = global shutter
-    cameras) is taken as known: σ 5% of it or 0.5 ms, whichever is larger
-    (0.2 ms for a global shutter). Else, from the frame period: mean =
-    period × :data:`READOUT_ACTIVE_FRACTION`, σ 50% of that (cameras read
-    out faster than their frame rate needs, and some drivers add blanking).
-    Neither known (or not finite and > 0): :data:`READOUT_PRIOR_UNKNOWN`.
-    """
-    if user_readout_s is not None and math.isfinite(user_readout_s) and user_readout_s >= 0:
-        if user_readout_s == 0:
-            return 0.0, 2e-4
-        return float(user_readout_s), max(0.05 * float(user_readout_s), 5e-4)
-    if frame_period_s is not None and math.isfinite(frame_period_s) and frame_period_s > 0:
-        mean = READOUT_ACTIVE_FRACTION * float(frame_period_s)
-        return mean, 0.5 * mean
-    return READOUT_PRIOR_UNKNOWN
-
-# Smallest eigenvalue of a covariance, in units of the prior's variance per
-# component (σ ≥ 3e-5 of the prior's σ): far below the drift one chunk adds
-# (~1e-5..1e-3 of the prior's variance), so it acts only where arithmetic
-# would otherwise lose definiteness.
-_VARIANCE_FLOOR = 1e-9
-# Eigenvalues within this many rounding errors of the largest are not
-# trusted (see _positive_definite).
-_ROUNDING_MARGIN = 64 * np.finfo(float).eps
-# A frame's pose block (its 6x6 information, unit diagonal) or the rig's
-# system (in units of the prior) whose smallest eigenvalue is below this
-# fraction of its largest is ill-conditioned: the chunk gives no update.
-_MIN_CONDITION = 1e-12
-
-# 99.9th percentile of χ² with 7 degrees of freedom (scipy.stats.chi2.ppf(0.999, 7)): the most a
-# bootstrap may move the rig, in its far prior's σ (turn 3, shift 3, focal 1).
-_CHI2_7DOF_999 = 24.32
-# Most a centre of a bootstrap's frames may be off its joint fit, in its σ (both coordinates).
-_BOOTSTRAP_MAX_Z = 5.0
-
-# The error model's scale τ (its σ times τ) over which scaled_error_distribution averages:
-# log-spaced, from a rig a ten-thousandth as far off as the error model says to one ten times as far
-# (τ's half-normal prior leaves nothing beyond; the data never need it: a parameter they teach keeps
-# its posterior whatever τ).
-_SCALE_GRID = np.exp(np.linspace(math.log(1e-4), math.log(10.0), 81))
-
-# RigRefiner.data_scale: each update's normalized innovation squared is kept with this weight per update
-# after it (forgetting over ~10 updates, ~3 s), and the sums start from this many degrees of freedom at 1.
-_CONSISTENCY_KEEP = 0.9
-_CONSISTENCY_PRIOR_DOF = 10.0
-
-# Reasons for a chunk without an update (keys of RigRefiner.skipped_chunks).
-SKIP_UNOBSERVABLE = "nothing observable"        # e.g. a still head: the usual case, not a fault
-SKIP_NO_DATA = "no usable centres"
-SKIP_NON_FINITE = "non-finite terms"
-SKIP_SINGULAR = "singular or ill-conditioned system"
-SKIP_INCONSISTENT = "inconsistent with the rig"  # residuals far beyond the noise, and no bump explains them
-
-
-class _SkipChunk(Exception):
-    """A chunk that cannot update the rig; ``args[0]`` is one of the ``SKIP_*`` reasons."""
-
-
-def _positive_definite(M: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """``M`` (k, k) made symmetric positive definite: symmetrized, eigenvalues floored in units of ``scale``.
-
-    ``scale`` (k,) is the prior's σ per component (rad, mm, log focal, s):
-    in those units the eigenvalues are floored at ``_VARIANCE_FLOOR``, or
-    higher where rounding in ``M``'s own units could reach them
-    (``_ROUNDING_MARGIN`` × the largest eigenvalue × the spread of the
-    prior's variances), so that ``eigvalsh`` and ``cholesky`` of the result
-    see it positive definite, not only exact arithmetic. A matrix already
-    above the floor is returned symmetrized, otherwise unchanged. Raises
-    ``_SkipChunk`` for a non-finite ``M`` (or one eigh cannot decompose).
-    """
-    if not np.isfinite(M).all():
-        raise _SkipChunk(SKIP_NON_FINITE)
-    sym = 0.5 * (M + M.T)
-    units = np.outer(scale, scale)
-    try:
-        lam, U = np.linalg.eigh(sym / units)
-    except np.linalg.LinAlgError:           # eigh did not converge (finite but absurd values)
-        raise _SkipChunk(SKIP_SINGULAR) from None
-    spread = float(scale.max() / scale.min()) ** 2
-    floor = max(_VARIANCE_FLOOR, _ROUNDING_MARGIN * spread * float(lam[-1]))
-    if lam[0] >= floor:
-        return sym
-    out = (U * np.maximum(lam, floor)) @ U.T * units
-    return 0.5 * (out + out.T)
-
-
-def scaled_error_distribution(P: np.ndarray, prior: np.ndarray, estimate_from_reference: np.ndarray,
-                              in_use_from_reference: np.ndarray, scaled: np.ndarray,
-                              drift: np.ndarray | None = None, data_scale: float = 1.0):
-    """Mean (k,) and covariance (k, k) of the error of the rig in use (the true rig minus it, error
-    state) when the error model's scale is learnt from the data too (hierarchical Bayes).
-
-    The refinement's estimate and its covariance ``P`` (k, k) are the
-    posterior of the rig under the prior ``prior`` (k, k), centred on the
-    reference (rig.yaml, the readout's prior mean): the data's information
-    on the rig is P⁻¹ − prior⁻¹, and its information vector P⁻¹ (estimate −
-    reference). The error model's σ of the parameters ``scaled`` (k,) bool
-    (the geometry: how far a bumped bar turns, how far off a printed board
-    is) are a guess about calibrations in general; this rig's may be
-    smaller (a right calibration) or larger: they are taken as τ times the
-    model's, τ half-normal with scale 1 (E τ² = 1: without data, the error
-    model as it is). The data give τ's likelihood (the marginal likelihood
-    of the linear-Gaussian model, on a grid :data:`_SCALE_GRID`), and the
-    rig's posterior is averaged over τ's posterior: for each τ, Gaussian
-    with covariance (S(τ)⁻¹ + data)⁻¹, S(τ) the prior with the scaled
-    parameters' σ times τ, and mean that times the information vector. The
-    other parameters (the exposure offset, the readout: priors that only
-    say how little is known) keep their prior. A rig the data find off by
-    as much as the error model says (or more) keeps P and the estimate; one
-    the data find where rig.yaml put it, within their noise, shrinks both
-    to what a rig right all along would leave. ``data_scale``: the data's
-    noise over what the refinement assumed (a variance ratio; the data's
-    information is divided by it). ``drift`` (k, k), diagonal: the drift
-    since the refinement began, which τ does not scale, part of the prior
-    (the posterior P is taken to be the prior plus the drift, narrowed by the
-    data).
-
-    ``estimate_from_reference``, ``in_use_from_reference`` (k,): the
-    estimate and the rig in use minus the reference (error state). Works in
-    units of the prior (whitened by its Cholesky factor; ``prior`` is
-    diagonal, so the whitening keeps ``scaled`` apart). With τ = 1 and
-    ``data_scale`` 1 the result is the refinement's own: P, and the
-    estimate minus the rig in use.
-    """
-    k = len(P)
-    L0 = np.linalg.cholesky(prior)
-    Li = scipy.linalg.solve_triangular(L0, np.eye(k), lower=True)
-    # The drift since the start, in units of the prior: added to the prior's variances (P0 and the drift
-    # are diagonal), whatever τ (a rig's drift is not its calibration's error).
-    q = np.zeros(k) if drift is None else np.maximum(np.diag(Li @ drift @ Li.T), 0.0)
-    A = Li @ P @ Li.T
-    a, U = np.linalg.eigh(0.5 * (A + A.T))
-    a = np.maximum(a, 1e-15)
-    # The data's information: P⁻¹ less the prior's (with the drift), whitened; where P is the prior's or
-    # wider (an inflated posterior, a widened prior) nothing was learnt.
-    info = (U / a) @ U.T - np.diag(1.0 / (1.0 + q))
-    lam, V = np.linalg.eigh(0.5 * (info + info.T))
-    if not np.any(lam > 0.0):
-        # No data: the error model as it is (τ's prior has E τ² = 1).
-        return estimate_from_reference - in_use_from_reference, 0.5 * (P + P.T)
-    info = (V * (np.maximum(lam, 0.0) / data_scale)) @ V.T
-    b = (U / (a * data_scale)) @ (U.T @ (Li @ estimate_from_reference))   # its information vector
-    s = Li @ in_use_from_reference
-    tau2 = _SCALE_GRID ** 2
-    var = np.where(np.asarray(scaled, bool)[None, :], tau2[:, None], 1.0) + q[None, :]   # (grid, k) prior
-    root = np.sqrt(var)
-    # (S⁻¹ + info)⁻¹ = D (I + D info D)⁻¹ D with D = S^½; det(I + D info D) gives the likelihood.
-    M = np.eye(k)[None] + root[:, :, None] * info[None] * root[:, None, :]
-    Lm = np.linalg.cholesky(M)
-    logdet = 2.0 * np.log(np.diagonal(Lm, axis1=1, axis2=2)).sum(axis=1)
-    Minv = np.linalg.inv(M)
-    cov = root[:, :, None] * Minv * root[:, None, :]                      # (grid, k, k)
-    mean = cov @ b                                                          # (grid, k)
-    log_w = -0.5 * logdet + 0.5 * mean @ b - 0.5 * tau2 + np.log(_SCALE_GRID)   # half-normal(1), d log τ
-    w = np.exp(log_w - log_w.max())
-    w /= w.sum()
-    err = mean - s[None, :]                                                 # truth − rig in use
-    first = w @ err
-    second = np.einsum("g,gij->ij", w, cov) + (err * w[:, None]).T @ err
-    spread = second - np.outer(first, first)
-    out = L0 @ spread @ L0.T
-    return L0 @ first, 0.5 * (out + out.T)
-
-
-@dataclass
-class _Solution:
-    """What :meth:`RigRefiner._solve` found for a chunk."""
-
-    increment: np.ndarray       # (9,) rig error-state increment
-    posterior: np.ndarray       # (9, 9) its covariance, SPD, inflated by the noise scale
-    chi2: float                 # Cauchy-weighted χ² of the data rows
-    rows_used: int              # centre coordinates used
-    noise_scale: float          # the median centre's χ² per degree of freedom
-    refit: dict                 # {t: (R_world_G, p1)} of the chunk's poses refitted with the increment
-    moved: np.ndarray           # (9,) bool: parameters the increment was free to move
-
-
-def _eliminate_poses(A: np.ndarray, B: np.ndarray, g: np.ndarray):
-    """A⁻¹ B (n, 6, 9) and A⁻¹ g (n, 6) for the frames' pose blocks A (n, 6, 6), B (n, 6, 9), g (n, 6).
-
-    Each block is scaled to unit diagonal and inverted by its
-    eigendecomposition (batched, no loop). Raises
-    ``_SkipChunk(SKIP_SINGULAR)`` for a pose parameter no centre moves, or
-    a block whose smallest eigenvalue is not above ``_MIN_CONDITION`` of its
-    largest (too few centres in a frame, degenerate geometry).
-    """
-    d = np.sqrt(np.diagonal(A, axis1=1, axis2=2))                   # (n, 6)
-    if not np.all(d > 0):
-        raise _SkipChunk(SKIP_SINGULAR)
-    units = d[:, :, None] * d[:, None, :]
-    lam, U = np.linalg.eigh(A / units)
-    if not np.all(lam[:, 0] > _MIN_CONDITION * lam[:, -1]):      # (the largest is ≥ 1: unit diagonal)
-        raise _SkipChunk(SKIP_SINGULAR)
-    A_inv = (U / lam[:, None, :]) @ np.swapaxes(U, 1, 2) / units
-    return A_inv @ B, np.einsum("nij,nj->ni", A_inv, g)
-
-
-def _whitened_inverse(S: np.ndarray) -> np.ndarray:
-    """Inverse (k, k) of the rig's system S in units of the prior (S = I + the data's information there).
-
-    By eigendecomposition; raises ``_SkipChunk`` when S is not finite, or
-    its smallest eigenvalue is not above ``_MIN_CONDITION`` of its largest
-    (the chunk would pin some direction to a millionth of its prior σ:
-    absurd data, not a measurement).
-    """
-    if not np.isfinite(S).all():
-        raise _SkipChunk(SKIP_NON_FINITE)
-    lam, U = np.linalg.eigh(0.5 * (S + S.T))
-    if not lam[0] > _MIN_CONDITION * lam[-1]:
-        raise _SkipChunk(SKIP_SINGULAR)
-    inv = (U / lam) @ U.T
-    return 0.5 * (inv + inv.T)
-
-
-@dataclass(frozen=True)
-class RigErrorModel:
-    """How far a rig may be from its ``rig.yaml``: the prior of the refinement (1σ per axis).
-
-    Attributes
-    ----------
-    turn_deg : float
-        Turn of the right camera since calibration (a bumped bar), deg.
-    shift_fraction : float
-        Error of the translation, fraction of the baseline (a board printed
-        at the wrong scale, a poor calibration).
-    focal_fraction : float
-        Relative error of the right camera's focal length.
-    offset_undeclared_s, offset_declared_s : float
-        Exposure offset between the cameras when ``times.csv``/the driver
-        gives no right time (webcams without sync), and when it does.
-    readout_s : float or None
-        The cameras' rolling-shutter readout time if the user knows it
-        (0: global shutter cameras), s; None: from the frame period
-        (:func:`readout_prior`, :meth:`RigRefiner.set_readout_prior`).
-    """
-
-    turn_deg: float = 0.5
-    shift_fraction: float = 0.02
-    focal_fraction: float = 0.01
-    offset_undeclared_s: float = 0.025
-    offset_declared_s: float = 0.002
-    readout_s: float | None = None
-
-    def readout_prior(self, frame_period_s: float | None = None) -> tuple[float, float]:
-        """Prior (mean, σ), s, of the readout time (:func:`readout_prior` with the user's value, if any)."""
-        return readout_prior(frame_period_s, self.readout_s)
-
-    def covariance(self, rig, offset_declared: bool, calibration_std: dict | None = None,
-                   readout_sd_s: float | None = None) -> np.ndarray:
-        """Prior covariance (9, 9) of the error state; the calibration's own σ (if written) add in quadrature.
-
-        ``readout_sd_s``: the readout's σ, s (default: :meth:`readout_prior`'s
-        before the frame period is known)."""
-        baseline = float(np.linalg.norm(rig.T))
-        if readout_sd_s is None:
-            readout_sd_s = self.readout_prior()[1]
-        sd = np.array([math.radians(self.turn_deg)] * 3 + [self.shift_fraction * baseline] * 3
-                      + [self.focal_fraction, self.offset_declared_s if offset_declared else self.offset_undeclared_s,
-                         readout_sd_s])
-        if calibration_std:
-            # (headplod.io.rig_calibration_std.) The calibration's σ of the rotation
-            # vector's components stands, at this size, for the σ of a small turn
-            # about each axis (their difference is well below the prior's).
-            rot = calibration_std.get("calibration_std_rotation_deg")
-            if rot is not None:
-                sd[_TURN] = np.hypot(sd[_TURN], np.radians(float(np.max(rot))))
-            shift = calibration_std.get("calibration_std_translation_mm")
-            if shift is not None:
-                sd[_SHIFT] = np.hypot(sd[_SHIFT], np.asarray(shift, float).reshape(3))
-            right = calibration_std.get("calibration_std_right")
-            if right is not None:
-                sd[_FOCAL] = math.hypot(sd[_FOCAL], float(right[0]) / float(rig.K2[0, 0]))
-        return np.diag(sd ** 2)
-
-
-@dataclass(frozen=True)
-class RigRefineConfig:
-    """Settings of the online rig refinement, each with its unit.
-
-    Attributes
-    ----------
-    enabled : bool
-        Refine the rig from the tracked frames (``track --refine-rig``).
-    chunk_frames : int
-        Tracked frames per update (an update costs one small solve).
-    iterations : int
-        Gauss-Newton steps per update.
-    cauchy_scale : float
-        Residual (in units of its σ) beyond which a centre's weight falls
-        (Cauchy loss): a glint or a bad frame does not pull the rig.
-    min_sigma_px : float
-        Floor of a centre's σ, px.
-    drift_turn_deg_per_sqrt_s, drift_shift_mm_per_sqrt_s, drift_focal_per_sqrt_s,
-    drift_offset_s_per_sqrt_s, drift_readout_s_per_sqrt_s : float
-        Random-walk drift of the rig allowed between updates: what lets the
-        estimate follow a slowly changing rig (warming cameras, a webcam's
-        clock drift).
-    first_at_once : bool
-        Solve the first update at once, in the call that completes its
-        chunk: until then the rig is only rig.yaml, and frames that only a
-        refined rig can tell from a glint are withheld (one frame a run
-        pays a solve, a few ms; the 99th percentile is not moved).
-    refit_velocity_change : float
-        After a chunk's solve, its frames' velocities are taken again from
-        the poses it refitted; when one changed by more than this (rad/s of
-        the turn rate, or 100 times it in mm/s: 6°/s, 10 mm/s; a refitted
-        pose's own noise makes up to ~3°/s), the chunk is solved again with
-        them.
-    observable_fraction : float
-        A parameter is refined only when the chunk's information on it is at
-        least this fraction of the prior's.
-    inconsistency : float
-        A chunk whose noise scale (the median centre's standardized χ²,
-        per degree of freedom: robust to the few glints) exceeds this is
-        tested for a change of the rig (a bump).
-    publish_sigma : float
-        The rig in use follows the refinement's estimate when they differ by
-        more than this many σ of the estimate along some direction.
-    bump_evidence : float
-        Fall of the chunk's cost (χ², 9 dof) that re-solving with the
-        widened prior must bring to accept a change of the rig.
-    max_gap_frames : float
-        Velocities (for the time offset) come from neighbours at most this
-        many frame periods apart.
-    recalibrate_turn_deg, recalibrate_scale, recalibrate_offset_s : float
-        Beyond these, the status recommends recalibrating.
-    synchronous : bool
-        Solve a chunk in the ``add_frame`` call that completes it (offline
-        use, tests) instead of over the next calls (module docstring,
-        "Timing").
-    passes_per_frame : int
-        Gauss-Newton passes (each over all of a chunk's frames) of the update
-        under way run per ``add_frame`` call: a chunk's update takes
-        ``iterations + 1`` passes (twice that to test for a bump).
-    """
-
-    enabled: bool = True
-    chunk_frames: int = 8
-    iterations: int = 4
-    cauchy_scale: float = 3.0
-    min_sigma_px: float = 0.02
-    drift_turn_deg_per_sqrt_s: float = 0.005
-    drift_shift_mm_per_sqrt_s: float = 0.02
-    drift_focal_per_sqrt_s: float = 1e-4
-    drift_offset_s_per_sqrt_s: float = 2e-4
-    drift_readout_s_per_sqrt_s: float = 1e-5
-    refit_velocity_change: float = 0.1
-    first_at_once: bool = True
-    observable_fraction: float = 0.05
-    inconsistency: float = 4.0
-    publish_sigma: float = 3.0
-    bump_evidence: float = 60.0
-    max_gap_frames: float = 2.5
-    recalibrate_turn_deg: float = 1.0
-    recalibrate_scale: float = 0.03
-    recalibrate_offset_s: float = 0.02
-    synchronous: bool = False
-    passes_per_frame: int = 2
-
-
-@dataclass
-class _Frame:
-    t: float
-    declared_offset_s: float      # t_right − t from times.csv / the driver (0 when not given)
-    centers: np.ndarray           # (2, 5, 2) px
-    visible: np.ndarray           # (2, 5) bool
-    sigma: np.ndarray             # (2, 5, 2) px per coordinate
-    R: np.ndarray                 # (3, 3) tracked R_world_G
-    p1: np.ndarray                # (3,) tracked P1, mm
-    omega: np.ndarray | None = None   # (3,) head angular velocity, world, rad/s
-    velocity: np.ndarray | None = None  # (3,) P1 velocity, mm/s
-    motion_known: bool = True     # False: its time does not fit the motion; no velocity from or across it
-    rig_version: int = 0          # RigRefiner.versions of the rig its pose was fitted with (_INDEPENDENT: none)
-    refit: tuple | None = None    # (version, R, p1): its pose refitted with a newer rig, by an update
-
-    def newest(self):
-        """(R, p1): the pose fitted with the newest rig known for this frame."""
-        if self.refit is not None and self.refit[0] > self.rig_version:
-            return self.refit[1], self.refit[2]
-        return self.R, self.p1
-
-
-# _Frame.rig_version of a pose that does not depend on the rig (add_frame(independent_pose=True)).
-_INDEPENDENT = -1
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """[v]× for v (..., 3) → (..., 3, 3)."""
-    v = np.asarray(v)
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
-class RigState:
-    """The rig as currently estimated: the right camera's R, T, focal scale, the exposure offset and readout.
-
-    Attributes
-    ----------
-    R : (3, 3), T : (3,) mm
-        World (left camera) → right camera.
-    log_focal : float
-        Log scale of the right camera's focal lengths relative to ``rig.yaml``.
-    offset_s : float
-        Right exposure minus left, beyond what the timestamps say, s.
-    readout_s : float
-        Rolling-shutter readout time of both cameras (first row to last), s.
-    """
-
-    def __init__(self, rig, readout_s: float = 0.0):
-        self.calibrated = rig
-        self.R = np.asarray(rig.R, np.float64).copy()
-        self.T = np.asarray(rig.T, np.float64).reshape(3).copy()
-        self.log_focal = 0.0
-        self.offset_s = 0.0
-        self.readout_s = float(readout_s)
-
-    def apply(self, increment: np.ndarray) -> None:
-        """Add an error-state increment (9,) to the estimate."""
-        turn = cv2.Rodrigues(np.asarray(increment[_TURN], np.float64))[0]
-        self.R = turn @ self.R
-        self.R = cv2.Rodrigues(cv2.Rodrigues(self.R)[0])[0]
-        self.T = turn @ self.T + increment[_SHIFT]
-        self.log_focal += float(increment[_FOCAL])
-        self.offset_s += float(increment[_OFFSET])
-        self.readout_s += float(increment[_READOUT])
-
-    def K2(self) -> np.ndarray:
-        K = np.asarray(self.calibrated.K2, np.float64).copy()
-        K[0, 0] *= math.exp(self.log_focal)
-        K[1, 1] *= math.exp(self.log_focal)
-        return K
-
-    def error_from(self, other: "RigState") -> np.ndarray:
-        """The error-state increment (9,) that moves ``other`` onto this estimate."""
-        turn = cv2.Rodrigues(self.R @ other.R.T)[0].ravel()
-        out = np.zeros(N_RIG)
-        out[_TURN] = turn
-        out[_SHIFT] = self.T - cv2.Rodrigues(turn)[0] @ other.T
-        out[_FOCAL] = self.log_focal - other.log_focal
-        out[_OFFSET] = self.offset_s - other.offset_s
-        out[_READOUT] = self.readout_s - other.readout_s
-        return out
-
-    def moved(self, increment: np.ndarray) -> "RigState":
-        """A copy moved by an error-state increment (9,); this estimate is left as it is."""
-        out = copy.copy(self)
-        out.apply(increment)
-        return out
-
-    def rig(self):
-        """This estimate as a :class:`headplod.io.Rig` (intrinsics of the left camera and distortions unchanged)."""
-        cal = self.calibrated
-        extra = dict(cal.extra)
-        extra["refined_time_offset_ms"] = round(self.offset_s * 1e3, 4)
-        extra["refined_readout_ms"] = round(self.readout_s * 1e3, 4)
-        if cal.path:
-            extra["refined_from"] = str(cal.path)
-        return io.Rig(cal.image_size, cal.K1, cal.D1, self.K2(), cal.D2, self.R, self.T, extra=extra)
-
-    def differences(self) -> dict:
-        """How the estimate differs from ``rig.yaml``: turn (deg), baseline scale, focal scale, offset (ms),
-        and the rolling shutter's readout (ms)."""
-        cal = self.calibrated
-        turn = cv2.Rodrigues(self.R @ np.asarray(cal.R, np.float64).T)[0].ravel()
-        centre = -self.R.T @ self.T
-        centre_cal = -np.asarray(cal.R).T @ np.asarray(cal.T).reshape(3)
-        return {"turn_deg": float(np.degrees(np.linalg.norm(turn))),
-                "turn_axis": (turn / max(np.linalg.norm(turn), 1e-12)).tolist(),
-                "baseline_scale": float(np.linalg.norm(self.T) / np.linalg.norm(cal.T)),
-                "centre_shift_mm": float(np.linalg.norm(centre - centre_cal)),
-                "focal_scale": float(math.exp(self.log_focal)),
-                "offset_ms": self.offset_s * 1e3,
-                "readout_ms": self.readout_s * 1e3}
-
-
-def project_right(points_world: np.ndarray, R: np.ndarray, T: np.ndarray, K: np.ndarray, D: np.ndarray):
-    """Right-camera projections (n, 2) px and their derivatives.
-
-    Returns
-    -------
-    px : (n, 2)
-    d_cam : (n, 2, 3)
-        ∂px/∂X_cam (the right camera's frame, mm).
-    d_logf : (n, 2)
-        ∂px/∂s for a common log scale s of fx and fy.
-    cam : (n, 3)
-        The points in the right camera's frame, mm.
-    """
-    cam = points_world @ R.T + T
-    px, jac = cv2.projectPoints(cam.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, D)
-    jac = jac.reshape(-1, 2, jac.shape[1])
-    d_cam = jac[:, :, 3:6]
-    d_logf = jac[:, :, 6] * K[0, 0] + jac[:, :, 7] * K[1, 1]
-    return px.reshape(-1, 2), d_cam, d_logf, cam
-
-
-def row_fractions(rows_px: np.ndarray, image_height: int | None) -> np.ndarray:
-    """Each centre's exposure relative to its frame's time, in readouts: (r − (H−1)/2) / (H−1).
-
-    ``rows_px`` (any shape): the centres' measured rows (y), px. A
-    non-finite row (a centre not seen), or no height (H ≤ 1), gives 0: the
-    frame's time; a row beyond the image (no measured centre is) its edge's,
-    ±0.5.
-    """
-    rows = np.asarray(rows_px, np.float64)
-    if image_height is None or not image_height > 1:
-        return np.zeros(rows.shape)
-    frac = (rows - 0.5 * (image_height - 1)) / (image_height - 1)
-    return np.where(np.isfinite(frac), np.clip(frac, -0.5, 0.5), 0.0)
-
-
-def _stereo_terms(world: np.ndarray, motion: np.ndarray, frac: np.ndarray, right_dt, state: RigState,
-                  K1: np.ndarray, D1: np.ndarray, D2: np.ndarray, left: bool = True):
-    """Both cameras' projections of points seen through rolling shutters, and their derivatives.
-
-    ``world`` (k, 3) mm: the points at the frame's time (its images' middle
-    rows); ``motion`` (k, 3) mm/s: their world velocity (zeros: unknown);
-    ``frac`` (2, k): each centre's row time in readouts (:func:`row_fractions`);
-    ``right_dt`` (k,) or scalar, s: the right image's time minus the left's
-    (declared + offset). Left camera: the points at ``frac[0] ρ``; right:
-    at ``right_dt + frac[1] ρ`` (ρ = ``state.readout_s``), moved linearly.
-
-    Returns px (2, k, 2), ∂px/∂(world point) (2, k, 2, 3), and
-    ∂px/∂(rig error state) (2, k, 2, 9): the left rows' only non-zero column
-    is the readout's. ``left`` False: the left camera's px and derivatives
-    are left NaN, its rig rows zero (for callers that need the right's only).
-    """
-    k = len(world)
-    readout = state.readout_s
-    px = np.full((2, k, 2), np.nan)
-    d_world = np.full((2, k, 2, 3), np.nan)
-    J_rig = np.zeros((2, k, 2, N_RIG))
-    if left:
-        world_l = world + (frac[0] * readout)[:, None] * motion
-        pl, jac = cv2.projectPoints(world_l.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K1, D1)
-        d_left = jac.reshape(k, 2, -1)[..., 3:6]                        # the left camera's frame is the world's
-        px[0], d_world[0] = pl.reshape(k, 2), d_left
-        J_rig[0, :, :, _READOUT] = np.einsum("kij,kj->ki", d_left, motion) * frac[0][:, None]
-    world_r = world + (right_dt + frac[1] * readout)[:, None] * motion
-    pr, d_cam, d_logf, cam = project_right(world_r, state.R, state.T, state.K2(), D2)
-    px[1], d_world[1] = pr, d_cam @ state.R
-    J_rig[1] = _right_rig_columns(d_cam, d_logf, cam, state.R, motion, frac[1])
-    return px, d_world, J_rig
-
-
-def rig_jacobian_rows(R_world_G: np.ndarray, p1_mm: np.ndarray, model_mm: np.ndarray, state: RigState,
-                      D2: np.ndarray, right_dt_s: float = 0.0, omega: np.ndarray | None = None,
-                      velocity: np.ndarray | None = None, rows_px: np.ndarray | None = None,
-                      image_height: int | None = None) -> np.ndarray:
-    """∂(projected centre)/∂(rig error state) at a pose: (2, 5, 2, 9).
-
-    ``omega`` (rad/s) and ``velocity`` (mm/s) are the head's motion in the
-    world frame; without them the time offset's and the readout's columns
-    are zero. ``right_dt_s``: the right image's time minus the left's (the
-    declared offset plus the estimated one). ``rows_px`` (2, 5): the
-    centres' measured rows (y, px; NaN for a centre not seen), with
-    ``image_height`` (px; default ``state.calibrated.image_size[1]``):
-    each point is moved by the head's motion over its row's time in each
-    camera (:func:`_stereo_terms`, with ``state.readout_s``), and the
-    readout's column is filled in both cameras. Without ``rows_px`` the
-    left rows are zero and the readout's column too (no rolling shutter
-    modelled), as before the readout was a parameter.
-    """
-    lever = model_mm @ R_world_G.T
-    world = lever + p1_mm
-    m = len(model_mm)
-    moving = omega is not None and velocity is not None
-    motion = np.cross(omega, lever) + velocity if moving else np.zeros((m, 3))
-    if rows_px is not None and moving:
-        if image_height is None:
-            image_height = state.calibrated.image_size[1]
-        frac = row_fractions(np.asarray(rows_px, np.float64).reshape(2, m), image_height)
-    else:
-        frac = np.zeros((2, m))
-    cal = state.calibrated
-    _, _, J_rig = _stereo_terms(world, motion, frac, right_dt_s, state, np.asarray(cal.K1, np.float64),
-                                np.asarray(cal.D1, np.float64), D2, left=rows_px is not None and moving)
-    return J_rig
-
-
-def _right_rig_columns(d_cam, d_logf, cam, R_right, motion, frac=None):
-    """∂(right projections)/∂(rig error state) (n, 2, 9) from :func:`project_right`'s derivatives.
-
-    ``motion`` (n, 3), mm/s: each point's world velocity (None: the time
-    offset's and readout's columns are zero); ``frac`` (n,): its row's
-    time in readouts (:func:`row_fractions`; None: the readout's column is
-    zero).
-    """
-    cols = np.zeros(d_cam.shape[:2] + (N_RIG,))
-    cols[:, :, _TURN] = np.einsum("nij,njk->nik", d_cam, -_skew(cam))
-    cols[:, :, _SHIFT] = d_cam
-    cols[:, :, _FOCAL] = d_logf
-    if motion is not None:
-        speed = np.einsum("nij,jk,nk->ni", d_cam, R_right, motion)        # ∂px/∂t
-        cols[:, :, _OFFSET] = speed
-        if frac is not None:
-            cols[:, :, _READOUT] = speed * np.asarray(frac)[:, None]
-    return cols
+from .rig_frames import _INDEPENDENT, _ChunkData, _Frame, refit_velocities, take_velocities
+from .rig_priors import (READOUT_ACTIVE_FRACTION, READOUT_PRIOR_UNKNOWN, RigErrorModel, consistency_scale,
+                         count_consistency, readout_prior, scaled_error_distribution)
+from .rig_refine_config import RigRefineConfig
+from .rig_solve import (SKIP_INCONSISTENT, SKIP_NO_DATA, SKIP_NON_FINITE, SKIP_SINGULAR, SKIP_UNOBSERVABLE,
+                        _eliminate_poses, _positive_definite, _SkipChunk, _Solution, _whitened_inverse,
+                        bootstrap_agrees, chunk_posterior, chunk_terms, gauss_newton_step, normal_equations,
+                        observable_directions, refit_poses, rig_information, run_to_end, whiten_prior)
+from .rig_state import (_FOCAL, _GEOMETRY, _OFFSET, _READOUT, _TURN, N_RIG, PARAMETERS, RigState, project_right,
+                        rig_jacobian_rows, row_fractions)
+
+__all__ = [
+    "RigRefiner",
+    # re-exported from the modules the refinement was split into
+    "N_RIG", "PARAMETERS", "RigState", "project_right", "rig_jacobian_rows", "row_fractions",       # rig_state
+    "READOUT_ACTIVE_FRACTION", "READOUT_PRIOR_UNKNOWN", "RigErrorModel", "readout_prior",           # rig_priors
+    "scaled_error_distribution",
+    "RigRefineConfig",                                                                              # rig_refine_config
+    "SKIP_INCONSISTENT", "SKIP_NO_DATA", "SKIP_NON_FINITE", "SKIP_SINGULAR", "SKIP_UNOBSERVABLE",   # rig_solve
+]
 
 
 class RigRefiner:
@@ -1040,13 +387,7 @@ class RigRefiner:
         try:
             for _ in range(max(int(rounds), 1)):
                 self._estimate = estimate
-                steps = self._solve(chunk, prior)
-                while True:
-                    try:
-                        next(steps)
-                    except StopIteration as end:
-                        solution = end.value
-                        break
+                solution = run_to_end(self._solve(chunk, prior))
                 estimate = estimate.moved(solution.increment)
                 for f in chunk:
                     f.R, f.p1 = solution.refit[f.t]
@@ -1058,13 +399,8 @@ class RigRefiner:
             self._estimate = start
         if solution is None or not solution.noise_scale <= self.config.inconsistency:
             return False
-        data = _ChunkData.of(chunk, self.calibrated.image_size[1])
-        res = self._chunk_terms(data, np.zeros((len(chunk), 6)), estimate)[0]
-        z = np.hypot(*np.moveaxis(res / data.sigma, -1, 0))[data.visible]
-        if not (np.isfinite(z).all() and z.max() <= _BOOTSTRAP_MAX_Z):
-            return False
-        change = estimate.error_from(start)
-        if not float(change @ np.linalg.lstsq(prior, change, rcond=None)[0]) <= _CHI2_7DOF_999:
+        if not bootstrap_agrees(chunk, start, estimate, prior, self.model_mm, self.K1, self.D,
+                                self.calibrated.image_size[1]):
             return False
         self._cancel_job()
         self._pending = []
@@ -1149,7 +485,7 @@ class RigRefiner:
     def _start_job(self) -> None:
         """The pending frames become a chunk and its update a job (not run yet)."""
         chunk, self._pending = self._pending, []
-        self._velocities(chunk)
+        take_velocities(self._recent, chunk, self.config.max_gap_frames)
         self._recent.extend(chunk[-2:])
         self._job = _Job(chunk, self._update_steps(chunk))
 
@@ -1187,80 +523,6 @@ class RigRefiner:
         self._job = None
         if job is not None:
             job.steps.close()
-
-    def _velocities(self, chunk: list[_Frame]) -> None:
-        """Head velocities by central differences of the tracked poses (one-sided at the ends).
-
-        The poses differenced are of one rig (a change of the rig is not
-        motion): a neighbour's as tracked, or as refitted by the update that
-        changed the rig (:attr:`_Frame.refit`), whichever was fitted with the
-        rig of the frame's own pose. A frame with no such neighbour (a lone
-        frame tracked with the old rig while the update that changed it ran)
-        takes its neighbours' poses as tracked all the same: a rig's step is
-        a smaller error than no velocity at all, which would tell the solve
-        the head stood still while the right image was exposed later.
-        """
-        frames = list(self._recent) + chunk
-        times = np.array([f.t for f in frames])
-        gaps = np.diff(times)
-        period = float(np.median(gaps)) if len(gaps) else 0.0
-        limit = self.config.max_gap_frames * period
-        known = [f.motion_known for f in frames]
-
-        def pose(f: _Frame, version: int | None):
-            if version is None or f.rig_version in (version, _INDEPENDENT):
-                return f.R, f.p1
-            if f.refit is not None and f.refit[0] == version:
-                return f.refit[1], f.refit[2]
-            return None
-
-        for i in range(len(frames) - len(chunk), len(frames)):
-            if not known[i]:
-                continue
-            near_lo = i > 0 and known[i - 1] and 0 < times[i] - times[i - 1] <= limit
-            near_hi = i + 1 < len(frames) and known[i + 1] and 0 < times[i + 1] - times[i] <= limit
-            if not (near_lo or near_hi):
-                continue
-            f = frames[i]
-            version = f.refit[0] if f.refit is not None and f.refit[0] > f.rig_version else f.rig_version
-            lo = pose(frames[i - 1], version) if near_lo else None
-            hi = pose(frames[i + 1], version) if near_hi else None
-            if lo is None and hi is None:
-                version = None                  # no neighbour of this rig: the poses as tracked
-                lo = pose(frames[i - 1], None) if near_lo else None
-                hi = pose(frames[i + 1], None) if near_hi else None
-            a = (times[i - 1], *lo) if lo is not None else (times[i], *pose(f, version))
-            b = (times[i + 1], *hi) if hi is not None else (times[i], *pose(f, version))
-            f.omega, f.velocity = pose_rates(a[1], a[2], b[1], b[2], b[0] - a[0])
-
-    def _refit_velocities(self, chunk: list[_Frame], refit: dict) -> bool:
-        """The chunk's velocities as central differences of its refitted poses ({t: (R, p1)}, one rig), where a
-        frame has a refitted neighbour (else its velocity stays); True when one changed by more than
-        ``refit_velocity_change`` (rad/s of the turn rate, or 100x that in mm/s)."""
-        times = np.array([f.t for f in chunk])
-        gaps = np.diff(times)
-        if not len(gaps):
-            return False
-        limit = self.config.max_gap_frames * float(np.median(gaps))
-        new = {}
-        changed = False
-        for i, f in enumerate(chunk):
-            if not f.motion_known or f.omega is None or f.t not in refit:
-                continue
-            lo = i - 1 if (i > 0 and chunk[i - 1].motion_known and chunk[i - 1].t in refit
-                           and 0 < times[i] - times[i - 1] <= limit) else i
-            hi = i + 1 if (i + 1 < len(chunk) and chunk[i + 1].motion_known and chunk[i + 1].t in refit
-                           and 0 < times[i + 1] - times[i] <= limit) else i
-            if lo == hi:
-                continue
-            omega, velocity = pose_rates(*refit[chunk[lo].t], *refit[chunk[hi].t], times[hi] - times[lo])
-            change = max(float(np.abs(omega - f.omega).max()), float(np.abs(velocity - f.velocity).max()) / 100.0)
-            changed |= change > self.config.refit_velocity_change
-            new[i] = (omega, velocity)
-        if changed:                  # else the velocities stay: those the solve used
-            for i, (omega, velocity) in new.items():
-                chunk[i].omega, chunk[i].velocity = omega, velocity
-        return changed
 
     def _process_noise(self, t: float) -> np.ndarray:
         """Drift (9, 9) since the last update: a random walk, variance ∝ elapsed time (0 if none elapsed)."""
@@ -1319,7 +581,7 @@ class RigRefiner:
             solution = retry
             bumped = True
             prior = _positive_definite(prior + self.prior, self._scale)
-        if self._refit_velocities(chunk, solution.refit):
+        if refit_velocities(chunk, solution.refit, self.config.max_gap_frames, self.config.refit_velocity_change):
             # The velocities (of the exposure offset's and the readout's
             # columns) were differences of the poses as tracked, one of which
             # a glint or a stale rig may have put a degree off: a velocity of
@@ -1365,7 +627,7 @@ class RigRefiner:
                     f.refit = (self.versions, turn @ R, turn @ p1 + shift)
                     moved[f.t] = f.refit[1:]
         # The chunk's last frames, kept for the next chunk's velocities, keep
-        # their pose refitted with the new rig too (_velocities differences
+        # their pose refitted with the new rig too (take_velocities differences
         # poses of one rig).
         for f in chunk[-2:]:
             if f.t in solution.refit:
@@ -1374,43 +636,27 @@ class RigRefiner:
         return True
 
     def _count_consistency(self, prior: np.ndarray, solution: "_Solution") -> None:
-        """Add an update's normalized innovation squared to the forgetting sums :meth:`data_scale` reads.
-
-        For a consistent filter the increment Δ of an update has covariance
-        prior − posterior (both (9, 9), the chunk's): Δᵀ (prior − posterior)⁺ Δ
-        is χ² with as many degrees of freedom as directions the chunk taught
-        (those whose variance fell by more than a thousandth of the largest
-        fall, in units of the prior's σ). Counted only for updates whose
-        prior was a posterior (not the error model's: there the increment
-        measures how far off rig.yaml is, :func:`scaled_error_distribution`'s
-        business), and not for a bump's (the rig changed).
-        """
-        units = np.outer(self._scale, self._scale)
-        D = (prior - solution.posterior) / units
-        lam, U = np.linalg.eigh(0.5 * (D + D.T))
-        keep = lam > 1e-3 * max(float(lam[-1]), 0.0)
-        if not keep.any() or not np.isfinite(lam).all():
-            return
-        z = U[:, keep].T @ (solution.increment / self._scale)
-        nis = float(np.sum(z ** 2 / lam[keep]))
-        if np.isfinite(nis):
-            self._consistency = _CONSISTENCY_KEEP * self._consistency + np.array([nis, float(keep.sum())])
+        """Add an update's normalized innovation squared to the forgetting sums :meth:`data_scale` reads
+        (:func:`~.rig_priors.count_consistency`: only for updates whose prior was a posterior, not for a
+        bump's)."""
+        self._consistency = count_consistency(self._consistency, prior, solution.posterior, solution.increment,
+                                              self._scale)
 
     def data_scale(self) -> float:
         """How much the data's errors exceed what the refinement assumed: a variance ratio (1: as assumed).
 
         Covariance matching on the updates' innovations (Mehra 1972): the
-        forgetting sums (:data:`_CONSISTENCY_KEEP` per update, ~10 updates)
+        forgetting sums (``_CONSISTENCY_KEEP`` per update, ~10 updates)
         of their normalized innovations squared over their degrees of
         freedom (:meth:`_count_consistency`), with a prior of
-        :data:`_CONSISTENCY_PRIOR_DOF` degrees of freedom at 1. Below 1 when
+        ``_CONSISTENCY_PRIOR_DOF`` degrees of freedom at 1
+        (:func:`~.rig_priors.consistency_scale`). Below 1 when
         the centres' σ the chunks were weighted with overstate their noise
         (the noise model learnt while the rig was off) or the drift allowed
         overstates the rig's: the estimate then moves less than P says. It
         scales the data's information in :meth:`error_distribution` only;
         the refinement itself, its checks and :meth:`cov` keep P as it is."""
-        nis, dof = self._consistency
-        return float(np.clip((_CONSISTENCY_PRIOR_DOF + nis) / (_CONSISTENCY_PRIOR_DOF + dof), 0.05, 20.0))
+        return consistency_scale(self._consistency)
 
     def has_data(self) -> bool:
         """Whether the refinement has learnt anything of the rig since its error model was (re)set: False
@@ -1491,7 +737,8 @@ class RigRefiner:
 
     def _solve(self, chunk: list[_Frame], prior: np.ndarray):
         """Gauss-Newton with Cauchy reweighting over the chunk's poses and the rig: a generator that stops
-        (yields) before each pass over the chunk's frames and returns the :class:`_Solution`.
+        (yields) before each pass over the chunk's frames and returns the :class:`~.rig_solve._Solution`
+        (the steps of a pass: :mod:`.rig_solve`).
 
         ``prior`` (9, 9) is SPD (:meth:`_predicted`). Each frame's pose (6)
         is eliminated by its own 6×6 block (the poses share nothing but the
@@ -1507,12 +754,7 @@ class RigRefiner:
         """
         c = self.config
         n = len(chunk)
-        try:
-            L = np.linalg.cholesky(prior)      # SPD by construction (_positive_definite): checked all the same
-        except np.linalg.LinAlgError:
-            raise _SkipChunk(SKIP_SINGULAR) from None
-        L_inv = scipy.linalg.solve_triangular(L, np.eye(N_RIG), lower=True)
-        prior_info = L_inv.T @ L_inv
+        L, L_inv, prior_info = whiten_prior(prior)
         data = _ChunkData.of(chunk, self.image_height)
         # Which rig parameters can this chunk teach? Decided at the start (linearization point).
         rig = np.zeros(N_RIG)
@@ -1522,105 +764,27 @@ class RigRefiner:
         for iteration in range(c.iterations + 1):
             yield
             state = self._estimate.moved(rig)
-            res, J_pose, J_rig = self._chunk_terms(data, poses, state)
+            res, J_pose, J_rig = chunk_terms(data, poses, state, self.model_mm, self.K1, self.D)
             self.passes += 1
             self.frame_terms += n
-            sig = data.sigma
-            with np.errstate(invalid="ignore"):
-                z = res / sig                                    # (n, 2, m, 2) standardized
-                # A centre counts when its residual and derivatives are finite
-                # (a point on a camera's plane projects to inf).
-                seen = (np.isfinite(z).all(axis=3) & data.visible
-                        & np.isfinite(J_pose).all(axis=(3, 4)) & np.isfinite(J_rig).all(axis=(3, 4)))
-                r2 = np.where(seen, (z ** 2).sum(axis=3), 0.0)          # (n, 2, m)
-                if weights is None or iteration < 2:
-                    weights = np.where(seen, 1.0 / (1.0 + r2 / (2 * c.cauchy_scale ** 2)), 0.0)
-                # Unseen centres' rows are zeros (weight 0, and no NaN to multiply by it).
-                w = np.repeat(np.where(seen, weights, 0.0)[..., None], 2, axis=3).reshape(n, -1)   # (n, k)
-                r = np.where(seen[..., None], z, 0.0).reshape(n, -1)
-                scaled = 1.0 / sig[..., None]
-                Jp = np.where(seen[..., None, None], J_pose * scaled, 0.0).reshape(n, -1, 6)
-                Jr = np.where(seen[..., None, None], J_rig * scaled, 0.0).reshape(n, -1, N_RIG)
-            Jp_t = np.swapaxes(Jp, 1, 2)
-            A = Jp_t @ (Jp * w[..., None])                        # each pose's information (n, 6, 6)
-            B = Jp_t @ (Jr * w[..., None])                        # pose × rig (n, 6, 9)
-            Jr_all, w_all, r_all = Jr.reshape(-1, N_RIG), w.reshape(-1), r.reshape(-1)
-            C = Jr_all.T @ (Jr_all * w_all[:, None])              # rig × rig (data only)
-            g_pose = np.einsum("nki,nk->ni", Jp, w * r)
-            g_rig = Jr_all.T @ (w_all * r_all)
-            chi2 = float((w_all * r_all * r_all).sum())
-            rows_used = 2 * int(seen.sum())
-            if rows_used == 0:
-                raise _SkipChunk(SKIP_NO_DATA)
-            if not (np.isfinite(A).all() and np.isfinite(B).all() and np.isfinite(C).all()
-                    and np.isfinite(g_pose).all() and np.isfinite(g_rig).all() and math.isfinite(chi2)):
-                raise _SkipChunk(SKIP_NON_FINITE)
+            # The Cauchy weights of the first two passes' residuals, then held.
+            eq = normal_equations(res, J_pose, J_rig, data, weights if iteration >= 2 else None, c.cauchy_scale)
+            weights = eq.weights
             # Eliminate the poses: X = A⁻¹ B (n, 6, 9), y = A⁻¹ g (n, 6).
-            X, y = _eliminate_poses(A, B, g_pose)
-            data_info = C - np.einsum("nij,nik->jk", B, X)
-            # In units of the prior (whitened by L: the prior is I there).
-            white_info = L.T @ data_info @ L
-            white_info = 0.5 * (white_info + white_info.T)
+            X, y = _eliminate_poses(eq.A, eq.B, eq.g_pose)
+            white_info = rig_information(eq, X, L)
             if observable is None:
-                # What can this chunk teach? The data's information on the rig (poses
-                # marginalized), in units of the prior's: directions (eigenvectors)
-                # with less than `observable_fraction` are held.
-                lam, U = np.linalg.eigh(white_info)
-                observable = U[:, lam >= c.observable_fraction]
-                if observable.shape[1] == 0:
-                    raise _SkipChunk(SKIP_UNOBSERVABLE)
-                # Rig steps are confined to the observable directions: δ ← L Π L⁻¹ δ.
-                confine = L @ observable @ observable.T @ L_inv
+                observable, confine = observable_directions(white_info, L, L_inv, c.observable_fraction)
             S_white = _whitened_inverse(np.eye(N_RIG) + white_info)      # the rig's system, inverted
             if iteration == c.iterations:
                 break
-            rhs = g_rig + prior_info @ rig - np.einsum("nij,ni->j", B, y)
-            step_rig = -(L @ (S_white @ (L.T @ rhs)))
-            step_pose = -(y + X @ step_rig)
-            if not (np.isfinite(step_rig).all() and np.isfinite(step_pose).all()):
-                raise _SkipChunk(SKIP_NON_FINITE)
+            step_rig, step_pose = gauss_newton_step(eq, X, y, rig, prior_info, L, S_white)
             poses += step_pose
             rig += confine @ step_rig
-        cov = L @ S_white @ L.T
-        # An honest posterior: residuals larger than their σ say the noise is
-        # larger. Measured robustly (the median centre's χ² with 2 dof, whose
-        # median is 1.386, per degree of freedom left), so the few glints the
-        # Cauchy weights already discount do not inflate it.
-        dof = max(rows_used - 6 * n - observable.shape[1], 1)
-        r2 = r2[seen]                            # the last pass's, of the centres it used
-        noise_scale = float(np.median(r2)) / 1.386 * rows_used / dof
-        posterior = _positive_definite(cov * max(1.0, noise_scale), self._scale)
+        posterior, noise_scale = chunk_posterior(eq, n, observable.shape[1], L, S_white, self._scale)
         moved = np.diag(confine @ prior @ confine.T) / np.diag(prior) > 0.5
-        refit = {f.t: (cv2.Rodrigues(poses[k, :3])[0] @ data.R[k], data.p1[k] + poses[k, 3:])
-                 for k, f in enumerate(chunk)}
-        return _Solution(rig, posterior, chi2, rows_used, noise_scale, refit, moved)
+        return _Solution(rig, posterior, eq.chi2, eq.rows_used, noise_scale, refit_poses(chunk, data, poses), moved)
 
-    def _chunk_terms(self, data: "_ChunkData", poses: np.ndarray, state: RigState):
-        """Residuals (n, 2, 5, 2) px, ∂/∂pose (n, 2, 5, 2, 6) and ∂/∂rig (n, 2, 5, 2, 9) of a chunk's frames.
-
-        All frames at once: one ``cv2.projectPoints`` per camera over every
-        frame's points (already in the camera's frame, rvec = tvec = 0, so the
-        derivatives with respect to tvec are those with respect to the point).
-        Each centre is the model point at its row's time (:func:`_stereo_terms`):
-        the head moved meanwhile (no motion known: not moved, and the offset's
-        and readout's columns are zero).
-        """
-        model = self.model_mm
-        n, m = len(poses), len(model)
-        turn = np.stack([cv2.Rodrigues(np.ascontiguousarray(v))[0] for v in poses[:, :3]])
-        R = turn @ data.R                                               # (n, 3, 3)
-        p1 = data.p1 + poses[:, 3:]
-        lever = np.einsum("mj,nij->nmi", model, R)                      # model @ Rᵀ per frame (n, m, 3)
-        world = lever + p1[:, None, :]
-        dX_dpose = np.concatenate([-_skew(lever), np.broadcast_to(np.eye(3), (n, m, 3, 3))], axis=3)  # (n, m, 3, 6)
-        motion = np.einsum("nij,nmj->nmi", _skew(data.omega), lever) + data.velocity[:, None, :]  # ω × lever + v
-        right_dt = np.repeat(data.declared + state.offset_s, m)
-        frac = np.swapaxes(data.frac, 0, 1).reshape(2, n * m)
-        px, d_world, J_rig = _stereo_terms(world.reshape(-1, 3), motion.reshape(-1, 3), frac, right_dt, state,
-                                           self.K1, self.D[0], self.D[1])
-        res = np.swapaxes(px.reshape(2, n, m, 2), 0, 1) - data.centers
-        J_pose = np.swapaxes(d_world.reshape(2, n, m, 2, 3), 0, 1) @ dX_dpose[:, None]
-        return res, J_pose, np.swapaxes(J_rig.reshape(2, n, m, 2, N_RIG), 0, 1)
 
 
 @dataclass
@@ -1629,31 +793,3 @@ class _Job:
 
     chunk: list
     steps: object
-
-
-@dataclass
-class _ChunkData:
-    """A chunk's frames stacked for :meth:`RigRefiner._chunk_terms` (n frames)."""
-
-    R: np.ndarray            # (n, 3, 3) tracked R_world_G
-    p1: np.ndarray           # (n, 3) mm
-    centers: np.ndarray      # (n, 2, 5, 2) px
-    visible: np.ndarray      # (n, 2, 5)
-    sigma: np.ndarray        # (n, 2, 5, 2) px
-    declared: np.ndarray     # (n,) s
-    omega: np.ndarray        # (n, 3) rad/s, zero where the motion is unknown
-    velocity: np.ndarray     # (n, 3) mm/s, likewise
-    frac: np.ndarray         # (n, 2, 5) each centre's row time in readouts (row_fractions)
-
-    @classmethod
-    def of(cls, chunk: list[_Frame], image_height: int | None) -> "_ChunkData":
-        moving = [f.omega is not None and f.velocity is not None for f in chunk]
-        zero = np.zeros(3)
-        centers = np.stack([f.centers for f in chunk])
-        start = [f.newest() for f in chunk]              # each pose from the newest rig it is known with
-        return cls(np.stack([R for R, _ in start]), np.stack([p1 for _, p1 in start]),
-                   centers, np.stack([f.visible for f in chunk]),
-                   np.stack([f.sigma for f in chunk]), np.array([f.declared_offset_s for f in chunk]),
-                   np.stack([f.omega if k else zero for f, k in zip(chunk, moving)]),
-                   np.stack([f.velocity if k else zero for f, k in zip(chunk, moving)]),
-                   row_fractions(centers[..., 1], image_height))

@@ -67,6 +67,7 @@ import scipy.linalg
 from scipy.stats import chi2
 
 from . import geometry as geo
+from . import rig_frames, rig_priors, rig_refine, rig_refine_config, rig_solve, rig_state
 from .geometry import ESTIMATORS
 from .detect import Blobs, DetectionParams, centroids_near, detect_blobs, estimate_background, shot_variance
 from .identify import ModelRule, find_hypotheses
@@ -102,7 +103,10 @@ def _scale_hint(points_mm: np.ndarray, model_mm: np.ndarray) -> str:
             "is markers.yaml in mm (conventions.md), and is it these glasses?")
 
 
-_REFINER_FILE = RigRefiner.__module__.rsplit(".", 1)[-1] + ".py"
+# The module files of the rig's refinement: an exception that passed through
+# them may have damaged its state (Tracker._internal_error restarts it).
+_REFINER_FILES = tuple(module.__name__.rsplit(".", 1)[-1] + ".py" for module in (
+    rig_refine, rig_state, rig_priors, rig_frames, rig_solve, rig_refine_config))
 # A rig correction beyond these (mm, deg: ten times a clean pose's noise at
 # 65 cm, ~0.5 mm and 0.05°) is refused when the frame cannot tell it from noise
 # or a stray blob: with suspect centres, or P1 known to worse than 1.5 mm (1σ)
@@ -121,9 +125,10 @@ def _names(mask: np.ndarray) -> str:
     return ", ".join(f"{MARKER_NAMES[m]} {('left', 'right')[c]}" for c, m in np.argwhere(mask))
 
 
-def _raised_in(exc: BaseException, filename: str) -> bool:
-    """Whether ``exc`` passed through code of the module file ``filename`` (e.g. ``rig_refine.py``)."""
-    return any(frame.f_code.co_filename.endswith(filename) for frame, _ in traceback.walk_tb(exc.__traceback__))
+def _raised_in(exc: BaseException, filenames: str | tuple[str, ...]) -> bool:
+    """Whether ``exc`` passed through code of a module file named ``filenames`` (e.g. ``rig_refine.py``, or a
+    tuple of such names)."""
+    return any(frame.f_code.co_filename.endswith(filenames) for frame, _ in traceback.walk_tb(exc.__traceback__))
 
 
 def describe_offset_s(offset_s: float) -> str:
@@ -808,7 +813,7 @@ class Tracker:
             self.first_internal_traceback = "".join(traceback.format_exception(exc))
         try:
             self.reset()
-            if self.refiner is not None and _raised_in(exc, _REFINER_FILE):
+            if self.refiner is not None and _raised_in(exc, _REFINER_FILES):
                 self._restart_refiner()
         except Exception as again:      # noqa: BLE001 -- a reset that fails too: start over entirely
             reason += f" (and resetting failed: {type(again).__name__}: {again})"
