@@ -21,10 +21,13 @@ import math
 import numpy as np
 import pytest
 
+from headplod.plod import criteria, cull
 from headplod.plod import perception as pc
 from headplod.plod.patch_tree import EDGE_STEP, PatchTree
 from headplod.plod.patches import PatchGrid, height_grid, patch_levels, tess_factors
+from headplod.plod.select import SelectorConfig
 from headplod.plod.terrain import Terrain
+from headplod.plod.view import ConditionedView, head_axes
 from headplod.render.projection import off_axis_projection
 from headplod.render.still import default_head
 
@@ -40,13 +43,19 @@ def grid():
 
 
 def _view(screen, grid, poi_px=None, head_mm=None):
-    from headplod.render.tessellate import grid_model, head_axes
+    from headplod.render.tessellate import grid_model
 
     head = default_head(screen) if head_mm is None else np.asarray(head_mm, float)
     poi = np.array(screen.size_px, float) / 2 if poi_px is None else np.asarray(poi_px, float)
     view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
     model = grid_model(grid, screen)
     return view, proj, model, head, head_axes(screen, head, poi), proj @ view @ model
+
+
+def _cv(head, axes, cov, t=None):
+    """The conditioned view of an unfiltered eye (world mm) and head axes, covariance (deg²) and time (s)."""
+    return ConditionedView(t, np.asarray(head, float), np.zeros(2), axes, cov, np.asarray(head, float), np.zeros(2),
+                           cov)
 
 
 def _random_views(screen, grid, count, seed):
@@ -64,9 +73,9 @@ def _random_views(screen, grid, count, seed):
 
 
 def test_node_bound_equals_direct_evaluation(grid, default_screen):
-    tree = PatchTree(grid, split_factor=16)
+    tree = PatchTree(grid, split_factor=16, selection=SelectorConfig(level_bias=-0.5))
     view, proj, model, head, axes, mvp = _view(default_screen, grid, poi_px=(700.0, 500.0))
-    f = tree._frame(model, head, axes, COV, mvp, None, "ellipse", 2.0, -0.5, pc.MIN_SPEED_DEG_S, None, 0.0, True)
+    f = tree._frame(_cv(head, axes, COV), model, mvp)
     ids = np.random.default_rng(0).choice(tree.offset[tree.depth], 60, replace=False)
     level, culled = tree.node_level_bound(ids, f)
     s_max = np.linalg.svd(model[:3, :3], compute_uv=False).max()
@@ -97,7 +106,7 @@ def test_node_bound_equals_direct_evaluation(grid, default_screen):
         contrast = grid.contrast[r << (tree.depth - d):(r + 1) << (tree.depth - d),
                                  c << (tree.depth - d):(c + 1) << (tree.depth - d)].max()
         fmax = float(pc.max_visible_freq_cpd(contrast, pc.MIN_SPEED_DEG_S, ecc, model="kelly_scaled"))
-        expected = math.log2(fmax * (diam + 1e-6)) - 0.5 if fmax > 0 else -math.inf
+        expected = math.log2(max(fmax, criteria.FMAX_FLOOR_CPD) * (diam + 1e-6)) - 0.5 + criteria.LEVEL_SLACK
         # acos against the chord form, float64: ~1e-7 deg on ecc_c, far below a level.
         assert level[k] == pytest.approx(expected, abs=1e-6), (d, r, c)
         planes_out = False
@@ -112,8 +121,8 @@ def test_tree_leaves_equal_flat_levels(grid, default_screen):
     """Where the tree refines to leaves (patches of P samples), their factors are the flat selection's."""
     view, proj, model, head, axes, mvp = _view(default_screen, grid, poi_px=(700.0, 500.0))
     for split_factor, bias in ((16, 0.0), (4, -2.0)):
-        tree = PatchTree(grid, split_factor=split_factor)
-        sel = tree.select(model, head, axes, COV, mvp=mvp, level_bias=bias)
+        tree = PatchTree(grid, split_factor=split_factor, selection=SelectorConfig(level_bias=bias))
+        sel = tree.select(_cv(head, axes, COV), model, mvp=mvp)
         inner, outer = patch_levels(grid, model, head, axes, COV, level_bias=bias)
         top = tree.leaf_max_level
         leaf = sel.depth == tree.depth
@@ -148,8 +157,8 @@ def test_nodes_are_conservative_on_random_views(grid, default_screen):
     p = grid.patch_samples
     mixed = 0
     for (view, proj, model, head, axes, mvp), cov, bias in _random_views(default_screen, grid, 12, seed=7):
-        tree = PatchTree(grid, split_factor=8)
-        sel = tree.select(model, head, axes, cov, mvp=mvp, level_bias=bias)
+        tree = PatchTree(grid, split_factor=8, selection=SelectorConfig(level_bias=bias))
+        sel = tree.select(_cv(head, axes, cov), model, mvp=mvp)
         assert sel.capped == 0
         inner, outer = patch_levels(grid, model, head, axes, cov, level_bias=bias)
         top = tree.leaf_max_level
@@ -170,18 +179,15 @@ def test_nodes_are_conservative_on_random_views(grid, default_screen):
                 assert math.ceil(size / fo[e]) <= borders[e].min() + 1e-9, (d, r, c, e, fo[e])
         # Coverage: every patch the flat box test keeps is under a drawn node.
         leaves = tree.offset[tree.depth] + np.arange(grid.n_patches ** 2)
-        lo, hi = tree.box_lo_m[leaves], tree.box_hi_m[leaves]
-        from headplod.plod.patch_tree import _BOX_CORNERS
-        f = tree._frame(model, head, axes, cov, mvp, None, "ellipse", 2.0, bias, pc.MIN_SPEED_DEG_S, None, 0.0, True)
-        visible = ~tree._culled(lo[:, None, :] + (hi - lo)[:, None, :] * _BOX_CORNERS, f)
+        visible = ~cull.box_outside_clip(cull.box_corners(tree.box_lo_m[leaves], tree.box_hi_m[leaves]), mvp)
         assert np.all(_depth_map(tree, sel).ravel()[visible] >= 0)
     assert mixed >= 6                                                # the views do mix node sizes
 
 
 def test_nodes_tile_the_grid_balanced(grid, default_screen):
     for (view, proj, model, head, axes, mvp), cov, bias in _random_views(default_screen, grid, 6, seed=3):
-        tree = PatchTree(grid, split_factor=4)
-        sel = tree.select(model, head, axes, cov, mvp=None, level_bias=bias - 1.0)        # nothing culled
+        tree = PatchTree(grid, split_factor=4, selection=SelectorConfig(level_bias=bias - 1.0))
+        sel = tree.select(_cv(head, axes, cov), model, mvp=None)                          # nothing culled
         depth = _depth_map(tree, sel)
         assert (depth >= 0).all()                                                          # tiled, no overlap
         assert np.abs(np.diff(depth, axis=0)).max() <= 1 and np.abs(np.diff(depth, axis=1)).max() <= 1
@@ -198,6 +204,8 @@ def test_rejects_bad_grids_and_settings(grid):
         PatchTree(grid, split_factor=128)
     with pytest.raises(ValueError, match="max_tess_level"):
         PatchTree(grid, max_tess_level=48)
+    with pytest.raises(ValueError, match="kelly_scaled"):
+        PatchTree(grid, selection=SelectorConfig(csf_model="kelly"))
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -224,10 +232,10 @@ def _assert_watertight(tri, n):
 def test_hierarchy_is_watertight_across_sizes(ctx430, grid, default_screen, split_factor, bias, poi):
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer
 
-    cfg = TessellationConfig(patch_samples=16, cull=False, hierarchy=True, split_factor=split_factor, level_bias=bias)
+    cfg = TessellationConfig(patch_samples=16, cull=False, hierarchy=True, split_factor=split_factor)
     view, proj, model, head, axes, _ = _view(default_screen, grid, poi_px=poi)
-    with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg) as r:
-        tri = r.triangle_samples(view, proj, model, head, axes, COV)
+    with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg, selection=SelectorConfig(level_bias=bias)) as r:
+        tri = r.triangle_samples(view, proj, model, _cv(head, axes, COV))
         sel = r.last_selection
     assert len(np.unique(sel.size)) >= 3                          # nodes of three sizes or more meet
     assert np.any(sel.outer & (sel.outer - 1))                    # whole-number factors that are not powers of two
@@ -245,7 +253,7 @@ def test_hierarchy_is_watertight_on_the_scale_view(ctx430, default_screen):
     view, proj, model, head, axes, _ = _view(default_screen, big)
     cfg = TessellationConfig(patch_samples=16, cull=False, hierarchy=True)
     with TessellationRenderer(ctx430, big, size=(64, 36), config=cfg) as r:
-        tri = r.triangle_samples(view, proj, model, head, axes, COV, capacity=1 << 22)
+        tri = r.triangle_samples(view, proj, model, _cv(head, axes, COV), capacity=1 << 22)
         sel = r.last_selection
     assert len(np.unique(sel.depth)) >= 3
     _assert_watertight(tri, 2048)
@@ -274,9 +282,11 @@ def test_moving_eye_nodes_stay_conservative(grid, default_screen):
 
     view, proj, model, head, axes, mvp = _view(default_screen, grid, poi_px=(500.0, 400.0))
     prev, dt = head + np.array([8.0, -3.0, 5.0]), 1 / 60
-    tree = PatchTree(grid, split_factor=8)
-    sel = tree.select(model, head, axes, COV, mvp=mvp, eye_prev_mm=prev, dt_s=dt, level_bias=-1.0)
-    still = tree.select(model, head, axes, COV, mvp=mvp, level_bias=-1.0)
+    tree = PatchTree(grid, split_factor=8, selection=SelectorConfig(level_bias=-1.0))
+    tree.select(_cv(prev, axes, COV, t=0.0), model, mvp=mvp)           # the last frame: the eye at prev
+    sel = tree.select(_cv(head, axes, COV, t=dt), model, mvp=mvp)
+    tree.reset()
+    still = tree.select(_cv(head, axes, COV, t=dt), model, mvp=mvp)
     n, p = grid.n_patches, grid.patch_samples
     inner, _ = levels_of_patches(grid.corners_scene(), grid.contrast, grid.neighbour_contrast(), model, head, axes, COV,
                                  level_bias=-1.0, eye_prev_mm=prev, dt_s=dt)

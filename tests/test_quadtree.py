@@ -4,7 +4,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from headplod.plod.quadtree import QuadTree, QuadtreeSelector, sup_max_visible_freq_cpd
+from headplod.plod.criteria import sup_max_visible_freq_cpd
+from headplod.plod.quadtree import QuadTree, QuadtreeSelector
 from headplod.plod.select import LevelSelector, SelectorConfig, View
 
 

@@ -15,14 +15,16 @@ import numpy as np
 import pytest
 
 from headplod.plod.patches import PatchGrid, height_grid, patch_levels, tess_factors
+from headplod.plod.select import SelectorConfig
 from headplod.plod.terrain import Terrain
+from headplod.plod.view import ConditionedView, head_axes
 from headplod.render.projection import off_axis_projection
 from headplod.render.still import default_head
 
 N_SAMPLES = 257      # grid side: 16 x 16 patches of 16 samples
 PATCH = 16
-# float32 against float64: angles from chords of unit vectors ~1e-7 rad relative, the CSF's log form
-# a few ulps; levels are log2 of their product, so ~1e-4 levels is the float32 noise (measured 1.5e-4).
+# float32 against float64: angles from chords of unit vectors carry ~1e-7 relative error, the CSF's log
+# form a few ulps; the levels are log2 of their product, so the float32 noise is of order 1e-4 levels.
 LEVEL_ATOL = 2e-3
 
 
@@ -38,8 +40,14 @@ def grid(terrain):
     return PatchGrid.build(z, dx, dy, PATCH, origin_m=(x0, y0))
 
 
+def _cv(head, axes, cov, t=None):
+    """The conditioned view of an unfiltered eye (world mm) and head axes, covariance (deg²) and time (s)."""
+    return ConditionedView(t, np.asarray(head, float), np.zeros(2), axes, cov, np.asarray(head, float), np.zeros(2),
+                           cov)
+
+
 def _view(screen, grid, poi_px=None, head_mm=None):
-    from headplod.render.tessellate import grid_model, head_axes
+    from headplod.render.tessellate import grid_model
 
     head = default_head(screen) if head_mm is None else np.asarray(head_mm, float)
     poi = np.array(screen.size_px, float) / 2 if poi_px is None else np.asarray(poi_px, float)
@@ -78,10 +86,12 @@ def test_config_validation():
 
     assert TessellationConfig().max_level == 6
     assert TessellationConfig(patch_samples=16).max_level == 4
-    for bad in ({"patch_samples": 48}, {"max_tess_level": 0}, {"shift": "eq3"}, {"ellipse_sigma": -1.0},
-                {"level_bias": float("nan")}, {"csf_stage": "fragment"}):
+    for bad in ({"patch_samples": 48}, {"max_tess_level": 0}, {"csf_stage": "fragment"}, {"factors": "round"}):
         with pytest.raises(ValueError):
             TessellationConfig(**bad)
+    for moved in ("level_bias", "shift", "ellipse_sigma", "light_dir", "ambient"):     # SelectorConfig's, shading's
+        with pytest.raises(TypeError):
+            TessellationConfig(**{moved: None})
 
 
 @pytest.mark.parametrize("cov_deg2, shift, bias, stage", [
@@ -94,10 +104,11 @@ def test_config_validation():
 def test_shader_csf_equals_perception(ctx430, grid, default_screen, cov_deg2, shift, bias, stage):
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer
 
-    cfg = TessellationConfig(patch_samples=PATCH, shift=shift, level_bias=bias, csf_stage=stage)
+    cfg = TessellationConfig(patch_samples=PATCH, csf_stage=stage)
     view, proj, model, head, axes = _view(default_screen, grid, poi_px=(700.0, 500.0))
-    with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg) as r:
-        inner, outer, culled = r.levels(view, proj, model, head, axes, cov_deg2)
+    with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg,
+                              selection=SelectorConfig(shift=shift, level_bias=bias)) as r:
+        inner, outer, culled = r.levels(view, proj, model, _cv(head, axes, cov_deg2))
     ref_inner, ref_outer = patch_levels(grid, model, head, axes, cov_deg2, shift=shift, level_bias=bias)
     assert np.isfinite(ref_inner).all()
     assert ref_inner.max() - ref_inner.min() > 2            # the view spans several levels
@@ -129,8 +140,8 @@ def test_whole_factors_keep_every_gap_and_are_the_fewest():
             if f > 1:
                 assert np.diff(np.round(np.arange(f) * p / (f - 1))).max() > g
         inside = (levels > 0) & (levels < top)
-        assert np.mean(whole[inside] < pow2[inside]) > 0.2            # 21-54% of levels get fewer segments
-        assert np.mean((pow2[inside] / whole[inside]) ** 2) > 1.15     # triangles: 1.16-1.54x fewer on average
+        assert np.mean(whole[inside] < pow2[inside]) > 0.2            # many levels get fewer segments
+        assert np.mean((pow2[inside] / whole[inside]) ** 2) > 1.15     # and fewer triangles on average
     with pytest.raises(ValueError, match="rule"):
         tess_factors(levels, 6, 64, "nearest")
 
@@ -165,9 +176,10 @@ def test_patches_are_watertight(ctx430, grid, default_screen, mode, poi_px, stag
     # more than one draw call may hold on llvmpipe: the split into calls is checked too.
     cfg = TessellationConfig(patch_samples=PATCH, cull=False, csf_stage=stage, factors=rule)
     view, proj, model, head, axes = _view(default_screen, grid, poi_px=poi_px)
+    cv = _cv(head, axes, np.diag([0.05 ** 2] * 2))
     with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg) as r:
-        tri = r.triangle_samples(view, proj, model, head, axes, np.diag([0.05 ** 2] * 2), mode=mode)
-        _, outer, _ = r.levels(view, proj, model, head, axes, np.diag([0.05 ** 2] * 2))
+        tri = r.triangle_samples(view, proj, model, cv, mode=mode)
+        _, outer, _ = r.levels(view, proj, model, cv)
     if mode == "csf":
         assert len(np.unique(tess_factors(outer, cfg.max_level, PATCH, rule))) >= 3   # edges of different factors meet
     key, area = _edges_and_area(tri)
@@ -209,9 +221,9 @@ def test_many_patches_keep_their_ids(ctx430, default_screen):
     for stage in ("vertex", "control"):
         with TessellationRenderer(ctx430, big, size=(64, 36),
                                   config=TessellationConfig(patch_samples=16, cull=False, csf_stage=stage)) as r:
-            levels[stage] = r.levels(view, proj, model, head, axes, cov)
+            levels[stage] = r.levels(view, proj, model, _cv(head, axes, cov))
             if stage == "control":
-                tri = r.triangle_samples(view, proj, model, head, axes, cov, capacity=1 << 22)
+                tri = r.triangle_samples(view, proj, model, _cv(head, axes, cov), capacity=1 << 22)
     for a, b in zip(levels["vertex"], levels["control"]):
         np.testing.assert_allclose(a, b, atol=LEVEL_ATOL)
     key, area = _edges_and_area(tri)
@@ -277,8 +289,8 @@ def test_texture_shading_bakes_every_samples_colour(ctx430, grid):
 
 def test_texture_shading_meets_the_full_detail_render(ctx430, default_screen):
     """On a grid whose samples are finer than a pixel, the csf frame with texture shading is within 45 dB of
-    the full-detail render in the 5° disc (measured 65 dB), and clearly closer than per-vertex shading is
-    (measured 50 dB): that shows each level's smoothed normals, not the average of the samples' shading."""
+    the full-detail render in the 5° disc, and clearly closer than per-vertex shading is: that shows each
+    level's smoothed normals, not the average of the samples' shading."""
     from headplod.bench.image_metrics import disc_mask, psnr_db
     from headplod.render.still import px_per_deg_at
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model, render_frame
@@ -329,9 +341,8 @@ def test_shader_csf_of_a_moving_eye_equals_perception(ctx430, grid, default_scre
     head1 = head0 + np.array([25.0, -10.0, 0.0])               # 25 mm in 1/60 s: points move ~100 deg/s
     view1, proj1, _, _, axes1 = _view(default_screen, grid, poi_px=(700.0, 500.0), head_mm=head1)
     with TessellationRenderer(ctx430, grid, size=(64, 36), config=TessellationConfig(patch_samples=PATCH)) as r:
-        still, _, _ = r.levels(view0, proj0, model, head0, axes0, cov, t=0.0)
-        r._prev = (head0.copy(), 0.0)
-        inner, outer, _ = r.levels(view1, proj1, model, head1, axes1, cov, t=1 / 60)
+        still, _, _ = r.levels(view0, proj0, model, _cv(head0, axes0, cov, t=0.0))
+        inner, outer, _ = r.levels(view1, proj1, model, _cv(head1, axes1, cov, t=1 / 60))   # moved since the last
     n = grid.n_patches
     ref_inner, ref_outer = levels_of_patches(grid.corners_scene(), grid.contrast, grid.neighbour_contrast(), model,
                                              head1, axes1, cov, eye_prev_mm=head0, dt_s=1 / 60)
@@ -339,3 +350,120 @@ def test_shader_csf_of_a_moving_eye_equals_perception(ctx430, grid, default_scre
     np.testing.assert_allclose(inner, ref_inner, atol=LEVEL_ATOL)
     np.testing.assert_allclose(outer, ref_outer, atol=LEVEL_ATOL)
     assert np.median(still - inner) > 0.5                       # the motion coarsens: the Newton path ran
+
+
+# The level rule alone on the GPU (tess_shaders.RULE), fed explicit inputs: offsets (φ, θ), reach, diameter,
+# contrast, speed and the foveal f_max; out: eccentricity, f_max and level, as criteria computes them.
+_RULE_HARNESS = """
+layout(std430, binding = 5) readonly buffer Inputs { vec4 inputs[]; };     // 2 per case
+layout(std430, binding = 6) writeonly buffer Outputs { vec4 outputs[]; };  // ecc, f_max, level, 0
+void main() {
+    vec4 a = inputs[2 * gl_VertexID], b = inputs[2 * gl_VertexID + 1];
+    float ecc = piece_eccentricity_deg(shift(a.xy), a.z);
+    float f = piece_fmax_cpd(b.x, b.y, ecc, b.z);
+    outputs[gl_VertexID] = vec4(ecc, f, frequency_level(f, a.w), 0.0);
+    gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
+    gl_PointSize = 1.0;
+}
+"""
+# float32 (ε = 1.2e-7) against float64. The eccentricity goes through tan, atan and degrees: ~1e-6 relative
+# at 40° (4e-5 deg), so RULE_ECC_ATOL = 5e-4 deg. f_max's Newton step solves t - ln t = L, whose root has
+# relative error ~ε |L| / (t - 1): below 1e-5 when L - 1 > 1e-3 (closer to the visibility threshold L = 1,
+# f_max jumps from 2/b to 0 and either side may round the other way: those cases are left out); the level
+# is log2(f_max · diameter) + bias, so its error is ~1e-5 / ln 2 plus a few ulps of log2: RULE_LEVEL_ATOL
+# = 1e-4 levels.
+RULE_ECC_ATOL = 5e-4
+RULE_LEVEL_ATOL = 1e-4
+
+
+@pytest.mark.parametrize("cov_deg2, shift", [(None, "ellipse"), (np.diag([0.05 ** 2] * 2), "ellipse"),
+                                             (np.array([[2.0, 0.6], [0.6, 0.8]]), "ellipse"),
+                                             (np.array([[2.0, 0.6], [0.6, 0.8]]), "eq1")])
+def test_shader_rule_equals_criteria_on_a_grid(ctx430, cov_deg2, shift):
+    """The GLSL level rule (tess_shaders.RULE: its constants generated from csf.py) against criteria.csf_level
+    on contrast x eccentricity (offset size and direction) x speed (below, at and above the floor: the
+    foveal shortcut and the Newton path) x size (diameter, reach), for each uncertainty."""
+    import itertools
+
+    import moderngl
+
+    from headplod.plod import criteria
+    from headplod.plod import perception as pc
+    from headplod.plod.csf import MIN_SPEED_DEG_S, csf_coefficients
+    from headplod.render import tess_shaders as ts
+
+    grid = np.array(list(itertools.product([0.003, 0.01, 0.03, 0.1, 0.3, 0.7, 1.0],      # contrast
+                                           [0.0, 0.5, 2.0, 5.0, 10.0, 20.0, 40.0],       # |offset|, deg
+                                           np.radians([0.0, 35.0, 90.0, 200.0]),         # its direction
+                                           [0.05, 0.1, 0.5, 3.0, 20.0, 80.0],            # speed, deg/s
+                                           [1e-3, 0.05, 0.5, 4.0])))                     # diameter, deg
+    contrast, size, direction, speed, diameter = grid.T
+    offsets = np.stack([size * np.sin(direction), size * np.cos(direction)], axis=-1)
+    reach, bias = 0.6 * diameter, 0.25
+    still = criteria.foveal_fmax_cpd(contrast, MIN_SPEED_DEG_S)
+    inputs = np.stack([offsets[:, 0], offsets[:, 1], reach, diameter, contrast, speed, still,
+                       np.zeros_like(speed)], axis=-1).astype("f4")
+    prog = ctx430.program(vertex_shader="#version 430\n" + ts.RULE + _RULE_HARNESS, fragment_shader=ts.NO_FRAGMENT)
+    vao = ctx430.vertex_array(prog, [])
+    fbo = ctx430.framebuffer(color_attachments=[ctx430.renderbuffer((4, 4), components=4)])
+    src, dst = ctx430.buffer(inputs.tobytes()), ctx430.buffer(reserve=16 * len(grid))
+    try:
+        prog["u_shift_form"].value = ts.SHIFT_FORMS[None if cov_deg2 is None else shift]
+        prog["u_cov_inv"].write(np.linalg.inv(np.eye(2) if cov_deg2 is None else cov_deg2).astype("f4").tobytes())
+        prog["u_ellipse_sigma"].value = 2.0
+        prog["u_level_bias"].value = bias
+        src.bind_to_storage_buffer(5)
+        dst.bind_to_storage_buffer(6)
+        fbo.use()
+        vao.render(moderngl.POINTS, vertices=len(grid))
+        ctx430.memory_barrier()
+        got = np.frombuffer(dst.read(), np.float32).reshape(-1, 4).astype(np.float64)
+    finally:
+        for obj in (vao, prog, fbo, src, dst):
+            obj.release()
+    shifted = pc.uncertainty_shift(offsets, cov_deg2, shift, 2.0) if cov_deg2 is not None else offsets
+    ecc = criteria.piece_eccentricity_deg(shifted, reach)
+    want = criteria.csf_level(contrast, speed, ecc, diameter, level_bias=bias)
+    A, b = csf_coefficients(speed)
+    clear = np.abs(0.5 * np.log(A * contrast) - np.log(0.5 * b) - 1.0) > 1e-3      # not at the threshold
+    assert clear.mean() > 0.95 and (want < -20).any() and (want > 3).any()      # invisible and fine pieces alike
+    np.testing.assert_allclose(got[:, 0], ecc, atol=RULE_ECC_ATOL)
+    np.testing.assert_allclose(got[clear, 2], want[clear], atol=RULE_LEVEL_ATOL)
+
+
+def test_uncertainty_none_ignores_the_covariance(ctx430, grid, default_screen):
+    """``render_frame(..., uncertainty="none")`` draws as without a covariance (the view is conditioned
+    first): a wide covariance changes the frame only under a scenario that uses it."""
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model, render_frame
+
+    wide = np.diag([9.0, 9.0])
+    with TessellationRenderer(ctx430, grid, size=(160, 90), config=TessellationConfig(patch_samples=PATCH)) as r:
+        model = grid_model(grid, default_screen)
+        plain, s0 = render_frame(r, default_screen, model, cov_deg2=None)
+        none, s1 = render_frame(r, default_screen, model, cov_deg2=wide, uncertainty="none")
+        used, s2 = render_frame(r, default_screen, model, cov_deg2=wide, uncertainty="adaptive")
+    assert np.array_equal(plain, none) and s0["triangles"] == s1["triangles"]
+    assert s2["triangles"] > s1["triangles"]
+
+
+def test_shader_culling_equals_the_clip_box_test(ctx430, grid, default_screen):
+    """The levels pass's culled flags are cull.box_outside_clip's (the GLSL outside() is its float32 copy),
+    on a view that culls part of the grid, with and without an NDC region; a box within float32 noise of a
+    plane may go either way."""
+    from headplod.plod import cull
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer
+
+    view, proj, model, head, axes = _view(default_screen, grid, poi_px=(200.0, 900.0),
+                                          head_mm=default_head(default_screen) + np.array([250.0, 120.0, -200.0]))
+    mvp = proj @ view @ model
+    p, n = grid.patch_samples, grid.n_patches
+    j, i = np.meshgrid(np.arange(n), np.arange(n))
+    lo = np.stack([grid.origin_m[0] + j * p * grid.dx_m, grid.origin_m[1] + i * p * grid.dy_m, grid.z_min_m], -1)
+    hi = np.stack([lo[..., 0] + p * grid.dx_m, lo[..., 1] + p * grid.dy_m, grid.z_max_m], -1)
+    corners = cull.box_corners(lo.reshape(-1, 3), hi.reshape(-1, 3))
+    with TessellationRenderer(ctx430, grid, size=(64, 36), config=TessellationConfig(patch_samples=PATCH)) as r:
+        for region in (None, (-0.3, -0.2, 0.4, 0.5)):
+            culled = r._levels_pass(view, proj, model, _cv(head, axes, None), "csf", region)[..., 5] > 0.5
+            want = cull.box_outside_clip(corners, mvp, region).reshape(n, n)
+            assert 0.1 < want.mean() < 0.9
+            assert np.count_nonzero(culled != want) <= 2

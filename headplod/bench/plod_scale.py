@@ -102,6 +102,7 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
 
     from .. import io
     from ..plod.patches import PatchGrid, grid_normals, jacksboro_grid, patch_samples_for
+    from ..plod.select import SelectorConfig
     from ..render import TerrainRenderer, create_context, off_axis_projection
     from ..render.still import default_head
     from ..render.tessellate import TessellationConfig, TessellationRenderer, grid_model, render_frame
@@ -124,13 +125,14 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
          else patch_samples_for(n_samples, max(size), smallest=MIN_PATCH_SAMPLES))
     grid = PatchGrid.build(z, dx, dy, p, origin_m=origin)
     model = grid_model(grid, screen)
-    config = TessellationConfig(patch_samples=p, level_bias=level_bias)
+    config = TessellationConfig(patch_samples=p)
     if hierarchy is not None or split_factor is not None:
         config = replace(config, **({} if hierarchy is None else {"hierarchy": bool(hierarchy)}),
                          **({} if split_factor is None else {"split_factor": int(split_factor)}))
     steady, extra = [], {}
     if backend == "tessellation":
-        tess = TessellationRenderer(ctx, grid, size=size, config=config)
+        tess = TessellationRenderer(ctx, grid, size=size, config=config,
+                                    selection=SelectorConfig(level_bias=level_bias))
         extra["setup_s"] = time.perf_counter() - t_start
         for k in range(frames + 1):
             image, st = render_frame(tess, screen, model, head, poi, COV_DEG2, t=k / 60)

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import lambertw
 
-__all__ = ["CSF_MODELS", "MIN_SPEED_DEG_S", "ECC_SLOPE",
+__all__ = ["CSF_MODELS", "MIN_SPEED_DEG_S", "ECC_SLOPE", "KELLY_K0", "KELLY_K1", "KELLY_SPEED_REF_DEG_S",
+           "KELLY_SPEED_OFFSET_DEG_S", "KELLY_PEAK_CONSTANT",
            "sensitivity", "csf_coefficients", "max_visible_freq_cpd", "gp_cutoff_cpd", "eccentricity_factor"]
 
 CSF_MODELS = ("paper", "kelly", "daly", "kelly_scaled")
@@ -22,6 +23,20 @@ MIN_SPEED_DEG_S = 0.1
 
 ECC_SLOPE = 0.29
 """Rovamo & Virsu's cortical-magnification slope, 1/deg: M(e) ∝ 1 / (1 + 0.29 e)."""
+
+# Kelly (1979)'s spatio-velocity CSF, G = (K0 + K1 |log10(v / V_REF)|^3) v α² exp(-2 α (v + V_OFFSET) / PEAK),
+# α = 2π f: the constants every Kelly form here (and the tessellation shader's copy of kelly_scaled,
+# headplod.render.tess_shaders) is built from.
+KELLY_K0 = 6.1
+"""Kelly's constant term of the amplitude (dimensionless)."""
+KELLY_K1 = 7.3
+"""Kelly's coefficient of |log10(v / 3)|³ in the amplitude (dimensionless)."""
+KELLY_SPEED_REF_DEG_S = 3.0
+"""The speed where Kelly's amplitude term is smallest, deg/s (the 3 of log10(v / 3))."""
+KELLY_SPEED_OFFSET_DEG_S = 2.0
+"""Added to the speed in the decay, deg/s (the 2 of (v + 2))."""
+KELLY_PEAK_CONSTANT = 45.9
+"""The peak's angular frequency times (v + 2): α_max = 45.9 / (v + 2), α = 2π f in rad per degree."""
 
 # Daly (1998) constants of the spatio-velocity CSF.
 _DALY_C0, _DALY_C1, _DALY_C2 = 1.14, 0.67, 1.7
@@ -74,11 +89,11 @@ def csf_coefficients(speed_deg_s, model="kelly_scaled"):
         return k * v, 5.5 * np.log(10.0) * (v + 2.0) / 45.9
     if model == "daly":
         c0, c1, c2 = _DALY_C0, _DALY_C1, _DALY_C2
-        k = 6.1 + 7.3 * np.abs(np.log10(c2 * v / 3.0)) ** 3
+        k = KELLY_K0 + KELLY_K1 * np.abs(np.log10(c2 * v / KELLY_SPEED_REF_DEG_S)) ** 3
         return (k * c0 * c2 * v * (2.0 * np.pi * c1) ** 2,
-                4.0 * np.pi * c1 * (c2 * v + 2.0) / 45.9)
-    k = 6.1 + 7.3 * np.abs(np.log10(v / 3.0)) ** 3
-    return k * v * (2.0 * np.pi) ** 2, 4.0 * np.pi * (v + 2.0) / 45.9
+                4.0 * np.pi * c1 * (c2 * v + KELLY_SPEED_OFFSET_DEG_S) / KELLY_PEAK_CONSTANT)
+    k = KELLY_K0 + KELLY_K1 * np.abs(np.log10(v / KELLY_SPEED_REF_DEG_S)) ** 3
+    return k * v * (2.0 * np.pi) ** 2, 4.0 * np.pi * (v + KELLY_SPEED_OFFSET_DEG_S) / KELLY_PEAK_CONSTANT
 
 
 def eccentricity_factor(ecc_deg):

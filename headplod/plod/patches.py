@@ -5,17 +5,18 @@ The pure-numpy half of the tessellation back end (:mod:`headplod.render.tessella
 - :func:`height_grid`: the terrain (:class:`headplod.plod.terrain.Terrain`,
   DEM spline + synthetic detail) sampled on an ``n x n`` grid over its extent,
   separably (a few matrix products instead of per-point evaluation), so
-  grids of 8193² samples (134 million triangles) take seconds.
+  grids of 8193² samples (134 million triangles) are affordable.
 - :class:`PatchGrid`: that grid cut into patches of ``patch_samples`` sample
   spacings, with each patch's height range (for culling) and Michelson
   contrast of its Lambert shading (for the CSF).
 - :func:`patch_levels`: the continuous CSF level of every patch (its inner
-  tessellation) and of every patch edge (its outer tessellation), with the
-  closed form of :meth:`headplod.plod.select.LevelSelector.select` in mode
-  ``csf`` (``kelly_scaled``, uncertainty shift, eccentricity at the point
-  nearest the POI), built from :mod:`headplod.plod.perception`'s functions.
-  The tessellation control shader evaluates the same formulas; this is what
-  the shader is tested against.
+  tessellation) and of every patch edge (its outer tessellation): the
+  ``csf`` rule of :mod:`headplod.plod.criteria` (``kelly_scaled``,
+  uncertainty shift, eccentricity at the point nearest the POI), the one
+  :class:`headplod.plod.select.LevelSelector` applies to a base triangle,
+  on a patch's five pieces (:func:`headplod.plod.criteria.patch_pieces`).
+  The tessellation shaders evaluate the same rule in float32; this is what
+  they are tested against.
 
 Grid frame: sample ``[i, j]`` is at scene ``(x0 + j dx, y0 + i dy)`` (row 0 south,
 column 0 west, as :class:`Terrain`); patch ``(pi, pj)`` covers samples
@@ -37,11 +38,12 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage as ndi
 
+from . import criteria
 from . import perception as pc
 from .terrain import Terrain, _bspline_weights
 
 __all__ = ["height_grid", "jacksboro_grid", "grid_normals", "PatchGrid", "patch_levels", "levels_of_patches",
-           "point_speed_deg_s", "tess_factors", "FACTOR_RULES", "EDGE_NAMES", "patch_samples_for", "vertex_gap_samples"]
+           "tess_factors", "FACTOR_RULES", "EDGE_NAMES", "patch_samples_for", "vertex_gap_samples"]
 
 #: The detail's shortest wavelength on :func:`jacksboro_grid`'s grids, sample spacings: each grid has detail
 #: down to its own resolution.
@@ -276,46 +278,6 @@ def _block_reduce_strip(a: np.ndarray, p: int, fn) -> np.ndarray:
     return fn(fn.reduceat(cols[:-1], starts), cols[starts + p])
 
 
-def _angle_deg(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Angle between unit vectors (..., 3), deg, from their chord (accurate for small angles)."""
-    chord = np.linalg.norm(u - v, axis=-1)
-    return np.degrees(2 * np.arcsin(np.minimum(chord / 2, 1.0)))
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
-def _chord(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """|u - v| of unit vectors (..., 3)."""
-    return np.linalg.norm(u - v, axis=-1)
-
-
-def _chord_angle_deg(chord: np.ndarray) -> np.ndarray:
-    """The angle of a chord between unit vectors, deg (:func:`_angle_deg`'s second half)."""
-    return np.degrees(2 * np.arcsin(np.minimum(chord / 2, 1.0)))
-
-
-def _csf_level(points_mm, reach_deg, diameter_deg, contrast, eye_mm, axes, cov_deg2, shift, ellipse_sigma,
-               speed_deg_s, level_bias, fmax_foveal=None):
-    """Continuous level log2(f_max · diameter) of pieces seen from ``eye_mm`` (select.py's csf closed form).
-
-    ``fmax_foveal``: f_max at eccentricity 0 of each piece (its contrast and speed), cpd, if known: the same
-    number as ``max_visible_freq_cpd`` (kelly_scaled divides the foveal f_max by 1 + 0.29 e), without its
-    Lambert W.
-    """
-    offsets = pc.view_offsets_deg(points_mm, eye_mm, axes)
-    if cov_deg2 is not None:
-        offsets = pc.uncertainty_shift(offsets, cov_deg2, shift, ellipse_sigma)
-    ecc = np.maximum(pc.eccentricity_deg(offsets) - reach_deg, 0.0)
-    if fmax_foveal is None:
-        fmax = pc.max_visible_freq_cpd(contrast, speed_deg_s, ecc, model="kelly_scaled")
-    else:
-        fmax = np.asarray(fmax_foveal, np.float64) / pc.eccentricity_factor(ecc)
-    with np.errstate(divide="ignore"):
-        return pc.lod_continuous(1.0 / np.maximum(diameter_deg, 1e-9), np.maximum(fmax, 1e-12)) + level_bias
-
-
 def patch_levels(grid: PatchGrid, model: np.ndarray, eye_mm, axes, cov_deg2=None, *, shift: str = "ellipse",
                  ellipse_sigma: float = 2.0, speed_deg_s: float = pc.MIN_SPEED_DEG_S, level_bias: float = 0.0):
     """Continuous CSF levels of every patch (inner) and every patch edge (outer), as the shader computes them.
@@ -328,8 +290,9 @@ def patch_levels(grid: PatchGrid, model: np.ndarray, eye_mm, axes, cov_deg2=None
     patches sharing it), and the eccentricity taken at the point nearest
     the POI: that of the centre (an edge: its midpoint), shifted by the
     uncertainty, less the angle to the farthest corner (endpoint), floored at
-    0 — as :meth:`LevelSelector.select` does for a base triangle. An edge's
-    level depends on the edge alone, so both patches sharing it agree.
+    0 — as :meth:`LevelSelector.select` does for a base triangle
+    (:func:`headplod.plod.criteria.patch_piece_levels`). An edge's level
+    depends on the edge alone, so both patches sharing it agree.
 
     Parameters
     ----------
@@ -339,7 +302,7 @@ def patch_levels(grid: PatchGrid, model: np.ndarray, eye_mm, axes, cov_deg2=None
     eye_mm : (3,)
         Eye, world frame, mm.
     axes : (3, 3)
-        Rows Ξ, Ψ, V of the head frame (:meth:`LevelSelector.head_axes`).
+        Rows Ξ, Ψ, V of the head frame (:func:`headplod.plod.view.head_axes`).
     cov_deg2 : (2, 2) or None
         Covariance of the viewing direction, deg².
     shift, ellipse_sigma
@@ -362,19 +325,6 @@ def patch_levels(grid: PatchGrid, model: np.ndarray, eye_mm, axes, cov_deg2=None
                              ellipse_sigma=ellipse_sigma, speed_deg_s=speed_deg_s, level_bias=level_bias)
 
 
-def point_speed_deg_s(points_mm, eye_mm, eye_prev_mm=None, dt_s: float = 0.0):
-    """Angular speed of world points (..., 3) mm seen from an eye that moved, deg/s (the shader's rule).
-
-    The angle between the directions from the last and the current eye over ``dt_s``, floored at
-    :data:`perception.MIN_SPEED_DEG_S`; the floor everywhere when ``dt_s <= 0`` or no last eye.
-    """
-    pts = np.asarray(points_mm, np.float64)
-    if eye_prev_mm is None or not dt_s > 0:
-        return np.full(pts.shape[:-1], pc.MIN_SPEED_DEG_S)
-    a = _angle_deg(_unit(pts - np.asarray(eye_prev_mm, np.float64)), _unit(pts - np.asarray(eye_mm, np.float64)))
-    return np.maximum(a / dt_s, pc.MIN_SPEED_DEG_S)
-
-
 def levels_of_patches(corners_scene, contrast, neighbour_contrast, model, eye_mm, axes, cov_deg2=None, *,
                       shift: str = "ellipse", ellipse_sigma: float = 2.0, speed_deg_s=pc.MIN_SPEED_DEG_S,
                       level_bias: float = 0.0, eye_prev_mm=None, dt_s: float = 0.0, fmax_foveal=None):
@@ -392,7 +342,7 @@ def levels_of_patches(corners_scene, contrast, neighbour_contrast, model, eye_mm
         As :func:`patch_levels`.
     eye_prev_mm : (3,) or None; dt_s : float
         The last frame's eye (world mm) and the time since, s: when given (``dt_s > 0``), each point's
-        speed is :func:`point_speed_deg_s`'s (the shader's rule) instead of ``speed_deg_s``.
+        speed is :func:`headplod.plod.criteria.point_speed_deg_s`'s (the shader's rule) instead of ``speed_deg_s``.
     fmax_foveal : (..., 5) or None
         Optional: the foveal f_max (eccentricity 0) of the inner piece and of each edge at
         ``speed_deg_s`` (cpd), precomputed (:class:`headplod.plod.patch_tree.PatchTree` does, once);
@@ -405,37 +355,13 @@ def levels_of_patches(corners_scene, contrast, neighbour_contrast, model, eye_mm
         As :func:`patch_levels`.
     """
     model = np.asarray(model, np.float64)
-    eye = np.asarray(eye_mm, np.float64)
     corners = np.asarray(corners_scene, np.float64)
     homog = np.concatenate([corners, np.ones(corners.shape[:-1] + (1,))], axis=-1)
-    c_mm = (homog @ model.T)[..., :3]
-    dirs = _unit(c_mm - eye)
-    moving = eye_prev_mm is not None and dt_s > 0
-
-    # Angles are taken from chords (_angle_deg), and the largest angle is that of the largest chord.
-    # Inner: centre = mean of the corners; diameter = largest angle between two corners.
-    centre = c_mm.mean(axis=-2)
-    diameter = _chord_angle_deg(_chord(dirs[..., [0, 1, 2, 3, 0, 1], :], dirs[..., [1, 2, 3, 0, 2, 3], :]).max(axis=-1))
-    cdir = _unit(centre - eye)
-    reach = _chord_angle_deg(_chord(cdir[..., None, :], dirs).max(axis=-1))
-    contrast = np.asarray(contrast, np.float64)
-    neighbour_contrast = np.asarray(neighbour_contrast, np.float64)
-    # Edges: west = NW-SW (corners 3, 0), south = SW-SE (0, 1), east = SE-NE (1, 2), north = NE-NW (2, 3);
-    # the endpoints in a fixed order (west to east, south to north) so that neighbours compute the same numbers.
-    a, b = [3, 0, 1, 3], [0, 1, 2, 2]
-    mid = 0.5 * (c_mm[..., a, :] + c_mm[..., b, :])                               # (..., 4, 3)
-    mdir = _unit(mid - eye)
-    length = _chord_angle_deg(_chord(dirs[..., a, :], dirs[..., b, :]))
-    reach_e = _chord_angle_deg(np.maximum(_chord(mdir, dirs[..., a, :]), _chord(mdir, dirs[..., b, :])))
-    # The patch and its four edges as five pieces, evaluated together.
-    points = np.concatenate([centre[..., None, :], mid], axis=-2)                  # (..., 5, 3)
-    pieces_contrast = np.concatenate([contrast[..., None], np.maximum(contrast[..., None], neighbour_contrast)],
-                                     axis=-1)
-    speed = point_speed_deg_s(points, eye, eye_prev_mm, dt_s) if moving else speed_deg_s
-    levels = _csf_level(points, np.concatenate([reach[..., None], reach_e], axis=-1),
-                        np.concatenate([diameter[..., None], length], axis=-1), pieces_contrast, eye_mm=eye,
-                        axes=axes, cov_deg2=cov_deg2, shift=shift, ellipse_sigma=ellipse_sigma, speed_deg_s=speed,
-                        level_bias=level_bias, fmax_foveal=None if moving else fmax_foveal)
+    levels = criteria.patch_piece_levels((homog @ model.T)[..., :3],
+                                         criteria.patch_piece_contrast(contrast, neighbour_contrast), eye_mm, axes,
+                                         cov_deg2, shift=shift, ellipse_sigma=ellipse_sigma, level_bias=level_bias,
+                                         speed_deg_s=speed_deg_s, eye_prev_mm=eye_prev_mm, dt_s=dt_s,
+                                         foveal_cpd=fmax_foveal)
     return levels[..., 0], levels[..., 1:]
 
 

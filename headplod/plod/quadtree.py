@@ -42,60 +42,12 @@ import math
 
 import numpy as np
 
+from . import criteria, cull
 from . import perception as pc
 from .select import LevelSelector, SelectorConfig, View
 
 HIERARCHY_MODES = ("csf", "gp", "distance", "full")
 """Modes :class:`QuadtreeSelector` supports: those whose level is a function of the triangle alone."""
-
-# Slack on the bounds against rounding, deg and levels: the bound is a chain of closed forms whose
-# float error is ~1e-12; these are far above it and far below anything that changes a level.
-_ANGLE_SLACK_DEG = 1e-6
-_LEVEL_SLACK = 1e-6
-# Relative margin on the sup of f_max over the speed grid (the grid's error is ~1e-5).
-_FMAX_MARGIN = 1.001
-
-
-def _sup_table(model: str, top: float):
-    """(contrast grid, sup f_max) up to contrast ``top``, cached per model and top."""
-    key = (model, top)
-    if key not in _SUP_TABLES:
-        grid = np.concatenate([[0.0], np.logspace(-4, math.log10(top), 801)])
-        _SUP_TABLES[key] = (grid, sup_max_visible_freq_cpd(grid, model))
-    return _SUP_TABLES[key]
-
-
-_SUP_TABLES: dict = {}
-
-
-def sup_max_visible_freq_cpd(contrast, model: str = "kelly_scaled", speeds_deg_s=None):
-    """Highest foveal f_max over all retinal speeds, per contrast, cpd, with a safety margin.
-
-    ``max_visible_freq_cpd(C, v, 0)`` is not monotone in the speed ``v``
-    (it peaks near 0.2 deg/s for low contrasts), so a bound valid for any
-    speed takes its maximum over a fine logarithmic speed grid from the
-    floor (0.1 deg/s) to 30 deg/s, times 1.001 (the grid's own error is
-    ~1e-5 relative; f_max only falls beyond 30 deg/s).
-
-    Parameters
-    ----------
-    contrast : (n,) array_like
-        Michelson contrasts.
-    model : one of perception.CSF_MODELS
-    speeds_deg_s : (m,) array_like, optional
-        The speed grid, deg/s.
-
-    Returns
-    -------
-    (n,) ndarray
-        sup over v of f_max(C, v, e=0), cpd (x 1.001); non-decreasing in C.
-    """
-    c = np.asarray(contrast, dtype=np.float64).reshape(-1)
-    v = (np.logspace(math.log10(pc.MIN_SPEED_DEG_S), math.log10(30.0), 600) if speeds_deg_s is None
-         else np.asarray(speeds_deg_s, dtype=np.float64))
-    f = pc.max_visible_freq_cpd(c[:, None], v[None, :], 0.0, model=model)
-    return f.max(axis=1) * _FMAX_MARGIN
-
 
 class QuadTree:
     """Per-node bounds of a quadtree over a grid of quads (two base triangles per quad).
@@ -255,115 +207,48 @@ class QuadtreeSelector(LevelSelector):
                              f"got {len(centroids_scene)}")
         super().__init__(centroids_scene, edge_len_scene, geometric_error_scene, contrast, model, screen, config,
                          corners_scene=corners_scene)
-        self.tree = QuadTree(self.corners_mm, self.centroids_mm, nx, ny,
-                             config.cull_margin_edges * self.edge_len_mm[:, 0])
+        self.tree = QuadTree(self.corners_mm, self.centroids_mm, nx, ny, self.margin_mm)
         self._hot = None                # per depth: nodes with a triangle above level 0 (hysteresis)
-        self._fmax_table = None         # (contrast grid, sup f_max) of mode csf
-        if config.mode == "csf":
-            self._fmax_sup(self.contrast)   # the table, once (~0.1 s)
         self.last_stats: dict = {}
-        # Frustum culling of a node: the screen's four sides, each a plane through the eye that moves
-        # outwards with the margin (``_frame_planes``).
-        tl = np.asarray(screen.top_left, dtype=np.float64)
-        u = np.asarray(screen.top_right, dtype=np.float64) - tl
-        v = np.asarray(screen.bottom_left, dtype=np.float64) - tl
-        width, height = screen.size_px
-        self._screen = (tl, u, v, np.cross(u, v), self.px_per_mm / width * (u @ u), self.px_per_mm / height * (v @ v))
 
     # ------------------------------------------------------------------ bounds
-    def _fmax_sup(self, contrast):
-        """sup over speeds of the foveal f_max at each contrast (k,), cpd, from a table (rounded up in C)."""
-        top = max(1.0, float(np.max(contrast, initial=0.0)))
-        if self._fmax_table is None or self._fmax_table[0][-1] < top:
-            self._fmax_table = _sup_table(self.config.csf_model, top)
-        grid, table = self._fmax_table
-        k = np.searchsorted(grid, contrast, side="left")        # grid[k] >= contrast: f_max rises with C
-        return table[np.minimum(k, len(grid) - 1)]
-
-    def _frame_planes(self, eye):
-        """The culling sides' constants for this eye: (W0 (4, 3), A (4,), B (4,), normal (3,)).
-
-        A point ``p`` in front of the eye projects inside side s of the
-        screen widened by a margin ``m`` (mm on the screen) iff
-        ``(p - eye) · (W0[s] + (A[s] + B[s] m) / k n) >= 0``, with ``n`` the
-        screen's normal and ``k = (top_left - eye) · n``: multiply the pixel
-        condition of ``contrast.project_to_screen_px`` by the positive
-        ``1 / s``. A box is wholly outside a side when that linear form's
-        maximum over the box is negative.
-        """
-        tl, u, v, n, bu, bv = self._screen
-        k = float((tl - eye) @ n)
-        h0u, h0v = float((eye - tl) @ u), float((eye - tl) @ v)
-        W0 = np.stack([u, -u, v, -v])
-        A = np.array([h0u, u @ u - h0u, h0v, v @ v - h0v]) / k
-        B = np.array([bu, bu, bv, bv]) / k
-        return W0, A, B, n
-
     def _frame_context(self, eye, axes, cov):
-        """The per-frame constants of :meth:`_node_bounds`: (eye, axes, culling planes, shift).
+        """The per-frame constants of :meth:`_node_bounds`: (eye, axes, the screen's pyramid, shift reach deg).
 
         Also brings the nodes' contrast up to date (``self.contrast`` may be replaced between frames).
         """
         cfg = self.config
         kelly = cfg.mode == "csf" and cfg.csf_model == "kelly_scaled"
-        self.tree.set_contrast(self.contrast, self._fmax_sup if kelly else None)
-        shift = None
-        if cov is not None:
-            S = np.asarray(cov, dtype=np.float64)
-            lam = float(np.linalg.eigvalsh(0.5 * (S + S.T))[-1])
-            if lam > 0:
-                shift = ("ellipse", cfg.ellipse_sigma * math.sqrt(lam)) if cfg.shift == "ellipse" else ("eq1", lam)
-        return eye, axes, self._frame_planes(eye), shift
+        self.tree.set_contrast(self.contrast, (lambda c: criteria.sup_fmax_cpd(c, cfg.csf_model)) if kelly else None)
+        return (eye, axes, cull.screen_pyramid(self.screen, eye),
+                criteria.shift_reach_deg(cov, cfg.shift, cfg.ellipse_sigma))
 
     def _node_bounds(self, d, nodes, frame):
         """For ``nodes`` (k,) int at depth d: (culled (k,) bool, bound (k,) float).
 
         ``culled``: every centroid below the node projects outside the
         screen with its margin (or lies behind the eye), as the flat
-        selection's culling decides. ``bound``: an upper bound of the
-        continuous level (bias included) of every base triangle below the
-        node (module notes).
+        selection's culling decides (:func:`cull.outside_screen` of the
+        node's box). ``bound``: an upper bound of the continuous level (bias
+        included) of every base triangle below the node (module notes).
         """
-        eye, axes, planes, shift = frame
+        eye, axes, pyramid, shift_reach = frame
         row = self.tree.table[d][nodes]                                       # (k, 12)
         rel, half = row[:, 0:3] - eye, row[:, 3:6]
-        # Culling: the linear form's maximum over the box, per side.
-        W0, A, B, n = planes
-        w = W0 + ((A + B * row[:, 9:10])[:, :, None] * n)                    # (k, 4, 3)
-        top = np.einsum("kj,ksj->ks", rel, w) + np.einsum("kj,ksj->ks", half, np.abs(w))
-        culled = (top < 0).any(axis=1)
+        culled = cull.outside_screen(rel, row[:, 9], pyramid, half)
         cfg = self.config
-        dmin = np.sqrt((np.maximum(np.abs(rel) - half, 0.0) ** 2).sum(axis=1))
+        dmin = np.sqrt((np.maximum(np.abs(rel) - half, 0.0) ** 2).sum(axis=1))      # the box's nearest point
         if cfg.mode == "distance":
-            return culled, (self.max_level - np.log2(np.maximum(dmin / cfg.distance_ref_mm, 1e-9))
-                            + float(cfg.level_bias) + _LEVEL_SLACK)
-        # Smallest angle from the POI's direction V to the node's bounding sphere, deg: the offsets'
-        # norm |(φ, θ)| is at least that angle, and the eccentricity of the shifted offsets P' at
-        # least atan(|P'| in rad).
-        dc = np.sqrt((rel * rel).sum(axis=1))
-        radius = row[:, 6]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            angle = np.degrees(np.arccos(np.clip((rel @ axes[2]) / dc, -1.0, 1.0))
-                               - np.where(radius < dc, np.arcsin(np.minimum(radius / dc, 1.0)), np.pi))
-            angle = np.maximum(angle, 0.0)
-            if shift is not None:
-                form, amount = shift
-                angle = (np.maximum(angle - amount, 0.0) if form == "ellipse"
-                         else -np.expm1(-0.5 * angle ** 2 / amount) * angle)     # eq1, amount = λmax
-            # Less the largest angle from a centroid to its corners; the largest angular diameter.
-            ratio = row[:, 8] / dmin
-            reach = np.where(ratio < 1.0, np.arcsin(np.minimum(ratio, 1.0)), np.pi)
-            diameter = np.where(dmin > 0, 2 * np.arcsin(np.minimum(row[:, 7] / (2 * dmin), 1.0)), np.pi)
-        ecc = np.maximum(np.degrees(np.arctan(np.radians(angle)) - reach) - _ANGLE_SLACK_DEG, 0.0)
-        if cfg.mode == "gp":
-            fmax = pc.gp_cutoff_cpd(row[:, 10], ecc)
-        elif cfg.csf_model == "kelly_scaled":
-            fmax = row[:, 11] / pc.eccentricity_factor(ecc)
-        else:                                   # f_max(C, v, e) = f_max(C / (1 + 0.29 e), v, 0)
-            fmax = self._fmax_sup(row[:, 10] / pc.eccentricity_factor(ecc))
-        # The continuous level is log2(f_max / f) with f = 1 / diameter (deg), plus the bias.
-        with np.errstate(divide="ignore"):
-            return culled, np.log2(np.maximum(fmax, 1e-12) * np.degrees(diameter)) + float(cfg.level_bias) + _LEVEL_SLACK
+            return culled, (criteria.distance_level(dmin, self.max_level, cfg.distance_ref_mm)
+                            + float(cfg.level_bias) + criteria.LEVEL_SLACK)
+        # The centroids are within the node's bounding sphere; a triangle's reach (centroid to corner) and
+        # diameter (longest side) are seen from at least the box's nearest distance.
+        ecc = criteria.eccentricity_bound_deg(criteria.angle_to_sphere_deg(rel, row[:, 6], axes[2]), shift_reach,
+                                              criteria.sphere_reach_deg(row[:, 8], dmin))
+        kelly = cfg.mode == "csf" and cfg.csf_model == "kelly_scaled"
+        return culled, criteria.level_bound(row[:, 10], ecc, criteria.subtended_deg(row[:, 7], dmin), mode=cfg.mode,
+                                            csf_model=cfg.csf_model, foveal_cpd=row[:, 11] if kelly else None,
+                                            level_bias=float(cfg.level_bias))
 
     # ------------------------------------------------------------------ selection
     def select(self, view: View):
@@ -398,8 +283,8 @@ class QuadtreeSelector(LevelSelector):
         speed = self._angular_speed_rows(view.t, eye, rows, directions)
         inside = np.flatnonzero(~self._outside_screen(eye, rows))
         seen = rows[inside]
-        offsets = pc.view_offsets_deg(self.centroids_mm[seen], eye, axes)
-        shifted = pc.uncertainty_shift(offsets, cov, cfg.shift, cfg.ellipse_sigma) if cov is not None else offsets
+        shifted = criteria.shifted_offsets_deg(self.centroids_mm[seen], eye, axes, cov, shift=cfg.shift,
+                                               ellipse_sigma=cfg.ellipse_sigma)
         ecc = np.full(len(rows), np.nan)
         continuous = np.zeros(len(rows))
         ecc[inside], continuous[inside] = self._criterion(seen, eye, shifted, distance[inside],
@@ -431,11 +316,8 @@ class QuadtreeSelector(LevelSelector):
         previous, self._previous = self._previous, (t, eye, None)
         if previous is None or t is None or previous[0] is None or t <= previous[0]:
             return np.full(len(rows), pc.MIN_SPEED_DEG_S)
-        dt = t - previous[0]
         rel = self.centroids_mm[rows] - previous[1]
-        before = rel / np.linalg.norm(rel, axis=1)[:, None]
-        cos = np.clip(np.einsum("ij,ij->i", directions, before), -1.0, 1.0)
-        return np.maximum(np.degrees(np.arccos(cos)) / dt, pc.MIN_SPEED_DEG_S)
+        return criteria.angular_speed_deg_s(directions, rel / np.linalg.norm(rel, axis=1)[:, None], t - previous[0])
 
     def reset(self):
         super().reset()

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import criteria, cull
 from . import perception as pc
 from .view import UNCERTAINTY_MODES, ConditionedView, UncertaintyPolicy, View, ViewConditioner  # noqa: F401
 
@@ -93,8 +94,8 @@ class SelectorConfig:
         this eccentricity (after the uncertainty shift) refines as soon as
         its continuous level asks and the band holds only its coarsening,
         deg (5.0, the disc the quality is measured in): a symmetric band
-        held triangles coarse near a POI moving in (2 dB less PSNR in the
-        disc during a pursuit, ``headplod bench paper``).
+        held triangles coarse near a POI moving in (less PSNR in the disc
+        during a pursuit: see ``headplod bench paper``).
     hysteresis_eager_deg_s : float
         Angular speed of the smoothed POI seen from the eye above which it
         moves, deg/s (3.0; a still head's filtered noise is about 0.2).
@@ -217,6 +218,8 @@ class LevelSelector:
         self.centroids_mm = (homog @ model.T)[:, :3]
         self.edge_len_mm = edge_len_scene * self.scale_mm
         self.error_mm = geometric_error_scene * self.scale_mm
+        # Frustum culling's margin of each base triangle on the screen plane, mm: its level-0 size, generously.
+        self.margin_mm = config.cull_margin_edges * self.edge_len_mm[:, 0]
         self.corners_mm = None
         if corners_scene is not None:
             corners = np.asarray(corners_scene, dtype=np.float64)
@@ -226,8 +229,7 @@ class LevelSelector:
             self._level_scale = self.edge_len_mm / np.maximum(self.edge_len_mm[:, :1], 1e-12)
         self.contrast = np.asarray(contrast, dtype=np.float64)
         self.screen = screen
-        width, height = screen.size_px
-        self.px_per_mm = width / float(np.linalg.norm(np.asarray(screen.top_right) - screen.top_left))
+        self.px_per_mm = screen.size_px[0] / float(np.linalg.norm(np.asarray(screen.top_right) - screen.top_left))
         # A raw View given to select() is conditioned here; the frame step conditions once per frame
         # (headplod.render.frame) and passes the ConditionedView to every back end.
         self.conditioner = ViewConditioner(screen, config)
@@ -237,7 +239,7 @@ class LevelSelector:
         self.hysteresis = (pc.Hysteresis(len(centroids_scene), margin=config.hysteresis_margin,
                                          rounding=self.rounding) if config.hysteresis else None)
         self._previous = None          # (t, eye_mm, directions (F, 3))
-        self._foveal_fmax = None       # (contrast, seen, speed, foveal f_max) of the last frame
+        self._foveal_cache = None      # (contrast, seen, speed, foveal f_max) of the last frame
 
     def condition(self, view: View | ConditionedView) -> ConditionedView:
         """``view`` conditioned by this selector's :class:`ViewConditioner` (a raw :class:`View`), or as given."""
@@ -264,14 +266,14 @@ class LevelSelector:
                     {"eccentricity_deg": nan, "speed_deg_s": nan.copy(), "distance_mm": nan.copy(),
                      "continuous": np.full(n, float(self.max_level))})
         view = self.condition(view)
-        eye, axes, cov = view.eye_mm, view.axes, view.cov_deg2
+        eye, cov = view.eye_mm, view.cov_deg2
         if view.restart and self.hysteresis is not None:
             self.hysteresis.reset()
         rel = self.centroids_mm - eye
         distance = np.linalg.norm(rel, axis=1)
         directions = rel / distance[:, None]
-        offsets = pc.view_offsets_deg(self.centroids_mm, eye, axes)
-        shifted = pc.uncertainty_shift(offsets, cov, cfg.shift, cfg.ellipse_sigma) if cov is not None else offsets
+        shifted = criteria.shifted_offsets_deg(self.centroids_mm, eye, view.axes, cov, shift=cfg.shift,
+                                               ellipse_sigma=cfg.ellipse_sigma)
         speed = self._angular_speed(view.t, eye, directions)
         # Frustum culling (the paper's renderer culled too): a base triangle
         # wholly outside the screen as seen from the eye gets the coarsest
@@ -300,97 +302,60 @@ class LevelSelector:
     def _criterion(self, seen, eye, shifted, distance, directions, speed):
         """Eccentricities (S,) deg and continuous levels (S,) of the base triangles ``seen`` (S,) int.
 
-        The per-triangle criterion, shared by the flat selection and the
-        hierarchical one (:mod:`headplod.plod.quadtree`): ``shifted`` (S, 2)
-        deg are their centroids' (φ, θ) after the uncertainty shift,
-        ``distance`` (S,) mm, ``directions`` (S, 3) unit vectors from the eye
-        (3,) world mm to their centroids, ``speed`` (S,) deg/s. The level bias
-        is included.
+        The per-triangle features and :func:`criteria.continuous_level`,
+        shared by the flat selection and the hierarchical one
+        (``headplod.bench.quadtree_selector``): ``shifted`` (S, 2) deg are
+        their centroids' (φ, θ) after the uncertainty shift, ``distance``
+        (S,) mm, ``directions`` (S, 3) unit vectors from the eye (3,) world
+        mm to their centroids, ``speed`` (S,) deg/s. The level bias is included.
         """
-        cfg = self.config
-        # Angular size of a level's pieces and its spatial frequency (1 / diameter).
         if self.corners_mm is not None:
-            to_corners = self.corners_mm[seen] - eye
-            to_corners /= np.linalg.norm(to_corners, axis=2, keepdims=True)
-            chord = np.linalg.norm(to_corners - to_corners[:, [2, 0, 1]], axis=2)           # (S, 3)
-            diameter_deg = np.degrees(2 * np.arcsin(np.minimum(chord.max(axis=1) / 2, 1.0)))
-            angular_deg = diameter_deg[:, None] * self._level_scale[seen]
-            # Angular radius about the centroid's direction: the farthest corner.
-            chord_c = np.linalg.norm(to_corners - directions[:, None, :], axis=2).max(axis=1)
-            reach_deg = np.degrees(2 * np.arcsin(np.minimum(chord_c / 2, 1.0)))
+            angular_deg, reach_deg = criteria.triangle_sizes_deg(eye, directions, corners_mm=self.corners_mm[seen],
+                                                                 level_scale=self._level_scale[seen])
         else:
-            angular_deg = np.degrees(2 * np.arctan(self.edge_len_mm[seen] / (2 * distance[:, None])))
-            reach_deg = angular_deg[:, 0] / math.sqrt(3)      # an equilateral triangle's circumradius
+            angular_deg, reach_deg = criteria.triangle_sizes_deg(eye, directions, edge_len_mm=self.edge_len_mm[seen],
+                                                                 distance_mm=distance)
         # The triangle's nearest point to the POI, not its centroid, decides
         # what the eye can see of it: a large base triangle reaching into the
-        # fovea must be refined there. (Bounded by the centroid's eccentricity
-        # less the angle to the farthest corner.)
-        ecc = np.maximum(pc.eccentricity_deg(shifted) - reach_deg, 0.0)
-        freq = 1.0 / np.maximum(angular_deg, 1e-9)
-        continuous = self._continuous(freq, distance, ecc, speed, angular_deg, seen) + float(cfg.level_bias)
+        # fovea must be refined there.
+        ecc = criteria.piece_eccentricity_deg(shifted, reach_deg)
+        continuous = criteria.continuous_level(
+            self.config, self.max_level, ecc_deg=ecc, angular_deg=angular_deg, distance_mm=distance,
+            speed_deg_s=speed, contrast=self.contrast[seen], edge_len_mm=self.edge_len_mm[seen],
+            error_mm=self.error_mm[seen], px_per_mm=self.px_per_mm, foveal_cpd=self._foveal_fmax(seen, speed))
         return ecc, continuous
 
-    def _continuous(self, freq, distance, ecc, speed, angular_deg, seen):
-        """Continuous levels of the base triangles ``seen`` (indices); the other arguments are theirs."""
-        L, cfg = self.max_level, self.config
-        if cfg.mode == "distance":
-            # One level coarser per doubling of distance beyond the reference.
-            return L - np.log2(np.maximum(distance / cfg.distance_ref_mm, 1e-9))
-        if cfg.mode in ("csf", "gp"):
-            if cfg.mode == "csf" and cfg.csf_model == "kelly_scaled":
-                # Eccentricity scales the frequency: f_max(C, v, e) = f_max(C, v, 0) / (1 + 0.29 e),
-                # and the foveal part (Lambert's W) changes only with the contrast and the speed:
-                # for a still head (speed at its floor) it is reused from the last frame.
-                cache = self._foveal_fmax
-                if (cache is None or cache[0] is not self.contrast or not np.array_equal(cache[1], seen)
-                        or not np.array_equal(cache[2], speed)):
-                    fmax0 = pc.max_visible_freq_cpd(self.contrast[seen], speed, 0.0, model=cfg.csf_model)
-                    self._foveal_fmax = cache = (self.contrast, seen, speed, fmax0)
-                fmax = cache[3] / pc.eccentricity_factor(ecc)
-            elif cfg.mode == "csf":
-                fmax = pc.max_visible_freq_cpd(self.contrast[seen], speed, ecc, model=cfg.csf_model)
-            else:
-                fmax = pc.gp_cutoff_cpd(self.contrast[seen], ecc)
-            with np.errstate(divide="ignore"):
-                return np.log2(np.maximum(fmax, 1e-12) / freq[:, 0])
-        if cfg.mode == "acuity":
-            radius = 0.5 * angular_deg[:, 0]
-            k1, k2, k3 = pc.acuity_factors(ecc, radius, speed, np.zeros_like(ecc))
-            a0 = pc.display_acuity_a0(1.0 / self.px_per_mm, float(np.median(distance)))
-            return pc.acuity_level(k1, k2, k3, a0, distance, self.edge_len_mm[seen], return_continuous=True)[1]
-        pixels_per_radian = self.px_per_mm * float(np.median(distance))
-        if cfg.mode == "sse":
-            return pc.sse_level(self.error_mm[seen], distance, pixels_per_radian, cfg.sse_tolerance_px,
-                                speed_deg_s=speed, frame_s=cfg.frame_s, return_continuous=True)[1]
-        base = pc.sse_level(self.error_mm[seen], distance, pixels_per_radian, cfg.sse_tolerance_px,
-                            return_continuous=True)[1]
-        return pc.velocity_baseline_level(base, speed, mode=cfg.mode, v_ref=cfg.velocity_ref_deg_s, max_level=L,
-                                          return_continuous=True)[1]
+    def _foveal_fmax(self, seen, speed):
+        """``kelly_scaled``'s foveal f_max (S,) cpd of the triangles ``seen`` at ``speed``, or None for other modes.
+
+        Eccentricity scales the frequency, f_max(C, v, e) = f_max(C, v, 0) / (1 + 0.29 e), and the
+        foveal part (Lambert's W) changes only with the contrast and the speed: for a still head
+        (speed at its floor) it is reused from the last frame.
+        """
+        cfg = self.config
+        if cfg.mode != "csf" or cfg.csf_model != "kelly_scaled":
+            return None
+        cache = self._foveal_cache
+        if (cache is None or cache[0] is not self.contrast or not np.array_equal(cache[1], seen)
+                or not np.array_equal(cache[2], speed)):
+            fmax0 = criteria.foveal_fmax_cpd(self.contrast[seen], speed, cfg.csf_model)
+            self._foveal_cache = cache = (self.contrast, seen, speed, fmax0)
+        return cache[3]
 
     def _outside_screen(self, eye, rows=None) -> np.ndarray:
-        """(F,) bool (or (k,) for base triangles ``rows`` (k,) int): the base triangle projects wholly
-        outside the screen rectangle (or lies behind the eye)."""
-        from .contrast import project_to_screen_px
-
-        centroids, edge0 = ((self.centroids_mm, self.edge_len_mm[:, 0]) if rows is None
-                            else (self.centroids_mm[rows], self.edge_len_mm[rows, 0]))
-        xy = project_to_screen_px(centroids, eye, self.screen)
-        width, height = self.screen.size_px
-        # Margin: the triangle's size at level 0 on the screen, generously.
-        margin = self.config.cull_margin_edges * edge0 * self.px_per_mm
-        with np.errstate(invalid="ignore"):
-            inside = ((xy[:, 0] >= -margin) & (xy[:, 0] <= width + margin)
-                      & (xy[:, 1] >= -margin) & (xy[:, 1] <= height + margin))
-        return ~inside                                   # NaN (not in front of the eye): outside
+        """(F,) bool (or (k,) for base triangles ``rows`` (k,) int): the centroid's ray from the eye misses the
+        screen rectangle widened by the triangle's margin, or the centroid is behind the eye
+        (:func:`cull.outside_screen`)."""
+        rows = slice(None) if rows is None else rows
+        return cull.outside_screen(self.centroids_mm[rows] - eye, self.margin_mm[rows],
+                                   cull.screen_pyramid(self.screen, eye))
 
     def _angular_speed(self, t, eye, directions):
         """Angular speed (deg/s) of each triangle's direction from the eye since the last view, ≥ 0.1."""
         previous, self._previous = self._previous, (t, eye, directions)
         if previous is None or t is None or previous[0] is None or t <= previous[0]:
             return np.full(len(directions), pc.MIN_SPEED_DEG_S)
-        dt = t - previous[0]
-        cos = np.clip(np.einsum("ij,ij->i", directions, previous[2]), -1.0, 1.0)
-        return np.maximum(np.degrees(np.arccos(cos)) / dt, pc.MIN_SPEED_DEG_S)
+        return criteria.angular_speed_deg_s(directions, previous[2], t - previous[0])
 
     def reset(self):
         """Forget the last frame: the conditioner's filters, the speeds and the hysteresis."""

@@ -1,0 +1,509 @@
+"""The PLOD level rules, each written once: a piece of terrain's continuous level, and its bound over a node.
+
+A *piece* is what gets one level: a base triangle of the mesh
+(:class:`headplod.plod.select.LevelSelector`), a tessellation patch or one
+of its edges (:mod:`headplod.plod.patches`, :class:`headplod.plod.patch_tree.PatchTree`;
+the GLSL of :mod:`headplod.render.tess_shaders` evaluates the same rule in
+float32, its constants generated from the ones used here). Every back end
+describes its pieces by the same features and calls the functions below:
+
+- ``ecc_deg``: the eccentricity of the piece's point nearest the POI,
+  after the uncertainty shift: the eccentricity of its reference point's
+  shifted offsets less the angle from that point to the piece's farthest
+  corner, floored at 0 (:func:`piece_eccentricity_deg`);
+- ``diameter_deg``: its angular diameter seen from the eye (the largest
+  angle between two of its corners): its spatial frequency is
+  ``1 / diameter`` cpd;
+- ``speed_deg_s``: the angular speed of its direction from the eye,
+  floored at :data:`headplod.plod.csf.MIN_SPEED_DEG_S`
+  (:func:`angular_speed_deg_s`);
+- ``contrast``: the Michelson contrast of the shaded terrain over it;
+- for the other modes, its distance (mm), edge lengths and geometric
+  error per level (mm).
+
+Then ``csf``'s continuous level is ``log2(f_max(C, v, e) · diameter)``
+(Martinez eq. 4 before its ceiling, :func:`csf_level`), ``gp``'s the same
+with Geisler & Perry's cutoff, and :func:`continuous_level` gives every
+mode's (``acuity``, ``sse``, ``ipv``, ``dpv``, ``distance`` too), the
+level bias included.
+
+Hierarchies (a quadtree over the mesh's base grid, the patch tree) need,
+per node, an upper bound of the continuous level of every piece below it:
+:func:`level_bound` is the same rule evaluated at the node's smallest
+eccentricity (:func:`eccentricity_bound_deg`), its largest diameter and an
+f_max that bounds every contrast and speed below it (:func:`fmax_bound_cpd`,
+with :func:`sup_max_visible_freq_cpd` over every speed), plus a slack far
+above float rounding and far below a level.
+
+Units: angles deg, frequencies cpd, speeds deg/s, lengths mm, levels in
+doublings of frequency (one 1-to-4 subdivision, or one halving of a patch's
+vertex spacing). Frames: world (mm) for points and the eye; offsets
+(φ, θ) about the head frame's V (:func:`headplod.plod.view.head_axes`).
+Pure numpy, vectorised over pieces (any leading shape).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import perception as pc
+from .csf import MIN_SPEED_DEG_S, eccentricity_factor, gp_cutoff_cpd, max_visible_freq_cpd
+
+__all__ = ["CSF_MODES", "DIAMETER_FLOOR_DEG", "FMAX_FLOOR_CPD", "ANGLE_SLACK_DEG", "LEVEL_SLACK",
+           "unit", "chord_angle_deg", "angle_between_deg", "subtended_deg", "sphere_reach_deg",
+           "triangle_sizes_deg", "patch_pieces", "patch_piece_contrast",
+           "shifted_offsets_deg", "piece_eccentricity_deg", "angular_speed_deg_s", "point_speed_deg_s",
+           "foveal_fmax_cpd", "fmax_cpd", "frequency_level", "csf_level", "distance_level", "continuous_level",
+           "patch_piece_levels",
+           "shift_reach_deg", "angle_to_sphere_deg", "eccentricity_bound_deg", "sup_max_visible_freq_cpd",
+           "sup_fmax_cpd", "fmax_bound_cpd", "level_bound"]
+
+CSF_MODES = ("csf", "gp")
+"""The modes whose level is ``log2(f_max · diameter)`` (:func:`csf_level`)."""
+
+DIAMETER_FLOOR_DEG = 1e-9
+"""Smallest angular diameter the level rule divides by, deg (a piece seen edge-on or at a point)."""
+FMAX_FLOOR_CPD = 1e-12
+"""Smallest f_max the level rule takes the log of, cpd: where nothing is visible (f_max = 0) the level is
+log2(1e-12 · diameter), about 40 levels below any real one, instead of -inf."""
+ANGLE_SLACK_DEG = 1e-6
+"""Slack of the bounds' angles against rounding, deg: far above the float64 error of their closed forms,
+far below anything that changes a level."""
+LEVEL_SLACK = 1e-6
+"""Slack added to every level bound, levels (the same reason)."""
+
+
+# ---------------------------------------------------------------------------
+# Angles
+# ---------------------------------------------------------------------------
+
+def unit(v) -> np.ndarray:
+    """``v`` (..., 3) divided by its norm along the last axis."""
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def chord_angle_deg(chord) -> np.ndarray:
+    """The angle between two unit vectors whose difference has norm ``chord`` (...,), deg.
+
+    ``2 asin(chord / 2)``: accurate for small angles, where ``acos`` of a
+    dot product loses half the digits.
+    """
+    return np.degrees(2 * np.arcsin(np.minimum(np.asarray(chord, dtype=np.float64) / 2, 1.0)))
+
+
+def angle_between_deg(u, v) -> np.ndarray:
+    """Angle between unit vectors ``u``, ``v`` (..., 3), deg (:func:`chord_angle_deg` of their difference)."""
+    return chord_angle_deg(np.linalg.norm(np.asarray(u) - np.asarray(v), axis=-1))
+
+
+def subtended_deg(size_mm, distance_mm) -> np.ndarray:
+    """Largest angle two points at most ``size_mm`` apart subtend from an eye at least ``distance_mm`` away, deg.
+
+    ``2 asin(size / (2 distance))`` (two points at exactly that distance,
+    symmetric about the eye's line of sight); 180 when ``distance <= size / 2``.
+    """
+    size, distance = np.asarray(size_mm, dtype=np.float64), np.asarray(distance_mm, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(distance > size / 2, np.degrees(2 * np.arcsin(np.minimum(size / (2 * distance), 1.0))),
+                        180.0)
+
+
+def sphere_reach_deg(radius_mm, distance_mm) -> np.ndarray:
+    """Half-angle a sphere of ``radius_mm`` subtends from an eye ``distance_mm`` from its centre, deg; 180 inside."""
+    radius, distance = np.asarray(radius_mm, dtype=np.float64), np.asarray(distance_mm, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(distance > radius, np.degrees(np.arcsin(np.minimum(radius / distance, 1.0))), 180.0)
+
+
+# ---------------------------------------------------------------------------
+# The pieces: base triangles, and patches with their edges
+# ---------------------------------------------------------------------------
+
+def triangle_sizes_deg(eye_mm, directions, *, corners_mm=None, level_scale=None, edge_len_mm=None,
+                       distance_mm=None):
+    """Angular sizes of base triangles' pieces at every level, and their reach, deg.
+
+    With ``corners_mm`` (S, 3, 3) world mm: the diameter of the triangle's
+    projection (the largest angle between two corners, foreshortening
+    included: the paper's definition) times ``level_scale`` (S, L+1), the
+    level's pieces' size over the level-0 triangle's; the reach is the angle
+    from the centroid's direction ``directions`` (S, 3) (unit, from
+    ``eye_mm`` (3,)) to the farthest corner. Without: the longest edge
+    ``edge_len_mm`` (S, L+1) seen face-on at ``distance_mm`` (S,), and the
+    reach an equilateral triangle's circumradius (the level-0 size / √3).
+
+    Returns
+    -------
+    angular_deg : (S, L+1) float64
+    reach_deg : (S,) float64
+    """
+    if corners_mm is not None:
+        to_corners = np.asarray(corners_mm, dtype=np.float64) - eye_mm
+        to_corners /= np.linalg.norm(to_corners, axis=2, keepdims=True)
+        chord = np.linalg.norm(to_corners - to_corners[:, [2, 0, 1]], axis=2)           # (S, 3)
+        angular_deg = chord_angle_deg(chord.max(axis=1))[:, None] * level_scale
+        reach_deg = chord_angle_deg(np.linalg.norm(to_corners - directions[:, None, :], axis=2).max(axis=1))
+        return angular_deg, reach_deg
+    angular_deg = np.degrees(2 * np.arctan(edge_len_mm / (2 * distance_mm[:, None])))
+    return angular_deg, angular_deg[:, 0] / math.sqrt(3)
+
+
+#: A patch's edges (W, S, E, N, as ``gl_TessLevelOuter``) by their corners (SW 0, SE 1, NE 2, NW 3), ordered
+#: west to east and south to north so that the two patches sharing an edge compute the same numbers.
+EDGE_ENDS = ((3, 0), (0, 1), (1, 2), (3, 2))
+
+
+def patch_pieces(corners_mm, eye_mm):
+    """A patch's five pieces: its inside and its four edges, each with its reference point, reach and diameter.
+
+    The inside's point is the mean of the corners, its diameter the
+    largest angle between two corners, its reach the angle from the point
+    to the farthest corner. An edge's point is its midpoint, its diameter
+    the angle between its endpoints, its reach the angle from the midpoint
+    to the farther endpoint: an edge's level depends on the edge alone, so
+    both patches sharing it agree (no cracks).
+
+    Parameters
+    ----------
+    corners_mm : (..., 4, 3)
+        Corners SW, SE, NE, NW, world frame, mm.
+    eye_mm : (3,)
+
+    Returns
+    -------
+    points_mm : (..., 5, 3)
+        The inside's point, then the W, S, E, N edges' midpoints, world mm.
+    reach_deg, diameter_deg : (..., 5) float64
+    """
+    c_mm = np.asarray(corners_mm, dtype=np.float64)
+    eye = np.asarray(eye_mm, dtype=np.float64)
+    dirs = unit(c_mm - eye)
+    centre = c_mm.mean(axis=-2)
+    diameter = chord_angle_deg(np.linalg.norm(dirs[..., [0, 1, 2, 3, 0, 1], :] - dirs[..., [1, 2, 3, 0, 2, 3], :],
+                                              axis=-1).max(axis=-1))
+    reach = chord_angle_deg(np.linalg.norm(unit(centre - eye)[..., None, :] - dirs, axis=-1).max(axis=-1))
+    a, b = [e[0] for e in EDGE_ENDS], [e[1] for e in EDGE_ENDS]
+    mid = 0.5 * (c_mm[..., a, :] + c_mm[..., b, :])                                   # (..., 4, 3)
+    mdir = unit(mid - eye)
+    length = chord_angle_deg(np.linalg.norm(dirs[..., a, :] - dirs[..., b, :], axis=-1))
+    reach_e = chord_angle_deg(np.maximum(np.linalg.norm(mdir - dirs[..., a, :], axis=-1),
+                                         np.linalg.norm(mdir - dirs[..., b, :], axis=-1)))
+    return (np.concatenate([centre[..., None, :], mid], axis=-2), np.concatenate([reach[..., None], reach_e], axis=-1),
+            np.concatenate([diameter[..., None], length], axis=-1))
+
+
+def patch_piece_contrast(contrast, neighbour_contrast) -> np.ndarray:
+    """(..., 5) contrast of a patch's five pieces: its own inside, the larger of the two patches' on each edge.
+
+    ``contrast`` (...,); ``neighbour_contrast`` (..., 4): the patch's across
+    each edge W, S, E, N (its own at the grid's border). f_max rises with
+    the contrast, so the edge's level is the finer of the two patches'.
+    """
+    c = np.asarray(contrast, dtype=np.float64)[..., None]
+    return np.concatenate([c, np.maximum(c, np.asarray(neighbour_contrast, dtype=np.float64))], axis=-1)
+
+
+# ---------------------------------------------------------------------------
+# The view of a piece: eccentricity and speed
+# ---------------------------------------------------------------------------
+
+def shifted_offsets_deg(points_mm, eye_mm, axes, cov_deg2=None, *, shift: str = "ellipse",
+                        ellipse_sigma: float = 2.0) -> np.ndarray:
+    """(φ, θ) of points about the head frame's V, shifted toward the POI by the uncertainty, deg, (..., 2).
+
+    :func:`perception.view_offsets_deg` of ``points_mm`` (..., 3) world mm
+    seen from ``eye_mm`` (3,) in the head frame ``axes`` (3, 3) (rows Ξ, Ψ,
+    V), then :func:`perception.uncertainty_shift` of form ``shift`` with
+    ``ellipse_sigma`` for the covariance ``cov_deg2`` (2, 2) deg² (None: no shift).
+    """
+    offsets = pc.view_offsets_deg(points_mm, eye_mm, axes)
+    return pc.uncertainty_shift(offsets, cov_deg2, shift, ellipse_sigma) if cov_deg2 is not None else offsets
+
+
+def piece_eccentricity_deg(shifted_deg, reach_deg) -> np.ndarray:
+    """Eccentricity of a piece's point nearest the POI, deg, (...,).
+
+    The eccentricity of its reference point's shifted offsets
+    ``shifted_deg`` (..., 2) less ``reach_deg`` (...,), the angle from that
+    point to the piece's farthest corner, floored at 0: a large piece
+    reaching into the fovea is refined there.
+    """
+    return np.maximum(pc.eccentricity_deg(shifted_deg) - reach_deg, 0.0)
+
+
+def angular_speed_deg_s(directions, previous_directions, dt_s) -> np.ndarray:
+    """Angular speed of directions (..., 3) (unit) that were ``previous_directions`` ``dt_s`` s ago, deg/s, (...,).
+
+    The angle between them over ``dt_s``, floored at :data:`MIN_SPEED_DEG_S`.
+    """
+    return np.maximum(angle_between_deg(directions, previous_directions) / dt_s, MIN_SPEED_DEG_S)
+
+
+def point_speed_deg_s(points_mm, eye_mm, eye_prev_mm=None, dt_s: float = 0.0) -> np.ndarray:
+    """Angular speed of world points (..., 3) mm seen from an eye that moved, deg/s, (...,).
+
+    :func:`angular_speed_deg_s` of the directions from ``eye_prev_mm`` and
+    from ``eye_mm`` (3,) over ``dt_s``; the floor everywhere when
+    ``dt_s <= 0`` or without a last eye.
+    """
+    pts = np.asarray(points_mm, np.float64)
+    if eye_prev_mm is None or not dt_s > 0:
+        return np.full(pts.shape[:-1], MIN_SPEED_DEG_S)
+    return angular_speed_deg_s(unit(pts - np.asarray(eye_mm, np.float64)),
+                               unit(pts - np.asarray(eye_prev_mm, np.float64)), dt_s)
+
+
+# ---------------------------------------------------------------------------
+# The levels
+# ---------------------------------------------------------------------------
+
+def foveal_fmax_cpd(contrast, speed_deg_s, csf_model: str = "kelly_scaled") -> np.ndarray:
+    """f_max at eccentricity 0, cpd: :func:`fmax_cpd`'s ``foveal_cpd`` (``kelly_scaled``: f_max(e) = it / (1 + 0.29 e))."""
+    return max_visible_freq_cpd(contrast, speed_deg_s, 0.0, model=csf_model)
+
+
+def fmax_cpd(contrast, speed_deg_s, ecc_deg, *, mode: str = "csf", csf_model: str = "kelly_scaled",
+             foveal_cpd=None) -> np.ndarray:
+    """Highest visible frequency of pieces, cpd, (...,).
+
+    ``csf``: :func:`csf.max_visible_freq_cpd` of ``csf_model`` at the
+    pieces' contrast, speed and eccentricity; with ``kelly_scaled`` and
+    ``foveal_cpd`` (their f_max at eccentricity 0, :func:`foveal_fmax_cpd`,
+    e.g. kept from the last frame) it is ``foveal_cpd / (1 + 0.29 e)``, the
+    same number without solving Lambert's W again. ``gp``: Geisler & Perry's
+    cutoff (no speed).
+    """
+    if mode == "gp":
+        return gp_cutoff_cpd(contrast, ecc_deg)
+    if foveal_cpd is not None and csf_model == "kelly_scaled":
+        return foveal_cpd / eccentricity_factor(ecc_deg)
+    return max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model=csf_model)
+
+
+def frequency_level(fmax, diameter_deg, level_bias: float = 0.0) -> np.ndarray:
+    """Continuous level ``log2(f_max / f) + bias`` of pieces of frequency ``f = 1 / diameter``, (...,).
+
+    Martinez eq. 4 before its ceiling: the doublings of frequency from the
+    piece's to the highest visible one. ``fmax`` (...,) cpd is floored at
+    :data:`FMAX_FLOOR_CPD` and ``diameter_deg`` at :data:`DIAMETER_FLOOR_DEG`.
+    """
+    frequency = 1.0 / np.maximum(diameter_deg, DIAMETER_FLOOR_DEG)
+    with np.errstate(divide="ignore"):
+        return np.log2(np.maximum(fmax, FMAX_FLOOR_CPD) / frequency) + level_bias
+
+
+def csf_level(contrast, speed_deg_s, ecc_deg, diameter_deg, *, mode: str = "csf", csf_model: str = "kelly_scaled",
+              foveal_cpd=None, level_bias: float = 0.0) -> np.ndarray:
+    """Continuous level of ``csf`` (or ``gp``) pieces: :func:`frequency_level` of :func:`fmax_cpd`, (...,)."""
+    fmax = fmax_cpd(contrast, speed_deg_s, ecc_deg, mode=mode, csf_model=csf_model, foveal_cpd=foveal_cpd)
+    return frequency_level(fmax, diameter_deg, level_bias)
+
+
+def distance_level(distance_mm, max_level: int, distance_ref_mm: float) -> np.ndarray:
+    """Mode ``distance``: ``max_level`` at ``distance_ref_mm`` and nearer, one level coarser per doubling beyond."""
+    return max_level - np.log2(np.maximum(np.asarray(distance_mm, dtype=np.float64) / distance_ref_mm, 1e-9))
+
+
+def continuous_level(config, max_level: int, *, ecc_deg, angular_deg, distance_mm, speed_deg_s, contrast,
+                     edge_len_mm=None, error_mm=None, px_per_mm=None, foveal_cpd=None) -> np.ndarray:
+    """Every mode's continuous level of base triangles, the level bias included, (S,).
+
+    Parameters
+    ----------
+    config : SelectorConfig
+        ``mode``, ``csf_model``, ``level_bias`` and the modes' settings
+        (``distance_ref_mm``, ``sse_tolerance_px``, ``frame_s``, ``velocity_ref_deg_s``).
+    max_level : int
+    ecc_deg, distance_mm, speed_deg_s, contrast : (S,)
+        As the module notes; ``distance_mm`` from the eye to the centroid.
+    angular_deg : (S, L+1)
+        Angular size of the pieces at each level (:func:`triangle_sizes_deg`).
+    edge_len_mm, error_mm : (S, L+1)
+        Longest edge and geometric error of each level, mm (``acuity``, ``sse``, ``ipv``, ``dpv``).
+    px_per_mm : float
+        The screen's pixels per mm (``acuity``, ``sse``, ``ipv``, ``dpv``: with
+        the median distance of the triangles given, the display's resolution).
+    foveal_cpd : (S,), optional
+        ``kelly_scaled``'s foveal f_max (:func:`fmax_cpd`).
+
+    The rounding to integer levels is the caller's (``ceil``; ``floor`` for ``acuity``).
+    """
+    mode, bias = config.mode, float(config.level_bias)
+    if mode in CSF_MODES:
+        return csf_level(contrast, speed_deg_s, ecc_deg, angular_deg[:, 0], mode=mode, csf_model=config.csf_model,
+                         foveal_cpd=foveal_cpd, level_bias=bias)
+    if mode == "distance":
+        return distance_level(distance_mm, max_level, config.distance_ref_mm) + bias
+    if mode == "acuity":
+        k1, k2, k3 = pc.acuity_factors(ecc_deg, 0.5 * angular_deg[:, 0], speed_deg_s, np.zeros_like(ecc_deg))
+        a0 = pc.display_acuity_a0(1.0 / px_per_mm, float(np.median(distance_mm)))
+        return pc.acuity_level(k1, k2, k3, a0, distance_mm, edge_len_mm, return_continuous=True)[1] + bias
+    pixels_per_radian = px_per_mm * float(np.median(distance_mm))
+    if mode == "sse":
+        return pc.sse_level(error_mm, distance_mm, pixels_per_radian, config.sse_tolerance_px,
+                            speed_deg_s=speed_deg_s, frame_s=config.frame_s, return_continuous=True)[1] + bias
+    base = pc.sse_level(error_mm, distance_mm, pixels_per_radian, config.sse_tolerance_px, return_continuous=True)[1]
+    return pc.velocity_baseline_level(base, speed_deg_s, mode=mode, v_ref=config.velocity_ref_deg_s,
+                                      max_level=max_level, return_continuous=True)[1] + bias
+
+
+def patch_piece_levels(corners_mm, piece_contrast, eye_mm, axes, cov_deg2=None, *, shift: str = "ellipse",
+                       ellipse_sigma: float = 2.0, level_bias: float = 0.0, speed_deg_s=MIN_SPEED_DEG_S,
+                       eye_prev_mm=None, dt_s: float = 0.0, foveal_cpd=None) -> np.ndarray:
+    """Continuous ``csf`` (``kelly_scaled``) levels of patches' five pieces (:func:`patch_pieces`), (..., 5).
+
+    Parameters
+    ----------
+    corners_mm : (..., 4, 3)
+        Corners SW, SE, NE, NW, world mm.
+    piece_contrast : (..., 5)
+        :func:`patch_piece_contrast`.
+    eye_mm, axes, cov_deg2, shift, ellipse_sigma
+        As :func:`shifted_offsets_deg`.
+    level_bias : float
+    speed_deg_s : float or (..., 5)
+        The pieces' angular speed, deg/s (the floor for a still eye).
+    eye_prev_mm : (3,) or None; dt_s : float
+        The last frame's eye and the time since, s: when given (``dt_s > 0``)
+        each piece's speed is :func:`point_speed_deg_s` of its point instead.
+    foveal_cpd : (..., 5) or None
+        The pieces' foveal f_max at ``speed_deg_s`` (:func:`foveal_fmax_cpd`),
+        if known; ignored when the eye moves.
+    """
+    points, reach, diameter = patch_pieces(corners_mm, eye_mm)
+    ecc = piece_eccentricity_deg(shifted_offsets_deg(points, eye_mm, axes, cov_deg2, shift=shift,
+                                                     ellipse_sigma=ellipse_sigma), reach)
+    moving = eye_prev_mm is not None and dt_s > 0
+    speed = point_speed_deg_s(points, eye_mm, eye_prev_mm, dt_s) if moving else speed_deg_s
+    return csf_level(piece_contrast, speed, ecc, diameter, foveal_cpd=None if moving else foveal_cpd,
+                     level_bias=level_bias)
+
+
+# ---------------------------------------------------------------------------
+# Bounds over a node of a hierarchy
+# ---------------------------------------------------------------------------
+
+def shift_reach_deg(cov_deg2, shift: str = "ellipse", ellipse_sigma: float = 2.0) -> float:
+    """Largest distance the uncertainty shift moves an offset (φ, θ), deg: 0 without a covariance.
+
+    ``ellipse``: ``ellipse_sigma √λmax`` (the offset loses ``n / √q`` of
+    itself, ``q >= |P|² / λmax``); ``eq1``: ``e^(-1/2) √λmax`` (it loses
+    ``|P| exp(-q / 2)``, largest at ``|P| = √λmax``). The shift keeps an
+    offset on its ray from the POI, and the eccentricity changes by at most
+    the offset's change along such a ray, so a point at angle ``A`` from V
+    has a shifted eccentricity of at least ``A -`` this.
+    """
+    if cov_deg2 is None:
+        return 0.0
+    cov = np.asarray(cov_deg2, dtype=np.float64)
+    if not np.any(cov != 0):
+        return 0.0
+    lam = max(float(np.linalg.eigvalsh(0.5 * (cov + cov.T))[-1]), 0.0)
+    return (ellipse_sigma if shift == "ellipse" else math.exp(-0.5)) * math.sqrt(lam)
+
+
+def angle_to_sphere_deg(centre_rel_mm, radius_mm, gaze) -> np.ndarray:
+    """Smallest angle from the direction ``gaze`` (3,) (unit) to spheres, deg (negative when the gaze ray meets one).
+
+    ``centre_rel_mm`` (k, 3): centres less the eye, world mm; ``radius_mm`` (k,).
+    The angle to the centre less :func:`sphere_reach_deg`.
+    """
+    rel = np.asarray(centre_rel_mm, dtype=np.float64)
+    dist = np.sqrt(np.einsum("mi,mi->m", rel, rel))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        to_centre = angle_between_deg(rel / dist[:, None], gaze)
+    return to_centre - sphere_reach_deg(radius_mm, dist)
+
+
+def eccentricity_bound_deg(angle_deg, shift_reach, reach_deg) -> np.ndarray:
+    """Lower bound of the pieces' :func:`piece_eccentricity_deg` below a node, deg.
+
+    ``angle_deg``: a lower bound of the angle from V to any reference point
+    below the node (:func:`angle_to_sphere_deg`); ``shift_reach``:
+    :func:`shift_reach_deg`; ``reach_deg``: an upper bound of the pieces'
+    reach. Less :data:`ANGLE_SLACK_DEG`, floored at 0.
+    """
+    return np.maximum(angle_deg - shift_reach - reach_deg - ANGLE_SLACK_DEG, 0.0)
+
+
+# Relative margin on the sup of f_max over the speed grid (the grid's own error is far smaller).
+_FMAX_MARGIN = 1.001
+
+
+def sup_max_visible_freq_cpd(contrast, model: str = "kelly_scaled", speeds_deg_s=None) -> np.ndarray:
+    """Highest foveal f_max over all retinal speeds, per contrast, cpd, with a safety margin, (n,).
+
+    ``max_visible_freq_cpd(C, v, 0)`` is not monotone in the speed ``v`` (it
+    peaks near 0.2 deg/s for low contrasts), so a bound valid for any speed
+    takes its maximum over a fine logarithmic speed grid ``speeds_deg_s``
+    (default: from the floor, 0.1 deg/s, to 30 deg/s, beyond which f_max
+    only falls), times 1.001. Non-decreasing in the contrast ``contrast`` (n,).
+    """
+    c = np.asarray(contrast, dtype=np.float64).reshape(-1)
+    v = (np.logspace(math.log10(MIN_SPEED_DEG_S), math.log10(30.0), 600) if speeds_deg_s is None
+         else np.asarray(speeds_deg_s, dtype=np.float64))
+    f = max_visible_freq_cpd(c[:, None], v[None, :], 0.0, model=model)
+    return f.max(axis=1) * _FMAX_MARGIN
+
+
+_SUP_TABLES: dict = {}
+
+
+def sup_fmax_cpd(contrast, csf_model: str = "kelly_scaled") -> np.ndarray:
+    """:func:`sup_max_visible_freq_cpd` of contrasts (...,) from a table, rounded up in the contrast, cpd.
+
+    The table (801 contrasts from 1e-4 to max(1, the largest asked), and 0)
+    is made once per model and top; a contrast takes the value of the first
+    grid point at or above it (f_max rises with the contrast).
+    """
+    c = np.asarray(contrast, dtype=np.float64)
+    top = max(1.0, float(np.max(c, initial=0.0)))
+    key = (csf_model, top)
+    if key not in _SUP_TABLES:
+        tops = [t for (m, t) in _SUP_TABLES if m == csf_model and t >= top]
+        if tops:
+            key = (csf_model, min(tops))
+        else:
+            grid = np.concatenate([[0.0], np.logspace(-4, math.log10(top), 801)])
+            _SUP_TABLES[key] = (grid, sup_max_visible_freq_cpd(grid, csf_model))
+    grid, table = _SUP_TABLES[key]
+    k = np.searchsorted(grid, c, side="left")                   # grid[k] >= contrast
+    return table[np.minimum(k, len(grid) - 1)]
+
+
+def fmax_bound_cpd(contrast, ecc_deg, *, mode: str = "csf", csf_model: str = "kelly_scaled", speed_deg_s=None,
+                   foveal_cpd=None) -> np.ndarray:
+    """Upper bound of f_max over pieces of contrast at most ``contrast`` and eccentricity at least ``ecc_deg``, cpd.
+
+    ``speed_deg_s`` None: over every speed (:func:`sup_fmax_cpd`); else at
+    that speed. ``foveal_cpd``: the bound at eccentricity 0 if the caller
+    has it (``kelly_scaled``: divided by ``1 + 0.29 e``). For the other Kelly
+    forms ``f_max(C, v, e) = f_max(C / (1 + 0.29 e), v, 0)``. ``gp``: the cutoff.
+    """
+    if mode == "gp":
+        return gp_cutoff_cpd(contrast, ecc_deg)
+    m = eccentricity_factor(ecc_deg)
+    if csf_model == "kelly_scaled":
+        if foveal_cpd is not None:
+            return foveal_cpd / m
+        if speed_deg_s is None:
+            return sup_fmax_cpd(contrast, csf_model) / m
+        return max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model=csf_model)
+    if speed_deg_s is None:
+        return sup_fmax_cpd(np.asarray(contrast, dtype=np.float64) / m, csf_model)
+    return max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model=csf_model)
+
+
+def level_bound(contrast, ecc_deg, diameter_deg, *, mode: str = "csf", csf_model: str = "kelly_scaled",
+                speed_deg_s=None, foveal_cpd=None, level_bias: float = 0.0) -> np.ndarray:
+    """Upper bound of the continuous ``csf``/``gp`` level of every piece below nodes, (k,).
+
+    :func:`frequency_level` at the nodes' largest contrast ``contrast``, smallest eccentricity ``ecc_deg``
+    (:func:`eccentricity_bound_deg`) and largest diameter ``diameter_deg`` (plus :data:`ANGLE_SLACK_DEG`), with
+    :func:`fmax_bound_cpd`'s f_max, plus :data:`LEVEL_SLACK`.
+    """
+    fmax = fmax_bound_cpd(contrast, ecc_deg, mode=mode, csf_model=csf_model, speed_deg_s=speed_deg_s,
+                          foveal_cpd=foveal_cpd)
+    return frequency_level(fmax, diameter_deg + ANGLE_SLACK_DEG, level_bias) + LEVEL_SLACK
