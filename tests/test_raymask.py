@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from headplod.plod.csf import gp_cutoff_cpd
-from headplod.plod.raymask import (RayMaskConfig, build_ray_mask, height_grid, pixel_offsets_deg, gaze_axes,
-                                   radii_deg, spacing_px, spacing_thresholds_deg)
+from headplod.plod.raymask import (RayMaskConfig, build_ray_mask, height_grid, pixel_offsets_deg, radii_deg,
+                                   spacing_px, spacing_thresholds_deg)
+from headplod.plod.view import head_axes
 
 PPD = 25.2267           # the default view's px/deg at 1280x720 (render.still.px_per_deg_at)
 
@@ -81,7 +82,7 @@ def test_the_uncertainty_widens_the_full_density_region_to_the_2_sigma_ellipse(d
     wide = build_ray_mask(default_screen, head, poi, size, PPD, cov, cfg)
     yy, xx = np.mgrid[0:size[1], 0:size[0]]
     pix = np.stack([xx.ravel(), yy.ravel()], -1).astype(float)
-    off = pixel_offsets_deg(pix, default_screen, head, gaze_axes(default_screen, head, poi), size)
+    off = pixel_offsets_deg(pix, default_screen, head, head_axes(default_screen, head, poi), size)
     m2 = np.einsum("ni,ij,nj->n", off, np.linalg.inv(cov), off)
     filled = np.zeros(len(pix), bool)
     filled[(wide.fill_px[:, 1] * size[0] + wide.fill_px[:, 0])] = True
@@ -102,7 +103,7 @@ def test_the_uncertainty_widens_the_full_density_region_to_the_2_sigma_ellipse(d
     assert half_h == pytest.approx(plain.r_fill_deg + 3.0, abs=0.15)
     # The rings start beyond it: every ring sample's offset is outside the ellipse.
     ring_off = pixel_offsets_deg(wide.samples_px[wide.n_fill:], default_screen, head,
-                                 gaze_axes(default_screen, head, poi), size)
+                                 head_axes(default_screen, head, poi), size)
     assert np.all(np.einsum("ni,ij,nj->n", ring_off, np.linalg.inv(cov), ring_off) > 4.0)
 
 

@@ -59,9 +59,10 @@ import numpy as np
 
 from . import perception as pc
 from .csf import CSF_MODELS, MIN_SPEED_DEG_S, gp_cutoff_cpd, max_visible_freq_cpd
+from .view import head_axes
 
 __all__ = ["RAYMASK_CSF_MODELS", "RayMaskConfig", "RayMask", "spacing_thresholds_deg", "spacing_px",
-           "radii_deg", "gaze_axes", "pixel_offsets_deg", "offsets_to_pixels", "build_ray_mask",
+           "radii_deg", "pixel_offsets_deg", "offsets_to_pixels", "build_ray_mask",
            "HeightGrid", "height_grid"]
 
 #: CSF forms the mask can follow: Geisler–Perry (the paper's) and the Kelly forms of :mod:`headplod.plod.csf`.
@@ -213,22 +214,6 @@ def radii_deg(px_per_deg: float, max_ecc_deg: float, config: RayMaskConfig = Ray
     rings = np.concatenate(radii) / ppd
     spacing = np.concatenate(steps + [np.array([steps[-1][-1] if steps else 1])])
     return r_fill, rings, spacing
-
-
-def gaze_axes(screen, eye_mm, poi_px) -> np.ndarray:
-    """Rows Ξ, Ψ, V (3, 3): the head frame looking from the eye at the POI, Ξ along the screen's rows.
-
-    The same frame :meth:`headplod.plod.select.LevelSelector.head_axes` uses
-    for ``csf``'s eccentricities. ``eye_mm`` (3,) world mm; ``poi_px`` (2,)
-    screen px.
-    """
-    poi_mm = screen.pixel_to_world(np.asarray(poi_px, dtype=np.float64))
-    v = poi_mm - np.asarray(eye_mm, dtype=np.float64)
-    v /= np.linalg.norm(v)
-    right = np.asarray(screen.top_right, float) - np.asarray(screen.top_left, float)
-    xi = right - v * (right @ v)
-    xi /= np.linalg.norm(xi)
-    return np.stack([xi, np.cross(v, xi), v])
 
 
 def _image_to_screen(xy_img, size, screen):
@@ -383,19 +368,45 @@ def build_ray_mask(screen, eye_mm, poi_px, size, px_per_deg: float, cov_deg2=Non
         if cov_deg2.shape != (2, 2) or not np.isfinite(cov_deg2).all():
             raise ValueError(f"build_ray_mask: cov_deg2 must be a finite (2, 2) matrix, got shape {cov_deg2.shape}")
     eye = np.asarray(eye_mm, dtype=np.float64)
-    axes = gaze_axes(screen, eye, poi_px)
+    view = (screen, eye, head_axes(screen, eye, poi_px), (w, h))
     ppd = float(px_per_deg)
+    r_fill, rings, steps = radii_deg(ppd, _ring_reach_deg(view, ppd, cov_deg2, config), config)
+    ring_xy, r_ell, u0 = _ring_samples(view, rings, steps, ppd, cov_deg2, config)
+    R, M = ring_xy.shape[:2]
+    quads, keep = _quads_near_image(ring_xy, steps, (w, h))
+    fill = _fill_pixels(view, ring_xy[0], r_fill, cov_deg2, config)
+    n_fill = len(fill)
+    remap = np.full(R * M, -1, np.int64)
+    remap[keep] = n_fill + np.arange(len(keep))
+    samples = np.concatenate([fill, ring_xy.reshape(-1, 2)[keep]])
+    ring_of = np.concatenate([np.full(n_fill, -1, np.int64), keep // M])
+    angle_of = np.concatenate([np.full(n_fill, -1, np.int64), keep % M])
+    spacing_of = np.concatenate([np.ones(n_fill, np.int64), steps[keep // M]])
+    return RayMask(samples_px=samples, n_fill=n_fill, quads=remap[quads], ring_of=ring_of, angle_of=angle_of,
+                   spacing_of=spacing_of, r_fill_deg=float(r_fill), rings_deg=rings,
+                   ring_spacing_px=steps, n_angles=M, ellipse_deg=r_ell[:, None] * u0, px_per_deg=ppd)
 
-    # How far the rings must reach: the image corners' (and edge midpoints') shifted eccentricity.
+
+def _ring_reach_deg(view, ppd, cov_deg2, config) -> float:
+    """How far the rings must reach, shifted eccentricity deg: the image corners' and edge midpoints', plus a step.
+
+    ``view``: (screen, eye (3,) world mm, head axes (3, 3), image (w, h) px).
+    """
+    screen, eye, axes, (w, h) = view
     border = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5],
                        [w / 2, -0.5], [w / 2, h - 0.5], [-0.5, h / 2], [w - 0.5, h / 2]])
-    corner_ecc = _shifted_ecc(pixel_offsets_deg(border, screen, eye, axes, size), cov_deg2, config.n_sigma)
-    max_ecc = float(corner_ecc.max()) + config.max_spacing_px / ppd
-    r_fill, rings, steps = radii_deg(ppd, max_ecc, config)
+    corner_ecc = _shifted_ecc(pixel_offsets_deg(border, screen, eye, axes, (w, h)), cov_deg2, config.n_sigma)
+    return float(corner_ecc.max()) + config.max_spacing_px / ppd
 
-    # Angles: one step for every ring, the smallest n / r over them (the paper takes the outermost
-    # pair's separation, which leaves the rings in between sparser along the ring than the CSF asks
-    # wherever the spacing grows more slowly than the radius).
+
+def _ring_samples(view, rings, steps, ppd, cov_deg2, config):
+    """The ring samples, image px (R, M, 2); the ellipse's radius (M,) deg and the unit direction (M, 2) of each angle.
+
+    One angular step for every ring, the smallest n / r over them (the paper takes the outermost pair's
+    separation, which leaves the rings in between sparser along the ring than the CSF asks wherever the
+    spacing grows more slowly than the radius).
+    """
+    screen, eye, axes, size = view
     ratio = rings * ppd / np.maximum(steps, 1)
     n_angles = max(8, int(math.ceil(2 * math.pi * float(ratio.max()))))
     psi = 2 * math.pi * np.arange(n_angles) / n_angles
@@ -408,11 +419,18 @@ def build_ray_mask(screen, eye_mm, poi_px, size, px_per_deg: float, cov_deg2=Non
     u0 = np.stack([np.sin(psi), np.cos(psi)], axis=-1)        # direction of each angle (φ, θ)
     r_ell = _ellipse_radius_deg(u0, cov_deg2, config.n_sigma)  # (M,)
     offsets = shifted + r_ell[None, :, None] * u
-    ring_xy = offsets_to_pixels(offsets, screen, eye, axes, size)      # (R, M, 2)
+    return offsets_to_pixels(offsets, screen, eye, axes, size), r_ell, u0
 
-    # Quads (k, m), (k, m+1), (k+1, m+1), (k+1, m); kept when a corner lies within a quad's size of the
-    # image (so every quad over an image pixel is kept).
-    R, M = len(rings), n_angles
+
+def _quads_near_image(ring_xy, steps, size):
+    """The quads (Q, 4) between consecutive rings, as flat (ring k * M + angle m) rows, and the samples (K,) kept.
+
+    Quads (k, m), (k, m+1), (k+1, m+1), (k+1, m); kept when a corner lies within a quad's size of the
+    image (so every quad over an image pixel is kept); ring 0's samples near the image are kept too (it
+    borders the fill).
+    """
+    w, h = size
+    R, M = ring_xy.shape[:2]
     flat = ring_xy.reshape(-1, 2)
     reach = np.repeat(np.maximum(steps, 1) * 2.0 + 2.0, M)          # px: a generous quad size
     near = ((flat[:, 0] >= -0.5 - reach) & (flat[:, 0] <= w - 0.5 + reach)
@@ -424,40 +442,31 @@ def build_ray_mask(screen, eye_mm, poi_px, size, px_per_deg: float, cov_deg2=Non
     used = np.zeros(R * M, bool)
     used[quads.ravel()] = True
     used[:M] |= near[:M]                                                  # ring 0 borders the fill
-    keep = np.flatnonzero(used)
+    return quads, np.flatnonzero(used)
 
-    # The filled inset: every pixel centre whose shifted eccentricity is <= r_fill. Ring 0 (at r_fill,
-    # its chords within 0.01 px of the curve) is rasterised; the pixels within a pixel of its outline
-    # are decided exactly.
+
+def _fill_pixels(view, ring0_xy, r_fill, cov_deg2, config) -> np.ndarray:
+    """(n_fill, 2) float64 pixel centres of the filled inset, row by row: every pixel whose shifted eccentricity
+    is <= ``r_fill``.
+
+    Ring 0 (``ring0_xy`` (M, 2) image px, at r_fill, its chords within 0.01 px of the curve) is
+    rasterised; the pixels within a pixel of its outline are decided exactly.
+    """
+    screen, eye, axes, (w, h) = view
+    if not np.isfinite(ring0_xy).all():
+        return np.zeros((0, 2))
     fill_mask = np.zeros((h, w), np.uint8)
-    if np.isfinite(ring_xy[0]).all():
-        poly = np.round(ring_xy[0] * 256).astype(np.int32)              # cv2: pixel centres at integers; 8 bits of sub-pixel
-        cv2.fillPoly(fill_mask, [poly], 1, lineType=cv2.LINE_8, shift=8)
-        kernel = np.ones((3, 3), np.uint8)
-        inner = cv2.erode(fill_mask, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
-        band = cv2.dilate(fill_mask, kernel).astype(bool) & ~inner
-        by, bx = np.nonzero(band)
-        pix = np.stack([bx, by], axis=-1).astype(np.float64)
-        ecc = _shifted_ecc(pixel_offsets_deg(pix, screen, eye, axes, size), cov_deg2, config.n_sigma)
-        fy, fx = np.nonzero(inner)
-        take = ecc <= r_fill
-        fill = np.concatenate([np.stack([fx, fy], axis=-1), pix[take].astype(np.int64)]).astype(np.float64)
-        order = np.lexsort((fill[:, 0], fill[:, 1]))                     # row by row
-        fill = fill[order]
-    else:
-        fill = np.zeros((0, 2))
-    n_fill = len(fill)
-
-    remap = np.full(R * M, -1, np.int64)
-    remap[keep] = n_fill + np.arange(len(keep))
-    samples = np.concatenate([fill, flat[keep]])
-    ring_of = np.concatenate([np.full(n_fill, -1, np.int64), keep // M])
-    angle_of = np.concatenate([np.full(n_fill, -1, np.int64), keep % M])
-    spacing_of = np.concatenate([np.ones(n_fill, np.int64), steps[keep // M]])
-    ellipse = r_ell[:, None] * u0
-    return RayMask(samples_px=samples, n_fill=n_fill, quads=remap[quads], ring_of=ring_of, angle_of=angle_of,
-                   spacing_of=spacing_of, r_fill_deg=float(r_fill), rings_deg=rings,
-                   ring_spacing_px=steps, n_angles=M, ellipse_deg=ellipse, px_per_deg=ppd)
+    poly = np.round(ring0_xy * 256).astype(np.int32)         # cv2: pixel centres at integers; 8 bits of sub-pixel
+    cv2.fillPoly(fill_mask, [poly], 1, lineType=cv2.LINE_8, shift=8)
+    kernel = np.ones((3, 3), np.uint8)
+    inner = cv2.erode(fill_mask, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    band = cv2.dilate(fill_mask, kernel).astype(bool) & ~inner
+    by, bx = np.nonzero(band)
+    pix = np.stack([bx, by], axis=-1).astype(np.float64)
+    ecc = _shifted_ecc(pixel_offsets_deg(pix, screen, eye, axes, (w, h)), cov_deg2, config.n_sigma)
+    fy, fx = np.nonzero(inner)
+    fill = np.concatenate([np.stack([fx, fy], axis=-1), pix[ecc <= r_fill].astype(np.int64)]).astype(np.float64)
+    return fill[np.lexsort((fill[:, 0], fill[:, 1]))]                # row by row
 
 
 # ---------------------------------------------------------------------------

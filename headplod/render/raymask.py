@@ -37,9 +37,8 @@ height colour; GL interpolates perspective-correctly, i.e. barycentrically
 on the triangle), so the cast pixel matches ``full``'s to float rounding.
 
 The ray caster runs as a GLSL fragment shader. A vectorized numpy caster
-was measured only as its inner step (one traversal step for 400,000 rays:
-~270 ms on this 2-core machine under load, where the shader casts all of
-them, ~13 steps each, in 150-400 ms): it would be ~10x slower, so it was not
+was timed only as its inner step (one traversal step for every ray of a
+frame) and already took longer than the shader's whole cast, so it was not
 built. Rays start 4 levels below the top (the coarse levels hold a peak
 almost everywhere) and go up one level only when they leave their parent
 node. Rasterising the level-3/4/6 blocks as boxes to start each pixel's
@@ -49,15 +48,14 @@ descent), so it was dropped. Ring samples are cast in 4x4 tiles (rings x
 angles) of the sample texture so that a SIMD block of fragments casts
 neighbouring rays.
 
-Where the time goes (llvmpipe, 1280x720, C = 1): each traversal step costs
-~27 ns per ray and a ray takes ~13 steps (~25 for the slowest ray of a
-SIMD block, which the block waits for); the inset (~300,000 pixels: the
-Geisler–Perry cutoff at C = 1 needs every pixel out to 12° at 25 px/deg)
-and the rings (~140,000 samples) are ~70% of the frame, the intermediate
-mesh (~275,000 small triangles) most of the rest. ``full`` rasterises 2.1
-million triangles in about the time of those 440,000 rays, so on a CPU
+Where the time goes (llvmpipe): a SIMD block of fragments waits for its
+slowest ray; the filled inset (the Geisler–Perry cutoff at C = 1 needs
+every pixel out to about 12°) and the rings are most of the frame, the
+intermediate mesh of small triangles most of the rest. ``full``
+rasterises its triangles in about the time of those rays, so on a CPU
 rasteriser the hybrid is not faster than ``full`` at the paper's contrast;
-at C = 0.3 (the terrain's median shading contrast) it casts ~250,000 rays.
+at the terrain's median shading contrast it casts fewer rays (``headplod
+bench plod``'s ray-mask part, :mod:`headplod.bench.plod_raymask`).
 
 Frames and units: image px (x right, y down, (0, 0) the centre of the
 top-left pixel); the grid frame of the caster is (column, row, height in
@@ -71,6 +69,7 @@ import time
 import numpy as np
 
 from ..plod.raymask import HeightGrid, RayMask, RayMaskConfig, build_ray_mask, height_grid
+from ..plod.shading import AMBIENT, LIGHT_DIR, light_unit
 from .context import moderngl
 from .gl import read_rgb
 
@@ -236,16 +235,15 @@ void main() { f_color = vec4(v_color, 1.0); }
 """
 
 
-def vertex_colors(grid: HeightGrid, height_range, light_dir=(0.4, -0.3, 0.85), ambient: float = 0.25
-                  ) -> np.ndarray:
+def vertex_colors(grid: HeightGrid, height_range, light_dir=LIGHT_DIR, ambient: float = AMBIENT) -> np.ndarray:
     """Each grid vertex's colour as :mod:`headplod.render.gl`'s "shaded" vertex shader computes it, (ny+1, nx+1, 3) float32.
 
     ``shade = ambient + (1 - ambient) max(n·l, 0)`` times the height colour
-    (low → mid → high over ``height_range``, scene units), in float32.
+    (low → mid → high over ``height_range``, scene units), in float32; the
+    light by default :mod:`headplod.plod.shading`'s, the one every back end draws with.
     """
     f = np.float32
-    light = np.asarray(light_dir, dtype=np.float64)
-    light = (light / np.linalg.norm(light)).astype(f)
+    light = light_unit(light_dir).astype(f)
     n = grid.normals.astype(f)
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     shade = f(ambient) + (f(1) - f(ambient)) * np.maximum(n @ light, f(0))
@@ -300,8 +298,6 @@ class RayMaskRenderer:
         Image (width, height), px.
     background : tuple of float
         RGB in [0, 1] where rays miss (the terrain renderer's sky).
-    light_dir, ambient
-        The shading of :meth:`TerrainRenderer.render` (same defaults).
     max_steps : int
         Traversal steps per ray before it is taken as a miss (4096).
 
@@ -322,8 +318,7 @@ class RayMaskRenderer:
         (< 0: a miss), in the mask's sample order (the samples after the fill).
     """
 
-    def __init__(self, ctx, mesh, size=(1280, 720), *, background=(0.62, 0.72, 0.82),
-                 light_dir=(0.4, -0.3, 0.85), ambient: float = 0.25, max_steps: int = 4096):
+    def __init__(self, ctx, mesh, size=(1280, 720), *, background=(0.62, 0.72, 0.82), max_steps: int = 4096):
         w, h = (int(v) for v in size)
         if w <= 0 or h <= 0:
             raise ValueError(f"RayMaskRenderer: size must be positive (width, height), got {size!r}")
@@ -332,7 +327,7 @@ class RayMaskRenderer:
         self.grid = grid = height_grid(mesh)
         nx, ny = grid.shape_cells
         lo, hi = float(grid.heights.min()), float(grid.heights.max())
-        colors = vertex_colors(grid, (lo, hi if hi > lo else lo + 1.0), light_dir, ambient)
+        colors = vertex_colors(grid, (lo, hi if hi > lo else lo + 1.0))     # the light of plod.shading
         texels = np.concatenate([colors, grid.heights[..., None]], axis=-1).astype("f4")
         self._grid_tex = ctx.texture((nx + 1, ny + 1), 4, texels.tobytes(), dtype="f4")
         mips = grid.max_mip()
@@ -379,7 +374,7 @@ class RayMaskRenderer:
         ring_px = mask.samples_px[mask.n_fill:].astype(np.float32)
         # Texels in tiles of 4 rings x 4 angles, so that the rays a SIMD block of fragments casts
         # together are neighbours on the image (row-major sample order put rays a ring apart side by
-        # side: measured 2x the cost per ray).
+        # side, and each block waited for its slowest, diverging ray).
         k, m = mask.ring_of[mask.n_fill:], mask.angle_of[mask.n_fill:]
         tile = (k // _TILE) * (mask.n_angles // _TILE + 1) + m // _TILE
         tiles, tile_index = np.unique(tile, return_inverse=True)
