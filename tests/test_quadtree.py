@@ -1,11 +1,11 @@
-"""The quadtree selection (headplod.plod.quadtree) against the flat one (headplod.plod.select)."""
+"""The quadtree selection (headplod.bench.quadtree_selector) against the flat one (headplod.plod.select)."""
 import dataclasses
 
 import numpy as np
 import pytest
 
+from headplod.bench.quadtree_selector import QuadTree, QuadtreeSelector, scene_quadtree_selector
 from headplod.plod.criteria import sup_max_visible_freq_cpd
-from headplod.plod.quadtree import QuadTree, QuadtreeSelector
 from headplod.plod.select import LevelSelector, SelectorConfig, View
 
 
@@ -59,7 +59,7 @@ def test_quadtree_levels_equal_the_flat_ones_on_the_builtin_scene(terrain_scene,
 
 
 def test_the_scene_gives_a_quadtree_selector_on_request(terrain_scene):
-    sel = terrain_scene.selector("csf", "adaptive", hierarchy=True)
+    sel = scene_quadtree_selector(terrain_scene, "csf", "adaptive")
     assert isinstance(sel, QuadtreeSelector) and (sel.tree.nx, sel.tree.ny) == (32, 32)
     flat = terrain_scene.selector("csf", "adaptive")
     view = _views(terrain_scene.screen, POIS["centre"], None, 1, seed=0, moving=False)[0]

@@ -4,7 +4,7 @@
 
 The default view (the embedded screen, the head 60 cm in front of its
 centre, the POI at the centre, σ 0.05°, 1280x720 offscreen), selected by
-``csf`` over the quadtree (``TerrainScene.selector(..., hierarchy=True)``),
+``csf`` over the quadtree (:func:`headplod.bench.quadtree_selector.scene_quadtree_selector`),
 the soup uploaded through ``TerrainRenderer.upload`` and drawn:
 
 1. the lazy mesh at ``--max-level`` (default 8) on the 32 x 32 base: a
@@ -36,6 +36,7 @@ from ..plod.terrain import Terrain
 from ..render import TerrainRenderer, create_context, off_axis_projection
 from ..render.still import TerrainScene, default_head
 from .plod import DEFAULT_SCREEN, SIZE
+from .quadtree_selector import scene_quadtree_selector
 
 
 def rss_mb() -> tuple[float, float]:
@@ -47,7 +48,7 @@ def rss_mb() -> tuple[float, float]:
 
 def run_frames(scene, renderer, screen, frames: int, level_bias: float = 0.0) -> dict:
     """A cold frame then ``frames`` frames with the head moving 1 mm per frame; stats of each kind."""
-    selector = scene.selector("csf", "adaptive", hierarchy=True, level_bias=level_bias)
+    selector = scene_quadtree_selector(scene, "csf", "adaptive", level_bias=level_bias)
     head0 = default_head(screen)
     poi = np.array(screen.size_px, dtype=np.float64) / 2
     cov = np.diag([0.05 ** 2, 0.05 ** 2])

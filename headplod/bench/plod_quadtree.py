@@ -4,7 +4,7 @@ Issue 14's goal for selection: its cost grows at most 2x from the 2M-triangle
 terrain (a 32 x 32 base grid at level 5) to the 128M one (256 x 256 at level
 5). :func:`selection_scaling` times :class:`headplod.plod.select.LevelSelector`
 (every base triangle on every frame) and
-:class:`headplod.plod.quadtree.QuadtreeSelector` on base grids of 32² to 512²
+:class:`headplod.bench.quadtree_selector.QuadtreeSelector` on base grids of 32² to 512²
 quads (2k to 512k base triangles, 2M to 512M triangles at level 5) over the
 built-in Jacksboro terrain, from the default view (the head 60 cm in front of
 the screen's centre, the POI at the centre, the built-in scene's placement),
@@ -36,9 +36,9 @@ import numpy as np
 from calib import DEFAULT_SCREEN
 
 from .. import io
-from ..plod.quadtree import QuadtreeSelector
 from ..plod.select import LevelSelector, SelectorConfig, View
 from .outputs import write_json
+from .quadtree_selector import QuadtreeSelector
 
 SIZES = (32, 64, 128, 256, 512)
 #: The other way to the 128M terrain: the 32² base refined to level 8 (same base triangles, finer levels).

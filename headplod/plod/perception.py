@@ -716,7 +716,7 @@ class Hysteresis:
 
         The same rule as :meth:`update` applied to a subset, for a selector
         that evaluates the criterion on some triangles only
-        (:mod:`headplod.plod.quadtree`): it must know that the others'
+        (:mod:`headplod.bench.quadtree_selector`): it must know that the others'
         continuous levels would not have moved them.
 
         Parameters

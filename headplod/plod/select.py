@@ -20,13 +20,17 @@ level (for hysteresis) and returns integer levels in [0, max_level]:
   tolerance; ``ipv`` and ``dpv`` their velocity baselines on top of it.
 - ``distance``: classic LOD by distance; ``full``: everything at max_level.
 
+Every rule is written once in :mod:`headplod.plod.criteria` (the tessellation
+back end's patches and the hierarchies' bounds use the same); the frustum
+culling is :func:`headplod.plod.cull.outside_screen`.
+
 Every setting of the selection is a field of :class:`SelectorConfig` (key,
 unit, default, allowed range); :class:`LevelSelector` takes one.
 
-:class:`LevelSelector` evaluates every base triangle on every frame;
-:class:`headplod.plod.quadtree.QuadtreeSelector` gives the same levels
-walking a quadtree of the base grid, through the same per-triangle
-criterion (``LevelSelector._criterion``) and hysteresis rule.
+:class:`LevelSelector` evaluates every base triangle on every frame; the
+bench's :class:`headplod.bench.quadtree_selector.QuadtreeSelector` gives the
+same levels walking a quadtree of the base grid, through the same
+per-triangle criterion (``LevelSelector._criterion``) and hysteresis rule.
 """
 from __future__ import annotations
 

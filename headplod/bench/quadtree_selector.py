@@ -1,5 +1,7 @@
-"""Level selection over a quadtree of the base grid: cost that follows what is seen.
+"""Level selection over a quadtree of the base grid (a bench's subject): cost that follows what is seen.
 
+Used by the benches (:mod:`headplod.bench.plod_quadtree`,
+:mod:`headplod.bench.plod_lazy`), not by the product's frame step.
 :class:`LevelSelector` evaluates its criterion on every base triangle of the
 grid on every frame. :class:`QuadtreeSelector` gives the same levels while
 evaluating it only where some triangle could need more than level 0:
@@ -17,14 +19,17 @@ evaluating it only where some triangle could need more than level 0:
   dropped, all its triangles at level 0, when no triangle below it can get
   a level above 0: either all its centroids project outside the screen
   (culled: the flat selection gives them the continuous level 0), or an
-  upper bound of the criterion over the node is <= 0. The bound of mode
-  ``csf`` is ``log2(f_max · diameter)`` with the smallest eccentricity
-  (the angle from the POI's direction to the node's bounding sphere, less
-  the uncertainty shift's largest reach, less the largest angle from a
-  centroid to its corners), the largest angular diameter (longest triangle
-  side seen from the box's nearest point), the highest contrast and the
-  highest f_max over every speed (:func:`sup_max_visible_freq_cpd`); ``gp``
-  and ``distance`` have theirs. With hysteresis a node is also entered when
+  upper bound of the criterion over the node is <= 0. The culling is
+  :func:`headplod.plod.cull.outside_screen` of the node's box (the flat
+  selection's test on each centroid). The bound of mode ``csf`` is
+  :func:`headplod.plod.criteria.level_bound`: ``log2(f_max · diameter)``
+  with the smallest eccentricity (the angle from the POI's direction to
+  the node's bounding sphere, less the uncertainty shift's largest reach,
+  less the largest angle from a centroid to its corners), the largest
+  angular diameter (longest triangle side seen from the box's nearest
+  point), the highest contrast and the highest f_max over every speed
+  (:func:`headplod.plod.criteria.sup_fmax_cpd`); ``gp`` and ``distance``
+  have theirs. With hysteresis a node is also entered when
   a triangle below it holds a level above 0 from the last frame (the dead
   band could keep it there, so only the exact criterion can tell).
 - The leaves reached are evaluated with :class:`LevelSelector`'s own
@@ -42,12 +47,13 @@ import math
 
 import numpy as np
 
-from . import criteria, cull
-from . import perception as pc
-from .select import LevelSelector, SelectorConfig, View
+from ..plod import criteria, cull
+from ..plod import perception as pc
+from ..plod.select import LevelSelector, SelectorConfig, View
 
 HIERARCHY_MODES = ("csf", "gp", "distance", "full")
 """Modes :class:`QuadtreeSelector` supports: those whose level is a function of the triangle alone."""
+
 
 class QuadTree:
     """Per-node bounds of a quadtree over a grid of quads (two base triangles per quad).
@@ -322,3 +328,22 @@ class QuadtreeSelector(LevelSelector):
     def reset(self):
         super().reset()
         self._hot = None
+
+
+def scene_quadtree_selector(scene, mode: str, uncertainty: str, config: SelectorConfig | None = None,
+                            **settings) -> QuadtreeSelector:
+    """A :class:`QuadtreeSelector` for a :class:`headplod.render.still.TerrainScene`'s mesh (a ``BaseMesh.grid``).
+
+    ``mode``, ``uncertainty`` and the keyword ``settings`` (any other
+    :class:`SelectorConfig` field) replace those of ``config`` (default
+    ``SelectorConfig()``), as ``TerrainScene.selector`` does for the flat one.
+    """
+    import dataclasses
+
+    config = dataclasses.replace(SelectorConfig() if config is None else config, mode=mode, uncertainty=uncertainty,
+                                 **settings)
+    m = scene.mesh
+    vertices = m.base.vertices           # BaseMesh.grid: (nx + 1) x (ny + 1) vertices
+    grid_shape = (len(np.unique(vertices[:, 1])) - 1, len(np.unique(vertices[:, 0])) - 1)
+    return QuadtreeSelector(m.centroids, m.edge_length, m.geometric_error, m.contrast, scene.model, scene.screen,
+                            config, corners_scene=m.corners, grid_shape=grid_shape)
