@@ -4,7 +4,7 @@ Formats by the file's ending: ``.glb`` (binary glTF), ``.ply``, ``.obj``,
 ``.stl``. The mesh is the one the frame drew: the vertices its triangles
 use (scene units: metres, x east, y north, z up, as
 :class:`headplod.plod.terrain.Terrain`), one face per triangle, each face
-coloured by its level (:data:`headplod.plod.mesh.LEVEL_PALETTE`, as the
+coloured by its level (:data:`headplod.plod.mesh_base.LEVEL_PALETTE`, as the
 renderer's "levels" view) where the format keeps face colours (PLY, glTF,
 OBJ with its material; STL has none).
 """
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io
-from .mesh import LEVEL_PALETTE, AdaptiveMesh
+from .mesh_base import LEVEL_PALETTE, AdaptiveMeshBase
 
 #: File endings :func:`export_mesh` writes (trimesh's exporters).
 EXPORT_FORMATS = (".glb", ".ply", ".obj", ".stl")
@@ -33,9 +33,14 @@ def check_export_path(path) -> Path:
     return path
 
 
-def selected_mesh(mesh: AdaptiveMesh, levels):
+def selected_mesh(mesh: AdaptiveMeshBase, levels):
     """The triangles of per-face ``levels`` (F,) as a ``trimesh.Trimesh`` (only the vertices they use), faces
-    coloured by level."""
+    coloured by level.
+
+    ``mesh`` is either kind (:class:`headplod.plod.mesh_base.AdaptiveMeshBase`):
+    the indices address the table ``update_indices`` leaves in
+    ``vertex_positions`` (scene units, float32, widened to float64 here).
+    """
     import trimesh   # on use: it takes a third of a second to import, which every command would pay
 
     indices, tri_levels = mesh.update_indices(levels)
@@ -47,7 +52,7 @@ def selected_mesh(mesh: AdaptiveMesh, levels):
                            faces=faces.reshape(-1, 3), face_colors=colours, process=False)
 
 
-def export_mesh(mesh: AdaptiveMesh, levels, path) -> Path:
+def export_mesh(mesh: AdaptiveMeshBase, levels, path) -> Path:
     """Write the mesh of ``levels`` to ``path`` (format by its ending), whole or not at all.
 
     Written under a temporary name in the same folder and renamed, so an

@@ -64,13 +64,14 @@ north, z up; triangles counter-clockwise seen from +z; float32 output.
 """
 from __future__ import annotations
 
-import copy
 import time
 from collections import OrderedDict
 
 import numpy as np
 
-from .mesh import AdaptiveMesh, BaseMesh, Template, _face_areas_xy, _sample, build_template, triangle_count_table
+from .mesh import AdaptiveMesh
+from .mesh_base import AdaptiveMeshBase, BaseMesh, _sample
+from .mesh_cases import Template
 
 #: Default byte budget of the piece cache (positions and normals of the cached pieces).
 DEFAULT_CACHE_BYTES = 256 * 2 ** 20
@@ -147,7 +148,7 @@ class PieceCache:
         self.nbytes = 0
 
 
-class LazyAdaptiveMesh:
+class LazyAdaptiveMesh(AdaptiveMeshBase):
     """:class:`AdaptiveMesh`'s triangles for per-face levels, with geometry made only when asked for.
 
     Parameters
@@ -180,50 +181,51 @@ class LazyAdaptiveMesh:
     bounding_radius : (F,) float64
         Per-face data as :class:`AdaptiveMesh`'s (module notes for M > data_level).
     vertex_positions : (V, 3) float32
-        The last frame's compact vertex table, scene units (``update_indices`` indexes it).
+        The last frame's compact vertex table, scene units (``update_indices`` indexes it;
+        empty before the first update and after ``clear``).
     vertex_normals : (V, 3) float32
         Unit normals of its rows (prefiltered for the row's level).
     cache_bytes : int
         Bytes held by the cache now.
     stats : dict
-        After each update: ``triangles``, ``vertices``, ``build_ms`` (pieces
-        made and the frame assembled), ``assemble_ms`` (for ``update``, the
-        soup gather), ``generated_pieces``, ``reused_pieces``,
-        ``evicted_pieces``, ``cache_bytes``, ``cache_pieces``.
+        After each update: ``triangles``, ``vertices``, ``rebuilt_faces``,
+        ``build_ms`` (pieces made and the frame assembled), ``assemble_ms``
+        (for ``update``, the soup gather), ``generated_pieces``,
+        ``reused_pieces``, ``evicted_pieces``, ``cache_bytes``,
+        ``cache_pieces``.
+    last_rebuilt_faces : (k,) int64
+        Base faces whose block the last update made anew.
+
+    Capabilities (:class:`headplod.plod.mesh_base.AdaptiveMeshBase`):
+    ``kind == "lazy"``, ``has_full_table`` False (a frame's table holds
+    only what it draws), ``full_fits`` up to
+    :data:`headplod.plod.mesh_base.FULL_MAX_LEVEL`.
     """
+
+    kind = "lazy"
+    has_full_table = False
 
     def __init__(self, base: BaseMesh, terrain, max_level: int = 5, *, cache_bytes: int = DEFAULT_CACHE_BYTES,
                  idle_frames: int | None = None,
                  light_dir=(-0.5, 0.5, 0.7071067811865476), ambient: float = 0.2, normal_filter: float = 0.25,
                  data_level: int | None = None):
-        if not isinstance(max_level, (int, np.integer)) or not 0 <= max_level <= 8:
-            raise ValueError(f"max_level must be an integer in 0..8, got {max_level!r}")
+        super().__init__(base, terrain, max_level, normal_filter)
         self._pieces_cache = PieceCache(cache_bytes, idle_frames)
-        M = int(max_level)
+        M = self.max_level
         K = min(M, DATA_LEVEL) if data_level is None else int(data_level)
         if not 0 <= K <= M:
             raise ValueError(f"data_level must be in 0..max_level={M}, got {data_level!r}")
-        self.base, self.terrain, self.max_level = base, terrain, M
-        self.n_faces = len(base.faces)
-        self._count_table = triangle_count_table(M)
-        self._templates: dict[int, Template] = {}
-        self._group_data: dict[int, tuple] = {}
         # The per-face data, from a mesh at the data level (its tables are dropped with it).
         data = AdaptiveMesh(base, terrain, max_level=K, light_dir=light_dir, ambient=ambient,
                             normal_filter=normal_filter)
         self._per_face_data(data, K)
         self.contrast = data.contrast
-        self._fine_normals_data = data._fine_normals           # (F, P_K, 3) float32: shading_contrast
+        self._shading_normals = data._shading_normals          # (F, P_K, 3) float32: shading_contrast
         del data
-        leg = float(np.sqrt(2 * np.median(_face_areas_xy(base))))     # as AdaptiveMesh's
-        self.normal_filter_m = np.array([normal_filter * leg / 2 ** L if L < M else 0.0 for L in range(M + 1)])
         _, vnrm = _sample(terrain, base.vertices[:, 0], base.vertices[:, 1])
         self._base_pos = base.vertices.astype(np.float32)
         self._base_nrm = vnrm.astype(np.float32)
         self.clear()
-        self.vertex_positions = np.zeros((0, 3), np.float32)
-        self.vertex_normals = np.zeros((0, 3), np.float32)
-        self.stats: dict = {}
 
     # ------------------------------------------------------------------ per-face data
     def _per_face_data(self, data: AdaptiveMesh, K: int) -> None:
@@ -243,32 +245,6 @@ class LazyAdaptiveMesh:
             slack = tail
         self.z_range = data.z_range + np.stack([-slack, slack], axis=1)
         self.bounding_radius = data.bounding_radius + slack
-
-    def shading_contrast(self, light_dir, ambient: float = 0.2) -> np.ndarray:
-        """As :meth:`AdaptiveMesh.shading_contrast`, over the data level's vertices, (F,) float64."""
-        light = np.asarray(light_dir, dtype=np.float64)
-        if light.shape != (3,) or not np.linalg.norm(light) > 0:
-            raise ValueError(f"light_dir must be a non-zero (3,) vector, got {light_dir!r}")
-        light = light / np.linalg.norm(light)
-        shade = ambient + (1 - ambient) * np.maximum(self._fine_normals_data @ light.astype(np.float32), 0)
-        hi, lo = shade.max(axis=1).astype(np.float64), shade.min(axis=1).astype(np.float64)
-        return (hi - lo) / np.maximum(hi + lo, 1e-12)
-
-    # ------------------------------------------------------------------ cases (as AdaptiveMesh's)
-    def template(self, case_id: int) -> Template:
-        """The cached template of an encoded case (see ``cases``)."""
-        tpl = self._templates.get(case_id)
-        if tpl is None:
-            M1 = self.max_level + 1
-            L, e0, e1, e2 = np.unravel_index(case_id, (M1,) * 4)
-            tpl = build_template(self.max_level, L, (e0, e1, e2))
-            self._templates[case_id] = tpl
-        return tpl
-
-    _check_levels = AdaptiveMesh._check_levels
-    edge_levels = AdaptiveMesh.edge_levels
-    cases = AdaptiveMesh.cases
-    triangle_count = AdaptiveMesh.triangle_count
 
     # ------------------------------------------------------------------ cache
     @property
@@ -304,23 +280,14 @@ class LazyAdaptiveMesh:
         self._pieces_cache.clear()
         self.clear()
 
-    def share(self) -> "LazyAdaptiveMesh":
-        """A mesh over the same per-face data, templates and piece cache, with its own frame state.
-
-        As :meth:`AdaptiveMesh.share`: several selections (the demo's
-        scenario loops) build side by side, each its own compact frame table,
-        while the pieces any of them made are reused by all and the cache's
-        byte budget bounds them together.
-        """
-        other = copy.copy(self)
-        other.clear()
-        other.stats = {}
-        other.vertex_positions = np.zeros((0, 3), np.float32)
-        other.vertex_normals = np.zeros((0, 3), np.float32)
-        return other
-
     def clear(self) -> None:
-        """Forget the last frame's output and face blocks (the cache stays): the next update builds every face."""
+        """Forget the last frame (output, table, face blocks; the cache stays): the next update builds every face.
+
+        A :meth:`share` starts from here too: several selections (the
+        demo's scenario loops) build side by side, each its own compact
+        frame table, while the pieces any of them made are reused by all
+        and the cache's byte budget bounds them together.
+        """
         self._last_case = None
         self._output = self._soup = self._face_per_tri = None
         self._faces_of_groups = []
@@ -329,6 +296,9 @@ class LazyAdaptiveMesh:
         self._block_nrm = [None] * self.n_faces
         self._block_len = np.zeros(self.n_faces, dtype=np.int64)
         self._pinned: dict = {}                                          # edge -> (level, pos, nrm)
+        self.vertex_positions = np.zeros((0, 3), np.float32)
+        self.vertex_normals = np.zeros((0, 3), np.float32)
+        self.last_rebuilt_faces = np.zeros(0, dtype=np.int64)
 
     # ------------------------------------------------------------------ pieces
     def _edge_block(self, level: int, edges: np.ndarray):
@@ -413,76 +383,100 @@ class LazyAdaptiveMesh:
     def update_indices(self, levels):
         """Triangles for per-face levels as indices into this frame's ``vertex_positions``.
 
-        Parameters
-        ----------
-        levels : (F,) int
-            Level of each base face, 0..max_level.
-
-        Returns
-        -------
-        indices : (3T,) uint32
-            Rows of ``vertex_positions`` / ``vertex_normals`` (the compact
-            table of this frame, replaced by every update with new cases);
-            entries 3t..3t+2 are triangle t, counter-clockwise seen from +z.
-        level_per_triangle : (T,) uint8
-            Level of the base face each triangle belongs to.
-
-        Notes
-        -----
-        Triangles are grouped by case (ascending), then by face (ascending):
-        ``AdaptiveMesh``'s order for a build from scratch. The same arrays
-        are returned again when no case changes; do not modify them.
+        As :meth:`AdaptiveMeshBase.update_indices`; the indices address the
+        compact table of this frame, which every update with new cases
+        replaces. Triangles are grouped by case (ascending), then by face
+        (ascending): ``AdaptiveMesh``'s order for a build from scratch.
         """
         t0 = time.perf_counter()
         case = self.cases(levels)
         if self._last_case is not None and np.array_equal(case, self._last_case):
-            self.stats.update(build_ms=1e3 * (time.perf_counter() - t0), assemble_ms=0.0, generated_pieces=0, rebuilt_faces=0,
-                              evicted_pieces=0)
+            self.last_rebuilt_faces = np.zeros(0, dtype=np.int64)
+            self.stats.update(build_ms=1e3 * (time.perf_counter() - t0), assemble_ms=0.0, generated_pieces=0,
+                              rebuilt_faces=0, evicted_pieces=0)
             return self._output
         self._n_generated = self._n_reused = 0
         self._pieces_cache.frame += 1
-        M, N = self.max_level, 2 ** self.max_level
-        M1 = M + 1
-        lv = self._check_levels(levels)
-        el = self.edge_levels(lv)                                            # (E,)
-        base = self.base
         # 1. Only the faces whose case changed get a new block (their boundary and interior points).
         rebuilt = np.flatnonzero(case != self._face_case)
         if len(rebuilt):
-            edges = np.unique(base.face_edges[rebuilt])
-            edge_rows, edge_nrms = [], []
-            edge_off = np.zeros(len(base.edges), np.int64)
-            row = 0
-            for level in np.unique(el[edges]).tolist():                      # loop over edge levels
-                sub = edges[el[edges] == level]
-                p, n = self._edge_block(level, sub)
-                edge_off[sub] = row + np.arange(len(sub)) * p.shape[1]
-                edge_rows.append(p.reshape(-1, 3))
-                edge_nrms.append(n.reshape(-1, 3))
-                row += p.shape[0] * p.shape[1]
-            edge_rows, edge_nrms = np.concatenate(edge_rows), np.concatenate(edge_nrms)
-            new_case = case[rebuilt]
-            order = np.argsort(new_case, kind="stable")
-            ids, starts = np.unique(new_case[order], return_index=True)
-            for cid, fids in zip(ids.tolist(), np.split(rebuilt[order], starts[1:])):   # loop over cases
-                tpl = self.template(cid)
-                level = cid // M1 ** 3
-                eids = base.face_edges[fids][:, tpl.boundary_edge]                # (m, Pb)
-                fwd = base.face_edge_forward[fids][:, tpl.boundary_edge]
-                kk = np.where(fwd, tpl.boundary_k, N - tpl.boundary_k)           # canonical, 1/N of the edge
-                rows = edge_off[eids] + (kk >> (M - el[eids]))
-                p, n = self._face_block(cid, level, tpl, fids)
-                block_pos = np.concatenate([edge_rows[rows], p], axis=1)         # (m, Pb + Kp, 3)
-                block_nrm = np.concatenate([edge_nrms[rows], n], axis=1)
-                for i, f in enumerate(fids.tolist()):                            # loop over rebuilt faces
-                    self._block_pos[f], self._block_nrm[f] = block_pos[i], block_nrm[i]
-                self._block_len[fids] = block_pos.shape[1]
-            self._face_case[rebuilt] = new_case
-            # Edges no face reads at their pinned level any more are unpinned (their pieces stay cached).
-            stale = [e for e, (level, _, _) in self._pinned.items() if level != el[e]]
-            for e in stale:                                                      # loop over stale pins
-                del self._pinned[e]
+            self._rebuild_blocks(case, self.edge_levels(levels), rebuilt)
         # 2. The frame: the blocks grouped by case (ascending), then face; triangles = templates + offsets.
+        total = self._assemble_frame(case)
+        self._last_case = case
+        self.last_rebuilt_faces = rebuilt
+        evicted = self._trim()
+        self.stats = {"triangles": int(len(self._output[1])), "vertices": total, "rebuilt_faces": int(len(rebuilt)),
+                      "build_ms": 1e3 * (time.perf_counter() - t0), "assemble_ms": 0.0,
+                      "generated_pieces": int(self._n_generated), "reused_pieces": int(self._n_reused),
+                      "evicted_pieces": int(evicted), "cache_bytes": int(self.cache_bytes),
+                      "cache_pieces": len(self._cache)}
+        return self._output
+
+    def _rebuild_blocks(self, case, el, rebuilt) -> None:
+        """New blocks for the faces ``rebuilt`` (k,) entering ``case[rebuilt]``; edge levels ``el`` (E,).
+
+        A block is the face's boundary points (read from its edges' pieces
+        at their levels) then its face piece. Afterwards, edges no face
+        reads at their pinned level any more are unpinned (their pieces
+        stay cached).
+        """
+        edge_rows, edge_nrms, edge_off = self._edge_rows(np.unique(self.base.face_edges[rebuilt]), el)
+        new_case = case[rebuilt]
+        order = np.argsort(new_case, kind="stable")
+        ids, starts = np.unique(new_case[order], return_index=True)
+        for cid, fids in zip(ids.tolist(), np.split(rebuilt[order], starts[1:])):   # loop over cases
+            self._case_blocks(cid, fids, el, edge_rows, edge_nrms, edge_off)
+        self._face_case[rebuilt] = new_case
+        stale = [e for e, (level, _, _) in self._pinned.items() if level != el[e]]
+        for e in stale:                                                      # loop over stale pins
+            del self._pinned[e]
+
+    def _edge_rows(self, edges, el):
+        """The points of ``edges`` (n,) at their levels ``el[edges]``, stacked edge after edge.
+
+        Returns
+        -------
+        positions, normals : (R, 3) float32
+            Each edge's ``2**level + 1`` points in its canonical direction.
+        first_row : (E,) int64
+            Row of each asked edge's first point (0 for the others).
+        """
+        rows, nrms = [], []
+        first_row = np.zeros(len(self.base.edges), np.int64)
+        row = 0
+        for level in np.unique(el[edges]).tolist():                      # loop over edge levels
+            sub = edges[el[edges] == level]
+            p, n = self._edge_block(level, sub)
+            first_row[sub] = row + np.arange(len(sub)) * p.shape[1]
+            rows.append(p.reshape(-1, 3))
+            nrms.append(n.reshape(-1, 3))
+            row += p.shape[0] * p.shape[1]
+        return np.concatenate(rows), np.concatenate(nrms), first_row
+
+    def _case_blocks(self, cid, fids, el, edge_rows, edge_nrms, edge_first_row) -> None:
+        """Make and keep the blocks of faces ``fids`` (m,) in case ``cid`` (rows from :meth:`_edge_rows`)."""
+        M, N = self.max_level, 2 ** self.max_level
+        base = self.base
+        tpl = self.template(cid)
+        eids = base.face_edges[fids][:, tpl.boundary_edge]                # (m, Pb)
+        fwd = base.face_edge_forward[fids][:, tpl.boundary_edge]
+        kk = np.where(fwd, tpl.boundary_k, N - tpl.boundary_k)           # canonical, 1/N of the edge
+        rows = edge_first_row[eids] + (kk >> (M - el[eids]))
+        p, n = self._face_block(cid, cid // (M + 1) ** 3, tpl, fids)
+        block_pos = np.concatenate([edge_rows[rows], p], axis=1)         # (m, Pb + Kp, 3)
+        block_nrm = np.concatenate([edge_nrms[rows], n], axis=1)
+        for i, f in enumerate(fids.tolist()):                            # loop over rebuilt faces
+            self._block_pos[f], self._block_nrm[f] = block_pos[i], block_nrm[i]
+        self._block_len[fids] = block_pos.shape[1]
+
+    def _assemble_frame(self, case) -> int:
+        """This frame's table (the blocks by case, then face), its indices and triangle levels; the table's rows.
+
+        Sets ``vertex_positions``, ``vertex_normals``, the output and what
+        ``face_per_triangle`` reads.
+        """
+        M1 = self.max_level + 1
         order = np.argsort(case, kind="stable")
         ids, starts = np.unique(case[order], return_index=True)
         sizes = self._block_len[order]
@@ -507,18 +501,7 @@ class LazyAdaptiveMesh:
         self._output = (indices, tri_levels)
         self._faces_of_groups = face_parts
         self._soup = self._face_per_tri = None
-        self._last_case = case
-        evicted = self._trim()
-        self.stats = {"triangles": int(len(tri_levels)), "vertices": total, "rebuilt_faces": int(len(rebuilt)),
-                      "build_ms": 1e3 * (time.perf_counter() - t0), "assemble_ms": 0.0,
-                      "generated_pieces": int(self._n_generated), "reused_pieces": int(self._n_reused),
-                      "evicted_pieces": int(evicted), "cache_bytes": int(self.cache_bytes),
-                      "cache_pieces": len(self._cache)}
-        return self._output
-
-    #: The soup of the last ``update_indices``: ``AdaptiveMesh.update`` (positions, normals (3T, 3) float32,
-    #: levels (T,) uint8), the same arrays again while no case changes.
-    update = AdaptiveMesh.update
+        return total
 
     def face_per_triangle(self) -> np.ndarray:
         """Base face of each triangle of the last output, (T,) int64."""
