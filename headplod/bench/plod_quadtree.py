@@ -37,6 +37,7 @@ from calib import DEFAULT_SCREEN
 
 from .. import io
 from ..plod.select import LevelSelector, SelectorConfig, View
+from ..plod.shading import AMBIENT, light_unit
 from .outputs import write_json
 from .quadtree_selector import QuadtreeSelector
 
@@ -44,8 +45,6 @@ SIZES = (32, 64, 128, 256, 512)
 #: The other way to the 128M terrain: the 32² base refined to level 8 (same base triangles, finer levels).
 DEEP = ((32, 8),)
 GOAL_GROWTH = 2.0
-LIGHT_DIR = (-0.5, 0.5, 0.7071067811865476)       # AdaptiveMesh's default: north-west, 45° up
-AMBIENT = 0.2
 
 
 def grid_inputs(terrain, nx: int, ny: int, max_level: int = 5) -> dict:
@@ -76,7 +75,7 @@ def grid_inputs(terrain, nx: int, ny: int, max_level: int = 5) -> dict:
     inner = np.concatenate([centroids[:, None, :2], 0.5 * (corners[..., :2] + centroids[:, None, :2])], axis=1)
     _, inner_normals = terrain.sample(inner[..., 0].ravel(), inner[..., 1].ravel())
     normals = np.concatenate([vertex_normals[faces], inner_normals.reshape(len(faces), 4, 3)], axis=1)
-    light = np.asarray(LIGHT_DIR) / np.linalg.norm(LIGHT_DIR)
+    light = light_unit()                                          # the one light (plod.shading)
     shade = AMBIENT + (1 - AMBIENT) * np.maximum(normals @ light, 0.0)
     hi, lo = shade.max(axis=1), shade.min(axis=1)
     return {"corners": corners, "centroids": centroids, "edge_length": edge_length,

@@ -40,6 +40,7 @@ from scipy import ndimage as ndi
 
 from . import criteria
 from . import perception as pc
+from .shading import AMBIENT, light_unit
 from .terrain import Terrain, _bspline_weights
 
 __all__ = ["height_grid", "jacksboro_grid", "grid_normals", "PatchGrid", "patch_levels", "levels_of_patches",
@@ -51,10 +52,6 @@ DETAIL_MIN_WAVELENGTH_SPACINGS = 2.5
 
 EDGE_NAMES = ("west", "south", "east", "north")
 """Patch edges in the order of ``gl_TessLevelOuter`` for quads (module notes)."""
-
-#: Light and ambient of the patches' shading contrast: those of ``AdaptiveMesh`` (a hillshade from the north-west).
-CONTRAST_LIGHT = (-0.5, 0.5, 0.7071067811865476)
-CONTRAST_AMBIENT = 0.2
 
 
 def _spline_matrix(n_out: int, n_in: int) -> np.ndarray:
@@ -190,8 +187,8 @@ class PatchGrid:
     z_min_m, z_max_m : (n, n) float32
         Height range of each patch's (P+1)² samples, metres; n = (N - 1) / P.
     contrast : (n, n) float32
-        Michelson contrast of the Lambert shading (light :data:`CONTRAST_LIGHT`,
-        ambient :data:`CONTRAST_AMBIENT`) over each patch's samples.
+        Michelson contrast of the Lambert shading over each patch's samples,
+        with the light every back end draws with (:mod:`headplod.plod.shading`).
     """
 
     heights_m: np.ndarray
@@ -222,14 +219,13 @@ class PatchGrid:
     @staticmethod
     def _contrast(z, dx_m, dy_m, p) -> np.ndarray:
         """(n, n) Michelson contrast of the shading over each patch, computed a row of patches at a time."""
-        light = np.asarray(CONTRAST_LIGHT, np.float64)
-        light /= np.linalg.norm(light)
+        light = light_unit()
         n_p = (z.shape[0] - 1) // p
         out = np.empty((n_p, n_p), np.float32)
         for r in range(n_p):                     # one strip of patches: bounded temporaries
             lo, hi = max(r * p - 1, 0), min((r + 1) * p + 2, z.shape[0])
             normals = grid_normals(z[lo:hi], dx_m, dy_m)[r * p - lo:(r + 1) * p + 1 - lo]
-            shade = CONTRAST_AMBIENT + (1 - CONTRAST_AMBIENT) * np.maximum(normals @ light.astype(np.float32), 0)
+            shade = AMBIENT + (1 - AMBIENT) * np.maximum(normals @ light.astype(np.float32), 0)
             smax, smin = _block_reduce_strip(shade, p, np.maximum), _block_reduce_strip(shade, p, np.minimum)
             out[r] = (smax - smin) / np.maximum(smax + smin, 1e-12)
         return out
