@@ -285,13 +285,12 @@ def fmax_cpd(contrast, speed_deg_s, ecc_deg, *, mode: str = "csf", csf_model: st
 def frequency_level(fmax, diameter_deg, level_bias: float = 0.0) -> np.ndarray:
     """Continuous level ``log2(f_max / f) + bias`` of pieces of frequency ``f = 1 / diameter``, (...,).
 
-    Martinez eq. 4 before its ceiling: the doublings of frequency from the
-    piece's to the highest visible one. ``fmax`` (...,) cpd is floored at
+    Martinez eq. 4 before its ceiling (:func:`perception.lod_continuous`):
+    the doublings of frequency from the piece's to the highest visible one. ``fmax`` (...,) cpd is floored at
     :data:`FMAX_FLOOR_CPD` and ``diameter_deg`` at :data:`DIAMETER_FLOOR_DEG`.
     """
     frequency = 1.0 / np.maximum(diameter_deg, DIAMETER_FLOOR_DEG)
-    with np.errstate(divide="ignore"):
-        return np.log2(np.maximum(fmax, FMAX_FLOOR_CPD) / frequency) + level_bias
+    return pc.lod_continuous(frequency, np.maximum(fmax, FMAX_FLOOR_CPD)) + level_bias
 
 
 def csf_level(contrast, speed_deg_s, ecc_deg, diameter_deg, *, mode: str = "csf", csf_model: str = "kelly_scaled",

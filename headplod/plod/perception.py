@@ -70,11 +70,14 @@ def lod_continuous(triangle_freq_cpd, max_freq_cpd):
         Number of frequency doublings (1-to-4 subdivisions) from f to f_max;
         -inf where f_max = 0 (nothing visible), +inf where f = 0; NaN where
         both are 0 or an input is NaN.
+
+    :func:`headplod.plod.criteria.frequency_level` is this with the pieces'
+    floors (f_max and diameter) and the level bias: every back end's rule.
     """
     f = np.asarray(triangle_freq_cpd, dtype=float)
     fm = np.asarray(max_freq_cpd, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.log2(fm) - np.log2(f)
+        return np.log2(fm / f)
 
 
 def lod_from_frequency(triangle_freq_cpd, max_freq_cpd, max_level):
