@@ -467,3 +467,51 @@ def test_shader_culling_equals_the_clip_box_test(ctx430, grid, default_screen):
             want = cull.box_outside_clip(corners, mvp, region).reshape(n, n)
             assert 0.1 < want.mean() < 0.9
             assert np.count_nonzero(culled != want) <= 2
+
+
+@pytest.mark.parametrize("moving", [False, True], ids=["still", "moving"])
+@pytest.mark.parametrize("cov_deg2, shift", [(None, "ellipse"), (np.array([[2.0, 0.6], [0.6, 0.8]]), "ellipse"),
+                                             (np.array([[0.3, -0.1], [-0.1, 0.2]]), "eq1")])
+@pytest.mark.parametrize("scale", [1.0, 3.0])
+def test_levels_pass_equals_criteria_on_a_grid(ctx430, grid, default_screen, moving, cov_deg2, shift, scale):
+    """The GPU's levels pass against criteria (patches.levels_of_patches) on a grid of inputs: every patch's
+    contrast from 0.002 to 1 (log-spaced, shuffled: invisible to fully visible pieces at every eccentricity),
+    the eccentricity across the grid's patches about the POI, the eye still or moving 2 mm in 1/60 s
+    (the foveal shortcut and the Newton path), three uncertainties and two sizes of the terrain (the model
+    scaled about the grid's centre). Tolerance LEVEL_ATOL (float32, above); a piece within 1e-3 of the
+    visibility threshold (L = 1, where f_max jumps to 0) is left out."""
+    import dataclasses
+
+    from headplod.plod import criteria
+    from headplod.plod.csf import csf_coefficients
+    from headplod.plod.patches import levels_of_patches
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer
+
+    n = grid.n_patches
+    rng = np.random.default_rng(5)
+    contrast = rng.permutation(np.logspace(np.log10(0.002), 0.0, n * n)).reshape(n, n).astype(np.float32)
+    g = dataclasses.replace(grid, contrast=contrast)
+    view, proj, model, head, axes = _view(default_screen, g, poi_px=(700.0, 500.0))
+    centre_scene = np.array([*np.mean(np.reshape(g.extent, (2, 2)), axis=1), g.heights_m.mean()])
+    centre = model[:3, :3] @ centre_scene + model[:3, 3]
+    model = model.copy()
+    model[:3, :3] *= scale
+    model[:3, 3] = centre + scale * (model[:3, 3] - centre)
+    prev = head + (np.array([2.0, -1.0, 0.0]) if moving else 0.0)
+    with TessellationRenderer(ctx430, g, size=(64, 36), config=TessellationConfig(patch_samples=PATCH, cull=False),
+                              selection=SelectorConfig(shift=shift, level_bias=0.3)) as r:
+        r.levels(view, proj, model, _cv(prev, axes, cov_deg2, t=0.0))             # the last frame's eye
+        inner, outer, _ = r.levels(view, proj, model, _cv(head, axes, cov_deg2, t=1 / 60))
+    corners, neighbours = g.corners_scene(), g.neighbour_contrast()
+    want_inner, want_outer = levels_of_patches(corners, g.contrast, neighbours, model, head, axes, cov_deg2,
+                                               shift=shift, level_bias=0.3, eye_prev_mm=prev if moving else None,
+                                               dt_s=1 / 60)
+    homog = np.concatenate([corners, np.ones(corners.shape[:-1] + (1,))], axis=-1)
+    points, _, _ = criteria.patch_pieces((homog @ model.T)[..., :3], head)
+    speed = criteria.point_speed_deg_s(points, head, prev if moving else None, 1 / 60)
+    A, b = csf_coefficients(speed)
+    L = 0.5 * np.log(A * criteria.patch_piece_contrast(g.contrast, neighbours)) - np.log(0.5 * b)
+    clear = np.abs(L - 1.0) > 1e-3
+    got, want = np.concatenate([inner[..., None], outer], -1), np.concatenate([want_inner[..., None], want_outer], -1)
+    assert clear.mean() > 0.97 and (want < -20).any() and (want > 2).any()      # invisible and fine pieces alike
+    np.testing.assert_allclose(got[clear], want[clear], atol=LEVEL_ATOL)
