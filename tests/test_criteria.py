@@ -156,9 +156,10 @@ def test_screen_pyramid_is_the_pixel_test(default_screen):
 
 
 def test_a_sphere_outside_a_plane_culls_its_box():
-    from headplod.render.projection import off_axis_projection
     from calib import DEFAULT_SCREEN
+
     from headplod import io
+    from headplod.render.projection import off_axis_projection
     from headplod.render.still import default_head
 
     screen = io.read_screen(DEFAULT_SCREEN)
@@ -167,7 +168,8 @@ def test_a_sphere_outside_a_plane_culls_its_box():
     rng = np.random.default_rng(7)
     lo = rng.uniform([-2000, -2000, -4000], [2000, 2000, 500], (3000, 3))
     hi = lo + rng.uniform(1, 300, (3000, 3))
-    sphere = cull.sphere_outside_planes(0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1), cull.frustum_planes(mvp))
+    radius = 0.5 * np.linalg.norm(hi - lo, axis=1)
+    sphere = cull.sphere_outside_planes(0.5 * (lo + hi), radius, cull.frustum_planes(mvp))
     box = cull.box_outside_clip(cull.box_corners(lo, hi), mvp)
     assert sphere.any() and (box & ~sphere).any()                     # the sphere is the more conservative
     assert np.all(box[sphere])
@@ -188,7 +190,8 @@ def test_the_shaders_constants_are_generated_from_python():
     assert ts.rule_defines() in ts.RULE and ts.RULE in ts.LEVELS_VERTEX and ts.RULE in ts.CONTROL
     # The numbers written in the rule are csf's: the CSF's coefficients A, b at a speed from those constants.
     v = 1.7
-    k = float(defines["KELLY_K0"]) + float(defines["KELLY_K1"]) * abs(math.log10(v / float(defines["KELLY_SPEED_REF"]))) ** 3
+    lg = abs(math.log10(v / float(defines["KELLY_SPEED_REF"])))
+    k = float(defines["KELLY_K0"]) + float(defines["KELLY_K1"]) * lg ** 3
     A, b = csf.csf_coefficients(v, "kelly_scaled")
     assert A == pytest.approx(4 * math.pi ** 2 * k * v, rel=1e-15)
     assert b == pytest.approx(4 * math.pi * (v + float(defines["KELLY_SPEED_OFFSET"])) / float(defines["KELLY_PEAK"]),
