@@ -60,7 +60,7 @@ from ..render import TerrainRenderer, create_context, off_axis_projection
 from ..plod.raymask import RayMaskConfig
 from ..render.foveate import FoveatedRenderer, FoveationConfig, LayerAnchor
 from ..render.frame import FAR_MM, NEAR_MM, VIEW_MODES, FrameStep, MeshBackend, RayMaskBackend, px_per_deg_at
-from ..render.still import full_fits, default_head, uses_table
+from ..render.still import default_head
 from . import viewpoints as vps
 from .pose_sources import (GROWTH_DEG2_PER_S, MAX_HELD_VAR_DEG2, DropoutPoses, MousePoses, Pose,  # noqa: F401
                            PoseHold, PoseSource, PrefetchPoses, ReplayPoses, TeePoses, TrackerPoses, default_screen,
@@ -236,8 +236,8 @@ class DemoLoop:
         self.anchor = LayerAnchor()
         # The lazy mesh keeps no whole full mesh for raymask's rays, and full above FULL_MAX_LEVEL does not fit.
         mesh = scene.mesh
-        self._modes = tuple(m for m in MODES if not (m == "full" and not full_fits(mesh)))
-        self._backends = tuple(b for b in DEMO_BACKENDS if not (b == "raymask" and not uses_table(mesh)))
+        self._modes = tuple(m for m in MODES if not (m == "full" and not mesh.full_fits))
+        self._backends = tuple(b for b in DEMO_BACKENDS if not (b == "raymask" and not mesh.has_full_table))
         self.raymask = RayMaskConfig()      # the settings of the raymask back end
         self._raymask_renderer = None
         self.settings = {}

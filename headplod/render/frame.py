@@ -261,7 +261,7 @@ class MeshBackend(Backend):
                  "readback": renderer.last_readback_ms}
         if self.foveated is not None:            # the layers' face spans and index re-sort
             stage["upload"] += self.foveated.last_sort_ms
-        if _is_lazy(mesh):
+        if mesh.kind == "lazy":
             details["cache_bytes"] = int(mesh.cache_bytes)
             details["lazy"] = {k: int(mesh.stats.get(k, 0)) for k in ("rebuilt_faces", "generated_pieces",
                                                                        "vertices")}
@@ -292,12 +292,6 @@ class MeshBackend(Backend):
         ppd = px_per_deg_at(self.screen, cv.raw_eye_mm, (w, h))
         poi, layers = self.anchor.update(cv.poi_px * scale, layer_plan(ppd, cv.cov_deg2, self.foveation), ppd)
         return self.foveated.render(*camera, model, poi, ppd, cv.cov_deg2, view_mode=view_mode, layers=layers)
-
-
-def _is_lazy(mesh) -> bool:
-    from ..plod.lazy_mesh import LazyAdaptiveMesh      # TODO(issue 23): the mesh's own kind attribute
-
-    return isinstance(mesh, LazyAdaptiveMesh)
 
 
 class TessellationBackend(Backend):

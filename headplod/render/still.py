@@ -22,6 +22,7 @@ from ..io import write_atomically
 from ..plod.export import check_export_path, export_mesh
 from ..plod.lazy_mesh import DEFAULT_CACHE_BYTES, LazyAdaptiveMesh
 from ..plod.mesh import AdaptiveMesh, BaseMesh
+from ..plod.mesh_base import FULL_MAX_LEVEL
 from ..plod.raymask import RayMaskConfig
 from ..plod.select import LevelSelector, SelectorConfig
 from ..plod.terrain import Terrain
@@ -49,9 +50,6 @@ DEFAULT_MAX_LEVEL = 5
 #: Finest level the whole-table :class:`AdaptiveMesh` is used for; above it the scene's mesh is a
 #: :class:`LazyAdaptiveMesh` (its table would be about 190 MB at level 6, 750 MB at 7, 3 GB at 8: 4x a level).
 TABLE_MAX_LEVEL = 5
-#: Finest level at which ``full`` (every face at the finest level) is drawn: 33.5 M triangles at 7 (a frame's
-#: table and indices ~0.8 GB, more again in llvmpipe's buffers); level 8's 134 M (~3 GB) is refused.
-FULL_MAX_LEVEL = 7
 #: Shortest synthetic detail wave of the built-in terrain at the default level, m (``Terrain``'s default).
 BUILTIN_DETAIL_M = 60.0
 
@@ -105,28 +103,19 @@ class TerrainScene:
         model = scene_model(terrain.extent, float(np.median(terrain.dem_z_m)), screen, fit)
         return cls(terrain, mesh, model, screen, fit)
 
-    def selector(self, mode: str, uncertainty: str, config: SelectorConfig | None = None, *,
-                 hierarchy: bool = False, **settings) -> LevelSelector:
+    def selector(self, mode: str, uncertainty: str, config: SelectorConfig | None = None,
+                 **settings) -> LevelSelector:
         """A level selector for this scene's mesh.
 
         ``mode``, ``uncertainty`` and the keyword ``settings`` (any other
         :class:`SelectorConfig` field, e.g. ``hysteresis=False``) replace
-        those of ``config`` (default ``SelectorConfig()``). ``hierarchy``:
-        a :class:`headplod.plod.quadtree.QuadtreeSelector` (the same levels,
-        the criterion evaluated only where a triangle may need more than
-        level 0; modes ``csf``, ``gp``, ``distance``, ``full``).
+        those of ``config`` (default ``SelectorConfig()``).
         """
         config = SelectorConfig() if config is None else config
         config = dataclasses.replace(config, mode=mode, uncertainty=uncertainty, **settings)
         m = self.mesh
-        args = (m.centroids, m.edge_length, m.geometric_error, m.contrast, self.model, self.screen, config)
-        if hierarchy:
-            from ..plod.quadtree import QuadtreeSelector
-
-            vertices = m.base.vertices           # BaseMesh.grid: (nx + 1) x (ny + 1) vertices
-            grid_shape = (len(np.unique(vertices[:, 1])) - 1, len(np.unique(vertices[:, 0])) - 1)
-            return QuadtreeSelector(*args, corners_scene=m.corners, grid_shape=grid_shape)
-        return LevelSelector(*args, corners_scene=m.corners)
+        return LevelSelector(m.centroids, m.edge_length, m.geometric_error, m.contrast, self.model, self.screen,
+                             config, corners_scene=m.corners)
 
 
 def scene_model(extent, centre_z_m: float, screen, fit: float = 1.0) -> np.ndarray:
@@ -266,22 +255,12 @@ def mesh_stats(mesh) -> dict:
     """What a frame's stats say of the mesh: ``kind`` (``table`` or ``lazy``), ``max_level``,
     ``full_triangles``; for a lazy mesh also the last frame's ``vertices`` (compact table rows) and its
     cache's ``cache_bytes`` and ``cache_budget_bytes``."""
-    out = {"kind": "table" if uses_table(mesh) else "lazy", "max_level": int(mesh.max_level),
+    out = {"kind": mesh.kind, "max_level": int(mesh.max_level),
            "full_triangles": int(mesh.triangle_count(np.full(mesh.n_faces, mesh.max_level)))}
-    if not uses_table(mesh):
+    if mesh.kind == "lazy":
         out.update(vertices=int(len(mesh.vertex_positions)), cache_bytes=int(mesh.cache_bytes),
                    cache_budget_bytes=int(mesh.budget_bytes))
     return out
-
-
-def full_fits(mesh) -> bool:
-    """Whether mode ``full`` (every face at the finest level) is drawn on this mesh (:data:`FULL_MAX_LEVEL`)."""
-    return mesh.max_level <= FULL_MAX_LEVEL
-
-
-def uses_table(mesh) -> bool:
-    """Whether ``mesh`` is the whole-table :class:`AdaptiveMesh` (``raymask`` needs it)."""
-    return isinstance(mesh, AdaptiveMesh)
 
 
 def fit_scale(terrain) -> float:
@@ -356,10 +335,10 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     else:
         scene = scene or TerrainScene.build(screen)
         model = scene.model
-        if backend == "raymask" and not uses_table(scene.mesh):
+        if backend == "raymask" and not scene.mesh.has_full_table:
             raise ValueError("render_still: the raymask back end needs the whole-table mesh "
                              "(max_level <= 5, not lazy)")
-        if mode == "full" and not full_fits(scene.mesh):
+        if mode == "full" and not scene.mesh.full_fits:
             raise ValueError(f"render_still: mode 'full' at max_level {scene.mesh.max_level} does not fit "
                              f"(at most {FULL_MAX_LEVEL})")
         step = FrameStep(_backend_for_scene(backend, scene, config, size, renderer, foveate, raymask,
