@@ -1,4 +1,4 @@
-"""The benchmarks' result files: JSON written whole or not at all, into a folder made if missing."""
+"""The benchmarks' result files: JSON, charts and pictures, each written into a folder made if missing."""
 from __future__ import annotations
 
 import json
@@ -6,7 +6,7 @@ from pathlib import Path
 
 from ..io import write_atomically
 
-__all__ = ["write_json"]
+__all__ = ["write_json", "write_png", "pyplot", "save_figure"]
 
 
 def write_json(path, data, indent: int = 2, default=None) -> Path:
@@ -18,3 +18,34 @@ def write_json(path, data, indent: int = 2, default=None) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     text = json.dumps(data, indent=indent, default=default)
     return write_atomically(path, lambda name: Path(name).write_text(text))
+
+
+def write_png(path, image_rgb) -> str:
+    """Write an (H, W, 3) uint8 RGB image as PNG (or the format of the ending); the path as text."""
+    import cv2
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR))
+    return str(path)
+
+
+def pyplot():
+    """``matplotlib.pyplot`` drawing off screen (imported on use: slow to import)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(fig, path, dpi: int = 100, rect=None) -> Path:
+    """Lay out ``fig`` (within ``rect``, figure fractions), write it to ``path`` (its folder made if missing) and
+    close it; the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout(**({} if rect is None else {"rect": rect}))
+    fig.savefig(path, dpi=dpi)
+    pyplot().close(fig)
+    return path

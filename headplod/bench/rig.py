@@ -26,6 +26,7 @@ from ..capture.synthetic import ensure_dataset
 from ..live.loop import track_frames
 from ..tracking.tracker import Tracker, TrackerConfig
 from .baseline import threshold_baseline_s
+from .outputs import pyplot, save_figure
 from .uncertainty import nees
 
 #: Seconds of refinement before the "settled" errors are measured (full runs;
@@ -413,9 +414,7 @@ def rig_report(results: dict, quick: bool = False) -> dict:
 # ----------------------------------------------------------------------- chart
 def rig_chart(results: dict, path) -> None:
     """Per set a column of three panels: errors of V and P1, NEES, the refined rig's errors (one PNG)."""
-    import matplotlib  # imported only when a chart is drawn (slow to import)
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     names = list(results)
     ncols = min(4, max(len(names), 1))
@@ -482,7 +481,4 @@ def rig_chart(results: dict, path) -> None:
             axes[3 * (j // ncols) + r, j % ncols].set_visible(False)
     fig.suptitle("headplod tracker on imperfect rigs (refined online): dotted line = settle time, "
                  "dashed = bump", fontsize=10)
-    fig.tight_layout(rect=(0, 0, 1, 0.985))
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100, rect=(0, 0, 1, 0.985))

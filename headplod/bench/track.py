@@ -28,7 +28,7 @@ from ..live.loop import result_record, track_frames
 from ..progress import Progress
 from ..tracking.tracker import ESTIMATORS, Tracker, TrackerConfig
 from .baseline import threshold_baseline_s
-from .outputs import write_json
+from .outputs import pyplot, save_figure, write_json
 
 # (set name, synthetic preset, frames in full / quick runs, what the goals say about it)
 TRACK_SETS = [
@@ -199,9 +199,7 @@ def _report(results: dict) -> dict:
 
 
 def _chart(results: dict, path: str) -> None:
-    import matplotlib  # imported only when a chart is drawn (slow to import)
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(9, 6))
     markers = {"paper": "s", "rigid": "^", "reproj": "o"}
@@ -222,7 +220,4 @@ def _chart(results: dict, path: str) -> None:
     ax.set_title("headplod tracker: accuracy against time, per estimator and set")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path, dpi=120)

@@ -17,7 +17,6 @@ the two viewing rays of pixel pairs, with the 2.0 mm threshold) and Fig. 17
 """
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -31,6 +30,7 @@ from ..live.loop import track_frames
 from ..progress import Progress
 from ..tracking.tracker import Tracker, TrackerConfig
 from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE, PaperPixelClouds, make_covariance_estimator, view_angles_deg
+from .outputs import pyplot, save_figure, write_json
 
 # (set, preset, frames full/quick, options, still head?)
 UNCERTAINTY_SETS = [
@@ -134,11 +134,8 @@ def run_uncertainty_bench(json_path=None, chart_path=None, quick: bool = False) 
     text, summary = _report(results)
     print(text)
     if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        payload = {"sets": results, "goals": summary, "default": DEFAULT_COVARIANCE,
-                   "fig17": {k: v for k, v in curves.items() if k != "ray_gaps_mm"}}
-        with open(json_path, "w") as fh:
-            json.dump(payload, fh, indent=2)
+        write_json(json_path, {"sets": results, "goals": summary, "default": DEFAULT_COVARIANCE,
+                               "fig17": {k: v for k, v in curves.items() if k != "ray_gaps_mm"}})
         print(f"results: {json_path}", file=sys.stderr)
     if chart_path:
         _charts(results, curves, chart_path)
@@ -171,12 +168,8 @@ def _report(results: dict):
 
 
 def _charts(results: dict, curves: dict, chart_path: str) -> None:
-    import matplotlib  # imported only when a chart is drawn (slow to import)
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     base = Path(chart_path)
-    base.parent.mkdir(parents=True, exist_ok=True)
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(13, 5.5))
     colors = dict(zip(COVARIANCE_ESTIMATORS, plt.cm.tab10(np.linspace(0, 1, 10))))
     for name, r in results.items():
@@ -196,9 +189,7 @@ def _charts(results: dict, curves: dict, chart_path: str) -> None:
     a2.set_xlabel("time per frame / mean-pose time")
     a2.set_ylabel("mean frame-to-frame change of trace (%)")
     fig.suptitle("covariance of V: calibration and stability against cost")
-    fig.tight_layout()
-    fig.savefig(base, dpi=110)
-    plt.close(fig)
+    save_figure(fig, base, dpi=110)
 
     fig, (b1, b2) = plt.subplots(1, 2, figsize=(12, 4.5))
     b1.plot(curves["ratio"], curves["var_phi_deg2"], "o-", label="var φ")
@@ -214,8 +205,5 @@ def _charts(results: dict, curves: dict, chart_path: str) -> None:
     b2.set_ylabel("pairs")
     b2.set_title("reconstruction error of pixel pairs (their Fig. 10)")
     b2.legend()
-    fig.tight_layout()
-    other = base.with_name(base.stem + "_paper" + base.suffix)
-    fig.savefig(other, dpi=110)
-    plt.close(fig)
+    other = save_figure(fig, base.with_name(base.stem + "_paper" + base.suffix), dpi=110)
     print(f"charts: {base}, {other}", file=sys.stderr)
