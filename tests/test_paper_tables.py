@@ -5,6 +5,7 @@ import pytest
 from headplod.bench.paper_tables import JitteredPoses, PaperTablesConfig, disc_psnr_db
 from headplod.demo.loop import ReplayPoses
 from headplod.demo import loop as lp
+from headplod.plod.view import poi_direction
 from headplod.render.still import default_head
 
 
@@ -17,8 +18,8 @@ def test_jitter_turns_the_viewing_direction_by_its_sigma_and_says_so():
     jittered = JitteredPoses(ReplayPoses(poses, screen), noise_deg=0.5, seed=1)
     out = [jittered.read() for _ in poses]
     assert jittered.read() is None
-    d0 = lp.poi_direction(screen, eye, centre)
-    angles = np.array([np.degrees(np.arccos(np.clip(lp.poi_direction(screen, eye, p.poi_px) @ d0, -1, 1)))
+    d0 = poi_direction(screen, eye, centre)
+    angles = np.array([np.degrees(np.arccos(np.clip(poi_direction(screen, eye, p.poi_px) @ d0, -1, 1)))
                        for p in out])
     # The angle between two directions with independent N(0, σ²) offsets per axis is Rayleigh(σ).
     assert np.sqrt(np.mean(angles ** 2) / 2) == pytest.approx(0.5, rel=0.1)
@@ -44,10 +45,10 @@ def test_jitter_leaves_failed_poses_alone():
 def test_disc_psnr_sees_only_the_disc():
     ref = np.zeros((100, 200, 3), np.uint8)
     img = ref.copy()
-    img[:, 150:] = 255                                   # outside a 20 px disc at (50, 50)
-    assert disc_psnr_db(img, ref, (50, 50), 20) == float("inf")
+    img[:, 150:] = 255                                   # outside a 20 px disc about pixel (50, 50)'s centre
+    assert disc_psnr_db(img, ref, (50.5, 50.5), 20) == float("inf")
     img[50, 50] = 10
-    assert disc_psnr_db(img, ref, (50, 50), 20) == pytest.approx(
+    assert disc_psnr_db(img, ref, (50.5, 50.5), 20) == pytest.approx(
         10 * np.log10(255 ** 2 / (3 * 100 / (3 * np.count_nonzero(
             (np.arange(200)[None] - 50) ** 2 + (np.arange(100)[:, None] - 50) ** 2 <= 400)))), rel=1e-9)
 

@@ -131,7 +131,6 @@ def test_fvvdp_is_foveated_on_the_fixation_point(small_display):
     assert judge.last_seconds > 0
     with pytest.raises(ValueError, match="uint8 sRGB of shape"):
         judge.jod(ref, ref[:, :-1], (0, 0))
-    assert pj.foveated_jod(ref, test, (49.5, 39.5), small_display) == pytest.approx(on_patch, abs=1e-4)
     with pytest.raises(ValueError, match="heatmap=True"):
         judge.jod_map(ref, test, (49.5, 39.5))
     q, heatmap = pj.Judge(small_display, heatmap=True).jod_map(ref, test, (49.5, 39.5))
@@ -158,22 +157,23 @@ def test_bench_plod_vdp_stops_before_the_run_without_the_extra(monkeypatch, caps
     from headplod.cli import main
 
     monkeypatch.setattr(pj, "vdp_available", lambda metric="fvvdp": False)
-    monkeypatch.setattr(plod, "_Bench", lambda *a, **k: pytest.fail("the bench ran"))
+    monkeypatch.setattr(plod, "BenchScene", lambda *a, **k: pytest.fail("the bench ran"))
     assert main(["bench", "plod", "--vdp"]) == 2
     assert "pip install -e '.[vdp]'" in capsys.readouterr().err
     monkeypatch.setattr(pj, "vdp_available", lambda metric="fvvdp": True)
     assert main(["bench", "plod", "--vdp", "psnr"]) == 2
 
 
-def test_plod_vdp_alone_refuses_a_missing_or_unknown_metric(monkeypatch, capsys):
-    from headplod.bench import plod_vdp
+def test_bench_judge_alone_refuses_a_missing_or_unknown_metric(monkeypatch, capsys):
+    from headplod.bench import harness
+    from headplod.cli import main
 
-    monkeypatch.setattr(plod_vdp, "_Bench", lambda *a, **k: pytest.fail("the bench ran"))
-    monkeypatch.setattr(plod_vdp, "vdp_available", lambda metric="fvvdp": False)
-    assert plod_vdp.main(["--modes", "csf"]) == 2
+    monkeypatch.setattr(harness, "BenchScene", lambda *a, **k: pytest.fail("the bench ran"))
+    monkeypatch.setattr(pj, "vdp_available", lambda metric="fvvdp": False)
+    assert main(["bench", "judge", "--modes", "csf"]) == 2
     assert "pip install -e '.[vdp]'" in capsys.readouterr().err
-    monkeypatch.setattr(plod_vdp, "vdp_available", lambda metric="fvvdp": True)
-    assert plod_vdp.main(["--metrics", "psnr"]) == 2
+    monkeypatch.setattr(pj, "vdp_available", lambda metric="fvvdp": True)
+    assert main(["bench", "judge", "--metrics", "psnr"]) == 2
 
 
 def test_ray_mask_points_have_no_triangles_and_are_compared_by_time_only(tmp_path):

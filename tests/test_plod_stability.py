@@ -9,6 +9,7 @@ import pytest
 
 from headplod.plod.select import View
 from headplod.bench.stability import level_changes, levels_sequence, plot_stability, stability_report, still_head_views
+from headplod.render import TerrainRenderer
 from headplod.render.still import TerrainScene
 
 FRAMES = 40
@@ -23,6 +24,14 @@ def still(tmp_path_factory):
     return tracked, truth, TerrainScene.build(screen)
 
 
+@pytest.fixture(scope="module")
+def renderer(gl_context):
+    """What the frame steps draw on: small (the levels do not depend on the image's size)."""
+    r = TerrainRenderer(gl_context, size=(160, 90))
+    yield r
+    r.release()
+
+
 def test_the_tracker_sees_a_still_head(still):
     tracked, truth, scene = still
     assert len(tracked) == FRAMES and tracked.lost == 0
@@ -34,22 +43,24 @@ def test_the_tracker_sees_a_still_head(still):
 
 
 @pytest.mark.parametrize("uncertainty", ["fixed", "smoothed"])
-def test_fixed_and_smoothed_reach_zero_changes_with_hysteresis(still, uncertainty):
+def test_fixed_and_smoothed_reach_zero_changes_with_hysteresis(still, renderer, uncertainty):
     tracked, _, scene = still
-    result = level_changes(scene, tracked, "csf", uncertainty, hysteresis=True, warmup=WARMUP)
+    result = level_changes(scene, tracked, "csf", uncertainty, hysteresis=True, warmup=WARMUP, renderer=renderer)
     assert len(result["changes_per_frame"]) == FRAMES - WARMUP
     assert result["changes_per_frame"] == [0] * (FRAMES - WARMUP), result
 
 
-def test_the_truth_driven_reference_is_still(still):
+def test_the_truth_driven_reference_is_still(still, renderer):
     _, truth, scene = still
     # The true pose does not move: without uncertainty nothing may change even without hysteresis.
-    assert level_changes(scene, truth, "csf", "none", hysteresis=False, warmup=WARMUP)["max_changes"] == 0
+    assert level_changes(scene, truth, "csf", "none", hysteresis=False, warmup=WARMUP,
+                         renderer=renderer)["max_changes"] == 0
     # The per-frame covariance still varies a little (it is the tracker's): hysteresis absorbs it.
-    assert level_changes(scene, truth, "csf", "adaptive", hysteresis=True, warmup=WARMUP)["max_changes"] == 0
+    assert level_changes(scene, truth, "csf", "adaptive", hysteresis=True, warmup=WARMUP,
+                         renderer=renderer)["max_changes"] == 0
 
 
-def _still_then_jump(still, uncertainty, jump_px=300.0):
+def _still_then_jump(still, renderer, uncertainty, jump_px=300.0):
     """Levels of the last still frame, of the frame after a POI jump, its features, and a fresh selection."""
     tracked, _, scene = still
     selector = scene.selector("csf", uncertainty, hysteresis=True)
@@ -58,14 +69,14 @@ def _still_then_jump(still, uncertainty, jump_px=300.0):
     moved = View(last.eye_mm, np.asarray(last.poi_px) + [jump_px, 0.0], last.cov_deg2,
                  last.t + (last.t - tracked[-2].t))
     after, info = selector.select(moved)
-    fresh = levels_sequence(scene, [moved], "csf", uncertainty, hysteresis=False)[0]
+    fresh = levels_sequence(scene, [moved], "csf", uncertainty, hysteresis=False, renderer=renderer)[0]
     return levels[-1], after, info, fresh
 
 
 @pytest.mark.parametrize("uncertainty", ["fixed", "smoothed"])
-def test_levels_still_follow_a_real_movement(still, uncertainty):
+def test_levels_still_follow_a_real_movement(still, renderer, uncertainty):
     """The zero above is not a frozen selector: a 300 px POI jump changes levels in the same frame."""
-    before, after, info, _ = _still_then_jump(still, uncertainty)
+    before, after, info, _ = _still_then_jump(still, renderer, uncertainty)
     changed = np.count_nonzero(after != before)
     assert changed >= 100, changed
     # The detail follows the POI: the triangle nearest the new POI is among the finest.
@@ -73,15 +84,15 @@ def test_levels_still_follow_a_real_movement(still, uncertainty):
     assert after[nearest] == after.max() > before[nearest]
 
 
-def test_after_a_real_movement_levels_match_a_fresh_selection(still):
-    _, after, _, fresh = _still_then_jump(still, "smoothed")
+def test_after_a_real_movement_levels_match_a_fresh_selection(still, renderer):
+    _, after, _, fresh = _still_then_jump(still, renderer, "smoothed")
     assert np.count_nonzero(after != fresh) <= 0.02 * len(after)
 
 
-def test_report_and_chart(still, tmp_path):
+def test_report_and_chart(still, renderer, tmp_path):
     tracked, truth, scene = still
     report = stability_report(scene, frames=FRAMES, uncertainties=("adaptive", "smoothed"),
-                              views=(tracked, truth), warmup=WARMUP)
+                              views=(tracked, truth), warmup=WARMUP, renderer=renderer)
     assert [(r["hysteresis"], r["uncertainty"]) for r in report["runs"]] == [
         (True, "adaptive"), (True, "smoothed"), (False, "adaptive"), (False, "smoothed")]
     for run in report["runs"]:
@@ -91,3 +102,12 @@ def test_report_and_chart(still, tmp_path):
         assert 0 <= run["differs_from_truth"] <= 0.05 * scene.mesh.n_faces
     path = plot_stability(report, tmp_path / "stability.png")
     assert path.exists() and path.stat().st_size > 10_000
+
+
+def test_bench_stability_refuses_an_unknown_mode_before_it_runs(monkeypatch, capsys):
+    from headplod.bench import stability
+    from headplod.cli import main
+
+    monkeypatch.setattr(stability, "stability_report", lambda *a, **k: pytest.fail("the report ran"))
+    assert main(["bench", "stability", "--modes", "csf,bogus"]) == 2
+    assert "unknown mode 'bogus'" in capsys.readouterr().err

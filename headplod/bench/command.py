@@ -3,6 +3,10 @@
     headplod bench track [--json FILE] [--chart FILE.png] [--quick] [--sets A,B]
     headplod bench uncertainty [--json FILE] [--chart FILE.png] [--quick]
     headplod bench plod [--json FILE] [--chart FILE.png] [--quick] [--vdp [fvvdp,cvvdp]] [--scale]
+                        [--only foveate|raymask]
+    headplod bench judge [--modes M,..] [--forms F,..] [--biases B,..] [--metrics fvvdp,cvvdp] [--no-image-side]
+                         [--json FILE] [--chart FILE.png]
+    headplod bench stability [--frames N] [--distance MM] [--seed S] [--modes M,..|all] [--json FILE] [--chart FILE.png]
     headplod bench live [--source SPEC] [--json FILE] [--repeats N]
     headplod bench paper [--json FILE] [--chart FILE.png] [--quick] [--noise-deg S]
 
@@ -16,7 +20,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..argtypes import non_negative
+from ..argtypes import frame_count, non_negative
 from ..capture import source_kind, synthetic_preset
 from ..capture.synthetic import ensure_dataset
 from ..live.command import note_old_spelling
@@ -61,6 +65,29 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bp.add_argument("--scale", action="store_true",
                     help="instead: cost against terrain size (2M-134M triangles), tessellation back end and full "
                          "(headplod.bench.plod_scale)")
+    bp.add_argument("--only", choices=("foveate", "raymask"),
+                    help="instead: only the foveated layers' part (headplod.bench.plod_foveate) or the ray mask's "
+                         "(headplod.bench.plod_raymask); --json gets its report, its charts and pictures go into "
+                         "the folder of --chart")
+
+    bj = bench_sub.add_parser("judge", help="the perceptual judge alone: JOD against frame time for chosen PLOD "
+                                            "modes (needs the optional extra: pip install -e '.[vdp]')")
+    bj.add_argument("--modes", help="comma-separated modes (default: every mode but full)")
+    bj.add_argument("--forms", help="comma-separated CSF forms besides the default (default: all; '' for none)")
+    bj.add_argument("--biases", default="-1,0,1", help="comma-separated level biases, levels (default -1,0,1)")
+    bj.add_argument("--metrics", default="fvvdp", help="comma-separated, of fvvdp,cvvdp (default fvvdp)")
+    bj.add_argument("--no-image-side", action="store_true", help="leave out raymask and csf+foveate")
+    bj.add_argument("--json", help="write the report as JSON")
+    bj.add_argument("--chart", help="write the chart (PNG); the heatmaps go beside it")
+
+    bs = bench_sub.add_parser("stability", help="level changes per frame of a still head through the real tracker, "
+                                                "against the true pose")
+    bs.add_argument("--frames", type=frame_count, default=60, help="frames of the still head (default 60)")
+    bs.add_argument("--distance", type=float, default=600.0, metavar="MM", help="head distance, mm (default 600)")
+    bs.add_argument("--seed", type=int, default=0, help="image noise seed (default 0)")
+    bs.add_argument("--modes", default="csf", help="comma-separated selection modes, or 'all' (default csf)")
+    bs.add_argument("--json", help="write the report as JSON")
+    bs.add_argument("--chart", help="write the chart (PNG)")
 
     bpa = bench_sub.add_parser("paper", help="Martinez et al.'s Tables 1-4 (uncertainty scenarios) under the "
                                              "paper's tracker conditions")
@@ -92,7 +119,31 @@ def _plod(args) -> int:
         return plod_scale.run_scale_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
     from . import plod
     vdp = tuple(m for m in args.vdp.split(",") if m) if getattr(args, "vdp", None) else ()
-    return plod.run_plod_bench(json_path=args.json, chart_path=args.chart, quick=args.quick, vdp=vdp)
+    return plod.run_plod_bench(json_path=args.json, chart_path=args.chart, quick=args.quick, vdp=vdp,
+                               only=getattr(args, "only", None))
+
+
+def _judge(args) -> int:
+    from . import plod_judge
+    try:
+        return plod_judge.run_judge_bench(
+            args.json, args.chart, modes=args.modes.split(",") if args.modes else None,
+            forms=None if args.forms is None else [f for f in args.forms.split(",") if f],
+            biases=[float(b) for b in args.biases.split(",")], metrics=[m for m in args.metrics.split(",") if m],
+            image_side=not args.no_image_side)
+    except ValueError as exc:
+        print(f"headplod: bench judge: {exc}", file=sys.stderr)
+        return 2
+
+
+def _stability(args) -> int:
+    from . import stability
+    try:
+        return stability.run_stability_bench(args.json, args.chart, frames=args.frames, distance_mm=args.distance,
+                                             seed=args.seed, modes=[m for m in args.modes.split(",") if m])
+    except ValueError as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
 
 
 def _paper(args) -> int:
@@ -123,7 +174,8 @@ def _live(args) -> int:
 
 
 #: ``headplod bench NAME`` → its run(args) -> exit status.
-BENCHMARKS = {"track": _track, "uncertainty": _uncertainty, "live": _live, "plod": _plod, "paper": _paper}
+BENCHMARKS = {"track": _track, "uncertainty": _uncertainty, "live": _live, "plod": _plod, "judge": _judge,
+              "stability": _stability, "paper": _paper}
 
 
 def run_bench(args) -> int:

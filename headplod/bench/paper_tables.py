@@ -4,10 +4,10 @@ The paper compared its scenarios (no uncertainty, a fixed covariance, the
 adaptive per-frame covariance) by user satisfaction over three terrains
 (Table 1 all, Tables 2-4 one each) and blamed adaptive's poorer score on the
 jitter of its covariance, which made peripheral triangles oscillate between
-levels. With today's tracker (σ of V about 0.03-0.06°) the scenarios barely
-differ. This run puts them under the paper's conditions and reports, per
-tracker condition, viewpoint (the paper's three test cases) and scenario,
-the figures that stand in for satisfaction:
+levels. Today's tracker has a far smaller covariance (``headplod bench
+uncertainty`` measures it). This run puts the scenarios under the paper's
+conditions and reports, per tracker condition, viewpoint (the paper's three
+test cases) and scenario, the figures that stand in for satisfaction:
 
 - ``changes``: base triangles whose level changed from the previous frame,
   per frame (after the warm-up);
@@ -46,11 +46,13 @@ import numpy as np
 
 from ..demo import loop as lp
 from ..demo.viewpoints import VIEWPOINTS
+from ..plod.view import poi_direction
 from ..progress import Progress
 from ..render.context import create_context
 from ..render.gl import TerrainRenderer
 from ..render.still import TerrainScene, px_per_deg_at
-from .image_metrics import disc_mask, psnr_db
+from .harness import DISC_DEG, SIZE, poi_disc, pyplot, save_figure
+from .image_metrics import psnr_db
 from .outputs import write_json
 
 __all__ = ["CONDITIONS", "PaperTablesConfig", "JitteredPoses", "track_poses",
@@ -60,8 +62,6 @@ __all__ = ["CONDITIONS", "PaperTablesConfig", "JitteredPoses", "track_poses",
 CONDITIONS = ("today", "paper_estimator", "paper_noise")
 #: The paper's scenarios and ours (``smoothed``).
 SCENARIOS = ("none", "fixed", "adaptive", "smoothed")
-#: Radius of the disc around the POI where PSNR is measured, deg.
-DISC_DEG = 5.0
 #: A reversal counts as flicker when a level returns within this many frames.
 FLICKER_FRAMES = 3
 #: σ per angle of the viewing-direction noise of ``paper_noise``, deg.
@@ -95,7 +95,7 @@ class PaperTablesConfig:
     viewpoints: tuple = tuple(VIEWPOINTS)
     conditions: tuple = CONDITIONS
     noise_deg: float = PAPER_NOISE_DEG
-    size: tuple = (1280, 720)
+    size: tuple = SIZE
     seed: int = 0
 
     def __post_init__(self):
@@ -138,7 +138,7 @@ class JitteredPoses(lp.PoseSource):
         pose = self.inner.read()
         if pose is None or not pose.ok:
             return pose
-        d = lp.poi_direction(self.screen, pose.eye_mm, pose.poi_px)
+        d = poi_direction(self.screen, pose.eye_mm, pose.poi_px)
         u = np.cross(d, [0.0, 1.0, 0.0])
         u /= np.linalg.norm(u)
         v = np.cross(d, u)
@@ -200,8 +200,9 @@ def level_statistics(levels: np.ndarray, warmup: int, window: int = FLICKER_FRAM
 
 
 def disc_psnr_db(image: np.ndarray, reference: np.ndarray, centre_px, radius_px: float) -> float:
-    """PSNR (dB, 8-bit peak) of ``image`` against ``reference`` (H, W, 3) within a disc (image px); NaN if empty."""
-    return psnr_db(image, reference, disc_mask(reference.shape, centre_px, radius_px))
+    """PSNR (dB, 8-bit peak) of ``image`` against ``reference`` (H, W, 3) within a disc about ``centre_px``
+    (image px; :func:`headplod.bench.harness.poi_disc`); NaN if empty."""
+    return psnr_db(image, reference, poi_disc(reference.shape, centre_px, radius_px))
 
 
 def _run_group(scene, poses, screen, viewpoint, renderers, config: PaperTablesConfig, progress) -> list:
@@ -345,10 +346,7 @@ def format_tables(report: dict) -> str:
 
 def plot_tables(report: dict, path) -> None:
     """Bars of flicker per frame and PSNR in the disc per scenario, one column per condition."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     conditions = list(report["conditions"])
     fig, axes = plt.subplots(2, len(conditions), figsize=(4.2 * len(conditions), 6.4), squeeze=False)
     x = np.arange(len(SCENARIOS))
@@ -373,11 +371,7 @@ def plot_tables(report: dict, path) -> None:
             ax.grid(alpha=0.3, axis="y")
     axes[0, 0].legend(fontsize=8)
     fig.suptitle("Martinez et al.'s scenarios under the paper's conditions (mean over the three viewpoints)")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def run_paper_bench(json_path=None, chart_path=None, quick: bool = False, noise_deg: float = PAPER_NOISE_DEG,

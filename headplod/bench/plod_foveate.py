@@ -10,7 +10,8 @@ Parts the ``headplod bench plod`` run can call (each returns plain dicts, JSON-r
   the ratios to ``full``.
 - :func:`viewpoint_frames`: one still frame per viewpoint at the default head,
   the POI at the screen centre: ``full``, ``csf`` and ``csf --foveate``
-  images, the layers drawn, the levels view.
+  images, the layers drawn, the levels view; each the demo's frame step
+  (:func:`headplod.bench.harness.mesh_step`).
 - :func:`seam_profiles`: the luminance profile across each layer border
   (perpendicular to it: against the distance from the POI, averaged along
   the border), for the three images at the same place, and the step across
@@ -20,7 +21,7 @@ Parts the ``headplod bench plod`` run can call (each returns plain dicts, JSON-r
   the whole image, for ``csf`` with and without the layers.
 - :func:`seam_chart`, :func:`layer_pictures`: the profiles as a chart, and a
   picture per viewpoint with the layers' borders, the POI and its 2σ ellipse.
-- :func:`run`: all of it into a folder (``python -m headplod.bench.plod_foveate OUT``).
+- :func:`run`: all of it into a folder (``headplod bench plod --only foveate --chart OUT/x.png``).
 
 Units: luminance is relative linear luminance (Rec. 709 weights on
 linearised sRGB, 0 … 1); distances in output pixels (1280x720 by default)
@@ -29,30 +30,25 @@ or degrees at the screen centre (``px_per_deg``); times in ms.
 from __future__ import annotations
 
 import math
-import sys
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from ..argtypes import frame_count
 from ..demo import loop as lp
 from ..demo import viewpoints as vps
-from ..plod.select import View
-from ..render import TerrainRenderer, create_context, off_axis_projection
-from ..render.foveate import FoveatedRenderer, FoveationConfig
+from ..render import TerrainRenderer, create_context
+from ..render.foveate import FoveationConfig
 from ..render.overlay import overlay_layers, overlay_poi
-from ..render.still import TerrainScene, default_head, px_per_deg_at
+from ..render.still import TerrainScene
+from .harness import SIZE, TRACKER_COV_DEG2, BenchScene, poi_disc, progress as progress_to, pyplot
+from .harness import quality as image_quality, release_step, save_figure, write_png
 from .outputs import write_json
 
 __all__ = ["foveate_speed", "viewpoint_frames", "seam_profiles", "quality", "seam_chart", "layer_pictures",
-           "luminance", "run"]
+           "luminance", "run", "summary_lines"]
 
-#: Output size, px (as ``headplod bench plod`` and the demo).
-SIZE = (1280, 720)
-#: The POI's covariance for the still frames, deg² (the tracker's σ of V at 60 cm is ~0.03-0.06°).
-COV_DEG2 = np.diag([0.05 ** 2, 0.05 ** 2])
 #: Width of the windows either side of a border's blend band whose mean luminances make the step, deg.
 STEP_WINDOW_DEG = 0.5
 #: Angular sectors for the local steps (a seam on one side of the POI does not cancel one on the other).
@@ -107,12 +103,7 @@ def foveate_speed(scene=None, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20
     if frames < 2:
         raise ValueError(f"foveate_speed: frames must be >= 2, got {frames}")
     ctx = ctx or create_context()
-    screen = None
-    if scene is None:
-        first = lp.TrackerPoses(source, max_frames=1)
-        screen = first.screen
-        first.close()
-        scene = TerrainScene.build(screen)
+    scene = scene or TerrainScene.build(_source_screen(source))
     runs = (("plain", mode, False), ("foveate", mode, True), ("full", "full", False))
     poses = None
     renderers = [TerrainRenderer(ctx, size=tuple(size)) for _ in runs]
@@ -156,6 +147,13 @@ def foveate_speed(scene=None, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20
     return out
 
 
+def _source_screen(source):
+    """The screen of a pose source spec (its ``screen.yaml``, else the embedded one)."""
+    first = lp.TrackerPoses(source, max_frames=1)
+    first.close()
+    return first.screen
+
+
 def _tracked(source, screen, frames: int) -> list:
     """The first ``frames`` poses of a tracked source, as a list (images dropped)."""
     out = lp.read_all_poses(lp.TrackerPoses(source, screen=screen, max_frames=frames))
@@ -175,9 +173,12 @@ def _layer_dict(layer) -> dict:
 
 
 def viewpoint_frames(scene=None, viewpoints=tuple(vps.VIEWPOINTS), size=SIZE, mode: str = "csf",
-                     uncertainty: str = "adaptive", cov_deg2=COV_DEG2, config: FoveationConfig | None = None,
+                     uncertainty: str = "adaptive", cov_deg2=TRACKER_COV_DEG2, config: FoveationConfig | None = None,
                      ctx=None) -> dict:
     """One still frame per viewpoint: the default head, the POI at the screen centre.
+
+    Each image is a frame of the demo's frame step (``full``; ``mode`` without hysteresis, plain and as
+    foveated layers; the plain step's next frame in the levels view).
 
     Returns
     -------
@@ -189,42 +190,27 @@ def viewpoint_frames(scene=None, viewpoints=tuple(vps.VIEWPOINTS), size=SIZE, mo
         ``triangles_per_layer``.
     """
     config = config or FoveationConfig()
-    ctx = ctx or create_context()
-    if scene is None:
-        scene = TerrainScene.build(lp.default_screen())
-    screen = scene.screen
-    head = default_head(screen)
-    poi_screen = np.array(screen.size_px, dtype=np.float64) / 2
-    poi = poi_screen * np.array(size) / np.array(screen.size_px)
-    ppd = px_per_deg_at(screen, head, size)
-    view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
-    renderer = TerrainRenderer(ctx, size=tuple(size))
-    foveated = FoveatedRenderer(renderer, config)
-    mesh = scene.mesh.share()
-    renderer.upload(mesh.vertex_positions, mesh.vertex_normals, None, np.zeros(3, np.uint32))
+    b = BenchScene(size, scene=scene or TerrainScene.build(lp.default_screen()), ctx=ctx)
+    view, cov = b.view(0.0, cov_deg2), np.asarray(cov_deg2, dtype=np.float64)
     out = {}
     try:
         for vp in viewpoints:
-            placed = vps.place(scene, vp)
-            model = placed.model
-            full_idx, full_lv = mesh.update_indices(np.full(mesh.n_faces, mesh.max_level))
-            renderer.set_indices(full_idx, full_lv)
-            full = renderer.render(view, proj, model)
-            selector = placed.selector(mode, uncertainty, hysteresis=False)
-            levels, _ = selector.select(View(head, poi_screen, cov_deg2, 0.0))
-            idx, lv = mesh.update_indices(levels)
-            renderer.set_indices(idx, lv)
-            plain = renderer.render(view, proj, model)
-            levels_img = renderer.render(view, proj, model, view_mode="levels")
-            foveated.set_mesh(idx, lv, mesh.face_per_triangle(), (mesh.corners, mesh.z_range))
-            fov = foveated.render(view, proj, model, poi, ppd, cov_deg2)
-            out[vp] = {"full": full, "plain": plain, "foveate": fov, "levels": levels_img, "poi_px": poi,
-                       "px_per_deg": ppd, "cov_deg2": np.asarray(cov_deg2, dtype=np.float64),
-                       "layers": list(foveated.last_layers), "blend_deg": config.blend_deg,
-                       "triangles": int(len(lv)), "triangles_per_layer": list(foveated.last_triangles_per_layer)}
+            placed = vps.place(b.scene, vp)
+            full = b.mesh_step("full", "none", scene=placed)(view, placed.model)
+            plain_step = b.mesh_step(mode, uncertainty, scene=placed, hysteresis=False)
+            plain = plain_step(view, placed.model)
+            levels = plain_step(b.view_at(cov_deg2)(1), placed.model, "levels")
+            fov_step = b.mesh_step(mode, uncertainty, scene=placed, hysteresis=False, foveate=True,
+                                   foveation=config)
+            fov = fov_step(view, placed.model)
+            layers = fov_step.backend.foveated
+            out[vp] = {"full": full.image, "plain": plain.image, "foveate": fov.image, "levels": levels.image,
+                       "poi_px": b.poi_image, "px_per_deg": b.px_per_deg, "cov_deg2": cov,
+                       "layers": list(layers.last_layers), "blend_deg": config.blend_deg,
+                       "triangles": plain.triangles, "triangles_per_layer": list(layers.last_triangles_per_layer)}
+            release_step(fov_step)
     finally:
-        foveated.release()
-        renderer.release()
+        b.release()
     return out
 
 
@@ -321,15 +307,14 @@ def quality(frames: dict) -> dict:
         Per viewpoint: ``psnr_5deg_db`` {plain, foveate}, ``flip`` {plain, foveate},
         ``psnr_5deg_foveate_vs_plain_db`` (inf: the fovea is the plain frame's pixels).
     """
-    from .image_metrics import disc_mask, flip_error, psnr_db
+    from .harness import DISC_DEG
+    from .image_metrics import psnr_db
 
     out = {}
     for vp, f in frames.items():
-        h, w = f["full"].shape[:2]
-        # The composite's pixel centres are GL's, at +0.5: the disc about the POI in those.
-        disc = disc_mask((h, w), np.asarray(f["poi_px"]) - 0.5, 5 * f["px_per_deg"])
-        out[vp] = {"psnr_5deg_db": {n: psnr_db(f[n], f["full"], disc) for n in ("plain", "foveate")},
-                   "flip": {n: flip_error(f["full"], f[n], f["px_per_deg"]) for n in ("plain", "foveate")},
+        disc = poi_disc(f["full"].shape, f["poi_px"], DISC_DEG * f["px_per_deg"])
+        q = {n: image_quality(f[n], f["full"], disc, f["px_per_deg"]) for n in ("plain", "foveate")}
+        out[vp] = {"psnr_5deg_db": {n: q[n]["psnr_disc_5deg_db"] for n in q}, "flip": {n: q[n]["flip"] for n in q},
                    "psnr_5deg_foveate_vs_plain_db": psnr_db(f["foveate"], f["plain"], disc)}
     return out
 
@@ -341,11 +326,7 @@ def quality(frames: dict) -> dict:
 
 def seam_chart(profiles: dict, path) -> str:
     """The profiles of :func:`seam_profiles` as a chart (PNG at ``path``): one panel per viewpoint and border."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     panels = [(vp, b) for vp, borders in profiles.items() for b in borders]
     if not panels:
         raise ValueError("seam_chart: no finite layer border in the profiles")
@@ -368,17 +349,12 @@ def seam_chart(profiles: dict, path) -> str:
     axes[0, 0].set_ylabel("mean luminance along the border, % of white")
     axes[0, -1].legend(fontsize=7)
     fig.suptitle("foveation seams: luminance across each layer border (averaged along it)", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(str(path), dpi=110)
-    plt.close(fig)
-    return str(path)
+    return str(save_figure(fig, path, dpi=110))
 
 
 def layer_pictures(frames: dict, folder) -> dict:
     """A picture per viewpoint (PNG in ``folder``): the foveated frame's layers on the levels view, the POI and
     its 2σ ellipse; {viewpoint: path}."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     out = {}
     for vp, f in frames.items():
         img = overlay_layers(f["levels"], f["poi_px"], f["layers"], f["px_per_deg"])
@@ -391,9 +367,7 @@ def layer_pictures(frames: dict, folder) -> dict:
         y = img.shape[0] - 10
         img[max(y - th - 6, 0):min(y + base + 2, img.shape[0]), 4:min(16 + tw, img.shape[1])] //= 3
         cv2.putText(img, text, (10, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
-        path = folder / f"foveate_layers_{vp}.png"
-        cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-        out[vp] = str(path)
+        out[vp] = write_png(Path(folder) / f"foveate_layers_{vp}.png", img)
     return out
 
 
@@ -405,14 +379,10 @@ def layer_pictures(frames: dict, folder) -> dict:
 def run(folder, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20, speed: bool = True, progress=None) -> dict:
     """Speed, seams, quality, chart and pictures into ``folder``; the summary (also ``foveate.json``)."""
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    progress = progress or (lambda text: print(f"plod_foveate: {text}", file=sys.stderr, flush=True))
+    progress = progress or progress_to("plod_foveate")
     t0 = time.perf_counter()
     ctx = create_context()
-    first = lp.TrackerPoses("synthetic", max_frames=1)
-    screen = first.screen
-    first.close()
-    scene = TerrainScene.build(screen)
+    scene = TerrainScene.build(_source_screen("synthetic"))
     summary = {"size": list(SIZE), "config": FoveationConfig().__dict__}
     if speed:
         summary["speed"] = foveate_speed(scene, viewpoints, frames=frames, ctx=ctx, progress=progress)
@@ -424,10 +394,28 @@ def run(folder, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20, speed: bool 
     summary["seam_chart"] = seam_chart(prof, folder / "foveate_seams.png")
     summary["pictures"] = layer_pictures(still, folder)
     for vp, f in still.items():
-        cv2.imwrite(str(folder / f"foveate_frame_{vp}.png"), cv2.cvtColor(f["foveate"], cv2.COLOR_RGB2BGR))
+        write_png(folder / f"foveate_frame_{vp}.png", f["foveate"])
     summary["wall_s"] = round(time.perf_counter() - t0, 1)
     write_json(folder / "foveate.json", summary, indent=1, default=_json_default)
     return summary
+
+
+def summary_lines(s: dict) -> list:
+    """A :func:`run` summary as text: per viewpoint its speed, quality and seams."""
+    lines = []
+    for vp, q in s["quality"].items():
+        if vp in s.get("speed", {}):
+            sp = s["speed"][vp]
+            lines.append(f"foveate {vp}: full {sp['full_ms']:.0f} ms, csf {sp['plain_ms']:.1f} ms "
+                         f"({sp['plain_ratio']:.1f}x), csf --foveate {sp['foveate_ms']:.1f} ms "
+                         f"({sp['foveate_ratio']:.1f}x)")
+        lines.append(f"   PSNR 5° csf {q['psnr_5deg_db']['plain']:.1f}, csf --foveate {q['psnr_5deg_db']['foveate']:.1f} "
+                     f"dB; FLIP csf {q['flip']['plain']:.4f}, csf --foveate {q['flip']['foveate']:.4f}")
+        lines += [f"   border {b['border_deg']:.2f}°: step full {b['step']['full'] * 100:+.2f}, foveate "
+                  f"{b['step']['foveate'] * 100:+.2f}, csf {b['step']['plain'] * 100:+.2f} (% lum.); sector RMS "
+                  f"vs full: foveate {b['sector_step_vs_full_rms']['foveate'] * 100:.2f}, csf "
+                  f"{b['sector_step_vs_full_rms']['plain'] * 100:.2f}" for b in s["seams"][vp]]
+    return lines
 
 
 def _json_default(value):
@@ -436,39 +424,3 @@ def _json_default(value):
     if isinstance(value, (np.floating, np.integer)):
         return value.item()
     raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
-
-
-def main(argv=None) -> int:
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="python -m headplod.bench.plod_foveate",
-                                     description="foveated layers: speed, seams, quality, pictures")
-    parser.add_argument("out", help="output folder")
-    parser.add_argument("--frames", type=frame_count, default=20, help="frames per speed run (default 20)")
-    parser.add_argument("--no-speed", action="store_true", help="skip the speed runs")
-    parser.add_argument("--viewpoints", default=",".join(vps.VIEWPOINTS), help="comma-separated")
-    args = parser.parse_args(argv)
-    names = [v for v in args.viewpoints.split(",") if v]
-    for v in names:
-        vps.get_viewpoint(v)
-    s = run(args.out, names, frames=args.frames, speed=not args.no_speed)
-    for vp in names:
-        q, seams = s["quality"][vp], s["seams"][vp]
-        line = (f"{vp:<10} PSNR-5° plain {q['psnr_5deg_db']['plain']:.1f} foveate {q['psnr_5deg_db']['foveate']:.1f} dB"
-                f"  FLIP plain {q['flip']['plain']:.4f} foveate {q['flip']['foveate']:.4f}")
-        if "speed" in s:
-            sp = s["speed"][vp]
-            line = (f"{vp:<10} full {sp['full_ms']:.1f} ms, csf {sp['plain_ms']:.1f} ms ({sp['plain_ratio']:.1f}x), "
-                    f"csf --foveate {sp['foveate_ms']:.1f} ms ({sp['foveate_ratio']:.1f}x)\n" + line)
-        for b in seams:
-            line += (f"\n   border {b['border_deg']:.2f}°: step full {b['step']['full'] * 100:+.2f}, foveate "
-                     f"{b['step']['foveate'] * 100:+.2f}, csf {b['step']['plain'] * 100:+.2f} (% lum.); sector RMS "
-                     f"vs full: foveate {b['sector_step_vs_full_rms']['foveate'] * 100:.2f}, csf "
-                     f"{b['sector_step_vs_full_rms']['plain'] * 100:.2f}")
-        print(line)
-    print(f"chart {s['seam_chart']}; pictures {', '.join(s['pictures'].values())} ({s['wall_s']} s)")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -26,8 +26,8 @@ CSF form of ``csf``, each over a level bias, and the image-side techniques
 point's JOD against its frame time and its triangle count; then each
 CSF-based point against the best geometric curve at the same cost
 (:func:`compare_at_equal_time`). ``headplod bench plod --vdp`` runs it after
-the benchmark; ``python -m headplod.bench.plod_vdp --modes csf,sse`` runs it
-alone on a few modes. The metrics are an optional extra (``pip install -e
+the benchmark; ``headplod bench judge --modes csf,sse`` runs it alone on a
+few modes (:func:`run_judge_bench`). The metrics are an optional extra (``pip install -e
 '.[vdp]'``: PyTorch, its CPU build where the index offers it). Without it
 :func:`vdp_available` is False and ``headplod bench plod`` runs as before;
 the geometry, fixation and comparison need only numpy.
@@ -296,7 +296,7 @@ def _declare_torchvision_nms() -> None:
 class Judge:
     """One metric set up for one display; :meth:`jod` scores image pairs.
 
-    Building it loads the metric's CSF tables (about a second); reuse it.
+    Building it loads the metric's CSF tables (slow); reuse it.
     """
 
     def __init__(self, display: DisplayGeometry, settings: JudgeSettings = JudgeSettings(), heatmap: bool = False):
@@ -322,7 +322,6 @@ class Judge:
                                                      k_refl=s.reflectance)
             self._metric = vdp.cvvdp(display_photometry=photometry, display_geometry=geometry, heatmap=heatmap,
                                      device=torch.device("cpu"), quiet=True)
-        self.px_per_deg = float(geometry.get_ppd())
         self.last_seconds = float("nan")
 
     @property
@@ -375,21 +374,6 @@ def _check_image(name, image, resolution_px) -> None:
         raise ValueError(f"{name} must be uint8 sRGB of shape ({h}, {w}, 3), got {dtype} {shape}")
 
 
-_JUDGES: dict = {}
-
-
-def foveated_jod(reference_rgb: np.ndarray, test_rgb: np.ndarray, fixation: np.ndarray, display: DisplayGeometry,
-                 settings: JudgeSettings = JudgeSettings()) -> float:
-    """JOD of ``test_rgb`` against ``reference_rgb`` (sRGB uint8, (H, W, 3)) fixating ``fixation`` (x, y px).
-
-    The :class:`Judge` for (``display``, ``settings``) is built once and kept.
-    """
-    key = (display, settings)
-    if key not in _JUDGES:
-        _JUDGES[key] = Judge(display, settings)
-    return _JUDGES[key].jod(reference_rgb, test_rgb, fixation)
-
-
 # --- The benchmark: JOD against frame time -------------------------------------------------------------------
 
 
@@ -419,16 +403,17 @@ def jod_report(bench, reference_rgb: np.ndarray | None = None, modes=None, forms
                timing_rounds: int = 3, image_side: bool = False, progress=None) -> dict:
     """JOD and frame time per mode and CSF form, each over a level bias, at the bench's default view.
 
-    ``bench`` is a :class:`headplod.bench.plod._Bench` (the scene, renderer,
-    head and POI); ``reference_rgb`` its ``full`` image (rendered when None).
-    Every curve point renders the mode with its level shifted by ``bias``
-    (levels) as ``bench plod``'s quality curves do. All points are rendered
-    and timed first, then scored with each of ``metrics``: PyTorch's worker
-    threads stay busy for a while after a JOD and would slow a render timed
-    right after it. The points are timed in ``timing_rounds`` rounds, each
-    round every point once (``_Bench.run``'s steady frame), and a point's
-    ``frame_ms`` is its fastest round (``frame_ms_rounds`` all of them): a
-    load burst from another process slows a round, not the curve.
+    ``bench`` is a :class:`headplod.bench.harness.BenchScene` (the scene,
+    renderer, head and POI); ``reference_rgb`` its ``full`` image (rendered
+    when None). Every curve point is the steady frame of the demo's frame
+    step (:meth:`BenchScene.steady`) with the mode's level shifted by
+    ``bias`` (levels), as ``bench plod``'s quality curves. All points are
+    rendered and timed first, then scored with each of ``metrics``:
+    PyTorch's worker threads stay busy for a while after a JOD and would slow
+    a render timed right after it. The points are timed in ``timing_rounds``
+    rounds, each round every point once, and a point's ``frame_ms`` is its
+    fastest round (``frame_ms_rounds`` all of them): a load burst from
+    another process slows a round, not the curve.
 
     Returns a JSON-ready dict: ``display`` (geometry), ``px_per_deg``,
     ``fixation_px``, ``settings``, ``full`` (frame_ms, triangles),
@@ -439,7 +424,7 @@ def jod_report(bench, reference_rgb: np.ndarray | None = None, modes=None, forms
 
     With ``image_side``, also the curves of :data:`IMAGE_SIDE`: ``raymask``
     over :data:`RAYMASK_CONTRASTS` (``triangles`` None: it casts rays) and
-    ``csf+foveate`` over ``biases`` (:func:`_image_side_frame`). Every point
+    ``csf+foveate`` over ``biases`` (:func:`_point_frame`). Every point
     carries ``setting`` (``"bias +0"``, ``"C=0.3"``) and ``bias`` (NaN for
     the ray mask).
 
@@ -448,47 +433,21 @@ def jod_report(bench, reference_rgb: np.ndarray | None = None, modes=None, forms
     ``off_fixation_deg`` (degrees) left of the POI (``off_fixation_px``), as
     ``jod_<metric>_off``: a viewer looking away from where the detail is.
     """
+    if int(timing_rounds) != timing_rounds or timing_rounds < 1:
+        raise ValueError(f"timing_rounds must be a positive integer, got {timing_rounds!r}")
     progress = progress or (lambda text: None)
-    full_image, full_stats = bench.run(bench.scene.selector("full", "adaptive"))
-    if reference_rgb is None:
-        reference_rgb = full_image
-    size = (full_image.shape[1], full_image.shape[0])       # the renderer's (w, h), px
+    full_frame, full_stats = bench.steady(bench.mesh_step("full"))
+    reference_rgb = full_frame.image if reference_rgb is None else reference_rgb
+    size = tuple(bench.size)
     geometry = display_geometry(bench.screen, bench.head, size, settings.max_eye_offset_mm)
     fixation = fixation_px(bench.screen, bench.poi, size)
     off_px = geometry.distance_m * math.tan(math.radians(off_fixation_deg)) / geometry.width_m * size[0]
     off_fixation = fixation - np.array([off_px, 0.0])
-    if int(timing_rounds) != timing_rounds or timing_rounds < 1:
-        raise ValueError(f"timing_rounds must be a positive integer, got {timing_rounds!r}")
     points = [(name, float(b), f"bias {b:+g}", opts) for name, opts in judge_entries(modes, forms) for b in biases]
     if image_side:
         points += [("raymask", float("nan"), f"C={c:g}", {"contrast": float(c)}) for c in RAYMASK_CONTRASTS]
         points += [("csf+foveate", float(b), f"bias {b:+g}", {}) for b in biases]
-    side = _ImageSide(bench) if image_side else None
-    curves = {name: [] for name, *_ in points}
-    images = {}
-    full_ms = [full_stats["frame_ms"]]
-    for k in range(int(timing_rounds)):
-        if k > 0:
-            full_ms.append(bench.run(bench.scene.selector("full", "adaptive"))[1]["frame_ms"])
-        for name, bias, setting, opts in points:
-            if name in IMAGE_SIDE:
-                image, stats = side.frame(name, bias, **opts)
-            else:
-                image, stats = bench.run(bench.scene.selector(name.split("[")[0], "adaptive", level_bias=bias,
-                                                              **opts))
-            if k == 0:
-                images[name, setting] = image
-                curves[name].append({"bias": bias, "setting": setting, "triangles": stats["triangles"],
-                                     "frame_ms_rounds": [], "render_ms_rounds": []})
-            p = next(q for q in curves[name] if q["setting"] == setting)
-            p["frame_ms_rounds"].append(stats["frame_ms"])
-            p["render_ms_rounds"].append(stats["render_ms"])
-            p["frame_ms"], p["render_ms"] = min(p["frame_ms_rounds"]), min(p["render_ms_rounds"])
-        progress(f"timing round {k + 1}/{timing_rounds}: " + ", ".join(
-            f"{name} {min(q['frame_ms'] for q in c):.0f}-{max(q['frame_ms'] for q in c):.0f} ms"
-            for name, c in curves.items()))
-    if side is not None:
-        side.release()
+    curves, images, full_ms = _time_points(bench, points, int(timing_rounds), full_stats, progress)
     seconds = {}
     for m in metrics:
         judge = Judge(geometry, dataclasses.replace(settings, metric=m))
@@ -507,11 +466,59 @@ def jod_report(bench, reference_rgb: np.ndarray | None = None, modes=None, forms
               "off_fixation_px": off_fixation.tolist(), "settings": dataclasses.asdict(settings), "metrics": list(metrics),
               "foveated": {m: m == "fvvdp" for m in metrics},
               "full": {"frame_ms": min(full_ms), "frame_ms_rounds": full_ms, "triangles": full_stats["triangles"]},
-              "timing_rounds": int(timing_rounds),
-              "curves": curves, "seconds": seconds}
+              "timing_rounds": int(timing_rounds), "curves": curves, "seconds": seconds}
     report["comparison"] = {m: {x: compare_at_equal_time(curves, f"jod_{m}", x) for x in ("frame_ms", "triangles")}
                             for m in metrics}
     return report
+
+
+def _point_frame(bench, name: str, bias: float, opts: dict):
+    """One curve point's steady frame through the demo's frame step: (image, stats).
+
+    A mode or CSF form (``csf[...]``) at a level bias; ``raymask`` at a mask contrast (its mask reused for
+    the still view; ``triangles`` None); ``csf+foveate``: ``csf`` at a level bias drawn as foveated layers.
+    """
+    from ..plod.raymask import RayMaskConfig
+    from .harness import release_step
+
+    if name == "raymask":
+        step = bench.raymask_step(RayMaskConfig(contrast=opts["contrast"]))
+    elif name == "csf+foveate":
+        step = bench.mesh_step("csf", level_bias=bias, foveate=True)
+    else:
+        step = bench.mesh_step(name.split("[")[0], level_bias=bias, **opts)
+    try:
+        frame, stats = bench.steady(step)
+    finally:
+        release_step(step)
+    if name == "raymask":
+        stats["triangles"] = None
+    return frame.image, stats
+
+
+def _time_points(bench, points, rounds: int, full_stats: dict, progress):
+    """Every point's frame, in ``rounds`` rounds: (curves {name: [point]}, images {(name, setting): image},
+    full's frame ms per round)."""
+    curves = {name: [] for name, *_ in points}
+    images = {}
+    full_ms = [full_stats["frame_ms"]]
+    for k in range(rounds):
+        if k > 0:
+            full_ms.append(bench.steady(bench.mesh_step("full"))[1]["frame_ms"])
+        for name, bias, setting, opts in points:
+            image, stats = _point_frame(bench, name, bias, opts)
+            if k == 0:
+                images[name, setting] = image
+                curves[name].append({"bias": bias, "setting": setting, "triangles": stats["triangles"],
+                                     "frame_ms_rounds": [], "render_ms_rounds": []})
+            p = next(q for q in curves[name] if q["setting"] == setting)
+            p["frame_ms_rounds"].append(stats["frame_ms"])
+            p["render_ms_rounds"].append(stats["render_ms"])
+            p["frame_ms"], p["render_ms"] = min(p["frame_ms_rounds"]), min(p["render_ms_rounds"])
+        progress(f"timing round {k + 1}/{rounds}: " + ", ".join(
+            f"{name} {min(q['frame_ms'] for q in c):.0f}-{max(q['frame_ms'] for q in c):.0f} ms"
+            for name, c in curves.items()))
+    return curves, images, full_ms
 
 
 def compare_at_equal_time(curves: dict, key: str = "jod_fvvdp", x: str = "frame_ms") -> dict:
@@ -582,11 +589,9 @@ def jod_table(report: dict) -> str:
 
 def jod_chart(report: dict, path) -> None:
     """JOD against frame time (top) and triangles (bottom), one column per metric; square: bias 0 (raymask: C=1)."""
-    import matplotlib
+    from .outputs import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     metrics = report["metrics"]
     fig, axs = plt.subplots(2, len(metrics), figsize=(8 * len(metrics), 12), squeeze=False)
     names = list(report["curves"])
@@ -625,66 +630,7 @@ def jod_chart(report: dict, path) -> None:
                  f"({report['px_per_deg']:.1f} px/deg), {report['settings']['peak_luminance_cd_m2']:g} cd/m²\n"
                  f"solid: CSF-based (raymask: diamonds over its mask contrast 1, 0.3, 0.1; csf+foveate: triangles), "
                  f"dotted: geometric modes, dashed: csf with other CSF forms", fontsize=10)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-class _ImageSide:
-    """The image-side techniques at the bench's default view, one steady frame each: (image, stats).
-
-    ``raymask``: :class:`headplod.render.raymask.RayMaskRenderer` with
-    :class:`headplod.plod.raymask.RayMaskConfig` at a mask contrast; its
-    frame is the mask (reused for the still view, as ``bench plod``'s
-    raymask part counts it: the second frame's) + cast, classify and
-    rasterise. ``csf+foveate``: ``csf`` at a level bias drawn by
-    :class:`headplod.render.foveate.FoveatedRenderer`; select + build +
-    the layers' render (the steady second frame).
-    """
-
-    def __init__(self, bench):
-        from ..render.foveate import FoveatedRenderer
-        from ..render.raymask import RayMaskRenderer
-
-        self.b = bench
-        r = bench.renderer
-        self.size = tuple(r.size)
-        self.rays = RayMaskRenderer(r.ctx, bench.scene.mesh, size=self.size, background=r.background)
-        self.fov = FoveatedRenderer(r)
-        self.poi_image = bench.poi * np.array(self.size) / np.array(bench.screen.size_px)
-
-    def frame(self, name, bias, contrast=1.0):
-        b = self.b
-        if name == "raymask":
-            from ..plod.raymask import RayMaskConfig
-
-            cfg = RayMaskConfig(contrast=contrast)
-            for _ in range(2):
-                mask = self.rays.mask(b.screen, b.head, b.poi, b.px_per_deg, b.cov, cfg)
-                image = self.rays.render(mask, b.view_m, b.proj, b.scene.model, cfg)
-            st = self.rays.last_stats
-            return image, {"triangles": None, "render_ms": st["render_ms"],
-                           "frame_ms": self.rays.last_mask_ms + st["render_ms"]}
-        from ..plod.select import View
-
-        selector = b.scene.selector("csf", "adaptive", level_bias=bias)
-        b.scene.mesh.clear()
-        for k in range(2):
-            t0 = time.perf_counter()
-            levels, _ = selector.select(View(b.head, b.poi, b.cov, k / 60))
-            t1 = time.perf_counter()
-            positions, normals, tri_levels = b.scene.mesh.update(levels)
-            t2 = time.perf_counter()
-            b.renderer.upload(positions, normals, tri_levels)
-            image = self.fov.render(b.view_m, b.proj, b.scene.model, self.poi_image, b.px_per_deg, b.cov)
-        return image, {"triangles": int(len(tri_levels)), "render_ms": self.fov.last_render_ms,
-                       "frame_ms": (t1 - t0) * 1e3 + (t2 - t1) * 1e3 + self.fov.last_render_ms}
-
-    def release(self):
-        for obj in (self.fov, self.rays):
-            if hasattr(obj, "release"):
-                obj.release()
+    save_figure(fig, path, dpi=90)
 
 
 def write_heatmaps(bench, out_dir, modes=("csf", "sse"), settings: JudgeSettings = JudgeSettings()) -> dict:
@@ -695,22 +641,47 @@ def write_heatmaps(bench, out_dir, modes=("csf", "sse"), settings: JudgeSettings
     """
     import cv2
 
-    reference, _ = bench.run(bench.scene.selector("full", "adaptive"))
-    size = (reference.shape[1], reference.shape[0])
+    from .outputs import write_png
+
+    reference = bench.steady(bench.mesh_step("full"))[0].image
+    size = tuple(bench.size)
     geometry = display_geometry(bench.screen, bench.head, size, settings.max_eye_offset_mm)
     fixation = fixation_px(bench.screen, bench.poi, size)
     judge = Judge(geometry, settings, heatmap=True)
     out = {}
     for mode in modes:
-        image, _ = bench.run(bench.scene.selector(mode, "adaptive"))
-        out[mode], hm = judge.jod_map(reference, image, fixation)
+        out[mode], hm = judge.jod_map(reference, bench.steady(bench.mesh_step(mode))[0].image, fixation)
         hm = np.ascontiguousarray(hm)
         centre = tuple(int(round(c + 0.5)) for c in fixation)
         for deg in (2, 5, 10, 20):     # eccentricity rings around the fixation
             cv2.circle(hm, centre, int(round(deg * geometry.px_per_deg)), (255, 255, 255), 1, cv2.LINE_AA)
         cv2.putText(hm, f"{mode}: {out[mode]:.2f} JOD ({settings.metric}); rings 2, 5, 10, 20 deg", (10, 30),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2, cv2.LINE_AA)
-        path = Path(out_dir) / f"plod_jod_heatmap_{mode}.png"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(path), cv2.cvtColor(hm, cv2.COLOR_RGB2BGR))
+        write_png(Path(out_dir) / f"plod_jod_heatmap_{mode}.png", hm)
     return out
+
+
+def run_judge_bench(json_path=None, chart_path=None, modes=None, forms=None, biases=(-1.0, 0.0, 1.0),
+                    metrics=("fvvdp",), timing_rounds: int = 3, image_side: bool = True) -> int:
+    """``headplod bench judge``: render and judge ``modes`` and ``forms`` (None: all) over ``biases`` (levels) at
+    ``bench plod``'s default view; print the table, write JSON (``json_path``), the chart (``chart_path``) and
+    beside it the heatmaps; ``image_side``: also :data:`IMAGE_SIDE`. The exit status (2: a metric missing)."""
+    from .harness import BenchScene, progress
+    from .outputs import write_json
+
+    for m in metrics:
+        if m not in METRICS or not vdp_available(m):
+            print(f"bench judge: the metric {m!r} is not one of {METRICS} installed: pip install -e '.[vdp]'",
+                  file=sys.stderr)
+            return 2
+    bench = BenchScene()
+    report = jod_report(bench, modes=modes, forms=forms, biases=biases, metrics=metrics, timing_rounds=timing_rounds,
+                        image_side=image_side, progress=progress("bench judge"))
+    print(jod_table(report))
+    if chart_path:
+        jod_chart(report, chart_path)
+        report["heatmap_jod"] = write_heatmaps(bench, Path(chart_path).parent)
+    if json_path:
+        write_json(json_path, report, default=float)
+    bench.release()
+    return 0

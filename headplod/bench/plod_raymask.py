@@ -4,17 +4,19 @@
 POI at the screen centre, on each viewpoint of :mod:`headplod.demo.viewpoints`:
 
 - **Speed.** Frame time of ``full``, ``csf`` and ``raymask`` (silhouettes on
-  and off, and at each mask contrast asked for), rendered in alternation
+  and off, and at each mask contrast asked for), each the demo's frame step
+  with its back end (:mod:`headplod.bench.harness`), run in alternation
   round by round so a busy machine slows all alike; the median of the rounds
-  after a warm-up round. ``full`` and ``csf``: select + build + render (as
-  ``bench plod``: the upload is not timed; each mode keeps its own mesh
-  build state, so a steady frame rebuilds nothing). ``raymask``: its ray
-  mask (reused for the still view: 0 ms) + cast + classify + rasterise, GL
-  finished. Where raymask's time goes: ``cast_ms`` (the ring samples cast
-  and read back), ``classify_ms`` (numpy), ``raster_ms`` (the intermediate
-  mesh, and every pixel of the inset and the silhouette quads cast).
+  after a warm-up round. ``full`` and ``csf``: select + build + upload +
+  render (each mode keeps its own mesh build state and renderer, so a
+  steady frame rebuilds and uploads nothing). ``raymask``: its ray mask
+  (``mask_ms``, the step's select stage; reused for the still view) + cast +
+  classify + rasterise, GL finished. Where raymask's time goes: ``cast_ms``
+  (the ring samples cast and read back), ``classify_ms`` (numpy),
+  ``raster_ms`` (the intermediate mesh, and every pixel of the inset and the
+  silhouette quads cast).
 - **Quality** against ``full``: PSNR over the image and in the 5° disc,
-  FLIP (:func:`headplod.bench.plod.flip_error`).
+  FLIP (:func:`headplod.bench.harness.quality`).
 - **Silhouettes.** Where the terrain meets the sky: the boundary pixels of
   the sky (background colour) in each image; the largest distance, px, from
   a boundary pixel of one image to the nearest of the other (both ways:
@@ -23,39 +25,27 @@ POI at the screen centre, on each viewpoint of :mod:`headplod.demo.viewpoints`:
   the depth test of :func:`headplod.render.raymask.classify_quads` but not
   measured here (the images carry no depth): their quads are counted.
 - **Inset sweep** (the paper's experiment): frame time and FLIP at inset
-  diameters 2, 5, 10, 15°, at each contrast of ``sweep_contrasts`` (with the
-  default contrast 1 the CSF already fills out to 12°, so the inset changes
-  nothing below 24°; a lower contrast shows the inset's effect).
+  diameters 2, 5, 10, 15°, at each contrast of ``sweep_contrasts`` (at the
+  default contrast 1 the CSF's fill can be wider than the inset, which then
+  changes nothing; a lower contrast shows the inset's effect).
 """
 from __future__ import annotations
 
-import dataclasses
-import sys
-import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from calib import DEFAULT_SCREEN
-
-from .. import io
-from ..plod.raymask import RayMaskConfig
-from ..plod.select import View
-from ..render import TerrainRenderer, create_context, off_axis_projection
-from ..render.raymask import RayMaskRenderer
-from ..render.still import TerrainScene, default_head, px_per_deg_at
 from ..demo.viewpoints import place, viewpoint_names
-from .image_metrics import disc_mask, flip_error, psnr_db
+from ..plod.raymask import RayMaskConfig
+from ..render import TerrainRenderer, overlay_poi
+from .harness import FRAME_STAGES, SIZE, BenchScene, alternate, progress, pyplot, save_figure, steady_frame, write_png
 
 __all__ = ["raymask_report", "silhouette_displacement_px", "chart_raymask", "raymask_picture"]
 
-SIZE = (1280, 720)
 INSETS_DEG = (2.0, 5.0, 10.0, 15.0)
-
-
-def _progress(text: str) -> None:
-    print(f"bench raymask: {text}", file=sys.stderr, flush=True)
+#: The raymask back end's figures kept from a frame's details.
+RAY_COUNTS = ("rays", "ring_rays", "fill_rays", "silhouette_rays", "silhouette_quads", "drawn_quads")
 
 
 def _sky(image: np.ndarray, background) -> np.ndarray:
@@ -97,8 +87,6 @@ def raymask_picture(image: np.ndarray, mask, silhouette_quads: np.ndarray, poi_i
     yellow, the silhouette quads outlined in magenta, the POI and its 2σ
     ellipse (:func:`headplod.render.overlay_poi`) in red.
     """
-    from ..render import overlay_poi
-
     out = image.copy()
     h, w = out.shape[:2]
     ring = np.round(mask.samples_px[mask.n_fill:]).astype(int)
@@ -116,7 +104,7 @@ def raymask_picture(image: np.ndarray, mask, silhouette_quads: np.ndarray, poi_i
 
 def raymask_report(viewpoints=None, rounds: int = 5, contrasts=(1.0, 0.3), insets_deg=INSETS_DEG,
                    sweep_contrasts=(1.0, 0.05), sweep_viewpoint: str = "mountains", flip: bool = True,
-                   size=SIZE, picture_dir=None, picture_cov_deg2=((1.0, 0.0), (0.0, 1.0))) -> dict:
+                   size=SIZE, picture_dir=None, picture_cov_deg2=((1.0, 0.0), (0.0, 1.0)), progress=None) -> dict:
     """Measure ``raymask`` against ``full`` and ``csf`` (module notes); returns a JSON-ready dict.
 
     Parameters
@@ -128,18 +116,19 @@ def raymask_report(viewpoints=None, rounds: int = 5, contrasts=(1.0, 0.3), inset
         per round, in turn.
     contrasts : tuple of float
         Mask contrasts measured at the default inset (the first is the
-        default config's, 1.0: the paper's; 0.3 is about the terrain's
-        median shading contrast, what ``csf`` uses per triangle).
+        default config's, 1.0: the paper's; a lower one comes nearer the
+        terrain's shading contrast, which ``csf`` uses per triangle).
     insets_deg, sweep_contrasts, sweep_viewpoint
         The inset sweep: diameters, deg; contrasts; on which viewpoint.
     flip : bool
-        Compute FLIP (about a second per image on one core).
+        Compute FLIP (slow: seconds per image on one core).
     picture_dir : path, optional
         Write ``raymask_<viewpoint>.png`` there: the default raymask frame
         with its mask (:func:`raymask_picture`), drawn with the covariance
         ``picture_cov_deg2`` (deg²; σ = 1° by default, so the 2σ ellipse and
         the fill it widens are visible; the timed frames use the tracker's
-        σ = 0.05°).
+        :data:`headplod.bench.harness.TRACKER_COV_DEG2`).
+    progress : callable(str), optional
 
     Returns
     -------
@@ -148,133 +137,97 @@ def raymask_report(viewpoints=None, rounds: int = 5, contrasts=(1.0, 0.3), inset
         psnr_db, psnr_disc_5deg_db, flip, speedup_over_full, ...}}},
         "inset_sweep": {contrast: [{inset_deg, frame_ms, flip, rays}, ...]}}``.
     """
-    screen = io.read_screen(DEFAULT_SCREEN)
-    base = TerrainScene.build(screen)
-    ctx = create_context()
-    renderer = TerrainRenderer(ctx, size=size)
-    rr = RayMaskRenderer(ctx, base.mesh, size=size, background=renderer.background)
-    head = default_head(screen)
-    poi = np.array(screen.size_px, dtype=np.float64) / 2
-    cov = np.diag([0.05 ** 2, 0.05 ** 2])          # the tracker's σ of V at 60 cm, as bench plod uses
-    view_m, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
-    ppd = px_per_deg_at(screen, head, size)
-    centre = poi * np.array(size) / np.array(screen.size_px)
-    disc = disc_mask((size[1], size[0]), centre, 5 * ppd)
-
+    progress = progress or (lambda text: None)
+    b = BenchScene(size)
     configs = {}
     for c in contrasts:
         configs[f"raymask[C={c:g}]"] = RayMaskConfig(contrast=c)
         configs[f"raymask[C={c:g},no-silhouettes]"] = RayMaskConfig(contrast=c, silhouettes=False)
-
-    def quality(image, reference):
-        q = {"psnr_db": psnr_db(image, reference), "psnr_disc_5deg_db": psnr_db(image, reference, disc)}
-        if flip:
-            q["flip"] = flip_error(reference, image, ppd)
-        q["silhouette"] = silhouette_displacement_px(image, reference, renderer.background)
-        return q
-
-    def raymask_frame(scene, cfg):
-        mask = rr.mask(screen, head, poi, ppd, cov, cfg)
-        image = rr.render(mask, view_m, proj, scene.model, cfg)
-        st = dict(rr.last_stats)
-        st["mask_ms"] = rr.last_mask_ms
-        st["frame_ms"] = rr.last_mask_ms + st["render_ms"]
-        return image, st
-
-    report = {"size": list(size), "px_per_deg": ppd, "rounds": rounds, "viewpoints": {}}
-    for name in viewpoints or viewpoint_names():
-        scene = place(base, name)
-        meshes = {m: base.mesh.share() for m in ("full", "csf")}
-        selectors = {m: dataclasses.replace(scene, mesh=meshes[m]).selector(m, "adaptive", hysteresis=False)
-                     for m in ("full", "csf")}
-        times = {m: [] for m in ["full", "csf", *configs]}
-        images, extra = {}, {}
-        for k in range(rounds + 1):                       # round 0 warms up (builds meshes and masks)
-            for m in ("full", "csf"):
-                t0 = time.perf_counter()
-                levels, _ = selectors[m].select(View(head, poi, cov, 0.0))
-                t1 = time.perf_counter()
-                positions, normals, tri_levels = meshes[m].update(levels)
-                t2 = time.perf_counter()
-                renderer.upload(positions, normals, tri_levels)
-                images[m] = renderer.render(view_m, proj, scene.model)
-                if k:
-                    times[m].append(((t1 - t0) * 1e3, (t2 - t1) * 1e3, renderer.last_render_ms))
-                extra[m] = {"triangles": int(len(tri_levels))}
-            for m, cfg in configs.items():
-                images[m], st = raymask_frame(scene, cfg)
-                if k:
-                    times[m].append((st["mask_ms"], st["classify_ms"], st["cast_ms"], st["raster_ms"],
-                                     st["render_ms"]))
-                extra[m] = {key: st[key] for key in ("rays", "ring_rays", "fill_rays", "silhouette_rays",
-                                                     "silhouette_quads", "drawn_quads")}
-        res = {}
-        for m in ("full", "csf"):
-            s, b, r = (float(np.median([t[i] for t in times[m]])) for i in range(3))
-            res[m] = {"select_ms": s, "build_ms": b, "render_ms": r,
-                      "frame_ms": float(np.median([sum(t) for t in times[m]])), **extra[m]}
-        for m in configs:
-            cols = ("mask_ms", "classify_ms", "cast_ms", "raster_ms", "render_ms")
-            res[m] = {c: float(np.median([t[i] for t in times[m]])) for i, c in enumerate(cols)}
-            res[m]["frame_ms"] = float(np.median([t[0] + t[4] for t in times[m]]))
-            res[m].update(extra[m])
-        # The speed-up per round (modes rendered back to back), its median.
-        full_rounds = [sum(t) for t in times["full"]]
-        for m in res:
-            rounds_m = [sum(t) if m in ("full", "csf") else t[0] + t[4] for t in times[m]]
-            res[m]["speedup_over_full"] = float(np.median([f / x for f, x in zip(full_rounds, rounds_m)]))
-            if m != "full":
-                res[m].update(quality(images[m], images["full"]))
-        report["viewpoints"][name] = res
-        if picture_dir is not None:
-            cfg = RayMaskConfig(contrast=contrasts[0])
-            pcov = np.asarray(picture_cov_deg2, dtype=np.float64)
-            mask = rr.mask(screen, head, poi, ppd, pcov, cfg)
-            image = rr.render(mask, view_m, proj, scene.model, cfg)
-            pic = raymask_picture(image, mask, rr.last_silhouette_quads, centre, pcov, ppd)
-            Path(picture_dir).mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(Path(picture_dir) / f"raymask_{name}.png"), cv2.cvtColor(pic, cv2.COLOR_RGB2BGR))
-        _progress(f"{name}: full {res['full']['frame_ms']:.0f} ms, csf {res['csf']['frame_ms']:.0f} ms, "
-                  + ", ".join(f"{m} {res[m]['frame_ms']:.0f} ms" for m in configs))
-
-    # The paper's experiment: inset size against frame time and FLIP.
-    scene = place(base, sweep_viewpoint)
-    meshes_full = base.mesh.share()
-    meshes_full.clear()
-    renderer.upload(*meshes_full.update(np.full(base.mesh.n_faces, base.mesh.max_level)))
-    full = renderer.render(view_m, proj, scene.model)
-    sweep = {}
-    for c in sweep_contrasts:
-        rows = []
-        for inset in insets_deg:
-            cfg = RayMaskConfig(contrast=c, inset_deg=inset)
-            ms = []
-            for k in range(rounds + 1):
-                image, st = raymask_frame(scene, cfg)
-                if k:
-                    ms.append(st["frame_ms"])
-            row = {"inset_deg": inset, "frame_ms": float(np.median(ms)), "rays": st["rays"],
-                   "fill_radius_deg": round(rr._last_mask.r_fill_deg, 3),
-                   "psnr_disc_5deg_db": psnr_db(image, full, disc)}
-            if flip:
-                row["flip"] = flip_error(full, image, ppd)
-            rows.append(row)
-        sweep[f"C={c:g}"] = rows
-        _progress(f"inset sweep at C={c:g}: " + ", ".join(f"{r['inset_deg']:g}° {r['frame_ms']:.0f} ms"
-                                                           for r in rows))
-    report["inset_sweep"] = {"viewpoint": sweep_viewpoint, "rows": sweep}
-    rr.release()
-    renderer.release()
+    report = {"size": list(size), "px_per_deg": b.px_per_deg, "rounds": rounds, "viewpoints": {}}
+    renderers = {m: TerrainRenderer(b.ctx, size=b.size) for m in ("full", "csf")}   # steps in turn: one each
+    try:
+        for name in viewpoints or viewpoint_names():
+            scene = place(b.scene, name)
+            res = report["viewpoints"][name] = _viewpoint(b, scene, configs, renderers, rounds, flip)
+            if picture_dir is not None:
+                _picture(b, scene, RayMaskConfig(contrast=contrasts[0]), np.asarray(picture_cov_deg2, float),
+                         Path(picture_dir) / f"raymask_{name}.png")
+            progress(f"{name}: " + ", ".join(f"{m} {r['frame_ms']:.0f} ms" for m, r in res.items()))
+        sweep = {f"C={c:g}": _inset_sweep(b, place(b.scene, sweep_viewpoint), c, insets_deg, rounds, flip)
+                 for c in sweep_contrasts}
+        for label, rows in sweep.items():
+            progress(f"inset sweep at {label}: " + ", ".join(f"{r['inset_deg']:g}° {r['frame_ms']:.0f} ms"
+                                                            for r in rows))
+        report["inset_sweep"] = {"viewpoint": sweep_viewpoint, "rows": sweep}
+    finally:
+        for r in renderers.values():
+            r.release()
+        b.release()
     return report
+
+
+def _frame_ms(frame) -> float:
+    return sum(frame.stage_ms[s] for s in FRAME_STAGES)
+
+
+def _viewpoint(b: BenchScene, scene, configs: dict, renderers: dict, rounds: int, flip: bool) -> dict:
+    """One viewpoint: ``full``, ``csf`` and each ray-mask config in alternation; their figures by mode."""
+    steps = {m: b.mesh_step(m, "adaptive", scene=scene, renderer=renderers[m], hysteresis=False)
+             for m in ("full", "csf")}
+    steps.update({m: b.raymask_step(cfg) for m, cfg in configs.items()})
+    timed, last = alternate(steps, b.view_at(), scene.model, rounds)
+    res = {}
+    for m, per_round in timed.items():
+        frames = [r[0] for r in per_round]
+
+        def median(get):
+            return float(np.median([get(f) for f in frames]))
+
+        if m in configs:
+            res[m] = {"mask_ms": median(lambda f: f.stage_ms["select"]),
+                      **{k: median(lambda f: f.details["raymask"][k]) for k in ("classify_ms", "cast_ms", "raster_ms")},
+                      "render_ms": median(lambda f: f.stage_ms["render"]), "frame_ms": median(_frame_ms),
+                      **{k: last[m].details["raymask"][k] for k in RAY_COUNTS}}
+        else:
+            res[m] = {f"{s}_ms": median(lambda f: f.stage_ms[s]) for s in FRAME_STAGES}
+            res[m].update(frame_ms=median(_frame_ms), triangles=last[m].triangles)
+    full_rounds = [_frame_ms(r[0]) for r in timed["full"]]
+    for m, per_round in timed.items():      # the speed-up per round (modes run back to back), its median
+        res[m]["speedup_over_full"] = float(np.median([f / _frame_ms(r[0]) for f, r in zip(full_rounds, per_round)]))
+        if m != "full":
+            res[m].update(b.quality(last[m].image, last["full"].image, flip=flip))
+            res[m]["silhouette"] = silhouette_displacement_px(last[m].image, last["full"].image, b.renderer.background)
+    return res
+
+
+def _picture(b: BenchScene, scene, config, cov, path) -> None:
+    """The raymask frame of ``config`` with covariance ``cov`` (deg²) and its mask drawn on it, to ``path``."""
+    frame = b.raymask_step(config)(b.view(0.0, cov), scene.model)
+    rr = b.raymask_renderer
+    mask = rr.mask(b.screen, b.head, b.poi, b.px_per_deg, cov, config)      # the frame's (cached)
+    write_png(path, raymask_picture(frame.image, mask, rr.last_silhouette_quads, b.poi_image, cov, b.px_per_deg))
+
+
+def _inset_sweep(b: BenchScene, scene, contrast: float, insets_deg, rounds: int, flip: bool) -> list:
+    """The paper's experiment at one mask contrast: inset size against frame time, PSNR in the disc and FLIP."""
+    full = b.mesh_step("full", "adaptive", scene=scene)(b.view(), scene.model).image
+    rows = []
+    for inset in insets_deg:
+        frame, stats = steady_frame(b.raymask_step(RayMaskConfig(contrast=contrast, inset_deg=inset)), b.view_at(),
+                                    scene.model, frames=rounds + 1)
+        details = frame.details["raymask"]
+        q = b.quality(frame.image, full, flip=flip)
+        row = {"inset_deg": inset, "frame_ms": stats["frame_ms"], "rays": details["rays"],
+               "fill_radius_deg": details["fill_radius_deg"], "psnr_disc_5deg_db": q["psnr_disc_5deg_db"]}
+        if flip:
+            row["flip"] = q["flip"]
+        rows.append(row)
+    return rows
 
 
 def chart_raymask(report: dict, path) -> None:
     """A 1x3 chart: frame time per viewpoint and mode; silhouette displacement on/off; the inset sweep."""
-    import matplotlib  # imported only when a chart is drawn (slow to import)
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, axs = plt.subplots(1, 3, figsize=(18, 5))
     names = list(report["viewpoints"])
     modes = list(report["viewpoints"][names[0]])
@@ -298,28 +251,16 @@ def chart_raymask(report: dict, path) -> None:
     axs[1].set_title("silhouettes: preserved (per-pixel rays) vs not")
     ax = axs[2]
     for label, rows in report["inset_sweep"]["rows"].items():
-        x = [r["inset_deg"] for r in rows]
-        ax.plot(x, [r["frame_ms"] for r in rows], "o-", label=f"frame ms, {label}")
+        ax.plot([r["inset_deg"] for r in rows], [r["frame_ms"] for r in rows], "o-", label=f"frame ms, {label}")
     ax.set_xlabel("inset diameter (deg)")
     ax.set_ylabel("frame time (ms)")
-    ax2 = ax.twinx()
-    for label, rows in report["inset_sweep"]["rows"].items():
-        if "flip" in rows[0]:
-            ax2.plot([r["inset_deg"] for r in rows], [r["flip"] for r in rows], "s--", label=f"FLIP, {label}")
-    ax2.set_ylabel("FLIP against full")
     ax.legend(loc="upper left", fontsize=7)
-    ax2.legend(loc="upper right", fontsize=7)
+    flips = {label: rows for label, rows in report["inset_sweep"]["rows"].items() if "flip" in rows[0]}
+    if flips:
+        ax2 = ax.twinx()
+        for label, rows in flips.items():
+            ax2.plot([r["inset_deg"] for r in rows], [r["flip"] for r in rows], "s--", label=f"FLIP, {label}")
+        ax2.set_ylabel("FLIP against full")
+        ax2.legend(loc="upper right", fontsize=7)
     ax.set_title(f"inset size (the paper's experiment), {report['inset_sweep']['viewpoint']}")
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-if __name__ == "__main__":  # pragma: no cover - a manual run: python -m headplod.bench.plod_raymask OUT.json
-    from .outputs import write_json
-
-    out = Path(sys.argv[1] if len(sys.argv) > 1 else "raymask_report.json")
-    rep = raymask_report(picture_dir=out.parent)
-    write_json(out, rep)
-    chart_raymask(rep, out.with_suffix(".png"))
+    save_figure(fig, path, dpi=90)

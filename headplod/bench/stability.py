@@ -4,8 +4,8 @@ A still head is rendered by the synthetic stereo renderer (preset
 ``static``: only image noise moves), tracked by the real tracker, and each
 pose becomes a :class:`~headplod.plod.select.View` (eye = head position P1,
 POI = where the ray from P1 along V meets the screen, cov = the tracker's
-(φ, θ) covariance). A fresh :class:`~headplod.plod.select.LevelSelector`
-runs over those views; after a warm-up, every base triangle whose level
+(φ, θ) covariance). A fresh frame step (the demo's, its mesh back end's
+:class:`~headplod.plod.select.LevelSelector`) runs over those views; after a warm-up, every base triangle whose level
 differs from the previous frame's is a visible flicker (a popping patch of
 terrain) that the viewer's head did not cause.
 
@@ -14,25 +14,14 @@ tracker's) is the noise-free reference: :func:`stability_report` also counts
 how many triangles the tracked selection puts at another level than the
 truth-driven one on the last frame.
 
-Run ``python -m headplod.bench.stability [--json FILE] [--chart FILE.png]
-[--modes csf,gp|all] [--distance MM]`` for the table.
+The frames are drawn (:func:`headplod.bench.harness.mesh_step`) on a renderer
+of any size: the levels do not depend on it.
 
-What it showed (60 frames, seed 0): at 600 mm the tracker's (φ, θ) sigma is
-about 0.03° and steady, so the four uncertainty modes select identically;
-with hysteresis every mode has zero changes after frame 10, without it a
-few triangles whose continuous level sits within 0.001 of a boundary
-flicker on the POI noise (csf 0.3 per frame, max 2). At 1000 mm the POI
-noise (sigma about 11 px) exceeds the fixed 30 px "real movement" threshold
-of ``LevelSelector._smoothed_view`` on some frames, which snaps the smoothed
-POI to a noisy sample: bursts of ~70 changes without hysteresis. After a
-real 300 px POI jump, the symmetric dead band of ``perception.Hysteresis``
-keeps about a third of the base triangles one level away from a fresh
-selection (some coarser near the new POI) for as long as the head stays.
+Run ``headplod bench stability [--json FILE] [--chart FILE.png]
+[--modes csf,gp|all] [--distance MM] [--frames N] [--seed S]`` for the table.
 """
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -41,16 +30,16 @@ import numpy as np
 from calib import DEFAULT_SCREEN
 
 from .. import io
-from ..argtypes import frame_count
 from ..capture.synthetic import ensure_dataset
 from ..live.loop import make_tracker, track_frames
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
 from ..render.still import TerrainScene
 from ..tracking.tracker import TrackerConfig
+from .harness import SIZE, mesh_step, pyplot, run_views, save_figure
 from .outputs import write_json
 
 __all__ = ["ViewList", "track_still_head", "still_head_views", "level_changes", "levels_sequence",
-           "stability_report", "format_table", "plot_stability"]
+           "stability_report", "format_table", "plot_stability", "run_stability_bench"]
 
 
 class ViewList(list):
@@ -157,10 +146,11 @@ def track_still_head(frames: int = 60, distance_mm: float = 600.0, seed: int = 0
     return still_head_views(frames, distance_mm, seed, root=root)[0]
 
 
-def levels_sequence(scene, views, mode="csf", uncertainty="adaptive", hysteresis=True, **options) -> np.ndarray:
-    """(N, F) levels a fresh selector chooses for the views, in order."""
-    selector = scene.selector(mode, uncertainty, hysteresis=hysteresis, **options)
-    return np.stack([selector.select(view)[0] for view in views])
+def levels_sequence(scene, views, mode="csf", uncertainty="adaptive", hysteresis=True, *, renderer,
+                    **options) -> np.ndarray:
+    """(N, F) levels of the views' frames, in order, through a fresh frame step drawing on ``renderer``."""
+    step = mesh_step(scene, renderer, mode, uncertainty, hysteresis=hysteresis, **options)
+    return np.stack([frame.levels for frame in run_views(step, views, scene.model, images=False)])
 
 
 def _changes(levels: np.ndarray, warmup: int) -> tuple[list[int], list[int]]:
@@ -170,7 +160,7 @@ def _changes(levels: np.ndarray, warmup: int) -> tuple[list[int], list[int]]:
 
 
 def level_changes(scene, views, mode="csf", uncertainty="adaptive", hysteresis=True, warmup=10,
-                  levels: np.ndarray | None = None) -> dict:
+                  levels: np.ndarray | None = None, renderer=None) -> dict:
     """Level changes per frame of a fresh selector run over ``views``.
 
     Frame i (for i >= ``warmup``, and i >= 1) counts the base triangles whose
@@ -181,11 +171,13 @@ def level_changes(scene, views, mode="csf", uncertainty="adaptive", hysteresis=T
     scene : headplod.render.still.TerrainScene
     views : sequence of View
     mode, uncertainty, hysteresis
-        The selector's (``scene.selector(mode, uncertainty, hysteresis=...)``).
+        The frame step's settings.
     warmup : int
         Frames not counted (the hysteresis and the smoothing settle).
     levels : (N, F) ndarray, optional
         Already computed levels (from :func:`levels_sequence`).
+    renderer : TerrainRenderer
+        What the frames are drawn on (when ``levels`` is None).
 
     Returns
     -------
@@ -196,7 +188,7 @@ def level_changes(scene, views, mode="csf", uncertainty="adaptive", hysteresis=T
         counted frames) and ``faces`` (base triangles).
     """
     if levels is None:
-        levels = levels_sequence(scene, views, mode, uncertainty, hysteresis)
+        levels = levels_sequence(scene, views, mode, uncertainty, hysteresis, renderer=renderer)
     changes, frames = _changes(levels, warmup)
     counted = levels[frames] if frames else levels[-1:]
     triangles = float(np.mean([scene.mesh.triangle_count(lv) for lv in counted]))
@@ -222,7 +214,7 @@ def _noise(views) -> dict:
 
 def stability_report(scene=None, frames=60, modes=("csf",), uncertainties=UNCERTAINTY_MODES,
                      hysteresis=(True, False), warmup=10, distance_mm=600.0, seed=0, views=None,
-                     root=None) -> dict:
+                     root=None, renderer=None) -> dict:
     """Level changes per frame of the still head for every mode x uncertainty x hysteresis.
 
     Parameters
@@ -239,6 +231,9 @@ def stability_report(scene=None, frames=60, modes=("csf",), uncertainties=UNCERT
         Precomputed :func:`still_head_views` output.
     root : path, optional
         Render cache folder (default ``$HEADPLOD_CACHE``).
+    renderer : TerrainRenderer, optional
+        What the frames are drawn on; default: one of a quarter of the benches' size per side, made here
+        (the levels do not depend on the image's size).
 
     Returns
     -------
@@ -260,26 +255,36 @@ def stability_report(scene=None, frames=60, modes=("csf",), uncertainties=UNCERT
         if screen is None:
             screen = _screen_of(_dataset(frames, distance_mm, seed, root))
         scene = TerrainScene.build(screen)
-    runs = []
-    for mode in modes:
-        for hyst in hysteresis:
-            for unc in uncertainties:
-                levels = levels_sequence(scene, tracked, mode, unc, hyst)
-                run = level_changes(scene, tracked, mode, unc, hyst, warmup, levels=levels)
-                if truth is not None:
-                    ref = levels_sequence(scene, truth, mode, unc, hyst)
-                    t = level_changes(scene, truth, mode, unc, hyst, warmup, levels=ref)
-                    run["truth"] = {k: t[k] for k in ("mean_changes", "max_changes", "frames_with_changes",
-                                                      "triangles")}
-                    run["differs_from_truth"] = int(np.count_nonzero(levels[-1] != ref[-1]))
-                    run["differs_from_truth_max"] = int(max(np.count_nonzero(a != b) for a, b in
-                                                            zip(levels[warmup:], ref[warmup:])))
-                runs.append(run)
+    own = renderer is None
+    if own:
+        from ..render import TerrainRenderer, create_context
+
+        renderer = TerrainRenderer(create_context(), size=(SIZE[0] // 4, SIZE[1] // 4))
+    try:
+        runs = [_run(scene, tracked, truth, mode, unc, hyst, warmup, renderer)
+                for mode in modes for hyst in hysteresis for unc in uncertainties]
+    finally:
+        if own:
+            renderer.release()
     return {"preset": "static", "distance_mm": float(distance_mm), "seed": int(seed), "frames": len(tracked),
             "lost": tracked.lost, "lost_frames": tracked.lost_frames, "warmup": int(warmup),
             "faces": int(scene.mesh.n_faces), "max_level": int(scene.mesh.max_level),
             "noise": _noise(tracked), "truth_noise": _noise(truth) if truth is not None else None,
             "runs": runs, "seconds": time.perf_counter() - start}
+
+
+def _run(scene, tracked, truth, mode, unc, hyst, warmup, renderer) -> dict:
+    """One combination of :func:`stability_report`: its :func:`level_changes` and the comparison with the truth."""
+    levels = levels_sequence(scene, tracked, mode, unc, hyst, renderer=renderer)
+    run = level_changes(scene, tracked, mode, unc, hyst, warmup, levels=levels)
+    if truth is not None:
+        ref = levels_sequence(scene, truth, mode, unc, hyst, renderer=renderer)
+        t = level_changes(scene, truth, mode, unc, hyst, warmup, levels=ref)
+        run["truth"] = {k: t[k] for k in ("mean_changes", "max_changes", "frames_with_changes", "triangles")}
+        run["differs_from_truth"] = int(np.count_nonzero(levels[-1] != ref[-1]))
+        run["differs_from_truth_max"] = int(max(np.count_nonzero(a != b) for a, b in
+                                                zip(levels[warmup:], ref[warmup:])))
+    return run
 
 
 def format_table(report: dict) -> str:
@@ -306,11 +311,7 @@ def plot_stability(report: dict, path) -> Path:
     One column per hysteresis setting (with, without), one row per selection
     mode. Lines are offset slightly so that coinciding ones stay visible.
     """
-    import matplotlib  # imported only when a chart is drawn (slow to import)
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     runs = report["runs"]
     modes = list(dict.fromkeys(r["mode"] for r in runs))
     hysts = list(dict.fromkeys(r["hysteresis"] for r in runs))
@@ -335,32 +336,21 @@ def plot_stability(report: dict, path) -> Path:
             ax.legend(fontsize=7, loc="upper left")
     fig.suptitle(f"still head at {report['distance_mm']:.0f} mm through the tracker: level changes per frame "
                  f"after frame {report['warmup']}", fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m headplod.bench.stability", description=__doc__.split("\n")[0])
-    parser.add_argument("--frames", type=frame_count, default=60)
-    parser.add_argument("--distance", type=float, default=600.0, help="head distance, mm")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--modes", default="csf", help=f"comma-separated, of {','.join(MODES)}, or 'all'")
-    parser.add_argument("--json", help="write the report here")
-    parser.add_argument("--chart", help="write the chart here (PNG)")
-    args = parser.parse_args(argv)
-    modes = MODES if args.modes == "all" else tuple(args.modes.split(","))
-    report = stability_report(frames=args.frames, modes=modes, distance_mm=args.distance, seed=args.seed)
+def run_stability_bench(json_path=None, chart_path=None, frames: int = 60, distance_mm: float = 600.0, seed: int = 0,
+                        modes=("csf",)) -> int:
+    """``headplod bench stability``: the report of :func:`stability_report` printed, as JSON and chart; the exit
+    status. ``modes``: selection modes, or ``("all",)``."""
+    modes = MODES if tuple(modes) == ("all",) else tuple(modes)
+    bad = [m for m in modes if m not in MODES]
+    if bad:
+        raise ValueError(f"bench stability: unknown mode {bad[0]!r}; choose from {', '.join(MODES)} or all")
+    report = stability_report(frames=frames, modes=modes, distance_mm=distance_mm, seed=seed)
     print(format_table(report))
-    if args.json:
-        write_json(args.json, report, indent=1)
-    if args.chart:
-        plot_stability(report, args.chart)
+    if json_path:
+        write_json(json_path, report, indent=1)
+    if chart_path:
+        plot_stability(report, chart_path)
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
