@@ -39,14 +39,20 @@ def _poses(screen, cov_before, cov_after=None):
 
 
 @pytest.fixture(scope="module")
-def backends(gl_context, terrain_scene):
-    """Back-end factories: name -> callable(config) -> Backend, all on the same scene and size."""
+def backends(gl_context, ctx430, terrain_scene):
+    """Back-end factories: name -> callable(config) -> Backend, all on the same terrain, placed alike."""
+    from headplod.plod.patches import PatchGrid, height_grid
+    from headplod.render.frame import TessellationBackend
     from headplod.render.gl import TerrainRenderer
     from headplod.render.raymask import RayMaskRenderer
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer
 
     renderer = TerrainRenderer(gl_context, size=SIZE)
     rays = RayMaskRenderer(gl_context, terrain_scene.mesh, size=RAYMASK_SIZE)
     scene = terrain_scene
+    z, dx, dy = height_grid(scene.terrain, 257)
+    grid = PatchGrid.build(z, dx, dy, 16, origin_m=(scene.terrain.extent[0], scene.terrain.extent[2]))
+    tess = TessellationRenderer(ctx430, grid, size=SIZE, config=TessellationConfig(patch_samples=16))
 
     def mesh(config):
         return MeshBackend(scene.mesh.share(), scene.selector(config.mode, config.uncertainty, config), renderer,
@@ -55,7 +61,11 @@ def backends(gl_context, terrain_scene):
     def raymask(config):
         return RayMaskBackend(rays, scene.screen)
 
-    yield {"mesh": mesh, "raymask": raymask}
+    def tessellation(config):
+        return TessellationBackend(tess, config.mode)
+
+    yield {"mesh": mesh, "raymask": raymask, "tessellation": tessellation}
+    tess.release()
     rays.release()
     renderer.release()
 
@@ -67,14 +77,16 @@ def _run(factory, screen, model, scenario, poses):
 
 
 def _detail(out) -> float:
-    """How much detail a frame asks for: the mesh's mean level, or the ray mask's rays (the inset's and the
-    rings'; the silhouettes' depend on the terrain under the rays, not on the mask)."""
+    """How much detail a frame asks for: the mesh's mean level, the patches' triangles, or the ray mask's
+    rays (the inset's and the rings'; the silhouettes' depend on the terrain under the rays, not on the mask)."""
     if out.levels is not None:
         return float(out.levels.mean())
+    if "raymask" not in out.details:
+        return float(out.triangles)
     return float(out.details["raymask"]["fill_rays"] + out.details["raymask"]["ring_rays"])
 
 
-@pytest.mark.parametrize("name", ["mesh", "raymask"])
+@pytest.mark.parametrize("name", BACKENDS)
 def test_none_ignores_the_covariance(backends, terrain_scene, name):
     screen, model = terrain_scene.screen, terrain_scene.model
     runs = [_run(backends[name], screen, model, "none", _poses(screen, cov)) for cov in (None, SMALL, LARGE)]
@@ -86,7 +98,7 @@ def test_none_ignores_the_covariance(backends, terrain_scene, name):
     assert all(np.array_equal(a.image, b.image) for a, b in zip(runs[0], runs[1]))
 
 
-@pytest.mark.parametrize("name", ["mesh", "raymask"])
+@pytest.mark.parametrize("name", BACKENDS)
 @pytest.mark.parametrize("scenario", ["fixed", "adaptive", "smoothed"])
 def test_a_larger_covariance_never_draws_less(backends, terrain_scene, name, scenario):
     screen, model = terrain_scene.screen, terrain_scene.model
@@ -97,14 +109,14 @@ def test_a_larger_covariance_never_draws_less(backends, terrain_scene, name, sce
     assert sum(map(_detail, large)) > sum(map(_detail, small))
 
 
-@pytest.mark.parametrize("name", ["mesh", "raymask"])
+@pytest.mark.parametrize("name", BACKENDS)
 def test_after_the_covariance_drops_fixed_keeps_most_and_adaptive_least(backends, terrain_scene, name):
     screen, model = terrain_scene.screen, terrain_scene.model
     poses = _poses(screen, LARGE, SMALL)
     detail = {sc: [_detail(o) for o in _run(backends[name], screen, model, sc, poses)[DROP_AT + 1:]]
               for sc in ("fixed", "adaptive", "smoothed")}
     # The ray mask's count moves in steps of its rings and angles: a ray or ten either way of 230k.
-    slack = 1.0 if name == "mesh" else 1 - 1e-4
+    slack = 1 - 1e-4 if name == "raymask" else 1.0
     for f, a, s in zip(detail["fixed"], detail["adaptive"], detail["smoothed"]):
         assert f >= s * slack and s >= a * slack
     assert sum(detail["fixed"]) > sum(detail["adaptive"])
@@ -114,7 +126,7 @@ def test_every_back_end_reads_the_same_conditioned_view(backends, terrain_scene)
     screen, model = terrain_scene.screen, terrain_scene.model
     poses = _poses(screen, LARGE, SMALL)
     views = {name: [o.view for o in _run(backends[name], screen, model, "smoothed", poses)] for name in backends}
-    for a, b in zip(views["mesh"], views["raymask"]):
+    for a, b in [*zip(views["mesh"], views["raymask"]), *zip(views["mesh"], views["tessellation"])]:
         for f in dataclasses.fields(a):
             x, y = getattr(a, f.name), getattr(b, f.name)
             if isinstance(x, np.ndarray):

@@ -69,6 +69,7 @@ from collections import OrderedDict
 
 import numpy as np
 
+from .shading import AMBIENT, LIGHT_DIR
 from .mesh import AdaptiveMesh
 from .mesh_base import AdaptiveMeshBase, BaseMesh, _sample
 from .mesh_cases import Template
@@ -207,7 +208,7 @@ class LazyAdaptiveMesh(AdaptiveMeshBase):
 
     def __init__(self, base: BaseMesh, terrain, max_level: int = 5, *, cache_bytes: int = DEFAULT_CACHE_BYTES,
                  idle_frames: int | None = None,
-                 light_dir=(-0.5, 0.5, 0.7071067811865476), ambient: float = 0.2, normal_filter: float = 0.25,
+                 light_dir=LIGHT_DIR, ambient: float = AMBIENT, normal_filter: float = 0.25,
                  data_level: int | None = None):
         super().__init__(base, terrain, max_level, normal_filter)
         self._pieces_cache = PieceCache(cache_bytes, idle_frames)

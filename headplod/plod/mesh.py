@@ -66,6 +66,7 @@ import time
 import numpy as np
 from scipy import sparse
 
+from .shading import AMBIENT, LIGHT_DIR
 from .mesh_base import (LEVEL_PALETTE, AdaptiveMeshBase, BaseMesh, _face_areas_xy,  # noqa: F401 (re-exported)
                         _sample)
 from .mesh_cases import Template, build_template, triangle_count_table  # noqa: F401 (re-exported)
@@ -98,9 +99,11 @@ class AdaptiveMesh(AdaptiveMeshBase):
         the default 2048-face base to 2,097,152 triangles.
     light_dir : (3,) float
         Direction *towards* the light, scene frame, used for ``contrast``
-        (default: from the north-west, 45° up, as a hillshade).
+        (default: :data:`headplod.plod.shading.LIGHT_DIR`, the light every
+        back end draws with, so the contrast is the one the viewer sees).
     ambient : float
-        Ambient fraction of the shading used for ``contrast``.
+        Ambient fraction of the shading used for ``contrast`` (default
+        :data:`headplod.plod.shading.AMBIENT`).
     normal_filter : float
         Normals of a level-L vertex are those of the terrain prefiltered by
         a Gaussian of σ = ``normal_filter`` x the level's grid spacing (0 at
@@ -157,7 +160,7 @@ class AdaptiveMesh(AdaptiveMeshBase):
     has_full_table = True
 
     def __init__(self, base: BaseMesh, terrain, max_level: int = 5, *,
-                 light_dir=(-0.5, 0.5, 0.7071067811865476), ambient: float = 0.2, normal_filter: float = 0.25):
+                 light_dir=LIGHT_DIR, ambient: float = AMBIENT, normal_filter: float = 0.25):
         super().__init__(base, terrain, max_level, normal_filter)
         edge_pos = self._edge_points(terrain)
         self._level_points(terrain)

@@ -28,6 +28,7 @@ import time
 
 import numpy as np
 
+from .shading import AMBIENT, LIGHT_DIR, michelson, shade
 from .mesh_cases import Template, build_template, triangle_count_table
 
 #: Colours of the levels, RGB uint8, (8, 3); level k uses ``LEVEL_PALETTE[k % 8]``
@@ -380,7 +381,7 @@ class AdaptiveMeshBase(abc.ABC):
         return other
 
     # ------------------------------------------------------------------ per-face data
-    def shading_contrast(self, light_dir, ambient: float = 0.2) -> np.ndarray:
+    def shading_contrast(self, light_dir=LIGHT_DIR, ambient: float = AMBIENT) -> np.ndarray:
         """Michelson contrast of Lambertian shading over each face's sampled vertices.
 
         The vertices are the finest level's for ``kind == "table"``, the
@@ -396,12 +397,7 @@ class AdaptiveMeshBase(abc.ABC):
         Returns
         -------
         contrast : (F,) float64
-            ``(max - min) / (max + min)`` of ``ambient + (1 - ambient) max(n·l, 0)``.
+            ``(max - min) / (max + min)`` of the luminance the display shows for the shade
+            ``ambient + (1 - ambient) max(n·l, 0)`` (:func:`headplod.plod.shading.michelson`).
         """
-        light = np.asarray(light_dir, dtype=np.float64)
-        if light.shape != (3,) or not np.linalg.norm(light) > 0:
-            raise ValueError(f"light_dir must be a non-zero (3,) vector, got {light_dir!r}")
-        light = light / np.linalg.norm(light)
-        shade = ambient + (1 - ambient) * np.maximum(self._shading_normals @ light.astype(np.float32), 0)
-        hi, lo = shade.max(axis=1).astype(np.float64), shade.min(axis=1).astype(np.float64)
-        return (hi - lo) / np.maximum(hi + lo, 1e-12)
+        return michelson(shade(self._shading_normals, light_dir, ambient), axis=1)

@@ -40,7 +40,7 @@ from scipy import ndimage as ndi
 
 from . import criteria
 from . import perception as pc
-from .shading import AMBIENT, light_unit
+from .shading import contrast_of_range, shade
 from .terrain import Terrain, _bspline_weights
 
 __all__ = ["height_grid", "jacksboro_grid", "grid_normals", "PatchGrid", "patch_levels", "levels_of_patches",
@@ -218,16 +218,16 @@ class PatchGrid:
 
     @staticmethod
     def _contrast(z, dx_m, dy_m, p) -> np.ndarray:
-        """(n, n) Michelson contrast of the shading over each patch, computed a row of patches at a time."""
-        light = light_unit()
+        """(n, n) Michelson contrast of the displayed shading over each patch (:mod:`headplod.plod.shading`),
+        computed a row of patches at a time."""
         n_p = (z.shape[0] - 1) // p
         out = np.empty((n_p, n_p), np.float32)
         for r in range(n_p):                     # one strip of patches: bounded temporaries
             lo, hi = max(r * p - 1, 0), min((r + 1) * p + 2, z.shape[0])
             normals = grid_normals(z[lo:hi], dx_m, dy_m)[r * p - lo:(r + 1) * p + 1 - lo]
-            shade = AMBIENT + (1 - AMBIENT) * np.maximum(normals @ light.astype(np.float32), 0)
-            smax, smin = _block_reduce_strip(shade, p, np.maximum), _block_reduce_strip(shade, p, np.minimum)
-            out[r] = (smax - smin) / np.maximum(smax + smin, 1e-12)
+            drawn = shade(normals)
+            out[r] = contrast_of_range(_block_reduce_strip(drawn, p, np.maximum),
+                                       _block_reduce_strip(drawn, p, np.minimum))
         return out
 
     @property

@@ -15,13 +15,16 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["LIGHT_DIR", "AMBIENT", "light_unit"]
+__all__ = ["LIGHT_DIR", "AMBIENT", "DISPLAY_GAMMA", "light_unit", "shade", "michelson", "contrast_of_range"]
 
 #: Direction toward the light, scene frame (x east, y north, z up), not normalized: a sun from the
 #: south-east, about 58° above the horizon.
 LIGHT_DIR = (0.4, -0.3, 0.85)
 #: Shade of a face turned away from the light, in [0, 1] (a face facing it gets 1).
 AMBIENT = 0.25
+#: The display's transfer: a code value v in [0, 1] is shown at relative luminance v ** DISPLAY_GAMMA (the
+#: renderers write the shade as 8-bit code values to an sRGB display, without linear-to-sRGB encoding).
+DISPLAY_GAMMA = 2.2
 
 
 def light_unit(light_dir=LIGHT_DIR) -> np.ndarray:
@@ -30,3 +33,30 @@ def light_unit(light_dir=LIGHT_DIR) -> np.ndarray:
     if light.shape != (3,) or not np.isfinite(light).all() or np.linalg.norm(light) == 0:
         raise ValueError(f"light_dir must be a non-zero 3-vector, got {light_dir!r}")
     return light / np.linalg.norm(light)
+
+
+def shade(normals, light_dir=LIGHT_DIR, ambient: float = AMBIENT) -> np.ndarray:
+    """The drawn shade (code value in [0, 1]) of unit ``normals`` (..., 3), scene frame: the renderers' rule."""
+    normals = np.asarray(normals)
+    light = light_unit(light_dir).astype(normals.dtype if normals.dtype == np.float32 else np.float64)
+    return ambient + (1 - ambient) * np.maximum(normals @ light, 0)
+
+
+def michelson(shades, axis=-1) -> np.ndarray:
+    """Michelson contrast (Lmax - Lmin) / (Lmax + Lmin) of the luminance the display shows for ``shades``
+    (code values), over ``axis``; float64.
+
+    The CSF is a function of luminance contrast, so the code values are taken through the display's
+    transfer (:data:`DISPLAY_GAMMA`) first: a shade ratio of 2 is a luminance ratio of about 4.6.
+    """
+    shades = np.asarray(shades)
+    return contrast_of_range(shades.max(axis=axis), shades.min(axis=axis))
+
+
+def contrast_of_range(brightest, darkest) -> np.ndarray:
+    """Michelson contrast of the displayed luminance between the shades ``brightest`` and ``darkest``
+    (code values, arrays of one shape); float64 (:func:`michelson`)."""
+    hi = np.asarray(brightest, dtype=np.float64) ** DISPLAY_GAMMA
+    lo = np.asarray(darkest, dtype=np.float64) ** DISPLAY_GAMMA
+    return (hi - lo) / np.maximum(hi + lo, 1e-12)
+

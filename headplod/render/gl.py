@@ -17,6 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..plod.shading import AMBIENT, LIGHT_DIR
 from ..plod.mesh import LEVEL_PALETTE
 from .context import moderngl
 
@@ -489,7 +490,7 @@ class TerrainRenderer:
     # -- drawing -------------------------------------------------------------
 
     def prepare(self, view: Any, proj: Any, model: Any = None, view_mode: str = "shaded",
-                light_dir: Any = (0.4, -0.3, 0.85), *, ambient: float = 0.25,
+                light_dir: Any = LIGHT_DIR, *, ambient: float = AMBIENT,
                 wire_px: float = 1.0, wire_color: tuple[float, float, float] = (0.08, 0.08, 0.08)) -> None:
         """Check the matrices and set the program's uniforms for :meth:`draw` (arguments as :meth:`render`)."""
         if view_mode not in VIEW_MODES:
@@ -580,7 +581,7 @@ class TerrainRenderer:
         fbo.scissor = None
 
     def render(self, view: Any, proj: Any, model: Any = None, view_mode: str = "shaded",
-               light_dir: Any = (0.4, -0.3, 0.85), *, ambient: float = 0.25,
+               light_dir: Any = LIGHT_DIR, *, ambient: float = AMBIENT,
                wire_px: float = 1.0, wire_color: tuple[float, float, float] = (0.08, 0.08, 0.08)
                ) -> np.ndarray:
         """Draw the uploaded mesh and read the image back.
