@@ -6,7 +6,10 @@
   ``M.T.tobytes()``), the off-axis projection and the scene's placement.
 - :mod:`.gl`: the terrain renderer (shaders, :class:`TerrainRenderer`).
 - :mod:`.overlay`: the point of interest and its uncertainty ellipse.
-- :mod:`.still`: the terrain scene and one PLOD frame; :mod:`.command`: ``headplod render``.
+- :mod:`.frame`: the one PLOD frame step (condition, select, draw) and its back ends' capability table.
+- :mod:`.tessellate` (GLSL in :mod:`.tess_shaders`): the GPU tessellation back end; :mod:`.raymask`:
+  Murphy & Duchowski's ray-mask renderer; :mod:`.foveate`: foveated resolution layers.
+- :mod:`.still`: the terrain scene and ``headplod render``'s one frame; :mod:`.command`: ``headplod render``.
 """
 from .context import EGL_PACKAGES, create_context
 from .gl import PALETTE, VIEW_MODES, TerrainRenderer

@@ -3,9 +3,19 @@
 - :mod:`.detect`: marker blobs in one IR image.
 - :mod:`.identify`: which blob is which marker.
 - :mod:`.geometry`: stereo geometry and the pose estimators.
-- :mod:`.tracker`: the stages together, two images in, a verified pose out.
+- :mod:`.tracker`: the stages together, two images in, a verified pose out; its
+  stages: :mod:`.tracker_config` (settings), :mod:`.frame_checks` (images and
+  times), :mod:`.acquire` (detection and identification), :mod:`.lock` (the
+  markers tracked from frame to frame), :mod:`.pose_fit` (the fit and its
+  covariance input), :mod:`.rig_check` (checks against the images and the
+  rig), :mod:`.rolling_shutter` (readout compensation), :mod:`.tracker_rig`
+  (the rig in use, its refinement and bootstrap).
 - :mod:`.uncertainty`: the covariance of the viewing direction.
-- :mod:`.rig_refine`: the rig's error model and online refinement.
+- :mod:`.rig_refine`: the rig's online refinement; :mod:`.rig_refine_config`
+  (settings), :mod:`.rig_state` (the refined parameters and their derivatives),
+  :mod:`.rig_priors` (the error model and priors), :mod:`.rig_frames` (the
+  frames of a chunk and their velocities), :mod:`.rig_solve` (a chunk's solve).
+- :mod:`.motion`: the head's recent motion.
 - :mod:`.filters`: smoothing of the pose (One Euro, :mod:`headplod.filters`).
 - :mod:`.evaluate`: accuracy of tracked poses against a dataset's truth.
 """
