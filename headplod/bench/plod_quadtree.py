@@ -15,7 +15,8 @@ The selector's inputs are made here directly from the terrain
 would not fit in memory at these sizes: the corners and centroids are exact,
 the level-L edge length is the base triangle's longest side over 2^L
 (midpoint subdivision of a flat triangle), the geometric error is 0
-(mode ``csf`` does not use it) and the contrast is the Lambertian shading's
+(mode ``csf`` does not use it) and the contrast is the displayed shading's
+(:func:`headplod.plod.shading.michelson` of :func:`headplod.plod.shading.shade`)
 over 7 points per triangle (corners, centroid, and midway from the centroid
 to each corner) instead of the finest level's lattice: cheaper, and lower
 than ``AdaptiveMesh.contrast`` (which sees the detail below the base
@@ -37,7 +38,7 @@ from calib import DEFAULT_SCREEN
 
 from .. import io
 from ..plod.select import LevelSelector, SelectorConfig, View
-from ..plod.shading import AMBIENT, light_unit
+from ..plod.shading import michelson, shade
 from .outputs import write_json
 from .quadtree_selector import QuadtreeSelector
 
@@ -75,11 +76,8 @@ def grid_inputs(terrain, nx: int, ny: int, max_level: int = 5) -> dict:
     inner = np.concatenate([centroids[:, None, :2], 0.5 * (corners[..., :2] + centroids[:, None, :2])], axis=1)
     _, inner_normals = terrain.sample(inner[..., 0].ravel(), inner[..., 1].ravel())
     normals = np.concatenate([vertex_normals[faces], inner_normals.reshape(len(faces), 4, 3)], axis=1)
-    light = light_unit()                                          # the one light (plod.shading)
-    shade = AMBIENT + (1 - AMBIENT) * np.maximum(normals @ light, 0.0)
-    hi, lo = shade.max(axis=1), shade.min(axis=1)
     return {"corners": corners, "centroids": centroids, "edge_length": edge_length,
-            "geometric_error": np.zeros_like(edge_length), "contrast": (hi - lo) / np.maximum(hi + lo, 1e-12),
+            "geometric_error": np.zeros_like(edge_length), "contrast": michelson(shade(normals), axis=1),
             "grid_shape": (ny, nx)}
 
 
