@@ -34,7 +34,7 @@ import numpy as np
 
 from ..plod.select import MODES, SelectorConfig
 from ..plod.view import UNCERTAINTY_MODES, ConditionedView, View, ViewConditioner
-from .gl import VIEW_MODES
+from .gl import VIEW_MODES as _GL_VIEW_MODES
 from .projection import off_axis_projection
 
 __all__ = ["NEAR_MM", "FAR_MM", "VIEW_MODES", "BACKENDS", "BackendCapabilities", "CAPABILITIES", "options_problem",
@@ -43,6 +43,8 @@ __all__ = ["NEAR_MM", "FAR_MM", "VIEW_MODES", "BACKENDS", "BackendCapabilities",
 
 #: Near and far planes of every frame's off-axis projection, mm from the eye.
 NEAR_MM, FAR_MM = 50.0, 5000.0
+#: How the mesh back end colours the image, in order (the names of :data:`headplod.render.gl.VIEW_MODES`).
+VIEW_MODES = tuple(_GL_VIEW_MODES)
 
 
 @dataclass(frozen=True)
