@@ -69,7 +69,7 @@ import time
 import numpy as np
 
 from ..plod.raymask import HeightGrid, RayMask, RayMaskConfig, build_ray_mask, height_grid
-from ..plod.shading import AMBIENT, LIGHT_DIR, light_unit
+from ..plod.shading import AMBIENT, LIGHT_DIR, shade
 from .context import moderngl
 from .gl import read_rgb
 
@@ -238,21 +238,19 @@ void main() { f_color = vec4(v_color, 1.0); }
 def vertex_colors(grid: HeightGrid, height_range, light_dir=LIGHT_DIR, ambient: float = AMBIENT) -> np.ndarray:
     """Each grid vertex's colour as :mod:`headplod.render.gl`'s "shaded" vertex shader computes it, (ny+1, nx+1, 3) float32.
 
-    ``shade = ambient + (1 - ambient) max(n·l, 0)`` times the height colour
-    (low → mid → high over ``height_range``, scene units), in float32; the
-    light by default :mod:`headplod.plod.shading`'s, the one every back end draws with.
+    :func:`headplod.plod.shading.shade` times the height colour (low → mid →
+    high over ``height_range``, scene units), in float32; the light by
+    default :mod:`headplod.plod.shading`'s, the one every back end draws with.
     """
     f = np.float32
-    light = light_unit(light_dir).astype(f)
     n = grid.normals.astype(f)
-    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
-    shade = f(ambient) + (f(1) - f(ambient)) * np.maximum(n @ light, f(0))
+    shaded = shade(n / np.linalg.norm(n, axis=-1, keepdims=True), light_dir, ambient)      # float32
     lo, hi = (f(v) for v in height_range)
     span = max(hi - lo, f(1e-20))
     t = np.clip((grid.heights - lo) / span, f(0), f(1))[..., None]
     low, mid, high = (np.array(c, f) for c in ((0.30, 0.42, 0.26), (0.52, 0.56, 0.40), (0.80, 0.80, 0.76)))
     base = np.where(t < 0.5, low + (mid - low) * (f(2) * t), mid + (high - mid) * (f(2) * t - f(1)))
-    return (base * shade[..., None]).astype(f)
+    return (base * shaded[..., None]).astype(f)
 
 
 def classify_quads(quads: np.ndarray, hits: np.ndarray, depth_ratio: float):
