@@ -164,16 +164,16 @@ def test_bench_plod_vdp_stops_before_the_run_without_the_extra(monkeypatch, caps
     assert main(["bench", "plod", "--vdp", "psnr"]) == 2
 
 
-def test_bench_judge_alone_refuses_a_missing_or_unknown_metric(monkeypatch, capsys):
-    from headplod.bench import harness
+def test_the_judge_alone_refuses_a_missing_or_unknown_metric(monkeypatch, capsys):
+    from headplod.bench import plod
     from headplod.cli import main
 
-    monkeypatch.setattr(harness, "BenchScene", lambda *a, **k: pytest.fail("the bench ran"))
+    monkeypatch.setattr(plod, "BenchScene", lambda *a, **k: pytest.fail("the bench ran"))
     monkeypatch.setattr(pj, "vdp_available", lambda metric="fvvdp": False)
-    assert main(["bench", "judge", "--modes", "csf"]) == 2
+    assert main(["bench", "plod", "--only", "judge"]) == 2
     assert "pip install -e '.[vdp]'" in capsys.readouterr().err
     monkeypatch.setattr(pj, "vdp_available", lambda metric="fvvdp": True)
-    assert main(["bench", "judge", "--metrics", "psnr"]) == 2
+    assert main(["bench", "plod", "--only", "judge", "--vdp", "psnr"]) == 2
 
 
 def test_ray_mask_points_have_no_triangles_and_are_compared_by_time_only(tmp_path):

@@ -3,9 +3,7 @@
     headplod bench track [--json FILE] [--chart FILE.png] [--quick] [--sets A,B]
     headplod bench uncertainty [--json FILE] [--chart FILE.png] [--quick]
     headplod bench plod [--json FILE] [--chart FILE.png] [--quick] [--vdp [fvvdp,cvvdp]] [--scale]
-                        [--only foveate|raymask]
-    headplod bench judge [--modes M,..] [--forms F,..] [--biases B,..] [--metrics fvvdp,cvvdp] [--no-image-side]
-                         [--json FILE] [--chart FILE.png]
+                        [--only foveate|raymask|judge]
     headplod bench stability [--frames N] [--distance MM] [--seed S] [--modes M,..|all] [--json FILE] [--chart FILE.png]
     headplod bench live [--source SPEC] [--json FILE] [--repeats N]
     headplod bench paper [--json FILE] [--chart FILE.png] [--quick] [--noise-deg S]
@@ -65,20 +63,10 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bp.add_argument("--scale", action="store_true",
                     help="instead: cost against terrain size (2M-134M triangles), tessellation back end and full "
                          "(headplod.bench.plod_scale)")
-    bp.add_argument("--only", choices=("foveate", "raymask"),
-                    help="instead: only the foveated layers' part (headplod.bench.plod_foveate) or the ray mask's "
-                         "(headplod.bench.plod_raymask); --json gets its report, its charts and pictures go into "
-                         "the folder of --chart")
-
-    bj = bench_sub.add_parser("judge", help="the perceptual judge alone: JOD against frame time for chosen PLOD "
-                                            "modes (needs the optional extra: pip install -e '.[vdp]')")
-    bj.add_argument("--modes", help="comma-separated modes (default: every mode but full)")
-    bj.add_argument("--forms", help="comma-separated CSF forms besides the default (default: all; '' for none)")
-    bj.add_argument("--biases", default="-1,0,1", help="comma-separated level biases, levels (default -1,0,1)")
-    bj.add_argument("--metrics", default="fvvdp", help="comma-separated, of fvvdp,cvvdp (default fvvdp)")
-    bj.add_argument("--no-image-side", action="store_true", help="leave out raymask and csf+foveate")
-    bj.add_argument("--json", help="write the report as JSON")
-    bj.add_argument("--chart", help="write the chart (PNG); the heatmaps go beside it")
+    bp.add_argument("--only", choices=("foveate", "raymask", "judge"),
+                    help="instead: only the foveated layers' part (headplod.bench.plod_foveate), the ray mask's "
+                         "(headplod.bench.plod_raymask) or the perceptual judge's (--vdp's metrics, default "
+                         "fvvdp); --json gets its report, its charts and pictures go into the folder of --chart")
 
     bs = bench_sub.add_parser("stability", help="level changes per frame of a still head through the real tracker, "
                                                 "against the true pose")
@@ -123,19 +111,6 @@ def _plod(args) -> int:
                                only=getattr(args, "only", None))
 
 
-def _judge(args) -> int:
-    from . import plod_judge
-    try:
-        return plod_judge.run_judge_bench(
-            args.json, args.chart, modes=args.modes.split(",") if args.modes else None,
-            forms=None if args.forms is None else [f for f in args.forms.split(",") if f],
-            biases=[float(b) for b in args.biases.split(",")], metrics=[m for m in args.metrics.split(",") if m],
-            image_side=not args.no_image_side)
-    except ValueError as exc:
-        print(f"headplod: bench judge: {exc}", file=sys.stderr)
-        return 2
-
-
 def _stability(args) -> int:
     from . import stability
     try:
@@ -174,8 +149,8 @@ def _live(args) -> int:
 
 
 #: ``headplod bench NAME`` → its run(args) -> exit status.
-BENCHMARKS = {"track": _track, "uncertainty": _uncertainty, "live": _live, "plod": _plod, "judge": _judge,
-              "stability": _stability, "paper": _paper}
+BENCHMARKS = {"track": _track, "uncertainty": _uncertainty, "live": _live, "plod": _plod, "stability": _stability,
+              "paper": _paper}
 
 
 def run_bench(args) -> int:

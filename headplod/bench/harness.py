@@ -209,8 +209,8 @@ class BenchScene:
     ----------
     renderer : TerrainRenderer
         Of ``size``, for the steps run one after the other.
-    head : (3,) world mm; poi : (2,) screen px; cov : (2, 2) deg²
-        The default view (:data:`TRACKER_COV_DEG2`).
+    head : (3,) world mm; poi : (2,) screen px
+        The default view (with :data:`TRACKER_COV_DEG2`: :meth:`view`).
     camera : ((4, 4), (4, 4))
         View and projection from the head.
     px_per_deg : float
@@ -231,7 +231,6 @@ class BenchScene:
         self.frames = int(frames)
         self.head = default_head(self.screen)
         self.poi = np.array(self.screen.size_px, dtype=np.float64) / 2
-        self.cov = TRACKER_COV_DEG2
         self.camera = off_axis_projection(self.head, self.screen, near_mm=NEAR_MM, far_mm=FAR_MM)
         self.px_per_deg = px_per_deg_at(self.screen, self.head, self.size)
         self.poi_image = self.poi * np.array(self.size) / np.array(self.screen.size_px)
@@ -248,12 +247,11 @@ class BenchScene:
             self._small = TerrainRenderer(self.ctx, size=(SIZE[0] // 4, SIZE[1] // 4))
         return self._small
 
-    def view(self, t: float = 0.0, cov_deg2="default", eye_mm=None) -> View:
+    def view(self, t: float = 0.0, cov_deg2=TRACKER_COV_DEG2, eye_mm=None) -> View:
         """The default view at time ``t`` s (``cov_deg2``: another covariance, deg², or None; ``eye_mm``: another eye)."""
-        cov = self.cov if isinstance(cov_deg2, str) else cov_deg2
-        return View(self.head if eye_mm is None else eye_mm, self.poi, cov, t)
+        return View(self.head if eye_mm is None else eye_mm, self.poi, cov_deg2, t)
 
-    def view_at(self, cov_deg2="default"):
+    def view_at(self, cov_deg2=TRACKER_COV_DEG2):
         """``k`` → the default view at frame k's time (60 Hz)."""
         return lambda k: self.view(k * FRAME_DT_S, cov_deg2)
 
@@ -275,7 +273,7 @@ class BenchScene:
         """:func:`raymask_step` with this scene's ray-mask renderer."""
         return raymask_step(self.screen, self.raymask_renderer, config)
 
-    def steady(self, step: FrameStep, model=None, cov_deg2="default", view_mode: str = "shaded", before=None):
+    def steady(self, step: FrameStep, model=None, cov_deg2=TRACKER_COV_DEG2, view_mode: str = "shaded", before=None):
         """:func:`steady_frame` of the default view (``model``: default the scene's); (FrameOutput, stats)."""
         model = self.scene.model if model is None else model
         return steady_frame(step, self.view_at(cov_deg2), model, self.frames, view_mode, before)

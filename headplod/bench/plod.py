@@ -44,8 +44,8 @@ same view:
 Writes JSON, a 3x3 chart and the level-colour pictures beside the chart,
 and parts 6 and 7's charts and pictures beside it (``foveate_*.png``,
 ``plod_raymask.png``, ``raymask_*.png``); with ``--vdp`` also ``plod_jod.png``
-and ``plod_jod_heatmap_{csf,sse}.png``. ``only="foveate"`` or ``"raymask"``
-(``headplod bench plod --only PART``) runs part 6 or 7 alone.
+and ``plod_jod_heatmap_{csf,sse}.png``. ``only="foveate"``, ``"raymask"`` or
+``"judge"`` (``headplod bench plod --only PART``) runs part 6, 7 or 8 alone.
 """
 from __future__ import annotations
 
@@ -79,7 +79,7 @@ ELLIPSE_SIGMA_DEG = (1.5, 3.0)      # (φ, θ)
 #: speeds the POI's direction moves faster than the demo's 180°/s hold, which would keep the first levels).
 SWEEP_SACCADE_HOLD_DEG_S = 1e6
 #: The parts ``run_plod_bench(only=...)`` runs alone.
-PARTS = ("foveate", "raymask")
+PARTS = ("foveate", "raymask", "judge")
 
 _progress = progress("bench plod")
 
@@ -257,7 +257,8 @@ def _vdp_problem(vdp) -> str | None:
 
     for metric in vdp:
         if metric not in plod_judge.METRICS or not plod_judge.vdp_available(metric):
-            return f"--vdp {metric}: not one of {plod_judge.METRICS} installed; pip install -e '.[vdp]'"
+            return f"the judge's metric {metric} (--vdp): not one of {plod_judge.METRICS} installed; " \
+                   "pip install -e '.[vdp]'"
     return None
 
 
@@ -265,6 +266,7 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
                    only: str | None = None) -> int:
     """``headplod bench plod``: every part (module notes), or the one part ``only`` (:data:`PARTS`); the exit
     status. Prints the table and the goals; writes ``json_path``, ``chart_path`` and the pictures beside it."""
+    vdp = tuple(vdp) or (("fvvdp",) if only == "judge" else ())
     problem = _vdp_problem(vdp) if vdp else None
     if only is not None and only not in PARTS:
         problem = f"--only {only}: choose one of {', '.join(PARTS)}"
@@ -272,15 +274,14 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
         print(f"bench plod: {problem}", file=sys.stderr)
         return 2
     out_dir = Path(chart_path).parent if chart_path else None
+    biases = (-1.0, 0.0, 1.0) if quick else BIASES
     if only is not None:
-        report = image_side_parts(out_dir, quick, parts=(only,))[only]
-        print("\n".join(_image_side_lines(report if only == "foveate" else {}, report if only == "raymask" else {})))
+        report = _one_part(only, frames, quick, biases, vdp, chart_path)
         if json_path:
             write_json(json_path, report, default=float)
         return 0
     b = BenchScene(frames=frames)
     results, images = measure_modes(b)
-    biases = (-1.0, 0.0, 1.0) if quick else BIASES
     report = {"size": SIZE, "px_per_deg": b.px_per_deg, "modes": results,
               "curves": quality_curves(b, images["full"], biases=biases),
               "velocity_sweep": velocity_sweep(b, speeds=(0.0, 5.0, 50.0) if quick else SWEEP_SPEEDS_DEG_S),
@@ -302,8 +303,22 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
     return 0
 
 
+def _one_part(only: str, frames: int, quick: bool, biases, vdp, chart_path) -> dict:
+    """The part ``only`` alone (``--only``): its report, its summary printed."""
+    if only == "judge":
+        b = BenchScene(frames=frames)
+        try:
+            return _judge(b, None, biases, vdp, chart_path)
+        finally:
+            b.release()
+    report = image_side_parts(Path(chart_path).parent if chart_path else None, quick, parts=(only,))[only]
+    print("\n".join(_image_side_lines(report if only == "foveate" else {}, report if only == "raymask" else {})))
+    return report
+
+
 def _judge(b: BenchScene, reference, biases, metrics, chart_path) -> dict:
-    """Part 8 (``--vdp``): the judge's report, its table printed, its chart and heatmaps beside ``chart_path``."""
+    """Part 8 (``--vdp``): the judge's report (``reference``: full's image, None: rendered), its table
+    printed, its chart and heatmaps beside ``chart_path``."""
     from . import plod_judge
 
     jod = plod_judge.jod_report(b, reference, biases=biases, metrics=metrics, image_side=True, progress=_progress)

@@ -26,8 +26,7 @@ CSF form of ``csf``, each over a level bias, and the image-side techniques
 point's JOD against its frame time and its triangle count; then each
 CSF-based point against the best geometric curve at the same cost
 (:func:`compare_at_equal_time`). ``headplod bench plod --vdp`` runs it after
-the benchmark; ``headplod bench judge --modes csf,sse`` runs it alone on a
-few modes (:func:`run_judge_bench`). The metrics are an optional extra (``pip install -e
+the benchmark; ``headplod bench plod --only judge`` runs it alone. The metrics are an optional extra (``pip install -e
 '.[vdp]'``: PyTorch, its CPU build where the index offers it). Without it
 :func:`vdp_available` is False and ``headplod bench plod`` runs as before;
 the geometry, fixation and comparison need only numpy.
@@ -660,28 +659,3 @@ def write_heatmaps(bench, out_dir, modes=("csf", "sse"), settings: JudgeSettings
         write_png(Path(out_dir) / f"plod_jod_heatmap_{mode}.png", hm)
     return out
 
-
-def run_judge_bench(json_path=None, chart_path=None, modes=None, forms=None, biases=(-1.0, 0.0, 1.0),
-                    metrics=("fvvdp",), timing_rounds: int = 3, image_side: bool = True) -> int:
-    """``headplod bench judge``: render and judge ``modes`` and ``forms`` (None: all) over ``biases`` (levels) at
-    ``bench plod``'s default view; print the table, write JSON (``json_path``), the chart (``chart_path``) and
-    beside it the heatmaps; ``image_side``: also :data:`IMAGE_SIDE`. The exit status (2: a metric missing)."""
-    from .harness import BenchScene, progress
-    from .outputs import write_json
-
-    for m in metrics:
-        if m not in METRICS or not vdp_available(m):
-            print(f"bench judge: the metric {m!r} is not one of {METRICS} installed: pip install -e '.[vdp]'",
-                  file=sys.stderr)
-            return 2
-    bench = BenchScene()
-    report = jod_report(bench, modes=modes, forms=forms, biases=biases, metrics=metrics, timing_rounds=timing_rounds,
-                        image_side=image_side, progress=progress("bench judge"))
-    print(jod_table(report))
-    if chart_path:
-        jod_chart(report, chart_path)
-        report["heatmap_jod"] = write_heatmaps(bench, Path(chart_path).parent)
-    if json_path:
-        write_json(json_path, report, default=float)
-    bench.release()
-    return 0
