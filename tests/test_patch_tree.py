@@ -261,16 +261,18 @@ def test_hierarchy_is_watertight_on_the_scale_view(ctx430, default_screen):
 
 def test_hierarchy_renders_like_flat(ctx430, grid, default_screen):
     """Both paths draw the terrain; where the tree refines to leaves the frames agree within the disc."""
-    from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model, render_frame
+    from headplod.render.frame import TessellationBackend, one_frame
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
 
     model = grid_model(grid, default_screen)
-    images, stats = {}, {}
+    images = {}
     for hierarchy in (False, True):
         cfg = TessellationConfig(patch_samples=16, hierarchy=hierarchy)
         with TessellationRenderer(ctx430, grid, size=(320, 180), config=cfg) as r:
-            images[hierarchy], stats[hierarchy] = render_frame(r, default_screen, model, cov_deg2=COV, t=0.0)
-            again, st2 = render_frame(r, default_screen, model, cov_deg2=COV, t=1 / 60)
-        assert np.array_equal(images[hierarchy], again) and st2["triangles"] == stats[hierarchy]["triangles"] > 0
+            first = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=COV, t=0.0)
+            again = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=COV, t=1 / 60)
+        images[hierarchy] = first.image
+        assert np.array_equal(first.image, again.image) and again.triangles == first.triangles > 0
     diff = np.abs(images[True].astype(int) - images[False].astype(int))
     assert np.mean(diff) < 1.0
 

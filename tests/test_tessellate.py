@@ -194,16 +194,17 @@ def test_patches_are_watertight(ctx430, grid, default_screen, mode, poi_px, stag
 
 
 def test_still_view_gives_identical_frames(ctx430, grid, default_screen):
-    from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model, render_frame
+    from headplod.render.frame import TessellationBackend, one_frame
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
 
     cov = np.diag([0.05 ** 2] * 2)
     with TessellationRenderer(ctx430, grid, size=(320, 180), config=TessellationConfig(patch_samples=PATCH)) as r:
         model = grid_model(grid, default_screen)
-        a, sa = render_frame(r, default_screen, model, cov_deg2=cov, t=0.0)
-        b, sb = render_frame(r, default_screen, model, cov_deg2=cov, t=1 / 60)
-    assert sa["triangles"] == sb["triangles"] > 0
-    assert np.array_equal(a, b)
-    assert (a != np.array([158, 184, 209], np.uint8)).any(axis=-1).mean() > 0.3    # the terrain is in view
+        a = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=cov, t=0.0)
+        b = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=cov, t=1 / 60)
+    assert a.triangles == b.triangles > 0
+    assert np.array_equal(a.image, b.image)
+    assert (a.image != np.array([158, 184, 209], np.uint8)).any(axis=-1).mean() > 0.3    # the terrain is in view
 
 
 def test_many_patches_keep_their_ids(ctx430, default_screen):
@@ -293,7 +294,8 @@ def test_texture_shading_meets_the_full_detail_render(ctx430, default_screen):
     level's smoothed normals, not the average of the samples' shading."""
     from headplod.bench.image_metrics import disc_mask, psnr_db
     from headplod.render.still import px_per_deg_at
-    from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model, render_frame
+    from headplod.render.frame import TessellationBackend, one_frame
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
 
     terrain = Terrain.jacksboro(detail_min_wavelength_m=20.0)
     z, dx, dy = height_grid(terrain, 1025)
@@ -306,9 +308,10 @@ def test_texture_shading_meets_the_full_detail_render(ctx430, default_screen):
     for shading in ("texture", "vertex"):
         with TessellationRenderer(ctx430, fine, size=size, config=TessellationConfig(shading=shading)) as r:
             model = grid_model(fine, default_screen)
-            csf, st = render_frame(r, default_screen, model, cov_deg2=cov)
-            full, sf = render_frame(r, default_screen, model, cov_deg2=cov, mode="full")
-        assert st["triangles"] < sf["triangles"] / 4
+            out = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=cov)
+            ref = one_frame(TessellationBackend(r, "full"), default_screen, model, cov_deg2=cov)
+            csf, full = out.image, ref.image
+        assert out.triangles < ref.triangles / 4
         psnr[shading] = psnr_db(csf, full, disc)
     assert psnr["texture"] >= 45.0, psnr
     assert psnr["vertex"] < psnr["texture"] - 5, psnr
@@ -432,18 +435,21 @@ def test_shader_rule_equals_criteria_on_a_grid(ctx430, cov_deg2, shift):
 
 
 def test_uncertainty_none_ignores_the_covariance(ctx430, grid, default_screen):
-    """``render_frame(..., uncertainty="none")`` draws as without a covariance (the view is conditioned
-    first): a wide covariance changes the frame only under a scenario that uses it."""
-    from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model, render_frame
+    """Scenario ``none`` draws as without a covariance (the view is conditioned first): a wide covariance
+    changes the frame only under a scenario that uses it."""
+    from headplod.plod.select import SelectorConfig
+    from headplod.render.frame import TessellationBackend, one_frame
+    from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
 
     wide = np.diag([9.0, 9.0])
     with TessellationRenderer(ctx430, grid, size=(160, 90), config=TessellationConfig(patch_samples=PATCH)) as r:
         model = grid_model(grid, default_screen)
-        plain, s0 = render_frame(r, default_screen, model, cov_deg2=None)
-        none, s1 = render_frame(r, default_screen, model, cov_deg2=wide, uncertainty="none")
-        used, s2 = render_frame(r, default_screen, model, cov_deg2=wide, uncertainty="adaptive")
-    assert np.array_equal(plain, none) and s0["triangles"] == s1["triangles"]
-    assert s2["triangles"] > s1["triangles"]
+        plain = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=None)
+        none = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=wide,
+                         config=SelectorConfig(uncertainty="none"))
+        used = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=wide)
+    assert np.array_equal(plain.image, none.image) and plain.triangles == none.triangles
+    assert used.triangles > none.triangles
 
 
 def test_shader_culling_equals_the_clip_box_test(ctx430, grid, default_screen):

@@ -105,7 +105,9 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     from ..plod.select import SelectorConfig
     from ..render import TerrainRenderer, create_context, off_axis_projection
     from ..render.still import default_head
-    from ..render.tessellate import TessellationConfig, TessellationRenderer, grid_model, render_frame
+    from ..plod.view import View
+    from ..render.frame import FrameStep, TessellationBackend, one_frame
+    from ..render.tessellate import TessellationConfig, TessellationRenderer, grid_model
     from .image_metrics import psnr_db
 
     if backend not in BACKENDS:
@@ -134,11 +136,14 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
         tess = TessellationRenderer(ctx, grid, size=size, config=config,
                                     selection=SelectorConfig(level_bias=level_bias))
         extra["setup_s"] = time.perf_counter() - t_start
+        step = FrameStep(TessellationBackend(tess), screen, tess.selection)
         for k in range(frames + 1):
-            image, st = render_frame(tess, screen, model, head, poi, COV_DEG2, t=k / 60)
+            out = step(View(head, poi, COV_DEG2, k / 60), model)
             if k:
-                steady.append((st["select_ms"], st["render_ms"], st["triangles"], st["draw_calls"]))
-        extra["drawn_patches"] = int(st["patches"])
+                steady.append((out.stage_ms["select"], out.stage_ms["render"], out.triangles,
+                               out.details["draw_calls"]))
+        image = out.image
+        extra["drawn_patches"] = int(out.details["patches"])
         if tess.last_selection is not None and backend == "tessellation" and config.hierarchy:
             extra["nodes_evaluated"] = int(tess.last_selection.evaluated)
             extra["nodes_by_depth"] = np.bincount(tess.last_selection.depth, minlength=tess._tree.depth + 1).tolist()
@@ -178,10 +183,11 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
             patch_samples=MIN_PATCH_SAMPLES, shading="vertex" if backend == "full" else config.shading))
     # The references: every patch reaching the disc's box at the finest level, at 1 and 4x4 samples per pixel.
     t0 = time.perf_counter()
-    reference, ref_stats = render_frame(tess, screen, model, head, poi, COV_DEG2, mode="full", region_ndc=region)
+    ref = one_frame(TessellationBackend(tess, "full", region_ndc=region), screen, model, head, poi, COV_DEG2)
+    reference, ref_stats = ref.image, {"triangles": ref.triangles}
     extra["reference_s"] = time.perf_counter() - t0
-    reference_ss, _ = render_frame(tess, screen, model, head, poi, COV_DEG2, mode="full", region_ndc=region,
-                                   supersample=SUPERSAMPLE)
+    reference_ss = one_frame(TessellationBackend(tess, "full", region_ndc=region, supersample=SUPERSAMPLE), screen,
+                             model, head, poi, COV_DEG2).image
     select_ms, render_ms = (float(np.median([s[j] for s in steady])) for j in range(2))
     return {"backend": backend, "samples": n_samples, "level_bias": level_bias, "full_triangles": grid.full_triangles,
             "shading": "vertex" if backend == "full" else config.shading,

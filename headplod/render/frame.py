@@ -39,7 +39,7 @@ from .projection import off_axis_projection
 
 __all__ = ["NEAR_MM", "FAR_MM", "VIEW_MODES", "BACKENDS", "BackendCapabilities", "CAPABILITIES", "options_problem",
            "capability_table", "FrameOutput", "Backend", "MeshBackend", "TessellationBackend", "RayMaskBackend",
-           "FrameStep", "px_per_deg_at"]
+           "FrameStep", "one_frame", "px_per_deg_at"]
 
 #: Near and far planes of every frame's off-axis projection, mm from the eye.
 NEAR_MM, FAR_MM = 50.0, 5000.0
@@ -384,3 +384,19 @@ class FrameStep:
         if triangles is None:
             triangles = 0 if tri_levels is None else int(len(tri_levels))
         return FrameOutput(image, cv, self.levels, tri_levels, int(triangles), bool(held), stage, details)
+
+
+def one_frame(backend: Backend, screen, model, head_mm=None, poi_px=None, cov_deg2=None, *, t: float | None = 0.0,
+              config: SelectorConfig = SelectorConfig(), view_mode: str = "shaded") -> FrameOutput:
+    """One frame of a fresh :class:`FrameStep` over ``backend``: a still view, no history.
+
+    ``head_mm`` (3,) world mm (default 600 mm in front of the screen centre), ``poi_px`` (2,) screen px
+    (default the centre), ``cov_deg2`` (2, 2) deg² or None, ``t`` s (the back end keeps its own last
+    frame, e.g. for the tessellation's angular speeds), ``config`` the conditioning's settings.
+    """
+    from .still import default_head
+
+    head = default_head(screen) if head_mm is None else np.asarray(head_mm, dtype=np.float64)
+    poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
+    return FrameStep(backend, screen, config)(View(head, poi, cov_deg2, t), model, view_mode)
+

@@ -81,7 +81,7 @@ Frames and units: scene metres → world mm by ``model``; matrices as in
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -97,7 +97,7 @@ from . import tess_shaders as ts
 from .context import moderngl
 from .gl import _FRAGMENT_SHADER, FULLSCREEN_VERTEX_SHADER, read_rgb
 
-__all__ = ["TessellationConfig", "TessellationRenderer", "TESS_MODES", "REQUIRED_GL", "grid_model", "render_frame"]
+__all__ = ["TessellationConfig", "TessellationRenderer", "TESS_MODES", "REQUIRED_GL", "grid_model"]
 
 #: What the control shader computes: the CSF's levels, or every patch at the finest level (the reference).
 TESS_MODES = ("csf", "full")
@@ -631,43 +631,9 @@ class TessellationRenderer:
 
 
 def grid_model(grid: PatchGrid, screen, centre_z_m: float | None = None) -> np.ndarray:
-    """(4, 4) scene (m) → world (mm) of a grid placed as the built-in scene (:class:`TerrainScene`).
+    """(4, 4) scene (m) → world (mm) of a grid placed as the built-in scene: :func:`headplod.render.still.scene_model`
+    with the grid's extent and ``centre_z_m`` (default the median height of every 8th sample)."""
+    from .still import scene_model
 
-    The grid's centre (at height ``centre_z_m``, default the median height)
-    250 mm behind the screen, 0.02 mm per m, pitched 55°.
-    """
-    from .projection import scene_to_world
-    from .still import DEPTH_MM, PITCH_DEG, SCALE_MM_PER_M
-
-    x0, x1, y0, y1 = grid.extent
     cz = float(np.median(grid.heights_m[::8, ::8])) if centre_z_m is None else float(centre_z_m)
-    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, cz])
-    return np.asarray(scene_to_world(SCALE_MM_PER_M, centre, screen, depth_mm=DEPTH_MM, pitch_deg=PITCH_DEG).matrix,
-                      dtype=np.float64)
-
-
-def render_frame(renderer: TessellationRenderer, screen, model, head_mm=None, poi_px=None, cov_deg2=None, *,
-                 mode: str = "csf", t: float | None = None, region_ndc=None, supersample: int = 1,
-                 uncertainty: str = "adaptive"):
-    """One frame of a :class:`TessellationRenderer` from a head and a POI: (image (H, W, 3) uint8, stats dict).
-
-    ``head_mm`` (3,) world mm (default :func:`default_head`), ``poi_px`` (2,)
-    screen px (default the centre), ``cov_deg2`` (2, 2) deg², ``t`` s. The
-    view is conditioned by a fresh :class:`headplod.plod.view.ViewConditioner`
-    with the renderer's ``selection`` and the scenario ``uncertainty`` (one
-    view: the filters pass it unchanged; ``none`` drops the covariance). The
-    stats: ``triangles`` (generated), ``select_ms`` (the CPU's share:
-    uniforms, the levels pass and its read-back), ``render_ms``, ``draw_calls``.
-    """
-    from ..plod.view import View, ViewConditioner
-    from .projection import off_axis_projection
-    from .still import default_head
-
-    head = default_head(screen) if head_mm is None else np.asarray(head_mm, np.float64)
-    poi = np.array(screen.size_px, np.float64) / 2 if poi_px is None else np.asarray(poi_px, np.float64)
-    cv = ViewConditioner(screen, replace(renderer.selection, uncertainty=uncertainty))(View(head, poi, cov_deg2, t))
-    view, proj = off_axis_projection(cv.raw_eye_mm, screen, near_mm=50.0, far_mm=5000.0)
-    image = renderer.render(view, proj, model, cv, mode=mode, region_ndc=region_ndc, supersample=supersample)
-    return image, {"mode": mode, "triangles": renderer.last_triangles, "select_ms": renderer.last_setup_ms,
-                   "render_ms": renderer.last_render_ms, "draw_calls": renderer.last_draw_calls,
-                   "patches": renderer.last_nodes}
+    return scene_model(grid.extent, cz, screen)
