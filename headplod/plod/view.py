@@ -34,7 +34,7 @@ import numpy as np
 from ..filters import OneEuroFilter
 
 __all__ = ["UNCERTAINTY_MODES", "View", "ConditionedView", "UncertaintyPolicy", "ViewConditioner", "head_axes",
-           "poi_direction"]
+           "poi_direction", "default_head"]
 
 UNCERTAINTY_MODES = ("none", "fixed", "adaptive", "smoothed")
 """Which covariance the selection uses (:attr:`SelectorConfig.uncertainty`, :class:`UncertaintyPolicy`)."""
@@ -138,6 +138,18 @@ def head_axes(screen, eye_mm, poi_px) -> np.ndarray:
     xi = right - v * (right @ v)
     xi /= np.linalg.norm(xi)
     return np.stack([xi, np.cross(v, xi), v])
+
+
+def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
+    """(3,) world mm: the eye ``distance_mm`` in front of the screen centre, on the viewer's side (away from
+    the scene): the view a frame takes when no head is given."""
+    centre = screen.pixel_to_world(np.array(screen.size_px, dtype=np.float64) / 2.0)
+    normal = np.cross(np.asarray(screen.top_right) - screen.top_left, np.asarray(screen.bottom_left) - screen.top_left)
+    normal /= np.linalg.norm(normal)
+    # The cameras (world origin) are on the viewer's side of the screen.
+    if normal @ (np.zeros(3) - centre) < 0:
+        normal = -normal
+    return centre + distance_mm * normal
 
 
 def poi_direction(screen, eye_mm, poi_px) -> np.ndarray:

@@ -26,7 +26,7 @@ from ..plod.mesh_base import FULL_MAX_LEVEL
 from ..plod.raymask import RayMaskConfig
 from ..plod.select import LevelSelector, SelectorConfig
 from ..plod.terrain import Terrain
-from ..plod.view import View
+from ..plod.view import View, default_head  # noqa: F401 (default_head: the scene's default eye, re-exported)
 from .context import create_context
 from .foveate import FoveatedRenderer, LayerAnchor
 from .frame import px_per_deg_at
@@ -276,15 +276,6 @@ def fit_scale(terrain) -> float:
     return FRAME_SPAN_M / max(x1 - x0, y1 - y0, 2.0 * relief)
 
 
-def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
-    """The eye 600 mm in front of the screen centre, on the viewer's side (away from the scene)."""
-    centre = screen.pixel_to_world(np.array(screen.size_px, dtype=np.float64) / 2.0)
-    normal = np.cross(np.asarray(screen.top_right) - screen.top_left, np.asarray(screen.bottom_left) - screen.top_left)
-    normal /= np.linalg.norm(normal)
-    # The cameras (world origin) are on the viewer's side of the screen.
-    if normal @ (np.zeros(3) - centre) < 0:
-        normal = -normal
-    return centre + distance_mm * normal
 
 
 def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_px=None, cov_deg2=None,
