@@ -1,4 +1,4 @@
-"""Perceptual level of detail, pure numpy: contrast sensitivity, level selection, the terrain and its meshes.
+"""Perceptual level of detail, pure numpy: the view conditioning, the criteria, level selection, the terrain, its meshes.
 
 - :mod:`.view`: the one view-conditioning step per frame (:class:`~.view.ConditionedView`).
 - :mod:`.csf`, :mod:`.perception`: the contrast sensitivity and the papers' perceptual rules;

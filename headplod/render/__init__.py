@@ -1,4 +1,4 @@
-"""Offscreen rendering of the terrain with head-coupled perspective.
+"""Offscreen rendering of the terrain: the one PLOD frame step (condition, select, draw) and its back ends.
 
 - :mod:`.context`: a headless OpenGL context (EGL).
 - :mod:`.projection`: frames, units, the matrix convention (column vectors,
