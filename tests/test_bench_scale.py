@@ -6,6 +6,7 @@ reports its own peak memory, and the goals are computed from the cases.
 """
 import json
 
+import numpy as np
 import pytest
 
 from headplod.bench import plod_scale
@@ -57,3 +58,31 @@ def test_goals_follow_the_cases(report):
     assert growth["value"] == pytest.approx(big["select_ms"] / small["select_ms"])
     fps = next(g for name, g in goals.items() if "fps" in name)
     assert fps["value"] == pytest.approx(big["fps"]) and fps["met"] == (big["fps"] >= plod_scale.GOAL_FPS)
+
+
+def test_a_case_runs_in_a_fresh_process_and_its_errors_come_back():
+    import os
+
+    held = np.ones(2 ** 28 // 8)                       # 256 MB resident here: the child must not count it
+    pid, peak_mb = plod_scale.in_own_process(_pid_and_peak)
+    assert pid != os.getpid()
+    assert peak_mb < plod_scale.peak_rss_mb() - 200 and held[-1] == 1
+    with pytest.raises(ValueError, match="backend must be one of"):
+        plod_scale.in_own_process(plod_scale.run_case, "no_such_backend", 257)
+    failed = plod_scale._run_isolated("no_such_backend", 257, 1, None)
+    assert not failed["ok"] and failed["reason"].startswith("ValueError")
+
+
+def test_no_hidden_entry_points():
+    from pathlib import Path
+
+    folder = Path(plod_scale.__file__).parent
+    for name in ("plod_scale", "plod_lazy", "plod_quadtree"):
+        text = (folder / f"{name}.py").read_text()
+        assert "__main__" not in text and "subprocess" not in text, name
+
+
+def _pid_and_peak():
+    import os
+
+    return os.getpid(), plod_scale.peak_rss_mb()

@@ -1,7 +1,8 @@
 """``headplod bench plod --scale``: PLOD's cost against the terrain's size (issue 14).
 
 One viewpoint (the embedded 24-inch screen, the head 60 cm in front of its
-centre, the POI at the centre, the tracker's σ of 0.05°), 1280x720
+centre, the POI at the centre, the tracker's covariance
+:data:`headplod.bench.harness.TRACKER_COV_DEG2`), 1280x720
 offscreen, over terrains of 2, 8, 32 and 134 million triangles at full
 detail: the built-in DEM (``Terrain.jacksboro()``) with its synthetic
 detail, sampled on grids of 1025², 2049², 4097² and 8193² samples (the
@@ -25,8 +26,9 @@ Back ends:
   per vertex and 12 per triangle), where it fits (by default up to 2049²:
   4097² needs about 1.6 GB of buffers before llvmpipe's copies).
 
-Each (back end, terrain) runs in its own process, so its peak resident
-memory (``ru_maxrss``) is its own: the cached grid loaded, the patch grid,
+Each (back end, terrain) runs in its own process (:func:`in_own_process`:
+multiprocessing's ``spawn``, a new interpreter calling :func:`run_case`),
+so its peak resident memory (:func:`peak_rss_mb`) is its own: the cached grid loaded, the patch grid,
 the GL objects, the frames. Per case: the median over ``frames`` steady
 frames of the frame time (selection + draw, no read-back), the selection
 time (the CPU's share before drawing: for ``tessellation`` the uniforms and
@@ -42,17 +44,16 @@ fit), with the case's own shading (the tessellation's default ``texture``;
 """
 from __future__ import annotations
 
-import json
 import resource
-from dataclasses import replace
-import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-SIZE = (1280, 720)
+from .harness import DEFAULT_SCREEN, DISC_DEG, FRAME_DT_S, SIZE, TRACKER_COV_DEG2
+
 SCALE_SAMPLES = (1025, 2049, 4097, 8193)
 QUICK_SAMPLES = (1025, 2049)
 BACKENDS = ("tessellation", "full")
@@ -63,12 +64,10 @@ FULL_MAX_SAMPLES = 2049
 #: Patch size of the scale runs, samples: the finest level has a vertex per sample.
 MIN_PATCH_SAMPLES = 64
 #: Patch sizes tried on the largest terrain: larger patches mean fewer patches for the levels pass and the
-#: draw (each drawn patch costs ~2.4 µs on llvmpipe beside its triangles; the levels pass ~0.3 µs a patch),
+#: draw (each drawn patch has a cost of its own beside its triangles, and so has its levels pass),
 #: but coarser adaptation (a patch's inner level is its nearest point's), so more triangles. The finest level
 #: of a patch of P samples has a vertex every P / 64 samples (8193²: 0.18 px per sample here).
 SWEEP_PATCH_SAMPLES = (64, 128, 256, 512)
-DISC_DEG = 5.0
-COV_DEG2 = np.diag([0.05 ** 2, 0.05 ** 2])
 #: The second reference: the same full-detail region drawn at 4x4 the pixels and averaged down.
 SUPERSAMPLE = 4
 GOAL_FPS = 15.0
@@ -91,6 +90,162 @@ def _disc_region(screen, head, size):
     return disc, (-rx, -ry, rx, ry), ppd
 
 
+def peak_rss_mb() -> float:
+    """This process's peak resident memory, MB: its address space's high-water mark (``VmHWM``).
+
+    Not ``ru_maxrss``: Linux keeps that across ``execve``, so a process started from a large one would
+    report its parent's peak. Falls back to ``ru_maxrss`` where ``/proc`` has no ``VmHWM``.
+    """
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def in_own_process(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` in a fresh process; its result.
+
+    The process is multiprocessing's ``spawn`` (a new interpreter, not a fork of this one), so its
+    peak resident memory (:func:`peak_rss_mb`) is its own. ``fn`` and its arguments and result are pickled.
+    An exception in ``fn`` is raised here; a process that dies (e.g. killed for memory) raises
+    :class:`RuntimeError`.
+    """
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        try:
+            return pool.submit(fn, *args, **kwargs).result()
+        except BrokenProcessPool as exc:
+            raise RuntimeError(f"the process of {getattr(fn, '__name__', fn)} died ({exc})") from exc
+
+
+def _make_grid(n_samples: int, cache_dir) -> None:
+    """Make (and cache) the terrain grid of ``n_samples`` per side (:func:`headplod.plod.patches.jacksboro_grid`)."""
+    from ..plod.patches import jacksboro_grid
+
+    jacksboro_grid(n_samples, cache_dir)
+
+
+def _patch_grid(n_samples: int, size, cache_dir, patch_samples, hierarchy, split_factor):
+    """The cached terrain grid and its patches: ((z, dx, dy, origin), PatchGrid, patch samples, TessellationConfig).
+
+    Default patches: the flat grid's as large as the image can use (the render command's rule); the
+    tree's leaves keep one vertex per sample at the finest level.
+    """
+    from ..plod.patches import PatchGrid, jacksboro_grid, patch_samples_for
+    from ..render.tessellate import TessellationConfig
+
+    z, dx, dy, origin = jacksboro_grid(n_samples, cache_dir)
+    tree = bool(TessellationConfig().hierarchy if hierarchy is None else hierarchy)
+    p = (int(patch_samples) if patch_samples is not None else MIN_PATCH_SAMPLES if tree
+         else patch_samples_for(n_samples, max(size), smallest=MIN_PATCH_SAMPLES))
+    grid = PatchGrid.build(z, dx, dy, p, origin_m=origin)
+    config = TessellationConfig(patch_samples=p)
+    if hierarchy is not None or split_factor is not None:
+        config = replace(config, **({} if hierarchy is None else {"hierarchy": bool(hierarchy)}),
+                         **({} if split_factor is None else {"split_factor": int(split_factor)}))
+    return (z, dx, dy, origin), grid, p, config
+
+
+def _tessellation_frames(tess, screen, model, frames, extra):
+    """The frames of ``tess`` (a TessellationRenderer) through the frame step: (steady rows, last image).
+
+    A steady row: (select ms, render ms, triangles, draw calls) of each frame after the first;
+    ``extra`` gets the drawn patches and, for the tree, its nodes.
+    """
+    from ..plod.view import View
+    from ..render.frame import FrameStep, TessellationBackend
+    from ..render.still import default_head
+
+    head, poi = default_head(screen), np.array(screen.size_px, float) / 2
+    step = FrameStep(TessellationBackend(tess), screen, tess.selection)
+    steady = []
+    for k in range(frames + 1):                     # loop over frames: the first is the warm-up
+        out = step(View(head, poi, TRACKER_COV_DEG2, k * FRAME_DT_S), model)
+        if k:
+            steady.append((out.stage_ms["select"], out.stage_ms["render"], out.triangles,
+                           out.details["draw_calls"]))
+    extra["drawn_patches"] = int(out.details["patches"])
+    if tess.last_selection is not None and tess.config.hierarchy:
+        extra["nodes_evaluated"] = int(tess.last_selection.evaluated)
+        extra["nodes_by_depth"] = np.bincount(tess.last_selection.depth, minlength=tess._tree.depth + 1).tolist()
+        extra["capped"] = int(tess.last_selection.capped)
+    return steady, out.image
+
+
+def _full_mesh(ctx, grid, size):
+    """The whole grid as one indexed mesh in a :class:`TerrainRenderer` (24 bytes a vertex, 12 a triangle)."""
+    from ..plod.patches import grid_normals
+    from ..render import TerrainRenderer
+
+    n = grid.heights_m.shape[0]
+    xs = grid.origin_m[0] + np.arange(n, dtype=np.float64) * grid.dx_m
+    ys = grid.origin_m[1] + np.arange(n, dtype=np.float64) * grid.dy_m
+    positions = np.empty((n, n, 3), np.float32)
+    positions[..., 0], positions[..., 1], positions[..., 2] = xs[None, :], ys[:, None], grid.heights_m
+    normals = grid_normals(grid.heights_m, grid.dx_m, grid.dy_m)
+    i = (np.arange(n - 1, dtype=np.uint32)[:, None] * n + np.arange(n - 1, dtype=np.uint32)[None, :]).ravel()
+    indices = np.empty((len(i), 6), np.uint32)
+    for col, off in enumerate((0, 1, n + 1, 0, n + 1, n)):
+        indices[:, col] = i + off
+    del i
+    mesh = TerrainRenderer(ctx, size=size)
+    mesh.upload(positions.reshape(-1, 3), normals.reshape(-1, 3), indices=indices.reshape(-1, 3))
+    mesh.height_range = (float(grid.heights_m.min()), float(grid.heights_m.max()))     # as the tessellation's
+    return mesh
+
+
+def _full_frames(mesh, ctx, screen, model, frames):
+    """The full mesh's frames from the default head: (steady rows as the tessellation's, last image)."""
+    from ..render import off_axis_projection
+    from ..render.frame import FAR_MM, NEAR_MM
+    from ..render.still import default_head
+
+    view, proj = off_axis_projection(default_head(screen), screen, near_mm=NEAR_MM, far_mm=FAR_MM)
+    query = ctx.query(primitives=True)
+    steady = []
+    for k in range(frames + 1):                     # loop over frames: the first is the warm-up
+        with query:
+            image = mesh.render(view, proj, model)
+        if k:
+            steady.append((0.0, mesh.last_render_ms, int(query.primitives), 1))
+    return steady, image
+
+
+def _references(ctx, terrain, tess, backend, config, p, screen, model, size, region, extra):
+    """The full-detail references of the disc's box, at 1 and 4x4 samples per pixel: (image, image, triangles).
+
+    Drawn by the tessellation back end at its finest level, every patch reaching the box; with patches of
+    one vertex per sample (made anew unless the case's are those), shaded per vertex for ``full``.
+    """
+    from ..plod.patches import PatchGrid
+    from ..render.frame import TessellationBackend, one_frame
+    from ..render.still import default_head
+    from ..render.tessellate import TessellationConfig, TessellationRenderer
+
+    if backend == "full" or p != MIN_PATCH_SAMPLES:
+        if tess is not None:
+            tess.release()
+        z, dx, dy, origin = terrain
+        fine = PatchGrid.build(z, dx, dy, MIN_PATCH_SAMPLES, origin_m=origin)
+        shading = "vertex" if backend == "full" else config.shading
+        tess = TessellationRenderer(ctx, fine, size=size, config=TessellationConfig(
+            patch_samples=MIN_PATCH_SAMPLES, shading=shading))
+    head, poi = default_head(screen), np.array(screen.size_px, float) / 2
+    t0 = time.perf_counter()
+    ref = one_frame(TessellationBackend(tess, "full", region_ndc=region), screen, model, head, poi, TRACKER_COV_DEG2)
+    extra["reference_s"] = time.perf_counter() - t0
+    ss = one_frame(TessellationBackend(tess, "full", region_ndc=region, supersample=SUPERSAMPLE), screen, model,
+                   head, poi, TRACKER_COV_DEG2)
+    return ref.image, ss.image, ref.triangles
+
+
 def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir=None, level_bias: float = 0.0,
              patch_samples: int | None = None, hierarchy: bool | None = None, split_factor: int | None = None) -> dict:
     """One (back end, terrain) measured in this process; the result dict (see the module notes).
@@ -98,96 +253,36 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     The frames come first and the peak memory is read after them; the references (drawn by the
     tessellation back end, the supersampled one in a 4x4 larger framebuffer) come after.
     """
-    from calib import DEFAULT_SCREEN
-
     from .. import io
-    from ..plod.patches import PatchGrid, grid_normals, jacksboro_grid, patch_samples_for
     from ..plod.select import SelectorConfig
-    from ..render import TerrainRenderer, create_context, off_axis_projection
+    from ..render import create_context
     from ..render.still import default_head
-    from ..plod.view import View
-    from ..render.frame import FrameStep, TessellationBackend, one_frame
-    from ..render.tessellate import TessellationConfig, TessellationRenderer, grid_model
+    from ..render.tessellate import TessellationRenderer, grid_model
     from .image_metrics import psnr_db
 
     if backend not in BACKENDS:
         raise ValueError(f"run_case: backend must be one of {BACKENDS}, got {backend!r}")
     t_start = time.perf_counter()
-    z, dx, dy, origin = jacksboro_grid(n_samples, cache_dir)
+    terrain, grid, p, config = _patch_grid(n_samples, size, cache_dir, patch_samples, hierarchy, split_factor)
     screen = io.read_screen(DEFAULT_SCREEN)
-    head = default_head(screen)
-    poi = np.array(screen.size_px, float) / 2
-    view, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
-    disc, region, _ = _disc_region(screen, head, size)
+    disc, region, _ = _disc_region(screen, default_head(screen), size)
     ctx = create_context(require=430)
-    tree = bool(TessellationConfig().hierarchy if hierarchy is None else hierarchy)
-    # Default patches: the flat grid's as large as the image can use (the render command's rule); the tree's
-    # leaves keep one vertex per sample at the finest level.
-    p = (int(patch_samples) if patch_samples is not None else MIN_PATCH_SAMPLES if tree
-         else patch_samples_for(n_samples, max(size), smallest=MIN_PATCH_SAMPLES))
-    grid = PatchGrid.build(z, dx, dy, p, origin_m=origin)
     model = grid_model(grid, screen)
-    config = TessellationConfig(patch_samples=p)
-    if hierarchy is not None or split_factor is not None:
-        config = replace(config, **({} if hierarchy is None else {"hierarchy": bool(hierarchy)}),
-                         **({} if split_factor is None else {"split_factor": int(split_factor)}))
-    steady, extra = [], {}
+    extra, tess = {}, None
     if backend == "tessellation":
         tess = TessellationRenderer(ctx, grid, size=size, config=config,
                                     selection=SelectorConfig(level_bias=level_bias))
         extra["setup_s"] = time.perf_counter() - t_start
-        step = FrameStep(TessellationBackend(tess), screen, tess.selection)
-        for k in range(frames + 1):
-            out = step(View(head, poi, COV_DEG2, k / 60), model)
-            if k:
-                steady.append((out.stage_ms["select"], out.stage_ms["render"], out.triangles,
-                               out.details["draw_calls"]))
-        image = out.image
-        extra["drawn_patches"] = int(out.details["patches"])
-        if tess.last_selection is not None and backend == "tessellation" and config.hierarchy:
-            extra["nodes_evaluated"] = int(tess.last_selection.evaluated)
-            extra["nodes_by_depth"] = np.bincount(tess.last_selection.depth, minlength=tess._tree.depth + 1).tolist()
-            extra["capped"] = int(tess.last_selection.capped)
+        steady, image = _tessellation_frames(tess, screen, model, frames, extra)
     else:
-        n = grid.heights_m.shape[0]
-        xs = grid.origin_m[0] + np.arange(n, dtype=np.float64) * grid.dx_m
-        ys = grid.origin_m[1] + np.arange(n, dtype=np.float64) * grid.dy_m
-        positions = np.empty((n, n, 3), np.float32)
-        positions[..., 0], positions[..., 1], positions[..., 2] = xs[None, :], ys[:, None], grid.heights_m
-        normals = grid_normals(grid.heights_m, grid.dx_m, grid.dy_m)
-        i = (np.arange(n - 1, dtype=np.uint32)[:, None] * n + np.arange(n - 1, dtype=np.uint32)[None, :]).ravel()
-        indices = np.empty((len(i), 6), np.uint32)
-        for col, off in enumerate((0, 1, n + 1, 0, n + 1, n)):
-            indices[:, col] = i + off
-        del i
-        mesh = TerrainRenderer(ctx, size=size)
-        mesh.upload(positions.reshape(-1, 3), normals.reshape(-1, 3), indices=indices.reshape(-1, 3))
-        mesh.height_range = (float(grid.heights_m.min()), float(grid.heights_m.max()))     # as the tessellation's
-        del positions, normals, indices
+        mesh = _full_mesh(ctx, grid, size)
         extra["setup_s"] = time.perf_counter() - t_start
-        query = ctx.query(primitives=True)
-        for k in range(frames + 1):
-            with query:
-                image = mesh.render(view, proj, model)
-            if k:
-                steady.append((0.0, mesh.last_render_ms, int(query.primitives), 1))
-    rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        steady, image = _full_frames(mesh, ctx, screen, model, frames)
+    rss_mb = peak_rss_mb()
     if backend == "full":
         mesh.release()
-    if backend == "full" or p != MIN_PATCH_SAMPLES:      # the reference needs patches of one vertex per sample
-        if backend == "tessellation":
-            tess.release()
-        fine = PatchGrid.build(z, dx, dy, MIN_PATCH_SAMPLES, origin_m=origin)
-        # ``full``'s mesh shades per vertex: its reference does too.
-        tess = TessellationRenderer(ctx, fine, size=size, config=TessellationConfig(
-            patch_samples=MIN_PATCH_SAMPLES, shading="vertex" if backend == "full" else config.shading))
-    # The references: every patch reaching the disc's box at the finest level, at 1 and 4x4 samples per pixel.
-    t0 = time.perf_counter()
-    ref = one_frame(TessellationBackend(tess, "full", region_ndc=region), screen, model, head, poi, COV_DEG2)
-    reference, ref_stats = ref.image, {"triangles": ref.triangles}
-    extra["reference_s"] = time.perf_counter() - t0
-    reference_ss = one_frame(TessellationBackend(tess, "full", region_ndc=region, supersample=SUPERSAMPLE), screen,
-                             model, head, poi, COV_DEG2).image
+    reference, reference_ss, ref_triangles = _references(ctx, terrain, tess, backend, config, p, screen, model, size,
+                                                         region, extra)
     select_ms, render_ms = (float(np.median([s[j] for s in steady])) for j in range(2))
     return {"backend": backend, "samples": n_samples, "level_bias": level_bias, "full_triangles": grid.full_triangles,
             "shading": "vertex" if backend == "full" else config.shading,
@@ -197,19 +292,20 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
             "fps": 1e3 / (select_ms + render_ms), "triangles": int(steady[-1][2]), "draw_calls": int(steady[-1][3]),
             "rss_mb": rss_mb, "psnr_disc_5deg_db": psnr_db(image, reference, disc),
             "psnr_disc_5deg_ssaa_db": psnr_db(image, reference_ss, disc),
-            "reference_triangles": ref_stats["triangles"], **extra,
+            "reference_triangles": ref_triangles, **extra,
             "select_ms_all": [s[0] for s in steady], "render_ms_all": [s[1] for s in steady]}
 
 
-def _run_in_subprocess(backend: str, n_samples: int, frames: int, cache_dir, patch_samples=None,
-                       selection: str | None = None) -> dict:
-    cmd = [sys.executable, "-m", "headplod.bench.plod_scale", backend, str(n_samples), str(frames),
-           "-" if cache_dir is None else str(cache_dir), "0", str(patch_samples or "-"), selection or "-"]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    if proc.returncode != 0:
-        return {"backend": backend, "samples": n_samples, "ok": False,
-                "reason": (proc.stderr.strip().splitlines() or ["exit status %d" % proc.returncode])[-1]}
-    return {**json.loads(proc.stdout.strip().splitlines()[-1]), "ok": True}
+def _run_isolated(backend: str, n_samples: int, frames: int, cache_dir, patch_samples=None,
+                  selection: str | None = None) -> dict:
+    """:func:`run_case` in its own process (:func:`in_own_process`); ``ok`` False with the reason if it failed."""
+    hierarchy = {"tree": True, "flat": False, None: None}[selection]
+    try:
+        result = in_own_process(run_case, backend, n_samples, frames, cache_dir=cache_dir,
+                                patch_samples=patch_samples, hierarchy=hierarchy)
+    except Exception as exc:                      # the case's failure is its row, not the report's end
+        return {"backend": backend, "samples": n_samples, "ok": False, "reason": f"{type(exc).__name__}: {exc}"}
+    return {**result, "ok": True}
 
 
 def scale_report(samples=SCALE_SAMPLES, frames: int = 9, full_max_samples: int = FULL_MAX_SAMPLES,
@@ -226,8 +322,7 @@ def scale_report(samples=SCALE_SAMPLES, frames: int = 9, full_max_samples: int =
     say = progress or (lambda text: None)
     for n in samples:                         # make the grids first: their generation is not any case's memory
         say(f"terrain grid {n}x{n}")
-        subprocess.run([sys.executable, "-c", f"from headplod.plod.patches import jacksboro_grid; "
-                        f"jacksboro_grid({n}, {repr(str(cache_dir)) if cache_dir else None})"], check=True)
+        in_own_process(_make_grid, n, cache_dir)
     cases = []
     for n in samples:
         for backend in BACKENDS:
@@ -238,7 +333,7 @@ def scale_report(samples=SCALE_SAMPLES, frames: int = 9, full_max_samples: int =
                 continue
             for selection in (selections if backend == "tessellation" else (None,)):
                 say(f"{backend}{'' if selection is None else ' (' + selection + ')'} on {n}x{n}")
-                cases.append(_run_in_subprocess(backend, n, frames, cache_dir, selection=selection))
+                cases.append(_run_isolated(backend, n, frames, cache_dir, selection=selection))
                 say("  " + _row(cases[-1]))
     sweep = []
     if patch_sweep:
@@ -247,10 +342,10 @@ def scale_report(samples=SCALE_SAMPLES, frames: int = 9, full_max_samples: int =
         for p in SWEEP_PATCH_SAMPLES:
             if p != default_p and (max(samples) - 1) % p == 0:
                 say(f"tessellation on {max(samples)}x{max(samples)}, patches of {p} samples")
-                sweep.append(_run_in_subprocess("tessellation", max(samples), frames, cache_dir, p, selection="flat"))
+                sweep.append(_run_isolated("tessellation", max(samples), frames, cache_dir, p, selection="flat"))
                 say("  " + _row(sweep[-1]))
     return {"size": list(SIZE), "patch_samples": "flat: patches.patch_samples_for(samples, 1280); tree: leaves of 64",
-            "cov_deg2": COV_DEG2.tolist(), "cases": cases,
+            "cov_deg2": TRACKER_COV_DEG2.tolist(), "cases": cases,
             "patch_sweep": sweep, "goals": _goals(cases, samples)}
 
 
@@ -362,14 +457,3 @@ def run_scale_bench(json_path=None, chart_path=None, quick: bool = False) -> int
     if chart_path:
         _chart(report, chart_path)
     return 0
-
-
-if __name__ == "__main__":  # one case (scale_report's subprocesses): BACKEND SAMPLES FRAMES [CACHE_DIR [BIAS [PATCH [tree|flat [SPLIT]]]]]; "-" = default
-    _backend, _n, _frames = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
-    _cache = sys.argv[4] if len(sys.argv) > 4 and sys.argv[4] != "-" else None
-    _arg = (lambda k: sys.argv[k] if len(sys.argv) > k and sys.argv[k] != "-" else None)
-    _result = run_case(_backend, _n, _frames, cache_dir=_cache, level_bias=float(_arg(5) or 0.0),
-                       patch_samples=int(_arg(6)) if _arg(6) else None,
-                       hierarchy={"tree": True, "flat": False, None: None}[_arg(7)],
-                       split_factor=int(_arg(8)) if _arg(8) else None)
-    print(json.dumps(_result))
