@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from headplod.bench.harness import TRACKER_COV_DEG2
 from headplod.bench.quadtree_selector import scene_quadtree_selector
 from headplod.plod.lazy_mesh import LazyAdaptiveMesh
 from headplod.plod.mesh import AdaptiveMesh, BaseMesh
@@ -76,7 +77,7 @@ def test_equals_adaptive_mesh_on_the_built_in_scene():
         np.testing.assert_array_equal(getattr(adaptive, name), getattr(lazy, name), err_msg=name)
     selector = scene_quadtree_selector(scene, "csf", "adaptive")
     levels, _ = selector.select(View(default_head(screen), np.array(screen.size_px, dtype=np.float64) / 2,
-                                     np.diag([0.05 ** 2] * 2), 0.0))
+                                     TRACKER_COV_DEG2, 0.0))
     assert len(np.unique(levels)) >= 4                          # neighbours at mixed levels
     for lv in (levels, _selections(adaptive.n_faces, 5, seed=3)[3]):
         adaptive.clear()
@@ -235,7 +236,7 @@ def test_level_8_default_view_builds_within_the_budget():
     head, poi = default_head(screen), np.array(screen.size_px, dtype=np.float64) / 2
     for bias in (0.0, 3.0):
         selector = scene_quadtree_selector(scene, "csf", "adaptive", level_bias=bias)
-        levels, _ = selector.select(View(head, poi, np.diag([0.05 ** 2] * 2), 0.0))
+        levels, _ = selector.select(View(head, poi, TRACKER_COV_DEG2, 0.0))
         positions, normals, tri_levels = lazy.update(levels)
         assert len(tri_levels) == lazy.triangle_count(levels) > 0
         assert lazy.cache_bytes <= budget
@@ -261,3 +262,24 @@ def test_rebuilds_only_faces_whose_case_changed(pair):
         adaptive.clear()
         for x, y in zip(adaptive.update(levels), b):
             np.testing.assert_array_equal(x, y)
+
+
+def test_the_lazy_bench_frames_are_the_frame_steps(gl_context, default_screen):
+    """bench plod --only lazy: each frame through FrameStep over the mesh back end with the quadtree
+    selector, the figures from its stages; a still scene's later frames reuse the cached pieces."""
+    from headplod.bench.plod_lazy import WARM_KEYS, run_frames
+    from headplod.render import TerrainRenderer
+    from headplod.render.still import TerrainScene
+
+    scene = TerrainScene.build(default_screen, max_level=0)
+    scene.mesh = LazyAdaptiveMesh(BaseMesh.grid(scene.terrain), scene.terrain, max_level=6)
+    renderer = TerrainRenderer(gl_context, size=(160, 90))
+    try:
+        out = run_frames(scene, renderer, default_screen, frames=2)
+    finally:
+        renderer.release()
+    cold, warm = out["cold"], out["warm_median"]
+    assert set(WARM_KEYS) <= set(warm) and cold["triangles"] == sum(cold["per_level"]) > 2048
+    assert cold["generated_pieces"] > 0 and cold["nodes_visited"] > 0 and not cold["held"]
+    assert cold["build_ms"] > 0 and cold["upload_ms"] > 0 and cold["render_ms"] > 0
+    assert out["peak_rss_mb"] >= out["rss_mb"] * 0.9 > 0

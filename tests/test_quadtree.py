@@ -180,3 +180,15 @@ def test_cost_follows_what_is_seen_on_a_fine_grid(default_screen):
         np.testing.assert_array_equal(flat.select(view)[0], tree.select(view)[0])
         st = tree.last_stats
         assert st["nodes_visited"] < 0.2 * F and st["triangles_evaluated"] < 0.2 * F, st
+
+
+def test_the_selection_bench_runs_both_selectors_through_frame_steps(default_screen):
+    """bench plod --only quadtree on the smallest grid: the frame step's select stage of each selector,
+    the same levels on every frame."""
+    from headplod.bench.plod_quadtree import selection_scaling
+
+    report = selection_scaling((32,), frames=3, screen=default_screen, deep=())
+    (row,) = report["rows"]
+    assert row["mismatched_levels"] == 0 and row["levels_above_0"] > 0
+    assert row["flat_ms"] > 0 and row["quadtree_ms"] > 0 and 0 < row["nodes_visited"] <= row["tree_nodes"]
+    assert report["growth_2M_to_128M"] == {"256x256_level5": None, "32x32_level8": None}

@@ -3,7 +3,7 @@
     headplod bench track [--json FILE] [--chart FILE.png] [--quick] [--sets A,B]
     headplod bench uncertainty [--json FILE] [--chart FILE.png] [--quick]
     headplod bench plod [--json FILE] [--chart FILE.png] [--quick] [--vdp [fvvdp,cvvdp]] [--scale]
-                        [--only foveate|raymask|judge]
+                        [--only foveate|raymask|judge|lazy|quadtree]
     headplod bench stability [--frames N] [--distance MM] [--seed S] [--modes M,..|all] [--json FILE] [--chart FILE.png]
     headplod bench live [--source SPEC] [--json FILE] [--repeats N]
     headplod bench paper [--json FILE] [--chart FILE.png] [--quick] [--noise-deg S]
@@ -63,10 +63,13 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bp.add_argument("--scale", action="store_true",
                     help="instead: cost against terrain size (2M-134M triangles), tessellation back end and full "
                          "(headplod.bench.plod_scale)")
-    bp.add_argument("--only", choices=("foveate", "raymask", "judge"),
+    bp.add_argument("--only", choices=("foveate", "raymask", "judge") + tuple(_PLOD_PARTS),
                     help="instead: only the foveated layers' part (headplod.bench.plod_foveate), the ray mask's "
                          "(headplod.bench.plod_raymask) or the perceptual judge's (--vdp's metrics, default "
-                         "fvvdp); --json gets its report, its charts and pictures go into the folder of --chart")
+                         "fvvdp); --json gets its report, its charts and pictures go into the folder of --chart. "
+                         "Or: lazy, the level-8 lazy mesh against the level-5 one, each in its own process "
+                         "(headplod.bench.plod_lazy); quadtree, the flat against the quadtree selection's time on "
+                         "base grids of 32² to 512² quads (headplod.bench.plod_quadtree; --chart: its chart)")
 
     bs = bench_sub.add_parser("stability", help="level changes per frame of a still head through the real tracker, "
                                                 "against the true pose")
@@ -101,10 +104,26 @@ def _uncertainty(args) -> int:
     return uncertainty.run_uncertainty_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
 
 
+def _plod_lazy(args) -> int:
+    from . import plod_lazy
+    return plod_lazy.run_lazy_bench(json_path=args.json, quick=args.quick)
+
+
+def _plod_quadtree(args) -> int:
+    from . import plod_quadtree
+    return plod_quadtree.run_quadtree_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
+
+
+#: ``headplod bench plod --only NAME`` for the parts that are benchmarks of their own (not in ``bench.plod``).
+_PLOD_PARTS = {"lazy": _plod_lazy, "quadtree": _plod_quadtree}
+
+
 def _plod(args) -> int:
     if args.scale:
         from . import plod_scale
         return plod_scale.run_scale_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
+    if getattr(args, "only", None) in _PLOD_PARTS:
+        return _PLOD_PARTS[args.only](args)
     from . import plod
     vdp = tuple(m for m in args.vdp.split(",") if m) if getattr(args, "vdp", None) else ()
     return plod.run_plod_bench(json_path=args.json, chart_path=args.chart, quick=args.quick, vdp=vdp,

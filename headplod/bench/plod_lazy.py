@@ -1,125 +1,164 @@
-"""The level-8 frame of the built-in terrain through :class:`headplod.plod.lazy_mesh.LazyAdaptiveMesh`.
-
-``python -m headplod.bench.plod_lazy [--frames N] [--cache-mb MB] [--max-level 8] [--out FILE]``
+"""``headplod bench plod --only lazy``: the level-8 frame of the built-in terrain through the lazy mesh.
 
 The default view (the embedded screen, the head 60 cm in front of its
-centre, the POI at the centre, σ 0.05°, 1280x720 offscreen), selected by
-``csf`` over the quadtree (:func:`headplod.bench.quadtree_selector.scene_quadtree_selector`),
-the soup uploaded through ``TerrainRenderer.upload`` and drawn:
+centre, the POI at the centre, the tracker's covariance
+:data:`headplod.bench.harness.TRACKER_COV_DEG2`, 1280x720 offscreen). Every
+frame is the demo's (:class:`headplod.render.frame.FrameStep`) over a
+:class:`headplod.render.frame.MeshBackend` whose selector is ``csf`` over the
+quadtree (:func:`headplod.bench.quadtree_selector.scene_quadtree_selector`):
+the view conditioned, the levels selected, the mesh's indices built and
+uploaded (the vertex table when it is new), rendered.
 
-1. the lazy mesh at ``--max-level`` (default 8) on the 32 x 32 base: a
-   cold frame (empty cache), then ``--frames`` frames with the head moving
-   1 mm per frame along the screen (the POI fixed), each reusing the cached
-   pieces it can;
-2. :class:`headplod.plod.mesh.AdaptiveMesh` at level 5 in the same process,
-   the same frames.
+1. :class:`headplod.plod.lazy_mesh.LazyAdaptiveMesh` at :data:`LAZY_LEVEL`
+   on the 32 x 32 base: a cold frame (empty cache), then ``frames`` frames
+   with the head moving 1 mm per frame along the screen (the POI fixed),
+   each reusing the cached pieces it can;
+2. :class:`headplod.plod.mesh.AdaptiveMesh` at level 5, the same frames.
 
-Per part: build ms (pieces made + frame assembled + soup gathered), select
-ms, render ms, triangles, cache bytes and the process's RSS (current and
-peak, MB) after it. Prints one JSON object.
+Each mesh runs in its own process (:func:`headplod.bench.plod_scale.in_own_process`),
+so its resident memory is its own. Per mesh: select, build (pieces made and
+the frame's indices assembled), upload and render ms (``FrameOutput.stage_ms``),
+triangles and their levels, the quadtree's nodes visited and base triangles
+evaluated, the lazy cache's pieces and bytes, the time to make the mesh and
+the process's RSS (current and peak, MB) after the frames.
 """
 from __future__ import annotations
 
-import argparse
-import json
 import resource
 import sys
 import time
 
 import numpy as np
 
-from .. import io
-from ..plod.lazy_mesh import LazyAdaptiveMesh
-from ..plod.mesh import AdaptiveMesh, BaseMesh
-from ..plod.select import View
-from ..plod.terrain import Terrain
-from ..render import TerrainRenderer, create_context, off_axis_projection
-from ..render.still import TerrainScene, default_head
-from .plod import DEFAULT_SCREEN, SIZE
+from .harness import DEFAULT_SCREEN, FRAME_DT_S, SIZE, TRACKER_COV_DEG2, progress
 from .quadtree_selector import scene_quadtree_selector
+
+__all__ = ["LAZY_LEVEL", "ADAPTIVE_LEVEL", "CACHE_MB", "rss_mb", "run_frames", "measure_mesh", "lazy_report",
+           "run_lazy_bench"]
+
+#: Finest level of the lazy mesh (134M triangles at full detail on the 32 x 32 base).
+LAZY_LEVEL = 8
+#: Finest level of the whole-table mesh it is compared with.
+ADAPTIVE_LEVEL = 5
+#: The lazy mesh's piece cache budget, MB.
+CACHE_MB = 256.0
+#: The frames' statistics whose median over the warm frames is reported.
+WARM_KEYS = ("select_ms", "build_ms", "upload_ms", "render_ms", "triangles", "nodes_visited", "triangles_evaluated")
+#: The mesh's own statistics kept per frame.
+MESH_KEYS = ("generated_pieces", "reused_pieces", "evicted_pieces", "cache_bytes", "rebuilt_faces")
 
 
 def rss_mb() -> tuple[float, float]:
-    """(current, peak) resident set size of this process, MB."""
+    """(current, peak) resident set size of this process, MB (peak: :func:`.plod_scale.peak_rss_mb`)."""
+    from .plod_scale import peak_rss_mb
+
     with open("/proc/self/statm") as f:
         current = int(f.read().split()[1]) * resource.getpagesize()
-    return current / 2 ** 20, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return current / 2 ** 20, peak_rss_mb()
+
+
+def _frame_row(out, mesh, selector) -> dict:
+    """One frame's figures: its stages (ms), triangles and their levels, the mesh's and the quadtree's stats."""
+    st = out.stage_ms
+    return {"select_ms": st["select"], "build_ms": st["build"], "upload_ms": st["upload"], "render_ms": st["render"],
+            "triangles": int(out.triangles), "held": bool(out.held),
+            "per_level": np.bincount(out.triangle_levels, minlength=mesh.max_level + 1).tolist(),
+            **{k: selector.last_stats.get(k) for k in ("nodes_visited", "triangles_evaluated")},
+            **{k: v for k, v in mesh.stats.items() if k in MESH_KEYS}}
 
 
 def run_frames(scene, renderer, screen, frames: int, level_bias: float = 0.0) -> dict:
-    """A cold frame then ``frames`` frames with the head moving 1 mm per frame; stats of each kind."""
+    """A cold frame then ``frames`` frames with the head moving 1 mm per frame, through the frame step.
+
+    ``scene`` a :class:`headplod.render.still.TerrainScene` (its mesh: a ``BaseMesh.grid``'s);
+    ``renderer`` a :class:`headplod.render.gl.TerrainRenderer`. Returns ``cold`` (the first frame's
+    figures), ``warm_median`` (medians of :data:`WARM_KEYS` over the rest), ``rss_mb``, ``peak_rss_mb``.
+    """
+    from ..plod.view import View
+    from ..render.frame import FrameStep, MeshBackend
+    from ..render.still import default_head
+
     selector = scene_quadtree_selector(scene, "csf", "adaptive", level_bias=level_bias)
+    step = FrameStep(MeshBackend(scene.mesh, selector, renderer, screen), screen, selector.config)
     head0 = default_head(screen)
     poi = np.array(screen.size_px, dtype=np.float64) / 2
-    cov = np.diag([0.05 ** 2, 0.05 ** 2])
     rows = []
-    for k in range(frames + 1):
-        head = head0 + np.array([1.0 * k, 0.0, 0.0])
-        t0 = time.perf_counter()
-        levels, _ = selector.select(View(head, poi, cov, k / 60))
-        t1 = time.perf_counter()
-        positions, normals, tri_levels = scene.mesh.update(levels)
-        t2 = time.perf_counter()
-        renderer.upload(positions, normals, tri_levels)
-        view_m, proj = off_axis_projection(head, screen, near_mm=50.0, far_mm=5000.0)
-        renderer.render(view_m, proj, scene.model, view_mode="shaded")
-        rows.append({"select_ms": (t1 - t0) * 1e3, "build_ms": (t2 - t1) * 1e3,
-                     "render_ms": renderer.last_render_ms, "triangles": int(len(tri_levels)),
-                     "per_level": np.bincount(tri_levels, minlength=scene.mesh.max_level + 1).tolist(),
-                     **{k: v for k, v in scene.mesh.stats.items() if k in
-                        ("generated_pieces", "reused_pieces", "evicted_pieces", "cache_bytes")}})
+    for k in range(frames + 1):                     # loop over frames: the head 1 mm further each
+        out = step(View(head0 + np.array([1.0 * k, 0.0, 0.0]), poi, TRACKER_COV_DEG2, k * FRAME_DT_S), scene.model)
+        rows.append(_frame_row(out, scene.mesh, selector))
     warm = rows[1:]
-    out = {"cold": rows[0]}
+    result = {"cold": rows[0]}
     if warm:
-        out["warm_median"] = {k: float(np.median([r[k] for r in warm])) for k in
-                              ("select_ms", "build_ms", "render_ms", "triangles")}
+        result["warm_median"] = {k: float(np.median([r[k] for r in warm])) for k in WARM_KEYS}
     current, peak = rss_mb()
-    out["rss_mb"], out["peak_rss_mb"] = round(current, 1), round(peak, 1)
-    return out
+    result["rss_mb"], result["peak_rss_mb"] = round(current, 1), round(peak, 1)
+    return result
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m headplod.bench.plod_lazy", description=__doc__.split("\n")[0])
-    parser.add_argument("--frames", type=int, default=5)
-    parser.add_argument("--cache-mb", type=float, default=256.0)
-    parser.add_argument("--max-level", type=int, default=8)
-    parser.add_argument("--level-bias", type=float, default=0.0,
-                        help="csf's level bias (3: the default view asks for levels up to 8)")
-    parser.add_argument("--only", choices=("lazy", "adaptive"), default=None,
-                        help="run one mesh only (its RSS then is its own)")
-    parser.add_argument("--out", default=None, help="also write the JSON here")
-    args = parser.parse_args(argv)
+def measure_mesh(kind: str, frames: int, level_bias: float = 0.0, cache_mb: float = CACHE_MB) -> dict:
+    """One mesh (``lazy`` at :data:`LAZY_LEVEL`, ``adaptive`` at :data:`ADAPTIVE_LEVEL`) made and run in this
+    process: ``init_s``, ``rss_start_mb``, ``rss_after_init_mb``, :func:`run_frames`' figures and, for
+    ``lazy``, ``cache`` (budget and bytes held, triangles at full detail)."""
+    from .. import io
+    from ..plod.lazy_mesh import LazyAdaptiveMesh
+    from ..plod.mesh import AdaptiveMesh, BaseMesh
+    from ..render import TerrainRenderer, create_context
+    from ..render.still import TerrainScene
+
+    if kind not in ("lazy", "adaptive"):
+        raise ValueError(f"measure_mesh: kind must be 'lazy' or 'adaptive', got {kind!r}")
+    part = {"rss_start_mb": round(rss_mb()[0], 1)}
     screen = io.read_screen(DEFAULT_SCREEN)
-    result = {"size": list(SIZE), "level_bias": args.level_bias, "rss_start_mb": round(rss_mb()[0], 1)}
-    terrain = Terrain.jacksboro()
-    base = BaseMesh.grid(terrain)
+    scene = TerrainScene.build(screen, max_level=0)          # the placement; its mesh is replaced
+    base = BaseMesh.grid(scene.terrain)
     t0 = time.perf_counter()
-    lazy = None if args.only == "adaptive" else LazyAdaptiveMesh(base, terrain, max_level=args.max_level,
-                                                                 cache_bytes=int(args.cache_mb * 2 ** 20))
-    result["lazy_init_s"] = time.perf_counter() - t0
-    scene = TerrainScene.build(screen, max_level=0)          # the model matrix; its mesh is replaced
-    scene.mesh = lazy
+    if kind == "lazy":
+        scene.mesh = LazyAdaptiveMesh(base, scene.terrain, max_level=LAZY_LEVEL, cache_bytes=int(cache_mb * 2 ** 20))
+    else:
+        scene.mesh = AdaptiveMesh(base, scene.terrain, max_level=ADAPTIVE_LEVEL)
+    part["init_s"] = time.perf_counter() - t0
+    part["rss_after_init_mb"] = round(rss_mb()[0], 1)
     renderer = TerrainRenderer(create_context(), size=SIZE)
-    result["rss_after_lazy_init_mb"] = round(rss_mb()[0], 1)
-    if args.only != "adaptive":
-        result[f"lazy_level{args.max_level}"] = run_frames(scene, renderer, screen, args.frames, args.level_bias)
-        result["lazy_level_stats"] = {"cache_budget_bytes": lazy.budget_bytes, "cache_bytes": lazy.cache_bytes,
-                                      "full_detail_triangles": int(lazy.triangle_count(
-                                          np.full(lazy.n_faces, lazy.max_level)))}
-    if args.only != "lazy":
-        scene.mesh = None
-        del lazy
-        t0 = time.perf_counter()
-        scene.mesh = AdaptiveMesh(base, terrain, max_level=5)
-        result["adaptive_init_s"] = time.perf_counter() - t0
-        result["adaptive_level5"] = run_frames(scene, renderer, screen, args.frames, args.level_bias)
-    text = json.dumps(result, indent=1)
-    print(text)
-    if args.out:
-        with open(args.out, "w") as f:
-            f.write(text + "\n")
+    part.update(run_frames(scene, renderer, screen, frames, level_bias))
+    mesh = scene.mesh
+    if kind == "lazy":
+        part["cache"] = {"cache_budget_bytes": int(mesh.budget_bytes), "cache_bytes": int(mesh.cache_bytes),
+                         "full_detail_triangles": int(mesh.triangle_count(np.full(mesh.n_faces, mesh.max_level)))}
+    renderer.release()
+    return part
+
+
+def lazy_report(frames: int = 5, level_bias: float = 0.0, say=None) -> dict:
+    """Both meshes, each measured in its own process (module notes); the report."""
+    from .plod_scale import in_own_process
+
+    say = say or (lambda text: None)
+    report = {"size": list(SIZE), "level_bias": level_bias, "frames": frames, "cov_deg2": TRACKER_COV_DEG2.tolist(),
+              "process": "each mesh in its own process"}
+    for kind, level in (("lazy", LAZY_LEVEL), ("adaptive", ADAPTIVE_LEVEL)):
+        say(f"{kind} mesh at level {level}")
+        report[f"{kind}_level{level}"] = in_own_process(measure_mesh, kind, frames, level_bias)
+    return report
+
+
+def summary_lines(report) -> list:
+    """A line per mesh: the warm frames' medians and the process's peak RSS."""
+    lines = []
+    for key in (f"lazy_level{LAZY_LEVEL}", f"adaptive_level{ADAPTIVE_LEVEL}"):
+        part = report[key]
+        w = part.get("warm_median") or part["cold"]
+        lines.append(f"{key:16s} select {w['select_ms']:6.1f} ms, build {w['build_ms']:6.1f} ms, upload "
+                     f"{w['upload_ms']:6.1f} ms, render {w['render_ms']:6.1f} ms, {int(w['triangles'])} triangles; "
+                     f"cold build {part['cold']['build_ms']:.1f} ms; made in {part['init_s']:.1f} s; "
+                     f"peak RSS {part['peak_rss_mb']:.0f} MB")
+    return lines
+
+
+def run_lazy_bench(json_path=None, quick: bool = False) -> int:
+    """``headplod bench plod --only lazy``: measure, print a line per mesh, write ``json_path``; 0."""
+    report = lazy_report(frames=2 if quick else 5, say=progress("bench plod --only lazy"))
+    print("\n".join(summary_lines(report)))
+    if json_path:
+        from .outputs import write_json
+        write_json(json_path, report)
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

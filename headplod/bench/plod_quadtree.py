@@ -1,4 +1,4 @@
-"""Selection time against the terrain's size: the flat selection against the quadtree's.
+"""``headplod bench plod --only quadtree``: selection time against the terrain's size, flat against quadtree.
 
 Issue 14's goal for selection: its cost grows at most 2x from the 2M-triangle
 terrain (a 32 x 32 base grid at level 5) to the 128M one (256 x 256 at level
@@ -9,6 +9,14 @@ quads (2k to 512k base triangles, 2M to 512M triangles at level 5) over the
 built-in Jacksboro terrain, from the default view (the head 60 cm in front of
 the screen's centre, the POI at the centre, the built-in scene's placement),
 and checks on every frame that both give the same levels.
+
+Every frame is the demo's select stage: a :class:`headplod.render.frame.FrameStep`
+per selector conditions the view once and selects through a
+:class:`headplod.render.frame.MeshBackend` (``select``: the selector's levels
+for the conditioned view); the selection ms is the step's ``select`` stage
+(``FrameOutput.stage_ms``). No mesh of these sizes would fit in memory, so
+the back end draws nothing (:class:`SelectionOnlyBackend`): the draw is not
+what this bench measures (``--only lazy`` draws the built-in terrain's).
 
 The selector's inputs are made here directly from the terrain
 (:func:`grid_inputs`), not through ``AdaptiveMesh``, whose vertex table
@@ -22,27 +30,28 @@ to each corner) instead of the finest level's lattice: cheaper, and lower
 than ``AdaptiveMesh.contrast`` (which sees the detail below the base
 triangle), so these grids refine a little less than the built-in scene.
 
-Run: ``python -m headplod.bench.plod_quadtree [--json FILE] [--chart FILE.png] [--sizes 32,64,...]``.
+Run: ``headplod bench plod --only quadtree [--quick] [--json FILE] [--chart FILE.png]`` (``--quick``:
+:data:`QUICK_SIZES`, fewer frames).
 """
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from calib import DEFAULT_SCREEN
-
 from .. import io
 from ..plod.select import LevelSelector, SelectorConfig, View
 from ..plod.shading import michelson, shade
+from ..render.frame import FrameStep, MeshBackend
+from .harness import DEFAULT_SCREEN, progress
 from .outputs import write_json
 from .quadtree_selector import QuadtreeSelector
 
 SIZES = (32, 64, 128, 256, 512)
+#: ``--quick``'s grids: up to the 128M terrain's base (the goal's), not beyond.
+QUICK_SIZES = (32, 64, 128, 256)
 #: The other way to the 128M terrain: the 32² base refined to level 8 (same base triangles, finer levels).
 DEEP = ((32, 8),)
 GOAL_GROWTH = 2.0
@@ -107,6 +116,47 @@ def default_views(screen, frames: int, seed: int = 0) -> list:
     return [View(head + rng.normal(0, 0.3, 3), poi + rng.normal(0, 2.0, 2), cov, k / 30.0) for k in range(frames)]
 
 
+class SelectionOnlyBackend(MeshBackend):
+    """The mesh back end's selection (:meth:`MeshBackend.select`, the demo's) with nothing drawn: the
+    grids of this bench have no mesh (module notes). A frame's image is None and its triangles 0."""
+
+    def __init__(self, selector, screen):
+        super().__init__(None, selector, None, screen)
+
+    def draw(self, cv, levels, camera, model, view_mode):
+        return None, None, {}, {}
+
+
+def _measure_grid(terrain, n: int, level: int, model, screen, views) -> tuple[dict, np.ndarray]:
+    """Both selections on the n x n grid at ``level``, each through its own frame step; (row, last levels)."""
+    t0 = time.perf_counter()
+    g = grid_inputs(terrain, n, n, level)
+    args = (g["centroids"], g["edge_length"], g["geometric_error"], g["contrast"], model, screen, SelectorConfig())
+    tree = QuadtreeSelector(*args, corners_scene=g["corners"], grid_shape=g["grid_shape"])
+    steps = {"flat": FrameStep(SelectionOnlyBackend(LevelSelector(*args, corners_scene=g["corners"]), screen),
+                               screen, tree.config),
+             "quadtree": FrameStep(SelectionOnlyBackend(tree, screen), screen, tree.config)}
+    build_s = time.perf_counter() - t0
+    ms = {name: [] for name in steps}
+    nodes, evaluated, mismatched = [], [], 0
+    for k, view in enumerate(views):              # loop over frames: the first is the warm-up
+        out = {name: step(view, model) for name, step in steps.items()}
+        mismatched += int(np.count_nonzero(out["flat"].levels != out["quadtree"].levels))
+        if k:
+            for name in steps:
+                ms[name].append(out[name].stage_ms["select"])
+            nodes.append(tree.last_stats["nodes_visited"])
+            evaluated.append(tree.last_stats["triangles_evaluated"])
+    levels = out["quadtree"].levels
+    F = len(g["centroids"])
+    row = {"quads": n * n, "max_level": level, "base_triangles": F, "triangles_full": F * 4 ** level,
+           "flat_ms": float(np.median(ms["flat"])), "quadtree_ms": float(np.median(ms["quadtree"])),
+           "nodes_visited": int(np.median(nodes)), "triangles_evaluated": int(np.median(evaluated)),
+           "tree_nodes": tree.tree.n_nodes, "mismatched_levels": mismatched,
+           "levels_above_0": int(np.count_nonzero(levels)), "build_s": round(build_s, 2)}
+    return row, levels
+
+
 def selection_scaling(sizes=SIZES, frames: int = 12, max_level: int = 5, terrain=None, screen=None,
                       progress=None, deep=DEEP) -> dict:
     """Flat against quadtree selection time per base grid size, from the default view.
@@ -132,8 +182,8 @@ def selection_scaling(sizes=SIZES, frames: int = 12, max_level: int = 5, terrain
     -------
     dict
         ``rows``: per size ``quads``, ``base_triangles``, ``triangles_full``,
-        ``flat_ms`` and ``quadtree_ms`` (median over the timed frames),
-        ``nodes_visited``, ``triangles_evaluated`` (medians), ``tree_nodes``,
+        ``flat_ms`` and ``quadtree_ms`` (median of the frame step's select stage over the timed
+        frames), ``nodes_visited``, ``triangles_evaluated`` (medians), ``tree_nodes``,
         ``mismatched_levels`` (over all frames; 0: the same levels),
         ``build_s`` (inputs and tree), ``max_level``; ``growth_2M_to_128M`` (quadtree ms at
         256² over flat ms at 32², when both were measured) and ``goal``.
@@ -146,38 +196,12 @@ def selection_scaling(sizes=SIZES, frames: int = 12, max_level: int = 5, terrain
     views = default_views(screen, frames)
     rows = []
     for n, level in [(n, max_level) for n in sizes] + list(deep):     # loop over grid sizes
-        t0 = time.perf_counter()
-        g = grid_inputs(terrain, n, n, level)
-        args = (g["centroids"], g["edge_length"], g["geometric_error"], g["contrast"], model, screen,
-                SelectorConfig())
-        flat = LevelSelector(*args, corners_scene=g["corners"])
-        tree = QuadtreeSelector(*args, corners_scene=g["corners"], grid_shape=g["grid_shape"])
-        build_s = time.perf_counter() - t0
-        flat_ms, tree_ms, nodes, evaluated, mismatched = [], [], [], [], 0
-        for k, view in enumerate(views):              # loop over frames
-            t1 = time.perf_counter()
-            a, _ = flat.select(view)
-            t2 = time.perf_counter()
-            b, _ = tree.select(view)
-            t3 = time.perf_counter()
-            mismatched += int(np.count_nonzero(a != b))
-            if k:
-                flat_ms.append((t2 - t1) * 1e3)
-                tree_ms.append((t3 - t2) * 1e3)
-                nodes.append(tree.last_stats["nodes_visited"])
-                evaluated.append(tree.last_stats["triangles_evaluated"])
-        F = len(g["centroids"])
-        row = {"quads": n * n, "max_level": level, "base_triangles": F, "triangles_full": F * 4 ** level,
-               "flat_ms": float(np.median(flat_ms)), "quadtree_ms": float(np.median(tree_ms)),
-               "nodes_visited": int(np.median(nodes)), "triangles_evaluated": int(np.median(evaluated)),
-               "tree_nodes": tree.tree.n_nodes, "mismatched_levels": mismatched,
-               "levels_above_0": int(np.count_nonzero(b)), "build_s": round(build_s, 2)}
+        row, _ = _measure_grid(terrain, n, level, model, screen, views)
         rows.append(row)
         if progress:
-            progress(f"{n}x{n} quads ({F} base triangles) at level {level}: flat {row['flat_ms']:.2f} ms, "
-                     f"quadtree {row['quadtree_ms']:.2f} ms, {row['nodes_visited']} nodes, "
+            progress(f"{n}x{n} quads ({row['base_triangles']} base triangles) at level {level}: flat "
+                     f"{row['flat_ms']:.2f} ms, quadtree {row['quadtree_ms']:.2f} ms, {row['nodes_visited']} nodes, "
                      f"{row['mismatched_levels']} mismatched levels")
-        del flat, tree, g
     by_size = {(r["quads"], r["max_level"]): r for r in rows}
     small = by_size.get((32 * 32, 5))
 
@@ -235,26 +259,14 @@ def chart(report: dict, path) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m headplod.bench.plod_quadtree", description=__doc__.split("\n")[0])
-    parser.add_argument("--json", help="write the report here")
-    parser.add_argument("--chart", help="write the chart (PNG) here")
-    parser.add_argument("--sizes", default=",".join(map(str, SIZES)), help="base grids, quads per side")
-    parser.add_argument("--frames", type=int, default=12)
-    args = parser.parse_args(argv)
-    try:
-        sizes = [int(s) for s in args.sizes.split(",") if s]
-    except ValueError:
-        print(f"plod_quadtree: --sizes must be integers separated by commas, got {args.sizes!r}", file=sys.stderr)
-        return 2
-    report = selection_scaling(sizes, frames=args.frames, progress=lambda s: print(s, flush=True))
+def run_quadtree_bench(json_path=None, chart_path=None, quick: bool = False) -> int:
+    """``headplod bench plod --only quadtree``: measure (``quick``: :data:`QUICK_SIZES`, 4 frames), print a line
+    per grid and the goal, write ``json_path`` and ``chart_path``; 0."""
+    report = selection_scaling(QUICK_SIZES if quick else SIZES, frames=4 if quick else 12,
+                               progress=progress("bench plod --only quadtree"))
     print(json.dumps({k: v for k, v in report.items() if k != "rows"}, indent=2))
-    if args.json:
-        write_json(args.json, report)
-    if args.chart:
-        chart(report, args.chart)
+    if json_path:
+        write_json(json_path, report)
+    if chart_path:
+        chart(report, chart_path)
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
