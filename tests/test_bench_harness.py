@@ -110,3 +110,8 @@ def test_the_benches_take_the_one_tracker_covariance(bench):
     users = [p for p in folder.glob("*.py") if "from .harness import" in p.read_text()]
     assert len(users) >= 6
     assert [p.name for p in users if literal.search(p.read_text())] == []
+    # Nor do the scale, lazy-mesh and quadtree benches, the selector they share, or their tests.
+    tests = Path(__file__).parent
+    others = [folder / f"{name}.py" for name in ("plod_scale", "plod_lazy", "plod_quadtree", "quadtree_selector")]
+    others += [tests / f"test_{name}.py" for name in ("bench_scale", "quadtree", "lazy_mesh", "lazy_viewer")]
+    assert [p.name for p in others if literal.search(p.read_text())] == []
