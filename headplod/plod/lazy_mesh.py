@@ -23,14 +23,12 @@ changed. A frame with new cases concatenates the blocks into a compact
 per-frame table (grouped by case, then face: ``AdaptiveMesh``'s order for
 a build from scratch) and offsets each case template's indices; a frame
 with the same cases returns the same arrays. The table repeats a shared
-edge's points once per face (bit-identical copies): on the built-in
-default view, 133,571 rows for 209,231 triangles, against 110,032 when
-the frame shared them, which the renderer draws alike. Measured on the built-in
-scene (mountains view, a POI moving ~8 px a frame, 12-14 faces changing
-a frame; 2 busy cores): 31-33 ms a changed frame against 46-58 ms when
-every face was assembled again, and 17 ms against 52-55 ms once the
-pieces are cached; what is left is mostly the terrain evaluation of new
-pieces (its synthetic detail waves) and the frame's concatenation.
+edge's points once per face (bit-identical copies, a fifth more rows
+than one shared copy), which the renderer draws alike. Keeping each face's
+block until its case changes makes a changed frame cost a fraction of
+assembling every face again (``headplod bench plod --only lazy``); what is
+left is mostly the terrain evaluation of new pieces (its synthetic detail
+waves) and the frame's concatenation.
 
 Both faces of an edge read its points from the *same* edge piece: the
 piece an edge's current blocks read at its level is kept (``_pinned``)

@@ -286,8 +286,8 @@ class Terrain:
         # Offsets of the 16 taps from tap (i-1, j-1) in the padded, flattened coefficients.
         self._stencil = (np.arange(4)[:, None] * self._row_stride + np.arange(4)[None, :]).ravel().astype(np.int32)
         if not self.detail:
-            # No detail: no roughness envelope, spectrum or waves (their cost grows with the grid:
-            # a 4k x 4k DEM took 28 s and 3.8 GB with them, for nothing that is drawn).
+            # No detail: no roughness envelope, spectrum or waves (their cost grows with the grid, in
+            # time and memory, for nothing that is drawn).
             self._coef = [_padded_spline_coefficients(self.dem_z_m)]
             self.spectral_exponent = float("nan")
             self._make_waves(-np.inf, int(detail_waves_per_octave))

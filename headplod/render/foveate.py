@@ -54,11 +54,10 @@ class FoveationConfig:
         Most layers, the fovea included (scales 1, 1/2, ... 2^-(max_layers-1)).
         2 by default: on llvmpipe a layer's cost is mostly its triangles'
         set-up, not its pixels, and the faces on a border are drawn by both
-        layers; a third layer at 1/4 (which the CSF allows beyond ~15° at
-        25 px/deg) measured slower than a single 1/2 layer for the whole
-        periphery (1280x720, medians of 9-11 interleaved frames: mountains
-        1.05-1.07 vs 0.86-0.93 of the plain frame's render + read-back,
-        overview 1.00-1.15 vs 0.79-0.99, plains 0.90-1.00 vs 0.62-0.85).
+        layers; a third layer at 1/4 (which the CSF allows far from the POI)
+        measured slower than a single 1/2 layer for the whole periphery on
+        every viewpoint (interleaved frames of ``headplod bench plod``'s
+        foveated part).
     blend_deg : float
         Width of the blend across a layer's border, deg.
     n_sigma : float
