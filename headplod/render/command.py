@@ -26,7 +26,7 @@ from ..plod.export import check_export_path
 from ..argtypes import floats
 from ..plod.raymask import RayMaskConfig
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
-from ..plod.select import MODES, UNCERTAINTY_MODES
+from ..plod.select import MODES, UNCERTAINTY_MODES, SelectorConfig
 from .frame import BACKENDS, VIEW_MODES, capability_table, options_problem
 from .still import (CONTRAST_SOURCES, MeshOptions, add_mesh_arguments, mesh_options, mesh_options_problem,
                     render_still, scene_model)
@@ -211,7 +211,9 @@ def _run_tessellation(args, screen, cov, size) -> int:
         model = scene_model(grid.extent, float(np.median(z[::8, ::8])), screen)
     else:
         model = scene_model(grid.extent, float(np.median(terrain.dem_z_m)), screen, fit_scale(terrain))
-    with TessellationRenderer(create_context(require=430), grid, size=size, config=config) as renderer:
+    selection = SelectorConfig(mode=args.mode, uncertainty=args.uncertainty)
+    with TessellationRenderer(create_context(require=430), grid, size=size, config=config,
+                              selection=selection) as renderer:
         try:                         # each file whole or not at all, as the mesh back end's
             _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
                                     poi_px=args.poi, cov_deg2=cov, size=size, out=args.out, stats_path=args.stats,
