@@ -15,13 +15,20 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["LIGHT_DIR", "AMBIENT", "DISPLAY_GAMMA", "light_unit", "shade", "michelson", "contrast_of_range"]
+__all__ = ["LIGHT_DIR", "AMBIENT", "DISPLAY_GAMMA", "HEIGHT_COLOURS", "GLSL_HEIGHT_COLOURS", "light_unit", "shade",
+           "height_colour", "michelson", "contrast_of_range"]
 
 #: Direction toward the light, scene frame (x east, y north, z up), not normalized: a sun from the
 #: south-east, about 58° above the horizon.
 LIGHT_DIR = (0.4, -0.3, 0.85)
 #: Shade of a face turned away from the light, in [0, 1] (a face facing it gets 1).
 AMBIENT = 0.25
+#: The terrain's colour by height (RGB in [0, 1]): grey-green valleys, a middle, pale grey peaks; a height's
+#: fraction t of the terrain's range is coloured low → middle over t in [0, 0.5], middle → high over [0.5, 1].
+HEIGHT_COLOURS = ((0.30, 0.42, 0.26), (0.52, 0.56, 0.40), (0.80, 0.80, 0.76))
+#: The same colours as GLSL constants ``LOW``, ``MID``, ``HIGH``, for every terrain shader.
+GLSL_HEIGHT_COLOURS = "\n".join(f"const vec3 {name} = vec3({r:.2f}, {g:.2f}, {b:.2f});"
+                                 for name, (r, g, b) in zip(("LOW", "MID", "HIGH"), HEIGHT_COLOURS))
 #: The display's transfer: a code value v in [0, 1] is shown at relative luminance v ** DISPLAY_GAMMA (the
 #: renderers write the shade as 8-bit code values to an sRGB display, without linear-to-sRGB encoding).
 DISPLAY_GAMMA = 2.2
@@ -59,4 +66,13 @@ def contrast_of_range(brightest, darkest) -> np.ndarray:
     hi = np.asarray(brightest, dtype=np.float64) ** DISPLAY_GAMMA
     lo = np.asarray(darkest, dtype=np.float64) ** DISPLAY_GAMMA
     return (hi - lo) / np.maximum(hi + lo, 1e-12)
+
+
+def height_colour(t) -> np.ndarray:
+    """RGB (..., 3) of height fractions ``t`` (...) in [0, 1] (:data:`HEIGHT_COLOURS`), in t's float type."""
+    t = np.asarray(t)
+    f = t.dtype.type if np.issubdtype(t.dtype, np.floating) else np.float64
+    low, mid, high = (np.array(c, f) for c in HEIGHT_COLOURS)
+    t = t[..., None]
+    return np.where(t < 0.5, low + (mid - low) * (f(2) * t), mid + (high - mid) * (f(2) * t - f(1)))
 

@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..plod.shading import AMBIENT, LIGHT_DIR
+from ..plod.shading import AMBIENT, GLSL_HEIGHT_COLOURS, LIGHT_DIR
 from ..plod.mesh import LEVEL_PALETTE
 from .context import moderngl
 
@@ -83,9 +83,7 @@ uniform vec2 u_viewport;
 out gl_PerVertex { vec4 gl_Position; float gl_ClipDistance[5]; };
 #endif
 
-const vec3 LOW = vec3(0.30, 0.42, 0.26);   // grey-green valleys
-const vec3 MID = vec3(0.52, 0.56, 0.40);
-const vec3 HIGH = vec3(0.80, 0.80, 0.76);  // pale grey peaks
+%HEIGHT_COLOURS%
 
 void main() {
     gl_Position = u_mvp * vec4(in_position, 1.0);
@@ -114,6 +112,7 @@ void main() {
 #endif
 }
 """
+_VERTEX_SHADER = _VERTEX_SHADER.replace("%HEIGHT_COLOURS%", GLSL_HEIGHT_COLOURS)     # plod.shading's colours
 
 _GEOMETRY_SHADER = """
 #version 330

@@ -69,7 +69,7 @@ import time
 import numpy as np
 
 from ..plod.raymask import HeightGrid, RayMask, RayMaskConfig, build_ray_mask, height_grid
-from ..plod.shading import AMBIENT, LIGHT_DIR, shade
+from ..plod.shading import AMBIENT, LIGHT_DIR, height_colour, shade
 from .context import moderngl
 from .gl import read_rgb
 
@@ -247,10 +247,8 @@ def vertex_colors(grid: HeightGrid, height_range, light_dir=LIGHT_DIR, ambient: 
     shaded = shade(n / np.linalg.norm(n, axis=-1, keepdims=True), light_dir, ambient)      # float32
     lo, hi = (f(v) for v in height_range)
     span = max(hi - lo, f(1e-20))
-    t = np.clip((grid.heights - lo) / span, f(0), f(1))[..., None]
-    low, mid, high = (np.array(c, f) for c in ((0.30, 0.42, 0.26), (0.52, 0.56, 0.40), (0.80, 0.80, 0.76)))
-    base = np.where(t < 0.5, low + (mid - low) * (f(2) * t), mid + (high - mid) * (f(2) * t - f(1)))
-    return (base * shaded[..., None]).astype(f)
+    t = np.clip((grid.heights.astype(f) - lo) / span, f(0), f(1))
+    return (height_colour(t) * shaded[..., None]).astype(f)
 
 
 def classify_quads(quads: np.ndarray, hits: np.ndarray, depth_ratio: float):

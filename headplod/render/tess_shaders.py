@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 
 from ..plod import criteria
+from ..plod.shading import GLSL_HEIGHT_COLOURS
 from ..plod.csf import (ECC_SLOPE, KELLY_K0, KELLY_K1, KELLY_PEAK_CONSTANT, KELLY_SPEED_OFFSET_DEG_S,
                         KELLY_SPEED_REF_DEG_S, MIN_SPEED_DEG_S)
 
@@ -331,9 +332,7 @@ uniform vec3 u_light;             // unit vector toward the light, scene frame (
 uniform float u_ambient;          // plod.shading.AMBIENT
 uniform vec2 u_height_range;      // scene z of the low and high colour
 
-const vec3 LOW = vec3(0.30, 0.42, 0.26);   // as gl.py's terrain shader
-const vec3 MID = vec3(0.52, 0.56, 0.40);
-const vec3 HIGH = vec3(0.80, 0.80, 0.76);
+%HEIGHT_COLOURS%
 
 float h(ivec2 s) { return texelFetch(u_height, s, 0).r; }
 
@@ -352,6 +351,7 @@ vec2 sample_gradient(ivec2 s) {
                 (h(ivec2(s.x, hi.y)) - h(ivec2(s.x, lo.y))) / (float(hi.y - lo.y) * u_spacing_m.y));
 }
 """
+SHADE = SHADE.replace("%HEIGHT_COLOURS%", GLSL_HEIGHT_COLOURS)       # plod.shading's colours, as gl.py's
 
 EVALUATION = """
 #version 430
