@@ -4,7 +4,7 @@ opentrack's point tracker sends the position of a model point that its
 "calibrate" step moves to the head's pivot (``tracker-pt`` ``t_MH``, fitted by
 ``cv/translation-calibrator.cpp``), so that turning the head does not move x,
 y and z. headplod's records carry P1, the bridge of the glasses; the UDP
-output sends ``P1 + axes^T @ pivot_mm`` instead (:mod:`headplod.live.output`).
+output sends ``P1 + axes^T @ pivot_mm`` instead (:mod:`headplod.live.opentrack`).
 
 The fit (:func:`fit_pivot`). A head turning about a fixed point has, in every
 frame k, ``p_k + A_k^T c = q``: ``p_k`` P1 (world, mm), ``A_k`` the pose's
@@ -39,7 +39,7 @@ import cv2
 import numpy as np
 
 from .. import io
-from .output import check_pivot_mm
+from .opentrack import check_pivot_mm
 
 __all__ = ["PIVOT_FILE", "PivotFitConfig", "PivotFit", "fit_pivot", "read_pivot", "write_pivot", "find_pivot_file"]
 
@@ -263,7 +263,7 @@ def read_pivot(path) -> np.ndarray:
     ------
     ContractError
         On a missing or unreadable file, a missing ``pivot_mm`` or a value
-        :func:`~headplod.live.output.check_pivot_mm` refuses.
+        :func:`~headplod.live.opentrack.check_pivot_mm` refuses.
     """
     path = Path(path).expanduser()
     if not path.is_file():
