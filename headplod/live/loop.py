@@ -318,10 +318,10 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         Called with each finished record (writing, printing).
     recorder : headplod.capture.DatasetRecorder, optional
         Every frame is recorded as read (its images, not the pose).
-    sender : headplod.live.output.OpentrackSender, optional
+    sender : headplod.live.udp.OpentrackSender, optional
     pose_filter : headplod.tracking.filters.PoseFilter, optional
         Applied to the record before it is sent and written.
-    status : headplod.live.output.StatusLine, optional
+    status : headplod.live.status.StatusLine, optional
     max_frames : int, optional
     timeout_s : float
         How long a live source may wait for a pair before it reports a stall.
@@ -353,47 +353,72 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
                                       times=times, timestamps=stats.timestamps):
         if recorder is not None:
             recorder.write(frame)                    # an error frame is noted in recording.log, not written
-        flags = list(getattr(frame, "flags", []) or [])
-        flags += notes.add(frame.index, frame.warning) if notes is not None else split_frame_warning(frame.warning)
-        try:
-            record = result_record(frame, result, screen)
-            if pose_filter is not None:
-                record = pose_filter(record, frame.t)
-        except Exception as exc:                     # noqa: BLE001 - a bug in one frame's record is that frame's
-            record = io.pose_record(frame.index, frame.t, False, reason=internal_error_reason(exc))
-        if not record["ok"] and str(record["reason"]).startswith("internal error"):   # the tracker's or the above
-            stats.internal_errors += 1
-            stats.first_internal_error = stats.first_internal_error or f"frame {frame.index}: {record['reason']}"
-        skew = getattr(frame, "skew_ms", None)
-        dropped = int(getattr(frame, "dropped", 0) or 0)
-        captured = getattr(frame, "t_monotonic_left", None)
-        origin = getattr(frame, "time_source", None) if captured is not None else None
-        record["skew_ms"] = None if skew is None else round(float(skew), 3)
-        record["dropped"] = dropped
-        record["flags"] = flags + list(record.pop("notes", None) or ())   # the frame's, then the tracker's
+        record = _frame_record(frame, result, screen, pose_filter, notes, stats)
         if sender is not None:
             sender.send(record)
-        now_mono = time.monotonic()
-        latency = 1e3 * (now_mono - (captured if captured is not None else times.read_end_monotonic))
-        latency += 1e3 * times.read_s if captured is None else 0.0
+        latency = _latency_ms(frame, times)
         record["latency_ms"] = round(latency, 3)
         if on_record is not None:
             on_record(record, result)
         stats.time_jumps = getattr(tracker, "time_jumps", 0)
         stats.first_time_jump = getattr(tracker, "first_time_jump", None)
         if status is not None:
-            status.update(record, latency_ms=latency, skew_ms=skew, dropped=dropped,
-                          time_dropped=stats.timestamps.dropped + stats.time_jumps,
+            status.update(record, latency_ms=latency, skew_ms=getattr(frame, "skew_ms", None),
+                          dropped=record["dropped"], time_dropped=stats.timestamps.dropped + stats.time_jumps,
                           time_dropped_first=stats.timestamps.first or stats.first_time_jump)
-        t_done = time.perf_counter()
-        stats.wall_s = time.perf_counter() - start
-        stats.frames += 1
-        stats.ok += bool(record["ok"])
-        stats.read_s.append(times.read_s)
-        stats.track_s.append(times.track_s)
-        stats.output_s.append(t_done - times.track_end)
-        stats.latency_ms.append(latency)
-        if frame.error is None:
-            stats.latency_from[origin] = stats.latency_from.get(origin, 0) + 1
+        _count_frame(stats, frame, record, times, latency, start)
     stats.wall_s = time.perf_counter() - start
     return stats
+
+
+def _frame_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen | None, pose_filter,
+                  notes: FrameNotes | None, stats: LiveStats) -> dict:
+    """One frame's record as :func:`run_source` sends and writes it, but for its ``latency_ms``.
+
+    The contract's record (:func:`result_record`, then ``pose_filter``), with the frame's ``skew_ms``
+    (left/right capture-time difference, ms, or None), ``dropped`` (pairs lost before it) and ``flags``
+    (the frame's, its warnings, then the tracker's notes). An exception while making it is the frame's
+    failure, ``internal error: TYPE: message``; such failures, the tracker's included, count in ``stats``.
+    """
+    flags = list(getattr(frame, "flags", []) or [])
+    flags += notes.add(frame.index, frame.warning) if notes is not None else split_frame_warning(frame.warning)
+    try:
+        record = result_record(frame, result, screen)
+        if pose_filter is not None:
+            record = pose_filter(record, frame.t)
+    except Exception as exc:                         # noqa: BLE001 - a bug in one frame's record is that frame's
+        record = io.pose_record(frame.index, frame.t, False, reason=internal_error_reason(exc))
+    if not record["ok"] and str(record["reason"]).startswith("internal error"):   # the tracker's or the above
+        stats.internal_errors += 1
+        stats.first_internal_error = stats.first_internal_error or f"frame {frame.index}: {record['reason']}"
+    skew = getattr(frame, "skew_ms", None)
+    record["skew_ms"] = None if skew is None else round(float(skew), 3)
+    record["dropped"] = int(getattr(frame, "dropped", 0) or 0)
+    record["flags"] = flags + list(record.pop("notes", None) or ())   # the frame's, then the tracker's
+    return record
+
+
+def _latency_ms(frame: io.Frame, times: FrameTimes) -> float:
+    """From the frame's capture time (``t_monotonic_left``; without one, from the start of its reading) to
+    now, ms."""
+    captured = getattr(frame, "t_monotonic_left", None)
+    now_mono = time.monotonic()
+    latency = 1e3 * (now_mono - (captured if captured is not None else times.read_end_monotonic))
+    return latency + (1e3 * times.read_s if captured is None else 0.0)
+
+
+def _count_frame(stats: LiveStats, frame: io.Frame, record: dict, times: FrameTimes, latency: float,
+                 start: float) -> None:
+    """Count a finished frame in ``stats``: the run's time so far (from ``start``, ``time.perf_counter()``),
+    its stages' times (s), its latency (ms) and what that latency was measured from."""
+    t_done = time.perf_counter()
+    stats.wall_s = time.perf_counter() - start
+    stats.frames += 1
+    stats.ok += bool(record["ok"])
+    stats.read_s.append(times.read_s)
+    stats.track_s.append(times.track_s)
+    stats.output_s.append(t_done - times.track_end)
+    stats.latency_ms.append(latency)
+    if frame.error is None:
+        origin = getattr(frame, "time_source", None) if getattr(frame, "t_monotonic_left", None) is not None else None
+        stats.latency_from[origin] = stats.latency_from.get(origin, 0) + 1
