@@ -40,7 +40,7 @@ import numpy as np
 
 from .. import io
 from ..argtypes import frame_count, readout_ms
-from ..capture import RECORDING_ENTRIES, DatasetRecorder, open_source, recording_held, source_kind, synthetic_preset
+from ..capture import DatasetRecorder, open_source, source_kind, synthetic_preset
 from ..capture.signals import StopSignals
 from ..capture.synthetic import ensure_dataset, rerender
 from ..capture.v4l2 import FOURCCS
@@ -51,8 +51,10 @@ from ..tracking.geometry import ESTIMATORS
 from ..tracking.rig_refine import RigRefineConfig
 from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
 from .frame_notes import FrameNotes, warning_kind
-from .output import (DEFAULT_PIVOT_MM, OPENTRACK_FRAMES, ForgivingStream, OpentrackSender, StatusLine, check_pivot_mm,
-                     parse_host_port)
+from .opentrack import DEFAULT_PIVOT_MM, OPENTRACK_FRAMES, check_pivot_mm, parse_host_port
+from .status import ForgivingStream, StatusLine
+from .track_checks import Usage as _Usage, check_outputs as _check_outputs, check_save_rig as _check_save_rig
+from .udp import OpentrackSender
 
 __all__ = ["add_track_arguments", "run_track", "track_source_spec", "note_old_spelling", "EXIT_NO_FRAME_TRACKED"]
 
@@ -70,10 +72,6 @@ def note_old_spelling(old: str, new: str) -> None:
     """The one-line note (standard error) for an old spelling that still works: what to write instead, and
     that it goes."""
     print(f"note: {old} is now {new}; the old spelling goes in the next release", file=sys.stderr)
-
-
-class _Usage(Exception):
-    """A command-line mistake: the message says what to do; exit status 2."""
 
 
 def _threshold_arg(text: str):
@@ -283,45 +281,73 @@ def run_track(args) -> int:
 
 
 def _run_track(args) -> int:
-    # Imported on use: the tracker pulls in scipy.stats (~0.4 s), and `headplod --help` imports this module.
-    from ..tracking.tracker import TrackerConfig
-    from .loop import LiveStats, make_tracker, run_source
-
-    detection = DetectionParams.paper() if args.paper_detection else DetectionParams(threshold_dn=args.threshold)
-    if args.paper_detection and args.threshold is not None:
-        detection = DetectionParams(threshold_dn=args.threshold, smooth_px=9, subtract_background=False)
-    config = TrackerConfig(estimator=args.estimator, detection=detection, track=not args.no_tracking,
-                           uncertainty=args.uncertainty,
-                           readout_s=None if args.readout_ms is None else args.readout_ms * 1e-3,
-                           rig_refine=RigRefineConfig(enabled=args.refine_rig == "on"))
-    pose_filter = None
-    if args.filter:
-        try:
-            min_cutoff, beta = (float(v) for v in args.filter.split(","))
-            pose_filter = PoseFilter(min_cutoff_hz=min_cutoff, beta=beta)
-        except ValueError as exc:
-            print(f"headplod: --filter expects MIN_CUTOFF_HZ,BETA such as 1.0,0.02 ({exc})", file=sys.stderr)
-            return 2
-    udp = None
-    if args.udp:
-        try:
-            udp = parse_host_port(args.udp)
-        except ValueError as exc:
-            print(f"headplod: {exc}", file=sys.stderr)
-            return 2
-    elif args.pivot is not None or args.udp_axes != "tracker-pt":
-        print("headplod: --pivot and --udp-axes go with --udp (they shape what is sent to opentrack)", file=sys.stderr)
-        return 2
-
-    def check(spec):                                    # what can be checked before opening the source
-        _check_save_rig(args, spec=spec)
-        _check_outputs(args, spec=spec)
-
-    try:
+    try:                                                # the options, then the source's name: exit 2 if wrong
+        config = _tracker_config(args)
+        pose_filter = _pose_filter(args)
+        udp = _udp_address(args)
         spec = track_source_spec(args)
     except _Usage as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 2
+    opened = _open_checked_source(args, spec)
+    if isinstance(opened, int):
+        return opened
+    source, rig, live = opened
+    run = _TrackRun(args, source, live)
+    stop = StopSignals()
+    with stop:                                          # from here, Ctrl-C, SIGTERM and SIGHUP stop between frames
+        code = run.start(config, rig, udp)
+        if code is not None:
+            return code
+        failure, kept = run.run(stop, pose_filter)
+    return run.finish(spec, stop, failure, kept)
+
+
+def _tracker_config(args):
+    """The tracker's configuration from ``track``'s options (a TrackerConfig)."""
+    # Imported on use: the tracker pulls in scipy.stats (~0.4 s), and `headplod --help` imports this module.
+    from ..tracking.tracker import TrackerConfig
+
+    detection = DetectionParams.paper() if args.paper_detection else DetectionParams(threshold_dn=args.threshold)
+    if args.paper_detection and args.threshold is not None:
+        detection = DetectionParams(threshold_dn=args.threshold, smooth_px=9, subtract_background=False)
+    return TrackerConfig(estimator=args.estimator, detection=detection, track=not args.no_tracking,
+                         uncertainty=args.uncertainty,
+                         readout_s=None if args.readout_ms is None else args.readout_ms * 1e-3,
+                         rig_refine=RigRefineConfig(enabled=args.refine_rig == "on"))
+
+
+def _pose_filter(args) -> PoseFilter | None:
+    """``--filter MIN_CUTOFF_HZ,BETA`` as a One Euro filter, None without it; raises _Usage when it is wrong."""
+    if not args.filter:
+        return None
+    try:
+        min_cutoff, beta = (float(v) for v in args.filter.split(","))
+        return PoseFilter(min_cutoff_hz=min_cutoff, beta=beta)
+    except ValueError as exc:
+        raise _Usage(f"--filter expects MIN_CUTOFF_HZ,BETA such as 1.0,0.02 ({exc})") from None
+
+
+def _udp_address(args) -> tuple[str, int] | None:
+    """``--udp HOST[:PORT]`` as ``(host, port)``, None without it; raises _Usage when it is wrong, or when
+    ``--pivot`` or ``--udp-axes`` come without it."""
+    if args.udp:
+        try:
+            return parse_host_port(args.udp)
+        except ValueError as exc:
+            raise _Usage(str(exc)) from None
+    if args.pivot is not None or args.udp_axes != "tracker-pt":
+        raise _Usage("--pivot and --udp-axes go with --udp (they shape what is sent to opentrack)")
+    return None
+
+
+def _open_checked_source(args, spec: str):
+    """The source opened once the outputs are checked against it: (source, rig, live), or the exit status with
+    its one-line reason printed (the source is closed then). The source's warnings are printed."""
+    def check(spec):                                    # what can be checked before opening the source
+        _check_save_rig(args, spec=spec)
+        _check_outputs(args, spec=spec)
+
     opened = open_source_or_report(args, spec, check)
     if isinstance(opened, int):
         return opened
@@ -335,103 +361,137 @@ def _run_track(args) -> int:
         return 2
     for warning in source.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    truth = getattr(getattr(source, "dataset", None), "truth", None) or {}
-    log = sys.stderr
-    writer = sender = recorder = status = tracker = None
-    records = []
-    notes = FrameNotes(stream=log)                      # per-frame warnings: the first of each kind, then a count
-    stats = LiveStats()
+    return source, rig, live
 
-    def on_record(record, result):
-        records.append(record)
-        if writer is not None:
+
+class _TrackRun:
+    """One ``headplod track`` run once its source is open: its outputs, its records, its steps.
+
+    :meth:`start` opens the tracker and the outputs, :meth:`run` tracks the frames (:meth:`on_record` takes
+    each record), :meth:`finish` reports and gives the exit status. The per-frame messages and the summary go
+    to ``log`` (standard error).
+    """
+
+    def __init__(self, args, source, live: bool):
+        from .loop import LiveStats
+
+        self.args, self.source, self.live = args, source, live
+        self.truth = getattr(getattr(source, "dataset", None), "truth", None) or {}
+        self.log = sys.stderr
+        self.writer = self.sender = self.recorder = self.status = self.tracker = self.screen = None
+        self.records = []
+        self.notes = FrameNotes(stream=self.log)        # per-frame warnings: the first of each kind, then a count
+        self.stats = LiveStats()
+
+    def on_record(self, record, result) -> None:
+        """Keep one finished record: write it, say how sending goes, print its line."""
+        self.records.append(record)
+        if self.writer is not None:
             try:
-                writer.write(record)
+                self.writer.write(record)
             except OSError as exc:
-                raise OutputFailed(f"--out {args.out}", exc) from exc
-        if sender is not None:
-            news = sender.news()                        # sending failed, or works again: said as it happens
+                raise OutputFailed(f"--out {self.args.out}", exc) from exc
+        if self.sender is not None:
+            news = self.sender.news()                   # sending failed, or works again: said as it happens
             if news:
-                print(news, file=log)
-        if args.quiet or status is not None:
+                print(news, file=self.log)
+        if self.args.quiet or self.status is not None:
             return
-        print(_frame_line(record, result, truth, notes), file=log)
+        print(_frame_line(record, result, self.truth, self.notes), file=self.log)
 
-    stop = StopSignals()
-    with stop:                                          # from here, Ctrl-C, SIGTERM and SIGHUP stop between frames
+    def start(self, config, rig, udp) -> int | None:
+        """Open the tracker and the outputs; None, or the exit status 1 when one fails (nothing written, the
+        source closed)."""
+        from .loop import make_tracker
+
+        args, source, log = self.args, self.source, self.log
         # Everything that can fail comes before the first frame: the files read, the tracker, the UDP socket,
         # then the outputs (a refusal there puts back what was moved aside).
         try:
             markers = io.read_markers(args.markers) if args.markers else None
-            screen = io.read_screen(args.screen) if args.screen else None
-            tracker = make_tracker(source, config, rig=rig, markers=markers)
+            self.screen = io.read_screen(args.screen) if args.screen else None
+            self.tracker = make_tracker(source, config, rig=rig, markers=markers)
             if udp is not None:
                 pivot_mm, pivot_from = udp_pivot(args, rig=rig, source=source)
-                sender = OpentrackSender(*udp, pivot_mm=pivot_mm, frame=args.udp_axes)
+                self.sender = OpentrackSender(*udp, pivot_mm=pivot_mm, frame=args.udp_axes)
                 print(f"udp: to {udp[0]}:{udp[1]}, the pivot ({', '.join(f'{v:.0f}' for v in pivot_mm)}) mm "
                       f"({pivot_from}), axes {args.udp_axes}", file=log)
             if args.record:
-                recorder = DatasetRecorder(args.record, rig, markers=markers or source.markers,
-                                           screen=screen or source.screen, overwrite=args.overwrite)
-            writer = io.PoseWriter(args.out) if args.out else None
+                self.recorder = DatasetRecorder(args.record, rig, markers=markers or source.markers,
+                                                screen=self.screen or source.screen, overwrite=args.overwrite)
+            self.writer = io.PoseWriter(args.out) if args.out else None
         except (ValueError, OSError, LookupError) as exc:
-            if recorder is not None:
-                recorder.discard()                      # nothing recorded yet: the old recording goes back
-            for thing in (sender, source):
+            if self.recorder is not None:
+                self.recorder.discard()                 # nothing recorded yet: the old recording goes back
+            for thing in (self.sender, source):
                 if thing is not None:
                     thing.close()
             print(f"headplod: {exc} (nothing was written)", file=sys.stderr)
             return 1
-        for output in (recorder, writer):
+        for output in (self.recorder, self.writer):
             for note in getattr(output, "notes", None) or ():
                 print(f"note: {note}", file=log)
-        if args.status or (live and not args.quiet):
-            status = StatusLine(stream=log, sender=sender)
+        if args.status or (self.live and not args.quiet):
+            self.status = StatusLine(stream=log, sender=self.sender)
+        return None
+
+    def run(self, stop: StopSignals, pose_filter) -> tuple[BaseException | None, dict]:
+        """Track every frame, then close the outputs; ``(failure, kept)``: what ended the run early (None when
+        nothing did) and where the outputs being replaced are kept (:func:`_close_outputs`)."""
+        from .loop import run_source
+
+        args, recorder = self.args, self.recorder
         failure = None                                  # what ended the run early, after its start
         try:
-            run_source(source, screen=screen, on_record=on_record,
+            run_source(self.source, screen=self.screen, on_record=self.on_record,
                        recorder=None if recorder is None else _Labelled(recorder, f"--record {args.record}"),
-                       sender=sender, pose_filter=pose_filter, status=status, max_frames=args.frames,
-                       tracker=tracker, stop=stop, notes=notes, stats=stats)
+                       sender=self.sender, pose_filter=pose_filter, status=self.status, max_frames=args.frames,
+                       tracker=self.tracker, stop=stop, notes=self.notes, stats=self.stats)
         except KeyboardInterrupt:                       # a second signal: stop at once, keep what is whole
             stop.received = stop.received or signal.SIGINT
         except Exception as exc:                        # noqa: BLE001 - the policy below applies to every fault
             failure = exc
         finally:
             stop.finishing()                            # the closes are short: a signal now cannot cut them
-            kept, close_failure = _close_outputs(args, status, recorder, sender, writer, source,
-                                                 complete=failure is None)
+            kept, close_failure = _close_outputs(args, self.status, recorder, self.sender, self.writer,
+                                                 self.source, complete=failure is None)
             failure = failure or close_failure
-    if stop():
-        how = ", at once on a second signal" if stop.insisted else ""
-        print(f"headplod: stopped ({stop.name}{how}); the {len(records)} frames so far are kept", file=sys.stderr)
-    summary = evaluate.summarize(records, truth or None)
-    name = source.name if live else Path(str(source.name)).name
-    print(evaluate.format_summary(name, summary), file=log)
-    notes.report()
-    _report_run(stats, sender, log, live or args.status)
-    if failure is not None:
-        if isinstance(failure, OutputFailed) and isinstance(failure.cause, BrokenPipeError) and args.out == "-":
-            _silence_stdout()                           # else Python's own flush at exit fails again, loudly
-        print(_early_end_line(failure, records, args, recorder, writer, kept), file=sys.stderr)
-        _traceback_on_request(failure)
-        return 1
-    if synthetic_preset(spec) is not None:             # a cached frame that cannot be read: render it all again
-        unreadable = next((r["reason"] for r in records if not r["ok"] and r["reason"]
-                           and (".png: missing" in r["reason"] or ".png: unreadable (" in r["reason"])), None)
-        if unreadable is not None:
-            rerender(source.dataset.folder, unreadable)
-    tracked = sum(bool(r["ok"]) for r in records)
-    code = _report_rig(args, tracker, tracked=tracked, log=log)
-    if args.record:
-        print(f"recording: {args.record} (replay: headplod track --source {args.record})", file=log)
-    if args.out and args.out != "-":
-        print(f"pose records: {args.out}", file=log)
-    if tracked == 0:
-        print(f"headplod: no frame tracked (of {len(records)}); exit status {EXIT_NO_FRAME_TRACKED}",
-              file=sys.stderr)
-        return EXIT_NO_FRAME_TRACKED
-    return code
+        return failure, kept
+
+    def finish(self, spec: str, stop: StopSignals, failure: BaseException | None, kept: dict) -> int:
+        """The run's end: how it stopped, its summary and reports; the exit status."""
+        args, records, log = self.args, self.records, self.log
+        if stop():
+            how = ", at once on a second signal" if stop.insisted else ""
+            print(f"headplod: stopped ({stop.name}{how}); the {len(records)} frames so far are kept",
+                  file=sys.stderr)
+        summary = evaluate.summarize(records, self.truth or None)
+        name = self.source.name if self.live else Path(str(self.source.name)).name
+        print(evaluate.format_summary(name, summary), file=log)
+        self.notes.report()
+        _report_run(self.stats, self.sender, log, self.live or args.status)
+        if failure is not None:
+            if isinstance(failure, OutputFailed) and isinstance(failure.cause, BrokenPipeError) and args.out == "-":
+                _silence_stdout()                       # else Python's own flush at exit fails again, loudly
+            print(_early_end_line(failure, records, args, self.recorder, self.writer, kept), file=sys.stderr)
+            _traceback_on_request(failure)
+            return 1
+        if synthetic_preset(spec) is not None:         # a cached frame that cannot be read: render it all again
+            unreadable = next((r["reason"] for r in records if not r["ok"] and r["reason"]
+                               and (".png: missing" in r["reason"] or ".png: unreadable (" in r["reason"])), None)
+            if unreadable is not None:
+                rerender(self.source.dataset.folder, unreadable)
+        tracked = sum(bool(r["ok"]) for r in records)
+        code = _report_rig(args, self.tracker, tracked=tracked, log=log)
+        if args.record:
+            print(f"recording: {args.record} (replay: headplod track --source {args.record})", file=log)
+        if args.out and args.out != "-":
+            print(f"pose records: {args.out}", file=log)
+        if tracked == 0:
+            print(f"headplod: no frame tracked (of {len(records)}); exit status {EXIT_NO_FRAME_TRACKED}",
+                  file=sys.stderr)
+            return EXIT_NO_FRAME_TRACKED
+        return code
 
 
 class OutputFailed(Exception):
@@ -571,151 +631,6 @@ def _report_run(stats, sender, log, rates: bool) -> None:
               f"{stats.first_internal_error}); each has ok false and the reason in its record", file=log)
     if sender is not None:
         print(sender.failure_summary() or f"udp: {sender.sent} poses sent to {sender.host}:{sender.port}", file=log)
-
-
-def _inside(path: Path, folder: Path) -> bool:
-    """Whether resolved ``path`` is ``folder`` or lies inside it (both resolved)."""
-    return path == folder or folder in path.parents
-
-
-def _source_inputs(spec: str | None = None, source=None, rig=None) -> tuple[list, list]:
-    """What the source reads: ([(what, file)], [(what, folder)]), paths resolved."""
-    files, folders = [], []
-    if spec is not None and source_kind(spec) != "v4l2" and synthetic_preset(spec) is None:
-        if Path(spec).expanduser().is_dir():
-            folders.append(("the dataset folder being read", spec))
-        elif "," in spec:
-            files += [("a video being read", part) for part in spec.split(",")]
-    if source is not None:
-        dataset = getattr(source, "dataset", None)
-        if dataset is not None:
-            folders.append(("the dataset folder being read", dataset.folder))
-        for r in (rig, getattr(source, "rig", None)):
-            if r is not None and getattr(r, "path", None):
-                files.append(("the rig being read", r.path))
-    return _resolved(files), _resolved(folders)
-
-
-def _resolved(items: list) -> list:
-    return [(what, Path(path).expanduser().resolve()) for what, path in items]
-
-
-def _check_outputs(args, spec: str | None = None, source=None, rig=None) -> None:
-    """Refuse ``--out`` and ``--record`` that would overwrite what is read, or each other (raises _Usage).
-
-    Without ``source``: what the command line tells (``--out`` is not a
-    folder and its folder exists; ``--record`` is not a file, holds no
-    recording unless ``--overwrite``; neither is an input named on the
-    command line). With it: the dataset folder and the rig the source read.
-    Nothing is written.
-    """
-    files, folders = _source_inputs(spec, source, rig)
-    if source is None:
-        files += [(f"the {name} being read", Path(value).expanduser().resolve())
-                  for name, value in (("--calib", args.calib), ("--markers", args.markers),
-                                      ("--screen", args.screen)) if value]
-    if args.out and args.out != "-":
-        out = Path(args.out).expanduser()
-        resolved = out.resolve()
-        if source is None:
-            if out.is_dir():
-                raise _Usage(f"--out {args.out}: is a folder; give the file to write, e.g. {out / 'poses.jsonl'}")
-            if not resolved.parent.is_dir():
-                raise _Usage(f"--out {args.out}: the folder {out.parent} does not exist; create it first")
-        for what, path in files:
-            if resolved == path:
-                raise _Usage(f"--out {args.out}: is {what}, which is never overwritten; give another file name")
-        for what, folder in folders:
-            if _inside(resolved, folder):
-                raise _Usage(f"--out {args.out}: lies inside {what} ({folder}), which is never written to; "
-                             "write the records elsewhere")
-        if args.record:
-            record = Path(args.record).expanduser().resolve()
-            for entry in RECORDING_ENTRIES:
-                if _inside(resolved, record / entry):
-                    raise _Usage(f"--out {args.out}: is the recording's own {entry} in --record {args.record}; "
-                                 "write the records elsewhere")
-    if args.record:
-        target = Path(args.record).expanduser()
-        record = target.resolve()
-        if source is None:
-            if target.exists() and not target.is_dir():
-                raise _Usage(f"--record {args.record}: is a file; give a folder for the recording")
-            held = recording_held(target)
-            if held and not args.overwrite:
-                raise _Usage(f"--record {args.record}: {held}; choose another folder, or add --overwrite to "
-                             "replace it")
-            if args.overwrite and record in (Path.cwd().resolve(), Path.home().resolve(), Path(record.anchor)):
-                raise _Usage(f"--record {args.record}: is the current, home or root folder; record into a "
-                             "folder of its own")
-        for what, folder in folders:
-            if _inside(record, folder) or _inside(folder, record):
-                raise _Usage(f"--record {args.record}: {'lies inside' if _inside(record, folder) else 'holds'} "
-                             f"{what} ({folder}); record into another folder")
-        for what, path in files:
-            if _inside(path, record):
-                raise _Usage(f"--record {args.record}: holds {what} ({path}); record into another folder")
-    elif args.overwrite:
-        raise _Usage("--overwrite goes with --record DIR (it replaces the recording in DIR)")
-
-
-def _check_save_rig(args, source=None, rig=None, spec=None) -> None:
-    """Refuse a ``--save-rig FILE`` that would overwrite what is read (raises _Usage); nothing is written.
-
-    Without ``source``: what the command line alone tells (the folder of FILE
-    exists; FILE is not --calib, --out, a dataset folder given as the source
-    ``spec`` or --record's folder, nor inside them). With it: not the rig.yaml
-    the source read, nor inside its dataset folder.
-    """
-    if not args.save_rig:
-        return
-    target = Path(args.save_rig).expanduser()
-    resolved = target.resolve()
-    if source is None:
-        if args.refine_rig == "off":
-            raise _Usage("--save-rig needs the rig refinement (--refine-rig on): there is nothing to save")
-        if target.is_dir():
-            raise _Usage(f"--save-rig {args.save_rig}: is a folder; give the file to write, e.g. "
-                         f"{target / 'rig_refined.yaml'}")
-        if not resolved.parent.is_dir():
-            raise _Usage(f"--save-rig {args.save_rig}: the folder {target.parent} does not exist")
-    files, folders = [], []
-    if source is None:
-        if args.calib:
-            files.append(("the rig being read (--calib)", args.calib))
-        if args.out and args.out != "-":
-            files.append(("the pose records (--out)", args.out))
-        if spec and Path(spec).is_dir():
-            files.append(("the rig being read (the dataset's)", Path(spec) / "rig.yaml"))
-            folders.append(("the dataset folder being read", spec))
-        if args.record:
-            folders.append(("the --record folder (a recording keeps the rig it was tracked with)", args.record))
-    else:
-        for r in (rig, getattr(source, "rig", None)):
-            if r is not None and getattr(r, "path", None):
-                files.append(("the rig being read", r.path))
-        dataset = getattr(source, "dataset", None)
-        if dataset is not None:
-            folders.append(("the dataset folder being read", dataset.folder))
-    for what, path in files:
-        if _same_file(resolved, Path(path)):
-            raise _Usage(f"--save-rig {args.save_rig}: is {what}, which is never overwritten; "
-                         "give another file name")
-    for what, folder in folders:
-        folder = Path(folder).expanduser().resolve()
-        if resolved == folder or folder in resolved.parents:
-            raise _Usage(f"--save-rig {args.save_rig}: lies inside {what} ({folder}); "
-                         "write the refined rig elsewhere")
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    b = Path(b).expanduser()
-    if a == b.resolve():
-        return True
-    try:
-        return a.exists() and b.exists() and a.samefile(b)
-    except OSError:
-        return False
 
 
 def _report_rig(args, tracker, tracked: int, log) -> int:
