@@ -1,25 +1,19 @@
 """The one harness of the PLOD benchmarks: scene and view, frames through the frame step, quality, charts.
 
-Every frame a PLOD benchmark makes is a frame of :class:`headplod.render.frame.FrameStep`,
-the step ``headplod render`` and the demo run, with the back end that draws it
-(:func:`mesh_step`, :func:`raymask_step`): the view conditioned once, the
-levels selected, the mesh's indices built and uploaded (the vertex table
-once per renderer), rendered and read back. So a benchmark measures what the
-demo does.
+Every frame a PLOD benchmark makes is a frame of :class:`headplod.render.frame.FrameStep`, the step
+``headplod render`` and the demo run, with the back end that draws it (:func:`mesh_step`,
+:func:`raymask_step`): the view conditioned once, the levels selected, the mesh's indices built and uploaded
+(the vertex table once per renderer), rendered and read back. So a benchmark measures what the demo does.
 
-- :class:`BenchScene`: the benches' scene and default view (the embedded
-  screen, the built-in terrain, a renderer of :data:`SIZE`, the head 60 cm in
-  front of the screen centre, the POI at the centre, the tracker's
-  covariance :data:`TRACKER_COV_DEG2`, the camera, px per degree, the
-  :data:`DISC_DEG` disc about the POI).
-- :func:`run_views`: a list of views through a step, in order: its
-  :class:`FrameOutput` per view.
-- :func:`steady_frame` (and :meth:`BenchScene.steady`): N frames of one
-  view; the median of each stage after the first frame (:func:`steady_stats`).
-- :func:`alternate`: several steps run in turn, round by round, so a busy
-  machine slows them alike.
+- :class:`BenchScene`: the benches' scene and default view (the embedded screen, the built-in terrain, a
+  renderer of :data:`SIZE`, the head 60 cm in front of the screen centre, the POI at the centre, the
+  tracker's covariance :data:`TRACKER_COV_DEG2`, the camera, px per degree, the :data:`DISC_DEG` disc).
+- :func:`run_views`: a list of views through a step, in order: its :class:`FrameOutput` per view.
+- :func:`steady_frame` (and :meth:`BenchScene.steady`): N frames of one view; the median of each stage
+  after the first frame (:func:`steady_stats`).
+- :func:`alternate`: several steps run in turn, round by round, so a busy machine slows them alike.
 - :func:`quality`: PSNR, PSNR in the disc, FLIP (:mod:`.image_metrics`).
-- :func:`pyplot`, :func:`save_figure`, :func:`write_png` (:mod:`.outputs`): charts and pictures.
+- :func:`pyplot`, :func:`save_figure`, :func:`write_png` (:mod:`.outputs`), :func:`label_axes`: charts.
 
 Units: world mm, screen px, images (H, W, 3) uint8 RGB, times ms, angles deg.
 """
@@ -42,7 +36,8 @@ from .outputs import pyplot, save_figure, write_png
 
 __all__ = ["SIZE", "TRACKER_SIGMA_DEG", "TRACKER_COV_DEG2", "DISC_DEG", "FRAME_DT_S", "FRAME_STAGES",
            "BenchScene", "mesh_step", "raymask_step", "release_step", "run_views", "steady_frame", "steady_stats",
-           "alternate", "quality", "poi_disc", "progress", "pyplot", "save_figure", "write_png", "DEFAULT_SCREEN"]
+           "alternate", "quality", "poi_disc", "progress", "label_axes", "pyplot", "save_figure", "write_png",
+           "DEFAULT_SCREEN"]
 
 #: Image size of the benchmarks (and the demo's default), px (width, height).
 SIZE = (1280, 720)
@@ -62,6 +57,17 @@ FRAME_STAGES = ("select", "build", "upload", "render")
 def progress(name: str):
     """A progress callable for a benchmark: ``progress("bench plod")("csf")`` prints ``bench plod: csf`` to stderr."""
     return lambda text: print(f"{name}: {text}", file=sys.stderr, flush=True)
+
+
+def label_axes(ax, xlabel, ylabel=None, title=None, xscale=None, yscale=None, which="major", legend=7) -> None:
+    """Labels, scales, grid and legend (``legend``: its font size; None: no legend) of a chart's panel."""
+    for setter, value in ((ax.set_xlabel, xlabel), (ax.set_ylabel, ylabel), (ax.set_title, title),
+                          (ax.set_xscale, xscale), (ax.set_yscale, yscale)):
+        if value:
+            setter(value)
+    ax.grid(True, which=which, alpha=0.3)
+    if legend:
+        ax.legend(fontsize=legend)
 
 
 def poi_disc(shape, poi_image_px, radius_px: float) -> np.ndarray:
@@ -192,32 +198,13 @@ def alternate(steps: dict, view_at, model, rounds: int, repeats: int = 1) -> tup
 class BenchScene:
     """The benches' scene and default view (module notes).
 
-    Parameters
-    ----------
-    size : (int, int)
-        Image size, px.
-    scene : TerrainScene, optional
-        Default: the built-in terrain behind ``screen``.
-    screen : headplod.io.Screen, optional
-        Default: the scene's, else the embedded screen (``calib/screen.yaml``).
-    ctx : moderngl.Context, optional
-        Default: a new headless context.
-    frames : int
-        Frames of a steady frame (:meth:`steady`): the first builds, the rest are timed.
+    ``size`` (w, h) px; ``scene`` (default: the built-in terrain behind ``screen``); ``screen`` (default: the
+    scene's, else ``calib/screen.yaml``); ``ctx`` (default: a new headless context); ``frames`` of a steady
+    frame (:meth:`steady`: the first builds, the rest are timed).
 
-    Attributes
-    ----------
-    renderer : TerrainRenderer
-        Of ``size``, for the steps run one after the other.
-    head : (3,) world mm; poi : (2,) screen px
-        The default view (with :data:`TRACKER_COV_DEG2`: :meth:`view`).
-    camera : ((4, 4), (4, 4))
-        View and projection from the head.
-    px_per_deg : float
-        Image px per degree at the screen centre.
-    poi_image : (2,) image px
-    disc : (H, W) bool
-        The :data:`DISC_DEG` disc about the POI.
+    Attributes: ``renderer`` (of ``size``); ``head`` (3,) world mm and ``poi`` (2,) screen px, the default
+    view (:meth:`view`); ``camera`` (view, projection) (4, 4) each; ``px_per_deg`` at the screen centre;
+    ``poi_image`` (2,) image px; ``disc`` (H, W) bool, the :data:`DISC_DEG` disc about the POI.
     """
 
     def __init__(self, size=SIZE, scene: TerrainScene | None = None, screen=None, ctx=None, frames: int = 3):

@@ -1,51 +1,20 @@
-"""``headplod bench plod``: speed against image error for every LOD mode, in one run.
+"""``headplod bench plod``: speed against image error for every LOD mode, in one run (README: measurements).
 
-The default view: the embedded 24-inch screen, the head 60 cm in front of its
-centre, the POI at the centre, 1280x720 offscreen (EGL; llvmpipe on a machine
-without a GPU) (:class:`headplod.bench.harness.BenchScene`). Every frame is
-the demo's, through the frame step (:mod:`headplod.bench.harness`).
-Everything is measured in the same run, against the ``full`` render of the
-same view:
+The default view and every frame come from :mod:`.harness` (the demo's frame step); images are judged
+against ``full``'s of the same view. Parts:
 
-1. **Modes.** Per mode: triangles, select / build / upload / render ms of a
-   steady frame (the first frame builds the mesh, later ones rebuild only
-   the base triangles whose level changed), the frame time as a ratio to ``full``'s,
-   select + build as a fraction of ``full``'s render, PSNR over the whole
-   image and within 5° of the POI, and FLIP (NVIDIA's perceptual error,
-   ``flip-evaluator``, at the view's pixels per degree). Also the CSF forms
-   (the paper's eq. 3 as printed, exact Kelly, Daly, frequency-scaled
-   eccentricity) and the paper's read-back contrast against the shading
-   contrast that needs no read-back.
-2. **Quality curves.** Each mode with its continuous level shifted by a bias
-   (−1.5 … +1 levels): triangles and frame time against PSNR and FLIP.
-3. **Velocity sweep** (Wakatsuki et al. Fig. 8): triangles against the
-   on-screen angular speed of the terrain for ``sse``, ``ipv``, ``dpv`` and
-   ``csf`` (the head translating parallel to the screen, gaze fixed).
-4. **Uncertainty.** With a covariance of σ = (1.5°, 3°): the fraction of the
-   base triangles inside the POI's 2σ ellipse kept at full detail, for
-   ``none`` and ``fixed``; level-colour pictures with the ellipse.
-5. **Stability.** A still head through the real tracker on noisy synthetic
-   frames: level changes per frame after the first 10, per uncertainty mode
-   (:mod:`headplod.bench.stability`).
-6. **Foveated layers** (``--foveate``, :mod:`headplod.bench.plod_foveate`):
-   per viewpoint, ``full``, ``csf`` and ``csf --foveate`` in the demo's
-   loop, interleaved on the same tracked poses; the luminance profile
-   across each layer border against ``full``'s; PSNR and FLIP; a picture of
-   the layers and the POI's 2σ ellipse per viewpoint.
-7. **Ray mask** (``raymask``, :mod:`headplod.bench.plod_raymask`): per
-   viewpoint, ``full``, ``csf`` and Murphy & Duchowski's hybrid, silhouettes
-   on and off, in alternation; PSNR, FLIP, the sky silhouette's largest
-   displacement against ``full``'s; the inset-size sweep; a picture of the
-   mask per viewpoint.
-8. **Perceptual judge** (``--vdp``, the optional extra ``.[vdp]``): JOD
-   against frame time per mode and CSF form, FovVideoVDP foveated on the POI
-   on the screen's real size and distance (:mod:`headplod.bench.plod_judge`).
+1. **Modes**: per mode, the CSF forms and the read-back contrast: triangles, stage ms of a steady frame,
+   frame-time ratio to ``full`` (also in alternation), select + build over ``full``'s render, PSNR (whole,
+   5° disc), FLIP.
+2. **Quality curves**: each mode over a level bias (:data:`BIASES`).
+3. **Velocity sweep** (Wakatsuki et al. Fig. 8): triangles against the terrain's on-screen angular speed.
+4. **Uncertainty**: base triangles in the POI's 2σ ellipse at full detail, ``none`` against ``fixed``.
+5. **Stability**: level changes per frame of a still head through the tracker (:mod:`.stability`).
+6. **Foveated layers** (:mod:`.plod_foveate`), 7. **Ray mask** (:mod:`.plod_raymask`), 8. **Perceptual
+   judge** (``--vdp``, :mod:`.plod_judge`).
 
-Writes JSON, a 3x3 chart and the level-colour pictures beside the chart,
-and parts 6 and 7's charts and pictures beside it (``foveate_*.png``,
-``plod_raymask.png``, ``raymask_*.png``); with ``--vdp`` also ``plod_jod.png``
-and ``plod_jod_heatmap_{csf,sse}.png``. ``only="foveate"``, ``"raymask"`` or
-``"judge"`` (``headplod bench plod --only PART``) runs part 6, 7 or 8 alone.
+Writes JSON, a 3x3 chart, the level-colour pictures and parts 6-8's charts and pictures beside the chart;
+``only`` (``--only foveate|raymask|judge``) runs part 6, 7 or 8 alone.
 """
 from __future__ import annotations
 
@@ -56,8 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from . import stability as still_head
-from .harness import (DEFAULT_SCREEN, FRAME_DT_S, SIZE, BenchScene, alternate, progress, pyplot, run_views,
-                      save_figure, write_png)
+from .harness import (DEFAULT_SCREEN, FRAME_DT_S, SIZE, BenchScene, alternate, label_axes, progress, pyplot,
+                      run_views, save_figure, write_png)
 from ..plod import perception as pc
 from ..plod.contrast import project_to_screen_px, readback_contrast
 from ..plod.csf import CSF_MODELS
@@ -151,12 +120,8 @@ def measure_modes(b: BenchScene) -> tuple[dict, dict]:
 
 
 def interleaved_speed(b: BenchScene, modes=("full", "csf"), rounds: int = 9) -> dict:
-    """Render time of each mode's frame measured in alternation, so a busy machine slows all alike.
-
-    Each round runs every mode's frame step (a renderer each) twice, one mode after the other; a
-    round's time is the faster render. Returns ``{"render_ms": {mode: median ms}, "rounds_ms":
-    {mode: [ms per round]}}``.
-    """
+    """Render ms of each mode in alternation (:func:`.harness.alternate`, twice a round, the faster kept):
+    ``{"render_ms": {mode: median}, "rounds_ms": {mode: [per round]}}``."""
     renderers = {mode: TerrainRenderer(b.ctx, size=b.size) for mode in modes}
     try:
         steps = {mode: b.mesh_step(mode, renderer=renderers[mode]) for mode in modes}
@@ -183,13 +148,8 @@ def quality_curves(b: BenchScene, reference: np.ndarray, biases=BIASES) -> dict:
 
 
 def velocity_sweep(b: BenchScene, speeds=SWEEP_SPEEDS_DEG_S, frames: int = 60) -> dict:
-    """Part 3: triangles against the terrain's angular speed, head translating parallel to the screen.
-
-    The eye moves along the screen's rows at a constant speed for ``frames``
-    frames at 60 Hz, the POI fixed at the centre; the triangles of the last
-    frame and the median angular speed of the visible base triangles (drawn
-    on the small renderer: the figures do not depend on the image's size).
-    """
+    """Part 3: the eye moving along the screen's rows at each speed for ``frames`` frames at 60 Hz (the POI
+    fixed): the last frame's triangles and the median angular speed of the base triangles (small renderer)."""
     right, _, _, _ = screen_frame(b.screen)
     centroids = b.mesh_step("full", "none").backend.selector.centroids_mm
     distance = float(np.median(np.linalg.norm(centroids - b.head, axis=1)))   # eye to the terrain, mm
@@ -404,12 +364,8 @@ def _goals(report) -> list:
 
 
 def image_side_parts(out_dir, quick: bool = False, parts=PARTS) -> dict:
-    """Parts 6 and 7 (or those of ``parts``): the foveated layers and the ray mask; {part: its summary},
-    their charts and pictures in ``out_dir``.
-
-    Without ``out_dir`` (no ``--chart``) the pictures go to a temporary folder
-    and are dropped.
-    """
+    """Parts 6 and 7 (or those of ``parts``): {part: its summary}; their charts and pictures in ``out_dir``
+    (None: a temporary folder, dropped)."""
     import tempfile
 
     from . import plod_foveate, plod_raymask
@@ -448,19 +404,19 @@ def _chart(report, path):
             if zero:
                 ax.plot(zero[0][xkey], min(zero[0][ykey], 80.0), "s", color=colors[mode], ms=8, mfc="none")
         ax.plot(results["full"][xkey], min(results["full"][ykey], 80.0), "k*", ms=12, label="full")
-        _axes(ax, xlabel, ylabel, xscale="log")
+        label_axes(ax, xlabel, ylabel, xscale="log")
     axs[0, 0].set_title("each mode with its level shifted by −1.5 … +1 (square: no shift)")
     ax = axs[0, 2]
     for mode, rows in report["velocity_sweep"].items():
         ax.plot([max(r["median_speed_deg_s"], 0.1) for r in rows], [r["triangles"] for r in rows], "o-",
                 color=colors[mode], label=mode)
-    _axes(ax, "on-screen angular speed of the terrain (deg/s, median; still drawn at 0.1)", "triangles",
+    label_axes(ax, "on-screen angular speed of the terrain (deg/s, median; still drawn at 0.1)", "triangles",
           "velocity sweep (Wakatsuki et al. Fig. 8)", xscale="log", yscale="log")
     ax = axs[1, 2]
     for key, st in report["stability"].items():
         ax.plot(np.arange(len(st["changes_per_frame"])) + 10, st["changes_per_frame"], label=key,
                 ls="-" if "no hysteresis" not in key else ":")
-    _axes(ax, "frame", "base triangles changing level", "still head through the tracker (csf)")
+    label_axes(ax, "frame", "base triangles changing level", "still head through the tracker (csf)")
     names = list(results)
     for ax, key, colour, line, xlabel in (
             (axs[2, 0], "frame_ratio_full_over_mode", "tab:blue", 5,
@@ -483,16 +439,3 @@ def _chart(report, path):
     fig.suptitle("PLOD at 1280x720, POI at the screen centre, head 60 cm (one run; llvmpipe)")
     save_figure(fig, path, dpi=90)
 
-
-def _axes(ax, xlabel, ylabel, title=None, xscale=None, yscale=None) -> None:
-    """Labels, scales, grid and legend of a line panel."""
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel(ylabel)
-    if title:
-        ax.set_title(title)
-    if xscale:
-        ax.set_xscale(xscale)
-    if yscale:
-        ax.set_yscale(yscale)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7)

@@ -1,45 +1,19 @@
-"""A judge that sees as a viewer does: foveated JOD of the PLOD modes against ``full``.
+"""A judge that sees as a viewer does: foveated JOD of the PLOD modes against ``full`` (README: the judge).
 
-PSNR and FLIP know neither where the viewer looks nor how large the screen
-is. This module scores a rendered frame against ``full``'s with a
-visible-difference predictor from Mantiuk's group that does, in JOD (just
-objectionable differences: 10 = identical to the reference, each unit below
-it one JOD of preference):
+A visible-difference predictor from Mantiuk's group scores a frame against ``full``'s in JOD (10 = identical,
+each unit below one JOD of preference), knowing where the viewer looks and the screen's real size:
 
-* ``"fvvdp"`` (default) — **FovVideoVDP** (PyPI ``pyfvvdp``, Mantiuk et al.
-  2021) in **foveated mode**: the fixation point is the POI, the CSF falls
-  with eccentricity from it (cortical magnification), the display geometry
-  is the screen's real size at the head's real distance.
-* ``"cvvdp"`` — **ColorVideoVDP** (PyPI ``cvvdp``, Mantiuk et al. 2024),
-  the colour successor, same display geometry. Its released Python code
-  (0.5.x) has **no foveated mode** (no ``foveated`` argument and no
-  fixation point in ``cvvdp.predict``; only FovVideoVDP has them), so it
-  judges every pixel as if it were fixated. It is the second opinion, not
-  the foveated judge. Its PyPI ``torchvision`` is a CUDA build whose C
-  operators do not load against the CPU ``torch``; :func:`_import_metric`
-  declares the two operator schemas torchvision's import registers
-  (``nms``, ``qnms``: unused by the metric) so the import succeeds.
+* ``"fvvdp"`` (default): FovVideoVDP (``pyfvvdp``) in foveated mode, the fixation point at the POI;
+* ``"cvvdp"``: ColorVideoVDP (``pycvvdp`` 0.5.x), same geometry, no foveated mode (it judges every pixel as
+  fixated): the second opinion. Its PyPI ``torchvision`` is a CUDA build; :func:`_import_metric` declares the
+  two operator schemas torchvision's import registers so the import succeeds.
 
-What is judged (:func:`jod_report`): every selector mode and every other
-CSF form of ``csf``, each over a level bias, and the image-side techniques
-(``raymask`` over its mask contrast, ``csf`` drawn as foveated layers), each
-point's JOD against its frame time and its triangle count; then each
-CSF-based point against the best geometric curve at the same cost
-(:func:`compare_at_equal_time`). ``headplod bench plod --vdp`` runs it after
-the benchmark; ``headplod bench plod --only judge`` runs it alone. The metrics are an optional extra (``pip install -e
-'.[vdp]'``: PyTorch, its CPU build where the index offers it). Without it
-:func:`vdp_available` is False and ``headplod bench plod`` runs as before;
-the geometry, fixation and comparison need only numpy.
-
-The geometry follows the metrics' model: the image fills the display, whose
-physical width and height are the screen's (``calib/screen.yaml``'s
-corners), and the eye sits on the normal through the screen's centre at the
-head's distance. The rendered image (1280x720) is the display's pixel grid
-(each image pixel is 1.5 screen pixels of the 1920x1080 screen), so the
-pixels per degree are the image's, as :func:`headplod.render.still.px_per_deg_at`.
-
-Photometry (a standard office monitor, as the metrics' ``standard_4k``):
-200 cd/m² peak, 1000:1, sRGB EOTF, 250 lux ambient, 0.5 % reflectance.
+:func:`jod_report` judges every mode and CSF form over a level bias (and the image-side techniques), each
+point's JOD against its frame time and triangles, then the CSF-based points against the best geometric
+curve at the same cost (:func:`compare_at_equal_time`). The metrics are the optional extra ``.[vdp]``;
+without it :func:`vdp_available` is False. Geometry: the image fills the display of the screen's physical
+size, the eye on the normal through its centre at the head's distance. Photometry (the metrics'
+``standard_4k``): 200 cd/m² peak, 1000:1, sRGB, 250 lux, 0.5 % reflectance.
 """
 from __future__ import annotations
 
@@ -66,26 +40,9 @@ RAYMASK_CONTRASTS = (1.0, 0.3, 0.1)
 
 @dataclass(frozen=True)
 class JudgeSettings:
-    """How the judge sees, each with its unit.
-
-    Attributes
-    ----------
-    metric : one of METRICS
-        ``"fvvdp"`` (default: FovVideoVDP, foveated on the fixation point) or
-        ``"cvvdp"`` (ColorVideoVDP, not foveated: its code has no such mode).
-    peak_luminance_cd_m2 : float
-        White of the display, cd/m² (200, the metrics' ``standard_4k``).
-    contrast : float
-        Display contrast ratio, white/black (1000).
-    ambient_lux : float
-        Illuminance of the room on the screen, lux (250, an office).
-    reflectance : float
-        Fraction of the ambient light the screen reflects (0.005).
-    threads : int
-        CPU threads PyTorch may use (2, this machine's cores).
-    max_eye_offset_mm : float
-        Largest distance of the eye from the normal through the screen's
-        centre that the metrics' centred-eye model is used for, mm (5.0).
+    """How the judge sees: ``metric`` (one of :data:`METRICS`), the display's white (cd/m²) and contrast ratio,
+    the room's illuminance on the screen (lux) and the screen's reflectance (fraction), PyTorch's CPU threads,
+    and the largest eye offset from the normal through the screen's centre the metrics' model is used for (mm).
     """
 
     metric: str = "fvvdp"
@@ -113,17 +70,8 @@ class JudgeSettings:
 
 @dataclass(frozen=True)
 class DisplayGeometry:
-    """The display as the judge sees it.
-
-    Attributes
-    ----------
-    resolution_px : (int, int)
-        The image's (width, height), px: the display's pixel grid.
-    width_m, height_m : float
-        The screen's physical size, m.
-    distance_m : float
-        Eye to the screen plane along its normal, m.
-    """
+    """The display as the judge sees it: the image's (width, height) px, the screen's size (m), the eye's
+    distance to the screen plane along its normal (m)."""
 
     resolution_px: tuple[int, int]
     width_m: float
@@ -151,20 +99,9 @@ class DisplayGeometry:
 
 
 def display_geometry(screen, head_mm, image_size, max_eye_offset_mm: float = 5.0) -> DisplayGeometry:
-    """The judge's display: ``screen``'s physical size, seen from ``head_mm``, as an image of ``image_size``.
-
-    Parameters
-    ----------
-    screen : headplod.io.Screen
-        Its corners give the physical width and height (mm).
-    head_mm : array (3,)
-        The eye in the world frame, mm.
-    image_size : (int, int)
-        The rendered image's (width, height), px; the image fills the screen.
-    max_eye_offset_mm : float
-        The metrics put the eye on the normal through the screen's centre; an
-        eye farther from that normal than this (mm) raises ValueError.
-    """
+    """The judge's display: ``screen``'s physical size (its corners, mm), seen from ``head_mm`` (3,) world mm, as
+    an image of ``image_size`` (w, h) px filling it; ValueError for an eye more than ``max_eye_offset_mm`` off
+    the normal through the screen's centre."""
     head = np.asarray(head_mm, dtype=np.float64)
     if head.shape != (3,) or not np.all(np.isfinite(head)):
         raise ValueError(f"head_mm must be a finite 3-vector (mm), got shape {head.shape}")
@@ -187,14 +124,8 @@ def display_geometry(screen, head_mm, image_size, max_eye_offset_mm: float = 5.0
 
 
 def fixation_px(screen, poi_px, image_size) -> np.ndarray:
-    """The metrics' fixation point (x, y) for a POI given in screen pixels.
-
-    ``poi_px`` is the POI in the screen's continuous pixel coordinates
-    (:meth:`Screen.pixel_to_world`'s: (0, 0) the top-left corner,
-    ``size_px`` the bottom-right one). The image of ``image_size`` (w, h) px
-    covers the screen; the metrics index a pixel by its integer (column, row)
-    and place its centre at index + 0.5, so the fixation is the POI scaled to
-    the image, minus half a pixel. Returns float64 (2,).
+    """The metrics' fixation point (x, y), float64 (2,), for ``poi_px`` in the screen's continuous px: scaled
+    to the image of ``image_size`` (w, h) px, minus half a pixel (the metrics put a pixel's centre at index + 0.5).
     """
     poi = np.asarray(poi_px, dtype=np.float64).reshape(-1)
     if poi.shape != (2,) or not np.all(np.isfinite(poi)):
@@ -238,14 +169,9 @@ def _import_metric(metric: str):
 
 
 def _import_isolated(package: str):
-    """Import ``pyfvvdp`` or ``pycvvdp`` so that both can live in one process.
-
-    Each puts its own folder on ``sys.path`` and imports its helpers as
-    top-level modules of the same names (``interp``, ``utils``,
-    ``video_source``, ...): the second one imported would get the first one's.
-    Its folder goes first on the path while it is imported, and the other's
-    helpers are set aside and put back afterwards (each package keeps the
-    module objects it bound; neither imports them again at run time).
+    """Import ``pyfvvdp`` or ``pycvvdp`` so that both can live in one process: each imports its helpers as
+    top-level modules of the same names (``interp``, ``utils``, ...), so its folder goes first on the path while
+    it is imported, and the other's helpers are set aside and put back afterwards.
     """
     import importlib.util
     import os
@@ -400,46 +326,27 @@ def judge_entries(modes=None, forms=None) -> list[tuple[str, dict]]:
 def jod_report(bench, reference_rgb: np.ndarray | None = None, modes=None, forms=None, biases=(-1.0, 0.0, 1.0),
                metrics=("fvvdp",), settings: JudgeSettings = JudgeSettings(), off_fixation_deg: float = 10.0,
                timing_rounds: int = 3, image_side: bool = False, progress=None) -> dict:
-    """JOD and frame time per mode and CSF form, each over a level bias, at the bench's default view.
+    """JOD and frame time per mode and CSF form, each over a level bias, at ``bench``'s default view.
 
-    ``bench`` is a :class:`headplod.bench.harness.BenchScene` (the scene,
-    renderer, head and POI); ``reference_rgb`` its ``full`` image (rendered
-    when None). Every curve point is the steady frame of the demo's frame
-    step (:meth:`BenchScene.steady`) with the mode's level shifted by
-    ``bias`` (levels), as ``bench plod``'s quality curves. All points are
-    rendered and timed first, then scored with each of ``metrics``:
-    PyTorch's worker threads stay busy for a while after a JOD and would slow
-    a render timed right after it. The points are timed in ``timing_rounds``
-    rounds, each round every point once, and a point's ``frame_ms`` is its
-    fastest round (``frame_ms_rounds`` all of them): a load burst from
-    another process slows a round, not the curve.
+    ``bench``: a :class:`.harness.BenchScene`; ``reference_rgb``: its ``full`` image (None: rendered). Every
+    point is a steady frame (:meth:`BenchScene.steady`) at level ``bias``; all are rendered and timed first (in
+    ``timing_rounds`` rounds, a point's ``frame_ms`` its fastest), then scored with each of ``metrics``
+    (PyTorch's threads would slow a render timed right after a JOD). ``image_side``: also the curves of
+    :data:`IMAGE_SIDE` (``raymask`` over :data:`RAYMASK_CONTRASTS`, ``triangles`` None, ``bias`` NaN).
+    Each curve's bias-0 point is also scored with the fixation ``off_fixation_deg`` left of the POI
+    (``jod_<metric>_off``).
 
-    Returns a JSON-ready dict: ``display`` (geometry), ``px_per_deg``,
-    ``fixation_px``, ``settings``, ``full`` (frame_ms, triangles),
-    ``curves`` {name: [{bias, triangles, frame_ms, render_ms, jod_<metric>,
-    seconds_<metric>}]}, ``comparison`` {metric: {"frame_ms": ...,
-    "triangles": ...}} (:func:`compare_at_equal_time`) and ``seconds``
-    per metric (median wall time of one JOD, s).
-
-    With ``image_side``, also the curves of :data:`IMAGE_SIDE`: ``raymask``
-    over :data:`RAYMASK_CONTRASTS` (``triangles`` None: it casts rays) and
-    ``csf+foveate`` over ``biases`` (:func:`_point_frame`). Every point
-    carries ``setting`` (``"bias +0"``, ``"C=0.3"``) and ``bias`` (NaN for
-    the ray mask).
-
-    The check that the judge looks where the viewer does: each curve's bias-0
-    point is also scored by the foveated metric with the fixation moved
-    ``off_fixation_deg`` (degrees) left of the POI (``off_fixation_px``), as
-    ``jod_<metric>_off``: a viewer looking away from where the detail is.
+    Returns ``display``, ``px_per_deg``, ``fixation_px``, ``off_fixation_deg``, ``off_fixation_px``,
+    ``settings``, ``metrics``, ``foveated``, ``full``, ``timing_rounds``, ``curves`` {name: [{bias, setting,
+    triangles, frame_ms, render_ms, jod_<metric>, seconds_<metric>, ...}]}, ``seconds`` (median s per JOD) and
+    ``comparison`` {metric: {"frame_ms"|"triangles": :func:`compare_at_equal_time`}}.
     """
     if int(timing_rounds) != timing_rounds or timing_rounds < 1:
         raise ValueError(f"timing_rounds must be a positive integer, got {timing_rounds!r}")
     progress = progress or (lambda text: None)
     full_frame, full_stats = bench.steady(bench.mesh_step("full"))
     reference_rgb = full_frame.image if reference_rgb is None else reference_rgb
-    size = tuple(bench.size)
-    geometry = display_geometry(bench.screen, bench.head, size, settings.max_eye_offset_mm)
-    fixation = fixation_px(bench.screen, bench.poi, size)
+    size, geometry, fixation = _bench_display(bench, settings)
     off_px = geometry.distance_m * math.tan(math.radians(off_fixation_deg)) / geometry.width_m * size[0]
     off_fixation = fixation - np.array([off_px, 0.0])
     points = [(name, float(b), f"bias {b:+g}", opts) for name, opts in judge_entries(modes, forms) for b in biases]
@@ -469,6 +376,13 @@ def jod_report(bench, reference_rgb: np.ndarray | None = None, modes=None, forms
     report["comparison"] = {m: {x: compare_at_equal_time(curves, f"jod_{m}", x) for x in ("frame_ms", "triangles")}
                             for m in metrics}
     return report
+
+
+def _bench_display(bench, settings: JudgeSettings):
+    """``bench``'s image size, :func:`display_geometry` and :func:`fixation_px` at its default view."""
+    size = tuple(bench.size)
+    return (size, display_geometry(bench.screen, bench.head, size, settings.max_eye_offset_mm),
+            fixation_px(bench.screen, bench.poi, size))
 
 
 def _point_frame(bench, name: str, bias: float, opts: dict):
@@ -521,17 +435,11 @@ def _time_points(bench, points, rounds: int, full_stats: dict, progress):
 
 
 def compare_at_equal_time(curves: dict, key: str = "jod_fvvdp", x: str = "frame_ms") -> dict:
-    """Each CSF-based point against the best geometric curve at the same cost ``x``.
-
-    ``x`` is ``"frame_ms"`` (frame time, ms) or ``"triangles"`` (the cost
-    that does not depend on the machine's load). The geometric envelope at
-    cost c is the highest JOD among the curves of :data:`GEOMETRIC`
-    interpolated (linearly in log cost, each curve's points sorted by cost)
-    at c; a point outside a curve's cost range does not count for that
-    curve. Returns {curve name: [{bias, <x>, jod, geometric_jod,
-    geometric_mode, margin}]} for the curves of :data:`CSF_BASED`, the
-    CSF forms (``csf[...]``) and :data:`IMAGE_SIDE`; margin = jod − geometric_jod (JOD; positive:
-    the CSF-based point is above), None where no geometric curve spans c.
+    """Each CSF-based point against the best geometric curve at the same cost ``x`` (``"frame_ms"`` or
+    ``"triangles"``): the highest JOD of the :data:`GEOMETRIC` curves interpolated linearly in log cost at the
+    point's (a curve counts only within its cost range). {curve: [{bias, setting, <x>, jod, geometric_jod,
+    geometric_mode, margin}]} for the :data:`CSF_BASED` curves, the CSF forms and :data:`IMAGE_SIDE`; margin =
+    jod − geometric_jod (None where no geometric curve spans the cost).
     """
     if x not in ("frame_ms", "triangles"):
         raise ValueError(f"x must be 'frame_ms' or 'triangles', got {x!r}")
@@ -588,7 +496,7 @@ def jod_table(report: dict) -> str:
 
 def jod_chart(report: dict, path) -> None:
     """JOD against frame time (top) and triangles (bottom), one column per metric; square: bias 0 (raymask: C=1)."""
-    from .outputs import pyplot, save_figure
+    from .harness import label_axes, pyplot, save_figure
 
     plt = pyplot()
     metrics = report["metrics"]
@@ -616,13 +524,9 @@ def jod_chart(report: dict, path) -> None:
                 if zero:
                     ax.plot(zero[0][x], zero[0][f"jod_{m}"], "s", color=color, ms=9, mfc="none")
             ax.axvline(report["full"][x], color="k", lw=1, ls="--", label="full (JOD 10)")
-            ax.set_xscale("log")
-            ax.set_xlabel(xlabel)
             fov = "foveated on the POI" if report["foveated"][m] else "not foveated (the package has no such mode)"
-            ax.set_ylabel(f"JOD against full ({m}; 10 = identical)")
-            ax.set_title(f"{'FovVideoVDP' if m == 'fvvdp' else 'ColorVideoVDP'}: {fov}")
-            ax.grid(True, which="both", alpha=0.3)
-            ax.legend(fontsize=7)
+            label_axes(ax, xlabel, f"JOD against full ({m}; 10 = identical)",
+                       f"{'FovVideoVDP' if m == 'fvvdp' else 'ColorVideoVDP'}: {fov}", "log", which="both")
     d = report["display"]
     fig.suptitle(f"PLOD modes, level bias −1.5 … +1 (square: 0), judged at 1280x720 on a "
                  f"{d['width_m'] * 1000:.0f}x{d['height_m'] * 1000:.0f} mm screen from {d['distance_m'] * 1000:.0f} mm "
@@ -643,9 +547,7 @@ def write_heatmaps(bench, out_dir, modes=("csf", "sse"), settings: JudgeSettings
     from .outputs import write_png
 
     reference = bench.steady(bench.mesh_step("full"))[0].image
-    size = tuple(bench.size)
-    geometry = display_geometry(bench.screen, bench.head, size, settings.max_eye_offset_mm)
-    fixation = fixation_px(bench.screen, bench.poi, size)
+    _, geometry, fixation = _bench_display(bench, settings)
     judge = Judge(geometry, settings, heatmap=True)
     out = {}
     for mode in modes:

@@ -1,43 +1,16 @@
 """``headplod bench plod --only quadtree``: selection time against the terrain's size, flat against quadtree.
 
-Issue 14's goal for selection: its cost grows at most 2x from the 2M-triangle
-terrain (a 32 x 32 base grid at level 5) to the 128M one (256 x 256 at level
-5). :func:`selection_scaling` times :class:`headplod.plod.select.LevelSelector`
-(every base triangle on every frame) and
-:class:`headplod.bench.quadtree_selector.QuadtreeSelector` on base grids of 32² to 512²
-quads (2k to 512k base triangles, 2M to 512M triangles at level 5) over the
-built-in Jacksboro terrain, from the default view (the head 60 cm in front of
-the screen's centre, the POI at the centre, the built-in scene's placement),
-and checks on every frame that both give the same levels.
-
-Every frame is the demo's select stage: a :class:`headplod.render.frame.FrameStep`
-per selector conditions the view once and selects through a
-:class:`headplod.render.frame.MeshBackend` (``select``: the selector's levels
-for the conditioned view); the selection ms is the step's ``select`` stage
-(``FrameOutput.stage_ms``). No mesh of these sizes would fit in memory, so
-the back end draws nothing (:class:`SelectionOnlyBackend`): the draw is not
-what this bench measures (``--only lazy`` draws the built-in terrain's).
-
-The selector's inputs are made here directly from the terrain
-(:func:`grid_inputs`), not through ``AdaptiveMesh``, whose vertex table
-would not fit in memory at these sizes: the corners and centroids are exact,
-the level-L edge length is the base triangle's longest side over 2^L
-(midpoint subdivision of a flat triangle), the geometric error is 0
-(mode ``csf`` does not use it) and the contrast is the displayed shading's
-(:func:`headplod.plod.shading.michelson` of :func:`headplod.plod.shading.shade`)
-over 7 points per triangle (corners, centroid, and midway from the centroid
-to each corner) instead of the finest level's lattice: cheaper, and lower
-than ``AdaptiveMesh.contrast`` (which sees the detail below the base
-triangle), so these grids refine a little less than the built-in scene.
-
-Run: ``headplod bench plod --only quadtree [--quick] [--json FILE] [--chart FILE.png]`` (``--quick``:
-:data:`QUICK_SIZES`, fewer frames).
+Issue 14's goal: selection cost grows at most 2x from the 2M-triangle terrain (32 x 32 base at level 5) to
+the 128M one (256 x 256 at level 5). :func:`selection_scaling` times ``LevelSelector`` and
+:class:`.quadtree_selector.QuadtreeSelector` on base grids of 32² to 512² quads over the built-in terrain,
+from the default view, each frame the frame step's ``select`` stage over a :class:`SelectionOnlyBackend`
+(no mesh of these sizes fits in memory), and checks that both give the same levels. The selector's inputs
+come from :func:`grid_inputs`, not ``AdaptiveMesh`` (approximations: there).
 """
 from __future__ import annotations
 
 import json
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -45,7 +18,7 @@ from .. import io
 from ..plod.select import LevelSelector, SelectorConfig, View
 from ..plod.shading import michelson, shade
 from ..render.frame import FrameStep, MeshBackend
-from .harness import DEFAULT_SCREEN, progress
+from .harness import DEFAULT_SCREEN, label_axes, progress, pyplot, save_figure
 from .outputs import write_json
 from .quadtree_selector import QuadtreeSelector
 
@@ -58,15 +31,10 @@ GOAL_GROWTH = 2.0
 
 
 def grid_inputs(terrain, nx: int, ny: int, max_level: int = 5) -> dict:
-    """The selector's per-base-triangle inputs of ``BaseMesh.grid(terrain, nx, ny)``, without a mesh.
-
-    Returns
-    -------
-    dict
-        ``corners`` (F, 3, 3), ``centroids`` (F, 3), ``edge_length`` (F, L+1),
-        ``geometric_error`` (F, L+1) (zeros), scene units (m); ``contrast``
-        (F,); ``grid_shape`` (ny, nx). F = 2 nx ny, faces in ``BaseMesh.grid``'s
-        order (module notes for what is approximate).
+    """The selector's inputs of ``BaseMesh.grid(terrain, nx, ny)`` without a mesh, scene units (m), F = 2 nx ny
+    in its face order: ``corners`` (F, 3, 3), ``centroids`` (F, 3) (exact), ``edge_length`` (F, L+1) (the longest
+    side over 2^L), ``geometric_error`` (F, L+1) (zeros: ``csf`` ignores it), ``contrast`` (F,) (the shading's
+    Michelson contrast over 7 points per triangle: lower than ``AdaptiveMesh.contrast``), ``grid_shape`` (ny, nx).
     """
     xmin, xmax, ymin, ymax = map(float, terrain.extent)
     gx, gy = np.meshgrid(np.linspace(xmin, xmax, nx + 1), np.linspace(ymin, ymax, ny + 1))
@@ -159,34 +127,12 @@ def _measure_grid(terrain, n: int, level: int, model, screen, views) -> tuple[di
 
 def selection_scaling(sizes=SIZES, frames: int = 12, max_level: int = 5, terrain=None, screen=None,
                       progress=None, deep=DEEP) -> dict:
-    """Flat against quadtree selection time per base grid size, from the default view.
+    """Flat against quadtree selection time per n x n base grid of ``sizes`` at ``max_level``, plus the
+    (n, level) rows of ``deep`` (default: the 32² base at level 8); ``frames`` views each, the first untimed.
 
-    Parameters
-    ----------
-    sizes : sequence of int
-        Base grids of n x n quads.
-    frames : int
-        Views timed per size (the first is a warm-up, not timed).
-    max_level : int
-        Finest level (the triangles at full detail are 2 n² 4^max_level).
-    terrain : Terrain, optional
-        Default ``Terrain.jacksboro()``.
-    screen : io.Screen, optional
-        Default the embedded screen.
-    progress : callable(str), optional
-    deep : sequence of (int, int)
-        Further rows (quads per side, max level): by default the 32² base at
-        level 8, the 128M terrain with the 2M one's base triangles.
-
-    Returns
-    -------
-    dict
-        ``rows``: per size ``quads``, ``base_triangles``, ``triangles_full``,
-        ``flat_ms`` and ``quadtree_ms`` (median of the frame step's select stage over the timed
-        frames), ``nodes_visited``, ``triangles_evaluated`` (medians), ``tree_nodes``,
-        ``mismatched_levels`` (over all frames; 0: the same levels),
-        ``build_s`` (inputs and tree), ``max_level``; ``growth_2M_to_128M`` (quadtree ms at
-        256² over flat ms at 32², when both were measured) and ``goal``.
+    Returns ``rows`` (per grid: ``quads``, ``base_triangles``, ``triangles_full``, ``flat_ms``, ``quadtree_ms``
+    (median select stage), ``nodes_visited``, ``triangles_evaluated``, ``tree_nodes``, ``mismatched_levels``
+    (0: the same levels), ``build_s``, ``max_level``), ``growth_2M_to_128M``, ``goal`` and ``goal_met``.
     """
     from ..plod.terrain import Terrain
 
@@ -218,11 +164,7 @@ def selection_scaling(sizes=SIZES, frames: int = 12, max_level: int = 5, terrain
 
 def chart(report: dict, path) -> None:
     """Selection ms and nodes visited against base triangles, flat and quadtree, log-log."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     deep = [r for r in report["rows"] if r["max_level"] != report["max_level"]]
     rows = [r for r in report["rows"] if r["max_level"] == report["max_level"]]
     x = [r["triangles_full"] for r in rows]
@@ -237,26 +179,14 @@ def chart(report: dict, path) -> None:
     if rows:
         base = rows[0]["flat_ms"]
         ax.axhline(GOAL_GROWTH * base, color="k", ls="--", lw=1, label=f"goal: {GOAL_GROWTH:g}x the 2M flat")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel(f"triangles at full detail (lines: level {report['max_level']}, n² base quads)")
-    ax.set_ylabel("selection ms (median)")
-    ax.set_title("csf selection, default view")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    label_axes(ax, f"triangles at full detail (lines: level {report['max_level']}, n² base quads)",
+               "selection ms (median)", "csf selection, default view", "log", "log", "both", 8)
     bx.plot(x, [r["base_triangles"] for r in rows], "o-", label="base triangles (flat evaluates all)")
     bx.plot(x, [r["nodes_visited"] for r in rows], "s-", label="quadtree nodes visited")
     bx.plot(x, [r["triangles_evaluated"] for r in rows], "^-", label="base triangles evaluated (quadtree)")
-    bx.set_xscale("log")
-    bx.set_yscale("log")
-    bx.set_xlabel(f"triangles at full detail (level {report['max_level']})")
-    bx.set_title("work per frame")
-    bx.grid(True, which="both", alpha=0.3)
-    bx.legend(fontsize=8)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    label_axes(bx, f"triangles at full detail (level {report['max_level']})", None, "work per frame", "log", "log",
+               "both", 8)
+    save_figure(fig, path, dpi=110)
 
 
 def run_quadtree_bench(json_path=None, chart_path=None, quick: bool = False) -> int:

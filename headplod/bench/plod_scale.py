@@ -1,46 +1,18 @@
-"""``headplod bench plod --scale``: PLOD's cost against the terrain's size (issue 14).
+"""``headplod bench plod --scale``: PLOD's cost against the terrain's size (issue 14; README: the tessellation).
 
-One viewpoint (the embedded 24-inch screen, the head 60 cm in front of its
-centre, the POI at the centre, the tracker's covariance
-:data:`headplod.bench.harness.TRACKER_COV_DEG2`), 1280x720
-offscreen, over terrains of 2, 8, 32 and 134 million triangles at full
-detail: the built-in DEM (``Terrain.jacksboro()``) with its synthetic
-detail, sampled on grids of 1025², 2049², 4097² and 8193² samples (the
-detail's shortest wavelength 2.5 sample spacings, so every grid has detail
-down to its own resolution; :func:`headplod.plod.patches.height_grid`).
-Grids are cached (:func:`headplod.plod.patches.jacksboro_grid`).
+The default view (:mod:`.harness`), 1280x720, over the built-in DEM with its synthetic detail sampled on
+grids of 1025² … 8193² samples (2 … 134M triangles at full detail; :func:`headplod.plod.patches.jacksboro_grid`,
+cached). Back ends: ``tessellation`` with each selection of :data:`SELECTIONS` (``tree``: the CPU quadtree of
+:mod:`headplod.plod.patch_tree`; ``flat``: the levels per patch on the GPU, patches of
+:func:`headplod.plod.patches.patch_samples_for`), on the largest terrain also with the patch sizes of
+:data:`SWEEP_PATCH_SAMPLES` (``patch_sweep``); ``full``, the whole grid as one indexed mesh, up to
+:data:`FULL_MAX_SAMPLES`.
 
-Back ends:
-
-- ``tessellation`` (:mod:`headplod.render.tessellate`), with each selection
-  (:data:`SELECTIONS`): ``tree``, the quadtree of variable-size patches of
-  :mod:`headplod.plod.patch_tree` walked on the CPU (leaves of 64 samples);
-  ``flat``, the ``csf`` levels computed per patch on the GPU, with patches
-  as large as the image can use (:func:`headplod.plod.patches.patch_samples_for`,
-  as ``headplod render``: 64 samples up to 4097², 128 at 8193² for 1280 px).
-  The goals are the default selection's (``TessellationConfig.hierarchy``).
-  The flat one on the largest terrain also with the other patch sizes of
-  64, 128, 256 and 512 samples (``patch_sweep``: fewer patches to select
-  and draw, more triangles).
-- ``full``: the whole grid as one indexed mesh (``TerrainRenderer``, 24 bytes
-  per vertex and 12 per triangle), where it fits (by default up to 2049²:
-  4097² needs about 1.6 GB of buffers before llvmpipe's copies).
-
-Each (back end, terrain) runs in its own process (:func:`in_own_process`:
-multiprocessing's ``spawn``, a new interpreter calling :func:`run_case`),
-so its peak resident memory (:func:`peak_rss_mb`) is its own: the cached grid loaded, the patch grid,
-the GL objects, the frames. Per case: the median over ``frames`` steady
-frames of the frame time (selection + draw, no read-back), the selection
-time (the CPU's share before drawing: for ``tessellation`` the uniforms and
-the split into draw calls, with the flat selection's levels pass and its
-24-byte-per-patch read-back, or the tree's numpy walk and its 32-byte-per-node
-upload), the triangles drawn (``GL_PRIMITIVES_GENERATED``) and the
-PSNR within 5° of the POI against a full-detail render of that region (the
-tessellation back end at its finest level, drawing only the patches that
-reach the disc's bounding box: ``full`` of the whole 134M terrain need not
-fit), with the case's own shading (the tessellation's default ``texture``;
-``full``'s mesh shades per vertex, and so does its reference), at 1 and
-4x4 samples per pixel.
+Each (back end, terrain) runs in its own process (:func:`in_own_process`), so its peak memory
+(:func:`peak_rss_mb`, MB) is its own. Per case, medians over the steady frames: frame ms (selection + draw,
+no read-back), selection ms (the CPU's share), triangles drawn, and the PSNR within 5° of the POI against a
+full-detail render of the disc's box by the tessellation back end at its finest level (the case's own
+shading), at 1 and 4x4 samples per pixel.
 """
 from __future__ import annotations
 
@@ -48,11 +20,11 @@ import resource
 import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
-from .harness import DEFAULT_SCREEN, DISC_DEG, FRAME_DT_S, SIZE, TRACKER_COV_DEG2
+from .harness import (DEFAULT_SCREEN, DISC_DEG, FRAME_DT_S, SIZE, TRACKER_COV_DEG2, label_axes, pyplot,
+                      save_figure)
 
 SCALE_SAMPLES = (1025, 2049, 4097, 8193)
 QUICK_SAMPLES = (1025, 2049)
@@ -395,11 +367,7 @@ def _row(c) -> str:
 
 
 def _chart(report, path) -> None:
-    import matplotlib  # imported only when a chart is drawn
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, axs = plt.subplots(2, 3, figsize=(15, 8.5))
     panels = (("frame_ms", "frame time: selection + draw (ms)"), ("select_ms", "selection, CPU side (ms)"),
               ("rss_mb", "peak resident memory (MB)"), ("triangles", "triangles drawn"),
@@ -413,12 +381,8 @@ def _chart(report, path) -> None:
             if cs:
                 ax.plot([c["full_triangles"] for c in cs], [min(c[key], 99.0) if key.startswith("psnr") else c[key]
                                                             for c in cs], style, label=label)
-        ax.set_xscale("log")
-        if key in ("frame_ms", "triangles", "rss_mb"):
-            ax.set_yscale("log")
-        ax.set_title(title)
-        ax.set_xlabel("terrain triangles at full detail")
-        ax.grid(True, which="both", alpha=0.3)
+        label_axes(ax, "terrain triangles at full detail", None, title, "log",
+                   "log" if key in ("frame_ms", "triangles", "rss_mb") else None, "both", None)
     axs[0, 2].axhline(GOAL_RSS_MB, color="r", lw=0.8, ls=":")
     from ..render.tessellate import TessellationConfig
 
@@ -432,10 +396,7 @@ def _chart(report, path) -> None:
     axs[1, 2].axhline(GOAL_FPS, color="r", lw=0.8, ls=":")
     axs[0, 0].legend()
     fig.suptitle("PLOD against terrain size, 1280x720, llvmpipe (goals dotted)")
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def run_scale_bench(json_path=None, chart_path=None, quick: bool = False) -> int:
