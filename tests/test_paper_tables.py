@@ -2,7 +2,9 @@
 import numpy as np
 import pytest
 
-from headplod.bench.paper_tables import JitteredPoses, PaperTablesConfig, disc_psnr_db
+from headplod.bench.harness import poi_disc
+from headplod.bench.image_metrics import psnr_db
+from headplod.bench.paper_tables import JitteredPoses, PaperTablesConfig
 from headplod.demo.loop import ReplayPoses
 from headplod.demo import loop as lp
 from headplod.plod.view import poi_direction
@@ -42,7 +44,10 @@ def test_jitter_leaves_failed_poses_alone():
     assert JitteredPoses(source, noise_deg=1.0).read() is lost
 
 
-def test_disc_psnr_sees_only_the_disc():
+def test_disc_psnr_sees_only_the_disc():       # the paper tables' PSNR within the disc about the POI
+    def disc_psnr_db(image, reference, centre_px, radius_px):
+        return psnr_db(image, reference, poi_disc(reference.shape, centre_px, radius_px))
+
     ref = np.zeros((100, 200, 3), np.uint8)
     img = ref.copy()
     img[:, 150:] = 255                                   # outside a 20 px disc about pixel (50, 50)'s centre

@@ -1,39 +1,18 @@
 """Martinez et al.'s Tables 1-4 under the paper's conditions: the four uncertainty scenarios per tracker.
 
-The paper compared its scenarios (no uncertainty, a fixed covariance, the
-adaptive per-frame covariance) by user satisfaction over three terrains
-(Table 1 all, Tables 2-4 one each) and blamed adaptive's poorer score on the
-jitter of its covariance, which made peripheral triangles oscillate between
-levels. Today's tracker has a far smaller covariance (``headplod bench
-uncertainty`` measures it). This run puts the scenarios under the paper's
-conditions and reports, per tracker condition, viewpoint (the paper's three
-test cases) and scenario, the figures that stand in for satisfaction:
+The paper blamed the adaptive scenario's poorer satisfaction on the jitter of its covariance. Per tracker
+condition (:data:`CONDITIONS`), viewpoint (the paper's three test cases) and scenario, hysteresis on and off,
+on poses tracked once per condition and replayed for every run, this reports what stands in for
+satisfaction (README: the paper's scenarios):
 
-- ``changes``: base triangles whose level changed from the previous frame,
-  per frame (after the warm-up);
-- ``flicker``: level reversals per frame, a triangle that goes A → B → A
-  within ``FLICKER_FRAMES`` frames: an oscillation the head did not cause
-  (the paper's jitter), unlike a change that follows the head's motion;
-- ``fps`` (median frame time) and its ratio to ``full`` run back to back;
-- ``psnr_disc_db``: PSNR within ``DISC_DEG`` of the POI against ``full``
-  drawn from the same pose (median over frames).
+- ``changes``: base triangles whose level changed from the previous frame, per frame after the warm-up;
+- ``flicker``: level reversals (A → B → A within :data:`FLICKER_FRAMES` frames) per frame;
+- ``fps`` and its ratio to ``full`` run back to back;
+- ``psnr_disc_db``: median PSNR within ``DISC_DEG`` of the POI against ``full`` from the same pose.
 
-Tracker conditions (:data:`CONDITIONS`):
-
-- ``today``: the tracker as shipped (first-order covariance, smoothed);
-- ``paper_estimator``: the same poses, covariance from the paper's
-  estimator (``TrackerConfig(uncertainty="paper")``: pixel clouds randomly
-  sub-sampled, σ of degrees, jittering from frame to frame);
-- ``paper_noise``: today's tracker with its viewing direction jittered by
-  white noise of ``PAPER_NOISE_DEG`` per angle, and that variance added to
-  its covariance (an honest covariance for a noisier tracker): a webcam
-  tracker's noise, which the paper's 35-pixel markers had.
-
-Each runs with the selector's hysteresis on (the default) and off (the
-paper had none). The poses are tracked once per condition and replayed for
-every run, so every scenario sees the same poses.
-
-Run: ``headplod bench paper [--json FILE] [--chart FILE.png] [--quick]``.
+Conditions: ``today`` (the tracker as shipped), ``paper_estimator`` (the paper's covariance estimator),
+``paper_noise`` (today's with its direction jittered by :data:`PAPER_NOISE_DEG` per angle, that variance added
+to its covariance).
 """
 from __future__ import annotations
 
@@ -56,7 +35,7 @@ from .image_metrics import psnr_db
 from .outputs import write_json
 
 __all__ = ["CONDITIONS", "PaperTablesConfig", "JitteredPoses", "track_poses",
-           "level_statistics", "disc_psnr_db", "paper_tables", "format_tables", "plot_tables"]
+           "level_statistics", "paper_tables", "format_tables", "plot_tables"]
 
 #: Tracker conditions, in report order.
 CONDITIONS = ("today", "paper_estimator", "paper_noise")
@@ -70,25 +49,9 @@ PAPER_NOISE_DEG = 0.5
 
 @dataclass(frozen=True)
 class PaperTablesConfig:
-    """Settings of the paper-conditions run.
-
-    Attributes
-    ----------
-    frames : int
-        Frames per run (the sequence's first ``frames`` poses).
-    warmup : int
-        Frames left out of the level statistics (the filters settle).
-    viewpoints : tuple of str
-        The test cases (``demo.viewpoints.VIEWPOINTS``).
-    conditions : tuple of str
-        Tracker conditions (:data:`CONDITIONS`).
-    noise_deg : float
-        σ per angle of ``paper_noise``'s jitter, deg.
-    size : (int, int)
-        Image size, px.
-    seed : int
-        Seed of the jitter.
-    """
+    """Settings of the paper-conditions run: ``frames`` per run, ``warmup`` frames left out of the level
+    statistics, ``viewpoints`` (``demo.viewpoints.VIEWPOINTS``), ``conditions`` (:data:`CONDITIONS`),
+    ``noise_deg`` (σ per angle of ``paper_noise``'s jitter, deg), image ``size`` px, ``seed`` of the jitter."""
 
     frames: int = 60
     warmup: int = 10
@@ -114,19 +77,9 @@ class PaperTablesConfig:
 class JitteredPoses(lp.PoseSource):
     """Another source's poses with the viewing direction jittered: a noisier tracker, honestly reported.
 
-    Each good pose's direction from the eye to its POI is turned by
-    independent Gaussian angles of σ ``noise_deg`` about two axes
-    perpendicular to it (the POI moves on the screen accordingly), and
-    ``noise_deg²`` is added to both variances of its (φ, θ) covariance,
-    so the covariance stays honest. Poses whose turned direction misses the
-    screen plane keep their POI.
-
-    Parameters
-    ----------
-    inner : PoseSource
-    noise_deg : float
-        σ per angle, deg.
-    seed : int
+    Each good pose's direction from the eye to its POI turns by Gaussian angles of σ ``noise_deg`` (deg) about
+    two axes perpendicular to it (the POI moves accordingly; kept where it would miss the screen), and
+    ``noise_deg²`` is added to both variances of its (φ, θ) covariance.
     """
 
     def __init__(self, inner: lp.PoseSource, noise_deg: float, seed: int = 0):
@@ -166,24 +119,9 @@ def track_poses(condition: str, frames: int, noise_deg: float = PAPER_NOISE_DEG,
 
 
 def level_statistics(levels: np.ndarray, warmup: int, window: int = FLICKER_FRAMES) -> dict:
-    """Level changes and reversals per frame of a run.
-
-    Parameters
-    ----------
-    levels : (N, F) int
-        Level of each of F base triangles in each of N frames.
-    warmup : int
-        Frames left out (the first counted change is frame ``warmup + 1``'s).
-    window : int
-        A reversal: a triangle's level differs from the previous frame's and
-        equals the level it had ``2..window`` frames before, i.e. it went
-        A → B → A.
-
-    Returns
-    -------
-    dict with ``changes`` (mean per frame), ``changes_max``, ``flicker``
-    (mean reversals per frame) over frames ``warmup+1 .. N-1``.
-    """
+    """Level changes and reversals per frame of ``levels`` (N, F) int over frames ``warmup+1 .. N-1``: ``changes``
+    (mean per frame), ``changes_max``, ``flicker`` (mean reversals per frame: a level differing from the
+    previous frame's and equal to the one ``2..window`` frames before)."""
     levels = np.asarray(levels)
     if levels.ndim != 2 or len(levels) < warmup + 2:
         raise ValueError(f"level_statistics: need (N, F) levels with N >= warmup + 2, got {levels.shape}")
@@ -197,12 +135,6 @@ def level_statistics(levels: np.ndarray, warmup: int, window: int = FLICKER_FRAM
     per_frame = changed[counted].sum(axis=1)
     return {"changes": float(per_frame.mean()), "changes_max": int(per_frame.max()),
             "flicker": float(flicker[counted].sum(axis=1).mean())}
-
-
-def disc_psnr_db(image: np.ndarray, reference: np.ndarray, centre_px, radius_px: float) -> float:
-    """PSNR (dB, 8-bit peak) of ``image`` against ``reference`` (H, W, 3) within a disc about ``centre_px``
-    (image px; :func:`headplod.bench.harness.poi_disc`); NaN if empty."""
-    return psnr_db(image, reference, poi_disc(reference.shape, centre_px, radius_px))
 
 
 def _run_group(scene, poses, screen, viewpoint, renderers, config: PaperTablesConfig, progress) -> list:
@@ -234,8 +166,9 @@ def _run_group(scene, poses, screen, viewpoint, renderers, config: PaperTablesCo
             full = results[-1]
             pose = full.pose
             radius = DISC_DEG * px_per_deg_at(screen, pose.eye_mm, config.size)
+            disc = poi_disc(full.image.shape, pose.poi_px * scale, radius)
             for k, r in enumerate(results[:-1]):
-                psnr[k].append(disc_psnr_db(r.image, full.image, pose.poi_px * scale, radius))
+                psnr[k].append(psnr_db(r.image, full.image, disc))
     finally:
         tee.close()
     rows = []
