@@ -157,22 +157,11 @@ SERIES_KEYS = ("frame", "t", "ok", "v_err_deg", "pos_err_mm", "nees", "turn_err_
 
 
 def run_rig_set(folder, settle_s: float = SETTLE_S, estimator: str | None = None) -> dict:
-    """Track one imperfect-rig dataset; per-frame errors of the pose and of the refined rig, and a summary.
-
-    Parameters
-    ----------
-    folder : dataset folder with ``truth.csv`` and ``rig_truth.json``.
-    settle_s : the "settled" errors are those of frames at least this long after the first.
-    estimator : pose estimator (default: the tracker's default).
-
-    Returns
-    -------
-    dict: the summary's keys (see :func:`_summarize`) and ``series``, per frame
-    (NaN where there is no value): frame, t (s from the first frame), ok,
-    v_err_deg, pos_err_mm, nees, turn_err_deg, scale_err (|T|/|T_true| − 1),
-    focal_err (right focal / true − 1), offset_err_ms (the refined exposure
-    offset, timestamps included, minus the true one), turn_sd_deg (largest 1σ
-    of the turn), offset_sd_ms, mean_pose_ms, refine_ms.
+    """Track one imperfect-rig dataset (``folder`` with ``truth.csv`` and ``rig_truth.json``) with ``estimator``
+    (default: the tracker's); the summary (:func:`_summarize`; "settled": frames ``settle_s`` after the first)
+    and ``series``, per frame (NaN where there is no value): :data:`SERIES_KEYS`, e.g. ``scale_err``
+    (|T|/|T_true| − 1), ``focal_err`` (right focal / true − 1), ``offset_err_ms`` (the refined exposure
+    offset, timestamps included, minus the true one), ``turn_sd_deg`` (largest 1σ of the turn).
     """
     dataset = io.Dataset(folder)
     rig_truth = load_rig_truth(folder)
@@ -322,23 +311,19 @@ def _fmt(value, spec: str, width: int) -> str:
     return format(value, spec).rjust(width)
 
 
+#: The groups of RIG_GOALS' "not ..." (and "moving") sets: every set but these.
+_ALL_BUT = {"not fused": FUSED_SETS, "not webcam": WEBCAM_SETS, "moving": STILL_SETS, "not perfect": PERFECT_SETS}
+
+
 def rig_goals(results: dict) -> list[dict]:
     """The goals over the rig sets present: worst value, the sets that miss, met."""
     settle = next(iter(results.values()))["settle_s"] if results else SETTLE_S
     goals = []
     for label, sets, key, test, limit in RIG_GOALS:
-        if sets is None:
-            names = list(results)
-        elif sets == "not fused":
-            names = [n for n in results if n not in FUSED_SETS]
-        elif sets == "not webcam":
-            names = [n for n in results if n not in WEBCAM_SETS]
-        elif sets == "moving":
-            names = [n for n in results if n not in STILL_SETS]
-        elif sets == "not perfect":
-            names = [n for n in results if n not in PERFECT_SETS]
-        else:
+        if isinstance(sets, list):
             names = [n for n in sets if n in results]
+        else:       # None: every set; else the sets but those of a group
+            names = [n for n in results if n not in _ALL_BUT.get(sets, ())]
         if not names:
             continue
         values = {n: results[n].get(key) for n in names}
