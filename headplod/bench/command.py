@@ -1,17 +1,7 @@
 """``headplod bench``: its subcommands' arguments (:func:`add_bench_arguments`) and dispatch (:func:`run_bench`).
 
-    headplod bench track [--json FILE] [--chart FILE.png] [--quick] [--sets A,B]
-    headplod bench uncertainty [--json FILE] [--chart FILE.png] [--quick]
-    headplod bench plod [--json FILE] [--chart FILE.png] [--quick] [--vdp [fvvdp,cvvdp]] [--scale]
-                        [--only foveate|raymask|judge|lazy|quadtree]
-    headplod bench stability [--frames N] [--distance MM] [--seed S] [--modes M,..|all] [--json FILE] [--chart FILE.png]
-    headplod bench live [--source SPEC] [--json FILE] [--repeats N]
-    headplod bench paper [--json FILE] [--chart FILE.png] [--quick] [--noise-deg S]
-
-Each benchmark is a module of this package; this one only parses and
-dispatches. ``bench live`` names its recording as every command names a
-source (``--source``: a dataset folder or ``synthetic[:PRESET]``); the old
-positional RECORDING still works for one release, with a note.
+Each benchmark is a module of this package; this one only parses and dispatches. ``bench live`` names its
+recording with ``--source`` (the old positional RECORDING still works for one release, with a note).
 """
 from __future__ import annotations
 

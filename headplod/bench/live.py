@@ -1,20 +1,10 @@
 """``headplod bench live``: the live pipeline's rate, latency and capture-layer cost on a replayed recording.
 
-A recording is replayed through the same :class:`~headplod.capture.FrameSource`
-interface and the same loop (:func:`headplod.live.loop.run_source`) that live
-cameras use, as fast as it goes, three ways in the same run:
-
-- ``replay``: read + track + records;
-- ``replay + outputs``: also the One Euro filter and opentrack UDP datagrams to
-  a local socket;
-- ``replay + recording``: also writing every frame back as a dataset folder.
-
-Reported: frames per second, latency from reading a frame to its finished
-record (median, 95th percentile, max; a recording has no capture time, so
-the latency starts when the frame is asked for, and the summary says so),
-the frames dropped for a zero or non-increasing time (as live), and the capture layer's time (reading
-and decoding the frame: ``source.read``) as a ratio to the tracker's time on
-the same frames.
+The recording goes through the live cameras' loop (:func:`headplod.live.loop.run_source`) as fast as it goes,
+three ways: ``replay``; ``replay + outputs`` (the One Euro filter and opentrack datagrams to a local socket);
+``replay + recording`` (every frame written back as a dataset). Reported: frames per second, latency from
+asking for a frame to its finished record (median, p95, max), frames dropped for a bad time, and the
+capture layer's time (``source.read``) as a ratio to the tracker's.
 """
 from __future__ import annotations
 

@@ -1,31 +1,12 @@
 """Foveated resolution layers (``--foveate``) measured: speed against ``full`` and plain ``csf``, seams, quality.
 
-Parts the ``headplod bench plod`` run can call (each returns plain dicts, JSON-ready):
+Parts of ``headplod bench plod`` (each returns JSON-ready dicts): :func:`foveate_speed` (the demo's loop,
+interleaved on one tracked pose sequence), :func:`viewpoint_frames` (a still frame per viewpoint through the
+frame step), :func:`seam_profiles` (luminance across each layer border against ``full``'s), :func:`quality`,
+:func:`seam_chart`, :func:`layer_pictures`; :func:`run` does all of it into a folder.
 
-- :func:`foveate_speed`: the demo's frame (select → build → upload → render
-  → read-back, the HUD optional) for ``full``, plain ``csf`` and ``csf
-  --foveate`` on each viewpoint, stepped in turn on one pose sequence
-  tracked beforehand (interleaved: the machine's drift hits all three
-  alike; no tracking in the frames); medians after the first frame, and
-  the ratios to ``full``.
-- :func:`viewpoint_frames`: one still frame per viewpoint at the default head,
-  the POI at the screen centre: ``full``, ``csf`` and ``csf --foveate``
-  images, the layers drawn, the levels view; each the demo's frame step
-  (:func:`headplod.bench.harness.mesh_step`).
-- :func:`seam_profiles`: the luminance profile across each layer border
-  (perpendicular to it: against the distance from the POI, averaged along
-  the border), for the three images at the same place, and the step across
-  the border's blend band of each; the foveated frame's step is compared
-  with ``full``'s (what the terrain itself has there).
-- :func:`quality`: PSNR within 5° of the POI against ``full`` and FLIP over
-  the whole image, for ``csf`` with and without the layers.
-- :func:`seam_chart`, :func:`layer_pictures`: the profiles as a chart, and a
-  picture per viewpoint with the layers' borders, the POI and its 2σ ellipse.
-- :func:`run`: all of it into a folder (``headplod bench plod --only foveate --chart OUT/x.png``).
-
-Units: luminance is relative linear luminance (Rec. 709 weights on
-linearised sRGB, 0 … 1); distances in output pixels (1280x720 by default)
-or degrees at the screen centre (``px_per_deg``); times in ms.
+Units: luminance relative linear (Rec. 709 weights on linearised sRGB, 0 … 1); distances in output px or
+degrees at the screen centre (``px_per_deg``); times in ms.
 """
 from __future__ import annotations
 
@@ -65,40 +46,16 @@ def luminance(image: np.ndarray) -> np.ndarray:
     return lin @ np.array([0.2126, 0.7152, 0.0722])
 
 
-# --------------------------------------------------------------------------
-# speed
-# --------------------------------------------------------------------------
-
-
 def foveate_speed(scene=None, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20, size=SIZE, source="synthetic",
                   mode: str = "csf", uncertainty: str = "adaptive", config: FoveationConfig | None = None,
                   hud: bool = True, ctx=None, progress=None) -> dict:
     """Frame time of ``full``, ``mode`` and ``mode --foveate`` per viewpoint, interleaved on one pose sequence.
 
-    Parameters
-    ----------
-    scene : TerrainScene, optional
-        For the source's screen (built here when None).
-    viewpoints : sequence of str
-    frames : int
-        Frames per run (≥ 2: the first, which uploads the vertex table, is left out of the medians).
-    size : (W, H)
-    source : str
-        Pose source spec for :class:`headplod.demo.loop.TrackerPoses` (``"synthetic"``: the built-in
-        sequence through the real tracker).
-    mode, uncertainty : str
-    config : FoveationConfig, optional
-    hud : bool
-        Draw the HUD as the headless demo does (its cost is the same in every run).
-    ctx : moderngl.Context, optional
-    progress : callable(str), optional
-
-    Returns
-    -------
-    dict
-        Per viewpoint: ``full_ms``, ``plain_ms``, ``foveate_ms`` (median frame, ms),
-        ``plain_ratio``, ``foveate_ratio`` (full's frame time over theirs),
-        ``stage_ms`` (median per stage, per run), ``triangles``, ``foveate_triangles_per_layer``.
+    ``source``: the pose source spec (:class:`headplod.demo.loop.TrackerPoses`), tracked once beforehand;
+    ``frames`` ≥ 2 (the first is left out of the medians); ``hud``: draw the HUD as the headless demo does.
+    Per viewpoint: ``full_ms``, ``plain_ms``, ``foveate_ms`` (median frame, ms), ``plain_ratio``,
+    ``foveate_ratio`` (full's over theirs), ``frames``, ``stage_ms`` (median per stage, per run), ``triangles``,
+    ``foveate_triangles_per_layer``, ``foveate_layers``.
     """
     if frames < 2:
         raise ValueError(f"foveate_speed: frames must be >= 2, got {frames}")
@@ -167,27 +124,14 @@ def _layer_dict(layer) -> dict:
             "outer_deg": None if math.isinf(layer.outer_deg) else round(layer.outer_deg, 3)}
 
 
-# --------------------------------------------------------------------------
-# still frames
-# --------------------------------------------------------------------------
-
-
 def viewpoint_frames(scene=None, viewpoints=tuple(vps.VIEWPOINTS), size=SIZE, mode: str = "csf",
                      uncertainty: str = "adaptive", cov_deg2=TRACKER_COV_DEG2, config: FoveationConfig | None = None,
                      ctx=None) -> dict:
-    """One still frame per viewpoint: the default head, the POI at the screen centre.
+    """One still frame per viewpoint from the default view, each through the demo's frame step.
 
-    Each image is a frame of the demo's frame step (``full``; ``mode`` without hysteresis, plain and as
-    foveated layers; the plain step's next frame in the levels view).
-
-    Returns
-    -------
-    dict
-        Per viewpoint: ``full``, ``plain``, ``foveate`` (H, W, 3) uint8 RGB
-        images, ``levels`` (the plain frame's levels view, RGB), ``poi_px``
-        (2,) output px, ``px_per_deg``, ``cov_deg2``, ``layers`` (list of
-        Layer, as drawn), ``blend_deg``, ``triangles``,
-        ``triangles_per_layer``.
+    Per viewpoint: ``full``, ``plain`` (``mode`` without hysteresis), ``foveate`` (as layers) and ``levels``
+    (the plain step's next frame, levels view), (H, W, 3) uint8 RGB; ``poi_px`` (2,) output px,
+    ``px_per_deg``, ``cov_deg2``, ``layers`` (as drawn), ``blend_deg``, ``triangles``, ``triangles_per_layer``.
     """
     config = config or FoveationConfig()
     b = BenchScene(size, scene=scene or TerrainScene.build(lp.default_screen()), ctx=ctx)
@@ -214,11 +158,6 @@ def viewpoint_frames(scene=None, viewpoints=tuple(vps.VIEWPOINTS), size=SIZE, mo
     return out
 
 
-# --------------------------------------------------------------------------
-# seams and quality
-# --------------------------------------------------------------------------
-
-
 def _step(lum: np.ndarray, r: np.ndarray, inner_px: float, outer_px: float, window_px: float, mask=None) -> float:
     """Mean luminance in [outer, outer + window) minus that in [inner - window, inner) (px from the POI)."""
     out_sel = (r >= outer_px) & (r < outer_px + window_px)
@@ -235,24 +174,14 @@ def seam_profiles(frames: dict, half_width_deg: float = 2.0, window_deg: float =
                   sectors: int = SECTORS) -> dict:
     """Luminance across each layer border of :func:`viewpoint_frames`' frames, for ``full``, ``plain``, ``foveate``.
 
-    For a border of radius R px about the POI (a layer's ``outer_deg``) whose
-    blend band is [R - b, R] (``b`` = ``blend_deg``): the profile is the mean
-    luminance of the image's pixels at distance R + s from the POI, s in
-    whole px from ``-half_width_deg`` to ``+half_width_deg`` (1 px bins,
-    the pixels of the circle inside the image); the step is the mean over
-    [R, R + w) minus the mean over [R - b - w, R - b) (w = ``window_deg``),
-    over the whole circle and per angular sector.
+    For a border of radius R px about the POI with blend band [R - b, R]: the profile is the mean luminance at
+    R + s px (1 px bins, s within ±``half_width_deg``); the step is the mean over [R, R + w) minus that over
+    [R - b - w, R - b) (w = ``window_deg``), over the whole circle and per angular sector.
 
-    Returns
-    -------
-    dict
-        Per viewpoint, a list (one per finite border) of dicts:
-        ``border_deg``, ``radius_px``, ``blend_px``, ``offset_px`` (S,),
-        ``profile`` {image: (S,) list}, ``step`` {image: float},
-        ``step_vs_full`` (foveate's step minus full's, and plain's minus full's),
-        ``sector_step_vs_full_rms`` (RMS over the sectors of the same
-        difference, per image), ``coverage`` (fraction of the circle inside the image).
-        Luminance is relative (0 … 1).
+    Per viewpoint, per finite border: ``border_deg``, ``radius_px``, ``blend_px``, ``offset_px`` (S,),
+    ``profile`` {image: (S,)}, ``step`` {image}, ``step_vs_full`` (plain's and foveate's minus full's),
+    ``sector_step_vs_full_rms`` (RMS over the sectors of that difference), ``coverage`` (fraction of the
+    circle in the image).
     """
     out = {}
     for vp, f in frames.items():
@@ -299,14 +228,8 @@ def seam_profiles(frames: dict, half_width_deg: float = 2.0, window_deg: float =
 
 
 def quality(frames: dict) -> dict:
-    """PSNR within 5° of the POI against ``full`` (dB) and FLIP over the whole image, plain and foveated.
-
-    Returns
-    -------
-    dict
-        Per viewpoint: ``psnr_5deg_db`` {plain, foveate}, ``flip`` {plain, foveate},
-        ``psnr_5deg_foveate_vs_plain_db`` (inf: the fovea is the plain frame's pixels).
-    """
+    """Per viewpoint: ``psnr_5deg_db`` and ``flip`` {plain, foveate} against ``full``, and
+    ``psnr_5deg_foveate_vs_plain_db`` (inf: the fovea is the plain frame's pixels)."""
     from .harness import DISC_DEG
     from .image_metrics import psnr_db
 
@@ -317,11 +240,6 @@ def quality(frames: dict) -> dict:
         out[vp] = {"psnr_5deg_db": {n: q[n]["psnr_disc_5deg_db"] for n in q}, "flip": {n: q[n]["flip"] for n in q},
                    "psnr_5deg_foveate_vs_plain_db": psnr_db(f["foveate"], f["plain"], disc)}
     return out
-
-
-# --------------------------------------------------------------------------
-# charts and pictures
-# --------------------------------------------------------------------------
 
 
 def seam_chart(profiles: dict, path) -> str:
@@ -369,11 +287,6 @@ def layer_pictures(frames: dict, folder) -> dict:
         cv2.putText(img, text, (10, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
         out[vp] = write_png(Path(folder) / f"foveate_layers_{vp}.png", img)
     return out
-
-
-# --------------------------------------------------------------------------
-# all of it
-# --------------------------------------------------------------------------
 
 
 def run(folder, viewpoints=tuple(vps.VIEWPOINTS), frames: int = 20, speed: bool = True, progress=None) -> dict:

@@ -1,31 +1,17 @@
 """``headplod bench plod --only lazy``: the level-8 frame of the built-in terrain through the lazy mesh.
 
-The default view (the embedded screen, the head 60 cm in front of its
-centre, the POI at the centre, the tracker's covariance
-:data:`headplod.bench.harness.TRACKER_COV_DEG2`, 1280x720 offscreen). Every
-frame is the demo's (:class:`headplod.render.frame.FrameStep`) over a
-:class:`headplod.render.frame.MeshBackend` whose selector is ``csf`` over the
-quadtree (:func:`headplod.bench.quadtree_selector.scene_quadtree_selector`):
-the view conditioned, the levels selected, the mesh's indices built and
-uploaded (the vertex table when it is new), rendered.
+From the default view (:mod:`.harness`), every frame the demo's frame step over a ``MeshBackend`` whose
+selector is ``csf`` over the quadtree (:func:`.quadtree_selector.scene_quadtree_selector`):
 
-1. :class:`headplod.plod.lazy_mesh.LazyAdaptiveMesh` at :data:`LAZY_LEVEL`
-   on the 32 x 32 base: a cold frame (empty cache), then ``frames`` frames
-   with the head moving 1 mm per frame along the screen (the POI fixed),
-   each reusing the cached pieces it can;
-2. :class:`headplod.plod.mesh.AdaptiveMesh` at level 5, the same frames.
+1. ``LazyAdaptiveMesh`` at :data:`LAZY_LEVEL` on the 32 x 32 base: a cold frame, then ``frames`` frames with
+   the head moving 1 mm per frame along the screen (the POI fixed), each reusing the cached pieces it can;
+2. ``AdaptiveMesh`` at :data:`ADAPTIVE_LEVEL`, the same frames.
 
-Each mesh runs in its own process (:func:`headplod.bench.plod_scale.in_own_process`),
-so its resident memory is its own. Per mesh: select, build (pieces made and
-the frame's indices assembled), upload and render ms (``FrameOutput.stage_ms``),
-triangles and their levels, the quadtree's nodes visited and base triangles
-evaluated, the lazy cache's pieces and bytes, the time to make the mesh and
-the process's RSS (current and peak, MB) after the frames.
+Each mesh runs in its own process (:func:`.plod_scale.in_own_process`), so its resident memory is its own.
 """
 from __future__ import annotations
 
 import resource
-import sys
 import time
 
 import numpy as np
@@ -68,12 +54,9 @@ def _frame_row(out, mesh, selector) -> dict:
 
 
 def run_frames(scene, renderer, screen, frames: int, level_bias: float = 0.0) -> dict:
-    """A cold frame then ``frames`` frames with the head moving 1 mm per frame, through the frame step.
-
-    ``scene`` a :class:`headplod.render.still.TerrainScene` (its mesh: a ``BaseMesh.grid``'s);
-    ``renderer`` a :class:`headplod.render.gl.TerrainRenderer`. Returns ``cold`` (the first frame's
-    figures), ``warm_median`` (medians of :data:`WARM_KEYS` over the rest), ``rss_mb``, ``peak_rss_mb``.
-    """
+    """A cold frame then ``frames`` frames with the head moving 1 mm per frame, through the frame step: ``cold``
+    (the first frame's figures), ``warm_median`` (medians of :data:`WARM_KEYS` over the rest), ``rss_mb``,
+    ``peak_rss_mb`` (MB). ``scene``: a ``TerrainScene`` whose mesh is a ``BaseMesh.grid``'s."""
     from ..plod.view import View
     from ..render.frame import FrameStep, MeshBackend
     from ..render.still import default_head

@@ -1,33 +1,16 @@
 """``raymask`` against ``full`` and ``csf`` on the three viewpoints (issue 13), for ``headplod bench plod``.
 
-:func:`raymask_report` measures, at 1280x720 with the default head and the
-POI at the screen centre, on each viewpoint of :mod:`headplod.demo.viewpoints`:
+:func:`raymask_report`, from the default view (:mod:`.harness`), on each viewpoint of
+:mod:`headplod.demo.viewpoints`:
 
-- **Speed.** Frame time of ``full``, ``csf`` and ``raymask`` (silhouettes on
-  and off, and at each mask contrast asked for), each the demo's frame step
-  with its back end (:mod:`headplod.bench.harness`), run in alternation
-  round by round so a busy machine slows all alike; the median of the rounds
-  after a warm-up round. ``full`` and ``csf``: select + build + upload +
-  render (each mode keeps its own mesh build state and renderer, so a
-  steady frame rebuilds and uploads nothing). ``raymask``: its ray mask
-  (``mask_ms``, the step's select stage; reused for the still view) + cast +
-  classify + rasterise, GL finished. Where raymask's time goes: ``cast_ms``
-  (the ring samples cast and read back), ``classify_ms`` (numpy),
-  ``raster_ms`` (the intermediate mesh, and every pixel of the inset and the
-  silhouette quads cast).
-- **Quality** against ``full``: PSNR over the image and in the 5° disc,
-  FLIP (:func:`headplod.bench.harness.quality`).
-- **Silhouettes.** Where the terrain meets the sky: the boundary pixels of
-  the sky (background colour) in each image; the largest distance, px, from
-  a boundary pixel of one image to the nearest of the other (both ways:
-  the Hausdorff distance), over the whole frame, with silhouette
-  preservation on and off. Ridge-in-front-of-slope silhouettes are found by
-  the depth test of :func:`headplod.render.raymask.classify_quads` but not
-  measured here (the images carry no depth): their quads are counted.
-- **Inset sweep** (the paper's experiment): frame time and FLIP at inset
-  diameters 2, 5, 10, 15°, at each contrast of ``sweep_contrasts`` (at the
-  default contrast 1 the CSF's fill can be wider than the inset, which then
-  changes nothing; a lower contrast shows the inset's effect).
+- **Speed**: ``full``, ``csf`` and ``raymask`` (silhouettes on and off, at each mask contrast), each through
+  its frame step, in alternation round by round (:func:`.harness.alternate`), the median of the rounds after
+  a warm-up. ``raymask``'s time: ``mask_ms`` (the select stage) + ``cast_ms`` + ``classify_ms`` +
+  ``raster_ms``.
+- **Quality** against ``full``: PSNR (whole, 5° disc), FLIP.
+- **Silhouettes**: the largest distance between the sky/terrain boundaries of each image and ``full``'s
+  (:func:`silhouette_displacement_px`), silhouette preservation on and off.
+- **Inset sweep** (the paper's experiment): frame time and FLIP against the inset's diameter, per contrast.
 """
 from __future__ import annotations
 
@@ -54,14 +37,9 @@ def _sky(image: np.ndarray, background) -> np.ndarray:
 
 
 def silhouette_displacement_px(image: np.ndarray, reference: np.ndarray, background) -> dict:
-    """How far the sky/terrain boundary of ``image`` lies from ``reference``'s, px.
-
-    The boundary is the set of terrain pixels with a sky pixel among their
-    8 neighbours (sky: exactly the background colour). Returns ``max_px``
-    (the Hausdorff distance of the two boundaries: the largest distance from
-    a boundary pixel of either image to the other's nearest), ``p999_px``
-    (99.9th percentile of those distances) and ``pixels`` (the reference's
-    boundary pixels); ``max_px`` is 0 with no boundary in either.
+    """How far the sky/terrain boundary (terrain pixels with a sky pixel, exactly ``background``, among their 8
+    neighbours) of ``image`` lies from ``reference``'s, px: ``max_px`` (the Hausdorff distance; 0 with no
+    boundary in either), ``p999_px`` (99.9th percentile) and ``pixels`` (the reference's boundary pixels).
     """
     def boundary(img):
         sky = _sky(img, background).astype(np.uint8)
@@ -81,12 +59,8 @@ def silhouette_displacement_px(image: np.ndarray, reference: np.ndarray, backgro
 
 def raymask_picture(image: np.ndarray, mask, silhouette_quads: np.ndarray, poi_image, cov_deg2,
                     px_per_deg: float) -> np.ndarray:
-    """The frame with its ray mask drawn on it, (H, W, 3) uint8 RGB.
-
-    Every ring sample as a dark dot, the filled inset's outline (ring 0) in
-    yellow, the silhouette quads outlined in magenta, the POI and its 2σ
-    ellipse (:func:`headplod.render.overlay_poi`) in red.
-    """
+    """The frame with its ray mask drawn on it, (H, W, 3) uint8 RGB: the ring samples dark, the inset's outline
+    yellow, the silhouette quads magenta, the POI and its 2σ ellipse red."""
     out = image.copy()
     h, w = out.shape[:2]
     ring = np.round(mask.samples_px[mask.n_fill:]).astype(int)
@@ -105,37 +79,16 @@ def raymask_picture(image: np.ndarray, mask, silhouette_quads: np.ndarray, poi_i
 def raymask_report(viewpoints=None, rounds: int = 5, contrasts=(1.0, 0.3), insets_deg=INSETS_DEG,
                    sweep_contrasts=(1.0, 0.05), sweep_viewpoint: str = "mountains", flip: bool = True,
                    size=SIZE, picture_dir=None, picture_cov_deg2=((1.0, 0.0), (0.0, 1.0)), progress=None) -> dict:
-    """Measure ``raymask`` against ``full`` and ``csf`` (module notes); returns a JSON-ready dict.
+    """Measure ``raymask`` against ``full`` and ``csf`` (module notes); a JSON-ready dict.
 
-    Parameters
-    ----------
-    viewpoints : list of str, optional
-        Names of :mod:`headplod.demo.viewpoints` (default: all three).
-    rounds : int
-        Timed rounds after one warm-up round (5); every mode is rendered once
-        per round, in turn.
-    contrasts : tuple of float
-        Mask contrasts measured at the default inset (the first is the
-        default config's, 1.0: the paper's; a lower one comes nearer the
-        terrain's shading contrast, which ``csf`` uses per triangle).
-    insets_deg, sweep_contrasts, sweep_viewpoint
-        The inset sweep: diameters, deg; contrasts; on which viewpoint.
-    flip : bool
-        Compute FLIP (slow: seconds per image on one core).
-    picture_dir : path, optional
-        Write ``raymask_<viewpoint>.png`` there: the default raymask frame
-        with its mask (:func:`raymask_picture`), drawn with the covariance
-        ``picture_cov_deg2`` (deg²; σ = 1° by default, so the 2σ ellipse and
-        the fill it widens are visible; the timed frames use the tracker's
-        :data:`headplod.bench.harness.TRACKER_COV_DEG2`).
-    progress : callable(str), optional
+    ``viewpoints``: names (default all); ``rounds``: timed rounds after a warm-up; ``contrasts``: mask contrasts
+    at the default inset (the first the default config's); ``insets_deg``, ``sweep_contrasts``,
+    ``sweep_viewpoint``: the inset sweep (deg); ``flip``: compute FLIP (slow); ``picture_dir``: write
+    ``raymask_<viewpoint>.png`` there (:func:`raymask_picture`, with covariance ``picture_cov_deg2``, deg²).
 
-    Returns
-    -------
-    dict
-        ``{"size", "px_per_deg", "viewpoints": {name: {mode: {frame_ms, ...,
-        psnr_db, psnr_disc_5deg_db, flip, speedup_over_full, ...}}},
-        "inset_sweep": {contrast: [{inset_deg, frame_ms, flip, rays}, ...]}}``.
+    Returns ``{"size", "px_per_deg", "rounds", "viewpoints": {name: {mode: {frame_ms, ..., psnr_db,
+    psnr_disc_5deg_db, flip, speedup_over_full, silhouette}}}, "inset_sweep": {"viewpoint", "rows": {contrast:
+    [{inset_deg, frame_ms, rays, fill_radius_deg, psnr_disc_5deg_db, flip}]}}}``.
     """
     progress = progress or (lambda text: None)
     b = BenchScene(size)

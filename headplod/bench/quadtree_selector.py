@@ -1,45 +1,18 @@
-"""Level selection over a quadtree of the base grid (a bench's subject): cost that follows what is seen.
+"""Level selection over a quadtree of the base grid (a bench's subject; README: selection over a quadtree).
 
-Used by the benches (:mod:`headplod.bench.plod_quadtree`,
-:mod:`headplod.bench.plod_lazy`), not by the product's frame step.
-:class:`LevelSelector` evaluates its criterion on every base triangle of the
-grid on every frame. :class:`QuadtreeSelector` gives the same levels while
-evaluating it only where some triangle could need more than level 0:
+Used by :mod:`.plod_quadtree` and :mod:`.plod_lazy`, not by the product's frame step. ``LevelSelector``
+evaluates its criterion on every base triangle on every frame; :class:`QuadtreeSelector` gives the same
+levels (``tests/test_quadtree.py``) while evaluating it only where some triangle could need more than level 0:
 
-- :class:`QuadTree`: a quadtree over the quads of a ``BaseMesh.grid``
-  (``nx x ny`` quads, two base triangles each, face ``2 (j nx + i) + k``):
-  a leaf is one quad, a node at depth ``d`` the ``2^(D-d) x 2^(D-d)`` quads
-  below it (``D = ceil(log2(max(nx, ny)))``; the grid is padded to
-  ``2^D x 2^D`` with empty nodes). Each node keeps, computed once, the
-  axis-aligned box (world frame, mm) of its triangles' corners and centroids,
-  its largest triangle diameter and corner reach, its highest contrast and
-  its widest culling margin.
-- Per frame the tree is walked breadth-first, one depth at a time, with
-  numpy over the whole frontier (no Python loop over nodes). A node is
-  dropped, all its triangles at level 0, when no triangle below it can get
-  a level above 0: either all its centroids project outside the screen
-  (culled: the flat selection gives them the continuous level 0), or an
-  upper bound of the criterion over the node is <= 0. The culling is
-  :func:`headplod.plod.cull.outside_screen` of the node's box (the flat
-  selection's test on each centroid). The bound of mode ``csf`` is
-  :func:`headplod.plod.criteria.level_bound`: ``log2(f_max · diameter)``
-  with the smallest eccentricity (the angle from the POI's direction to
-  the node's bounding sphere, less the uncertainty shift's largest reach,
-  less the largest angle from a centroid to its corners), the largest
-  angular diameter (longest triangle side seen from the box's nearest
-  point), the highest contrast and the highest f_max over every speed
-  (:func:`headplod.plod.criteria.sup_fmax_cpd`); ``gp`` and ``distance``
-  have theirs. With hysteresis a node is also entered when
-  a triangle below it holds a level above 0 from the last frame (the dead
-  band could keep it there, so only the exact criterion can tell).
-- The leaves reached are evaluated with :class:`LevelSelector`'s own
-  per-triangle criterion and hysteresis rule (``_criterion``,
-  ``Hysteresis.update_rows``) on those triangles only. Every dropped
-  triangle is at level 0 in the flat selection too, so the levels are the
-  flat selection's (``tests/test_quadtree.py``).
+- :class:`QuadTree`: per-node bounds, computed once, over the quads of a ``BaseMesh.grid``.
+- Per frame the tree is walked breadth-first, numpy over each depth's frontier. A node is dropped (all its
+  triangles at level 0) when all its centroids project outside the screen (:func:`headplod.plod.cull.
+  outside_screen` of its box, as the flat culling) or an upper bound of the criterion over it is <= 0
+  (:func:`headplod.plod.criteria.level_bound`); with hysteresis, a node holding a triangle above level 0
+  from the last frame is entered too.
+- The leaves reached run ``LevelSelector``'s own criterion and hysteresis rule on their triangles only.
 
-Modes whose criterion is not per-triangle (``acuity``, ``sse``, ``ipv``,
-``dpv`` use the median distance of all visible triangles) are refused.
+Modes whose criterion is not per-triangle (``acuity``, ``sse``, ``ipv``, ``dpv``) are refused.
 """
 from __future__ import annotations
 
@@ -58,34 +31,14 @@ HIERARCHY_MODES = ("csf", "gp", "distance", "full")
 class QuadTree:
     """Per-node bounds of a quadtree over a grid of quads (two base triangles per quad).
 
-    Parameters
-    ----------
-    corners_mm : (F, 3, 3)
-        Base triangles' corners, world frame, mm; F = 2 nx ny in
-        ``BaseMesh.grid``'s order (face ``2 (j nx + i) + k`` in quad column i, row j).
-    centroids_mm : (F, 3)
-        Their centroids (the points the criterion is evaluated at), world mm.
-    nx, ny : int
-        Quads along the grid's x and y.
-    margin_mm : (F,)
-        Each triangle's culling margin on the screen plane, mm (its
-        ``cull_margin_edges`` level-0 edges).
+    ``corners_mm`` (F, 3, 3) and ``centroids_mm`` (F, 3), world mm, F = 2 nx ny in ``BaseMesh.grid``'s order
+    (face ``2 (j nx + i) + k`` in quad column i, row j); ``margin_mm`` (F,): each triangle's culling margin, mm.
 
-    Attributes
-    ----------
-    depth : int
-        D: the leaves (quads) are at depth D, the root at 0.
-    table : list of (4^d, 12) float64
-        Per depth d, node ``j 2^d + i``'s row: its box's centre (3) and
-        half-size (3), world mm; the box's half diagonal, mm; the longest
-        side of a triangle below it, mm; the largest distance from a
-        triangle's centroid to its corners, mm; the widest culling margin,
-        mm (widened by 1e-9 against rounding); the highest contrast; the
-        highest foveal f_max over all speeds at that contrast, cpd (the
-        last two set by :meth:`set_contrast`). Empty nodes (padding) hold
-        anything: they are never reached.
-    valid : list of (4^d,) bool
-        The node holds at least one quad.
+    ``depth`` D: the leaves (quads) at depth D (the grid padded to 2^D x 2^D with empty nodes), the root at 0.
+    ``table[d]`` (4^d, 12) float64, node ``j 2^d + i``'s row of :attr:`COLUMNS`: its box's centre and
+    half-size, its half diagonal, the longest triangle side, the largest centroid-to-corner distance, the
+    widest culling margin (mm), the highest contrast and its highest foveal f_max over all speeds (cpd; the
+    last two from :meth:`set_contrast`). ``valid[d]`` (4^d,) bool: the node holds a quad.
     """
 
     COLUMNS = ("cx", "cy", "cz", "hx", "hy", "hz", "radius", "diameter", "reach", "margin", "contrast", "fmax")
@@ -181,21 +134,11 @@ class QuadTree:
 class QuadtreeSelector(LevelSelector):
     """:class:`LevelSelector` with the same ``select(View) -> (levels, info)``, walking a :class:`QuadTree`.
 
-    The arguments are ``LevelSelector``'s, with ``corners_scene`` required
-    and ``grid_shape = (ny, nx)``: the base triangles are those of
-    ``BaseMesh.grid(terrain, nx, ny)``, in its order. The levels equal the
-    flat selection's for the same sequence of views (module notes); the
-    criterion is evaluated only on the triangles of the leaves reached.
-
-    ``info`` has ``poi_px`` and ``cov_deg2`` as ``LevelSelector``'s, and
-    the features for the evaluated triangles only: ``rows`` (k,) int, the
-    base triangles evaluated, and ``eccentricity_deg``, ``speed_deg_s``,
-    ``distance_mm``, ``continuous`` (k,) theirs (eccentricity NaN for the
-    culled ones, continuous 0 for them as in the flat selection). Every
-    other triangle is at level 0. :attr:`last_stats` gives
-    ``nodes_visited`` (nodes whose bound was evaluated, leaves included),
-    ``leaves`` (quads reached), ``triangles_evaluated`` and
-    ``nodes_per_depth``.
+    ``LevelSelector``'s arguments, with ``corners_scene`` required and ``grid_shape = (ny, nx)`` (the base
+    triangles of ``BaseMesh.grid(terrain, nx, ny)``, in its order). ``info``: ``poi_px``, ``cov_deg2`` and, for
+    the evaluated triangles ``rows`` (k,) only, ``eccentricity_deg`` (NaN: culled), ``speed_deg_s``,
+    ``distance_mm``, ``continuous``; every other triangle is at level 0. :attr:`last_stats`:
+    ``nodes_visited``, ``leaves``, ``triangles_evaluated``, ``nodes_per_depth``.
     """
 
     def __init__(self, centroids_scene, edge_len_scene, geometric_error_scene, contrast, model, screen,
@@ -217,7 +160,6 @@ class QuadtreeSelector(LevelSelector):
         self._hot = None                # per depth: nodes with a triangle above level 0 (hysteresis)
         self.last_stats: dict = {}
 
-    # ------------------------------------------------------------------ bounds
     def _frame_context(self, eye, axes, cov):
         """The per-frame constants of :meth:`_node_bounds`: (eye, axes, the screen's pyramid, shift reach deg).
 
@@ -230,14 +172,9 @@ class QuadtreeSelector(LevelSelector):
                 criteria.shift_reach_deg(cov, cfg.shift, cfg.ellipse_sigma))
 
     def _node_bounds(self, d, nodes, frame):
-        """For ``nodes`` (k,) int at depth d: (culled (k,) bool, bound (k,) float).
-
-        ``culled``: every centroid below the node projects outside the
-        screen with its margin (or lies behind the eye), as the flat
-        selection's culling decides (:func:`cull.outside_screen` of the
-        node's box). ``bound``: an upper bound of the continuous level (bias
-        included) of every base triangle below the node (module notes).
-        """
+        """For ``nodes`` (k,) int at depth d: (culled (k,) bool: every centroid below projects outside the screen
+        with its margin or lies behind the eye; bound (k,) float: an upper bound of the continuous level, bias
+        included, of every base triangle below)."""
         eye, axes, pyramid, shift_reach = frame
         row = self.tree.table[d][nodes]                                       # (k, 12)
         rel, half = row[:, 0:3] - eye, row[:, 3:6]
@@ -256,7 +193,6 @@ class QuadtreeSelector(LevelSelector):
                                             csf_model=cfg.csf_model, foveal_cpd=row[:, 11] if kelly else None,
                                             level_bias=float(cfg.level_bias))
 
-    # ------------------------------------------------------------------ selection
     def select(self, view: View):
         """Levels (F,) int, equal to ``LevelSelector.select``'s; info (class notes)."""
         cfg = self.config

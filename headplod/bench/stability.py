@@ -1,24 +1,11 @@
-"""Temporal stability of the PLOD level selection for a still head.
+"""Temporal stability of the PLOD level selection for a still head (``headplod bench stability``).
 
-A still head is rendered by the synthetic stereo renderer (preset
-``static``: only image noise moves), tracked by the real tracker, and each
-pose becomes a :class:`~headplod.plod.select.View` (eye = head position P1,
-POI = where the ray from P1 along V meets the screen, cov = the tracker's
-(φ, θ) covariance). A fresh frame step (the demo's, its mesh back end's
-:class:`~headplod.plod.select.LevelSelector`) runs over those views; after a warm-up, every base triangle whose level
-differs from the previous frame's is a visible flicker (a popping patch of
-terrain) that the viewer's head did not cause.
-
-The same still head driven by the TRUE pose (``truth.csv``; cov still the
-tracker's) is the noise-free reference: :func:`stability_report` also counts
-how many triangles the tracked selection puts at another level than the
-truth-driven one on the last frame.
-
-The frames are drawn (:func:`headplod.bench.harness.mesh_step`) on a renderer
-of any size: the levels do not depend on it.
-
-Run ``headplod bench stability [--json FILE] [--chart FILE.png]
-[--modes csf,gp|all] [--distance MM] [--frames N] [--seed S]`` for the table.
+A still head rendered by the synthetic stereo renderer (preset ``static``: only image noise moves) is tracked
+by the real tracker; each pose becomes a :class:`~headplod.plod.select.View` (eye = P1, POI = where the ray
+along V meets the screen, cov = the tracker's (φ, θ) covariance, deg²) and goes through a fresh frame step
+(:func:`.harness.mesh_step`, on a renderer of any size: the levels do not depend on it). After a warm-up,
+every base triangle whose level differs from the previous frame's is a flicker the head did not cause. The
+same head driven by the true pose (``truth.csv``, the tracker's cov) is the noise-free reference.
 """
 from __future__ import annotations
 
@@ -27,15 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import DEFAULT_SCREEN
-
 from .. import io
 from ..capture.synthetic import ensure_dataset
 from ..live.loop import make_tracker, track_frames
 from ..plod.select import MODES, UNCERTAINTY_MODES, View
 from ..render.still import TerrainScene
 from ..tracking.tracker import TrackerConfig
-from .harness import SIZE, mesh_step, pyplot, run_views, save_figure
+from .harness import DEFAULT_SCREEN, SIZE, mesh_step, pyplot, run_views, save_figure
 from .outputs import write_json
 
 __all__ = ["ViewList", "track_still_head", "still_head_views", "level_changes", "levels_sequence",
@@ -43,20 +28,8 @@ __all__ = ["ViewList", "track_still_head", "still_head_views", "level_changes", 
 
 
 class ViewList(list):
-    """A list of :class:`View`, one per frame, with what the tracking left behind.
-
-    Attributes
-    ----------
-    lost : int
-        Frames without a pose (they repeat the previous view; leading frames
-        before the first pose are dropped and counted here too).
-    lost_frames : list of int
-        Their frame indices.
-    frames : list of int
-        Frame index of each view.
-    covs : list of (2, 2) ndarray or None
-        The tracker's covariance of each view (as in ``view.cov_deg2``).
-    """
+    """A list of :class:`View`, one per frame; ``lost_frames``: the frames without a pose (they repeat the
+    previous view; leading ones are dropped), ``lost`` their count, ``frames``: each view's frame index."""
 
     def __init__(self, views=(), lost_frames=(), frames=()):
         super().__init__(views)
@@ -82,12 +55,9 @@ def _dataset(frames: int, distance_mm: float, seed: int, root=None):
 def still_head_views(frames: int = 60, distance_mm: float = 600.0, seed: int = 0, config=None, root=None):
     """Tracked and truth-driven views of the still head: ``(tracked, truth, screen)``.
 
-    ``tracked`` is what :func:`track_still_head` returns. ``truth`` has one
-    view per tracked view, for the same frame: the true position and V from
-    ``truth.csv``, the POI computed the same way, the same time, and the
-    tracker's covariance of that view (``None`` when the dataset has no
-    truth). ``config`` is the TrackerConfig (default), ``root`` the render
-    cache folder (default ``$HEADPLOD_CACHE``).
+    ``tracked``: :func:`track_still_head`'s; ``truth``: per tracked view the true position and V of its frame,
+    the same time and covariance (None without ``truth.csv``). ``config``: the TrackerConfig; ``root``: the
+    render cache folder (default ``$HEADPLOD_CACHE``).
     """
     dataset = _dataset(frames, distance_mm, seed, root)
     screen = _screen_of(dataset)
@@ -123,26 +93,8 @@ def still_head_views(frames: int = 60, distance_mm: float = 600.0, seed: int = 0
 
 
 def track_still_head(frames: int = 60, distance_mm: float = 600.0, seed: int = 0, root=None) -> ViewList:
-    """Views of the synthetic still head (preset ``static``) as the real tracker sees it.
-
-    Parameters
-    ----------
-    frames : int
-        Number of stereo frames rendered (cached under ``$HEADPLOD_CACHE``).
-    distance_mm : float
-        Head distance from the screen.
-    seed : int
-        Image noise seed.
-    root : path, optional
-        Render cache folder (default ``$HEADPLOD_CACHE``).
-
-    Returns
-    -------
-    ViewList
-        One :class:`View` per frame (eye = P1, world mm; POI in screen px;
-        cov = the tracker's, deg²; t = the frame's time). A frame without a
-        pose repeats the previous view; ``.lost`` counts those frames.
-    """
+    """Views of the synthetic still head (preset ``static``, ``frames`` at ``distance_mm``, image noise
+    ``seed``) as the real tracker sees it: a :class:`ViewList` (eye = P1, world mm; POI screen px; cov deg²)."""
     return still_head_views(frames, distance_mm, seed, root=root)[0]
 
 
@@ -161,31 +113,12 @@ def _changes(levels: np.ndarray, warmup: int) -> tuple[list[int], list[int]]:
 
 def level_changes(scene, views, mode="csf", uncertainty="adaptive", hysteresis=True, warmup=10,
                   levels: np.ndarray | None = None, renderer=None) -> dict:
-    """Level changes per frame of a fresh selector run over ``views``.
+    """Level changes per frame of a fresh frame step (``mode``, ``uncertainty``, ``hysteresis``, on ``renderer``)
+    over ``views``, or of ``levels`` (N, F) already computed: frame i >= max(``warmup``, 1) counts the base
+    triangles whose level differs from frame i-1's.
 
-    Frame i (for i >= ``warmup``, and i >= 1) counts the base triangles whose
-    level differs from frame i-1.
-
-    Parameters
-    ----------
-    scene : headplod.render.still.TerrainScene
-    views : sequence of View
-    mode, uncertainty, hysteresis
-        The frame step's settings.
-    warmup : int
-        Frames not counted (the hysteresis and the smoothing settle).
-    levels : (N, F) ndarray, optional
-        Already computed levels (from :func:`levels_sequence`).
-    renderer : TerrainRenderer
-        What the frames are drawn on (when ``levels`` is None).
-
-    Returns
-    -------
-    dict
-        ``changes_per_frame`` (list of int), ``frames`` (their indices in
-        ``views``), ``mean_changes``, ``max_changes``, ``frames_with_changes``,
-        ``triangles`` (mean triangle count of the adaptive mesh over the
-        counted frames) and ``faces`` (base triangles).
+    Returns ``changes_per_frame``, ``frames`` (their indices), ``mean_changes``, ``max_changes``,
+    ``frames_with_changes``, ``triangles`` (the mean triangle count over the counted frames), ``faces``.
     """
     if levels is None:
         levels = levels_sequence(scene, views, mode, uncertainty, hysteresis, renderer=renderer)
@@ -217,33 +150,13 @@ def stability_report(scene=None, frames=60, modes=("csf",), uncertainties=UNCERT
                      root=None, renderer=None) -> dict:
     """Level changes per frame of the still head for every mode x uncertainty x hysteresis.
 
-    Parameters
-    ----------
-    scene : TerrainScene, optional
-        Built for the dataset's screen when None (a few seconds).
-    frames, distance_mm, seed
-        The ``static`` dataset tracked (see :func:`track_still_head`).
-    modes, uncertainties, hysteresis
-        The combinations run.
-    warmup : int
-        Frames not counted.
-    views : (tracked, truth[, screen]), optional
-        Precomputed :func:`still_head_views` output.
-    root : path, optional
-        Render cache folder (default ``$HEADPLOD_CACHE``).
-    renderer : TerrainRenderer, optional
-        What the frames are drawn on; default: one of a quarter of the benches' size per side, made here
-        (the levels do not depend on the image's size).
+    ``scene``: built for the dataset's screen when None; ``views``: :func:`still_head_views`' output, else
+    tracked here (``frames``, ``distance_mm``, ``seed``, ``root``); ``renderer``: default a quarter of the
+    benches' size per side, made here.
 
-    Returns
-    -------
-    dict
-        ``runs``: one :func:`level_changes` dict per combination, each with
-        ``truth`` (the same counts for the truth-driven views) and
-        ``differs_from_truth`` (triangles whose level differs between the
-        tracked and the truth-driven selection on the last frame); plus
-        ``frames``, ``lost``, ``noise`` (tracked-pose scatter and the
-        tracker's covariance) and ``truth_noise``.
+    Returns ``runs`` (a :func:`level_changes` per combination, with ``truth``, the same counts for the
+    truth-driven views, and ``differs_from_truth``[``_max``], triangles at another level than the truth-driven
+    selection's on the last frame [at worst]), ``frames``, ``lost``, ``noise`` and ``truth_noise``, ...
     """
     start = time.perf_counter()
     if views is None:
@@ -306,11 +219,8 @@ def format_table(report: dict) -> str:
 
 
 def plot_stability(report: dict, path) -> Path:
-    """Level changes per frame against frame index: one line per uncertainty mode.
-
-    One column per hysteresis setting (with, without), one row per selection
-    mode. Lines are offset slightly so that coinciding ones stay visible.
-    """
+    """Level changes per frame against frame index, a line per uncertainty mode (offset so coinciding ones stay
+    visible), a column per hysteresis setting, a row per selection mode."""
     plt = pyplot()
     runs = report["runs"]
     modes = list(dict.fromkeys(r["mode"] for r in runs))
