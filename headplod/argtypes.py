@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["cache_mb", "floats", "frame_count", "max_level", "non_negative"]
+__all__ = ["cache_mb", "floats", "frame_count", "max_level", "non_negative", "level_bias", "triangle_budget"]
 
 
 def floats(n: int):
@@ -77,3 +77,27 @@ def cache_mb(text: str) -> float:
     if not (math.isfinite(value) and 1 <= value <= 65536):
         raise argparse.ArgumentTypeError(f"must lie in 1..65536 MB, got {text!r}")
     return value
+
+
+def level_bias(text: str) -> float:
+    """An argparse type: a bias on every continuous level, levels, a finite number within ±8 (the finest mesh
+    has 8 levels: beyond that every triangle is at one end)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of levels, got {text!r}") from None
+    if not (math.isfinite(value) and abs(value) <= 8):
+        raise argparse.ArgumentTypeError(f"expected a number of levels in -8..8, got {text!r}")
+    return value
+
+
+def triangle_budget(text: str) -> int:
+    """An argparse type: a triangle budget, a whole number of at least 1 (``1e5`` and ``100_000`` read too)."""
+    try:
+        value = float(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of triangles, got {text!r}") from None
+    if not (math.isfinite(value) and value == int(value) and value >= 1):
+        raise argparse.ArgumentTypeError(f"expected a whole number of triangles >= 1, got {text!r}")
+    return int(value)
+

@@ -23,6 +23,8 @@ PREVIOUS = {
     "hysteresis_eager_deg": 5.0, "hysteresis_eager_deg_s": 3.0,
     # Moved from the demo into the view conditioning (issue 23): the demo's SACCADE_DEG_S.
     "saccade_hold_deg_s": 180.0,
+    # Added for equal-cost comparisons (issue 24): no budget by default.
+    "budget_triangles": None, "budget_tolerance": 0.03,
 }
 
 
@@ -201,6 +203,8 @@ BAD = [
     ("jump_eye_mm", 0.0), ("jump_poi_px", -30.0), ("jump_poi_sigma", -5.0), ("cull_margin_edges", True),
     ("cull_margin_edges", -1.5), ("hysteresis_eager_deg", -1.0), ("hysteresis_eager_deg", math.nan),
     ("hysteresis_eager_deg_s", -3.0), ("saccade_hold_deg_s", 0.0), ("saccade_hold_deg_s", math.nan),
+    ("budget_triangles", 0), ("budget_triangles", 1.5), ("budget_triangles", True), ("budget_tolerance", 0.0),
+    ("budget_tolerance", 0.5),
 ]
 
 

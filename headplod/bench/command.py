@@ -12,6 +12,7 @@ from ..argtypes import frame_count, non_negative
 from ..capture import source_kind, synthetic_preset
 from ..capture.synthetic import ensure_dataset
 from ..live.command import note_old_spelling
+from ..render.command import add_cost_arguments, selection_options
 
 __all__ = ["add_bench_arguments", "run_bench", "BENCHMARKS"]
 
@@ -46,6 +47,7 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bp.add_argument("--json", help="write the results as JSON")
     bp.add_argument("--chart", help="write the chart (PNG); the level-colour pictures go beside it")
     bp.add_argument("--quick", action="store_true", help="fewer points on the curves and sweeps (a smoke run)")
+    add_cost_arguments(bp.add_argument_group("every mode's cost (part 1: the modes at the default view)"))
     bp.add_argument("--vdp", nargs="?", const="fvvdp", metavar="METRICS",
                     help="also judge every mode and CSF form with a visible-difference predictor, JOD against frame "
                          "time: fvvdp (FovVideoVDP, foveated on the POI; the default) and/or cvvdp (ColorVideoVDP, "
@@ -117,7 +119,7 @@ def _plod(args) -> int:
     from . import plod
     vdp = tuple(m for m in args.vdp.split(",") if m) if getattr(args, "vdp", None) else ()
     return plod.run_plod_bench(json_path=args.json, chart_path=args.chart, quick=args.quick, vdp=vdp,
-                               only=getattr(args, "only", None))
+                               only=getattr(args, "only", None), cost=selection_options(args))
 
 
 def _stability(args) -> int:

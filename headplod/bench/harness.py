@@ -85,16 +85,6 @@ def quality(image, reference, disc=None, px_per_deg=None, flip: bool = True) -> 
     return q
 
 
-class _MeshBackend(MeshBackend):
-    """The mesh back end, keeping the selector's per-triangle features of the last selection (``last_info``)."""
-
-    last_info = None
-
-    def select(self, cv):
-        levels, self.last_info = self.selector.select(cv)
-        return levels
-
-
 def mesh_step(scene, renderer, mode: str, uncertainty: str = "adaptive", *, foveate: bool = False,
               foveation=None, **settings) -> FrameStep:
     """A frame step of the mesh back end, as the demo makes it, over its own build state of ``scene``'s mesh.
@@ -109,7 +99,7 @@ def mesh_step(scene, renderer, mode: str, uncertainty: str = "adaptive", *, fove
 
     config = SelectorConfig(mode=mode, uncertainty=uncertainty, **settings)
     foveated = FoveatedRenderer(renderer, foveation) if foveate else None
-    backend = _MeshBackend(scene.mesh.share(), scene.selector(mode, uncertainty, config), renderer, scene.screen,
+    backend = MeshBackend(scene.mesh.share(), scene.selector(mode, uncertainty, config), renderer, scene.screen,
                            foveated=foveated, anchor=LayerAnchor() if foveate else None,
                            foveation=foveated.config if foveate else None)
     return FrameStep(backend, scene.screen, config)

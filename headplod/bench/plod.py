@@ -89,11 +89,15 @@ def _readback_frame(b: BenchScene, step) -> tuple:
     return frame, stats
 
 
-def measure_modes(b: BenchScene) -> tuple[dict, dict]:
-    """Part 1: every mode, the CSF forms and the read-back contrast at the default view."""
+def measure_modes(b: BenchScene, cost=None) -> tuple[dict, dict]:
+    """Part 1: every mode, the CSF forms and the read-back contrast at the default view.
+
+    ``cost``: :class:`SelectorConfig` fields every mode but ``full`` (the reference) takes: a level bias
+    or a triangle budget (``--level-bias``, ``--budget``), to compare them at equal cost."""
     results, images = {}, {}
     for name, opts, readback in _mode_entries():
-        step = b.mesh_step(opts.pop("mode"), "adaptive", **opts)
+        mode = opts.pop("mode")
+        step = b.mesh_step(mode, "adaptive", **opts, **({} if mode == "full" else (cost or {})))
         frame, results[name] = _readback_frame(b, step) if readback else b.steady(step)
         images[name] = frame.image
         _progress(name)
@@ -223,7 +227,7 @@ def _vdp_problem(vdp) -> str | None:
 
 
 def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool = False, vdp=(),
-                   only: str | None = None) -> int:
+                   only: str | None = None, cost=None) -> int:
     """``headplod bench plod``: every part (module notes), or the one part ``only`` (:data:`PARTS`); the exit
     status. Prints the table and the goals; writes ``json_path``, ``chart_path`` and the pictures beside it."""
     vdp = tuple(vdp) or (("fvvdp",) if only == "judge" else ())
@@ -241,8 +245,8 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
             write_json(json_path, report, default=float)
         return 0
     b = BenchScene(frames=frames)
-    results, images = measure_modes(b)
-    report = {"size": SIZE, "px_per_deg": b.px_per_deg, "modes": results,
+    results, images = measure_modes(b, cost)
+    report = {"size": SIZE, "px_per_deg": b.px_per_deg, "cost": dict(cost or {}), "modes": results,
               "curves": quality_curves(b, images["full"], biases=biases),
               "velocity_sweep": velocity_sweep(b, speeds=(0.0, 5.0, 50.0) if quick else SWEEP_SPEEDS_DEG_S),
               "ellipse": ellipse_coverage(b, out_dir=out_dir), "stability": stability(b, frames=30 if quick else 60)}

@@ -43,6 +43,7 @@ from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..progress import Progress
 from ..render import TerrainRenderer, create_context
 from ..plod.select import MODES
+from ..render.command import add_cost_arguments, selection_options
 from ..render.frame import capability_table, options_problem
 from ..render.still import FULL_MAX_LEVEL, add_mesh_arguments, mesh_options, mesh_options_problem, mesh_stats
 from . import loop as lp
@@ -112,6 +113,7 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
                            "what each supports is in the table below")
     view.add_argument("--mode", default="csf", choices=MODES,
                       help="LOD criterion (window: the initial one; headless: the one compared with full)")
+    add_cost_arguments(view)
     view.add_argument("--uncertainty", default="adaptive", choices=lp.SCENARIOS,
                       help="uncertainty scenario (window: initial; default adaptive)")
     view.add_argument("--viewpoint", default="overview", choices=tuple(VIEWPOINTS),
@@ -202,7 +204,8 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
             extra.release()
     ratios = _ratios(runs, args)
     summary = {"size": list(args.size), "frames_per_run": args.frames, "poses": source_name,
-               "mode": args.mode, "viewpoints": {vp: VIEWPOINTS[vp].description for vp in args.viewpoints},
+               "mode": args.mode, "cost": selection_options(args),
+               "viewpoints": {vp: VIEWPOINTS[vp].description for vp in args.viewpoints},
                "fps_ratio_to_full": ratios, "pictures": pictures, "runs": runs, "mesh": mesh_stats(scene.mesh),
                "rss_mb": round(_rss_mb(), 1),
                "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
@@ -248,7 +251,9 @@ def _run_group(args, plan, scene, screen, renderers, folder, progress, pictures,
         backend = getattr(args, "backend", "mesh") if mode == args.mode else "mesh"
         demos.append(lp.DemoLoop(scene, tee.consumer(k), renderers[k], mode=mode, uncertainty=scenario,
                                  viewpoint=vp, view_mode="shaded", hud=True, saccade_deg_s=args.saccade_deg_s,
-                                 growth_deg2_per_s=args.growth, foveate=foveate, backend=backend))
+                                 growth_deg2_per_s=args.growth, foveate=foveate, backend=backend,
+                                 # full is the reference: no bias, no budget
+                                 selector_options=selection_options(args) if mode == args.mode else None))
         written.append([])
     try:
         for k, result in _interleaved(demos, args.frames):
@@ -400,7 +405,8 @@ def run_demo(args) -> int:
         return 2
     backend = getattr(args, "backend", "mesh")
     problem = options_problem(backend, mode=args.mode, uncertainty=args.uncertainty, view_mode=args.view,
-                              foveate=args.foveate)
+                              foveate=args.foveate, level_bias=getattr(args, "level_bias", 0.0) != 0.0,
+                              budget=getattr(args, "budget", None) is not None)
     problem = problem or mesh_options_problem(args, ("raymask",) if backend == "raymask" else (args.mode,))
     if problem:
         print(f"headplod demo: {problem}", file=sys.stderr)

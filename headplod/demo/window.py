@@ -15,6 +15,7 @@ import sys
 
 import numpy as np
 
+from ..render.command import selection_options
 from ..render import TerrainRenderer
 from ..render.gl import FULLSCREEN_VERTEX_SHADER
 from ..render.still import mesh_options
@@ -73,7 +74,8 @@ def make_window_class():
             self.loop = DemoLoop(scene, self.poses, TerrainRenderer(self.ctx, size=size), mode=args.mode,
                                  uncertainty=args.uncertainty, viewpoint=args.viewpoint, view_mode=args.view,
                                  saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth,
-                                 foveate=getattr(args, "foveate", False), backend=getattr(args, "backend", "mesh"))
+                                 foveate=getattr(args, "foveate", False), backend=getattr(args, "backend", "mesh"),
+                                 selector_options=selection_options(args))
             self.texture = self.ctx.texture(size, 3)
             self.program = self.ctx.program(vertex_shader=FULLSCREEN_VERTEX_SHADER, fragment_shader=_FRAGMENT)
             self.quad = self.ctx.vertex_array(self.program, [])

@@ -76,6 +76,15 @@ class SelectorConfig:
         Added to every continuous level before rounding, levels (0.0): the one
         knob that trades triangles for image error in every mode alike, for
         the quality curves of ``headplod bench plod``.
+    budget_triangles : int or None
+        A triangle budget (None: none). Each frame, one more bias is added to
+        the continuous levels of the triangles in view, found by bisection so
+        that the frame's triangles meet the budget within
+        ``budget_tolerance``: every mode is then compared at equal cost. Needs
+        the selector's ``triangle_count`` (the mesh's).
+    budget_tolerance : float
+        How close the budget is met, a fraction of it (0.03); the bias stops
+        changing once the count is within it.
     sse_tolerance_px : float
         Largest screen-space geometric error of modes ``sse``, ``ipv`` and
         ``dpv``, px (1.0; :func:`perception.sse_level`).
@@ -140,6 +149,8 @@ class SelectorConfig:
     ellipse_sigma: float = 2.0
     csf_model: str = "kelly_scaled"
     level_bias: float = 0.0
+    budget_triangles: int | None = None
+    budget_tolerance: float = 0.03
     sse_tolerance_px: float = 1.0
     frame_s: float = 1 / 60
     velocity_ref_deg_s: float = 10.0
@@ -162,6 +173,11 @@ class SelectorConfig:
                               ("csf_model", pc.CSF_MODELS)):
             if getattr(self, name) not in choices:
                 raise ValueError(f"SelectorConfig.{name} must be one of {choices}, got {getattr(self, name)!r}")
+        budget = self.budget_triangles
+        if budget is not None and not (isinstance(budget, numbers.Integral) and not isinstance(budget, bool)
+                                       and budget >= 1):
+            raise ValueError(f"SelectorConfig.budget_triangles must be a whole number of triangles >= 1 or None, "
+                             f"got {budget!r}")
         if not isinstance(self.hysteresis, (bool, np.bool_)):
             raise ValueError(f"SelectorConfig.hysteresis must be True or False, got {self.hysteresis!r}")
         # (field, lower bound, bound allowed, unit)
@@ -174,7 +190,7 @@ class SelectorConfig:
                 ("smoothing_s", 0.0, False, "s"), ("eye_beta", 0.0, True, "Hz per mm/s"),
                 ("poi_beta", 0.0, True, "Hz per px/s"), ("jump_eye_mm", 0.0, False, "mm"),
                 ("jump_poi_px", 0.0, False, "px"), ("jump_poi_sigma", 0.0, True, "sigma"),
-                ("saccade_hold_deg_s", 0.0, False, "deg/s"),
+                ("saccade_hold_deg_s", 0.0, False, "deg/s"), ("budget_tolerance", 0.0, False, "fraction"),
                 ("cull_margin_edges", 0.0, True, "level-0 edges")):
             value = getattr(self, name)
             ok = (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
@@ -183,6 +199,9 @@ class SelectorConfig:
                 bound = ("any finite number" if low == -math.inf
                          else f"a finite number {'>=' if closed else '>'} {low:g}")
                 raise ValueError(f"SelectorConfig.{name} must be {bound} ({unit}), got {value!r}")
+        if self.budget_tolerance >= 0.5:
+            raise ValueError(f"SelectorConfig.budget_tolerance must be below 0.5 (fraction), "
+                             f"got {self.budget_tolerance!r}")
 
 
 class LevelSelector:
@@ -211,10 +230,13 @@ class LevelSelector:
     """
 
     def __init__(self, centroids_scene, edge_len_scene, geometric_error_scene, contrast, model, screen,
-                 config: SelectorConfig = SelectorConfig(), *, corners_scene=None):
+                 config: SelectorConfig = SelectorConfig(), *, corners_scene=None, triangle_count=None):
         if not isinstance(config, SelectorConfig):
             raise TypeError(f"LevelSelector: config must be a SelectorConfig, got {type(config).__name__}")
+        if config.budget_triangles is not None and triangle_count is None:
+            raise ValueError("LevelSelector: a triangle budget needs triangle_count (the mesh's)")
         self.config = config
+        self.triangle_count = triangle_count
         self.max_level = edge_len_scene.shape[1] - 1
         model = np.asarray(model, dtype=np.float64)
         self.scale_mm = float(np.cbrt(abs(np.linalg.det(model[:3, :3]))))
@@ -288,13 +310,46 @@ class LevelSelector:
         continuous = np.zeros(len(rel))
         ecc[seen], continuous[seen] = self._criterion(seen, eye, shifted[seen], distance[seen], directions[seen],
                                                       speed[seen])
+        budget_bias = 0.0
+        if cfg.budget_triangles is not None:
+            budget_bias = self._budget_bias(continuous, seen)
+            continuous[seen] += budget_bias
         if self.hysteresis is not None:
             levels = self.hysteresis.update(continuous, self.max_level, eager=self._eager(view, ecc))
         else:
             levels = pc.round_level(continuous, self.rounding, self.max_level)
         levels = np.clip(levels, 0, self.max_level).astype(np.int64)
         return levels, {"eccentricity_deg": ecc, "speed_deg_s": speed, "distance_mm": distance,
-                        "continuous": continuous, "poi_px": view.poi_px, "cov_deg2": cov}
+                        "continuous": continuous, "poi_px": view.poi_px, "cov_deg2": cov, "budget_bias": budget_bias}
+
+    def _budget_bias(self, continuous, seen) -> float:
+        """The bias (levels) on the ``seen`` triangles' continuous levels that meets the triangle budget.
+
+        The frame's triangles rise with the bias (every level rounds up or
+        stays), so a bisection over [-(L+1), L+1] finds it; it stops as soon as
+        the count is within ``budget_tolerance`` of the budget, and otherwise
+        keeps the closest count seen (a budget below the coarsest frame or
+        above the finest cannot be met: the nearest end is taken).
+        """
+        cfg, L = self.config, self.max_level
+        budget = cfg.budget_triangles
+        trial = np.zeros(len(continuous), dtype=np.int64)
+
+        def count(bias):
+            trial[seen] = pc.round_level(continuous[seen] + bias, self.rounding, L)
+            return self.triangle_count(np.clip(trial, 0, L))
+
+        lo, hi = -(L + 1.0), L + 1.0
+        best = (math.inf, 0.0)
+        for _ in range(40):                      # loop over bisection steps (each a vectorized count)
+            mid = 0.5 * (lo + hi)
+            n = count(mid)
+            miss = abs(n - budget) / budget
+            best = min(best, (miss, mid))
+            if miss <= cfg.budget_tolerance:
+                break
+            lo, hi = (mid, hi) if n < budget else (lo, mid)
+        return best[1]
 
     def _eager(self, view: ConditionedView, ecc):
         """(n,) bool for the hysteresis: triangles within ``hysteresis_eager_deg`` of a moving POI; None if still."""

@@ -23,7 +23,7 @@ from calib import DEFAULT_SCREEN
 
 from .. import io
 from ..plod.export import check_export_path
-from ..argtypes import floats
+from ..argtypes import floats, level_bias, triangle_budget
 from ..plod.raymask import RayMaskConfig
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..plod.select import MODES, UNCERTAINTY_MODES, SelectorConfig
@@ -40,6 +40,7 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
                         help="what draws the frame (default mesh); what each supports is in the table below")
     render.add_argument("--mode", default="csf", choices=MODES, help="level-selection mode (default csf)")
     render.add_argument("--uncertainty", default="adaptive", choices=UNCERTAINTY_MODES)
+    add_cost_arguments(render)
     render.add_argument("--head", type=floats(3), help="eye position X,Y,Z in the world frame, mm "
                                                          "(default: 600 mm in front of the screen centre)")
     render.add_argument("--poi", type=floats(2), help="point of interest X,Y in screen pixels (default: centre)")
@@ -78,6 +79,22 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     return render
 
 
+def add_cost_arguments(parser) -> None:
+    """Add ``--level-bias`` and ``--budget`` (what every mode is compared at) to a parser or group."""
+    parser.add_argument("--level-bias", type=level_bias, default=0.0, metavar="B",
+                        help="add B levels to every continuous level before rounding (default 0): trades "
+                             "triangles for image error in every mode alike")
+    parser.add_argument("--budget", type=triangle_budget, default=None, metavar="TRIANGLES",
+                        help="meet this many triangles a frame within 3%%: the level bias is found per frame "
+                             "(bisection), so modes can be compared at equal cost (mesh back end)")
+
+
+def selection_options(args) -> dict:
+    """The :class:`SelectorConfig` fields of :func:`add_cost_arguments`' options."""
+    return {"level_bias": float(getattr(args, "level_bias", 0.0)),
+            "budget_triangles": getattr(args, "budget", None)}
+
+
 def _output_problem(path, image: bool = False) -> str | None:
     """Why ``path`` cannot be an output file (a folder; an image ending OpenCV cannot write), or None."""
     p = Path(path)
@@ -114,7 +131,8 @@ def run_render(args) -> int:
             return 2
     problem = options_problem(args.backend, mode=args.mode, uncertainty=args.uncertainty, view_mode=args.view,
                               foveate=args.foveate, contrast=args.contrast, export=args.export is not None,
-                              terrain=args.terrain is not None)
+                              terrain=args.terrain is not None, level_bias=args.level_bias != 0.0,
+                              budget=args.budget is not None)
     if problem:
         print(f"headplod: {problem}", file=sys.stderr)
         return 2
@@ -154,7 +172,8 @@ def run_render(args) -> int:
         _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
                                 poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
                                 stats_path=args.stats, contrast=args.contrast, export=args.export,
-                                foveate=args.foveate, raymask=raymask, scene=scene, backend=args.backend)
+                                foveate=args.foveate, raymask=raymask, scene=scene, backend=args.backend,
+                                selector_options=selection_options(args))
     except OSError as exc:           # a folder that cannot be written: nothing half-written is left
         print(f"headplod: could not write the output: {exc.strerror or exc} ({exc.filename or args.out})",
               file=sys.stderr)
@@ -168,7 +187,9 @@ def run_render(args) -> int:
     m = stats["mesh"]
     lazy = (f", lazy mesh: {m['vertices']:,} vertices, cache {m['cache_bytes'] / 2 ** 20:.0f} of "
             f"{m['cache_budget_bytes'] / 2 ** 20:.0f} MB" if m["kind"] == "lazy" else "")
-    print(f"{stats['triangles']} triangles (level {m['max_level']}{lazy}); select {stats['select_ms']:.1f} ms, "
+    budget = (f", budget {args.budget:,} met with a level bias of {stats['budget_bias']:+.2f}"
+              if "budget_bias" in stats else "")
+    print(f"{stats['triangles']} triangles (level {m['max_level']}{lazy}{budget}); select {stats['select_ms']:.1f} ms, "
           f"build {stats['build_ms']:.1f} ms, "
           f"render {stats['render_ms']:.1f} ms; image: {args.out}"
           + (f"; mesh: {args.export}" if args.export else ""), file=sys.stderr)
@@ -211,13 +232,14 @@ def _run_tessellation(args, screen, cov, size) -> int:
         model = scene_model(grid.extent, float(np.median(z[::8, ::8])), screen)
     else:
         model = scene_model(grid.extent, float(np.median(terrain.dem_z_m)), screen, fit_scale(terrain))
-    selection = SelectorConfig(mode=args.mode, uncertainty=args.uncertainty)
+    selection = SelectorConfig(mode=args.mode, uncertainty=args.uncertainty, **selection_options(args))
     with TessellationRenderer(create_context(require=430), grid, size=size, config=config,
                               selection=selection) as renderer:
         try:                         # each file whole or not at all, as the mesh back end's
             _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
                                     poi_px=args.poi, cov_deg2=cov, size=size, out=args.out, stats_path=args.stats,
                                     backend="tessellation", renderer=renderer, model=model,
+                                    selector_options=selection_options(args),
                                     details={"grid_samples": n, "patch_samples": config.patch_samples})
         except (OSError, ValueError) as exc:
             print(f"headplod: could not write the output: {getattr(exc, 'strerror', None) or exc}", file=sys.stderr)

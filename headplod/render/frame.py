@@ -72,6 +72,10 @@ class BackendCapabilities:
         Where the contrast of the CSF comes from (``shading``; ``readback``: the paper's read-back window).
     export : bool
         Writes the frame's mesh (``--export``).
+    level_bias : bool
+        Takes a bias on every continuous level (``--level-bias``).
+    budget : bool
+        Meets a triangle budget per frame (``--budget``).
     finest_level : str
         What sets its finest detail.
     """
@@ -86,6 +90,8 @@ class BackendCapabilities:
     hysteresis: bool
     contrast_sources: tuple
     export: bool
+    level_bias: bool
+    budget: bool
     finest_level: str
 
 
@@ -93,15 +99,18 @@ CAPABILITIES = {
     "mesh": BackendCapabilities(
         "mesh", "a level per base triangle over an adaptive mesh, drawn indexed", MODES, UNCERTAINTY_MODES,
         VIEW_MODES, foveate=True, own_terrain=True, hysteresis=True, contrast_sources=("shading", "readback"),
-        export=True, finest_level="--max-level 1..8 (above 5: lazy pieces; full up to 7)"),
+        export=True, level_bias=True, budget=True,
+        finest_level="--max-level 1..8 (above 5: lazy pieces; full up to 7)"),
     "tessellation": BackendCapabilities(
         "tessellation", "the CSF per patch on the GPU, tessellated from a height texture", ("csf", "full"),
         UNCERTAINTY_MODES, ("shaded",), foveate=False, own_terrain=True, hysteresis=False,
-        contrast_sources=("shading",), export=False, finest_level="one vertex per height sample (--grid-samples)"),
+        contrast_sources=("shading",), export=False, level_bias=True, budget=False,
+        finest_level="one vertex per height sample (--grid-samples)"),
     "raymask": BackendCapabilities(
         "raymask", "Murphy & Duchowski: rays through a CSF ray mask, no levels", ("csf",), UNCERTAINTY_MODES,
         ("shaded",), foveate=False, own_terrain=True, hysteresis=False, contrast_sources=("shading",),
-        export=False, finest_level="the whole-table mesh's finest level (--max-level up to 5)"),
+        export=False, level_bias=False, budget=False,
+        finest_level="the whole-table mesh's finest level (--max-level up to 5)"),
 }
 #: The back ends, in the order the tools list them.
 BACKENDS = tuple(CAPABILITIES)
@@ -109,7 +118,7 @@ BACKENDS = tuple(CAPABILITIES)
 
 def options_problem(backend: str, *, mode: str = "csf", uncertainty: str = "adaptive", view_mode: str = "shaded",
                     foveate: bool = False, contrast: str = "shading", export: bool = False,
-                    terrain: bool = False) -> str | None:
+                    terrain: bool = False, level_bias: bool = False, budget: bool = False) -> str | None:
     """One line saying which option ``backend`` does not support, or None when it supports them all."""
     if backend not in CAPABILITIES:
         return f"unknown back end {backend!r}; choose one of {', '.join(BACKENDS)}"
@@ -121,18 +130,22 @@ def options_problem(backend: str, *, mode: str = "csf", uncertainty: str = "adap
         ("--foveate", cap.foveate or not foveate),
         (f"--contrast {contrast}", contrast in cap.contrast_sources),
         ("--export", cap.export or not export),
-        ("--terrain", cap.own_terrain or not terrain)) if not ok]
+        ("--terrain", cap.own_terrain or not terrain),
+        ("--level-bias", cap.level_bias or not level_bias),
+        ("--budget", cap.budget or not budget)) if not ok]
     return f"--backend {backend} does not take {', '.join(bad)}" if bad else None
 
 
 def capability_table(markdown: bool = False) -> str:
     """The capability table as text (``--help``; ``markdown``: for the docs)."""
-    rows = [("back end", "modes", "scenarios", "views", "foveate", "own terrain", "hysteresis", "finest level")]
+    yes = {True: "yes", False: "no"}
+    rows = [("back end", "modes", "scenarios", "views", "foveate", "own terrain", "hysteresis", "level bias",
+             "budget", "finest level")]
     for cap in CAPABILITIES.values():
         rows.append((cap.name, ", ".join(cap.modes) if cap.modes != MODES else "all",
                      "all" if cap.scenarios == UNCERTAINTY_MODES else ", ".join(cap.scenarios),
-                     ", ".join(cap.view_modes), "yes" if cap.foveate else "no", "yes" if cap.own_terrain else "no",
-                     "yes" if cap.hysteresis else "no", cap.finest_level))
+                     ", ".join(cap.view_modes), yes[cap.foveate], yes[cap.own_terrain], yes[cap.hysteresis],
+                     yes[cap.level_bias], yes[cap.budget], cap.finest_level))
     if markdown:
         lines = ["| " + " | ".join(r) + " |" for r in rows]
         lines.insert(1, "|" + "---|" * len(rows[0]))
@@ -232,9 +245,11 @@ class MeshBackend(Backend):
         self.mesh, self.selector, self.renderer, self.screen = mesh, selector, renderer, screen
         self.foveated, self.anchor, self.foveation = foveated, anchor, foveation
         self._uploaded = None          # the index array the renderer (or the layers) last received
+        self.last_info = None          # the last selection's per-triangle features (LevelSelector.select's dict)
 
     def select(self, cv):
-        return self.selector.select(cv)[0]
+        levels, self.last_info = self.selector.select(cv)
+        return levels
 
     def reset(self) -> None:
         self.selector.reset()
@@ -262,6 +277,8 @@ class MeshBackend(Backend):
                  "readback": renderer.last_readback_ms}
         if self.foveated is not None:            # the layers' face spans and index re-sort
             stage["upload"] += self.foveated.last_sort_ms
+        if self.selector.config.budget_triangles is not None and self.last_info is not None:
+            details["budget_bias"] = float(self.last_info["budget_bias"])
         if mesh.kind == "lazy":
             details["cache_bytes"] = int(mesh.cache_bytes)
             details["lazy"] = {k: int(mesh.stats.get(k, 0)) for k in ("rebuilt_faces", "generated_pieces",

@@ -115,7 +115,7 @@ class TerrainScene:
         config = dataclasses.replace(config, mode=mode, uncertainty=uncertainty, **settings)
         m = self.mesh
         return LevelSelector(m.centroids, m.edge_length, m.geometric_error, m.contrast, self.model, self.screen,
-                             config, corners_scene=m.corners)
+                             config, corners_scene=m.corners, triangle_count=m.triangle_count)
 
 
 def scene_model(extent, centre_z_m: float, screen, fit: float = 1.0) -> np.ndarray:
