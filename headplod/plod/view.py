@@ -34,7 +34,7 @@ import numpy as np
 from ..filters import OneEuroFilter
 
 __all__ = ["UNCERTAINTY_MODES", "View", "ConditionedView", "UncertaintyPolicy", "ViewConditioner", "head_axes",
-           "poi_direction", "default_head"]
+           "poi_direction", "default_head", "still_view"]
 
 UNCERTAINTY_MODES = ("none", "fixed", "adaptive", "smoothed")
 """Which covariance the selection uses (:attr:`SelectorConfig.uncertainty`, :class:`UncertaintyPolicy`)."""
@@ -150,6 +150,14 @@ def default_head(screen, distance_mm: float = 600.0) -> np.ndarray:
     if normal @ (np.zeros(3) - centre) < 0:
         normal = -normal
     return centre + distance_mm * normal
+
+
+def still_view(screen, eye_mm=None, poi_px=None, cov_deg2=None, t: float | None = 0.0) -> View:
+    """A :class:`View` with the defaults of a one-frame render: the eye at :func:`default_head` (world mm),
+    the POI at the screen centre (screen px); given values as float64 arrays."""
+    eye = default_head(screen) if eye_mm is None else np.asarray(eye_mm, dtype=np.float64)
+    poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
+    return View(eye, poi, cov_deg2, t)
 
 
 def poi_direction(screen, eye_mm, poi_px) -> np.ndarray:

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..plod.select import MODES, SelectorConfig
-from ..plod.view import UNCERTAINTY_MODES, ConditionedView, View, ViewConditioner, default_head
+from ..plod.view import UNCERTAINTY_MODES, ConditionedView, View, ViewConditioner, still_view
 from .gl import VIEW_MODES as _GL_VIEW_MODES
 from .projection import off_axis_projection
 
@@ -411,7 +411,5 @@ def one_frame(backend: Backend, screen, model, head_mm=None, poi_px=None, cov_de
     (default the centre), ``cov_deg2`` (2, 2) deg² or None, ``t`` s (the back end keeps its own last
     frame, e.g. for the tessellation's angular speeds), ``config`` the conditioning's settings.
     """
-    head = default_head(screen) if head_mm is None else np.asarray(head_mm, dtype=np.float64)
-    poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
-    return FrameStep(backend, screen, config)(View(head, poi, cov_deg2, t), model, view_mode)
+    return FrameStep(backend, screen, config)(still_view(screen, head_mm, poi_px, cov_deg2, t), model, view_mode)
 

@@ -26,10 +26,10 @@ from ..plod.mesh_base import FULL_MAX_LEVEL
 from ..plod.raymask import RayMaskConfig
 from ..plod.select import LevelSelector, SelectorConfig
 from ..plod.terrain import Terrain
-from ..plod.view import View, default_head  # noqa: F401 (default_head: the scene's default eye, re-exported)
+from ..plod.view import default_head, still_view  # noqa: F401 (default_head: the scene's default eye, re-exported)
 from .context import create_context
 from .foveate import FoveatedRenderer, LayerAnchor
-from .frame import px_per_deg_at
+from .frame import FrameStep, MeshBackend, RayMaskBackend, TessellationBackend, options_problem, px_per_deg_at
 from .gl import TerrainRenderer
 from .overlay import overlay_poi
 from .projection import scene_to_world
@@ -307,16 +307,14 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     (``readback_ms`` in the stats). ``selector_options``: other
     :class:`SelectorConfig` fields. ``details``: more entries for the stats.
     """
-    from .frame import FrameStep, TessellationBackend, options_problem
-
     problem = options_problem(backend, mode=mode, uncertainty=uncertainty, view_mode=view_mode, foveate=foveate,
                               contrast=contrast, export=export is not None)
     if problem:
         raise ValueError(f"render_still: {problem}")
     if export is not None:
         export = check_export_path(export)
-    head = default_head(screen) if head_mm is None else np.asarray(head_mm, dtype=np.float64)
-    poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
+    view = still_view(screen, head_mm, poi_px, cov_deg2)
+    head, poi = view.eye_mm, view.poi_px
     config = dataclasses.replace(SelectorConfig(), mode=mode, uncertainty=uncertainty, **(selector_options or {}))
     if backend == "tessellation":
         if renderer is None or model is None:
@@ -334,7 +332,6 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
                              f"(at most {FULL_MAX_LEVEL})")
         step = FrameStep(_backend_for_scene(backend, scene, config, size, renderer, foveate, raymask,
                                             raymask_renderer), screen, config)
-    view = View(head, poi, cov_deg2, 0.0)
     readback_ms = None
     try:
         if contrast == "readback":
@@ -360,8 +357,6 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
 
 def _backend_for_scene(backend, scene, config, size, renderer, foveate, raymask, raymask_renderer):
     """The mesh or raymask back end of a one-frame render (``render_still``'s arguments)."""
-    from .frame import MeshBackend, RayMaskBackend
-
     if backend == "raymask":
         from .raymask import RayMaskRenderer
 
