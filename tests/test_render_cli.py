@@ -79,3 +79,17 @@ def test_render_warns_of_a_poi_off_the_screen(tmp_path, capsys):
     assert "outside the screen" in capsys.readouterr().err and out.exists()
     assert cli_main(["render", "--size", "64,48", "--poi", "960,540", "--out", str(out)]) == 0
     assert "outside the screen" not in capsys.readouterr().err
+
+
+def test_a_full_disk_while_writing_the_image_is_one_line_and_leaves_nothing(tmp_path, capsys, monkeypatch):
+    """The encoder fails on a known ending (as on a full disk): exit 1, one line naming the file, nothing left."""
+    import cv2
+
+    from headplod.cli import main as cli_main
+
+    monkeypatch.setattr(cv2, "imwrite", lambda name, image: False)
+    out = tmp_path / "r.png"
+    assert cli_main(["render", "--size", "160,90", "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "r.png" in err[0] and "disk full" in err[0]
+    assert list(tmp_path.iterdir()) == []

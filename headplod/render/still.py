@@ -8,6 +8,7 @@ the command lines and the one-frame outputs.
 from __future__ import annotations
 
 import dataclasses
+import errno
 import json
 import math
 import time
@@ -421,6 +422,9 @@ def write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> 
                 written = cv2.imwrite(name, cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
             except cv2.error:
                 written = False
+            if not written and cv2.haveImageWriter(name):      # it knows the ending: the write itself failed
+                raise OSError(errno.EIO, "the image could not be written (is the disk full or the folder read-only?)",
+                              str(out))
             if not written:
                 raise ValueError(f"{out}: OpenCV could not write an image there (use .png or .jpg)")
         write_atomically(out, write_image, suffix=out.suffix)
