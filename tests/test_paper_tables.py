@@ -1,10 +1,18 @@
-"""The paper-conditions run (``headplod bench paper``): its pose jitter and its statistics."""
+"""The paper-conditions run (``headplod bench paper``): its pose jitter, its statistics, the true POI and the
+trackers' calibration."""
+import io
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from headplod.bench.harness import poi_disc
 from headplod.bench.image_metrics import psnr_db
-from headplod.bench.paper_tables import JitteredPoses, PaperTablesConfig
+from headplod.bench.paper_tables import (OVERCONFIDENT_NEES, JitteredPoses, PaperTablesConfig, format_tables,
+                                         goal_verdicts, paper_tables, pose_nees, track_poses, true_poi_goals,
+                                         true_pois)
+from headplod.io import read_truth
+from headplod.plod.select import SelectorConfig
 from headplod.demo.loop import ReplayPoses
 from headplod.demo import loop as lp
 from headplod.plod.view import poi_direction
@@ -63,3 +71,108 @@ def test_disc_psnr_sees_only_the_disc():       # the paper tables' PSNR within t
 def test_bad_settings_are_refused(bad):
     with pytest.raises(ValueError, match="PaperTablesConfig"):
         PaperTablesConfig(**bad)
+
+
+# --- Where the viewer really looks: the true POI, the conditions' NEES, the report's goals -------------------
+
+SWEEP12 = str(Path(__file__).parent / "data" / "sweep12")
+
+
+def test_true_poi_is_where_the_true_viewing_ray_meets_the_screen():
+    screen = lp.default_screen()
+    eye = default_head(screen) + np.array([40.0, -25.0, 10.0])
+    target = np.array([300.0, 200.0])                       # a known screen pixel
+    v = screen.pixel_to_world(target) - eye
+    v /= np.linalg.norm(v)
+    pois = true_pois(screen, np.stack([eye, eye, [np.nan] * 3]), np.stack([v, -v, v]))
+    np.testing.assert_allclose(pois[0], target, atol=1e-6)
+    assert np.isnan(pois[1:]).all()                       # a ray away from the screen; a frame without truth
+    # The tracked POI's own construction (poi_direction) points the same way.
+    np.testing.assert_allclose(poi_direction(screen, eye, pois[0]), v, atol=1e-9)
+
+
+def test_bad_true_rays_are_refused():
+    screen = lp.default_screen()
+    with pytest.raises(ValueError, match="true_pois"):
+        true_pois(screen, np.zeros((2, 3)), np.zeros((3, 3)))
+
+
+@pytest.fixture(scope="module")
+def jittered_runs():
+    """The sample sequence (12 frames, with truth.csv) tracked as honest and as overconfident."""
+    return {c: track_poses(c, 12, source=SWEEP12) for c in ("honest", "overconfident")}
+
+
+def test_overconfident_tracker_is_far_less_calibrated_than_the_honest_one(jittered_runs):
+    nees = {c: pose_nees(r.screen, r.poses, r.true_v) for c, r in jittered_runs.items()}
+    assert all(np.isfinite(n).sum() == 12 for n in nees.values())
+    honest, over = (float(np.mean(nees[c])) for c in ("honest", "overconfident"))
+    assert honest < 4.0                                    # about 2 for a calibrated covariance
+    assert over > 8.0 and over > 5 * honest
+    # The same jitter (same seed), only the covariance shrunk: the POIs agree, the NEES scales by its inverse.
+    for a, b in zip(*(r.poses for r in jittered_runs.values())):
+        np.testing.assert_allclose(a.poi_px, b.poi_px)
+    np.testing.assert_allclose(nees["overconfident"], nees["honest"] * OVERCONFIDENT_NEES / 2, rtol=1e-9)
+
+
+def test_truth_is_matched_to_each_pose(jittered_runs):
+    run = jittered_runs["honest"]
+    truth = read_truth(Path(SWEEP12) / "truth.csv")
+    assert len(run.poses) == len(run.true_v) == 12
+    np.testing.assert_allclose(run.true_eye_mm[3], truth[3][0])
+    np.testing.assert_allclose(run.true_v[3], truth[3][1][2], atol=1e-6)   # normalised
+
+
+def _row(vp, scenario, hysteresis, psnr, triangles):
+    return {"viewpoint": vp, "scenario": scenario, "hysteresis": hysteresis, "triangles": triangles,
+            "per_frame": {"psnr_true_db": psnr}}
+
+
+def test_goals_count_the_frames_none_loses_and_the_scenarios_keep():
+    # Frame 0 is the warm-up; none is below 45 dB on frames 1, 2 and 4 (frame 3 has no true POI: None).
+    none = [30.0, 40.0, 44.9, None, 40.0, 50.0]
+    rows = [_row("a", "none", True, none, 100),
+            _row("a", "fixed", True, [50.0, 45.0, 44.0, 50.0, 46.0, 50.0], 300),
+            _row("a", "adaptive", True, [50.0, 45.0, float("inf"), 50.0, 46.0, 50.0], 200),
+            _row("a", "smoothed", True, [10.0, 10.0, 10.0, 10.0, 10.0, 10.0], 250)]
+    g = true_poi_goals(rows, warmup=1)["a"]
+    assert g["on"]["none_below"] == 3 and g["on"]["frames"] == 5
+    assert g["on"]["kept"] == {"fixed": 2, "adaptive": 3, "smoothed": 0}
+    assert g["on"]["kept_fraction"]["adaptive"] == 1.0
+    assert g["adaptive_fewer_triangles_than_fixed"] is True
+    assert "off" not in g
+    report = {"conditions": {"honest": {"true_poi": {"a": g}},
+                             "overconfident": {"true_poi": {"a": true_poi_goals(
+                                 [_row("a", sc, True, [50.0] * 6 if sc == "none" else [0.0] * 6, 1) for sc in
+                                  ("none", "fixed", "adaptive", "smoothed")], warmup=1)["a"]}}}}
+    verdicts = goal_verdicts(report)
+    honest = [(v["goal"].startswith("adaptive keeps"), v["figure"], v["status"]) for v in verdicts
+              if v["condition"] == "honest"]
+    assert honest == [(True, 1.0, "met"), (False, [200.0, 300.0], "met")]
+    assert [v["status"] for v in verdicts if v["condition"] == "overconfident"] == ["no frames"]
+
+
+def test_a_non_positive_covariance_scale_is_refused():
+    with pytest.raises(ValueError, match="cov_scale"):
+        JitteredPoses(ReplayPoses([], lp.default_screen()), noise_deg=0.5, cov_scale=0.0)
+
+
+def test_report_has_the_true_poi_figures(gl_context, default_screen):
+    from headplod.render.still import TerrainScene
+
+    scene = TerrainScene.build(default_screen, max_level=2)          # small: the figures' keys are tested here
+    config = PaperTablesConfig(frames=4, warmup=1, viewpoints=("mountains",), conditions=("honest",),
+                               size=(96, 54), source=SWEEP12)
+    report = paper_tables(config, err=io.StringIO(), scene=scene, ctx=gl_context)
+    c = report["conditions"]["honest"]
+    assert c["nees_frames"] == 4 and c["nees_mean"] > 0
+    assert report["config"]["mode"] == SelectorConfig().mode
+    row = next(r for r in c["rows"] if r["scenario"] == "adaptive" and r["hysteresis"])
+    for key in ("psnr_true_disc_db", "psnr_tracked_disc_db", "triangles"):
+        assert key in row
+    assert len(row["per_frame"]["psnr_true_db"]) == 4 and len(row["per_frame"]["psnr_tracked_db"]) == 4
+    assert set(c["true_poi"]) == {"mountains", "all"}
+    assert {"none_below", "kept", "kept_fraction", "frames"} <= set(c["true_poi"]["all"]["on"])
+    assert {g["condition"] for g in report["goals"]} == {"honest"}
+    text = format_tables(report)
+    assert "PSNR true" in text and "NEES" in text

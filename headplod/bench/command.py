@@ -75,10 +75,17 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bpa = bench_sub.add_parser("paper", help="Martinez et al.'s Tables 1-4 (uncertainty scenarios) under the "
                                              "paper's tracker conditions")
     bpa.add_argument("--json", help="write the results as JSON")
-    bpa.add_argument("--chart", help="write the chart (PNG)")
+    bpa.add_argument("--chart", help="write the chart (PNG); the true-POI chart goes beside it as FILE_truepoi.png")
     bpa.add_argument("--quick", action="store_true", help="one viewpoint, 30 frames (a smoke run)")
     bpa.add_argument("--noise-deg", type=non_negative, default=0.5, metavar="S",
-                     help="sigma per angle of the 'paper_noise' tracker's jitter of V, deg (default 0.5)")
+                     help="sigma per angle of the 'honest' and 'overconfident' trackers' jitter of V, deg "
+                          "(default 0.5)")
+    bpa.add_argument("--conditions", metavar="LIST",
+                     help="comma-separated tracker conditions (default today,honest,overconfident; also "
+                          "paper_estimator, the paper's covariance estimator, slow)")
+    bpa.add_argument("--vdp", action="store_true",
+                     help="also judge each frame with FovVideoVDP fixated at the true POI (slow); needs the "
+                          "optional extra: pip install -e '.[vdp]'")
     return bench
 
 
@@ -134,8 +141,15 @@ def _stability(args) -> int:
 
 def _paper(args) -> int:
     from . import paper_tables
+    conditions = (tuple(c.strip() for c in args.conditions.split(",") if c.strip()) if args.conditions
+                  else paper_tables.CONDITIONS)
+    unknown = [c for c in conditions if c not in paper_tables.ALL_CONDITIONS]
+    if unknown or not conditions:
+        print(f"headplod: bench paper --conditions: {', '.join(unknown) or 'none given'}; choose from "
+              f"{', '.join(paper_tables.ALL_CONDITIONS)}", file=sys.stderr)
+        return 2
     return paper_tables.run_paper_bench(json_path=args.json, chart_path=args.chart, quick=args.quick,
-                                        noise_deg=args.noise_deg)
+                                        noise_deg=args.noise_deg, vdp=args.vdp, conditions=conditions)
 
 
 def _live(args) -> int:

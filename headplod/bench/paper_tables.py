@@ -1,18 +1,28 @@
-"""Martinez et al.'s Tables 1-4 under the paper's conditions: the four uncertainty scenarios per tracker.
+"""Martinez et al.'s Tables 1-4 under tracker conditions: the four uncertainty scenarios judged where the viewer looks.
 
-The paper blamed the adaptive scenario's poorer satisfaction on the jitter of its covariance. Per tracker
-condition (:data:`CONDITIONS`), viewpoint (the paper's three test cases) and scenario, hysteresis on and off,
-on poses tracked once per condition and replayed for every run, this reports what stands in for
-satisfaction (README: the paper's scenarios):
+Per tracker condition (:data:`CONDITIONS`), viewpoint (the paper's three test cases) and scenario of the default
+PLOD mode (``SelectorConfig().mode``), hysteresis on and off, on poses tracked once per condition and replayed
+for every run, this reports what stands in for satisfaction (README: the paper's scenarios):
 
 - ``changes``: base triangles whose level changed from the previous frame, per frame after the warm-up;
 - ``flicker``: level reversals (A → B → A within :data:`FLICKER_FRAMES` frames) per frame;
-- ``fps`` and its ratio to ``full`` run back to back;
-- ``psnr_disc_db``: median PSNR within ``DISC_DEG`` of the POI against ``full`` from the same pose.
+- ``fps`` and its ratio to ``full`` run back to back; ``triangles`` (median per frame);
+- ``psnr_tracked_disc_db``: median PSNR within ``DISC_DEG`` of the *tracked* POI against ``full`` drawn from the
+  same (tracked) pose: the POI every scenario refines;
+- ``psnr_true_disc_db``: the same within ``DISC_DEG`` of the *true* POI (:func:`true_pois`: the dataset's true V
+  from the true head, on the screen), where the viewer really looks; with ``vdp``, ``jod_true`` (FovVideoVDP,
+  fixated there);
+- per frame (``per_frame``): those PSNRs, the JOD and the triangles.
 
-Conditions: ``today`` (the tracker as shipped), ``paper_estimator`` (the paper's covariance estimator),
-``paper_noise`` (today's with its direction jittered by :data:`PAPER_NOISE_DEG` per angle, that variance added
-to its covariance).
+Goals (:func:`true_poi_goals`, :func:`goal_verdicts`), per condition and viewpoint, over the frames after the
+warm-up where ``none``'s true-POI PSNR is below :data:`GOAL_PSNR_DB`: the fraction where ``adaptive`` (and
+``fixed``, ``smoothed``) is at or above it, and ``adaptive``'s triangles against ``fixed``'s.
+
+Conditions: ``today`` (the tracker as shipped); ``honest`` (today's with V jittered by :data:`PAPER_NOISE_DEG`
+per angle, that variance added to its covariance); ``overconfident`` (the same jitter, the reported covariance
+shrunk so that a calibrated one's mean NEES of 2 becomes :data:`OVERCONFIDENT_NEES`); and, on request only,
+``paper_estimator`` (the paper's covariance estimator; its wide σ of V makes every run several times slower).
+Each condition's mean NEES of V against the truth is measured (:func:`pose_nees`).
 """
 from __future__ import annotations
 
@@ -25,7 +35,8 @@ import numpy as np
 
 from ..demo import loop as lp
 from ..demo.viewpoints import VIEWPOINTS
-from ..plod.view import poi_direction
+from ..plod.select import SelectorConfig
+from ..plod.view import default_head, head_axes, poi_direction
 from ..progress import Progress
 from ..render.context import create_context
 from ..render.gl import TerrainRenderer
@@ -33,25 +44,40 @@ from ..render.still import TerrainScene, px_per_deg_at
 from .harness import DISC_DEG, SIZE, poi_disc, pyplot, save_figure
 from .image_metrics import psnr_db
 from .outputs import write_json
+from .uncertainty import nees
 
-__all__ = ["CONDITIONS", "PaperTablesConfig", "JitteredPoses", "track_poses",
-           "level_statistics", "paper_tables", "format_tables", "plot_tables"]
+__all__ = ["CONDITIONS", "ALL_CONDITIONS", "PaperTablesConfig", "JitteredPoses", "TrackedRun", "track_poses",
+           "true_pois", "pose_nees", "level_statistics", "true_poi_goals", "goal_verdicts", "paper_tables",
+           "format_tables", "plot_tables", "plot_true_poi", "true_poi_chart_path"]
 
-#: Tracker conditions, in report order.
-CONDITIONS = ("today", "paper_estimator", "paper_noise")
+#: Tracker conditions run by default, in report order.
+CONDITIONS = ("today", "honest", "overconfident")
+#: Every condition: the default ones and ``paper_estimator`` (on request: its wide covariance is slow to draw).
+ALL_CONDITIONS = CONDITIONS + ("paper_estimator",)
 #: The paper's scenarios and ours (``smoothed``).
 SCENARIOS = ("none", "fixed", "adaptive", "smoothed")
 #: A reversal counts as flicker when a level returns within this many frames.
 FLICKER_FRAMES = 3
-#: σ per angle of the viewing-direction noise of ``paper_noise``, deg.
+#: σ per angle of the viewing-direction noise of ``honest`` and ``overconfident``, deg.
 PAPER_NOISE_DEG = 0.5
+#: The mean NEES ``overconfident``'s covariance is shrunk for (a calibrated 2-D covariance gives 2).
+OVERCONFIDENT_NEES = 25.0
+#: PSNR within ``DISC_DEG`` of the true POI that a frame must keep, dB ("nothing lost").
+GOAL_PSNR_DB = 45.0
+#: The fraction of ``none``'s lost frames ``adaptive`` must keep under an honest covariance.
+GOAL_FRACTION = 0.95
+#: JOD within which of ``full`` a frame also counts as kept (FovVideoVDP, fixated at the true POI).
+GOAL_JOD_LOSS = 0.05
 
 
 @dataclass(frozen=True)
 class PaperTablesConfig:
     """Settings of the paper-conditions run: ``frames`` per run, ``warmup`` frames left out of the level
-    statistics, ``viewpoints`` (``demo.viewpoints.VIEWPOINTS``), ``conditions`` (:data:`CONDITIONS`),
-    ``noise_deg`` (σ per angle of ``paper_noise``'s jitter, deg), image ``size`` px, ``seed`` of the jitter."""
+    statistics and the goals, ``viewpoints`` (``demo.viewpoints.VIEWPOINTS``), ``conditions``
+    (:data:`ALL_CONDITIONS`), ``noise_deg`` (σ per angle of the jitter of ``honest`` and ``overconfident``, deg),
+    image ``size`` (w, h) px, ``seed`` of the jitter, ``source`` (the frame source tracked, a spec for
+    :func:`headplod.capture.open_source` whose dataset has ``truth.csv``), ``vdp`` (also FovVideoVDP's JOD at the
+    true POI, hysteresis-on scenarios; needs the optional extra)."""
 
     frames: int = 60
     warmup: int = 10
@@ -60,31 +86,40 @@ class PaperTablesConfig:
     noise_deg: float = PAPER_NOISE_DEG
     size: tuple = SIZE
     seed: int = 0
+    source: str = "synthetic"
+    vdp: bool = False
 
     def __post_init__(self):
         if not (isinstance(self.frames, int) and self.frames >= 3):
             raise ValueError(f"PaperTablesConfig.frames must be an integer >= 3, got {self.frames!r}")
         if not (isinstance(self.warmup, int) and 0 <= self.warmup < self.frames - 2):
             raise ValueError(f"PaperTablesConfig.warmup must be 0..frames-3, got {self.warmup!r}")
-        for name, allowed in (("viewpoints", tuple(VIEWPOINTS)), ("conditions", CONDITIONS)):
+        for name, allowed in (("viewpoints", tuple(VIEWPOINTS)), ("conditions", ALL_CONDITIONS)):
             bad = [v for v in getattr(self, name) if v not in allowed]
             if bad or not getattr(self, name):
                 raise ValueError(f"PaperTablesConfig.{name}: {bad or 'none given'}; choose from {allowed}")
         if not (math.isfinite(self.noise_deg) and self.noise_deg >= 0):
             raise ValueError(f"PaperTablesConfig.noise_deg must be a finite number >= 0, got {self.noise_deg!r}")
+        if len(self.size) != 2 or any(int(v) != v or v < 1 for v in self.size):
+            raise ValueError(f"PaperTablesConfig.size must be two positive integers (w, h) px, got {self.size!r}")
 
 
 class JitteredPoses(lp.PoseSource):
-    """Another source's poses with the viewing direction jittered: a noisier tracker, honestly reported.
+    """Another source's poses with the viewing direction jittered: a noisier tracker, honestly reported or not.
 
     Each good pose's direction from the eye to its POI turns by Gaussian angles of σ ``noise_deg`` (deg) about
-    two axes perpendicular to it (the POI moves accordingly; kept where it would miss the screen), and
-    ``noise_deg²`` is added to both variances of its (φ, θ) covariance.
+    two axes perpendicular to it (the POI moves accordingly; kept where it would miss the screen), and its (φ, θ)
+    covariance becomes ``cov_scale`` × (its covariance + ``noise_deg²`` I), deg²: ``cov_scale`` 1 is honest,
+    below 1 overconfident.
     """
 
-    def __init__(self, inner: lp.PoseSource, noise_deg: float, seed: int = 0):
-        self.inner, self.screen, self.name = inner, inner.screen, f"{inner.name} + {noise_deg:g} deg jitter"
-        self.noise_deg = float(noise_deg)
+    def __init__(self, inner: lp.PoseSource, noise_deg: float, seed: int = 0, cov_scale: float = 1.0):
+        if not (math.isfinite(cov_scale) and cov_scale > 0):
+            raise ValueError(f"JitteredPoses: cov_scale must be a positive number, got {cov_scale!r}")
+        self.inner, self.screen = inner, inner.screen
+        self.name = f"{inner.name} + {noise_deg:g} deg jitter" + (
+            f", covariance x {cov_scale:.3g}" if cov_scale != 1 else "")
+        self.noise_deg, self.cov_scale = float(noise_deg), float(cov_scale)
         self._rng = np.random.default_rng(seed)
 
     def read(self):
@@ -97,7 +132,8 @@ class JitteredPoses(lp.PoseSource):
         v = np.cross(d, u)
         a, b = np.tan(np.radians(self._rng.normal(0.0, self.noise_deg, 2)))
         poi = self.screen.intersect_ray(pose.eye_mm, d + a * u + b * v)
-        cov = None if pose.cov_deg2 is None else pose.cov_deg2 + self.noise_deg ** 2 * np.eye(2)
+        cov = (None if pose.cov_deg2 is None
+               else self.cov_scale * (pose.cov_deg2 + self.noise_deg ** 2 * np.eye(2)))
         return replace(pose, poi_px=pose.poi_px if poi is None else np.asarray(poi, dtype=np.float64),
                        cov_deg2=cov)
 
@@ -105,17 +141,80 @@ class JitteredPoses(lp.PoseSource):
         self.inner.close()
 
 
-def track_poses(condition: str, frames: int, noise_deg: float = PAPER_NOISE_DEG, seed: int = 0):
-    """The poses of a tracker condition on the built-in synthetic sequence: (list of Pose, screen, name)."""
+@dataclass
+class TrackedRun:
+    """A tracker condition's poses and the truth of their frames.
+
+    ``poses``: list of N :class:`headplod.demo.pose_sources.Pose`; ``screen``; ``name`` of the source;
+    ``true_eye_mm`` (N, 3) and ``true_v`` (N, 3): the true head position P1 (world mm) and unit viewing
+    direction V (world frame) of each pose's frame, NaN where ``truth.csv`` has no row.
+    """
+
+    poses: list
+    screen: object
+    name: str
+    true_eye_mm: np.ndarray
+    true_v: np.ndarray
+
+
+def track_poses(condition: str, frames: int, noise_deg: float = PAPER_NOISE_DEG, seed: int = 0,
+                source: str = "synthetic") -> TrackedRun:
+    """The poses of a tracker condition (:data:`ALL_CONDITIONS`) on ``source`` (default: the built-in synthetic
+    sequence), tracked once, with the truth of each pose's frame (:class:`TrackedRun`)."""
     from ..tracking.tracker import TrackerConfig
 
-    if condition not in CONDITIONS:
-        raise ValueError(f"unknown tracker condition {condition!r}; choose one of {CONDITIONS}")
+    if condition not in ALL_CONDITIONS:
+        raise ValueError(f"unknown tracker condition {condition!r}; choose one of {ALL_CONDITIONS}")
     config = TrackerConfig(uncertainty="paper") if condition == "paper_estimator" else TrackerConfig()
-    source = lp.TrackerPoses("synthetic", config=config, max_frames=frames)
-    if condition == "paper_noise":
-        source = JitteredPoses(source, noise_deg, seed)
-    return lp.read_all_poses(source), source.screen, source.name
+    tracker = lp.TrackerPoses(source, config=config, max_frames=frames)
+    dataset = getattr(tracker.source, "dataset", None)
+    if dataset is None or not dataset.truth:
+        tracker.close()
+        raise ValueError(f"bench paper: {tracker.source.name} has no truth.csv; the true POI needs it")
+    poses_source = tracker
+    if condition in ("honest", "overconfident"):
+        scale = 2.0 / OVERCONFIDENT_NEES if condition == "overconfident" else 1.0
+        poses_source = JitteredPoses(tracker, noise_deg, seed, cov_scale=scale)
+    poses = lp.read_all_poses(poses_source)
+    # One pose per frame read, in the dataset's order (track_frames yields every frame it reads).
+    indices = list(dataset.indices)[:len(poses)]
+    eyes = np.full((len(poses), 3), np.nan)
+    vs = np.full((len(poses), 3), np.nan)
+    for k, index in enumerate(indices):
+        if index in dataset.truth:
+            position, axes = dataset.truth[index]
+            eyes[k], vs[k] = position, axes[2] / np.linalg.norm(axes[2])
+    return TrackedRun(poses, poses_source.screen, poses_source.name, eyes, vs)
+
+
+def true_pois(screen, eye_mm, v) -> np.ndarray:
+    """(N, 2) screen px: where each true viewing ray (eye ``eye_mm`` (N, 3) world mm along ``v`` (N, 3), world
+    frame) meets the screen (:meth:`headplod.io.Screen.intersect_ray`, as the tracker's POI); NaN where a row
+    is NaN or the ray misses the screen plane. The point may lie outside the screen."""
+    eye_mm, v = np.atleast_2d(np.asarray(eye_mm, dtype=np.float64)), np.atleast_2d(np.asarray(v, dtype=np.float64))
+    if eye_mm.shape != v.shape or eye_mm.shape[1:] != (3,):
+        raise ValueError(f"true_pois: need eye_mm and v of one shape (N, 3), got {eye_mm.shape} and {v.shape}")
+    out = np.full((len(eye_mm), 2), np.nan)
+    for k in np.flatnonzero(np.isfinite(eye_mm).all(axis=1) & np.isfinite(v).all(axis=1)):
+        if np.any(v[k]):
+            poi = screen.intersect_ray(eye_mm[k], v[k])
+            if poi is not None:
+                out[k] = poi
+    return out
+
+
+def pose_nees(screen, poses, true_v) -> np.ndarray:
+    """(N,) NEES of each pose's (φ, θ) covariance against the true V ``true_v`` (N, 3) world frame
+    (:func:`headplod.bench.uncertainty.nees`), in the head frame the PLOD reads the covariance in
+    (:func:`headplod.plod.view.head_axes` of the pose's eye and POI); NaN without a pose, a covariance or a truth."""
+    true_v = np.asarray(true_v, dtype=np.float64)
+    if true_v.shape != (len(poses), 3):
+        raise ValueError(f"pose_nees: need true_v of shape ({len(poses)}, 3), got {true_v.shape}")
+    out = np.full(len(poses), np.nan)
+    for k, p in enumerate(poses):
+        if p is not None and p.ok and p.cov_deg2 is not None and np.isfinite(true_v[k]).all():
+            out[k] = nees(p.cov_deg2, true_v[k], head_axes(screen, p.eye_mm, p.poi_px))
+    return out
 
 
 def level_statistics(levels: np.ndarray, warmup: int, window: int = FLICKER_FRAMES) -> dict:
@@ -137,22 +236,45 @@ def level_statistics(levels: np.ndarray, warmup: int, window: int = FLICKER_FRAM
             "flicker": float(flicker[counted].sum(axis=1).mean())}
 
 
-def _run_group(scene, poses, screen, viewpoint, renderers, config: PaperTablesConfig, progress) -> list:
-    """One viewpoint of one condition: the scenarios (hysteresis on, off) and full, interleaved."""
+def _median(values) -> float:
+    """Median of the non-NaN values (inf counts: an identical disc), NaN when there are none."""
+    a = np.asarray(values, dtype=np.float64)
+    a = a[~np.isnan(a)]
+    return float(np.median(a)) if a.size else float("nan")
+
+
+def _listed(values) -> list:
+    """Per-frame values for the JSON: NaN as None."""
+    return [None if isinstance(v, float) and math.isnan(v) else v for v in values]
+
+
+def _run_group(scene, run: TrackedRun, pois_true, viewpoint, renderers, config: PaperTablesConfig, progress,
+               judge=None) -> list:
+    """One viewpoint of one condition: the scenarios (hysteresis on, off) and full, interleaved; rows.
+
+    ``pois_true`` (N, 2) screen px, the true POI of each pose (:func:`true_pois`); ``judge`` a
+    :class:`headplod.bench.plod_judge.Judge` of ``config.size`` or None.
+    """
+    from .plod_judge import fixation_px
+
+    screen = run.screen
+    mode = SelectorConfig().mode
     plan = [(sc, h) for h in (True, False) for sc in SCENARIOS] + [("full", False)]
-    tee = lp.TeePoses(lp.ReplayPoses(poses, screen), len(plan))
+    tee = lp.TeePoses(lp.ReplayPoses(run.poses, screen), len(plan))
     loops = []
     for k, (scenario, hysteresis) in enumerate(plan):
-        mode, unc = ("full", "none") if scenario == "full" else ("csf", scenario)
-        loops.append(lp.DemoLoop(scene, tee.consumer(k), renderers[k], mode=mode, uncertainty=unc,
+        m, unc = ("full", "none") if scenario == "full" else (mode, scenario)
+        loops.append(lp.DemoLoop(scene, tee.consumer(k), renderers[k], mode=m, uncertainty=unc,
                                  viewpoint=viewpoint, view_mode="shaded", hud=False,
                                  selector_options={"hysteresis": hysteresis}))
     levels = [[] for _ in plan]
-    psnr = [[] for _ in plan]
+    psnr_tracked = [[] for _ in plan]
+    psnr_true = [[] for _ in plan]
+    jod_true = [[] for _ in plan]
     w, h = config.size
     scale = np.array([w, h], dtype=np.float64) / np.array(screen.size_px, dtype=np.float64)
     try:
-        for _ in range(config.frames):
+        for frame in range(config.frames):
             results = []
             for k, loop in enumerate(loops):
                 r = loop.step()
@@ -167,8 +289,20 @@ def _run_group(scene, poses, screen, viewpoint, renderers, config: PaperTablesCo
             pose = full.pose
             radius = DISC_DEG * px_per_deg_at(screen, pose.eye_mm, config.size)
             disc = poi_disc(full.image.shape, pose.poi_px * scale, radius)
+            true_poi, true_eye = pois_true[frame], run.true_eye_mm[frame]
+            true_disc = None
+            if np.isfinite(true_poi).all():
+                true_disc = poi_disc(full.image.shape, true_poi * scale,
+                                     DISC_DEG * px_per_deg_at(screen, true_eye, config.size))
+            fixation = None
+            if (judge is not None and true_disc is not None and frame >= config.warmup
+                    and 0 <= true_poi[0] <= screen.size_px[0] and 0 <= true_poi[1] <= screen.size_px[1]):
+                fixation = fixation_px(screen, true_poi, config.size)
             for k, r in enumerate(results[:-1]):
-                psnr[k].append(psnr_db(r.image, full.image, disc))
+                psnr_tracked[k].append(psnr_db(r.image, full.image, disc))
+                psnr_true[k].append(float("nan") if true_disc is None else psnr_db(r.image, full.image, true_disc))
+                judged = fixation is not None and plan[k][1]
+                jod_true[k].append(judge.jod(full.image, r.image, fixation) if judged else float("nan"))
     finally:
         tee.close()
     rows = []
@@ -180,88 +314,247 @@ def _run_group(scene, poses, screen, viewpoint, renderers, config: PaperTablesCo
                "triangles": summary["triangles_median"]}
         if scenario != "full":
             row.update(level_statistics(np.array(levels[k]), min(config.warmup, len(levels[k]) - 2)))
-            finite = [p for p in psnr[k] if math.isfinite(p)]
-            row["psnr_disc_db"] = float(np.median(finite)) if finite else float("inf")
+            row["psnr_tracked_disc_db"] = _median(psnr_tracked[k][config.warmup:])
+            row["psnr_true_disc_db"] = _median(psnr_true[k][config.warmup:])
+            if judge is not None and hysteresis:
+                row["jod_true"] = _median(jod_true[k])
             row["fps_ratio_to_full"] = summary["fps"] / full_fps
+            row["per_frame"] = {"psnr_tracked_db": _listed(psnr_tracked[k]), "psnr_true_db": _listed(psnr_true[k]),
+                                "triangles": [int(t) for t in loops[k].stats.triangles]}
+            if judge is not None and hysteresis:
+                row["per_frame"]["jod_true"] = _listed(jod_true[k])
         rows.append(row)
     return rows
 
 
-def paper_tables(config: PaperTablesConfig = PaperTablesConfig(), err=None) -> dict:
-    """Run every condition x viewpoint x scenario; the report (JSON-ready dict)."""
+def true_poi_goals(rows, warmup: int, threshold_db: float = GOAL_PSNR_DB) -> dict:
+    """The true-POI figures of one condition's rows (:func:`_run_group`), per viewpoint and pooled (``"all"``).
+
+    Over the frames from ``warmup`` on, per hysteresis (``on``, ``off``): ``frames`` counted, ``none_below``
+    (frames where ``none``'s PSNR within the disc about the true POI is below ``threshold_db``, dB), ``kept``
+    and ``kept_fraction`` per scenario (of those frames, the ones where the scenario is at or above it; the
+    fraction None over no frames), with JOD (hysteresis on, when judged) ``kept_psnr_or_jod`` and
+    ``kept_fraction_psnr_or_jod`` (also kept: within :data:`GOAL_JOD_LOSS` of ``full``'s 10). And the median
+    ``triangles`` per scenario (hysteresis on; pooled: their mean over the viewpoints),
+    ``adaptive_fewer_triangles_than_fixed``.
+    """
+    def per_frame(row, key):
+        values = row["per_frame"].get(key)
+        if values is None:
+            return None
+        return np.array([np.nan if v is None else v for v in values], dtype=np.float64)[warmup:]
+
+    table = {(r["viewpoint"], r["scenario"], r["hysteresis"]): r for r in rows if r["scenario"] != "full"}
+    viewpoints = list(dict.fromkeys(r["viewpoint"] for r in rows))
+    out = {}
+    for vp in viewpoints + ["all"]:
+        mine = viewpoints if vp == "all" else [vp]
+        entry = {}
+        for hysteresis in (True, False):
+            if any((v, "none", hysteresis) not in table for v in mine):
+                continue
+            psnr = {sc: np.concatenate([per_frame(table[v, sc, hysteresis], "psnr_true_db") for v in mine])
+                    for sc in SCENARIOS}
+            below = psnr["none"] < threshold_db                       # NaN (no true POI on the image): not counted
+            n = int(below.sum())
+            kept = {sc: int((psnr[sc][below] >= threshold_db).sum()) for sc in SCENARIOS[1:]}
+            figures = {"frames": int(psnr["none"].size), "none_below": n, "kept": kept,
+                       "kept_fraction": {sc: (kept[sc] / n if n else None) for sc in kept}}
+            jods = [per_frame(table[v, sc, hysteresis], "jod_true") for v in mine for sc in SCENARIOS]
+            if all(j is not None for j in jods):
+                jod = {sc: np.concatenate([per_frame(table[v, sc, hysteresis], "jod_true") for v in mine])
+                       for sc in SCENARIOS}
+                either = {sc: int(((psnr[sc][below] >= threshold_db) | (jod[sc][below] >= 10 - GOAL_JOD_LOSS)).sum())
+                          for sc in SCENARIOS[1:]}
+                figures["kept_psnr_or_jod"] = either
+                figures["kept_fraction_psnr_or_jod"] = {sc: (either[sc] / n if n else None) for sc in either}
+            entry["on" if hysteresis else "off"] = figures
+        triangles = {sc: float(np.mean([table[v, sc, True]["triangles"] for v in mine]))
+                     for sc in SCENARIOS if all((v, sc, True) in table for v in mine)}
+        entry["triangles"] = triangles
+        if "adaptive" in triangles and "fixed" in triangles:
+            entry["adaptive_fewer_triangles_than_fixed"] = bool(triangles["adaptive"] < triangles["fixed"])
+        out[vp] = entry
+    return out
+
+
+def goal_verdicts(report: dict) -> list:
+    """The issue's goals, per condition and viewpoint (and pooled, ``all``), hysteresis on, from
+    ``report["conditions"][c]["true_poi"]``: one dict per goal (``condition``, ``viewpoint``, ``goal``,
+    ``figure``, ``frames``: ``none``'s frames below the threshold, ``status``: ``met``, ``not met``,
+    ``no frames``, ``shown``, ``not shown`` or ``reported``)."""
+    conditions = report["conditions"]
+    honest = conditions.get("honest", {}).get("true_poi", {})
+    out = []
+    for condition, c in conditions.items():
+        for vp, g in c.get("true_poi", {}).items():
+            on = g.get("on")
+            if on is None:
+                continue
+            n, fraction = on["none_below"], on["kept_fraction"]["adaptive"]
+            base = {"condition": condition, "viewpoint": vp, "frames": n}
+            kept_goal = (f"adaptive keeps >= {GOAL_PSNR_DB:g} dB within {DISC_DEG:g} deg of the true POI on "
+                         f"frames where none falls below")
+            if condition == "honest":
+                status = "no frames" if not n else ("met" if fraction >= GOAL_FRACTION else "not met")
+                out.append({**base, "goal": f"{kept_goal}: >= {GOAL_FRACTION:.0%}", "figure": fraction,
+                            "status": status})
+                fewer = g.get("adaptive_fewer_triangles_than_fixed")
+                if fewer is not None:
+                    out.append({**base, "goal": "adaptive draws fewer triangles than fixed (median per frame)",
+                                "figure": [g["triangles"]["adaptive"], g["triangles"]["fixed"]],
+                                "status": "met" if fewer else "not met"})
+            elif condition == "overconfident":
+                ref = honest.get(vp, {}).get("on", {})
+                ref_fraction = ref.get("kept_fraction", {}).get("adaptive")
+                if not n:
+                    status = "no frames"
+                elif ref_fraction is None:
+                    status = "reported"                   # no honest run (or no frames there) to compare with
+                else:
+                    status = "shown" if fraction < ref_fraction else "not shown"
+                out.append({**base, "goal": f"{kept_goal}: lower than under honest ({ref_fraction})",
+                            "figure": fraction, "status": status})
+            else:
+                out.append({**base, "goal": kept_goal, "figure": fraction,
+                            "status": "no frames" if not n else "reported"})
+    return out
+
+
+def paper_tables(config: PaperTablesConfig = PaperTablesConfig(), err=None, scene=None, ctx=None) -> dict:
+    """Run every condition x viewpoint x scenario; the report (JSON-ready dict).
+
+    ``scene``: the :class:`TerrainScene` (default: built for the source's screen); ``ctx``: the OpenGL context
+    (default: a new one, released at the end).
+    """
     start = time.perf_counter()
     report = {"config": {"frames": config.frames, "warmup": config.warmup, "size": list(config.size),
-                         "noise_deg": config.noise_deg, "disc_deg": DISC_DEG, "flicker_frames": FLICKER_FRAMES},
+                         "noise_deg": config.noise_deg, "overconfident_nees": OVERCONFIDENT_NEES,
+                         "disc_deg": DISC_DEG, "flicker_frames": FLICKER_FRAMES, "mode": SelectorConfig().mode,
+                         "goal_psnr_db": GOAL_PSNR_DB, "goal_fraction": GOAL_FRACTION, "vdp": config.vdp,
+                         "source": config.source},
               "conditions": {}}
-    renderer = TerrainRenderer(create_context(), size=tuple(config.size))
-    renderers = [renderer] + [TerrainRenderer(renderer.ctx, size=tuple(config.size)) for _ in range(8)]
-    scene = None
+    own_ctx = ctx is None
+    ctx = create_context() if own_ctx else ctx
+    renderers = [TerrainRenderer(ctx, size=tuple(config.size)) for _ in range(9)]
+    judge = None
     try:
         for condition in config.conditions:
-            poses, screen, name = track_poses(condition, config.frames, config.noise_deg, config.seed)
-            if not poses:
+            run = track_poses(condition, config.frames, config.noise_deg, config.seed, config.source)
+            if not run.poses:
                 raise RuntimeError(f"{condition}: the tracker gave no poses")
-            good = [p for p in poses if p.ok and p.cov_deg2 is not None]
+            good = [p for p in run.poses if p.ok and p.cov_deg2 is not None]
             sigma = [math.sqrt(max(np.linalg.eigvalsh(p.cov_deg2))) for p in good]
-            scene = scene or TerrainScene.build(screen)
+            scene = scene or TerrainScene.build(run.screen)
+            pois = true_pois(run.screen, run.true_eye_mm, run.true_v)
+            errors = pose_nees(run.screen, run.poses, run.true_v)
+            errors = errors[np.isfinite(errors)]
+            if config.vdp and judge is None:
+                judge = _make_judge(run, config.size)
             progress = Progress(len(config.viewpoints) * 9 * config.frames, f"paper tables: {condition}",
                                 stream=err)
             rows = []
             for vp in config.viewpoints:
-                rows += _run_group(scene, poses, screen, vp, renderers, config, progress)
+                rows += _run_group(scene, run, pois, vp, renderers, config, progress, judge)
             progress.close()
             report["conditions"][condition] = {
-                "poses": name, "frames_with_pose": len(good), "frames": len(poses),
+                "poses": run.name, "frames_with_pose": len(good), "frames": len(run.poses),
                 "sigma_deg_median": float(np.median(sigma)) if sigma else None,
                 "sigma_deg_change_median": (float(np.median(np.abs(np.diff(sigma)) / np.array(sigma[:-1])))
                                             if len(sigma) > 1 else None),
-                "rows": rows, "table1": _table1(rows)}
+                "nees_mean": float(np.mean(errors)) if errors.size else None,
+                "nees_median": float(np.median(errors)) if errors.size else None,
+                "nees_frames": int(errors.size),
+                "true_poi_frames": int(np.isfinite(pois).all(axis=1).sum()),
+                "rows": rows, "table1": _table1(rows), "true_poi": true_poi_goals(rows, config.warmup)}
     finally:
         for r in renderers:
             r.release()
+        if own_ctx:
+            ctx.release()
+    report["goals"] = goal_verdicts(report)
     report["findings"] = _findings(report)
     report["wall_s"] = round(time.perf_counter() - start, 1)
     return report
 
 
+def _make_judge(run: TrackedRun, size):
+    """FovVideoVDP for the run's display: the screen seen from its centre's normal at the true head's median
+    distance (the judge's flat-display model has no lateral eye offset)."""
+    from .plod_judge import Judge, display_geometry
+
+    eyes = run.true_eye_mm[np.isfinite(run.true_eye_mm).all(axis=1)]
+    if not len(eyes):
+        raise ValueError("bench paper --vdp: no frame has a true head position")
+    screen = run.screen
+    centre = screen.pixel_to_world(np.array(screen.size_px, dtype=np.float64) / 2.0)
+    distance = float(np.median(np.abs((eyes - centre) @ screen.normal)))
+    head = default_head(screen, distance)
+    return Judge(display_geometry(screen, head, tuple(size)))
+
+
+def _mean(values) -> float:
+    """Mean of the non-NaN values (NaN when there are none)."""
+    a = np.asarray(values, dtype=np.float64)
+    a = a[~np.isnan(a)]
+    return float(np.mean(a)) if a.size else float("nan")
+
+
 def _table1(rows) -> list:
     """Table 1: each scenario's figures averaged over the viewpoints (test cases)."""
     out = []
+    keys = ("changes", "flicker", "fps", "fps_ratio_to_full", "triangles", "psnr_tracked_disc_db",
+            "psnr_true_disc_db", "jod_true")
     for hysteresis in (True, False):
         for scenario in SCENARIOS:
             mine = [r for r in rows if r["scenario"] == scenario and r["hysteresis"] == hysteresis]
             if mine:
                 out.append({"scenario": scenario, "hysteresis": hysteresis,
-                            **{k: float(np.mean([r[k] for r in mine]))
-                               for k in ("changes", "flicker", "fps", "fps_ratio_to_full", "psnr_disc_db")}})
+                            **{k: _mean([r[k] for r in mine]) for k in keys if k in mine[0]}})
     return out
 
 
+def _fraction(x) -> str:
+    return "-" if x is None else f"{100 * x:.0f}%"
+
+
 def _findings(report) -> list:
-    """Whether 'adaptive is worse than fixed because of jitter' holds, per condition (no hysteresis: the paper's)."""
+    """Whether 'adaptive is worse than fixed because of jitter' holds, per condition (no hysteresis: the
+    paper's), and what the true POI shows (hysteresis on)."""
     lines = []
     for condition, c in report["conditions"].items():
         t = {(r["scenario"], r["hysteresis"]): r for r in c["table1"]}
         a, f, n = t[("adaptive", False)], t[("fixed", False)], t[("none", False)]
         worse = a["flicker"] > 1.2 * f["flicker"] + 0.5
+        sigma = c["sigma_deg_median"]
         lines.append(
-            f"{condition} (σ {c['sigma_deg_median']:.3g}°, frame-to-frame change of σ "
+            f"{condition} (σ {sigma if sigma is None else format(sigma, '.3g')}°, frame-to-frame change of σ "
             f"{100 * (c['sigma_deg_change_median'] or 0):.0f}%), no hysteresis: flicker per frame "
-            f"none {n['flicker']:.1f}, fixed {f['flicker']:.1f}, adaptive {a['flicker']:.1f}; "
-            f"PSNR in the disc {n['psnr_disc_db']:.1f} / {f['psnr_disc_db']:.1f} / {a['psnr_disc_db']:.1f} dB: "
+            f"none {n['flicker']:.1f}, fixed {f['flicker']:.1f}, adaptive {a['flicker']:.1f}: "
             + ("adaptive flickers more than fixed: the paper's finding holds here"
                if worse else "adaptive does not flicker more than fixed: the paper's finding does not hold here"))
+        pooled = c["true_poi"].get("all", {}).get("on")
+        if pooled:
+            k = pooled["kept_fraction"]
+            lines.append(
+                f"{condition}, hysteresis on, at the true POI: none below {GOAL_PSNR_DB:g} dB on "
+                f"{pooled['none_below']}/{pooled['frames']} frames; of those kept by fixed {_fraction(k['fixed'])}, "
+                f"adaptive {_fraction(k['adaptive'])}, smoothed {_fraction(k['smoothed'])}")
     return lines
 
 
 def format_tables(report: dict) -> str:
-    """The tables as text: Table 1 (mean over viewpoints) per condition, then per viewpoint."""
+    """The tables as text: per condition Table 1 (mean over viewpoints), then per viewpoint; then the goals."""
     lines = []
-    head = f"{'scenario':9} {'hyst':4} {'changes':>8} {'flicker':>8} {'fps':>6} {'x full':>7} {'PSNR 5°':>8}"
+    judged = any("jod_true" in r for c in report["conditions"].values() for r in c["table1"])
+    head = (f"{'scenario':9} {'hyst':4} {'changes':>8} {'flicker':>8} {'fps':>6} {'x full':>7} {'triangles':>9} "
+            f"{'PSNR trk':>8} {'PSNR true':>9}" + (f" {'JOD true':>8}" if judged else ""))
     for condition, c in report["conditions"].items():
-        sigma = c["sigma_deg_median"]
+        sigma, mean_nees = c["sigma_deg_median"], c.get("nees_mean")
         lines.append(f"\n{condition}: {c['poses']}; pose in {c['frames_with_pose']}/{c['frames']} frames, "
-                     f"median σ of V {sigma:.3g}°" if sigma is not None else f"\n{condition}: no covariance")
+                     + (f"median σ of V {sigma:.3g}°" if sigma is not None else "no covariance")
+                     + (f", mean NEES of V {mean_nees:.3g} ({c['nees_frames']} frames)" if mean_nees is not None
+                        else ""))
         blocks = [("Table 1 (mean over viewpoints)", c["table1"])]
         for vp in dict.fromkeys(r["viewpoint"] for r in c["rows"]):
             blocks.append((vp, [r for r in c["rows"] if r["viewpoint"] == vp and r["scenario"] != "full"]))
@@ -271,45 +564,139 @@ def format_tables(report: dict) -> str:
             for r in rows:
                 lines.append(f"  {r['scenario']:9} {'on' if r['hysteresis'] else 'off':4} {r['changes']:8.1f} "
                              f"{r['flicker']:8.1f} {r['fps']:6.1f} {r['fps_ratio_to_full']:6.1f}x "
-                             f"{r['psnr_disc_db']:7.1f}")
+                             f"{r['triangles']:9.0f} {r['psnr_tracked_disc_db']:8.1f} {r['psnr_true_disc_db']:9.1f}"
+                             + (f" {r.get('jod_true', float('nan')):8.2f}" if judged else ""))
+    lines.append(f"\nAt the true POI, hysteresis on, frames after the warm-up: of the frames where none is below "
+                 f"{GOAL_PSNR_DB:g} dB within {DISC_DEG:g}°, the share each scenario keeps at or above it")
+    lines.append(f"  {'condition':14} {'NEES':>6} {'viewpoint':10} {'none<45':>9} {'fixed':>6} {'adaptive':>8} "
+                 f"{'smoothed':>8}   {'triangles adaptive / fixed':>26}")
+    for condition, c in report["conditions"].items():
+        mean_nees = c.get("nees_mean")
+        for vp, g in c["true_poi"].items():
+            on = g.get("on")
+            if on is None:
+                continue
+            k, tri = on["kept_fraction"], g["triangles"]
+            lines.append(f"  {condition:14} {'-' if mean_nees is None else format(mean_nees, '6.3g'):>6} {vp:10} "
+                         f"{on['none_below']:>4}/{on['frames']:<4} {_fraction(k['fixed']):>6} "
+                         f"{_fraction(k['adaptive']):>8} {_fraction(k['smoothed']):>8}   "
+                         f"{tri.get('adaptive', float('nan')):12.0f} / {tri.get('fixed', float('nan')):<12.0f}")
+    lines.append("\nGoals:")
+    for g in report.get("goals", []):
+        figure = g["figure"]
+        shown = (_fraction(figure) if isinstance(figure, float) else
+                 " / ".join(f"{v:.0f}" for v in figure) if isinstance(figure, list) else "-")
+        lines.append(f"  [{g['status']}] {g['condition']}, {g['viewpoint']}: {g['goal']}: {shown}"
+                     + ("" if isinstance(figure, list) else f" ({g['frames']} frames with none below)"))
     lines.append("")
     lines += report.get("findings", [])
     return "\n".join(lines)
 
 
 def plot_tables(report: dict, path) -> None:
-    """Bars of flicker per frame and PSNR in the disc per scenario, one column per condition."""
+    """Bars of flicker per frame and median PSNR within the disc about the tracked and the true POI per
+    scenario, one column per condition."""
     plt = pyplot()
     conditions = list(report["conditions"])
-    fig, axes = plt.subplots(2, len(conditions), figsize=(4.2 * len(conditions), 6.4), squeeze=False)
+    panels = (("flicker", "level reversals per frame"),
+              ("psnr_tracked_disc_db", f"PSNR within {DISC_DEG:g}° of the tracked POI, dB"),
+              ("psnr_true_disc_db", f"PSNR within {DISC_DEG:g}° of the true POI, dB"))
+    fig, axes = plt.subplots(len(panels), len(conditions), figsize=(4.2 * len(conditions), 9.2), squeeze=False)
     x = np.arange(len(SCENARIOS))
     for j, condition in enumerate(conditions):
         c = report["conditions"][condition]
-        for i, (key, label) in enumerate((("flicker", "level reversals per frame"),
-                                          ("psnr_disc_db", f"PSNR within {DISC_DEG:g}° of the POI, dB"))):
+        for i, (key, label) in enumerate(panels):
             ax = axes[i, j]
             for off, hysteresis, colour in ((-0.2, False, "tab:red"), (0.2, True, "tab:blue")):
                 t = {r["scenario"]: r for r in c["table1"] if r["hysteresis"] == hysteresis}
                 ax.bar(x + off, [t[s][key] for s in SCENARIOS], 0.4, color=colour,
                        label=f"hysteresis {'on' if hysteresis else 'off'}")
             ax.set_xticks(x, SCENARIOS)
-            ax.set_ylabel(label)
+            ax.set_ylabel(label, fontsize=8)
             if i == 0:
-                sigma = c["sigma_deg_median"]
-                ax.set_title(f"{condition}\nσ of V {sigma:.2g}°" if sigma is not None else condition)
-            if key == "psnr_disc_db":
+                sigma, mean_nees = c["sigma_deg_median"], c.get("nees_mean")
+                ax.set_title(condition + (f"\nσ of V {sigma:.2g}°" if sigma is not None else "")
+                             + (f", NEES {mean_nees:.3g}" if mean_nees is not None else ""))
+            if key != "flicker":
                 finite = [r[key] for r in c["table1"] if math.isfinite(r[key])]
                 if finite:
                     ax.set_ylim(min(finite) - 3, max(finite) + 3)
+                ax.axhline(GOAL_PSNR_DB, color="k", lw=0.8, ls=":")
             ax.grid(alpha=0.3, axis="y")
     axes[0, 0].legend(fontsize=8)
-    fig.suptitle("Martinez et al.'s scenarios under the paper's conditions (mean over the three viewpoints)")
+    fig.suptitle("Martinez et al.'s scenarios under tracker conditions (mean over the viewpoints; "
+                 f"mode {report['config'].get('mode', '')})")
+    save_figure(fig, path, dpi=110)
+
+
+def true_poi_chart_path(path) -> Path:
+    """Where :func:`plot_true_poi`'s chart goes beside ``path``: ``STEM_truepoi.png``."""
+    path = Path(path)
+    return path.with_name(path.stem + "_truepoi" + (path.suffix or ".png"))
+
+
+def plot_true_poi(report: dict, path) -> None:
+    """Per condition (columns), hysteresis on, frames after the warm-up, pooled over the viewpoints: the share of
+    frames with PSNR ≥ :data:`GOAL_PSNR_DB` within the disc about the true POI (and the tracked one) per scenario,
+    and the CDF of the true-POI PSNR per scenario."""
+    plt = pyplot()
+    conditions = list(report["conditions"])
+    warmup = report["config"]["warmup"]
+    colours = dict(zip(SCENARIOS, ("tab:gray", "tab:orange", "tab:blue", "tab:green")))
+    # Scenarios often coincide (a steady covariance makes fixed and adaptive alike): widths and dashes keep
+    # each curve visible under the next.
+    styles = dict(zip(SCENARIOS, ({"lw": 1.5}, {"lw": 4.5, "alpha": 0.6}, {"lw": 2.5}, {"lw": 1.2, "ls": "--"})))
+    fig, axes = plt.subplots(2, len(conditions), figsize=(4.4 * len(conditions), 7.6), squeeze=False)
+    x = np.arange(len(SCENARIOS))
+    for j, condition in enumerate(conditions):
+        c = report["conditions"][condition]
+        rows = [r for r in c["rows"] if r["scenario"] != "full" and r["hysteresis"]]
+        pooled = {}
+        for key in ("psnr_true_db", "psnr_tracked_db"):
+            for sc in SCENARIOS:
+                values = [v for r in rows if r["scenario"] == sc for v in r["per_frame"][key][warmup:]]
+                pooled[key, sc] = np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+        ax = axes[0, j]
+        for off, key, colour, label in ((-0.2, "psnr_tracked_db", "tab:gray", "tracked POI"),
+                                        (0.2, "psnr_true_db", "tab:purple", "true POI")):
+            share = []
+            for sc in SCENARIOS:
+                v = pooled[key, sc]
+                v = v[~np.isnan(v)]
+                share.append(100 * float(np.mean(v >= GOAL_PSNR_DB)) if v.size else np.nan)
+            ax.bar(x + off, share, 0.4, color=colour, label=label)
+        ax.set_xticks(x, SCENARIOS)
+        ax.set_ylim(0, 105)
+        ax.set_ylabel(f"frames ≥ {GOAL_PSNR_DB:g} dB within {DISC_DEG:g}°, %", fontsize=8)
+        mean_nees = c.get("nees_mean")
+        on = c["true_poi"].get("all", {}).get("on", {})
+        ax.set_title(condition + (f"  (NEES {mean_nees:.3g})" if mean_nees is not None else "")
+                     + f"\nnone below on {on.get('none_below', 0)}/{on.get('frames', 0)} frames; adaptive keeps "
+                     + _fraction(on.get("kept_fraction", {}).get("adaptive")), fontsize=9)
+        ax.grid(alpha=0.3, axis="y")
+        ax = axes[1, j]
+        for sc in SCENARIOS:
+            v = pooled["psnr_true_db", sc]
+            v = np.sort(v[~np.isnan(v)])
+            if v.size:
+                shown = np.minimum(v, 80.0)                  # identical discs (inf) drawn at the right edge
+                ax.step(np.concatenate([[shown[0]], shown]), np.arange(v.size + 1) / v.size, where="post",
+                        color=colours[sc], label=sc, **styles[sc])
+        ax.axvline(GOAL_PSNR_DB, color="k", lw=0.8, ls=":")
+        ax.set_xlabel(f"PSNR within {DISC_DEG:g}° of the true POI, dB (identical: drawn at 80)", fontsize=8)
+        ax.set_ylabel("fraction of frames at or below", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8)
+    axes[1, 0].legend(fontsize=8)
+    fig.suptitle("Where the viewer really looks: PSNR about the true POI (hysteresis on, after the warm-up, "
+                 "all viewpoints)")
     save_figure(fig, path, dpi=110)
 
 
 def run_paper_bench(json_path=None, chart_path=None, quick: bool = False, noise_deg: float = PAPER_NOISE_DEG,
-                    out=None, err=None) -> int:
-    """``headplod bench paper``: run, print the tables, write the JSON and chart; the exit status.
+                    out=None, err=None, vdp: bool = False, conditions=CONDITIONS) -> int:
+    """``headplod bench paper``: run, print the tables, write the JSON and the charts (``chart_path`` and
+    :func:`true_poi_chart_path` beside it); the exit status.
 
     The output paths are checked (their folders must exist or be creatable)
     before the run, and each is written whole or not at all.
@@ -320,7 +707,13 @@ def run_paper_bench(json_path=None, chart_path=None, quick: bool = False, noise_
 
     out = out or sys.stdout
     config = PaperTablesConfig(frames=30, warmup=10, viewpoints=("mountains",)) if quick else PaperTablesConfig()
-    config = replace(config, noise_deg=noise_deg)
+    config = replace(config, noise_deg=noise_deg, vdp=bool(vdp), conditions=tuple(conditions))
+    if vdp:
+        from .plod_judge import vdp_available
+
+        if not vdp_available("fvvdp"):
+            print("bench paper: --vdp needs FovVideoVDP; pip install -e '.[vdp]'", file=err or sys.stderr)
+            return 2
     targets = [Path(p) for p in (json_path, chart_path) if p]
     for path in targets:
         if path.is_dir():
@@ -333,5 +726,7 @@ def run_paper_bench(json_path=None, chart_path=None, quick: bool = False, noise_
         print(f"json: {json_path}", file=out)
     if chart_path:
         write_atomically(chart_path, lambda name: plot_tables(report, name), suffix=".png")
-        print(f"chart: {chart_path}", file=out)
+        other = true_poi_chart_path(chart_path)
+        write_atomically(other, lambda name: plot_true_poi(report, name), suffix=".png")
+        print(f"charts: {chart_path}, {other}", file=out)
     return 0
