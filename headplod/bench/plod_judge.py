@@ -224,9 +224,14 @@ class Judge:
     Building it loads the metric's CSF tables (slow); reuse it.
     """
 
-    def __init__(self, display: DisplayGeometry, settings: JudgeSettings = JudgeSettings(), heatmap: bool = False):
+    def __init__(self, display: DisplayGeometry, settings: JudgeSettings = JudgeSettings(),
+                 heatmap: bool | str = False):
+        """``heatmap``: False (none), True (the metrics' threshold colour map, :meth:`jod_map`) or ``"raw"`` (the
+        visible difference per pixel, :meth:`jod_error_map`)."""
         self.display, self.settings = display, settings
-        heatmap = "threshold" if heatmap else None    # the metrics' visualisation: blue (invisible) … red
+        if heatmap not in (False, True, "raw"):
+            raise ValueError(f"heatmap must be False, True or 'raw', got {heatmap!r}")
+        heatmap = "raw" if heatmap == "raw" else ("threshold" if heatmap else None)   # threshold: blue … red
         import torch
 
         torch.set_num_threads(int(settings.threads))
@@ -257,11 +262,49 @@ class Judge:
     def jod_map(self, reference_rgb: np.ndarray, test_rgb: np.ndarray, fixation: np.ndarray):
         """(JOD, heatmap): the heatmap is sRGB uint8 (H, W, 3), the metric's threshold colour map over the
         reference's luminance (blue: invisible, green: at threshold, red: clearly visible). Needs ``heatmap=True``."""
-        if self._metric.heatmap is None:
+        if self._metric.heatmap != "threshold":
             raise ValueError("this Judge was built without heatmap=True")
         q, stats = self._predict(reference_rgb, test_rgb, fixation)
         hm = stats["heatmap"].float().numpy()[0, :, 0]              # (3, H, W) in 0..1, display-encoded
         return q, np.clip(np.round(np.moveaxis(hm, 0, -1) * 255), 0, 255).astype(np.uint8)
+
+    def jod_error_map(self, reference_rgb: np.ndarray, test_rgb: np.ndarray, fixation: np.ndarray):
+        """(JOD, error map): the map is float32 (H, W), the metric's visible difference per pixel (0: none;
+        larger: more visible; its unit the metric's pooled difference before the JOD mapping). Needs
+        ``heatmap="raw"``."""
+        if self._metric.heatmap != "raw":
+            raise ValueError("this Judge was built without heatmap='raw'")
+        q, stats = self._predict(reference_rgb, test_rgb, fixation)
+        return q, stats["heatmap"].float().numpy()[0, 0, 0]
+
+    def jod_video(self, reference_frames: np.ndarray, test_frames: np.ndarray, fixations: np.ndarray,
+                  fps: float = 60.0) -> float:
+        """JOD of a video ``test_frames`` against ``reference_frames``, both sRGB uint8 (F, H, W, 3) at ``fps``
+        Hz, with frame f fixated at ``fixations[f]`` (F, 2) image px (FovVideoVDP takes one fixation point per
+        frame; a non-foveated metric ignores them). ``last_seconds`` holds the wall time."""
+        ref, test = np.asarray(reference_frames), np.asarray(test_frames)
+        if ref.ndim != 4 or ref.shape != test.shape or ref.shape[0] < 2:
+            raise ValueError(f"the frames must be two (F, H, W, 3) stacks of the same shape, F ≥ 2; got "
+                             f"{ref.shape} and {test.shape}")
+        for f in (0, len(ref) - 1):
+            _check_image("reference_frames[f]", ref[f], self.display.resolution_px)
+            _check_image("test_frames[f]", test[f], self.display.resolution_px)
+        fix = np.asarray(fixations, dtype=np.float64)
+        if fix.shape != (len(ref), 2) or not np.all(np.isfinite(fix)):
+            raise ValueError(f"fixations must be finite (F, 2) = ({len(ref)}, 2) image px, got shape {fix.shape}")
+        if not (np.isfinite(fps) and fps > 0):
+            raise ValueError(f"fps must be a positive frame rate, Hz, got {fps!r}")
+        import torch
+
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            if self.foveated:
+                q, _ = self._metric.predict(test, ref, dim_order="FHWC", frames_per_second=float(fps),
+                                            fixation_point=torch.tensor(fix, dtype=torch.float32))
+            else:
+                q, _ = self._metric.predict(test, ref, dim_order="FHWC", frames_per_second=float(fps))
+        self.last_seconds = time.perf_counter() - t0
+        return float(q)
 
     def jod(self, reference_rgb: np.ndarray, test_rgb: np.ndarray, fixation: np.ndarray) -> float:
         """JOD (10 = identical) of ``test_rgb`` against ``reference_rgb``, both sRGB uint8 (H, W, 3).
