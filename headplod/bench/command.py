@@ -12,6 +12,7 @@ from ..argtypes import frame_count, non_negative
 from ..capture import source_kind, synthetic_preset
 from ..capture.synthetic import ensure_dataset
 from ..live.command import note_old_spelling
+from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..render.command import add_cost_arguments, selection_options
 
 __all__ = ["add_bench_arguments", "run_bench", "BENCHMARKS"]
@@ -52,6 +53,9 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
                     help="also judge every mode and CSF form with a visible-difference predictor, JOD against frame "
                          "time: fvvdp (FovVideoVDP, foveated on the POI; the default) and/or cvvdp (ColorVideoVDP, "
                          "not foveated), comma-separated; needs the optional extra: pip install -e '.[vdp]'")
+    add_terrain_arguments(bp.add_argument_group(
+        "the judge's terrain (--vdp or --only judge): every view of it at equal triangles, framed as "
+        "'headplod render --terrain' frames it"))
     bp.add_argument("--scale", action="store_true",
                     help="instead: cost against terrain size (2M-134M triangles), tessellation back end and full "
                          "(headplod.bench.plod_scale)")
@@ -118,15 +122,26 @@ _PLOD_PARTS = {"lazy": _plod_lazy, "quadtree": _plod_quadtree}
 
 
 def _plod(args) -> int:
+    vdp = tuple(m for m in args.vdp.split(",") if m) if getattr(args, "vdp", None) else ()
+    only = getattr(args, "only", None)
+    terrain, label = None, None
+    if any(getattr(args, k, None) is not None for k in ("terrain", "spacing_m", "height_scale")):
+        if args.scale or only not in (None, "judge") or not (vdp or only == "judge"):
+            print("headplod: bench plod --terrain FILE is the judge's terrain: give it with --vdp or --only judge",
+                  file=sys.stderr)
+            return 2
+        terrain, status = terrain_for_command(args, "headplod")     # read (and checked) before the long run
+        if status is not None:
+            return 2
+        label = str(args.terrain)
     if args.scale:
         from . import plod_scale
         return plod_scale.run_scale_bench(json_path=args.json, chart_path=args.chart, quick=args.quick)
-    if getattr(args, "only", None) in _PLOD_PARTS:
-        return _PLOD_PARTS[args.only](args)
+    if only in _PLOD_PARTS:
+        return _PLOD_PARTS[only](args)
     from . import plod
-    vdp = tuple(m for m in args.vdp.split(",") if m) if getattr(args, "vdp", None) else ()
     return plod.run_plod_bench(json_path=args.json, chart_path=args.chart, quick=args.quick, vdp=vdp,
-                               only=getattr(args, "only", None), cost=selection_options(args))
+                               only=only, cost=selection_options(args), terrain=terrain, terrain_label=label)
 
 
 def _stability(args) -> int:

@@ -11,7 +11,9 @@ against ``full``'s of the same view. Parts:
 4. **Uncertainty**: base triangles in the POI's 2σ ellipse at full detail, ``none`` against ``fixed``.
 5. **Stability**: level changes per frame of a still head through the tracker (:mod:`.stability`).
 6. **Foveated layers** (:mod:`.plod_foveate`), 7. **Ray mask** (:mod:`.plod_raymask`), 8. **Perceptual
-   judge** (``--vdp``, :mod:`.plod_judge`).
+   judge** (``--vdp``, :mod:`.plod_judge`): the curves over a level bias at the default view, then every mode at
+   equal triangles on the default view and the three viewpoints (:mod:`.plod_judge_views`), on the built-in
+   terrain or ``terrain`` (``--terrain FILE``).
 
 Writes JSON, a 3x3 chart, the level-colour pictures and parts 6-8's charts and pictures beside the chart;
 ``only`` (``--only foveate|raymask|judge``) runs part 6, 7 or 8 alone.
@@ -227,20 +229,26 @@ def _vdp_problem(vdp) -> str | None:
 
 
 def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool = False, vdp=(),
-                   only: str | None = None, cost=None) -> int:
+                   only: str | None = None, cost=None, terrain=None, terrain_label: str | None = None) -> int:
     """``headplod bench plod``: every part (module notes), or the one part ``only`` (:data:`PARTS`); the exit
-    status. Prints the table and the goals; writes ``json_path``, ``chart_path`` and the pictures beside it."""
+    status. Prints the table and the goals; writes ``json_path``, ``chart_path`` and the pictures beside it.
+    ``terrain``: a :class:`headplod.plod.terrain.Terrain` the judge (part 8) runs on instead of the built-in
+    (``terrain_label``: its name in the JSON, e.g. the file)."""
     vdp = tuple(vdp) or (("fvvdp",) if only == "judge" else ())
     problem = _vdp_problem(vdp) if vdp else None
     if only is not None and only not in PARTS:
         problem = f"--only {only}: choose one of {', '.join(PARTS)}"
+    elif terrain is not None and (not vdp or only not in (None, "judge")):
+        problem = "--terrain FILE is the judge's terrain: give --vdp or --only judge with it"
     if problem:
         print(f"bench plod: {problem}", file=sys.stderr)
         return 2
     out_dir = Path(chart_path).parent if chart_path else None
     biases = (-1.0, 0.0, 1.0) if quick else BIASES
     if only is not None:
-        report = _one_part(only, frames, quick, biases, vdp, chart_path)
+        report = _one_part(only, frames, quick, biases, vdp, chart_path, terrain)
+        if only == "judge":
+            report["terrain"] = "built-in" if terrain is None else (terrain_label or "given")
         if json_path:
             write_json(json_path, report, default=float)
         return 0
@@ -255,7 +263,15 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
     report["goals"] = _goals(report)
     print("\n".join(_lines(report)))
     if vdp:   # --vdp: JOD against frame time per mode and CSF form (plod_judge), its table and chart
-        report["jod"] = _judge(b, images["full"], biases, vdp, chart_path)
+        if terrain is None:
+            report["jod"] = _judge(b, images["full"], biases, vdp, chart_path, quick)
+        else:
+            jb = BenchScene(frames=frames, ctx=b.ctx, scene=_terrain_scene(b.screen, terrain))
+            try:
+                report["jod"] = _judge(jb, None, biases, vdp, chart_path, quick)
+            finally:
+                jb.release()
+        report["jod"]["terrain"] = "built-in" if terrain is None else (terrain_label or "given")
     if json_path:
         write_json(json_path, report, default=float)
     if chart_path:
@@ -267,12 +283,25 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
     return 0
 
 
-def _one_part(only: str, frames: int, quick: bool, biases, vdp, chart_path) -> dict:
+def _terrain_scene(screen, terrain):
+    """The :class:`TerrainScene` of ``terrain`` behind ``screen``, framed as ``headplod render --terrain``'s."""
+    from ..render.still import TerrainScene
+
+    return TerrainScene.build(screen, terrain=terrain)
+
+
+def _one_part(only: str, frames: int, quick: bool, biases, vdp, chart_path, terrain=None) -> dict:
     """The part ``only`` alone (``--only``): its report, its summary printed."""
     if only == "judge":
-        b = BenchScene(frames=frames)
+        if terrain is None:
+            b = BenchScene(frames=frames)
+        else:
+            from .. import io
+
+            screen = io.read_screen(DEFAULT_SCREEN)
+            b = BenchScene(frames=frames, screen=screen, scene=_terrain_scene(screen, terrain))
         try:
-            return _judge(b, None, biases, vdp, chart_path)
+            return _judge(b, None, biases, vdp, chart_path, quick)
         finally:
             b.release()
     report = image_side_parts(Path(chart_path).parent if chart_path else None, quick, parts=(only,))[only]
@@ -280,16 +309,26 @@ def _one_part(only: str, frames: int, quick: bool, biases, vdp, chart_path) -> d
     return report
 
 
-def _judge(b: BenchScene, reference, biases, metrics, chart_path) -> dict:
+def _judge(b: BenchScene, reference, biases, metrics, chart_path, quick: bool = False) -> dict:
     """Part 8 (``--vdp``): the judge's report (``reference``: full's image, None: rendered), its table
-    printed, its chart and heatmaps beside ``chart_path``."""
-    from . import plod_judge
+    printed, its chart and heatmaps beside ``chart_path``; then, with FovVideoVDP, every mode at equal
+    triangles on each view (:func:`.plod_judge_views.judge_views`: key ``equal_triangles``, its table printed,
+    its charts ``plod_jod_view_<view>.png`` beside ``chart_path``)."""
+    from . import plod_judge, plod_judge_views as views
 
     jod = plod_judge.jod_report(b, reference, biases=biases, metrics=metrics, image_side=True, progress=_progress)
     print(plod_judge.jod_table(jod))
     if chart_path:
         plod_judge.jod_chart(jod, Path(chart_path).parent / "plod_jod.png")
         jod["heatmap_jod"] = plod_judge.write_heatmaps(b, Path(chart_path).parent)
+    if "fvvdp" in metrics:
+        _progress("the judge at equal triangles on every view")
+        eq = views.judge_views(b, budgets=views.QUICK_BUDGETS if quick else views.BUDGETS,
+                               pursuit=views.QUICK_PURSUIT if quick else views.Pursuit(), progress=_progress)
+        print(views.views_table(eq))
+        if chart_path:
+            eq["charts"] = [str(p) for p in views.views_charts(eq, Path(chart_path).parent)]
+        jod["equal_triangles"] = eq
     return jod
 
 
