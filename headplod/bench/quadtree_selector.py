@@ -166,8 +166,8 @@ class QuadtreeSelector(LevelSelector):
         Also brings the nodes' contrast up to date (``self.contrast`` may be replaced between frames).
         """
         cfg = self.config
-        kelly = cfg.mode == "csf" and cfg.csf_model == "kelly_scaled"
-        self.tree.set_contrast(self.contrast, (lambda c: criteria.sup_fmax_cpd(c, cfg.csf_model)) if kelly else None)
+        kelly = cfg.mode == "csf" and cfg.csf == "kelly_scaled"
+        self.tree.set_contrast(self.contrast, (lambda c: criteria.sup_fmax_cpd(c, cfg.csf)) if kelly else None)
         return (eye, axes, cull.screen_pyramid(self.screen, eye),
                 criteria.shift_reach_deg(cov, cfg.shift, cfg.ellipse_sigma))
 
@@ -188,9 +188,9 @@ class QuadtreeSelector(LevelSelector):
         # diameter (longest side) are seen from at least the box's nearest distance.
         ecc = criteria.eccentricity_bound_deg(criteria.angle_to_sphere_deg(rel, row[:, 6], axes[2]), shift_reach,
                                               criteria.sphere_reach_deg(row[:, 8], dmin))
-        kelly = cfg.mode == "csf" and cfg.csf_model == "kelly_scaled"
+        kelly = cfg.mode == "csf" and cfg.csf == "kelly_scaled"
         return culled, criteria.level_bound(row[:, 10], ecc, criteria.subtended_deg(row[:, 7], dmin), mode=cfg.mode,
-                                            csf_model=cfg.csf_model, foveal_cpd=row[:, 11] if kelly else None,
+                                            csf_model=cfg.csf, foveal_cpd=row[:, 11] if kelly else None,
                                             level_bias=float(cfg.level_bias))
 
     def select(self, view: View):

@@ -27,6 +27,27 @@ with Geisler & Perry's cutoff, and :func:`continuous_level` gives every
 mode's (``acuity``, ``sse``, ``ipv``, ``dpv``, ``distance`` too), the
 level bias included.
 
+``change`` asks, per piece and per level, whether what the level removes
+is visible (Luebke & Hallen 2001; Williams et al. 2003), instead of
+whether the level's triangles are (:func:`change_level`):
+
+- the *shading change*: the Michelson contrast of the displayed difference
+  between the level and the finest over the piece (``change_contrast``,
+  :mod:`headplod.plod.change`), at the frequency of a change that spans a
+  level-ℓ triangle, 1 / (2 · its diameter) (one half cycle), against the
+  CSF at the shifted eccentricity;
+- the *displacement*: the level's geometric error seen from the eye, deg,
+  against half a period of the highest frequency visible at the contrast
+  of what moves (the piece's own shading contrast; at a silhouette, the
+  contrast of the terrain against what lies behind it,
+  ``silhouette_contrast``). Shading cannot show a ridge's outline moving
+  against the land behind it, nor a near piece's shape; this term does.
+
+A level is visible when either term is: its visibility is the larger of
+the two, log2(contrast × sensitivity) and log2(displacement / threshold),
+and the continuous level is where the finest visible level's visibility
+crosses 0 (:func:`crossing_level`).
+
 Hierarchies (a quadtree over the mesh's base grid, the patch tree) need,
 per node, an upper bound of the continuous level of every piece below it:
 :func:`level_bound` is the same rule evaluated at the node's smallest
@@ -48,12 +69,15 @@ import math
 import numpy as np
 
 from . import perception as pc
-from .csf import MIN_SPEED_DEG_S, eccentricity_factor, gp_cutoff_cpd, max_visible_freq_cpd
+from .csf import (MIN_SPEED_DEG_S, CORTICAL_EXPONENT, FREQUENCY_SCALED_MODELS, csf_coefficients,
+                  eccentricity_factor, gp_cutoff_cpd, max_visible_freq_cpd, sensitivity)
 
 __all__ = ["CSF_MODES", "DIAMETER_FLOOR_DEG", "FMAX_FLOOR_CPD", "ANGLE_SLACK_DEG", "LEVEL_SLACK",
            "unit", "chord_angle_deg", "angle_between_deg", "subtended_deg", "sphere_reach_deg",
            "triangle_sizes_deg", "patch_pieces", "patch_piece_contrast",
            "shifted_offsets_deg", "piece_eccentricity_deg", "angular_speed_deg_s", "point_speed_deg_s",
+           "CHANGE_MODES", "VISIBILITY_FLOOR", "CROSSING_MIN_DROP", "crossing_level", "change_visibility",
+           "displacement_visibility", "change_visibility_levels", "change_level",
            "foveal_fmax_cpd", "fmax_cpd", "frequency_level", "csf_level", "distance_level", "continuous_level",
            "patch_piece_levels",
            "shift_reach_deg", "angle_to_sphere_deg", "eccentricity_bound_deg", "sup_max_visible_freq_cpd",
@@ -61,6 +85,13 @@ __all__ = ["CSF_MODES", "DIAMETER_FLOOR_DEG", "FMAX_FLOOR_CPD", "ANGLE_SLACK_DEG
 
 CSF_MODES = ("csf", "gp")
 """The modes whose level is ``log2(f_max · diameter)`` (:func:`csf_level`)."""
+CHANGE_MODES = ("change",)
+"""The modes whose level is where what a level removes stops being visible (:func:`change_level`)."""
+VISIBILITY_FLOOR = -60.0
+"""Visibility (log2 of contrast x sensitivity) of a change of contrast 0: far below any level's (a flat piece)."""
+CROSSING_MIN_DROP = 0.25
+"""Smallest fall of visibility per level, log2 units, with which :func:`crossing_level` extrapolates the finest
+level's (which removes nothing): the fall from the level before, at least this."""
 
 DIAMETER_FLOOR_DEG = 1e-9
 """Smallest angular diameter the level rule divides by, deg (a piece seen edge-on or at a point)."""
@@ -265,7 +296,7 @@ def foveal_fmax_cpd(contrast, speed_deg_s, csf_model: str = "kelly_scaled") -> n
 
 
 def fmax_cpd(contrast, speed_deg_s, ecc_deg, *, mode: str = "csf", csf_model: str = "kelly_scaled",
-             foveal_cpd=None) -> np.ndarray:
+             foveal_cpd=None, cortical_exponent: float = CORTICAL_EXPONENT, nyquist_cpd=None) -> np.ndarray:
     """Highest visible frequency of pieces, cpd, (...,).
 
     ``csf``: :func:`csf.max_visible_freq_cpd` of ``csf_model`` at the
@@ -273,13 +304,19 @@ def fmax_cpd(contrast, speed_deg_s, ecc_deg, *, mode: str = "csf", csf_model: st
     ``foveal_cpd`` (their f_max at eccentricity 0, :func:`foveal_fmax_cpd`,
     e.g. kept from the last frame) it is ``foveal_cpd / (1 + 0.29 e)``, the
     same number without solving Lambert's W again. ``gp``: Geisler & Perry's
-    cutoff (no speed).
+    cutoff (no speed). ``cortical_exponent``: k of ``csf_model="cortical"``.
+    ``nyquist_cpd`` (scalar or (...,)): the display's Nyquist frequency
+    (:func:`csf.display_nyquist_cpd`), the cap of ``"cortical"``'s f_max:
+    no finer detail can be drawn.
     """
     if mode == "gp":
         return gp_cutoff_cpd(contrast, ecc_deg)
     if foveal_cpd is not None and csf_model == "kelly_scaled":
         return foveal_cpd / eccentricity_factor(ecc_deg)
-    return max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model=csf_model)
+    fmax = max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model=csf_model, cortical_exponent=cortical_exponent)
+    if nyquist_cpd is not None and csf_model == "cortical":
+        fmax = np.minimum(fmax, nyquist_cpd)
+    return fmax
 
 
 def frequency_level(fmax, diameter_deg, level_bias: float = 0.0) -> np.ndarray:
@@ -294,10 +331,120 @@ def frequency_level(fmax, diameter_deg, level_bias: float = 0.0) -> np.ndarray:
 
 
 def csf_level(contrast, speed_deg_s, ecc_deg, diameter_deg, *, mode: str = "csf", csf_model: str = "kelly_scaled",
-              foveal_cpd=None, level_bias: float = 0.0) -> np.ndarray:
+              foveal_cpd=None, level_bias: float = 0.0, cortical_exponent: float = CORTICAL_EXPONENT,
+              nyquist_cpd=None) -> np.ndarray:
     """Continuous level of ``csf`` (or ``gp``) pieces: :func:`frequency_level` of :func:`fmax_cpd`, (...,)."""
-    fmax = fmax_cpd(contrast, speed_deg_s, ecc_deg, mode=mode, csf_model=csf_model, foveal_cpd=foveal_cpd)
+    fmax = fmax_cpd(contrast, speed_deg_s, ecc_deg, mode=mode, csf_model=csf_model, foveal_cpd=foveal_cpd,
+                    cortical_exponent=cortical_exponent, nyquist_cpd=nyquist_cpd)
     return frequency_level(fmax, diameter_deg, level_bias)
+
+
+def crossing_level(visibility) -> np.ndarray:
+    """Continuous level (S,) from per-level visibilities (S, L+1): where the finest visible level's crosses 0.
+
+    ``visibility[:, l]`` > 0 when what level ``l`` removes is visible (log2 of contrast x sensitivity over the
+    threshold, or of displacement over threshold). Level L removes nothing; its visibility is extrapolated
+    from the two before (their fall, at least :data:`CROSSING_MIN_DROP`), so that the continuous level moves
+    smoothly with the threshold (a bias or a budget) instead of jumping to L. With k the finest level whose
+    visibility is >= 0, the level is ``k + v_k / (v_k - v_{k+1})`` (linear between k and k + 1, so ``ceil``
+    gives k + 1, the coarsest level with nothing visible removed at it or finer); when even the extrapolated
+    finest is visible, the line continued past L (at most 2L: a level above L rounds to L, but a negative bias
+    then coarsens such pieces one by one, not all at once); and, when no level's change is visible, ``v_0``
+    clipped to [-(L + 1), 0]
+    (a level below 0: the further below the threshold, the more bias it takes to refine it).
+    """
+    v = np.array(visibility, dtype=np.float64)
+    L = v.shape[1] - 1
+    if L >= 1:
+        before = v[:, L - 2] if L >= 2 else v[:, L - 1] + CROSSING_MIN_DROP
+        v[:, L] = v[:, L - 1] - np.maximum(before - v[:, L - 1], CROSSING_MIN_DROP)
+    visible = v >= 0
+    any_visible = visible.any(axis=1)
+    k = L - np.argmax(visible[:, ::-1], axis=1)                     # finest visible level (0 where none)
+    rows = np.arange(len(v))
+    v_k = v[rows, k]
+    v_next = v[rows, np.minimum(k + 1, L)]
+    v_before = v[rows, np.maximum(k - 1, 0)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        frac = np.where(k < L, np.clip(v_k / np.maximum(v_k - v_next, 1e-12), 0.0, 1.0),
+                        np.clip(v_k / np.maximum(v_before - v_k, CROSSING_MIN_DROP), 0.0, max(L, 1)))
+    return np.where(any_visible, k + frac, np.clip(v[:, 0], -(L + 1.0), 0.0))
+
+
+def change_visibility(change_contrast, angular_deg, speed_deg_s, ecc_deg, *, csf_model: str = "cortical",
+                      cortical_exponent: float = CORTICAL_EXPONENT, nyquist_cpd=None) -> np.ndarray:
+    """log2(contrast x sensitivity) (S, L+1) of what each level removes from the shading.
+
+    ``change_contrast`` (S, L+1): Michelson contrast of the displayed change at each level (0 at L);
+    ``angular_deg`` (S, L+1) the level's pieces' diameters, deg: the change spans one, half a cycle, so its
+    frequency is ``1 / (2 diameter)`` cpd, taken no higher than ``nyquist_cpd`` (a change finer than a pixel
+    shows as a pixel's) and no lower than the CSF's peak at the piece's speed and eccentricity: a local
+    change is broadband, and the CSF's fall below its peak holds for gratings, not for it (Luebke & Hallen
+    take the peak there too); ``speed_deg_s``, ``ecc_deg`` (S,).
+    """
+    freq = 0.5 / np.maximum(np.asarray(angular_deg, dtype=np.float64), DIAMETER_FLOOR_DEG)
+    if nyquist_cpd is not None:
+        freq = np.minimum(freq, np.asarray(nyquist_cpd, dtype=np.float64)[..., None])
+    _, decay = csf_coefficients(speed_deg_s, csf_model)               # S = A f² exp(-b f) peaks at f = 2 / b
+    peak = 2.0 / decay
+    if csf_model in FREQUENCY_SCALED_MODELS:
+        peak = peak / eccentricity_factor(ecc_deg, csf_model, cortical_exponent)
+    freq = np.maximum(freq, np.asarray(peak)[:, None])
+    s = sensitivity(freq, np.asarray(speed_deg_s)[:, None], np.asarray(ecc_deg)[:, None], model=csf_model,
+                    cortical_exponent=cortical_exponent)
+    product = np.asarray(change_contrast, dtype=np.float64) * s
+    with np.errstate(divide="ignore"):
+        return np.maximum(np.log2(np.maximum(product, 0.0)), VISIBILITY_FLOOR)
+
+
+def displacement_visibility(error_mm, distance_mm, contrast, speed_deg_s, ecc_deg, *, csf_model: str = "cortical",
+                            cortical_exponent: float = CORTICAL_EXPONENT, nyquist_cpd=None) -> np.ndarray:
+    """log2(displacement / threshold) (S, L+1) of each level's geometric error.
+
+    ``error_mm`` (S, L+1) the level's largest distance from the finest surface, seen at ``distance_mm`` (S,):
+    its angle is the displacement. The threshold is half a period of the highest frequency visible at the
+    ``contrast`` (S,) of what moves, at the piece's speed and eccentricity (S,); f_max is capped at
+    ``nyquist_cpd``, so nothing under half a pixel counts.
+    """
+    displacement = np.degrees(np.asarray(error_mm, dtype=np.float64) / np.asarray(distance_mm)[:, None])
+    fmax = fmax_cpd(contrast, speed_deg_s, ecc_deg, csf_model=csf_model, cortical_exponent=cortical_exponent,
+                    nyquist_cpd=nyquist_cpd)
+    threshold = 0.5 / np.maximum(fmax, FMAX_FLOOR_CPD)
+    with np.errstate(divide="ignore"):
+        return np.maximum(np.log2(displacement / threshold[:, None]), VISIBILITY_FLOOR)
+
+
+def change_level(change_contrast, angular_deg, error_mm, distance_mm, displacement_contrast, speed_deg_s, ecc_deg, *,
+                 csf_model: str = "cortical", cortical_exponent: float = CORTICAL_EXPONENT, nyquist_cpd=None,
+                 threshold: float = 1.0, level_bias: float = 0.0) -> np.ndarray:
+    """Continuous level (S,) of ``change``: where neither the shading change nor the displacement is visible.
+
+    :func:`crossing_level` of :func:`change_visibility_levels` plus ``level_bias``: for this mode a bias
+    moves the *threshold*, not the level: bias B counts a change as visible once its contrast reaches
+    2^-B times ``threshold`` detection thresholds. (Adding B to the level would move pieces whose visibility
+    falls slowly with the level by the same levels as those whose falls fast: a budget would then coarsen
+    some pieces far past their threshold while others keep detail nobody sees.)
+    """
+    v = change_visibility_levels(change_contrast, angular_deg, error_mm, distance_mm, displacement_contrast,
+                                 speed_deg_s, ecc_deg, csf_model=csf_model, cortical_exponent=cortical_exponent,
+                                 nyquist_cpd=nyquist_cpd, threshold=threshold)
+    return crossing_level(v + level_bias)
+
+
+def change_visibility_levels(change_contrast, angular_deg, error_mm, distance_mm, displacement_contrast,
+                             speed_deg_s, ecc_deg, *, csf_model: str = "cortical",
+                             cortical_exponent: float = CORTICAL_EXPONENT, nyquist_cpd=None,
+                             threshold: float = 1.0) -> np.ndarray:
+    """Visibility (S, L+1) of what each level removes, log2 units: the larger of :func:`change_visibility` and
+    :func:`displacement_visibility`, both contrasts divided by ``threshold`` (how many times its detection
+    threshold a change's contrast must be to count: 1, at threshold). Shapes as those functions'.
+    """
+    shading = change_visibility(np.asarray(change_contrast) / threshold, angular_deg, speed_deg_s, ecc_deg,
+                                csf_model=csf_model, cortical_exponent=cortical_exponent, nyquist_cpd=nyquist_cpd)
+    moving = displacement_visibility(error_mm, distance_mm, np.asarray(displacement_contrast) / threshold,
+                                     speed_deg_s, ecc_deg, csf_model=csf_model, cortical_exponent=cortical_exponent,
+                                     nyquist_cpd=nyquist_cpd)
+    return np.maximum(shading, moving)
 
 
 def distance_level(distance_mm, max_level: int, distance_ref_mm: float) -> np.ndarray:
@@ -306,7 +453,8 @@ def distance_level(distance_mm, max_level: int, distance_ref_mm: float) -> np.nd
 
 
 def continuous_level(config, max_level: int, *, ecc_deg, angular_deg, distance_mm, speed_deg_s, contrast,
-                     edge_len_mm=None, error_mm=None, px_per_mm=None, foveal_cpd=None) -> np.ndarray:
+                     edge_len_mm=None, error_mm=None, px_per_mm=None, foveal_cpd=None, change_contrast=None,
+                     displacement_contrast=None, nyquist_cpd=None) -> np.ndarray:
     """Every mode's continuous level of base triangles, the level bias included, (S,).
 
     Parameters
@@ -326,13 +474,28 @@ def continuous_level(config, max_level: int, *, ecc_deg, angular_deg, distance_m
         the median distance of the triangles given, the display's resolution).
     foveal_cpd : (S,), optional
         ``kelly_scaled``'s foveal f_max (:func:`fmax_cpd`).
+    change_contrast : (S, L+1), optional
+        ``change``: the contrast of what each level removes from the shading (:mod:`headplod.plod.change`).
+    displacement_contrast : (S,), optional
+        ``change``: the contrast against which each piece's displacement is seen (default ``contrast``).
+    nyquist_cpd : float, optional
+        The display's Nyquist frequency at the eye (:func:`csf.display_nyquist_cpd`): the cap of
+        ``csf_model="cortical"``.
 
     The rounding to integer levels is the caller's (``ceil``; ``floor`` for ``acuity``).
     """
     mode, bias = config.mode, float(config.level_bias)
     if mode in CSF_MODES:
-        return csf_level(contrast, speed_deg_s, ecc_deg, angular_deg[:, 0], mode=mode, csf_model=config.csf_model,
-                         foveal_cpd=foveal_cpd, level_bias=bias)
+        return csf_level(contrast, speed_deg_s, ecc_deg, angular_deg[:, 0], mode=mode, csf_model=config.csf,
+                         foveal_cpd=foveal_cpd, level_bias=bias, cortical_exponent=config.cortical_exponent,
+                         nyquist_cpd=nyquist_cpd)
+    if mode in CHANGE_MODES:
+        if change_contrast is None or error_mm is None:
+            raise ValueError("mode 'change' needs each level's change contrast and geometric error (the mesh's)")
+        return change_level(change_contrast, angular_deg, error_mm, distance_mm,
+                            contrast if displacement_contrast is None else displacement_contrast, speed_deg_s,
+                            ecc_deg, csf_model=config.csf, cortical_exponent=config.cortical_exponent,
+                            nyquist_cpd=nyquist_cpd, threshold=config.change_threshold, level_bias=bias)
     if mode == "distance":
         return distance_level(distance_mm, max_level, config.distance_ref_mm) + bias
     if mode == "acuity":

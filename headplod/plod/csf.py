@@ -2,9 +2,18 @@
 
 The CSF forms the perceptual criteria use (:mod:`headplod.plod.perception`):
 Kelly's spatio-velocity CSF (the paper's form, Kelly's own, Daly's
-correction, and Kelly scaled to the paper's peak), the cortical-magnification
-fall-off with eccentricity, and Geisler & Perry's cutoff (Murphy &
-Duchowski). Units: frequency cpd, speed deg/s, eccentricity deg, contrast
+correction, and Kelly scaled to the paper's peak), two fall-offs with
+eccentricity, and Geisler & Perry's cutoff (Murphy & Duchowski).
+
+How frequency scales with eccentricity decides how much the periphery loses:
+
+- ``kelly_scaled``: Rovamo & Virsu's 1 + 0.29 e, a *resolution* (acuity)
+  law: at 20° every frequency is scaled by 6.8;
+- ``cortical``: Dougherty et al.'s cortical magnification
+  M(e) = 29.2 / (e + 3.67) mm/deg, raised to an exponent k, so frequencies
+  scale by (1 + e / 3.67)^k (k = 0.6 by default: 3.1 at 20°). Detecting a
+  *change* (what a level removes) falls off this slowly; FovVideoVDP scales
+  its CSF the same way. Units: frequency cpd, speed deg/s, eccentricity deg, contrast
 Michelson. The equations and the papers' slips: ``shared/spec/methods.md``.
 """
 from __future__ import annotations
@@ -12,17 +21,26 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import lambertw
 
-__all__ = ["CSF_MODELS", "MIN_SPEED_DEG_S", "ECC_SLOPE", "KELLY_K0", "KELLY_K1", "KELLY_SPEED_REF_DEG_S",
+__all__ = ["CSF_MODELS", "FREQUENCY_SCALED_MODELS", "MIN_SPEED_DEG_S", "ECC_SLOPE", "CORTICAL_E2_DEG",
+           "CORTICAL_EXPONENT", "display_nyquist_cpd", "KELLY_K0", "KELLY_K1", "KELLY_SPEED_REF_DEG_S",
            "KELLY_SPEED_OFFSET_DEG_S", "KELLY_PEAK_CONSTANT",
            "sensitivity", "csf_coefficients", "max_visible_freq_cpd", "gp_cutoff_cpd", "eccentricity_factor"]
 
-CSF_MODELS = ("paper", "kelly", "daly", "kelly_scaled")
+CSF_MODELS = ("paper", "kelly", "daly", "kelly_scaled", "cortical")
+#: The models whose eccentricity scales the frequency, S(f · m(e), v), rather than dividing the sensitivity.
+FREQUENCY_SCALED_MODELS = ("kelly_scaled", "cortical")
 
 MIN_SPEED_DEG_S = 0.1
 """Speed floor (deg/s) of every CSF: Kelly's G is 0 at v = 0 (no stabilized image)."""
 
 ECC_SLOPE = 0.29
 """Rovamo & Virsu's cortical-magnification slope, 1/deg: M(e) ∝ 1 / (1 + 0.29 e)."""
+CORTICAL_E2_DEG = 3.67
+"""Dougherty et al. (2003)'s V1 magnification M(e) = 29.2 / (e + 3.67) mm/deg: the eccentricity, deg, where it
+has halved (the model ``cortical``: frequencies scale by (1 + e / 3.67)^k)."""
+CORTICAL_EXPONENT = 0.6
+"""Default k of the model ``cortical`` (dimensionless): detection thresholds follow cortical magnification
+raised to about 0.6 (the exponent FovVideoVDP fits; 1 would be a resolution law)."""
 
 # Kelly (1979)'s spatio-velocity CSF, G = (K0 + K1 |log10(v / V_REF)|^3) v α² exp(-2 α (v + V_OFFSET) / PEAK),
 # α = 2π f: the constants every Kelly form here (and the tessellation shader's copy of kelly_scaled,
@@ -59,8 +77,8 @@ def csf_coefficients(speed_deg_s, model="kelly_scaled"):
     speed_deg_s : array_like
         Retinal speed, deg/s, any shape; its absolute value is floored at
         :data:`MIN_SPEED_DEG_S` (0.1 deg/s).
-    model : {"paper", "kelly", "daly", "kelly_scaled"}
-        ``"kelly"`` and ``"kelly_scaled"`` share these coefficients (they
+    model : {"paper", "kelly", "daly", "kelly_scaled", "cortical"}
+        ``"kelly"``, ``"kelly_scaled"`` and ``"cortical"`` share these coefficients (they
         differ only in how eccentricity enters).
 
     Returns
@@ -96,12 +114,30 @@ def csf_coefficients(speed_deg_s, model="kelly_scaled"):
     return k * v * (2.0 * np.pi) ** 2, 4.0 * np.pi * (v + KELLY_SPEED_OFFSET_DEG_S) / KELLY_PEAK_CONSTANT
 
 
-def eccentricity_factor(ecc_deg):
-    """Cortical-magnification fall-off 1 + 0.29 |e| (dimensionless; e in deg): frequencies scale by its inverse."""
-    return 1.0 + ECC_SLOPE * np.abs(np.asarray(ecc_deg, dtype=float))
+def eccentricity_factor(ecc_deg, model="kelly_scaled", cortical_exponent=CORTICAL_EXPONENT):
+    """Fall-off with eccentricity m(e) >= 1 (dimensionless; e in deg, its absolute value used).
+
+    ``"cortical"``: (1 + |e| / 3.67)^k, k = ``cortical_exponent``; every
+    other model: Rovamo & Virsu's 1 + 0.29 |e|. The frequency-scaled models
+    (:data:`FREQUENCY_SCALED_MODELS`) scale frequency by it, the others divide
+    the sensitivity by it.
+    """
+    e = np.abs(np.asarray(ecc_deg, dtype=float))
+    if model == "cortical":
+        return (1.0 + e / CORTICAL_E2_DEG) ** float(cortical_exponent)
+    return 1.0 + ECC_SLOPE * e
 
 
-def sensitivity(freq_cpd, speed_deg_s, ecc_deg, model="kelly_scaled"):
+def display_nyquist_cpd(px_per_mm, eye_distance_mm):
+    """The highest frequency a display can show, cpd: half its pixels per degree seen from ``eye_distance_mm``.
+
+    ``px_per_mm`` (scalar) the screen's pixels per mm; ``eye_distance_mm`` (...,) the eye's distance to the
+    screen plane, mm. Detail finer than this cannot be drawn, whatever the eye could see.
+    """
+    return 0.5 * float(px_per_mm) * np.asarray(eye_distance_mm, dtype=float) * np.pi / 180.0
+
+
+def sensitivity(freq_cpd, speed_deg_s, ecc_deg, model="kelly_scaled", cortical_exponent=CORTICAL_EXPONENT):
     """Contrast sensitivity S(f, v, e) (1 / threshold contrast).
 
     Parameters
@@ -112,13 +148,16 @@ def sensitivity(freq_cpd, speed_deg_s, ecc_deg, model="kelly_scaled"):
         Retinal speed v, deg/s; floored at 0.1 deg/s.
     ecc_deg : array_like
         Eccentricity e, deg (its absolute value is used).
-    model : {"paper", "kelly", "daly", "kelly_scaled"}
+    model : {"paper", "kelly", "daly", "kelly_scaled", "cortical"}
         ``"paper"``, ``"kelly"``, ``"daly"``: the foveal CSF (see
         :func:`csf_coefficients`) divided by (1 + 0.29 e), as Martinez eq. 3
         does. ``"kelly_scaled"``: Kelly's CSF with the frequency scaled by the
         cortical magnification, S(f (1 + 0.29 e), v), no division; this is
         how Rovamo & Virsu's 0.29 is meant, and it cuts the periphery far
         more (f_max falls as 1 / (1 + 0.29 e) instead of logarithmically).
+        ``"cortical"``: Kelly's CSF at S(f (1 + e/3.67)^k, v) (module notes).
+    cortical_exponent : float
+        k of ``"cortical"`` (:data:`CORTICAL_EXPONENT`).
 
     Returns
     -------
@@ -128,14 +167,14 @@ def sensitivity(freq_cpd, speed_deg_s, ecc_deg, model="kelly_scaled"):
     _check_model(model)
     f = np.asarray(freq_cpd, dtype=float)
     A, b = csf_coefficients(speed_deg_s, model)
-    m = eccentricity_factor(ecc_deg)
-    if model == "kelly_scaled":
+    m = eccentricity_factor(ecc_deg, model, cortical_exponent)
+    if model in FREQUENCY_SCALED_MODELS:
         fs = f * m
         return A * fs ** 2 * np.exp(-b * fs)
     return A * f ** 2 * np.exp(-b * f) / m
 
 
-def max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model="kelly_scaled"):
+def max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model="kelly_scaled", cortical_exponent=CORTICAL_EXPONENT):
     """Highest spatial frequency visible at a contrast: max f with C S(f) >= 1.
 
     With S = A f^2 exp(-b f) (eccentricity folded into A or f), C S(f) = 1 is
@@ -152,9 +191,11 @@ def max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model="kelly_scaled"):
         Retinal speed v, deg/s (floored at 0.1 deg/s).
     ecc_deg : array_like
         Eccentricity e, deg.
-    model : {"paper", "kelly", "daly", "kelly_scaled"}
+    model : {"paper", "kelly", "daly", "kelly_scaled", "cortical"}
         See :func:`sensitivity`. For ``"kelly_scaled"`` the foveal f_max is
-        divided by (1 + 0.29 e).
+        divided by (1 + 0.29 e), for ``"cortical"`` by (1 + e/3.67)^k.
+    cortical_exponent : float
+        k of ``"cortical"``.
 
     Returns
     -------
@@ -166,9 +207,9 @@ def max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model="kelly_scaled"):
     _check_model(model)
     C = np.asarray(contrast, dtype=float)
     A, b = csf_coefficients(speed_deg_s, model)
-    m = eccentricity_factor(ecc_deg)
+    m = eccentricity_factor(ecc_deg, model, cortical_exponent)
     C, A, b, m = np.broadcast_arrays(C, A, b, m)
-    if model != "kelly_scaled":
+    if model not in FREQUENCY_SCALED_MODELS:
         A = A / m
     AC = A * C
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -177,7 +218,7 @@ def max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model="kelly_scaled"):
     zv = np.where(visible, z, 0.1)            # any point inside the domain
     w = lambertw(-zv, -1).real                # <= -1
     f = np.where(visible, -2.0 / b * w, 0.0)
-    if model == "kelly_scaled":
+    if model in FREQUENCY_SCALED_MODELS:
         f = f / m
     return f
 

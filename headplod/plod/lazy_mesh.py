@@ -244,6 +244,14 @@ class LazyAdaptiveMesh(AdaptiveMeshBase):
             slack = tail
         self.z_range = data.z_range + np.stack([-slack, slack], axis=1)
         self.bounding_radius = data.bounding_radius + slack
+        # What a level removes from the shading: measured up to the data level; beyond it a normal's error,
+        # hence the shading's, halves per level (first order in the spacing).
+        self.change_contrast = np.zeros((self.n_faces, M + 1))
+        self.change_contrast[:, :K + 1] = data.change_contrast
+        if M > K and K > 0:
+            for L in range(K, M):                                # loop over the extrapolated levels
+                self.change_contrast[:, L] = data.change_contrast[:, K - 1] / 2 ** (L - K + 1)
+        self.normal_axis, self.normal_cone_deg = data.normal_axis, data.normal_cone_deg
 
     # ------------------------------------------------------------------ cache
     @property

@@ -66,6 +66,7 @@ import time
 import numpy as np
 from scipy import sparse
 
+from .change import level_change_contrast, normal_cone
 from .shading import AMBIENT, LIGHT_DIR
 from .mesh_base import (LEVEL_PALETTE, AdaptiveMeshBase, BaseMesh, _face_areas_xy,  # noqa: F401 (re-exported)
                         _sample)
@@ -136,6 +137,12 @@ class AdaptiveMesh(AdaptiveMeshBase):
         Michelson contrast ``(max - min) / (max + min)`` of the Lambertian
         shading ``ambient + (1 - ambient) max(n·l, 0)`` over the face's
         finest-level vertices.
+    change_contrast : (F, M+1) float64
+        Michelson contrast of what each uniform level removes from the drawn
+        image over the face (:func:`headplod.plod.change.level_change_contrast`; 0 at level M).
+    normal_axis : (F, 3) float64, normal_cone_deg : (F,) float64
+        The cone holding the face's finest normals: its unit axis (scene
+        frame) and half-angle, deg (:func:`headplod.plod.change.normal_cone`).
     vertex_positions : (V, 3) float32
         The vertex table, scene units: every vertex any build can use
         (``update_indices`` indexes it): the vertices of every level of
@@ -389,10 +396,17 @@ class AdaptiveMesh(AdaptiveMeshBase):
         corners = self.base.vertices[self.base.faces]                            # (F, 3, 3)
         self.corners = corners.astype(np.float64)           # (F, 3, 3) scene units
         self.centroids = corners.mean(axis=1)
-        self._level_sizes(fine, B, C, index)
+        interpolation, level_rows = self._level_sizes(fine, B, C, index)
         self._bounds(fine, corners)
         self._shading_normals = fine_n                      # (F, P, 3) float32: shading_contrast
         self.contrast = self.shading_contrast(light_dir, ambient)
+        # What each level removes, coloured over the whole terrain's heights as the renderers colour it.
+        height_range = (float(self.z_range[:, 0].min()), float(self.z_range[:, 1].max()))
+        terrain, filters = self.terrain, self.normal_filter_m
+        self.change_contrast = level_change_contrast(
+            fine, fine_n, interpolation, level_rows, lambda L, x, y: _sample(terrain, x, y, filters[L])[1],
+            height_range, light_dir, ambient)
+        self.normal_axis, self.normal_cone_deg = normal_cone(fine_n)
 
     def _fine_lattice(self, edge_pos):
         """Every face's finest-lattice points (no centroids), boundary points from the canonical edges.
@@ -434,13 +448,18 @@ class AdaptiveMesh(AdaptiveMeshBase):
         index[B, C] = np.arange(len(B))
         return fine, fine_n, B, C, index
 
-    def _level_sizes(self, fine, B, C, index) -> None:
-        """``edge_length`` and ``geometric_error`` (F, M+1) of every uniform level, from the finest lattice."""
+    def _level_sizes(self, fine, B, C, index):
+        """``edge_length`` and ``geometric_error`` (F, M+1) of every uniform level, from the finest lattice.
+
+        Returns each level < M's interpolation matrix (sparse (P, P), :meth:`_interpolation_matrix`) and the
+        lattice points that are its vertices ((P_L,) int), for :func:`level_change_contrast`.
+        """
         M, F = self.max_level, self.n_faces
         N = 2 ** M
         self.edge_length = np.zeros((F, M + 1))
         self.geometric_error = np.zeros((F, M + 1))
         z_fine = fine[..., 2]
+        interpolation, level_rows = [], []
         for L in range(M + 1):                              # loop over levels
             s = N // 2 ** L
             # Edges of the uniform level-L grid: along B, along C, and the diagonals.
@@ -457,6 +476,9 @@ class AdaptiveMesh(AdaptiveMeshBase):
             if L < M:
                 W = self._interpolation_matrix(L, B, C, index, N)
                 self.geometric_error[:, L] = np.abs(z_fine - (W @ z_fine.T).T).max(axis=1)
+                interpolation.append(W)
+                level_rows.append(np.flatnonzero((B % s == 0) & (C % s == 0)))
+        return interpolation, level_rows
 
     def _bounds(self, fine, corners) -> None:
         """``z_range`` and ``bounding_radius``: the finest lattice and the centroid-fan vertices of every level."""

@@ -303,9 +303,9 @@ class PatchTree:
             raise ValueError(f"PatchTree: batch_depths must be >= 1, got {batch_depths!r}")
         if not isinstance(selection, SelectorConfig):
             raise TypeError(f"PatchTree: selection must be a SelectorConfig, got {type(selection).__name__}")
-        if selection.csf_model != "kelly_scaled":
+        if selection.csf != "kelly_scaled":
             raise ValueError(f"PatchTree: the patches' criterion is csf with the kelly_scaled CSF, "
-                             f"got csf_model={selection.csf_model!r}")
+                             f"got csf_model={selection.csf!r}")
 
     @property
     def n_nodes(self) -> int:

@@ -14,7 +14,10 @@ level (for hysteresis) and returns integer levels in [0, max_level]:
   sign the paper's print dropped), angular speed relative to the head
   (floored at 0.1 deg/s), contrast of the shaded terrain over the triangle;
   the CSF inverted for the highest visible frequency; LOD = ⌈log2(α_max/α)⌉.
-- ``gp``: the same with the Geisler–Perry cutoff.
+- ``change``: whether what each level removes is visible: the shading it
+  changes and the displacement of the surface, against the CSF scaled by
+  cortical magnification (:func:`headplod.plod.criteria.change_level`).
+- ``gp``: the same as ``csf`` with the Geisler–Perry cutoff.
 - ``acuity``: Ohshima et al.'s k1·k2·k3 acuity and eq. 6.
 - ``sse``: screen-space geometric error with Wakatsuki's micro-motion
   tolerance; ``ipv`` and ``dpv`` their velocity baselines on top of it.
@@ -41,11 +44,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import criteria, cull
+from .csf import display_nyquist_cpd
 from . import perception as pc
 from .view import UNCERTAINTY_MODES, ConditionedView, UncertaintyPolicy, View, ViewConditioner  # noqa: F401
 
-MODES = ("csf", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full")
+MODES = ("csf", "change", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full")
 """The level-selection criteria (:attr:`SelectorConfig.mode`), in the order the tools list them."""
+#: Each CSF-based mode's own CSF model (:attr:`SelectorConfig.csf_model` None): the paper's for ``csf``, the
+#: detection model for ``change``.
+DEFAULT_CSF_MODEL = {"csf": "kelly_scaled", "change": "cortical"}
 
 
 @dataclass(frozen=True)
@@ -70,8 +77,22 @@ class SelectorConfig:
         short of that).
     ellipse_sigma : float
         Size of that ellipse, standard deviations (2.0); ``"ellipse"`` only.
-    csf_model : one of perception.CSF_MODELS
-        The CSF of mode ``"csf"`` (``"kelly_scaled"``).
+    csf_model : one of perception.CSF_MODELS, or None
+        The CSF of modes ``"csf"`` and ``"change"``; None (the default)
+        takes the mode's own: ``"kelly_scaled"`` for ``csf`` (the paper's
+        reproduction), ``"cortical"`` for ``change``.
+    cortical_exponent : float
+        k of the CSF model ``"cortical"``: frequencies scale with
+        eccentricity as (1 + e / 3.67)^k (0.6; :mod:`headplod.plod.csf`).
+    silhouette_contrast : float
+        Mode ``change``: the Michelson contrast of a silhouette against
+        what lies behind it, against which a level's displacement of a
+        piece seen edge-on is judged (0.5; elsewhere the piece's own
+        shading contrast).
+    change_threshold : float
+        Mode ``change``: how many times its detection threshold a change's
+        contrast must be to count as visible (1.0; fitted with the judge,
+        ``headplod bench plod --vdp``).
     level_bias : float
         Added to every continuous level before rounding, levels (0.0): the one
         knob that trades triangles for image error in every mode alike, for
@@ -147,7 +168,10 @@ class SelectorConfig:
     uncertainty_smoothing_frames: float = 15
     shift: str = "ellipse"
     ellipse_sigma: float = 2.0
-    csf_model: str = "kelly_scaled"
+    csf_model: str | None = None
+    cortical_exponent: float = 0.6
+    silhouette_contrast: float = 0.5
+    change_threshold: float = 1.0
     level_bias: float = 0.0
     budget_triangles: int | None = None
     budget_tolerance: float = 0.03
@@ -170,7 +194,7 @@ class SelectorConfig:
 
     def __post_init__(self):
         for name, choices in (("mode", MODES), ("uncertainty", UNCERTAINTY_MODES), ("shift", pc.SHIFT_FORMS),
-                              ("csf_model", pc.CSF_MODELS)):
+                              ("csf_model", pc.CSF_MODELS + (None,))):
             if getattr(self, name) not in choices:
                 raise ValueError(f"SelectorConfig.{name} must be one of {choices}, got {getattr(self, name)!r}")
         budget = self.budget_triangles
@@ -183,6 +207,8 @@ class SelectorConfig:
         # (field, lower bound, bound allowed, unit)
         for name, low, closed, unit in (
                 ("uncertainty_smoothing_frames", 1.0, True, "frames"), ("ellipse_sigma", 0.0, True, "sigma"),
+                ("cortical_exponent", 0.0, False, "dimensionless"), ("silhouette_contrast", 0.0, False, "Michelson"),
+                ("change_threshold", 0.0, False, "thresholds"),
                 ("level_bias", -math.inf, False, "levels"), ("sse_tolerance_px", 0.0, True, "px"),
                 ("frame_s", 0.0, False, "s"), ("velocity_ref_deg_s", 0.0, False, "deg/s"),
                 ("distance_ref_mm", 0.0, False, "mm"), ("hysteresis_margin", 0.0, True, "levels"),
@@ -202,6 +228,12 @@ class SelectorConfig:
         if self.budget_tolerance >= 0.5:
             raise ValueError(f"SelectorConfig.budget_tolerance must be below 0.5 (fraction), "
                              f"got {self.budget_tolerance!r}")
+
+
+    @property
+    def csf(self) -> str:
+        """The CSF model in use: ``csf_model``, or the mode's own (:data:`DEFAULT_CSF_MODEL`) when it is None."""
+        return self.csf_model if self.csf_model is not None else DEFAULT_CSF_MODEL.get(self.mode, "kelly_scaled")
 
 
 class LevelSelector:
@@ -227,14 +259,21 @@ class LevelSelector:
         angular size is the diameter of its projection seen from the eye
         (the largest angle between two corners: the paper's definition,
         foreshortening included); without, its longest edge seen face-on.
+    triangle_count : callable (F,) int levels -> int, optional
+        The mesh's triangle count of a selection (a budget needs it).
+    change : (change_contrast (F, L+1), normal_axis (F, 3), normal_cone_deg (F,)), optional
+        Mode ``change``'s features (the mesh's: :mod:`headplod.plod.change`): what each level removes from
+        the shading, and the cone of each triangle's normals (scene frame; deg), which tells a silhouette.
     """
 
     def __init__(self, centroids_scene, edge_len_scene, geometric_error_scene, contrast, model, screen,
-                 config: SelectorConfig = SelectorConfig(), *, corners_scene=None, triangle_count=None):
+                 config: SelectorConfig = SelectorConfig(), *, corners_scene=None, triangle_count=None, change=None):
         if not isinstance(config, SelectorConfig):
             raise TypeError(f"LevelSelector: config must be a SelectorConfig, got {type(config).__name__}")
         if config.budget_triangles is not None and triangle_count is None:
             raise ValueError("LevelSelector: a triangle budget needs triangle_count (the mesh's)")
+        if config.mode in criteria.CHANGE_MODES and change is None:
+            raise ValueError("LevelSelector: mode 'change' needs the mesh's change features (change=...)")
         self.config = config
         self.triangle_count = triangle_count
         self.max_level = edge_len_scene.shape[1] - 1
@@ -254,6 +293,13 @@ class LevelSelector:
             # A level's pieces are the level-0 triangle scaled by its edge ratio.
             self._level_scale = self.edge_len_mm / np.maximum(self.edge_len_mm[:, :1], 1e-12)
         self.contrast = np.asarray(contrast, dtype=np.float64)
+        self.change_contrast = self.normal_axis_world = self.normal_cone_deg = None
+        if change is not None:
+            change_contrast, axis, cone = change
+            self.change_contrast = np.asarray(change_contrast, dtype=np.float64)
+            rotation = model[:3, :3] / self.scale_mm            # the model's rotation (its scale is uniform)
+            self.normal_axis_world = criteria.unit(np.asarray(axis, dtype=np.float64) @ rotation.T)
+            self.normal_cone_deg = np.asarray(cone, dtype=np.float64)
         self.screen = screen
         self.px_per_mm = screen.size_px[0] / float(np.linalg.norm(np.asarray(screen.top_right) - screen.top_left))
         # A raw View given to select() is conditioned here; the frame step conditions once per frame
@@ -265,6 +311,7 @@ class LevelSelector:
         self.hysteresis = (pc.Hysteresis(len(centroids_scene), margin=config.hysteresis_margin,
                                          rounding=self.rounding) if config.hysteresis else None)
         self._previous = None          # (t, eye_mm, directions (F, 3))
+        self._visibility = None        # mode change: the seen triangles' per-level visibility (S, L+1), last frame
         self._foveal_cache = None      # (contrast, seen, speed, foveal f_max) of the last frame
 
     def condition(self, view: View | ConditionedView) -> ConditionedView:
@@ -312,8 +359,8 @@ class LevelSelector:
                                                       speed[seen])
         budget_bias = 0.0
         if cfg.budget_triangles is not None:
-            budget_bias = self._budget_bias(continuous, seen)
-            continuous[seen] += budget_bias
+            budget_bias, levels_at = self._budget_bias(continuous, seen)
+            continuous[seen] = levels_at(budget_bias)
         if self.hysteresis is not None:
             levels = self.hysteresis.update(continuous, self.max_level, eager=self._eager(view, ecc))
         else:
@@ -322,24 +369,42 @@ class LevelSelector:
         return levels, {"eccentricity_deg": ecc, "speed_deg_s": speed, "distance_mm": distance,
                         "continuous": continuous, "poi_px": view.poi_px, "cov_deg2": cov, "budget_bias": budget_bias}
 
-    def _budget_bias(self, continuous, seen) -> float:
-        """The bias (levels) on the ``seen`` triangles' continuous levels that meets the triangle budget.
+    def _budget_bias(self, continuous, seen):
+        """The bias on the ``seen`` triangles that meets the triangle budget, and ``levels_at(bias)`` -> their
+        continuous levels (len(seen),) under it.
 
-        The frame's triangles rise with the bias (every level rounds up or
-        stays), so a bisection over [-(L+1), L+1] finds it; it stops as soon as
-        the count is within ``budget_tolerance`` of the budget, and otherwise
-        keeps the closest count seen (a budget below the coarsest frame or
-        above the finest cannot be met: the nearest end is taken).
+        The bias is the level bias's own unit: levels, added to the continuous
+        levels; for ``change``, doublings of the threshold (:func:`criteria.change_level`). The frame's
+        triangles rise with it (every level rounds up or stays), so a
+        bisection finds it, over the biases that take every seen triangle
+        from level 0 to level L; it stops as soon as the count is within
+        ``budget_tolerance`` of the budget, and otherwise keeps the closest
+        count seen (a budget below the coarsest frame or above the finest
+        cannot be met: the nearest end is taken).
         """
         cfg, L = self.config, self.max_level
         budget = cfg.budget_triangles
         trial = np.zeros(len(continuous), dtype=np.int64)
+        if cfg.mode in criteria.CHANGE_MODES:
+            visibility = self._visibility + cfg.level_bias
+            finite = visibility[:, :L][visibility[:, :L] > criteria.VISIBILITY_FLOOR]
+            lo, hi = ((-float(finite.max()) - 1.0, 1.0 - float(finite.min())) if finite.size else (-1.0, 1.0))
+
+            def levels_at(bias):
+                return criteria.crossing_level(visibility + bias)
+        else:
+            base = continuous[seen]
+            lo, hi = ((-(float(base.max()) + 1.0), L + 1.0 - float(base.min())) if len(seen) else (-1.0, 1.0))
+
+            def levels_at(bias):
+                return base + bias
 
         def count(bias):
-            trial[seen] = pc.round_level(continuous[seen] + bias, self.rounding, L)
+            trial[seen] = pc.round_level(levels_at(bias), self.rounding, L)
             return self.triangle_count(np.clip(trial, 0, L))
 
-        lo, hi = -(L + 1.0), L + 1.0
+        if len(seen) == 0:
+            return 0.0, levels_at
         best = (math.inf, 0.0)
         for _ in range(40):                      # loop over bisection steps (each a vectorized count)
             mid = 0.5 * (lo + hi)
@@ -349,7 +414,7 @@ class LevelSelector:
             if miss <= cfg.budget_tolerance:
                 break
             lo, hi = (mid, hi) if n < budget else (lo, mid)
-        return best[1]
+        return best[1], levels_at
 
     def _eager(self, view: ConditionedView, ecc):
         """(n,) bool for the hysteresis: triangles within ``hysteresis_eager_deg`` of a moving POI; None if still."""
@@ -378,11 +443,36 @@ class LevelSelector:
         # what the eye can see of it: a large base triangle reaching into the
         # fovea must be refined there.
         ecc = criteria.piece_eccentricity_deg(shifted, reach_deg)
+        change = {}
+        if self.config.mode in criteria.CHANGE_MODES or self.config.csf == "cortical":
+            change["nyquist_cpd"] = display_nyquist_cpd(self.px_per_mm, abs(float(
+                np.dot(self.screen.normal, eye - np.asarray(self.screen.top_left, dtype=np.float64)))))
+        if self.config.mode in criteria.CHANGE_MODES:
+            cfg = self.config
+            # The per-level visibility is kept: a budget moves its threshold (_budget_bias).
+            self._visibility = criteria.change_visibility_levels(
+                self.change_contrast[seen], angular_deg, self.error_mm[seen], distance,
+                self._displacement_contrast(seen, directions, reach_deg), speed, ecc, csf_model=cfg.csf,
+                cortical_exponent=cfg.cortical_exponent, nyquist_cpd=change["nyquist_cpd"],
+                threshold=cfg.change_threshold)
+            return ecc, criteria.crossing_level(self._visibility + cfg.level_bias)
         continuous = criteria.continuous_level(
             self.config, self.max_level, ecc_deg=ecc, angular_deg=angular_deg, distance_mm=distance,
             speed_deg_s=speed, contrast=self.contrast[seen], edge_len_mm=self.edge_len_mm[seen],
-            error_mm=self.error_mm[seen], px_per_mm=self.px_per_mm, foveal_cpd=self._foveal_fmax(seen, speed))
+            error_mm=self.error_mm[seen], px_per_mm=self.px_per_mm, foveal_cpd=self._foveal_fmax(seen, speed),
+            **change)
         return ecc, continuous
+
+    def _displacement_contrast(self, seen, directions, reach_deg):
+        """(S,) the contrast a displacement of each triangle ``seen`` is seen against: at a silhouette (some
+        normal in its cone is perpendicular to some ray from the eye to it) ``silhouette_contrast``, if
+        larger; elsewhere its own shading contrast. ``directions`` (S, 3) unit, eye to centroid;
+        ``reach_deg`` (S,) how far the rays to its corners stray from that."""
+        to_eye = -directions
+        angle = criteria.angle_between_deg(self.normal_axis_world[seen], to_eye)
+        silhouette = np.abs(angle - 90.0) <= self.normal_cone_deg[seen] + reach_deg
+        own = self.contrast[seen]
+        return np.where(silhouette, np.maximum(own, self.config.silhouette_contrast), own)
 
     def _foveal_fmax(self, seen, speed):
         """``kelly_scaled``'s foveal f_max (S,) cpd of the triangles ``seen`` at ``speed``, or None for other modes.
@@ -392,12 +482,12 @@ class LevelSelector:
         (speed at its floor) it is reused from the last frame.
         """
         cfg = self.config
-        if cfg.mode != "csf" or cfg.csf_model != "kelly_scaled":
+        if cfg.mode != "csf" or cfg.csf != "kelly_scaled":
             return None
         cache = self._foveal_cache
         if (cache is None or cache[0] is not self.contrast or not np.array_equal(cache[1], seen)
                 or not np.array_equal(cache[2], speed)):
-            fmax0 = criteria.foveal_fmax_cpd(self.contrast[seen], speed, cfg.csf_model)
+            fmax0 = criteria.foveal_fmax_cpd(self.contrast[seen], speed, cfg.csf)
             self._foveal_cache = cache = (self.contrast, seen, speed, fmax0)
         return cache[3]
 

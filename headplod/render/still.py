@@ -116,7 +116,8 @@ class TerrainScene:
         config = dataclasses.replace(config, mode=mode, uncertainty=uncertainty, **settings)
         m = self.mesh
         return LevelSelector(m.centroids, m.edge_length, m.geometric_error, m.contrast, self.model, self.screen,
-                             config, corners_scene=m.corners, triangle_count=m.triangle_count)
+                             config, corners_scene=m.corners, triangle_count=m.triangle_count,
+                             change=(m.change_contrast, m.normal_axis, m.normal_cone_deg))
 
 
 def scene_model(extent, centre_z_m: float, screen, fit: float = 1.0) -> np.ndarray:

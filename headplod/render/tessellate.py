@@ -310,9 +310,9 @@ class TessellationRenderer:
             raise TypeError(f"TessellationRenderer: config must be a TessellationConfig, got {type(config).__name__}")
         if not isinstance(selection, SelectorConfig):
             raise TypeError(f"TessellationRenderer: selection must be a SelectorConfig, got {type(selection).__name__}")
-        if selection.mode not in TESS_MODES or selection.csf_model != "kelly_scaled":
+        if selection.mode not in TESS_MODES or selection.csf != "kelly_scaled":
             raise ValueError(f"TessellationRenderer: the GPU evaluates csf with the kelly_scaled CSF (or full); "
-                             f"got mode={selection.mode!r}, csf_model={selection.csf_model!r}")
+                             f"got mode={selection.mode!r}, csf_model={selection.csf!r}")
         if ctx.version_code < REQUIRED_GL:
             raise RuntimeError(f"TessellationRenderer: needs OpenGL {REQUIRED_GL // 100}.{REQUIRED_GL % 100 // 10}, "
                                f"the context has {ctx.version_code}")
