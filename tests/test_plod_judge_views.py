@@ -89,6 +89,15 @@ def test_curve_ends_count_within_the_budget_slack_and_no_further():
     assert pv.compare_curves({"csf": _curve([(1e5, 9.0)])}, "csf") is None        # nothing geometric to compare
 
 
+def test_foveation_goal_needs_the_default_to_drop_and_more_than_sse():
+    assert pv.foveation_goal({"csf": {"drop": 0.2}, "sse": {"drop": 0.01}}, "csf") is True
+    assert pv.foveation_goal({"csf": {"drop": 0.2}, "sse": {"drop": 0.3}}, "csf") is False
+    # Both rise when the fixation moves away: the default's JOD is not lowered, whatever sse does.
+    assert pv.foveation_goal({"csf": {"drop": -0.08}, "sse": {"drop": -0.14}}, "csf") is False
+    assert pv.foveation_goal({"csf": {"drop": 0.2}}, "csf") is None
+    assert pv.foveation_goal({"sse": {"drop": 0.2}}, "sse") is None
+
+
 def test_default_modes_put_the_configured_default_first_once():
     from headplod.plod.select import SelectorConfig
 
@@ -221,7 +230,7 @@ def test_table_and_charts_of_a_synthetic_report(tmp_path):
     text = pv.views_table(report)
     assert "default (full: 2,097,152 triangles" in text and "plains" in text
     assert "100k +0.200 (sse)" in text and "200k -0.100 (sse)" in text and "[NOT MET] margin" in text
-    assert "csf drops +0.300" in text and "[met] the default drops more than sse" in text
+    assert "csf drops +0.300" in text and "[met] the default drops, and more than sse" in text
     assert "saccade 5° at frame 20" in text and "csf 9.400" in text
     paths = pv.views_charts(report, tmp_path)
     assert [p.name for p in paths] == ["plod_jod_view_default.png", "plod_jod_view_plains.png"]

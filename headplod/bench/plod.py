@@ -316,7 +316,8 @@ def _judge(b: BenchScene, reference, biases, metrics, chart_path, quick: bool = 
     its charts ``plod_jod_view_<view>.png`` beside ``chart_path``)."""
     from . import plod_judge, plod_judge_views as views
 
-    jod = plod_judge.jod_report(b, reference, biases=biases, metrics=metrics, image_side=True, progress=_progress)
+    jod = plod_judge.jod_report(b, reference, biases=biases, metrics=metrics, image_side=True,
+                                timing_rounds=1 if quick else 3, progress=_progress)
     print(plod_judge.jod_table(jod))
     if chart_path:
         plod_judge.jod_chart(jod, Path(chart_path).parent / "plod_jod.png")

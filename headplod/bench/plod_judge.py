@@ -440,7 +440,10 @@ def _point_frame(bench, name: str, bias: float, opts: dict):
     if name == "raymask":
         step = bench.raymask_step(RayMaskConfig(contrast=opts["contrast"]))
     elif name == "csf+foveate":
-        step = bench.mesh_step("csf", level_bias=bias, foveate=True)
+        from ..render.foveate import FoveationConfig
+
+        # The layers' settings given (harness.mesh_step passes foveation=None on to the renderer otherwise).
+        step = bench.mesh_step("csf", level_bias=bias, foveate=True, foveation=FoveationConfig())
     else:
         step = bench.mesh_step(name.split("[")[0], level_bias=bias, **opts)
     try:
