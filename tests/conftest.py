@@ -215,3 +215,14 @@ def _screen_plane_field(u, v, contrast, max_level=5, edge0_mm=14.0):
     error[:, -1] = 0.0
     contrast = np.broadcast_to(np.asarray(contrast, np.float64), (len(centroids),)).copy()
     return screen, centroids, edge_len, error, contrast, default_head(screen), px
+
+
+def field_change_features(field):
+    """Mode change's features (headplod.plod.change) for a :func:`_screen_plane_field`: each level removes
+    half the contrast the level before did (none at the finest), normals facing the viewer (along the
+    screen's normal), a 10° cone. (change_contrast (n, L+1), normal_axis (n, 3), normal_cone_deg (n,))."""
+    screen, centroids, edge_len, error, contrast, eye, px = field
+    change = np.asarray(contrast)[:, None] * 0.5 ** np.arange(edge_len.shape[1])
+    change[:, -1] = 0.0
+    axis = np.broadcast_to(-np.asarray(screen.normal), centroids.shape).copy()
+    return change, axis, np.full(len(centroids), 10.0)

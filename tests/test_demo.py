@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
+from headplod.plod.select import SelectorConfig
 from headplod.demo import loop as lp
 from headplod.demo.viewpoints import VIEWPOINTS, place
 from headplod.demo.keys import DEMO_MODES, action_for_key
@@ -59,7 +60,8 @@ def test_headless_run_writes_frames_and_summary(tmp_path, terrain_scene, rendere
     on_disk = json.loads((folder / "summary.json").read_text())
     assert on_disk["size"] == [320, 180] and on_disk["frames_per_run"] == 4
     runs = {(r["mode"], r["uncertainty"]) for r in on_disk["runs"]}
-    assert runs == {("csf", "none"), ("csf", "adaptive"), ("full", "none")}
+    default = SelectorConfig().mode                              # the demo compares the default mode with full
+    assert runs == {(default, "none"), (default, "adaptive"), ("full", "none")}
     for r in on_disk["runs"]:
         assert r["frames"] == 4
         for key in ("fps", "frame_ms_median", "triangles_median", "saccade_skipped", "tracking_failures"):
@@ -171,7 +173,7 @@ def test_viewpoints_differ_and_render(terrain_scene, renderer, default_screen):
 
 
 def test_key_mapping_and_apply(terrain_scene, renderer, default_screen):
-    assert [action_for_key(str(k)) for k in range(1, 7)] == [("mode", m) for m in DEMO_MODES]
+    assert [action_for_key(str(k)) for k in range(1, len(DEMO_MODES) + 1)] == [("mode", m) for m in DEMO_MODES]
     assert action_for_key("N") == action_for_key("n") == ("uncertainty", "none")
     assert action_for_key("f") == ("uncertainty", "fixed")
     assert action_for_key("a") == ("uncertainty", "adaptive")
@@ -184,11 +186,11 @@ def test_key_mapping_and_apply(terrain_scene, renderer, default_screen):
     assert action_for_key("escape") == ("quit", None)
     assert action_for_key("x") is None and action_for_key("") is None
     loop = lp.DemoLoop(terrain_scene, lp.MousePoses(default_screen, path=[(960, 540)] * 3), renderer, hud=True)
-    assert loop.apply(action_for_key("6")) and loop.settings["mode"] == "full"
+    assert loop.apply(action_for_key(str(len(DEMO_MODES)))) and loop.settings["mode"] == "full"
     assert loop.apply(action_for_key("c")) and loop.settings["viewpoint"] == "mountains"
     assert loop.apply(action_for_key("l")) and loop.settings["view_mode"] == "levels"
     assert loop.apply(action_for_key("h")) and loop.hud is False
-    assert loop.apply(action_for_key("2")) and loop.settings["mode"] == "gp"
+    assert loop.apply(action_for_key("3")) and loop.settings["mode"] == "gp"
     assert loop.apply(action_for_key("x"))
     assert loop.apply(action_for_key("q")) is False
     result = loop.step()
@@ -206,7 +208,7 @@ def test_window_module_imports_without_moderngl_window():
         import headplod.demo.window as window
 
         window = importlib.reload(window)
-        assert window.action_for_key("1") == ("mode", "csf")
+        assert window.action_for_key("1") == ("mode", "change") and window.action_for_key("2") == ("mode", "csf")
         assert window.run_window(argparse.Namespace(size=(64, 64))) == 1
     finally:
         sys.modules.pop("moderngl_window", None)

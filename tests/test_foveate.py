@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from headplod.plod.csf import max_visible_freq_cpd
+from headplod.plod.select import SelectorConfig
 from headplod.render.foveate import FoveationConfig, layer_plan
 
 
@@ -298,9 +299,10 @@ def test_headless_demo_runs_the_mode_again_foveated(tmp_path, gl_context, terrai
     finally:
         renderer.release()
     runs = {(r["mode"], r["uncertainty"], r["foveate"]) for r in summary["runs"]}
-    assert runs == {("csf", "adaptive", False), ("csf", "adaptive", True), ("full", "none", False)}
+    default = SelectorConfig().mode                          # the demo compares the default mode with full
+    assert runs == {(default, "adaptive", False), (default, "adaptive", True), ("full", "none", False)}
     ratios = json.loads((tmp_path / "demo" / "summary.json").read_text())["fps_ratio_to_full"]
-    assert ratios["mountains foveate"]["mode"] == "csf --foveate" and ratios["mountains foveate"]["ratio"] > 0
+    assert ratios["mountains foveate"]["mode"] == f"{default} --foveate" and ratios["mountains foveate"]["ratio"] > 0
     picture = cv2.imread(summary["pictures"]["mountains foveate"])
     assert picture.shape == (180, 320, 3)
-    assert "csf+fov" in (tmp_path / "table.txt").read_text()
+    assert f"{default}+fov" in (tmp_path / "table.txt").read_text()

@@ -16,6 +16,7 @@ import pytest
 from headplod.plod.select import SelectorConfig
 from headplod.plod.view import UNCERTAINTY_MODES, View
 from headplod.render.frame import (BACKENDS, CAPABILITIES, FrameStep, MeshBackend, RayMaskBackend, capability_table,
+                                   default_mode,
                                    options_problem)
 
 SIZE = (320, 180)
@@ -71,7 +72,8 @@ def backends(gl_context, ctx430, terrain_scene):
 
 
 def _run(factory, screen, model, scenario, poses):
-    config = SelectorConfig(uncertainty=scenario)
+    # Each back end draws its own default mode (mesh: the project's default; the others: csf), as the commands do.
+    config = SelectorConfig(mode=default_mode(factory.__name__), uncertainty=scenario)
     step = FrameStep(factory(config), screen, config)
     return [step(v, model) for v in poses]
 

@@ -73,7 +73,7 @@ def _random_views(screen, grid, count, seed):
 
 
 def test_node_bound_equals_direct_evaluation(grid, default_screen):
-    tree = PatchTree(grid, split_factor=16, selection=SelectorConfig(level_bias=-0.5))
+    tree = PatchTree(grid, split_factor=16, selection=SelectorConfig(mode="csf", level_bias=-0.5))
     view, proj, model, head, axes, mvp = _view(default_screen, grid, poi_px=(700.0, 500.0))
     f = tree._frame(_cv(head, axes, COV), model, mvp)
     ids = np.random.default_rng(0).choice(tree.offset[tree.depth], 60, replace=False)
@@ -121,7 +121,7 @@ def test_tree_leaves_equal_flat_levels(grid, default_screen):
     """Where the tree refines to leaves (patches of P samples), their factors are the flat selection's."""
     view, proj, model, head, axes, mvp = _view(default_screen, grid, poi_px=(700.0, 500.0))
     for split_factor, bias in ((16, 0.0), (4, -2.0)):
-        tree = PatchTree(grid, split_factor=split_factor, selection=SelectorConfig(level_bias=bias))
+        tree = PatchTree(grid, split_factor=split_factor, selection=SelectorConfig(mode="csf", level_bias=bias))
         sel = tree.select(_cv(head, axes, COV), model, mvp=mvp)
         inner, outer = patch_levels(grid, model, head, axes, COV, level_bias=bias)
         top = tree.leaf_max_level
@@ -157,7 +157,7 @@ def test_nodes_are_conservative_on_random_views(grid, default_screen):
     p = grid.patch_samples
     mixed = 0
     for (view, proj, model, head, axes, mvp), cov, bias in _random_views(default_screen, grid, 12, seed=7):
-        tree = PatchTree(grid, split_factor=8, selection=SelectorConfig(level_bias=bias))
+        tree = PatchTree(grid, split_factor=8, selection=SelectorConfig(mode="csf", level_bias=bias))
         sel = tree.select(_cv(head, axes, cov), model, mvp=mvp)
         assert sel.capped == 0
         inner, outer = patch_levels(grid, model, head, axes, cov, level_bias=bias)
@@ -186,7 +186,7 @@ def test_nodes_are_conservative_on_random_views(grid, default_screen):
 
 def test_nodes_tile_the_grid_balanced(grid, default_screen):
     for (view, proj, model, head, axes, mvp), cov, bias in _random_views(default_screen, grid, 6, seed=3):
-        tree = PatchTree(grid, split_factor=4, selection=SelectorConfig(level_bias=bias - 1.0))
+        tree = PatchTree(grid, split_factor=4, selection=SelectorConfig(mode="csf", level_bias=bias - 1.0))
         sel = tree.select(_cv(head, axes, cov), model, mvp=None)                          # nothing culled
         depth = _depth_map(tree, sel)
         assert (depth >= 0).all()                                                          # tiled, no overlap
@@ -205,7 +205,7 @@ def test_rejects_bad_grids_and_settings(grid):
     with pytest.raises(ValueError, match="max_tess_level"):
         PatchTree(grid, max_tess_level=48)
     with pytest.raises(ValueError, match="kelly_scaled"):
-        PatchTree(grid, selection=SelectorConfig(csf_model="kelly"))
+        PatchTree(grid, selection=SelectorConfig(mode="csf", csf_model="kelly"))
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -234,7 +234,8 @@ def test_hierarchy_is_watertight_across_sizes(ctx430, grid, default_screen, spli
 
     cfg = TessellationConfig(patch_samples=16, cull=False, hierarchy=True, split_factor=split_factor)
     view, proj, model, head, axes, _ = _view(default_screen, grid, poi_px=poi)
-    with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg, selection=SelectorConfig(level_bias=bias)) as r:
+    with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg,
+                              selection=SelectorConfig(mode="csf", level_bias=bias)) as r:
         tri = r.triangle_samples(view, proj, model, _cv(head, axes, COV))
         sel = r.last_selection
     assert len(np.unique(sel.size)) >= 3                          # nodes of three sizes or more meet
@@ -284,7 +285,7 @@ def test_moving_eye_nodes_stay_conservative(grid, default_screen):
 
     view, proj, model, head, axes, mvp = _view(default_screen, grid, poi_px=(500.0, 400.0))
     prev, dt = head + np.array([8.0, -3.0, 5.0]), 1 / 60
-    tree = PatchTree(grid, split_factor=8, selection=SelectorConfig(level_bias=-1.0))
+    tree = PatchTree(grid, split_factor=8, selection=SelectorConfig(mode="csf", level_bias=-1.0))
     tree.select(_cv(prev, axes, COV, t=0.0), model, mvp=mvp)           # the last frame: the eye at prev
     sel = tree.select(_cv(head, axes, COV, t=dt), model, mvp=mvp)
     tree.reset()

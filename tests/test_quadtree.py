@@ -9,7 +9,7 @@ from headplod.plod.criteria import sup_max_visible_freq_cpd
 from headplod.plod.select import LevelSelector, SelectorConfig, View
 
 
-def _pair(mesh, model, screen, config=SelectorConfig(), grid_shape=(32, 32)):
+def _pair(mesh, model, screen, config=SelectorConfig(mode="csf"), grid_shape=(32, 32)):
     args = (mesh["centroids"], mesh["edge_length"], mesh["geometric_error"], mesh["contrast"], model, screen, config)
     return (LevelSelector(*args, corners_scene=mesh["corners"]),
             QuadtreeSelector(*args, corners_scene=mesh["corners"], grid_shape=grid_shape))
@@ -70,7 +70,7 @@ def test_the_scene_gives_a_quadtree_selector_on_request(terrain_scene):
                                       {"csf_model": "kelly"}, {"shift": "eq1"}, {"level_bias": -1.0},
                                       {"uncertainty": "fixed"}])
 def test_quadtree_equals_flat_in_other_settings(terrain_scene, builtin, settings):
-    config = dataclasses.replace(SelectorConfig(), **settings)
+    config = dataclasses.replace(SelectorConfig(mode="csf"), **settings)
     flat, tree = _pair(builtin, terrain_scene.model, terrain_scene.screen, config)
     for view in _views(terrain_scene.screen, POIS["centre"], ((0.3, 0), (0, 0.2)), 8, seed=3, moving=True):
         np.testing.assert_array_equal(flat.select(view)[0], tree.select(view)[0])

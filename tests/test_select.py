@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from conftest import field_change_features
 from headplod.plod.select import MODES, LevelSelector, SelectorConfig, View
 from headplod.plod.view import head_axes
 
@@ -17,7 +18,8 @@ def field(screen_plane_field):
 def make(field, mode="csf", uncertainty="adaptive", hysteresis=True):
     screen, centroids, edge_len, error, contrast, eye, px = field
     return LevelSelector(centroids, edge_len, error, contrast, np.eye(4), screen,
-                         SelectorConfig(mode=mode, uncertainty=uncertainty, hysteresis=hysteresis))
+                         SelectorConfig(mode=mode, uncertainty=uncertainty, hysteresis=hysteresis),
+                         change=field_change_features(field))
 
 
 def test_levels_follow_the_poi(field):

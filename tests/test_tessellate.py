@@ -107,7 +107,7 @@ def test_shader_csf_equals_perception(ctx430, grid, default_screen, cov_deg2, sh
     cfg = TessellationConfig(patch_samples=PATCH, csf_stage=stage)
     view, proj, model, head, axes = _view(default_screen, grid, poi_px=(700.0, 500.0))
     with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg,
-                              selection=SelectorConfig(shift=shift, level_bias=bias)) as r:
+                              selection=SelectorConfig(mode="csf", shift=shift, level_bias=bias)) as r:
         inner, outer, culled = r.levels(view, proj, model, _cv(head, axes, cov_deg2))
     ref_inner, ref_outer = patch_levels(grid, model, head, axes, cov_deg2, shift=shift, level_bias=bias)
     assert np.isfinite(ref_inner).all()
@@ -446,7 +446,7 @@ def test_uncertainty_none_ignores_the_covariance(ctx430, grid, default_screen):
         model = grid_model(grid, default_screen)
         plain = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=None)
         none = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=wide,
-                         config=SelectorConfig(uncertainty="none"))
+                         config=SelectorConfig(mode="csf", uncertainty="none"))
         used = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=wide)
     assert np.array_equal(plain.image, none.image) and plain.triangles == none.triangles
     assert used.triangles > none.triangles
@@ -505,7 +505,7 @@ def test_levels_pass_equals_criteria_on_a_grid(ctx430, grid, default_screen, mov
     model[:3, 3] = centre + scale * (model[:3, 3] - centre)
     prev = head + (np.array([2.0, -1.0, 0.0]) if moving else 0.0)
     with TessellationRenderer(ctx430, g, size=(64, 36), config=TessellationConfig(patch_samples=PATCH, cull=False),
-                              selection=SelectorConfig(shift=shift, level_bias=0.3)) as r:
+                              selection=SelectorConfig(mode="csf", shift=shift, level_bias=0.3)) as r:
         r.levels(view, proj, model, _cv(prev, axes, cov_deg2, t=0.0))             # the last frame's eye
         inner, outer, _ = r.levels(view, proj, model, _cv(head, axes, cov_deg2, t=1 / 60))
     corners, neighbours = g.corners_scene(), g.neighbour_contrast()

@@ -29,7 +29,7 @@ import numpy as np
 #: The metrics this module can call, by the name of the PyPI package: "fvvdp" is the foveated one.
 METRICS = ("fvvdp", "cvvdp")
 #: The criteria whose levels come from a contrast-sensitivity function.
-CSF_BASED = ("csf", "gp", "acuity")
+CSF_BASED = ("change", "csf", "gp", "acuity")
 #: The criteria whose levels come from geometry alone (screen-space error, velocity, distance).
 GEOMETRIC = ("sse", "ipv", "dpv", "distance")
 #: The image-side CSF techniques judged beside the modes: Murphy & Duchowski's ray mask (its knob: the
@@ -354,7 +354,7 @@ def judge_entries(modes=None, forms=None) -> list[tuple[str, dict]]:
     from ..plod.csf import CSF_MODELS
     from ..plod.select import MODES, SelectorConfig
 
-    default_form = SelectorConfig().csf_model
+    default_form = SelectorConfig(mode="csf").csf          # csf's own form is the curve "csf" itself
     modes = [m for m in MODES if m != "full"] if modes is None else list(modes)
     forms = [f for f in CSF_MODELS if f != default_form] if forms is None else list(forms)
     for m in modes:

@@ -99,7 +99,7 @@ def _measure_grid(terrain, n: int, level: int, model, screen, views) -> tuple[di
     """Both selections on the n x n grid at ``level``, each through its own frame step; (row, last levels)."""
     t0 = time.perf_counter()
     g = grid_inputs(terrain, n, n, level)
-    args = (g["centroids"], g["edge_length"], g["geometric_error"], g["contrast"], model, screen, SelectorConfig())
+    args = (g["centroids"], g["edge_length"], g["geometric_error"], g["contrast"], model, screen, SelectorConfig(mode="csf"))
     tree = QuadtreeSelector(*args, corners_scene=g["corners"], grid_shape=g["grid_shape"])
     steps = {"flat": FrameStep(SelectionOnlyBackend(LevelSelector(*args, corners_scene=g["corners"]), screen),
                                screen, tree.config),

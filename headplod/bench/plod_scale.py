@@ -243,7 +243,7 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     extra, tess = {}, None
     if backend == "tessellation":
         tess = TessellationRenderer(ctx, grid, size=size, config=config,
-                                    selection=SelectorConfig(level_bias=level_bias))
+                                    selection=SelectorConfig(mode="csf", level_bias=level_bias))
         extra["setup_s"] = time.perf_counter() - t_start
         steady, image = _tessellation_frames(tess, screen, model, frames, extra)
     else:

@@ -142,7 +142,7 @@ class QuadtreeSelector(LevelSelector):
     """
 
     def __init__(self, centroids_scene, edge_len_scene, geometric_error_scene, contrast, model, screen,
-                 config: SelectorConfig = SelectorConfig(), *, corners_scene, grid_shape):
+                 config: SelectorConfig = SelectorConfig(mode="csf"), *, corners_scene, grid_shape):
         if not isinstance(config, SelectorConfig):
             raise TypeError(f"QuadtreeSelector: config must be a SelectorConfig, got {type(config).__name__}")
         if config.mode not in HIERARCHY_MODES:

@@ -44,7 +44,7 @@ from ..progress import Progress
 from ..render import TerrainRenderer, create_context
 from ..plod.select import MODES
 from ..render.command import add_cost_arguments, selection_options
-from ..render.frame import capability_table, options_problem
+from ..render.frame import capability_table, default_mode, options_problem
 from ..render.still import FULL_MAX_LEVEL, add_mesh_arguments, mesh_options, mesh_options_problem, mesh_stats
 from . import loop as lp
 from .keys import key_help
@@ -111,8 +111,9 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     view.add_argument("--backend", default="mesh", choices=lp.DEMO_BACKENDS,
                       help="what draws the frames (default mesh; raymask: Murphy & Duchowski's rays, no levels); "
                            "what each supports is in the table below")
-    view.add_argument("--mode", default="csf", choices=MODES,
-                      help="LOD criterion (window: the initial one; headless: the one compared with full)")
+    view.add_argument("--mode", choices=MODES,
+                      help="LOD criterion (window: the initial one; headless: the one compared with full; "
+                           f"default: the back end's, mesh: {default_mode('mesh')}, raymask: csf)")
     add_cost_arguments(view)
     view.add_argument("--uncertainty", default="adaptive", choices=lp.SCENARIOS,
                       help="uncertainty scenario (window: initial; default adaptive)")
@@ -168,6 +169,15 @@ def _interleaved(demos, frames: int):
         turn += 1
 
 
+def resolve_mode(args) -> str:
+    """Give ``args.mode`` its default (the back end's own, :func:`headplod.render.frame.default_mode`) when it is
+    None; the back end's name."""
+    backend = getattr(args, "backend", "mesh")
+    if getattr(args, "mode", None) is None:
+        args.mode = default_mode(backend)
+    return backend
+
+
 def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None) -> dict:
     """The headless benchmark run; returns the summary (also written to ``args.out``).
 
@@ -175,6 +185,7 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
     ``args.size``) may be passed in to reuse them (tests); they are made here
     otherwise.
     """
+    resolve_mode(args)
     start = time.perf_counter()
     folder = Path(args.out)
     (folder / "frames").mkdir(parents=True, exist_ok=True)
@@ -403,7 +414,7 @@ def run_demo(args) -> int:
     if args.frames < 1:
         print("headplod demo: --frames must be at least 1", file=sys.stderr)
         return 2
-    backend = getattr(args, "backend", "mesh")
+    backend = resolve_mode(args)
     problem = options_problem(backend, mode=args.mode, uncertainty=args.uncertainty, view_mode=args.view,
                               foveate=args.foveate, level_bias=getattr(args, "level_bias", 0.0) != 0.0,
                               budget=getattr(args, "budget", None) is not None)

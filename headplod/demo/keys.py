@@ -7,8 +7,8 @@ from __future__ import annotations
 
 __all__ = ["DEMO_MODES", "KEYMAP", "action_for_key", "key_help"]
 
-#: Criteria the demo switches between (keys 1-6).
-DEMO_MODES = ("csf", "gp", "acuity", "sse", "distance", "full")
+#: Criteria the demo switches between (keys 1-7; 1 the default criterion).
+DEMO_MODES = ("change", "csf", "gp", "acuity", "sse", "distance", "full")
 
 #: Key → action. Keys are single characters (digits, lower-case letters) or "escape".
 KEYMAP = {
@@ -38,7 +38,7 @@ def action_for_key(name: str):
     Returns
     -------
     tuple (setting, value) or None
-        ``("mode", "csf")`` … ``("mode", "full")`` for 1-6,
+        ``("mode", "csf")`` … ``("mode", "full")`` for 1-7,
         ``("uncertainty", ...)`` for N/F/A/S, ``("view_mode", ...)`` for
         V (shaded), W (wire), L (levels), ``("hud", "toggle")`` for H,
         ``("viewpoint", "next")`` for C, ``("quit", None)`` for Esc and Q;
@@ -56,7 +56,7 @@ def _key_label(key: str) -> str:
 
 
 def _keys_label(keys: list[str]) -> str:
-    """``1-6`` for a run of consecutive digits, else the keys joined by ``/`` (``N/F/A/S``, ``Esc/Q``)."""
+    """``1-7`` for a run of consecutive digits, else the keys joined by ``/`` (``N/F/A/S``, ``Esc/Q``)."""
     if len(keys) > 2 and all(k.isdigit() for k in keys) and \
             [int(k) for k in keys] == list(range(int(keys[0]), int(keys[0]) + len(keys))):
         return f"{keys[0]}-{keys[-1]}"
@@ -70,7 +70,7 @@ def key_help(values=("mode",), sep: str = "  ") -> str:
     ----------
     values : iterable of str
         Settings whose values are listed after their keys, in brackets
-        (``1-6 criterion (csf gp acuity sse distance full)``).
+        (``1-7 criterion (change csf gp acuity sse distance full)``).
     sep : str
         Between the groups.
     """

@@ -16,6 +16,7 @@ import sys
 import numpy as np
 
 from ..render.command import selection_options
+from ..render.frame import default_mode
 from ..render import TerrainRenderer
 from ..render.gl import FULLSCREEN_VERTEX_SHADER
 from ..render.still import mesh_options
@@ -71,7 +72,8 @@ def make_window_class():
             print("building the terrain mesh ...", file=sys.stderr)
             scene = mesh_options(args).build(self.poses.screen, getattr(args, "terrain_loaded", None))
             size = tuple(args.size)
-            self.loop = DemoLoop(scene, self.poses, TerrainRenderer(self.ctx, size=size), mode=args.mode,
+            mode = args.mode or default_mode(getattr(args, "backend", "mesh"))
+            self.loop = DemoLoop(scene, self.poses, TerrainRenderer(self.ctx, size=size), mode=mode,
                                  uncertainty=args.uncertainty, viewpoint=args.viewpoint, view_mode=args.view,
                                  saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth,
                                  foveate=getattr(args, "foveate", False), backend=getattr(args, "backend", "mesh"),

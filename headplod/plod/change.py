@@ -62,8 +62,9 @@ def level_change_contrast(fine_xyz, fine_normals, interpolation, level_rows, lev
     height_range : (2,)
         Heights of the low and high colour, scene units (the renderers' ``height_range``).
 
-    The contrast is the largest change of displayed luminance over the face's lattice, divided by the
-    face's mean luminance at the finest level (the amplitude of a modulation over its mean).
+    The contrast is the RMS change of displayed luminance over the face's lattice times √2 (the amplitude
+    of a sinusoid of that RMS), divided by the face's mean luminance at the finest level (the amplitude of
+    a modulation over its mean).
     """
     fine_xyz = np.asarray(fine_xyz, dtype=np.float64)
     F, P = fine_xyz.shape[:2]
@@ -82,18 +83,11 @@ def level_change_contrast(fine_xyz, fine_normals, interpolation, level_rows, lev
             colour[:, rows] = drawn_colour(pts[..., 2], nrm, height_range, light_dir, ambient)
             # W (P, P) applied to every face and channel at once: (P, n*3).
             drawn = (W @ colour.transpose(1, 0, 2).reshape(P, -1)).reshape(P, n, 3).transpose(1, 0, 2)
-            out[a:a + n, level] = _pool(np.abs(display_luminance(drawn) - fine_y)) / mean
+            # Pooled as energy (the amplitude of the sinusoid of the same RMS): one bad point does not
+            # make a face's change visible, as it does not for a visual-difference metric (a peak did worse
+            # with the judge: docs/plod-criteria.md).
+            out[a:a + n, level] = np.sqrt(2.0 * ((display_luminance(drawn) - fine_y) ** 2).mean(axis=1)) / mean
     return out
-
-
-def _pool(diff):
-    import os
-    how = os.environ.get("HP_POOL", "max")
-    if how == "max":
-        return diff.max(axis=1)
-    if how == "rms":
-        return np.sqrt(2 * (diff ** 2).mean(axis=1))
-    return np.percentile(diff, float(how), axis=1)
 
 
 def normal_cone(normals) -> tuple[np.ndarray, np.ndarray]:

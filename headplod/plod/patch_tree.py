@@ -245,7 +245,7 @@ class PatchTree:
     """
 
     def __init__(self, grid: PatchGrid, split_factor: int = 16, max_tess_level: int = 64, batch_depths: int = 2,
-                 factors: str = "whole", *, selection: SelectorConfig = SelectorConfig(), cull: bool = True):
+                 factors: str = "whole", *, selection: SelectorConfig = SelectorConfig(mode="csf"), cull: bool = True):
         self._check(grid, split_factor, max_tess_level, batch_depths, factors, selection)
         self.factors, self.selection, self.cull = factors, selection, bool(cull)
         self.grid, self.split_factor, self.max_tess_level = grid, int(split_factor), int(max_tess_level)

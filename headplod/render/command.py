@@ -27,7 +27,7 @@ from ..argtypes import floats, level_bias, triangle_budget
 from ..plod.raymask import RayMaskConfig
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..plod.select import MODES, UNCERTAINTY_MODES, SelectorConfig
-from .frame import BACKENDS, VIEW_MODES, capability_table, options_problem
+from .frame import BACKENDS, VIEW_MODES, capability_table, default_mode, options_problem
 from .still import (CONTRAST_SOURCES, MeshOptions, add_mesh_arguments, mesh_options, mesh_options_problem,
                     render_still, scene_model)
 
@@ -38,7 +38,8 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     """Add ``render``'s options to a (sub)parser; returns it."""
     render.add_argument("--backend", choices=BACKENDS, default="mesh",
                         help="what draws the frame (default mesh); what each supports is in the table below")
-    render.add_argument("--mode", default="csf", choices=MODES, help="level-selection mode (default csf)")
+    render.add_argument("--mode", choices=MODES, help="level-selection mode (default: the back end's; mesh: "
+                                                       f"{default_mode('mesh')}, tessellation and raymask: csf)")
     render.add_argument("--uncertainty", default="adaptive", choices=UNCERTAINTY_MODES)
     add_cost_arguments(render)
     render.add_argument("--head", type=floats(3), help="eye position X,Y,Z in the world frame, mm "
@@ -129,6 +130,7 @@ def run_render(args) -> int:
         except ValueError as exc:
             print(f"headplod: --export {exc}", file=sys.stderr)
             return 2
+    args.mode = args.mode or default_mode(args.backend)
     problem = options_problem(args.backend, mode=args.mode, uncertainty=args.uncertainty, view_mode=args.view,
                               foveate=args.foveate, contrast=args.contrast, export=args.export is not None,
                               terrain=args.terrain is not None, level_bias=args.level_bias != 0.0,

@@ -78,6 +78,9 @@ class BackendCapabilities:
         Meets a triangle budget per frame (``--budget``).
     finest_level : str
         What sets its finest detail.
+    default_mode : str
+        The mode it draws when none is asked for: the project's default criterion
+        (:class:`headplod.plod.select.SelectorConfig`) where it takes it, else ``csf``.
     """
 
     name: str
@@ -93,6 +96,7 @@ class BackendCapabilities:
     level_bias: bool
     budget: bool
     finest_level: str
+    default_mode: str = "csf"
 
 
 CAPABILITIES = {
@@ -100,7 +104,7 @@ CAPABILITIES = {
         "mesh", "a level per base triangle over an adaptive mesh, drawn indexed", MODES, UNCERTAINTY_MODES,
         VIEW_MODES, foveate=True, own_terrain=True, hysteresis=True, contrast_sources=("shading", "readback"),
         export=True, level_bias=True, budget=True,
-        finest_level="--max-level 1..8 (above 5: lazy pieces; full up to 7)"),
+        finest_level="--max-level 1..8 (above 5: lazy pieces; full up to 7)", default_mode=SelectorConfig().mode),
     "tessellation": BackendCapabilities(
         "tessellation", "the CSF per patch on the GPU, tessellated from a height texture", ("csf", "full"),
         UNCERTAINTY_MODES, ("shaded",), foveate=False, own_terrain=True, hysteresis=False,
@@ -114,6 +118,12 @@ CAPABILITIES = {
 }
 #: The back ends, in the order the tools list them.
 BACKENDS = tuple(CAPABILITIES)
+
+
+def default_mode(backend: str) -> str:
+    """The mode ``backend`` draws when no ``--mode`` is given (:attr:`BackendCapabilities.default_mode`;
+    the mesh back end's for an unknown name, which :func:`options_problem` then refuses)."""
+    return CAPABILITIES.get(backend, CAPABILITIES["mesh"]).default_mode
 
 
 def options_problem(backend: str, *, mode: str = "csf", uncertainty: str = "adaptive", view_mode: str = "shaded",

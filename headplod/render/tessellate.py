@@ -264,7 +264,7 @@ class TessellationRenderer:
     """
 
     def __init__(self, ctx, grid: PatchGrid, size=(1280, 720), config: TessellationConfig = TessellationConfig(),
-                 background=(0.62, 0.72, 0.82), *, selection: SelectorConfig = SelectorConfig()):
+                 background=(0.62, 0.72, 0.82), *, selection: SelectorConfig = SelectorConfig(mode="csf")):
         w, h = self._check(ctx, grid, size, config, selection)
         self.ctx, self.grid, self.config, self.size, self.selection = ctx, grid, config, (w, h), selection
         self.background = tuple(float(c) for c in background)
