@@ -26,6 +26,18 @@ def test_every_mode_meets_the_budget_within_its_tolerance(terrain_scene, mode, b
     assert abs(triangles - budget) <= 0.03 * budget, (mode, triangles, info["budget_bias"])
 
 
+@pytest.mark.parametrize("mode", ["sse", "dpv", "change"])
+@pytest.mark.parametrize("viewpoint", ["mountains", "plains"])
+def test_the_budget_is_met_where_many_triangles_cross_a_level_together(terrain_scene, viewpoint, mode):
+    """On these views the geometric modes' levels come in ties (even ground, equal errors): no bias alone meets
+    a 200k budget (it gave 257-287k); the ties nearest the POI take the finer level, as many as meet it."""
+    from headplod.demo.viewpoints import place
+
+    scene = place(terrain_scene, viewpoint)
+    triangles, _ = _frame(scene, mode, budget_triangles=200_000, hysteresis=False)
+    assert abs(triangles - 200_000) <= 0.03 * 200_000, (viewpoint, mode, triangles)
+
+
 def test_a_larger_budget_takes_a_larger_bias_and_more_triangles(terrain_scene):
     runs = [_frame(terrain_scene, "csf", budget_triangles=b, hysteresis=False) for b in (50_000, 150_000, 400_000)]
     biases = [info["budget_bias"] for _, info in runs]

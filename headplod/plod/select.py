@@ -363,8 +363,7 @@ class LevelSelector:
                                                       speed[seen])
         budget_bias = 0.0
         if cfg.budget_triangles is not None:
-            budget_bias, levels_at = self._budget_bias(continuous, seen)
-            continuous[seen] = levels_at(budget_bias)
+            budget_bias, continuous[seen] = self._budget_bias(continuous, seen, ecc[seen])
         if self.hysteresis is not None:
             levels = self.hysteresis.update(continuous, self.max_level, eager=self._eager(view, ecc))
         else:
@@ -373,9 +372,9 @@ class LevelSelector:
         return levels, {"eccentricity_deg": ecc, "speed_deg_s": speed, "distance_mm": distance,
                         "continuous": continuous, "poi_px": view.poi_px, "cov_deg2": cov, "budget_bias": budget_bias}
 
-    def _budget_bias(self, continuous, seen):
-        """The bias on the ``seen`` triangles that meets the triangle budget, and ``levels_at(bias)`` -> their
-        continuous levels (len(seen),) under it.
+    def _budget_bias(self, continuous, seen, ecc_seen):
+        """The bias on the ``seen`` triangles that meets the triangle budget, and their continuous levels
+        (len(seen),) under it.
 
         The bias is the level bias's own unit: levels, added to the continuous
         levels; for ``change``, doublings of the threshold (:func:`criteria.change_level`). The frame's
@@ -385,6 +384,12 @@ class LevelSelector:
         ``budget_tolerance`` of the budget, and otherwise keeps the closest
         count seen (a budget below the coarsest frame or above the finest
         cannot be met: the nearest end is taken).
+
+        Where many triangles cross a level at the same bias (the geometric
+        modes on even ground: equal errors at equal distances), no bias meets
+        the budget; then, of the triangles between the two closest biases,
+        those nearest the POI (``ecc_seen`` (len(seen),) deg) take the finer
+        level, as many as meet it (a bisection over how many).
         """
         cfg, L = self.config, self.max_level
         budget = cfg.budget_triangles
@@ -403,22 +408,45 @@ class LevelSelector:
             def levels_at(bias):
                 return base + bias
 
-        def count(bias):
-            trial[seen] = pc.round_level(levels_at(bias), self.rounding, L)
+        def count_levels(cont):
+            trial[seen] = pc.round_level(cont, self.rounding, L)
             return self.triangle_count(np.clip(trial, 0, L))
 
         if len(seen) == 0:
-            return 0.0, levels_at
+            return 0.0, levels_at(0.0)
         best = (math.inf, 0.0)
+        below = above = None                     # the closest biases under and over the budget
         for _ in range(40):                      # loop over bisection steps (each a vectorized count)
             mid = 0.5 * (lo + hi)
-            n = count(mid)
+            n = count_levels(levels_at(mid))
             miss = abs(n - budget) / budget
             best = min(best, (miss, mid))
             if miss <= cfg.budget_tolerance:
-                break
-            lo, hi = (mid, hi) if n < budget else (lo, mid)
-        return best[1], levels_at
+                return mid, levels_at(mid)
+            if n < budget:
+                lo, below = mid, mid
+            else:
+                hi, above = mid, mid
+        if below is None or above is None:
+            return best[1], levels_at(best[1])
+        coarse, fine = levels_at(below), levels_at(above)
+        rounded = pc.round_level(coarse, self.rounding, L) != pc.round_level(fine, self.rounding, L)
+        ties = np.flatnonzero(rounded)[np.argsort(ecc_seen[rounded], kind="stable")]     # nearest the POI first
+        k_lo, k_hi = 0, len(ties)
+        chosen = (best[0], 0)
+        while k_lo < k_hi:                       # loop over bisection steps on how many ties refine
+            k = (k_lo + k_hi) // 2
+            cont = coarse.copy()
+            cont[ties[:k]] = fine[ties[:k]]
+            n = count_levels(cont)
+            chosen = min(chosen, (abs(n - budget) / budget, k))
+            if n < budget:
+                k_lo = k + 1
+            else:
+                k_hi = k
+        cont = coarse.copy()
+        cont[ties[:chosen[1]]] = fine[ties[:chosen[1]]]
+        return below, cont
 
     def _eager(self, view: ConditionedView, ecc):
         """(n,) bool for the hysteresis: triangles within ``hysteresis_eager_deg`` of a moving POI; None if still."""
