@@ -1,14 +1,18 @@
 """Write the judge's results at equal triangles as Markdown, from ``headplod bench plod --only judge``'s JSON.
 
     headplod bench plod --only judge --json out/judge.json --chart out/judge.png
-    python tools/plod_judge_tables.py out/judge.json docs/plod-judge.md [--charts out]
+    python tools/make_dem.py out/ridges24.npy --ridges 24
+    headplod bench plod --only judge --terrain out/ridges24.npy --spacing-m 25 --json out/ridges/judge.json \
+        --chart out/ridges/judge.png
+    python tools/plod_judge_tables.py out/judge.json out/ridges/judge.json docs/plod-judge.md --charts
 
 The figures in ``docs/plod-judge.md`` are only ever this script's output: no
-measurement is copied by hand into prose. The page says which command made the
-JSON and when (the file's modification time, UTC). With ``--charts DIR``, the
-per-view charts the bench wrote there (``plod_jod_view_<view>.png``) are copied
-beside the page (``docs/img/``). Every output is written to a temporary name
-and renamed (whole or untouched).
+measurement is copied by hand into prose. Each JSON (one terrain) is a section;
+the page says which command made it and when (the file's modification time,
+UTC). With ``--charts``, the per-view charts each JSON lists (``equal_triangles``
+→ ``charts``) are copied beside the page (``docs/img/``, named by terrain and
+view). Every output is written to a temporary name and renamed (whole or
+untouched).
 """
 from __future__ import annotations
 
@@ -38,22 +42,36 @@ def equal_triangles(report: dict) -> dict:
     return report.get("equal_triangles", report) if isinstance(report, dict) else {}
 
 
-def markdown(report: dict, source: str, when: str, images: dict) -> str:
-    """The page: goals per view, then per view the curves, the comparison, the moved fixation, rings, pursuit."""
+def terrain_name(report: dict) -> str:
+    """The terrain a report was measured on: ``built-in`` or its file's name."""
+    terrain = report.get("terrain") or "built-in"
+    return terrain if terrain == "built-in" else Path(terrain).name
+
+
+def markdown(sections, images: dict) -> str:
+    """The page: per terrain (``sections``: (report, source, when)), goals per view, then per view the curves, the
+    comparison, the moved fixation, rings, pursuit. ``images``: {(terrain, view): relative path}."""
+    out = ["# The judge at equal triangles", "",
+           "Written by `tools/plod_judge_tables.py` from the JSON of `headplod bench plod --only judge` (the "
+           "command is in the script's docstring). The judge is FovVideoVDP (foveated, fixation at the POI); JOD 10 "
+           "is no visible difference from `full`. Every mode draws the same number of triangles at each budget "
+           "(`--budget`, met within 3 %). How the default mode works and how its settings were fitted (on the "
+           "built-in terrain's default view only; everything else is held out): [plod-criteria.md](plod-criteria.md)."]
+    for report, source, when in sections:
+        out += ["", *_section(report, source, when, images)]
+    return "\n".join(out) + "\n"
+
+
+def _section(report: dict, source: str, when: str, images: dict) -> list:
     eq = equal_triangles(report)
     if "views" not in eq:
-        raise ValueError("no equal-triangle results in this JSON (run: headplod bench plod --only judge --json ...)")
-    default = eq["default"]
-    out = ["# The judge at equal triangles", "",
-           f"Written by `tools/plod_judge_tables.py` from `{source}` ({when}), the JSON of "
-           "`headplod bench plod --only judge`. The judge is FovVideoVDP (foveated, fixation at the POI); JOD 10 is "
-           "no visible difference from `full`. Every mode draws the same number of triangles at each budget "
-           f"(`--budget`, met within 3 %). The default mode is `{default}`; how it works and how its settings were "
-           "fitted (on the default view only): [plod-criteria.md](plod-criteria.md).", "",
-           "## Goals", "",
+        raise ValueError(f"{source}: no equal-triangle results (run: headplod bench plod --only judge --json ...)")
+    default, terrain = eq["default"], terrain_name(report)
+    out = [f"## Terrain: {terrain}", "", f"From `{source}` ({when}).", "",
            f"Margin: `{default}`'s JOD minus the best geometric mode's (sse, dpv, ipv), interpolated at the same "
            "triangles; the goal is ≥ +0.05 at every budget, or ≥ 25 % fewer triangles at equal JOD. Fixation moved: "
-           f"with the fixation 20° from the POI, `{default}`'s JOD drops, and by more than `sse`'s.", "",
+           f"with the fixation 20° from the POI, `{default}`'s JOD drops, and by more than `sse`'s (the drop of "
+           "each is in the view's section).", "",
            "| view | margin at each budget | fewest triangles saved at equal JOD | goal | fixation moved |",
            "|---|---|---|---|---|"]
     for view, res in eq["views"].items():
@@ -64,7 +82,7 @@ def markdown(report: dict, source: str, when: str, images: dict) -> str:
         out.append(f"| {view} | {margins or '–'} | {_signed(saving, '+.0%')} | {_verdict(c.get('met'))} | "
                    f"{_verdict(mf.get('goal_met'))} |")
     for view, res in eq["views"].items():
-        out += ["", f"## {view}", "",
+        out += ["", f"### {terrain}: {view}", "",
                 f"`full`: {res['full_triangles']:,} triangles. JOD (triangles) per mode at each budget:", ""]
         budgets = eq["budgets"]
         out.append("| mode | " + " | ".join(f"{b / 1e3:.0f}k" for b in budgets) + " |")
@@ -92,9 +110,9 @@ def markdown(report: dict, source: str, when: str, images: dict) -> str:
             out += ["", f"Moving POI ({s['frames']} frames at {s['fps']:g} Hz, pursuit {s['speed_deg_s']:g}°/s, "
                     f"judged as one video with a fixation per frame, {pu['budget'] / 1e3:.0f}k): " + ", ".join(
                         f"`{n}` {_jod(r['jod'])}" for n, r in pu["modes"].items()) + "."]
-        if view in images:
-            out += ["", f"![JOD against triangles and the error by ring, {view}]({images[view]})"]
-    return "\n".join(out) + "\n"
+        if (terrain, view) in images:
+            out += ["", f"![JOD against triangles and the error by ring, {terrain}, {view}]({images[terrain, view]})"]
+    return out
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
@@ -102,6 +120,7 @@ def _write_atomic(path: Path, data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
+        os.chmod(tmp, 0o644)                     # mkstemp makes it private; the page and charts are for everyone
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -110,28 +129,36 @@ def _write_atomic(path: Path, data: bytes) -> None:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("json", help="headplod bench plod --only judge --json output")
+    parser.add_argument("json", nargs="+", help="headplod bench plod --only judge --json outputs, one per terrain")
     parser.add_argument("out", help="the Markdown page to write")
-    parser.add_argument("--charts", metavar="DIR", help="where the bench wrote plod_jod_view_<view>.png "
-                                                       "(copied into img/ beside the page)")
+    parser.add_argument("--charts", action="store_true", help="copy the per-view charts each JSON lists into img/ "
+                                                               "beside the page")
     args = parser.parse_args(argv)
-    source, out = Path(args.json), Path(args.out)
+    out = Path(args.out)
+    sections, charts = [], {}
     try:
-        report = json.loads(source.read_text())
-        when = _dt.datetime.fromtimestamp(source.stat().st_mtime, _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-        views = equal_triangles(report).get("views", {})
-        charts = {v: Path(args.charts) / f"plod_jod_view_{v}.png" for v in views} if args.charts else {}
-        missing = [str(p) for p in charts.values() if not p.is_file()]
+        for name in args.json:
+            source = Path(name)
+            report = json.loads(source.read_text())
+            when = _dt.datetime.fromtimestamp(source.stat().st_mtime, _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+            sections.append((report, source.name, when))
+            if args.charts:
+                terrain = terrain_name(report)
+                stem = "builtin" if terrain == "built-in" else Path(terrain).stem
+                for chart in equal_triangles(report).get("charts", []):
+                    view = Path(chart).stem.removeprefix("plod_jod_view_")
+                    charts[terrain, view] = (Path(chart), f"judge_{stem}_{view}.png")
+        missing = [str(p) for p, _ in charts.values() if not p.is_file()]
         if missing:
-            raise OSError(f"no chart {missing[0]} (--charts: the folder of the bench's --chart)")
-        page = markdown(report, source.name, when, {v: f"img/{p.name}" for v, p in charts.items()})
+            raise OSError(f"no chart {missing[0]} (the JSON lists it; was the bench's folder moved?)")
+        page = markdown(sections, {key: f"img/{name}" for key, (_, name) in charts.items()})
     except (OSError, ValueError, KeyError, TypeError) as exc:
         print(f"plod_judge_tables: {exc}", file=sys.stderr)
         return 2
     if charts:
         (out.parent / "img").mkdir(parents=True, exist_ok=True)
-        for p in charts.values():
-            _write_atomic(out.parent / "img" / p.name, p.read_bytes())
+        for p, name in charts.values():
+            _write_atomic(out.parent / "img" / name, p.read_bytes())
     _write_atomic(out, page.encode())
     print(f"wrote {out}" + (f" and {len(charts)} charts in {out.parent / 'img'}" if charts else ""))
     return 0
