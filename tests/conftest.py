@@ -226,3 +226,27 @@ def field_change_features(field):
     change[:, -1] = 0.0
     axis = np.broadcast_to(-np.asarray(screen.normal), centroids.shape).copy()
     return change, axis, np.full(len(centroids), 10.0)
+
+
+class FlatTerrain:
+    """z = 0 over a rectangle: exact areas are known."""
+
+    extent = (0.0, 3000.0, 0.0, 2000.0)
+
+    def heights(self, x, y):
+        return np.zeros(np.broadcast(np.asarray(x), np.asarray(y)).shape)
+
+    def normals(self, x, y):
+        n = np.zeros(np.broadcast(np.asarray(x), np.asarray(y)).shape + (3,))
+        n[..., 2] = 1.0
+        return n
+
+
+def load_tool(name: str):
+    """The module ``tools/<name>.py`` (the tools are scripts, not a package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / "tools" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

@@ -1,18 +1,14 @@
 """tools/bench_track_tables.py: the measured figures in docs come from the bench JSON, never by hand."""
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from conftest import load_tool
+
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("bench_track_tables", ROOT / "tools" / "bench_track_tables.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("bench_track_tables")
 
 
 def test_tables_carry_every_set_and_goal_from_the_json(tmp_path):

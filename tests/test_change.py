@@ -4,6 +4,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from conftest import FlatTerrain
 from headplod.plod import criteria
 from headplod.plod.change import display_luminance, drawn_colour, level_change_contrast, normal_cone
 from headplod.plod.csf import (CORTICAL_E2_DEG, csf_coefficients, display_nyquist_cpd, eccentricity_factor,
@@ -12,21 +13,7 @@ from headplod.plod.mesh import AdaptiveMesh, BaseMesh
 from headplod.plod.select import SelectorConfig
 
 
-class Flat:
-    """z = 0: nothing any level removes."""
-
-    extent = (0.0, 3000.0, 0.0, 2000.0)
-
-    def heights(self, x, y):
-        return np.zeros(np.broadcast(np.asarray(x), np.asarray(y)).shape)
-
-    def normals(self, x, y):
-        n = np.zeros(np.broadcast(np.asarray(x), np.asarray(y)).shape + (3,))
-        n[..., 2] = 1.0
-        return n
-
-
-class Ripples(Flat):
+class Ripples(FlatTerrain):
     """z = A sin(2π x / λ): shading that coarse levels cannot follow, and finer levels follow better."""
 
     amplitude, wavelength = 20.0, 400.0
@@ -49,7 +36,7 @@ def ripples_mesh():
 
 
 def test_flat_ground_loses_nothing_at_any_level():
-    t = Flat()
+    t = FlatTerrain()                                        # nothing any level removes
     mesh = AdaptiveMesh(BaseMesh.grid(t, 4, 3), t, max_level=3)
     assert mesh.change_contrast.shape == (mesh.n_faces, 4)
     np.testing.assert_allclose(mesh.change_contrast, 0.0, atol=1e-12)

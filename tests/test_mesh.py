@@ -3,22 +3,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from conftest import FlatTerrain
 from headplod.plod.mesh import AdaptiveMesh, BaseMesh, build_template, triangle_count_table
 from headplod.plod.terrain import Terrain, load_jacksboro_dem
-
-
-class FlatTerrain:
-    """z = 0 over a rectangle: exact areas are known."""
-
-    extent = (0.0, 3000.0, 0.0, 2000.0)
-
-    def heights(self, x, y):
-        return np.zeros(np.broadcast(np.asarray(x), np.asarray(y)).shape)
-
-    def normals(self, x, y):
-        n = np.zeros(np.broadcast(np.asarray(x), np.asarray(y)).shape + (3,))
-        n[..., 2] = 1.0
-        return n
 
 
 class BowlTerrain(FlatTerrain):

@@ -1,18 +1,14 @@
 """tools/plod_judge_tables.py: docs/plod-judge.md comes from the judge's JSON, never by hand."""
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from conftest import load_tool
+
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("plod_judge_tables", ROOT / "tools" / "plod_judge_tables.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("plod_judge_tables")
 
 
 def _report(terrain, chart, margin):
