@@ -219,3 +219,13 @@ def test_the_default_is_change_with_its_own_csf():
     cfg = SelectorConfig()
     assert cfg.mode == "change" and cfg.csf == "cortical"
     assert dataclasses.replace(cfg, mode="csf").csf == "kelly_scaled"
+
+
+def test_each_back_end_draws_a_mode_it_takes_when_none_is_given():
+    from headplod.render.frame import BACKENDS, CAPABILITIES, default_mode, options_problem
+
+    assert default_mode("mesh") == SelectorConfig().mode
+    for backend in BACKENDS:
+        assert default_mode(backend) in CAPABILITIES[backend].modes
+        assert options_problem(backend, mode=default_mode(backend)) is None
+    assert "does not take --mode change" in options_problem("tessellation", mode="change")

@@ -149,10 +149,10 @@ def options_problem(backend: str, *, mode: str = "csf", uncertainty: str = "adap
 def capability_table(markdown: bool = False) -> str:
     """The capability table as text (``--help``; ``markdown``: for the docs)."""
     yes = {True: "yes", False: "no"}
-    rows = [("back end", "modes", "scenarios", "views", "foveate", "own terrain", "hysteresis", "level bias",
-             "budget", "finest level")]
+    rows = [("back end", "modes", "default mode", "scenarios", "views", "foveate", "own terrain", "hysteresis",
+             "level bias", "budget", "finest level")]
     for cap in CAPABILITIES.values():
-        rows.append((cap.name, ", ".join(cap.modes) if cap.modes != MODES else "all",
+        rows.append((cap.name, ", ".join(cap.modes) if cap.modes != MODES else "all", cap.default_mode,
                      "all" if cap.scenarios == UNCERTAINTY_MODES else ", ".join(cap.scenarios),
                      ", ".join(cap.view_modes), yes[cap.foveate], yes[cap.own_terrain], yes[cap.hysteresis],
                      yes[cap.level_bias], yes[cap.budget], cap.finest_level))
