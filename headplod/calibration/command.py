@@ -38,7 +38,8 @@ def add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> argparse.Argu
     calibrate.add_argument("--camera", nargs="+", metavar="DEV",
                            help="capture the pairs live from the cameras LEFT RIGHT (/dev/videoN or N), with a "
                                 "guide to the poses still missing; they are kept in --save")
-    calibrate.add_argument("--board", choices=BOARD_KINDS, default=BOARD_KINDS[0])
+    calibrate.add_argument("--board", choices=BOARD_KINDS, default=BOARD_KINDS[0],
+                           help=f"the printed board's kind (default {BOARD_KINDS[0]})")
     calibrate.add_argument("--cols", type=int, required=True, help="inner corners per row")
     calibrate.add_argument("--rows", type=int, required=True, help="inner corners per column")
     calibrate.add_argument("--square-mm", type=float, required=True, help="side of a square, mm")

@@ -118,12 +118,12 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     view.add_argument("--uncertainty", default="adaptive", choices=lp.SCENARIOS,
                       help="uncertainty scenario (window: initial; default adaptive)")
     view.add_argument("--viewpoint", default="overview", choices=tuple(VIEWPOINTS),
-                      help="initial viewpoint of the window: " + "; ".join(
+                      help="initial viewpoint of the window (default overview): " + "; ".join(
                           f"{v.name}: {v.description}" for v in VIEWPOINTS.values()))
     view.add_argument("--foveate", action="store_true",
                       help="draw foveated resolution layers about the filtered POI (window: on; headless: "
                            "the mode's runs again with them, against full and the plain runs)")
-    view.add_argument("--view", default="shaded", choices=lp.VIEW_MODES, help="initial view (window)")
+    view.add_argument("--view", default="shaded", choices=lp.VIEW_MODES, help="initial view (window; default shaded)")
     view.add_argument("--size", type=_size, default=(1280, 720), metavar="W,H",
                       help="render size, px (default 1280,720)")
     view.add_argument("--saccade-deg-s", type=float, default=lp.SACCADE_DEG_S,

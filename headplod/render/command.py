@@ -40,14 +40,16 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
                         help="what draws the frame (default mesh); what each supports is in the table below")
     render.add_argument("--mode", choices=MODES, help="level-selection mode (default: the back end's; mesh: "
                                                        f"{default_mode('mesh')}, tessellation and raymask: csf)")
-    render.add_argument("--uncertainty", default="adaptive", choices=UNCERTAINTY_MODES)
+    render.add_argument("--uncertainty", default="adaptive", choices=UNCERTAINTY_MODES,
+                        help="which covariance of the viewing direction the levels use (default adaptive)")
     add_cost_arguments(render)
     render.add_argument("--head", type=floats(3), help="eye position X,Y,Z in the world frame, mm "
                                                          "(default: 600 mm in front of the screen centre)")
     render.add_argument("--poi", type=floats(2), help="point of interest X,Y in screen pixels (default: centre)")
     render.add_argument("--cov", type=floats(3), help="covariance of (φ, θ) as PP,PT,TT in deg²")
     render.add_argument("--size", type=floats(2), default=(1280, 720), help="image size W,H (default 1280,720)")
-    render.add_argument("--view", default="shaded", choices=tuple(VIEW_MODES))
+    render.add_argument("--view", default="shaded", choices=tuple(VIEW_MODES),
+                        help="shaded terrain, wireframe, or each triangle coloured by its level (default shaded)")
     render.add_argument("--screen", help="screen.yaml (default: the embedded 24-inch screen)")
     render.add_argument("--contrast", choices=CONTRAST_SOURCES, default="shading",
                         help="triangle contrast: from the shading, no read-back (default), or the paper's "
