@@ -3,8 +3,10 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 
-__all__ = ["cache_mb", "floats", "frame_count", "max_level", "non_negative", "level_bias", "triangle_budget"]
+__all__ = ["cache_mb", "floats", "frame_count", "max_level", "non_negative", "level_bias", "triangle_budget",
+           "attach_negative_lists"]
 
 
 def floats(n: int):
@@ -101,3 +103,29 @@ def triangle_budget(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a whole number of triangles >= 1, got {text!r}")
     return int(value)
 
+
+
+#: A comma-separated list of numbers that starts with a minus sign ("-120,40,650", "-0.5,1e3"): never an option.
+_NEGATIVE_LIST = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)+$")
+
+
+def attach_negative_lists(argv):
+    """``argv`` (list of str) with each long option followed by a negative number list joined to it
+    (``--head -120,40,650`` → ``--head=-120,40,650``).
+
+    argparse reads a token that starts with ``-`` as an option unless it is a single negative number, so a
+    coordinate list starting with a negative value needed the ``=`` form ("expected one argument").
+    """
+    argv = list(argv)
+    out = []
+    i = 0
+    while i < len(argv):
+        token = argv[i]
+        if (token.startswith("--") and "=" not in token and i + 1 < len(argv)
+                and _NEGATIVE_LIST.match(argv[i + 1])):
+            out.append(f"{token}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(token)
+        i += 1
+    return out

@@ -21,6 +21,7 @@ from synthetic.cli import add_render_arguments as add_synth_arguments
 from synthetic.cli import run_render as run_synth
 
 from . import io
+from .argtypes import attach_negative_lists
 from .bench.command import add_bench_arguments, run_bench
 from .calibration.command import add_calibrate_arguments, run_calibrate
 from .capture.command import add_cameras_arguments, run_cameras
@@ -58,7 +59,8 @@ def main(argv=None) -> int:
     # in its own cache folder instead (HEADPLOD_CACHE, default ~/.cache/headplod), unless MPLCONFIGDIR is set.
     os.environ.setdefault("MPLCONFIGDIR", str(Path(os.environ.get("HEADPLOD_CACHE", Path.home() / ".cache" / "headplod"))
                                               / "matplotlib"))
-    args = build_parser().parse_args(argv)
+    # "--head -120,40,650": a list starting with a minus sign is the option's value, not another option.
+    args = build_parser().parse_args(attach_negative_lists(sys.argv[1:] if argv is None else argv))
     try:
         return COMMANDS[args.command][2](args)
     except io.ContractError as exc:

@@ -24,3 +24,21 @@ def test_every_option_with_a_default_names_it_in_its_help():
 def test_the_walk_sees_the_subcommands():
     commands = {command for command, *_ in _options(cli.build_parser())}
     assert {"render", "demo", "calibrate", "track"} <= commands
+
+
+def test_a_coordinate_list_may_start_with_a_minus_sign(tmp_path):
+    """``render --head -120,40,650`` used to fail with "expected one argument"; only ``--head=...`` worked."""
+    from headplod.argtypes import attach_negative_lists
+
+    assert attach_negative_lists(["render", "--head", "-120,40,650", "--poi", "-5.5,3e2", "--level-bias", "-1",
+                                  "-q"]) == ["render", "--head=-120,40,650", "--poi=-5.5,3e2", "--level-bias", "-1",
+                                             "-q"]
+    args = cli.build_parser().parse_args(attach_negative_lists(
+        ["render", "--head", "-120,40,650", "--out", str(tmp_path / "r.png")]))
+    assert list(args.head) == [-120.0, 40.0, 650.0]
+
+
+def test_the_command_line_takes_a_negative_coordinate_list(tmp_path, capsys):
+    out = tmp_path / "r.png"
+    assert cli.main(["render", "--head", "-40,20,640", "--size", "64,36", "--out", str(out)]) == 0
+    assert out.is_file()
