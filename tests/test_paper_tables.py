@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from headplod.bench.harness import poi_disc
-from headplod.bench.image_metrics import psnr_db
+from headplod.render.image_metrics import psnr_db
 from headplod.bench.paper_tables import (OVERCONFIDENT_NEES, JitteredPoses, PaperTablesConfig, format_tables,
                                          goal_verdicts, paper_tables, pose_nees, track_poses, true_poi_goals,
                                          true_pois)

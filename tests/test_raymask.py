@@ -140,7 +140,7 @@ def raymask_setup(gl_context, terrain_scene, default_screen):
 
 
 def test_the_inset_matches_full_and_a_still_view_repeats_exactly(raymask_setup, terrain_scene, default_screen):
-    from headplod.bench.image_metrics import psnr_db
+    from headplod.render.image_metrics import psnr_db
     from headplod.render.still import default_head, px_per_deg_at, render_still
 
     size = raymask_setup["size"]

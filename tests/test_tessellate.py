@@ -292,7 +292,7 @@ def test_texture_shading_meets_the_full_detail_render(ctx430, default_screen):
     """On a grid whose samples are finer than a pixel, the csf frame with texture shading is within 45 dB of
     the full-detail render in the 5° disc, and clearly closer than per-vertex shading is: that shows each
     level's smoothed normals, not the average of the samples' shading."""
-    from headplod.bench.image_metrics import disc_mask, psnr_db
+    from headplod.render.image_metrics import disc_mask, psnr_db
     from headplod.render.still import px_per_deg_at
     from headplod.render.frame import TessellationBackend, one_frame
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model

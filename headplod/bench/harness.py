@@ -12,7 +12,7 @@ Every frame a PLOD benchmark makes is a frame of :class:`headplod.render.frame.F
 - :func:`steady_frame` (and :meth:`BenchScene.steady`): N frames of one view; the median of each stage
   after the first frame (:func:`steady_stats`).
 - :func:`alternate`: several steps run in turn, round by round, so a busy machine slows them alike.
-- :func:`quality`: PSNR, PSNR in the disc, FLIP (:mod:`.image_metrics`).
+- :func:`quality`: PSNR, PSNR in the disc, FLIP (:mod:`headplod.render.image_metrics`).
 - :func:`pyplot`, :func:`save_figure`, :func:`write_png` (:mod:`.outputs`), :func:`label_axes`: charts.
 
 Units: world mm, screen px, images (H, W, 3) uint8 RGB, times ms, angles deg.
@@ -31,7 +31,7 @@ from ..plod.view import View
 from ..render.frame import FAR_MM, NEAR_MM, FrameStep, MeshBackend, RayMaskBackend, px_per_deg_at
 from ..render.projection import off_axis_projection
 from ..render.still import TerrainScene, default_head
-from .image_metrics import disc_mask, flip_error, psnr_db
+from ..render.image_metrics import disc_mask, flip_error, psnr_db
 from .outputs import pyplot, save_figure, write_png
 
 __all__ = ["SIZE", "TRACKER_SIGMA_DEG", "TRACKER_COV_DEG2", "DISC_DEG", "FRAME_DT_S", "FRAME_STAGES",

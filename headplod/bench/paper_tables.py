@@ -42,7 +42,7 @@ from ..render.context import create_context
 from ..render.gl import TerrainRenderer
 from ..render.still import TerrainScene, px_per_deg_at
 from .harness import DISC_DEG, SIZE, poi_disc, pyplot, save_figure
-from .image_metrics import psnr_db
+from ..render.image_metrics import psnr_db
 from .outputs import write_json
 from .uncertainty import nees
 

@@ -231,7 +231,7 @@ def quality(frames: dict) -> dict:
     """Per viewpoint: ``psnr_5deg_db`` and ``flip`` {plain, foveate} against ``full``, and
     ``psnr_5deg_foveate_vs_plain_db`` (inf: the fovea is the plain frame's pixels)."""
     from .harness import DISC_DEG
-    from .image_metrics import psnr_db
+    from ..render.image_metrics import psnr_db
 
     out = {}
     for vp, f in frames.items():

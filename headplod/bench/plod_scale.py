@@ -51,7 +51,7 @@ GOAL_PSNR_DB = 45.0
 def _disc_region(screen, head, size):
     """(disc mask (H, W) bool, its bounding box in NDC (x0, y0, x1, y1), px per deg) around the centre POI."""
     from ..render.still import px_per_deg_at
-    from .image_metrics import disc_mask
+    from ..render.image_metrics import disc_mask
 
     w, h = size
     ppd = px_per_deg_at(screen, head, size)
@@ -230,7 +230,7 @@ def run_case(backend: str, n_samples: int, frames: int = 5, size=SIZE, cache_dir
     from ..render import create_context
     from ..render.still import default_head
     from ..render.tessellate import TessellationRenderer, grid_model
-    from .image_metrics import psnr_db
+    from ..render.image_metrics import psnr_db
 
     if backend not in BACKENDS:
         raise ValueError(f"run_case: backend must be one of {BACKENDS}, got {backend!r}")

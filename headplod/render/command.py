@@ -73,6 +73,9 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
                              "(grid samples - 1) / 64 a power of two). Default: TessellationConfig's")
     render.add_argument("--out", required=True, help="output image (PNG)")
     render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
+    render.add_argument("--compare", choices=("full",),
+                        help="also render full from the same view and print the frame's PSNR (whole, and within 5° "
+                             "of the POI) and FLIP against it (default: no comparison; mesh and raymask back ends)")
     render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
                                                          "scene metres, faces coloured by level)")
     add_terrain_arguments(render)
@@ -143,6 +146,10 @@ def run_render(args) -> int:
     if args.backend == "tessellation":
         given = [name for name, on in (("--max-level", args.max_level is not None), ("--lazy", args.lazy),
                                        ("--cache-mb", args.cache_mb is not None)) if on]
+        if args.compare is not None:
+            print("headplod: --backend tessellation does not take --compare (use the mesh or raymask back end)",
+                  file=sys.stderr)
+            return 2
         if given:
             print(f"headplod: --backend tessellation does not take {', '.join(given)} (its detail is "
                   "--grid-samples)", file=sys.stderr)
@@ -170,14 +177,18 @@ def run_render(args) -> int:
         return status
     options = mesh_options(args)
     scene = None
-    if terrain is not None or options != MeshOptions():         # else render_still's default scene
-        scene = options.build(screen, terrain)
+    if terrain is not None or options != MeshOptions() or args.compare:   # else render_still's default scene
+        scene = options.build(screen, terrain)                   # (--compare: one scene for both frames)
     try:
-        _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
-                                poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
-                                stats_path=args.stats, contrast=args.contrast, export=args.export,
-                                foveate=args.foveate, raymask=raymask, scene=scene, backend=args.backend,
-                                selector_options=selection_options(args))
+        image, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
+                                    poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
+                                    stats_path=args.stats, contrast=args.contrast, export=args.export,
+                                    foveate=args.foveate, raymask=raymask, scene=scene,
+                                    backend=args.backend, selector_options=selection_options(args))
+        if getattr(args, "compare", None) == "full":
+            reference, _ = render_still(screen, mode="full", uncertainty="none", head_mm=args.head, poi_px=args.poi,
+                                        size=size, view_mode=args.view, scene=scene)
+            print(compare_line(image, reference, screen, args.head, args.poi, size), file=sys.stderr)
     except OSError as exc:           # a folder that cannot be written: nothing half-written is left
         print(f"headplod: could not write the output: {exc.strerror or exc} ({exc.filename or args.out})",
               file=sys.stderr)
@@ -198,6 +209,25 @@ def run_render(args) -> int:
           f"render {stats['render_ms']:.1f} ms; image: {args.out}"
           + (f"; mesh: {args.export}" if args.export else ""), file=sys.stderr)
     return 0
+
+
+def compare_line(image, reference, screen, head_mm, poi_px, size) -> str:
+    """``render --compare full``'s line: PSNR of ``image`` against ``reference`` (both (H, W, 3) uint8 of ``size``
+    (w, h) px) over the image and within 5° of the POI (screen px; None: the centre), and FLIP at the screen's
+    pixels per degree seen from ``head_mm`` (world mm; None: the default head)."""
+    import numpy as np
+
+    from ..plod.view import default_head
+    from .frame import px_per_deg_at
+    from .image_metrics import disc_mask, flip_error, psnr_db
+
+    head = default_head(screen) if head_mm is None else np.asarray(head_mm, dtype=np.float64)
+    poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
+    ppd = px_per_deg_at(screen, head, size)
+    centre = poi * np.asarray(size, dtype=np.float64) / np.asarray(screen.size_px, dtype=np.float64)
+    disc = disc_mask(image.shape[:2], centre, 5.0 * ppd)
+    return (f"against full: PSNR {psnr_db(image, reference):.2f} dB, within 5° of the POI "
+            f"{psnr_db(image, reference, disc):.2f} dB, FLIP {flip_error(reference, image, ppd):.4f}")
 
 
 def _run_tessellation(args, screen, cov, size) -> int:

@@ -1,4 +1,4 @@
-"""Image error measures shared by the PLOD benchmarks: PSNR (whole, masked, in a disc) and FLIP."""
+"""Image error measures of a frame against a reference (the benchmarks, render --compare): PSNR (whole, masked, in a disc) and FLIP."""
 from __future__ import annotations
 
 import math
@@ -33,7 +33,7 @@ def flip_error(reference: np.ndarray, test: np.ndarray, px_per_deg: float) -> fl
     """Mean FLIP error (0 identical … 1) of two 8-bit sRGB images (H, W, 3) seen at ``px_per_deg``."""
     if np.array_equal(reference, test):
         return 0.0
-    import flip_evaluator       # imported on use: about 0.3 s, and only the benchmarks judge images
+    import flip_evaluator       # imported on use: about 0.3 s, and only the benchmarks and --compare judge images
 
     ref = reference.astype(np.float32) / 255.0
     tst = test.astype(np.float32) / 255.0

@@ -1,4 +1,4 @@
-"""Every option's default is in its ``--help`` text (issue 25: a new user reads --help, not the code)."""
+"""What a new user meets on the command line (issue 25): defaults in --help, negative coordinates, render --compare."""
 import argparse
 
 from headplod import cli
@@ -42,3 +42,16 @@ def test_the_command_line_takes_a_negative_coordinate_list(tmp_path, capsys):
     out = tmp_path / "r.png"
     assert cli.main(["render", "--head", "-40,20,640", "--size", "64,36", "--out", str(out)]) == 0
     assert out.is_file()
+
+
+def test_render_compares_with_full_and_refuses_where_it_cannot(tmp_path, capsys):
+    assert cli.main(["render", "--size", "96,54", "--compare", "full", "--out", str(tmp_path / "a.png")]) == 0
+    line = next(t for t in capsys.readouterr().err.splitlines() if t.startswith("against full"))
+    assert "PSNR" in line and "within 5° of the POI" in line and "FLIP" in line
+    psnr = float(line.split("PSNR ")[1].split(" dB")[0])
+    assert 20 < psnr < 80                                    # a real difference: not identical, not garbage
+    assert cli.main(["render", "--mode", "full", "--size", "96,54", "--compare", "full",
+                     "--out", str(tmp_path / "b.png")]) == 0
+    assert "PSNR inf dB" in capsys.readouterr().err          # full against itself is identical
+    assert cli.main(["render", "--backend", "tessellation", "--compare", "full", "--out", str(tmp_path / "c.png")]) == 2
+    assert not (tmp_path / "c.png").exists()
