@@ -7,6 +7,8 @@ in its package (``live/command.py``, ``bench/command.py``, ``demo/cli.py``, ...)
     headplod demo [--source SPEC | --mouse] [--headless --frames N --out DIR] ...
     headplod bench track|uncertainty|plod|live ...
     headplod synth PRESET OUT_DIR [--frames N] [--seed S] [-q]
+    headplod board --cols N --rows M --square-mm S [--board chessboard|charuco] [--paper a4|letter] --out FILE
+    headplod glasses [--markers markers.yaml] [--marker-mm D] [--yaml markers.yaml] --out FILE.pdf|.png|.svg
 
 Exit status: 0 on success, 1 when the run failed (bad files), 2 on bad usage.
 """
@@ -24,6 +26,7 @@ from . import io
 from .argtypes import attach_negative_lists
 from .bench.command import add_bench_arguments, run_bench
 from .calibration.command import add_calibrate_arguments, run_calibrate
+from .calibration.printouts import add_board_arguments, add_glasses_arguments, run_board, run_glasses
 from .capture.command import add_cameras_arguments, run_cameras
 from .demo.cli import add_demo_arguments, run_demo
 from .live.command import add_track_arguments, run_track
@@ -38,6 +41,10 @@ COMMANDS = {
     "cameras": ("list the video devices with their USB identity", add_cameras_arguments, run_cameras),
     "calibrate": ("stereo calibration from chessboard/ChArUco pairs -> rig.yaml", add_calibrate_arguments,
                   run_calibrate),
+    "board": ("print a calibration board at true scale (the --cols/--rows/--square-mm calibrate takes) -> PDF/PNG/SVG",
+              add_board_arguments, run_board),
+    "glasses": ("print a 1:1 template of the glasses' five markers, and its markers.yaml", add_glasses_arguments,
+                run_glasses),
     "bench": ("benchmarks: accuracy against speed", add_bench_arguments, run_bench),
     "render": ("render one PLOD frame of the terrain to an image", add_render_arguments, run_render),
     "demo": ("head-coupled PLOD terrain viewer (a window, or --headless)", add_demo_arguments, run_demo),
