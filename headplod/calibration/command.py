@@ -31,6 +31,21 @@ from .calibrate import BoardSpec, CalibrationError, calibrate_folder, coverage_g
 __all__ = ["add_calibrate_arguments", "run_calibrate"]
 
 
+def add_board_spec_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The board's options, the same for ``headplod board`` (printing it) and ``headplod calibrate`` (finding it):
+    the same numbers go to both."""
+    default = BoardSpec()
+    parser.add_argument("--board", choices=BOARD_KINDS, default=BOARD_KINDS[0],
+                        help=f"the printed board's kind (default {BOARD_KINDS[0]})")
+    parser.add_argument("--cols", type=int, required=True, help="inner corners per row (board and calibrate alike)")
+    parser.add_argument("--rows", type=int, required=True, help="inner corners per column (board and calibrate alike)")
+    parser.add_argument("--square-mm", type=float, required=True, help="side of a square as printed, mm")
+    parser.add_argument("--marker-mm", type=float, help="ChArUco: side of a marker, mm (default 0.7 square)")
+    parser.add_argument("--dictionary", default=default.dictionary,
+                        help=f"ChArUco dictionary (default {default.dictionary})")
+    return parser
+
+
 def add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add ``calibrate``'s options to a (sub)parser; returns it."""
     calibrate.add_argument("folder", nargs="?", help="image pairs: left/ and right/ with matching names, or "
@@ -38,13 +53,7 @@ def add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> argparse.Argu
     calibrate.add_argument("--camera", nargs="+", metavar="DEV",
                            help="capture the pairs live from the cameras LEFT RIGHT (/dev/videoN or N), with a "
                                 "guide to the poses still missing; they are kept in --save")
-    calibrate.add_argument("--board", choices=BOARD_KINDS, default=BOARD_KINDS[0],
-                           help=f"the printed board's kind (default {BOARD_KINDS[0]})")
-    calibrate.add_argument("--cols", type=int, required=True, help="inner corners per row")
-    calibrate.add_argument("--rows", type=int, required=True, help="inner corners per column")
-    calibrate.add_argument("--square-mm", type=float, required=True, help="side of a square, mm")
-    calibrate.add_argument("--marker-mm", type=float, help="ChArUco: side of a marker, mm (default 0.7 square)")
-    calibrate.add_argument("--dictionary", default="DICT_5X5_100", help="ChArUco dictionary (default DICT_5X5_100)")
+    add_board_spec_arguments(calibrate)
     calibrate.add_argument("--out", required=True,
                            help="rig.yaml to write (after the report is printed; if it cannot be written, the "
                                 "rig is kept beside the image pairs and the exit status is 1)")

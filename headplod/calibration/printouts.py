@@ -27,7 +27,8 @@ import cv2
 import numpy as np
 
 from .. import io
-from .board import BOARD_KINDS, BoardSpec, _charuco
+from .board import BoardSpec, _charuco
+from .command import add_board_spec_arguments
 
 #: Paper sizes, (width, height) in mm, portrait.
 PAPERS_MM = {"a4": (210.0, 297.0), "letter": (215.9, 279.4)}
@@ -390,15 +391,7 @@ def _common_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_board_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """``headplod board``'s options: the board as ``headplod calibrate`` takes it, the paper, the file."""
-    default = BoardSpec()
-    parser.add_argument("--board", choices=BOARD_KINDS, default=BOARD_KINDS[0],
-                        help=f"kind of board (default {BOARD_KINDS[0]})")
-    parser.add_argument("--cols", type=int, required=True, help="inner corners per row (as calibrate --cols)")
-    parser.add_argument("--rows", type=int, required=True, help="inner corners per column (as calibrate --rows)")
-    parser.add_argument("--square-mm", type=float, required=True, help="side of a square as printed, mm")
-    parser.add_argument("--marker-mm", type=float, help="ChArUco: side of a marker, mm (default 0.7 square)")
-    parser.add_argument("--dictionary", default=default.dictionary,
-                        help=f"ChArUco dictionary (default {default.dictionary})")
+    add_board_spec_arguments(parser)                # calibrate's own options: the same numbers go to both
     _common_arguments(parser)
     return parser
 
