@@ -414,21 +414,17 @@ def displacement_visibility(error_mm, distance_mm, contrast, speed_deg_s, ecc_de
         return np.maximum(np.log2(displacement / threshold[:, None]), VISIBILITY_FLOOR)
 
 
-def change_level(change_contrast, angular_deg, error_mm, distance_mm, displacement_contrast, speed_deg_s, ecc_deg, *,
-                 csf_model: str = "cortical", cortical_exponent: float = CORTICAL_EXPONENT, nyquist_cpd=None,
-                 threshold: float = 1.0, level_bias: float = 0.0) -> np.ndarray:
+def change_level(visibility, level_bias: float = 0.0) -> np.ndarray:
     """Continuous level (S,) of ``change``: where neither the shading change nor the displacement is visible.
 
-    :func:`crossing_level` of :func:`change_visibility_levels` plus ``level_bias``: for this mode a bias
-    moves the *threshold*, not the level: bias B counts a change as visible once its contrast reaches
-    2^-B times ``threshold`` detection thresholds. (Adding B to the level would move pieces whose visibility
+    ``visibility`` (S, L+1): :func:`change_visibility_levels`. :func:`crossing_level` of it plus ``level_bias``:
+    for this mode a bias moves the *threshold*, not the level: bias B counts a change as visible once its
+    contrast reaches 2^-B times the threshold. (Adding B to the level would move pieces whose visibility
     falls slowly with the level by the same levels as those whose falls fast: a budget would then coarsen
-    some pieces far past their threshold while others keep detail nobody sees.)
+    some pieces far past their threshold while others keep detail nobody sees.) The visibility is an input,
+    not computed here, because a budget (``LevelSelector``) evaluates this for many biases.
     """
-    v = change_visibility_levels(change_contrast, angular_deg, error_mm, distance_mm, displacement_contrast,
-                                 speed_deg_s, ecc_deg, csf_model=csf_model, cortical_exponent=cortical_exponent,
-                                 nyquist_cpd=nyquist_cpd, threshold=threshold)
-    return crossing_level(v + level_bias)
+    return crossing_level(np.asarray(visibility, dtype=np.float64) + level_bias)
 
 
 def change_visibility_levels(change_contrast, angular_deg, error_mm, distance_mm, displacement_contrast,
@@ -453,9 +449,12 @@ def distance_level(distance_mm, max_level: int, distance_ref_mm: float) -> np.nd
 
 
 def continuous_level(config, max_level: int, *, ecc_deg, angular_deg, distance_mm, speed_deg_s, contrast,
-                     edge_len_mm=None, error_mm=None, px_per_mm=None, foveal_cpd=None, change_contrast=None,
-                     displacement_contrast=None, nyquist_cpd=None) -> np.ndarray:
-    """Every mode's continuous level of base triangles, the level bias included, (S,).
+                     edge_len_mm=None, error_mm=None, px_per_mm=None, foveal_cpd=None,
+                     nyquist_cpd=None) -> np.ndarray:
+    """Every mode's continuous level of base triangles but ``change``'s, the level bias included, (S,).
+
+    ``change`` needs each level's visibility (:func:`change_visibility_levels`, then :func:`change_level`),
+    which ``LevelSelector`` keeps for its budget; it is refused here.
 
     Parameters
     ----------
@@ -474,10 +473,6 @@ def continuous_level(config, max_level: int, *, ecc_deg, angular_deg, distance_m
         the median distance of the triangles given, the display's resolution).
     foveal_cpd : (S,), optional
         ``kelly_scaled``'s foveal f_max (:func:`fmax_cpd`).
-    change_contrast : (S, L+1), optional
-        ``change``: the contrast of what each level removes from the shading (:mod:`headplod.plod.change`).
-    displacement_contrast : (S,), optional
-        ``change``: the contrast against which each piece's displacement is seen (default ``contrast``).
     nyquist_cpd : float, optional
         The display's Nyquist frequency at the eye (:func:`csf.display_nyquist_cpd`): the cap of
         ``csf_model="cortical"``.
@@ -490,12 +485,7 @@ def continuous_level(config, max_level: int, *, ecc_deg, angular_deg, distance_m
                          foveal_cpd=foveal_cpd, level_bias=bias, cortical_exponent=config.cortical_exponent,
                          nyquist_cpd=nyquist_cpd)
     if mode in CHANGE_MODES:
-        if change_contrast is None or error_mm is None:
-            raise ValueError("mode 'change' needs each level's change contrast and geometric error (the mesh's)")
-        return change_level(change_contrast, angular_deg, error_mm, distance_mm,
-                            contrast if displacement_contrast is None else displacement_contrast, speed_deg_s,
-                            ecc_deg, csf_model=config.csf, cortical_exponent=config.cortical_exponent,
-                            nyquist_cpd=nyquist_cpd, threshold=config.change_threshold, level_bias=bias)
+        raise ValueError("mode 'change' is per level: change_visibility_levels, then change_level")
     if mode == "distance":
         return distance_level(distance_mm, max_level, config.distance_ref_mm) + bias
     if mode == "acuity":

@@ -233,7 +233,6 @@ class SelectorConfig:
             raise ValueError(f"SelectorConfig.budget_tolerance must be below 0.5 (fraction), "
                              f"got {self.budget_tolerance!r}")
 
-
     @property
     def csf(self) -> str:
         """The CSF model in use: ``csf_model``, or the mode's own (:data:`DEFAULT_CSF_MODEL`) when it is None."""
@@ -400,7 +399,7 @@ class LevelSelector:
             lo, hi = ((-float(finite.max()) - 1.0, 1.0 - float(finite.min())) if finite.size else (-1.0, 1.0))
 
             def levels_at(bias):
-                return criteria.crossing_level(visibility + bias)
+                return criteria.change_level(visibility, bias)
         else:
             base = continuous[seen]
             lo, hi = ((-(float(base.max()) + 1.0), L + 1.0 - float(base.min())) if len(seen) else (-1.0, 1.0))
@@ -487,7 +486,7 @@ class LevelSelector:
                 self._displacement_contrast(seen, directions, reach_deg), speed, ecc, csf_model=cfg.csf,
                 cortical_exponent=cfg.cortical_exponent, nyquist_cpd=change["nyquist_cpd"],
                 threshold=cfg.change_threshold)
-            return ecc, criteria.crossing_level(self._visibility + cfg.level_bias)
+            return ecc, criteria.change_level(self._visibility, cfg.level_bias)
         continuous = criteria.continuous_level(
             self.config, self.max_level, ecc_deg=ecc, angular_deg=angular_deg, distance_mm=distance,
             speed_deg_s=speed, contrast=self.contrast[seen], edge_len_mm=self.edge_len_mm[seen],
