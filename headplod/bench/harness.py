@@ -31,7 +31,7 @@ from ..plod.view import View
 from ..render.frame import FAR_MM, NEAR_MM, FrameStep, MeshBackend, RayMaskBackend, px_per_deg_at
 from ..render.projection import off_axis_projection
 from ..render.still import TerrainScene, default_head
-from ..render.image_metrics import disc_mask, flip_error, psnr_db
+from ..render.image_metrics import poi_disc, quality
 from .outputs import pyplot, save_figure, write_png
 
 __all__ = ["SIZE", "TRACKER_SIGMA_DEG", "TRACKER_COV_DEG2", "DISC_DEG", "FRAME_DT_S", "FRAME_STAGES",
@@ -68,21 +68,6 @@ def label_axes(ax, xlabel, ylabel=None, title=None, xscale=None, yscale=None, wh
     ax.grid(True, which=which, alpha=0.3)
     if legend:
         ax.legend(fontsize=legend)
-
-
-def poi_disc(shape, poi_image_px, radius_px: float) -> np.ndarray:
-    """(H, W) bool: pixels whose centres (index + 0.5, GL's) lie within ``radius_px`` of the POI (image px)."""
-    return disc_mask(shape, np.asarray(poi_image_px, dtype=np.float64) - 0.5, radius_px)
-
-
-def quality(image, reference, disc=None, px_per_deg=None, flip: bool = True) -> dict:
-    """``psnr_db`` over the image; ``psnr_disc_5deg_db`` in ``disc`` (H, W) bool; ``flip`` at ``px_per_deg``."""
-    q = {"psnr_db": psnr_db(image, reference)}
-    if disc is not None:
-        q["psnr_disc_5deg_db"] = psnr_db(image, reference, disc)
-    if flip:
-        q["flip"] = flip_error(reference, image, px_per_deg)
-    return q
 
 
 def mesh_step(scene, renderer, mode: str, uncertainty: str = "adaptive", *, foveate: bool = False,

@@ -219,15 +219,15 @@ def compare_line(image, reference, screen, head_mm, poi_px, size) -> str:
 
     from ..plod.view import default_head
     from .frame import px_per_deg_at
-    from .image_metrics import disc_mask, flip_error, psnr_db
+    from .image_metrics import poi_disc, quality
 
     head = default_head(screen) if head_mm is None else np.asarray(head_mm, dtype=np.float64)
     poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
     ppd = px_per_deg_at(screen, head, size)
     centre = poi * np.asarray(size, dtype=np.float64) / np.asarray(screen.size_px, dtype=np.float64)
-    disc = disc_mask(image.shape[:2], centre, 5.0 * ppd)
-    return (f"against full: PSNR {psnr_db(image, reference):.2f} dB, within 5° of the POI "
-            f"{psnr_db(image, reference, disc):.2f} dB, FLIP {flip_error(reference, image, ppd):.4f}")
+    q = quality(image, reference, poi_disc(image.shape[:2], centre, 5.0 * ppd), ppd)     # the benches' measures
+    return (f"against full: PSNR {q['psnr_db']:.2f} dB, within 5° of the POI {q['psnr_disc_5deg_db']:.2f} dB, "
+            f"FLIP {q['flip']:.4f}")
 
 
 def _run_tessellation(args, screen, cov, size) -> int:

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-__all__ = ["psnr_db", "disc_mask", "flip_error"]
+__all__ = ["psnr_db", "disc_mask", "poi_disc", "flip_error", "quality"]
 
 
 def psnr_db(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
@@ -39,3 +39,18 @@ def flip_error(reference: np.ndarray, test: np.ndarray, px_per_deg: float) -> fl
     tst = test.astype(np.float32) / 255.0
     _, mean, _ = flip_evaluator.evaluate(ref, tst, "LDR", applyMagma=False, parameters={"ppd": float(px_per_deg)})
     return float(mean)
+
+
+def poi_disc(shape, poi_image_px, radius_px: float) -> np.ndarray:
+    """(H, W) bool: pixels whose centres (index + 0.5, GL's) lie within ``radius_px`` of the POI (image px)."""
+    return disc_mask(shape, np.asarray(poi_image_px, dtype=np.float64) - 0.5, radius_px)
+
+
+def quality(image, reference, disc=None, px_per_deg=None, flip: bool = True) -> dict:
+    """``psnr_db`` over the image; ``psnr_disc_5deg_db`` in ``disc`` (H, W) bool; ``flip`` at ``px_per_deg``."""
+    q = {"psnr_db": psnr_db(image, reference)}
+    if disc is not None:
+        q["psnr_disc_5deg_db"] = psnr_db(image, reference, disc)
+    if flip:
+        q["flip"] = flip_error(reference, image, px_per_deg)
+    return q
