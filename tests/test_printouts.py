@@ -165,3 +165,24 @@ def test_glasses_draws_a_given_model_and_refuses_bad_sizes(tmp_path, capsys):
         assert len(err.splitlines()) == 1 and says in err, err
     assert cli_main(["glasses", "--out", str(tmp_path / "x.gif")]) == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+@pytest.mark.parametrize("command,name", [("board", "b.png"), ("board", "b.pdf"), ("glasses", "g.pdf"),
+                                          ("glasses", "g.svg")])
+def test_a_full_disk_is_one_line_exit_1_and_leaves_nothing(tmp_path, command, name):
+    """Writes beyond 8 kB fail as on a full disk (RLIMIT_FSIZE, in a child process): matplotlib's PDF writer
+    then raises an AttributeError of its own over the OSError; the command still says what happened."""
+    import resource
+    import subprocess
+    import sys
+
+    def small_files():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (8192, 8192))
+
+    args = ["--cols", "9", "--rows", "6", "--square-mm", "25"] if command == "board" else ["--yaml", "g.yaml"]
+    run = subprocess.run([sys.executable, "-m", "headplod.cli", command, *args, "--out", name], cwd=tmp_path,
+                         capture_output=True, text=True, preexec_fn=small_files, timeout=120)
+    err = run.stderr.strip().splitlines()
+    assert run.returncode == 1, run.stderr
+    assert len(err) == 1 and name in err[0] and "disk full" in err[0]
+    assert list(tmp_path.iterdir()) == []

@@ -164,7 +164,14 @@ class VectorPage:
         self.ax.set_ylim(self.size_mm[1], 0)
 
     def save(self, path: str) -> None:
-        self.fig.savefig(path, format=Path(path).suffix[1:], dpi=self.dpi)
+        try:
+            self.fig.savefig(path, format=Path(path).suffix[1:], dpi=self.dpi)
+        except Exception as exc:
+            # matplotlib's PDF writer, cleaning up after a write that failed (a full disk), raises an
+            # AttributeError of its own: the OSError underneath is what happened.
+            if not isinstance(exc, OSError) and isinstance(exc.__context__, OSError):
+                raise exc.__context__ from None
+            raise
 
 
 def new_page(out: str, size_mm: tuple[float, float], dpi: float):
@@ -396,6 +403,14 @@ def add_board_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     return parser
 
 
+def _write_failed(command: str, exc: OSError, out) -> int:
+    """One line for an output that could not be written (the files go under temporary names: none is left
+    half-written); exit status 1."""
+    print(f"headplod {command}: could not write the output: {exc.strerror or exc} ({exc.filename or out}; "
+          "is the disk full or the folder read-only?)", file=sys.stderr)
+    return 1
+
+
 def run_board(args) -> int:
     """Run ``headplod board``; the exit status (2 with one line on stderr for anything that cannot be made)."""
     try:
@@ -405,6 +420,8 @@ def run_board(args) -> int:
     except ValueError as exc:                   # BoardSpec's and PrintoutError
         print(f"headplod board: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:                      # a full disk, a read-only folder: nothing is left behind
+        return _write_failed("board", exc, args.out)
     w, h = layout.box[2:]
     print(f"wrote {args.out}: {spec.describe()}, {w:g} x {h:g} mm on {args.paper} "
           f"{'landscape' if layout.landscape else 'portrait'}; print at 100 % and measure a square")
@@ -431,6 +448,8 @@ def run_glasses(args) -> int:
     except PrintoutError as exc:
         print(f"headplod glasses: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        return _write_failed("glasses", exc, args.out)
     also = f" and {args.yaml}" if args.yaml else ""
     print(f"wrote {args.out}{also}: five {printed.diameter_mm:g} mm markers on {args.paper}; "
           "print at 100 % and check the scale bar")
