@@ -1,6 +1,6 @@
 """Contract conventions, re-implemented independently of ``headplod``.
 
-This module encodes what ``/work/shared/spec/conventions.md`` says about the
+This module encodes what ``docs/contract.md`` says about the
 glasses model, the head axes (Ξ, Ψ, V) and the contract files, with its own
 code, so that the synthetic data generator never imports the tracker.
 

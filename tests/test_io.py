@@ -1,4 +1,4 @@
-"""Tests of headplod.io: the contract's files (spec/conventions.md)."""
+"""Tests of headplod.io: the contract's files (docs/contract.md)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The calibration board: its specification and the detection of its inner corners in one image.
 
-Board frame B (``spec/conventions.md``): origin at the top-left outer corner
+Board frame B (``docs/contract.md``): origin at the top-left outer corner
 of the pattern, x along the columns, y along the rows, z into the board;
 inner corner k = i * cols + j is at ((j + 1) s, (i + 1) s, 0) mm. Corner
 arrays are (N, 2) float32 (u, v) px, OpenCV's pixel convention.

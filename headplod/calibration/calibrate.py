@@ -17,8 +17,8 @@ of a folder (:mod:`.pairs`), the advice while capturing (:mod:`.guide`) and
 the report (:mod:`.report`) are their own modules, and their public names
 are re-exported here (``__all__``), the calibration's one entry point.
 
-Conventions (``spec/conventions.md``)
--------------------------------------
+Conventions (``docs/contract.md``)
+-----------------------------------
 - Pixels: OpenCV's, (0, 0) is the centre of the top-left pixel; every corner
   array is (N, 2) float32 (u, v) px.
 - Board frame B: origin at the top-left outer corner of the pattern (the

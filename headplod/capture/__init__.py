@@ -4,7 +4,7 @@ One interface, :class:`FrameSource`, for a recorded dataset folder, two video
 files, the synthetic renderer and two live V4L2 cameras, so that replay and
 live capture run the same code; :func:`open_source` picks the source from a
 spec string. :class:`DatasetRecorder` writes frames back into the contract's
-dataset layout (``spec/conventions.md``).
+dataset layout (``docs/contract.md``).
 
 Modules
 -------

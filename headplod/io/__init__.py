@@ -1,7 +1,7 @@
 """Reading and writing the files of the headplod contract.
 
 This package is the one place where headplod reads and writes the files that
-``spec/conventions.md`` defines: the stereo rig (``rig.yaml``), the marker
+``docs/contract.md`` defines: the stereo rig (``rig.yaml``), the marker
 model (``markers.yaml``), the screen (``screen.yaml``), a stereo dataset folder
 (``left/``, ``right/``, ``times.csv``, ``truth.csv``) and the pose records
 (JSON Lines). Every public name is available here (``io.read_rig``,
