@@ -43,7 +43,7 @@ from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..progress import Progress
 from ..render import TerrainRenderer, create_context
 from ..plod.select import MODES
-from ..render.command import add_cost_arguments, selection_options
+from ..render.command import add_cost_arguments, add_csf_argument, raymask_config, selection_options
 from ..render.frame import capability_table, default_mode, options_problem
 from ..render.still import FULL_MAX_LEVEL, add_mesh_arguments, mesh_options, mesh_options_problem, mesh_stats
 from . import loop as lp
@@ -115,6 +115,7 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
                       help="LOD criterion (window: the initial one; headless: the one compared with full; "
                            f"default: the back end's, mesh: {default_mode('mesh')}, raymask: csf)")
     add_cost_arguments(view)
+    add_csf_argument(view)
     view.add_argument("--uncertainty", default="adaptive", choices=lp.SCENARIOS,
                       help="uncertainty scenario (window: initial; default adaptive)")
     view.add_argument("--viewpoint", default="overview", choices=tuple(VIEWPOINTS),
@@ -263,6 +264,7 @@ def _run_group(args, plan, scene, screen, renderers, folder, progress, pictures,
         demos.append(lp.DemoLoop(scene, tee.consumer(k), renderers[k], mode=mode, uncertainty=scenario,
                                  viewpoint=vp, view_mode="shaded", hud=True, saccade_deg_s=args.saccade_deg_s,
                                  growth_deg2_per_s=args.growth, foveate=foveate, backend=backend,
+                                 raymask=raymask_config(args),
                                  # full is the reference: no bias, no budget
                                  selector_options=selection_options(args) if mode == args.mode else None))
         written.append([])
@@ -417,7 +419,7 @@ def run_demo(args) -> int:
     backend = resolve_mode(args)
     problem = options_problem(backend, mode=args.mode, uncertainty=args.uncertainty, view_mode=args.view,
                               foveate=args.foveate, level_bias=getattr(args, "level_bias", 0.0) != 0.0,
-                              budget=getattr(args, "budget", None) is not None)
+                              budget=getattr(args, "budget", None) is not None, csf=args.csf)
     problem = problem or mesh_options_problem(args, ("raymask",) if backend == "raymask" else (args.mode,))
     if problem:
         print(f"headplod demo: {problem}", file=sys.stderr)

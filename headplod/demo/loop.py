@@ -212,12 +212,15 @@ class DemoLoop:
         renderer must have ``samples=0``.
     foveation : FoveationConfig, optional
         The layers' settings (default ``FoveationConfig()``).
+    raymask : RayMaskConfig, optional
+        The raymask back end's settings (default ``RayMaskConfig()``).
     """
 
     def __init__(self, scene, poses: PoseSource, renderer=None, *, size=(1280, 720), mode="csf",
                  uncertainty="adaptive", viewpoint="overview", view_mode="shaded", hud=True,
                  saccade_deg_s=SACCADE_DEG_S, growth_deg2_per_s=GROWTH_DEG2_PER_S, selector_options=None,
-                 foveate=False, foveation: FoveationConfig | None = None, backend: str = "mesh"):
+                 foveate=False, foveation: FoveationConfig | None = None, backend: str = "mesh",
+                 raymask: RayMaskConfig | None = None):
         # Its own build state over the scene's shared tables: loops run side by side (the
         # headless demo interleaves them) each rebuild only what their own selection changes.
         self.base_scene = dataclasses.replace(scene, mesh=scene.mesh.share())
@@ -238,7 +241,7 @@ class DemoLoop:
         mesh = scene.mesh
         self._modes = tuple(m for m in MODES if not (m == "full" and not mesh.full_fits))
         self._backends = tuple(b for b in DEMO_BACKENDS if not (b == "raymask" and not mesh.has_full_table))
-        self.raymask = RayMaskConfig()      # the settings of the raymask back end
+        self.raymask = raymask or RayMaskConfig()      # the settings of the raymask back end
         self._raymask_renderer = None
         self.settings = {}
         self.set("backend", backend)

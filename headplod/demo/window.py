@@ -15,7 +15,7 @@ import sys
 
 import numpy as np
 
-from ..render.command import selection_options
+from ..render.command import raymask_config, selection_options
 from ..render.frame import default_mode
 from ..render import TerrainRenderer
 from ..render.gl import FULLSCREEN_VERTEX_SHADER
@@ -77,7 +77,7 @@ def make_window_class():
                                  uncertainty=args.uncertainty, viewpoint=args.viewpoint, view_mode=args.view,
                                  saccade_deg_s=args.saccade_deg_s, growth_deg2_per_s=args.growth,
                                  foveate=getattr(args, "foveate", False), backend=getattr(args, "backend", "mesh"),
-                                 selector_options=selection_options(args))
+                                 selector_options=selection_options(args), raymask=raymask_config(args))
             self.texture = self.ctx.texture(size, 3)
             self.program = self.ctx.program(vertex_shader=FULLSCREEN_VERTEX_SHADER, fragment_shader=_FRAGMENT)
             self.quad = self.ctx.vertex_array(self.program, [])

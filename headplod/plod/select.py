@@ -79,7 +79,8 @@ class SelectorConfig:
     ellipse_sigma : float
         Size of that ellipse, standard deviations (2.0); ``"ellipse"`` only.
     csf_model : one of perception.CSF_MODELS, or None
-        The CSF of modes ``"csf"`` and ``"change"``; None (the default)
+        The CSF of modes ``"csf"`` and ``"change"`` (the other modes have
+        no CSF form to choose and ignore it); None (the default)
         takes the mode's own: ``"kelly_scaled"`` for ``csf`` (the paper's
         reproduction), ``"cortical"`` for ``change``.
     cortical_exponent : float
@@ -235,8 +236,10 @@ class SelectorConfig:
 
     @property
     def csf(self) -> str:
-        """The CSF model in use: ``csf_model``, or the mode's own (:data:`DEFAULT_CSF_MODEL`) when it is None."""
-        return self.csf_model if self.csf_model is not None else DEFAULT_CSF_MODEL.get(self.mode, "kelly_scaled")
+        """The CSF model in use: ``csf_model`` for a CSF-based mode, else the mode's own (:data:`DEFAULT_CSF_MODEL`)."""
+        if self.csf_model is not None and self.mode in DEFAULT_CSF_MODEL:
+            return self.csf_model
+        return DEFAULT_CSF_MODEL.get(self.mode, "kelly_scaled")
 
 
 class LevelSelector:

@@ -24,14 +24,16 @@ from calib import DEFAULT_SCREEN
 from .. import io
 from ..plod.export import check_export_path
 from ..argtypes import floats, level_bias, triangle_budget
-from ..plod.raymask import RayMaskConfig
+from ..plod.csf import CSF_MODELS
+from ..plod.raymask import RAYMASK_CSF_MODELS, RayMaskConfig
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
-from ..plod.select import MODES, UNCERTAINTY_MODES, SelectorConfig
+from ..plod.select import DEFAULT_CSF_MODEL, MODES, UNCERTAINTY_MODES, SelectorConfig
 from .frame import BACKENDS, VIEW_MODES, capability_table, default_mode, options_problem
 from .still import (CONTRAST_SOURCES, MeshOptions, add_mesh_arguments, mesh_options, mesh_options_problem,
                     render_still, scene_model)
 
-__all__ = ["add_render_arguments", "run_render"]
+__all__ = ["add_render_arguments", "run_render", "add_cost_arguments", "add_csf_argument", "selection_options",
+           "raymask_config"]
 
 
 def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -43,6 +45,7 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     render.add_argument("--uncertainty", default="adaptive", choices=UNCERTAINTY_MODES,
                         help="which covariance of the viewing direction the levels use (default adaptive)")
     add_cost_arguments(render)
+    add_csf_argument(render)
     render.add_argument("--head", type=floats(3), help="eye position X,Y,Z in the world frame, mm "
                                                          "(default: 600 mm in front of the screen centre)")
     render.add_argument("--poi", type=floats(2), help="point of interest X,Y in screen pixels (default: centre)")
@@ -95,10 +98,33 @@ def add_cost_arguments(parser) -> None:
                              "(bisection), so modes can be compared at equal cost (mesh back end)")
 
 
+def add_csf_argument(parser) -> None:
+    """Add ``--csf FORM`` (the contrast sensitivity function the levels follow) to a parser or group."""
+    parser.add_argument("--csf", choices=RAYMASK_CSF_MODELS, default=None, metavar="FORM",
+                        help="the CSF form of the CSF-based modes: " + ", ".join(RAYMASK_CSF_MODELS)
+                             + " (gp, Geisler-Perry: raymask only). Default: the mode's own ("
+                             + ", ".join(f"{m}: {f}" for m, f in DEFAULT_CSF_MODEL.items())
+                             + f"; raymask: {RayMaskConfig.csf_model}); which back end takes which is in the table "
+                               "below")
+
+
 def selection_options(args) -> dict:
-    """The :class:`SelectorConfig` fields of :func:`add_cost_arguments`' options."""
-    return {"level_bias": float(getattr(args, "level_bias", 0.0)),
-            "budget_triangles": getattr(args, "budget", None)}
+    """The :class:`SelectorConfig` fields of :func:`add_cost_arguments`' options and of ``--csf`` (the selector's
+    CSF; raymask's own CSF is :func:`raymask_config`'s)."""
+    options = {"level_bias": float(getattr(args, "level_bias", 0.0)),
+               "budget_triangles": getattr(args, "budget", None)}
+    csf = getattr(args, "csf", None)
+    if csf in CSF_MODELS:              # gp is raymask's alone (the mesh's Geisler-Perry is --mode gp)
+        options["csf_model"] = csf
+    return options
+
+
+def raymask_config(args) -> RayMaskConfig:
+    """The raymask back end's settings from ``--inset-deg``, ``--no-silhouettes`` and ``--csf`` (absent options:
+    the defaults). Raises ValueError naming the setting that is out of range."""
+    return RayMaskConfig(inset_deg=getattr(args, "inset_deg", RayMaskConfig.inset_deg),
+                         silhouettes=not getattr(args, "no_silhouettes", False),
+                         csf_model=getattr(args, "csf", None) or RayMaskConfig.csf_model)
 
 
 def _output_problem(path, image: bool = False) -> str | None:
@@ -139,7 +165,7 @@ def run_render(args) -> int:
     problem = options_problem(args.backend, mode=args.mode, uncertainty=args.uncertainty, view_mode=args.view,
                               foveate=args.foveate, contrast=args.contrast, export=args.export is not None,
                               terrain=args.terrain is not None, level_bias=args.level_bias != 0.0,
-                              budget=args.budget is not None)
+                              budget=args.budget is not None, csf=args.csf)
     if problem:
         print(f"headplod: {problem}", file=sys.stderr)
         return 2
@@ -162,7 +188,7 @@ def run_render(args) -> int:
     raymask = None
     if args.backend == "raymask":
         try:
-            raymask = RayMaskConfig(inset_deg=args.inset_deg, silhouettes=not args.no_silhouettes)
+            raymask = raymask_config(args)
         except ValueError as exc:
             print(f"headplod: --inset-deg: {exc}", file=sys.stderr)
             return 2
@@ -211,23 +237,41 @@ def run_render(args) -> int:
     return 0
 
 
-def compare_line(image, reference, screen, head_mm, poi_px, size) -> str:
+def compare_line(image, reference, screen, head_mm, poi_px, size, judge=None) -> str:
     """``render --compare full``'s line: PSNR of ``image`` against ``reference`` (both (H, W, 3) uint8 of ``size``
-    (w, h) px) over the image and within 5° of the POI (screen px; None: the centre), and FLIP at the screen's
-    pixels per degree seen from ``head_mm`` (world mm; None: the default head)."""
+    (w, h) px) over the image and within 5° of the POI (screen px; None: the centre), FLIP at the screen's
+    pixels per degree seen from ``head_mm`` (world mm; None: the default head), and FovVideoVDP's JOD fixated at
+    the POI where the vdp extra is installed.
+
+    ``judge``: a callable ``(display, reference, image, fixation) -> JOD`` standing in for FovVideoVDP (tests);
+    None: :class:`headplod.render.vdp.Judge` when :func:`~headplod.render.vdp.vdp_available`, else the line says
+    how to install it."""
     import numpy as np
 
     from ..plod.view import default_head
     from .frame import px_per_deg_at
     from .image_metrics import poi_disc, quality
+    from .vdp import Judge, display_geometry, fixation_px, vdp_available
 
     head = default_head(screen) if head_mm is None else np.asarray(head_mm, dtype=np.float64)
     poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
     ppd = px_per_deg_at(screen, head, size)
     centre = poi * np.asarray(size, dtype=np.float64) / np.asarray(screen.size_px, dtype=np.float64)
     q = quality(image, reference, poi_disc(image.shape[:2], centre, 5.0 * ppd), ppd)     # the benches' measures
-    return (f"against full: PSNR {q['psnr_db']:.2f} dB, within 5° of the POI {q['psnr_disc_5deg_db']:.2f} dB, "
+    line = (f"against full: PSNR {q['psnr_db']:.2f} dB, within 5° of the POI {q['psnr_disc_5deg_db']:.2f} dB, "
             f"FLIP {q['flip']:.4f}")
+    if judge is None and not vdp_available("fvvdp"):
+        return line + "; JOD needs the vdp extra (.venv/bin/pip install -e '.[vdp]')"
+    try:
+        display = display_geometry(screen, head, size)
+    except ValueError as exc:           # the metric's display model has the eye on the screen centre's normal
+        return line + f"; no JOD: {exc}"
+    fixation = fixation_px(screen, poi, size)
+    if judge is None:
+        jod = Judge(display).jod(reference, image, fixation)
+    else:
+        jod = judge(display, reference, image, fixation)
+    return line + f", JOD {jod:.2f} (FovVideoVDP, fixated at the POI; 10 = no visible difference)"
 
 
 def _run_tessellation(args, screen, cov, size) -> int:

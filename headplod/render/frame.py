@@ -32,7 +32,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..plod.select import MODES, SelectorConfig
+from ..plod.csf import CSF_MODELS
+from ..plod.raymask import RAYMASK_CSF_MODELS, RayMaskConfig
+from ..plod.select import DEFAULT_CSF_MODEL, MODES, SelectorConfig
 from ..plod.view import UNCERTAINTY_MODES, ConditionedView, View, ViewConditioner, still_view
 from .gl import VIEW_MODES as _GL_VIEW_MODES
 from .projection import off_axis_projection
@@ -81,6 +83,11 @@ class BackendCapabilities:
     default_mode : str
         The mode it draws when none is asked for: the project's default criterion
         (:class:`headplod.plod.select.SelectorConfig`) where it takes it, else ``csf``.
+    csf_forms : tuple of str
+        The CSF forms ``--csf`` may choose (:data:`headplod.plod.csf.CSF_MODELS`; ``gp``: Geisler–Perry).
+    default_csf : str
+        The form it uses when none is asked for (the mesh: each CSF-based mode's own,
+        :data:`headplod.plod.select.DEFAULT_CSF_MODEL`).
     """
 
     name: str
@@ -97,6 +104,8 @@ class BackendCapabilities:
     budget: bool
     finest_level: str
     default_mode: str = "csf"
+    csf_forms: tuple = ("kelly_scaled",)
+    default_csf: str = "kelly_scaled"
 
 
 CAPABILITIES = {
@@ -104,7 +113,8 @@ CAPABILITIES = {
         "mesh", "a level per base triangle over an adaptive mesh, drawn indexed", MODES, UNCERTAINTY_MODES,
         VIEW_MODES, foveate=True, own_terrain=True, hysteresis=True, contrast_sources=("shading", "readback"),
         export=True, level_bias=True, budget=True,
-        finest_level="--max-level 1..8 (above 5: lazy pieces; full up to 7)", default_mode=SelectorConfig().mode),
+        finest_level="--max-level 1..8 (above 5: lazy pieces; full up to 7)", default_mode=SelectorConfig().mode,
+        csf_forms=CSF_MODELS, default_csf=", ".join(f"{m}: {f}" for m, f in DEFAULT_CSF_MODEL.items())),
     "tessellation": BackendCapabilities(
         "tessellation", "the CSF per patch on the GPU, tessellated from a height texture", ("csf", "full"),
         UNCERTAINTY_MODES, ("shaded",), foveate=False, own_terrain=True, hysteresis=False,
@@ -114,7 +124,8 @@ CAPABILITIES = {
         "raymask", "Murphy & Duchowski: rays through a CSF ray mask, no levels", ("csf",), UNCERTAINTY_MODES,
         ("shaded",), foveate=False, own_terrain=True, hysteresis=False, contrast_sources=("shading",),
         export=False, level_bias=False, budget=False,
-        finest_level="the whole-table mesh's finest level (--max-level up to 5)"),
+        finest_level="the whole-table mesh's finest level (--max-level up to 5)",
+        csf_forms=RAYMASK_CSF_MODELS, default_csf=RayMaskConfig.csf_model),
 }
 #: The back ends, in the order the tools list them.
 BACKENDS = tuple(CAPABILITIES)
@@ -128,11 +139,17 @@ def default_mode(backend: str) -> str:
 
 def options_problem(backend: str, *, mode: str = "csf", uncertainty: str = "adaptive", view_mode: str = "shaded",
                     foveate: bool = False, contrast: str = "shading", export: bool = False,
-                    terrain: bool = False, level_bias: bool = False, budget: bool = False) -> str | None:
-    """One line saying which option ``backend`` does not support, or None when it supports them all."""
+                    terrain: bool = False, level_bias: bool = False, budget: bool = False,
+                    csf: str | None = None) -> str | None:
+    """One line saying which option ``backend`` does not support, or None when it supports them all.
+
+    ``csf``: the CSF form asked for (``--csf``), or None for the back end's own."""
     if backend not in CAPABILITIES:
         return f"unknown back end {backend!r}; choose one of {', '.join(BACKENDS)}"
     cap = CAPABILITIES[backend]
+    if csf is not None and backend == "mesh" and mode not in DEFAULT_CSF_MODEL:
+        return (f"--csf sets the CSF of the CSF-based modes ({', '.join(DEFAULT_CSF_MODEL)}); --mode {mode} has "
+                "none")
     bad = [text for text, ok in (
         (f"--mode {mode} (modes: {', '.join(cap.modes)})", mode in cap.modes),
         (f"--uncertainty {uncertainty}", uncertainty in cap.scenarios),
@@ -142,7 +159,10 @@ def options_problem(backend: str, *, mode: str = "csf", uncertainty: str = "adap
         ("--export", cap.export or not export),
         ("--terrain", cap.own_terrain or not terrain),
         ("--level-bias", cap.level_bias or not level_bias),
-        ("--budget", cap.budget or not budget)) if not ok]
+        ("--budget", cap.budget or not budget),
+        (f"--csf {csf} (forms: {', '.join(cap.csf_forms)}"
+         + ("; Geisler-Perry is --mode gp)" if csf == "gp" and "gp" in cap.modes else ")"),
+         csf is None or csf in cap.csf_forms)) if not ok]
     return f"--backend {backend} does not take {', '.join(bad)}" if bad else None
 
 
@@ -150,12 +170,14 @@ def capability_table(markdown: bool = False) -> str:
     """The capability table as text (``--help``; ``markdown``: for the docs)."""
     yes = {True: "yes", False: "no"}
     rows = [("back end", "modes", "default mode", "scenarios", "views", "foveate", "own terrain", "hysteresis",
-             "level bias", "budget", "finest level")]
+             "level bias", "budget", "CSF forms (default)", "finest level")]
     for cap in CAPABILITIES.values():
         rows.append((cap.name, ", ".join(cap.modes) if cap.modes != MODES else "all", cap.default_mode,
                      "all" if cap.scenarios == UNCERTAINTY_MODES else ", ".join(cap.scenarios),
                      ", ".join(cap.view_modes), yes[cap.foveate], yes[cap.own_terrain], yes[cap.hysteresis],
-                     yes[cap.level_bias], yes[cap.budget], cap.finest_level))
+                     yes[cap.level_bias], yes[cap.budget],
+                     f"{', '.join(cap.csf_forms)} ({cap.default_csf})",
+                     cap.finest_level))
     if markdown:
         lines = ["| " + " | ".join(r) + " |" for r in rows]
         lines.insert(1, "|" + "---|" * len(rows[0]))
