@@ -4,6 +4,7 @@ The parser and a table of commands (:data:`COMMANDS`); each command's options an
 in its package (``live/command.py``, ``bench/command.py``, ``demo/cli.py``, ...).
 
     headplod track [--source SPEC] [--out FILE|-] [--estimator reproj|rigid|paper] ...
+    headplod preview [--source SPEC] [--calib rig.yaml] [--out DIR [--frames N]] [-q]
     headplod demo [--source SPEC | --mouse] [--headless --frames N --out DIR] ...
     headplod bench track|uncertainty|plod|live ...
     headplod synth PRESET OUT_DIR [--frames N] [--seed S] [-q]
@@ -31,6 +32,7 @@ from .capture.command import add_cameras_arguments, run_cameras
 from .demo.cli import add_demo_arguments, run_demo
 from .live.command import add_track_arguments, run_track
 from .live.pivot_command import add_pivot_arguments, run_pivot
+from .live.preview import add_preview_arguments, run_preview
 from .render.command import add_render_arguments, run_render
 
 #: ``headplod NAME``: (help, add NAME's arguments to its subparser, run(args) -> exit status), in --help's order.
@@ -39,6 +41,8 @@ COMMANDS = {
               add_track_arguments, run_track),
     "pivot": ("measure the head's pivot (the neck) from head turns, for track --udp", add_pivot_arguments, run_pivot),
     "cameras": ("list the video devices with their USB identity", add_cameras_arguments, run_cameras),
+    "preview": ("both cameras side by side: threshold, blobs, markers, epipolar lines, rate, skew and advice",
+                add_preview_arguments, run_preview),
     "calibrate": ("stereo calibration from chessboard/ChArUco pairs -> rig.yaml", add_calibrate_arguments,
                   run_calibrate),
     "board": ("print a calibration board at true scale (the --cols/--rows/--square-mm calibrate takes) -> PDF/PNG/SVG",
