@@ -20,7 +20,8 @@ from headplod.cli import build_parser
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted(p for p in (ROOT / "docs").glob("*.md") if p.name != "commands.md")]
 OPTION = re.compile(r"(?<![\w/.-])(--[a-z][a-z0-9-]*|-[a-zA-Z])(?![\w-])")
-FENCE = re.compile(r"^```[^\n]*\n(.*?)^```", re.S | re.M)
+FENCE = re.compile(r"^```([^\n]*)\n(.*?)^```", re.S | re.M)
+SHELL = ("", "sh", "bash", "console", "shell")     # the blocks that hold commands (not ```python, ```toml)
 INLINE = re.compile(r"(?<!`)`([^`\n]+)`(?!`)")
 
 
@@ -48,7 +49,9 @@ def _command_of(text: str, commands: dict):
 def _commands_written(text: str):
     """Every 'headplod NAME ...' written in the page's code blocks (with their continuation lines) and inline
     code: (the command text from 'headplod' on, where it was)."""
-    for block in FENCE.findall(text):
+    for language, block in FENCE.findall(text):
+        if language.strip() not in SHELL:
+            continue
         current = None
         for line in block.splitlines():
             body = line.split(" #", 1)[0]
@@ -93,7 +96,7 @@ def test_the_readme_synopsis_lists_every_command_with_options_that_exist(command
     assert part, "the README has a '## Commands' section"
     block = FENCE.search(part.group(1))
     assert block, "the README's '## Commands' section has a synopsis block"
-    written = list(_commands_written("```\n" + block.group(1) + "```\n"))
+    written = list(_commands_written("```\n" + block.group(2) + "```\n"))
     named = {_command_of(c, commands)[0] for c in written}
     top = {name for name in commands if name.count(" ") == 1}
     assert top - named == set(), "commands missing from the README's synopsis"
