@@ -255,12 +255,15 @@ def test_bad_usage_is_one_line_exit_2_and_nothing_written(sample, tmp_path, caps
     before = sorted(p.relative_to(sample) for p in sample.rglob("*"))
     for argv in (["--out", str(sample / "pictures")],                    # inside the dataset being read
                  ["--out", str(sample)],
-                 ["--out", str(tmp_path / "out"), "--exposure", "100"],   # a camera option for a replay
                  ["--out", str(tmp_path / "missing" / "out")]):
         assert cli_main(["preview", "--source", str(sample), *argv]) == 2, argv
         _one_line_error(capsys.readouterr().err)
     assert sorted(p.relative_to(sample) for p in sample.rglob("*")) == before
     assert not (tmp_path / "out").exists()
+    # A camera's setting for a replay is said to be ignored (the config file may give it for every command).
+    assert cli_main(["preview", "--source", str(sample), "--frames", "1", "--exposure", "100",
+                     "--out", str(tmp_path / "out")]) == 0
+    assert "note: --exposure set live cameras; ignored for the replay" in capsys.readouterr().err
     with pytest.raises(SystemExit) as stop:
         cli_main(["preview", "--source", str(sample), "--frames", "0", "--out", str(tmp_path / "out")])
     assert stop.value.code == 2 and "--frames" in capsys.readouterr().err

@@ -720,8 +720,9 @@ def _check_usage(args) -> tuple[str, Path | None, int | None]:
     live = kind == "v4l2"
     given = [name for name, value in (("--fps", args.fps), ("--fourcc", args.fourcc),
                                       ("--exposure", args.exposure), ("--gain", args.gain)) if value is not None]
-    if given and not live:
-        raise _Usage(f"{', '.join(given)} set live cameras; the source {spec!r} is a replay (use --source v4l2:...)")
+    if given and not live and not args.quiet:
+        # Not refused: the config file's shared camera settings apply to preview too (headplod.toml).
+        print(f"note: {', '.join(given)} set live cameras; ignored for the replay {spec!r}", file=sys.stderr)
     if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
         raise _Usage(f"--fps must be a positive number of frames per second, got {args.fps:g}")
     if live and spec.partition(":")[2].strip().lower() == "auto" and not args.calib:
