@@ -3,6 +3,7 @@
 The parser and a table of commands (:data:`COMMANDS`); each command's options and body live
 in its package (``live/command.py``, ``bench/command.py``, ``demo/cli.py``, ...).
 
+    headplod doctor [--calib rig.yaml] [--source SPEC] [-q]
     headplod track [--source SPEC] [--out FILE|-] [--estimator reproj|rigid|paper] ...
     headplod preview [--source SPEC] [--calib rig.yaml] [--out DIR [--frames N]] [-q]
     headplod demo [--source SPEC | --mouse] [--headless --frames N --out DIR] ...
@@ -30,6 +31,7 @@ from .calibration.command import add_calibrate_arguments, run_calibrate
 from .calibration.printouts import add_board_arguments, add_glasses_arguments, run_board, run_glasses
 from .capture.command import add_cameras_arguments, run_cameras
 from .demo.cli import add_demo_arguments, run_demo
+from .doctor import add_doctor_arguments, run_doctor
 from .live.command import add_track_arguments, run_track
 from .live.pivot_command import add_pivot_arguments, run_pivot
 from .live.preview import add_preview_arguments, run_preview
@@ -37,6 +39,8 @@ from .render.command import add_render_arguments, run_render
 
 #: ``headplod NAME``: (help, add NAME's arguments to its subparser, run(args) -> exit status), in --help's order.
 COMMANDS = {
+    "doctor": ("check this machine for webcam tracking: video devices, permissions, formats, USB identity, "
+               "libusb, the rig, EGL; one line and a fix per check", add_doctor_arguments, run_doctor),
     "track": ("track a frame source: a dataset folder, videos, live cameras or the built-in synthetic sequence",
               add_track_arguments, run_track),
     "pivot": ("measure the head's pivot (the neck) from head turns, for track --udp", add_pivot_arguments, run_pivot),

@@ -47,6 +47,7 @@ __all__ = [
     "LEFT_KEY",
     "RIGHT_KEY",
     "list_cameras",
+    "list_video_nodes",
     "libusb_available",
     "identity_of",
     "match_camera",
@@ -373,6 +374,26 @@ def list_cameras(
         _with_usb_identity(c, by_address.get((c.bus, c.address))) if c.is_usb else c
         for c in cameras
     ]
+
+
+def list_video_nodes(sysfs_root: str = "/sys", dev_root: str = "/dev") -> list[CameraInfo]:
+    """Every video node as sysfs describes it, without asking pyusb (works without libusb).
+
+    Like :func:`list_cameras` with ``all_nodes=True``, except that the USB
+    strings (manufacturer, product, serial) are the ones the kernel read
+    into sysfs at enumeration, and no device is opened.
+
+    Returns
+    -------
+    list of CameraInfo
+        In device number order; empty when there is no ``class/video4linux``.
+    """
+    class_dir = Path(sysfs_root) / "class" / "video4linux"
+    if not class_dir.is_dir():
+        return []
+    nodes = sorted((int(m.group(1)), entry) for entry in class_dir.iterdir()
+                   if (m := _VIDEO_RE.match(entry.name)))
+    return [_sysfs_camera(node, dev_root) for _, node in nodes]
 
 
 # --------------------------------------------------------------------------
