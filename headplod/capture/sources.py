@@ -70,22 +70,68 @@ __all__ = [
 
 
 class _Pacer:
-    """Sleeps so that frames come out at the pace of their times (realtime replay)."""
+    """Releases frames at the pace of their times (``realtime=True`` replay).
 
-    def __init__(self, enabled: bool):
-        self.enabled = enabled
-        self._origin: tuple[float, float] | None = None
+    The first frame goes at once and fixes the schedule: a frame of time
+    ``t`` is due ``t - t0`` after it. :meth:`wait` sleeps until a frame is due.
+    The policy, decided for a live consumer (opentrack) that wants the
+    recording's motion at its own speed:
 
-    def wait(self, t: float) -> None:
+    - never drop a frame: every frame is released, in order;
+    - behind (the frame is already due: a slow read, slow tracking, a busy
+      machine): no wait. Up to ``slack_s`` late, the schedule holds, so
+      sleep overshoots do not add up into a drift (the frames that follow
+      wait a little less: at most ``slack_s`` of catch-up, never a burst);
+      more than ``slack_s`` late, the schedule restarts at that frame (it is
+      due now), so the frames after it keep their own spacing instead of
+      rushing out back to back to catch up;
+    - a frame without a finite time goes at once (the schedule kept); one
+      whose time goes back before the schedule's start restarts it; a gap longer than ``max_wait_s`` (a pause
+      in the recording) is shortened to ``max_wait_s``, and the schedule
+      restarts after it (a Ctrl-C is seen within ``max_wait_s``).
+
+    ``clock`` (s, monotonic) and ``sleep`` are injectable, so that tests use a
+    fake clock and never assert wall-clock time. :attr:`slept_s` is the total
+    time waited and :attr:`restarts` how often the schedule restarted.
+    """
+
+    def __init__(self, enabled: bool, *, clock: Callable[[], float] | None = None,
+                 sleep: Callable[[float], None] | None = None, slack_s: float = 0.025,
+                 max_wait_s: float = 1.0):
+        self.enabled = bool(enabled)
+        self._clock = clock or time.monotonic
+        self._sleep = sleep or time.sleep
+        self.slack_s, self.max_wait_s = float(slack_s), float(max_wait_s)
+        self._origin: tuple[float, float] | None = None   # (clock, frame time) the schedule counts from
+        self.slept_s = 0.0
+        self.restarts = 0
+
+    def wait(self, t: float) -> float:
+        """Sleep until the frame of time ``t`` (s) is due; the seconds slept (0 when behind or disabled)."""
         if not self.enabled:
-            return
-        now = time.monotonic()
+            return 0.0
+        now = self._clock()
+        if not math.isfinite(t):
+            return 0.0                                  # no time to pace by: at once, the schedule kept
         if self._origin is None:
             self._origin = (now, t)
-            return
+            return 0.0
         delay = self._origin[0] + (t - self._origin[1]) - now
-        if delay > 0:
-            time.sleep(delay)
+        if t < self._origin[1] or delay < -self.slack_s:
+            self._restart(now, t)                       # back in time, or too late: due now
+            return 0.0
+        if delay <= 0:
+            return 0.0
+        if delay > self.max_wait_s:
+            delay = self.max_wait_s
+            self._restart(now + delay, t)               # a pause in the recording, shortened
+        self._sleep(delay)
+        self.slept_s += delay
+        return delay
+
+    def _restart(self, now: float, t: float) -> None:
+        self._origin = (now, t)
+        self.restarts += 1
 
 
 def _median_period_s(times: list[float]) -> float | None:
@@ -111,8 +157,9 @@ class DatasetSource(FrameSource):
         ``markers.yaml``, ``screen.yaml`` optional), or a dataset already
         read from one.
     realtime : bool
-        Pace the frames by their ``t`` (wall-clock replay); default as fast
-        as they are read.
+        Pace the frames by their ``t`` (wall-clock replay: ``headplod track
+        --realtime``; behind, no frame is dropped and none waits, see
+        :class:`_Pacer`); default as fast as they are read.
     skew_bound_ms : float, optional
         Flag frames whose ``|t_right - t|`` exceeds this, ms. Default half the
         median frame period of the recording.

@@ -25,6 +25,11 @@ as it should, kept when it ends early), and the output of a killed run is
 announced and kept by the next run that writes there. No output may lie
 inside the dataset folder being read. Ctrl-C, SIGTERM and SIGHUP stop the
 run cleanly between frames: the records and frames so far are kept, whole.
+
+``--realtime`` paces a replay at its frame times (:class:`~headplod.capture.sources._Pacer`: no frame
+dropped, no burst after a late one); it is refused with live cameras. With ``--udp``, the key ``c`` and
+SIGUSR1 recentre what is sent (:mod:`headplod.live.recentre`; the math in
+:func:`~headplod.live.opentrack.opentrack_values`), from the next frame; the records are not recentred.
 """
 from __future__ import annotations
 
@@ -52,6 +57,7 @@ from ..tracking.rig_refine import RigRefineConfig
 from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
 from .frame_notes import FrameNotes, warning_kind
 from .opentrack import DEFAULT_PIVOT_MM, OPENTRACK_FRAMES, check_pivot_mm, parse_host_port
+from .recentre import RecentreControls
 from .status import ForgivingStream, StatusLine
 from .track_checks import Usage as _Usage, check_outputs as _check_outputs, check_save_rig as _check_save_rig
 from .udp import OpentrackSender
@@ -65,7 +71,8 @@ TRACK_EPILOG = ("exit status: 0 success (a fault in one frame is that frame's 'o
                 "before its first frame (nothing is written) or ended early (what was made is kept, and one line "
                 "says where); 2 bad usage (nothing is written); 3 no frame was tracked (every frame failed, or "
                 "there was none). Ctrl-C, SIGTERM or SIGHUP stops cleanly between frames: the records and frames "
-                "so far are kept.")
+                "so far are kept. With --udp, the key c (standard input a terminal) or SIGUSR1 (kill -USR1 PID) "
+                "recentres what is sent to opentrack, from the next frame: the current pose becomes its zero.")
 
 
 def note_old_spelling(old: str, new: str) -> None:
@@ -150,6 +157,11 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
     live.add_argument("--status", action="store_true",
                       help="a status line (rate, latency, skew, drops); on by default with live cameras")
     live.add_argument("--frames", type=frame_count, metavar="N", help="stop after N frames (at least 1)")
+    live.add_argument("--realtime", action="store_true",
+                      help="replay a recording (dataset folder, video pair, synthetic) at the pace of its frame "
+                           "times, as the cameras gave them (e.g. to try opentrack without cameras); behind, no "
+                           "frame is dropped and none waits. Default off: as fast as tracked. Not with live "
+                           "cameras (they are real time already)")
     track.epilog = TRACK_EPILOG
     return track
 
@@ -179,6 +191,12 @@ def add_udp_arguments(group) -> None:
                        help="with --udp: the position's axes: tracker-pt (default: x right, y up, z away from "
                             "the camera, as opentrack's point tracker) or opencv (y down, as opentrack's ArUco "
                             "tracker, and headplod's earlier output)")
+    group.add_argument("--recentre-at-start", action="store_true",
+                       help="with --udp: the first tracked pose is opentrack's zero (default off: the pose as "
+                            "tracked, zero facing the cameras). During the run, press c (when standard input is "
+                            "this terminal) or send SIGUSR1 (kill -USR1 PID, the PID printed at the start) to make "
+                            "the current pose the zero: later poses are sent relative to it, in opentrack's axes. "
+                            "Only what is sent is recentred; --out keeps the camera frame")
 
 
 def udp_pivot(args, rig=None, source=None) -> tuple[np.ndarray, str]:
@@ -249,6 +267,10 @@ def open_source_or_report(args, spec: str, check=None):
 
 def _open_track_source(args, spec: str):
     """The frame source of ``headplod track``, the rig and whether it is live."""
+    realtime = bool(getattr(args, "realtime", False))
+    if realtime and source_kind(spec) == "v4l2":
+        raise _Usage(f"--realtime paces a replay; --source {spec} is live cameras, real time already "
+                     "(drop --realtime)")
     rig = io.read_rig(args.calib) if args.calib else None
     if source_kind(spec) == "v4l2":
         if rig is None:
@@ -266,7 +288,7 @@ def _open_track_source(args, spec: str):
     if preset is not None:
         spec = str(ensure_dataset(preset, quiet=args.quiet))
         print(f"tracking the built-in synthetic sequence: {spec}", file=sys.stderr)
-    source = open_source(spec)
+    source = open_source(spec, realtime=True) if realtime else open_source(spec)
     return source, rig or source.rig, False
 
 
@@ -299,7 +321,12 @@ def _run_track(args) -> int:
         code = run.start(config, rig, udp)
         if code is not None:
             return code
-        failure, kept = run.run(stop, pose_filter)
+        with RecentreControls(run.sender) as recentre:  # SIGUSR1 and the key c recentre what is sent
+            if run.sender is not None:
+                print(recentre.note(), file=run.log)
+                if getattr(args, "recentre_at_start", False):
+                    run.sender.request_recentre("--recentre-at-start")
+            failure, kept = run.run(stop, pose_filter)
     return run.finish(spec, stop, failure, kept)
 
 
@@ -330,14 +357,15 @@ def _pose_filter(args) -> PoseFilter | None:
 
 def _udp_address(args) -> tuple[str, int] | None:
     """``--udp HOST[:PORT]`` as ``(host, port)``, None without it; raises _Usage when it is wrong, or when
-    ``--pivot`` or ``--udp-axes`` come without it."""
+    ``--pivot``, ``--udp-axes`` or ``--recentre-at-start`` come without it."""
     if args.udp:
         try:
             return parse_host_port(args.udp)
         except ValueError as exc:
             raise _Usage(str(exc)) from None
-    if args.pivot is not None or args.udp_axes != "tracker-pt":
-        raise _Usage("--pivot and --udp-axes go with --udp (they shape what is sent to opentrack)")
+    if args.pivot is not None or args.udp_axes != "tracker-pt" or getattr(args, "recentre_at_start", False):
+        raise _Usage("--pivot, --udp-axes and --recentre-at-start go with --udp (they shape what is sent to "
+                     "opentrack)")
     return None
 
 

@@ -88,6 +88,24 @@ tracker-pt gives (above); ``tracker-steamvr/steamvr.cpp`` and
 ``tracker-aruco/ftnoir_tracker_aruco.cpp`` agree on them. The angles do not
 depend on the position frame chosen. Ranges: yaw and roll in (-180, 180],
 pitch in [-90, 90]; at pitch ±90° roll is reported as 0.
+
+Recentring (``centre=`` of :func:`opentrack_values`; ``headplod track
+--udp``: the key ``c``, ``kill -USR1 PID``, ``--recentre-at-start``). A
+reference pose A becomes the zero of what is sent: A itself gives six zeros,
+and a later pose B gives
+
+- position: B's point sent minus A's, in the position frame chosen
+  (``tracker-pt`` or ``opencv``, cm): the difference in opentrack's axes, as
+  opentrack's own centring subtracts the centre's TX, TY, TZ
+  (``logic/pipeline.cpp``, ``pipeline::apply_center``);
+- angles: the yaw, pitch and roll (as above) of B's head axes expressed in
+  A's head frame, ``M_A^T M_B``: the turn from A, about A's own axes. This is
+  opentrack's "VR 360" centring (the centre's quaternion inverted and
+  composed); for a turn about one axis it is the difference of the angles
+  (opentrack's "point" centring), and unlike that difference it stays a pure
+  yaw when A looks down at a laptop and the head then turns left or right.
+
+The JSON pose records are not recentred: they keep the contract's frames.
 """
 from __future__ import annotations
 
@@ -173,8 +191,34 @@ def pivot_position_mm(position_mm, axes, pivot_mm) -> np.ndarray:
     return p + a.T @ np.asarray(pivot_mm, dtype=float)
 
 
-def opentrack_values(position_mm, axes, pivot_mm=(0.0, 0.0, 0.0),
-                     frame: str = "tracker-pt") -> tuple[float, float, float, float, float, float]:
+def _attitude(axes: np.ndarray) -> np.ndarray:
+    """The head axes (forward V, left Ξ, up Ψ) expressed in the user frame F: ``M = F^T [V Ξ Ψ]``."""
+    xi, psi, v = axes
+    return _F_IN_WORLD.T @ np.column_stack([v, xi, psi])
+
+
+def _angles_deg(M: np.ndarray) -> tuple[float, float, float]:
+    """Yaw, pitch, roll (degrees, the module's convention) of an attitude ``M`` (:func:`_attitude`)."""
+    cos_pitch = math.hypot(M[0, 0], M[1, 0])
+    if cos_pitch > 1e-9:
+        yaw = -math.atan2(M[1, 0], M[0, 0])
+        pitch = math.atan2(M[2, 0], cos_pitch)
+        roll = -math.atan2(M[2, 1], M[2, 2])
+    else:  # looking straight up or down: yaw and roll share an axis; put it all in yaw
+        pitch = math.atan2(M[2, 0], cos_pitch)
+        yaw = -math.atan2(-M[0, 1], M[1, 1])
+        roll = 0.0
+    return math.degrees(yaw), math.degrees(pitch), math.degrees(roll)
+
+
+def _point_sent_mm(p: np.ndarray, a: np.ndarray, pivot_mm, frame: str) -> np.ndarray:
+    """The pivot's position in the position frame ``frame``, mm."""
+    q = pivot_position_mm(p, a, pivot_mm)
+    return q * np.array([1.0, -1.0, 1.0]) if frame == "tracker-pt" else q
+
+
+def opentrack_values(position_mm, axes, pivot_mm=(0.0, 0.0, 0.0), frame: str = "tracker-pt",
+                     centre=None) -> tuple[float, float, float, float, float, float]:
     """The six values opentrack expects for a head pose.
 
     Parameters
@@ -191,16 +235,21 @@ def opentrack_values(position_mm, axes, pivot_mm=(0.0, 0.0, 0.0),
     frame : {"tracker-pt", "opencv"}
         The position's axes: ``"tracker-pt"`` (x right, y up, z away from
         the camera: opentrack's point tracker) or ``"opencv"`` (y down).
+    centre : (position_mm, axes), optional
+        A reference pose (P1 and axes, as the first two parameters) that is
+        the zero: the values are then this pose relative to it (module
+        docstring, "Recentring"); ``opentrack_values(*centre, centre=centre)``
+        is six zeros. Default: none, the values are the pose's own.
 
     Returns
     -------
     x_cm, y_cm, z_cm : float
-        The pivot's position, cm, in ``frame``.
+        The pivot's position, cm, in ``frame`` (relative to the centre's).
     yaw_deg, pitch_deg, roll_deg : float
-        Intrinsic yaw-pitch-roll in degrees, zero facing the cameras; yaw
-        positive turning to the wearer's right, pitch positive looking up,
-        roll positive tilting to the wearer's left. See the module docstring
-        for the definition and its sources.
+        Intrinsic yaw-pitch-roll in degrees, zero facing the cameras (or at
+        the centre's attitude); yaw positive turning to the wearer's right,
+        pitch positive looking up, roll positive tilting to the wearer's
+        left. See the module docstring for the definition and its sources.
 
     Raises
     ------
@@ -210,23 +259,14 @@ def opentrack_values(position_mm, axes, pivot_mm=(0.0, 0.0, 0.0),
     if frame not in OPENTRACK_FRAMES:
         raise ValueError(f"frame: expected one of {', '.join(OPENTRACK_FRAMES)}, got {frame!r}")
     p, a = _check_pose(position_mm, axes)
-    xi, psi, v = a
-    # Head axes (forward V, left Ξ, up Ψ) expressed in F: M = F^T [V Ξ Ψ].
-    M = _F_IN_WORLD.T @ np.column_stack([v, xi, psi])
-    cos_pitch = math.hypot(M[0, 0], M[1, 0])
-    if cos_pitch > 1e-9:
-        yaw = -math.atan2(M[1, 0], M[0, 0])
-        pitch = math.atan2(M[2, 0], cos_pitch)
-        roll = -math.atan2(M[2, 1], M[2, 2])
-    else:  # looking straight up or down: yaw and roll share an axis; put it all in yaw
-        pitch = math.atan2(M[2, 0], cos_pitch)
-        yaw = -math.atan2(-M[0, 1], M[1, 1])
-        roll = 0.0
-    q = pivot_position_mm(p, a, pivot_mm)
-    if frame == "tracker-pt":
-        q = q * np.array([1.0, -1.0, 1.0])
+    M = _attitude(a)
+    q = _point_sent_mm(p, a, pivot_mm, frame)
+    if centre is not None:
+        cp, ca = _check_pose(*centre)
+        M = _attitude(ca).T @ M                      # B's head axes in A's head frame
+        q = q - _point_sent_mm(cp, ca, pivot_mm, frame)
     x_cm, y_cm, z_cm = (float(c) / 10.0 for c in q)
-    return (x_cm, y_cm, z_cm, math.degrees(yaw), math.degrees(pitch), math.degrees(roll))
+    return (x_cm, y_cm, z_cm) + _angles_deg(M)
 
 
 def axes_from_opentrack(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:

@@ -12,11 +12,22 @@ errors kept; the socket is connected, so that opentrack not listening (an
 ICMP "port unreachable") shows as "opentrack not listening on HOST:PORT".
 :class:`~headplod.live.status.StatusLine` shows them, ``headplod track`` prints a line as sending
 fails or recovers (:meth:`OpentrackSender.news`) and a summary at the end.
+
+Recentring: :meth:`OpentrackSender.request_recentre` (safe from a signal
+handler or another thread: it only counts the request) asks that the next
+pose sent become the zero of what opentrack receives; :meth:`OpentrackSender.send`
+applies it before it computes that pose's datagram, so a request takes effect
+between frames, never within one. Asked while tracking is lost, it waits for
+the next tracked frame (nothing is sent meanwhile: opentrack holds the last
+pose it received). The math is :func:`~headplod.live.opentrack.opentrack_values`'
+``centre``; the records written are not affected.
 """
 from __future__ import annotations
 
 import socket
 from typing import Mapping
+
+import numpy as np
 
 from .opentrack import (DEFAULT_PIVOT_MM, OPENTRACK_FRAMES, OPENTRACK_PORT, check_pivot_mm, encode_opentrack,
                         opentrack_values)
@@ -52,6 +63,12 @@ class OpentrackSender:
         on the port (opentrack not running, or its input not started).
     first_error, last_error : str or None
         The first and the last socket error, ``"HOST:PORT: message"``.
+    centre : (position_mm, axes) or None
+        The pose that is the zero of what is sent (:meth:`request_recentre`),
+        None before the first recentring.
+    recentred : int
+        How many times a request was applied; ``recentred_frame`` is the
+        frame of the last.
 
     Notes
     -----
@@ -95,6 +112,14 @@ class OpentrackSender:
         self._last_refused = self._last_failed = -10 ** 9     # attempt numbers
         self._said: str | None = None                          # the state :meth:`news` last reported
         self._connected = False
+        self.centre: tuple[np.ndarray, np.ndarray] | None = None
+        self.recentred = 0
+        self.recentred_frame: int | None = None
+        self._requests = 0                                     # recentring asked (a counter: signal-safe)
+        self._applied = 0                                      # ... and applied
+        self._request_how: str | None = None
+        self._recentre_said = 0
+        self._pending_said = 0
         try:
             self._sock.connect(self.address)        # a UDP connect sends nothing; an error is met again at send
             self._connected = True
@@ -134,15 +159,41 @@ class OpentrackSender:
             return f"sending to {self.host}:{self.port} fails: {self.last_error.split(': ', 1)[-1]}"
         return None
 
+    def request_recentre(self, how: str | None = None) -> None:
+        """Ask that the next pose sent become the zero (0 translation, 0 rotation) of what opentrack receives.
+
+        Only counts the request (safe in a signal handler or another thread); :meth:`send` applies it to
+        the next record with a pose. ``how`` (e.g. ``"key c"``, ``"SIGUSR1"``) is said in :meth:`news`.
+        """
+        self._request_how = how
+        self._requests += 1
+
+    @property
+    def recentre_pending(self) -> bool:
+        """True while a recentring was asked and not yet applied (no pose sent since)."""
+        return self._requests != self._applied
+
     def news(self) -> str | None:
-        """A line when sending went wrong, or right again, since the last call (None when nothing changed)."""
+        """A line when sending went wrong, or right again, or the pose sent was recentred, since the last call
+        (None when nothing changed; two lines, joined by a newline, when both happened)."""
+        lines = []
+        if self.recentred != self._recentre_said:
+            self._recentre_said = self.recentred
+            how = f" ({self._request_how})" if self._request_how else ""
+            lines.append(f"udp: recentred{how}: the pose of frame {self.recentred_frame} is now opentrack's zero")
+        elif self.recentre_pending and self._pending_said != self._requests:
+            self._pending_said = self._requests
+            how = f" ({self._request_how})" if self._request_how else ""
+            lines.append(f"udp: recentre asked{how} while no pose is tracked: the next tracked pose becomes "
+                         "opentrack's zero")
         now = self.state()
-        if now == self._said:
-            return None
-        before, self._said = self._said, now
-        if now is not None:
-            return f"udp: {now}; poses are not received (the run goes on)"
-        return f"udp: {self.host}:{self.port} receives the poses again ({self.failed} not sent before)"
+        if now != self._said:
+            self._said = now
+            if now is not None:
+                lines.append(f"udp: {now}; poses are not received (the run goes on)")
+            else:
+                lines.append(f"udp: {self.host}:{self.port} receives the poses again ({self.failed} not sent before)")
+        return "\n".join(lines) or None
 
     def send(self, record: Mapping) -> bool:
         """Send one pose record.
@@ -165,12 +216,20 @@ class OpentrackSender:
         if not record.get("ok") or record.get("position") is None or record.get("axes") is None:
             self.skipped += 1
             return False
+        requests = self._requests                       # read once: a request arriving now is the next frame's
+        centre = self.centre
+        if requests != self._applied:
+            centre = (np.array(record["position"], float), np.array(record["axes"], float))
         try:
             packet = encode_opentrack(opentrack_values(record["position"], record["axes"], self.pivot_mm,
-                                                       self.frame))
+                                                       self.frame, centre=centre))
         except ValueError:
-            self.skipped += 1
+            self.skipped += 1                           # a non-finite pose: not a centre either
             return False
+        if centre is not self.centre:                   # the whole datagram was made with the new centre
+            self.centre, self._applied = centre, requests
+            self.recentred += 1
+            self.recentred_frame = record.get("frame")
         self._attempts += 1
         if not self._connected and not self._connect():
             return False
