@@ -1,0 +1,90 @@
+"""tools/bench_tables.py: each bench's page carries the JSON's figures, the command, the date and --quick."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from conftest import load_tool
+
+UNCERTAINTY = {"default": "first_order_smoothed",
+               "sets": {"static 55 cm": {"mean_pose_ms": 1.0, "estimators": {
+                   "first_order_smoothed": {"mean_nees": 2.345, "trace_change_mean": 0.012, "ratio_to_mean_pose": 0.97},
+                   "paper": {"mean_nees": 9e-5, "trace_change_mean": 0.045, "ratio_to_mean_pose": 23.3}}}},
+               "goals": [{"goal": "default mean NEES within (1.5, 2.6) on every set", "worst": [2.345, 2.345],
+                          "met": True}],
+               "fig17": {"ratio": [0.1, 0.3], "var_phi_deg2": [22.5, 23.4], "var_theta_deg2": [1.9, 2.0]}}
+LIVE = {"recording": "rec", "repeats": 3, "results": {"replay": {
+    "frames": 150, "ok": 149, "latency_from": "reading", "rate_hz": 138.7, "latency_ms_p50": 7.04,
+    "latency_ms_p95": 8.7, "latency_ms_max": 9.9, "read_ms_mean": 5.1, "track_ms_mean": 1.75,
+    "output_ms_mean": 0.3, "capture_over_tracking": 2.9}}}
+PAPER = {"config": {"frames": 30, "warmup": 10, "viewpoints": ["mountains"], "noise_deg": 0.5},
+         "conditions": {"honest": {"poses": "tracked once", "frames_with_pose": 30, "frames": 30,
+                                   "sigma_deg_median": 0.5, "nees_mean": 2.1,
+                                   "table1": [{"scenario": "adaptive", "hysteresis": True, "changes": 4.2,
+                                               "flicker": 0.1, "fps": 20.0, "fps_ratio_to_full": 6.3,
+                                               "triangles": 123456, "psnr_tracked_disc_db": 48.2,
+                                               "psnr_true_disc_db": 46.75}],
+                                   "true_poi": {"mountains": {"on": {"none_below": 12, "frames": 20,
+                                                                     "kept_fraction": {"fixed": 1.0, "adaptive": 0.95,
+                                                                                       "smoothed": 0.9}},
+                                                              "triangles": {"adaptive": 100000, "fixed": 120000}}}}},
+         "goals": [{"status": "met", "condition": "honest", "viewpoint": "all", "goal": "adaptive keeps >= 95%",
+                    "figure": 0.95, "frames": 12}],
+         "findings": ["adaptive flickers no more than fixed"]}
+PLOD = {"size": [1280, 720], "px_per_deg": 25.2,
+        "modes": {"full": {"triangles": 2097152, "select_ms": 0.1, "build_ms": 0.2, "render_ms": 120.0,
+                           "frame_ratio_full_over_mode": 1.0, "select_build_over_full_render": 0.0,
+                           "psnr_db": float("inf"), "psnr_disc_5deg_db": float("inf"), "flip": 0.0},
+                  "change": {"triangles": 254357, "select_ms": 2.0, "build_ms": 1.5, "render_ms": 25.0,
+                             "frame_ratio_full_over_mode": 4.44, "select_build_over_full_render": 0.029,
+                             "psnr_db": 40.1, "psnr_disc_5deg_db": 46.3, "flip": 0.0512}},
+        "velocity_sweep": {"csf": [{"set_speed_deg_s": 0.0, "triangles": 212000}, {"set_speed_deg_s": 5.0,
+                                                                                    "triangles": 19000}]},
+        "ellipse": {"sigma_deg": [1.5, 3.0], "none": {"fraction_inside_at_full_detail": 0.38},
+                    "fixed_eq1": {"fraction_inside_at_full_detail": 0.55},
+                    "fixed": {"fraction_inside_at_full_detail": 1.0}},
+        "stability": {"fixed": {"mean_changes": 0.0, "max_changes": 0}},
+        "goals": [{"goal": "frame at least 5x faster than full", "value": 4.44, "met": False}]}
+
+
+@pytest.fixture(scope="module")
+def tool():
+    return load_tool("bench_tables")
+
+
+@pytest.mark.parametrize("kind, data, figures", [
+    ("uncertainty", UNCERTAINTY, ["| static 55 cm | 2.35 | 1.2% | 0.97 |", "22.5", "met: default mean NEES"]),
+    ("live", LIVE, ["| replay | 139 | 7.0 | 8.7 |", "149 / 150"]),
+    ("paper", PAPER, ["## honest", "| adaptive | on | 4.2 | 0.1 |", "46.8", "| honest | mountains | 12/20 |",
+                      "- met: honest, all: adaptive keeps >= 95%: 95%", "adaptive flickers no more than fixed",
+                      "--quick", "a quick run"]),
+    ("plod", PLOD, ["| `change` | 254,357 |", "4.44", "| `full` | 2,097,152 |", "identical", "212,000",
+                    "`fixed` (the default ellipse shift) 100%", "**not met**: frame at least 5x faster than full"]),
+])
+def test_each_page_carries_the_json_figures_and_where_they_came_from(tool, tmp_path, kind, data, figures):
+    source = tmp_path / f"bench_{kind}.json"
+    source.write_text(json.dumps(data))
+    page = tmp_path / f"bench-{kind}.md"
+    assert tool.main([kind, str(source), str(page)]) == 0
+    text = page.read_text()
+    assert f"`headplod bench {kind}" in text and str(source) in text and "(UTC)" in text
+    for figure in figures:
+        assert figure in text, figure
+
+
+def test_quick_is_said_when_the_json_does_not(tool, tmp_path):
+    source = tmp_path / "u.json"
+    source.write_text(json.dumps(UNCERTAINTY))
+    page = tmp_path / "u.md"
+    assert tool.main(["uncertainty", str(source), str(page), "--quick"]) == 0
+    assert "bench uncertainty --quick" in page.read_text() and "a quick run" in page.read_text()
+
+
+def test_a_json_of_another_bench_is_refused_and_nothing_written(tool, tmp_path, capsys):
+    source = tmp_path / "live.json"
+    source.write_text(json.dumps({"sets": {"x": {"estimators": 3}}}))
+    page = tmp_path / "page.md"
+    assert tool.main(["uncertainty", str(source), str(page)]) == 2
+    assert "not the JSON of 'headplod bench uncertainty'" in capsys.readouterr().err
+    assert not page.exists()
