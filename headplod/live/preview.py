@@ -75,7 +75,7 @@ from ..capture import open_source, source_kind, synthetic_preset
 from ..capture.synthetic import ensure_dataset
 from ..capture.v4l2 import FOURCCS
 from ..progress import Progress
-from ..tracking.detect import Blobs, DetectionParams, background_map, detect_blobs, estimate_background
+from ..tracking.detect import Blobs, DetectionParams, above_threshold, detect_blobs, estimate_background
 from ..tracking.geometry import essential_matrix
 
 __all__ = ["add_preview_arguments", "run_preview", "AdviceSettings", "Advice", "ViewAnalysis", "FrameAnalysis",
@@ -307,19 +307,9 @@ class FrameAnalysis:
 
 
 def threshold_mask(image: np.ndarray, blobs: Blobs, params: DetectionParams) -> np.ndarray:
-    """The pixels :func:`~headplod.tracking.detect.detect_blobs` found above its threshold, (H, W) bool.
-
-    The same rule as detection's on the whole image: with the adaptive
-    threshold and ``local_background``, a pixel's height above the local
-    background map exceeds ``floor(threshold - background)``; otherwise the
-    pixel exceeds ``floor(threshold)``, DN. ``blobs`` gives the threshold and
-    background detection used; a blob's ``area_px`` is the count of these
-    pixels in its box.
-    """
-    if params.threshold_dn is None and params.local_background:
-        height = cv2.subtract(image, background_map(image))
-        return height > np.floor(blobs.threshold_dn - blobs.background_dn)
-    return image > np.floor(blobs.threshold_dn)
+    """The pixels :func:`~headplod.tracking.detect.detect_blobs` found above its threshold, (H, W) bool: its own
+    rule (:func:`~headplod.tracking.detect.above_threshold`) at the threshold and background ``blobs`` holds."""
+    return above_threshold(image, blobs.threshold_dn, blobs.background_dn, params) > 0
 
 
 def _box_counts(flags: np.ndarray, boxes: np.ndarray) -> np.ndarray:

@@ -182,6 +182,27 @@ def background_map(image: np.ndarray, cell_px: int = 16) -> np.ndarray:
     return cv2.resize(coarse, (width, height), interpolation=cv2.INTER_LINEAR)
 
 
+def above_threshold(image: np.ndarray, threshold_dn: float, background_dn: float,
+                    params: DetectionParams = DetectionParams(), whole_image: bool = True) -> np.ndarray:
+    """The pixels detection counts as bright: (H, W) uint8, 255 above the threshold, else 0.
+
+    ``image`` (H, W) uint8; ``threshold_dn`` and ``background_dn`` as :func:`detect_blobs` found them. With the
+    adaptive threshold and ``params.local_background`` on a whole image, a pixel's height above the local
+    background map (:func:`background_map`) is compared with ``threshold - background``; otherwise the pixel
+    itself with the threshold. A pixel counts when it exceeds the floor of the threshold (cv2.THRESH_BINARY is
+    strict): above a fractional threshold, and from one DN above a whole one. :func:`detect_blobs` and
+    ``headplod preview``'s mask both use this one rule.
+    """
+    if params.threshold_dn is None and params.local_background and whole_image:
+        # Ambient IR varies across the image by more than the noise: compare
+        # each pixel with the background around it, not with the median.
+        height = cv2.subtract(image, background_map(image))
+        _, binary = cv2.threshold(height, np.floor(threshold_dn - background_dn), 255, cv2.THRESH_BINARY)
+    else:
+        _, binary = cv2.threshold(image, np.floor(threshold_dn), 255, cv2.THRESH_BINARY)
+    return binary
+
+
 def detect_blobs(image: np.ndarray, params: DetectionParams = DetectionParams(),
                  roi: tuple[int, int, int, int] | None = None,
                  background: tuple[float, float] | None = None,
@@ -221,15 +242,7 @@ def detect_blobs(image: np.ndarray, params: DetectionParams = DetectionParams(),
     if sub.size == 0:
         return _empty(threshold, bg, sigma)
 
-    if params.threshold_dn is None and params.local_background and roi is None:
-        # Ambient IR varies across the image by more than the noise: compare
-        # each pixel with the background around it, not with the median.
-        contrast = threshold - bg
-        local = background_map(image)
-        _, binary = cv2.threshold(cv2.subtract(sub, local), np.floor(contrast), 255, cv2.THRESH_BINARY)
-    else:
-        # THRESH_BINARY keeps pixels > thresh; floor() so "≥ threshold" holds for ints.
-        _, binary = cv2.threshold(sub, np.floor(threshold), 255, cv2.THRESH_BINARY)
+    binary = above_threshold(sub, threshold, bg, params, whole_image=roi is None)
     # A dim, foreshortened marker can break into pieces at the threshold;
     # closing one-pixel gaps keeps it one blob (markers lie far further apart).
     grouped = cv2.dilate(binary, _CLOSE_KERNEL)
