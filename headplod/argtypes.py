@@ -4,9 +4,27 @@ from __future__ import annotations
 import argparse
 import math
 import re
+import sys
 
 __all__ = ["cache_mb", "floats", "frame_count", "max_level", "non_negative", "level_bias", "triangle_budget",
-           "attach_negative_lists"]
+           "attach_negative_lists", "note_old_spelling", "add_quiet_argument"]
+
+#: What ``-q`` means, for every command.
+QUIET_HELP = "no progress and no notes on standard error (errors and the requested output still appear)"
+
+
+def add_quiet_argument(parser, help: str = QUIET_HELP, below: bool = False) -> None:
+    """``-q/--quiet`` on ``parser`` (dest ``quiet``). ``below``: a subcommand of a parser that has it too (its
+    default is then SUPPRESS, so ``headplod bench -q live`` and ``headplod bench live -q`` both mean it)."""
+    parser.add_argument("--quiet", "-q", action="store_true", default=argparse.SUPPRESS if below else False,
+                        help=help)
+
+
+def note_old_spelling(old: str, new: str) -> None:
+    """The one-line note (standard error) for an old spelling that still works: what to write instead, and
+    that it goes. Printed even with ``-q`` (it is about the command line, not the run). ``synthetic/`` writes
+    the same line itself (it never imports headplod)."""
+    print(f"note: {old} is now {new}; the old spelling goes in the next release", file=sys.stderr)
 
 
 def floats(n: int):

@@ -8,9 +8,15 @@ in its package (``live/command.py``, ``bench/command.py``, ``demo/cli.py``, ...)
     headplod preview [--source SPEC] [--calib rig.yaml] [--out DIR [--frames N]] [-q]
     headplod demo [--source SPEC | --mouse] [--headless --frames N --out DIR] ...
     headplod bench track|uncertainty|plod|live ...
-    headplod synth PRESET OUT_DIR [--frames N] [--seed S] [-q]
+    headplod calibrate --source FOLDER|v4l2:LEFT,RIGHT --cols N --rows M --square-mm S --out rig.yaml
+    headplod cameras [--store --source v4l2:LEFT,RIGHT --rig rig.yaml]
+    headplod synth PRESET --out DIR [--frames N] [--seed S] [-q]
     headplod board --cols N --rows M --square-mm S [--board chessboard|charuco] [--paper a4|letter] --out FILE
     headplod glasses [--markers markers.yaml] [--marker-mm D] [--yaml markers.yaml] --out FILE.pdf|.png|.svg
+
+Every command takes ``-q`` (no progress and no notes on standard error) and ``--config FILE`` /
+``--no-config``: the options a person types every day come from ``./headplod.toml`` or
+``~/.config/headplod/config.toml`` (:mod:`headplod.config`; the command line wins over it).
 
 Exit status: 0 on success, 1 when the run failed (bad files), 2 on bad usage.
 """
@@ -24,7 +30,7 @@ from pathlib import Path
 from synthetic.cli import add_render_arguments as add_synth_arguments
 from synthetic.cli import run_render as run_synth
 
-from . import io
+from . import config, io
 from .argtypes import attach_negative_lists
 from .bench.command import add_bench_arguments, run_bench
 from .calibration.command import add_calibrate_arguments, run_calibrate
@@ -35,6 +41,7 @@ from .doctor import add_doctor_arguments, run_doctor
 from .live.command import add_track_arguments, run_track
 from .live.pivot_command import add_pivot_arguments, run_pivot
 from .live.preview import add_preview_arguments, run_preview
+from .progress import quiet
 from .render.command import add_render_arguments, run_render
 
 #: ``headplod NAME``: (help, add NAME's arguments to its subparser, run(args) -> exit status), in --help's order.
@@ -63,10 +70,23 @@ COMMANDS = {
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="headplod", description=__doc__.split("\n")[0] + " Stereo IR head tracking.")
+    config.add_config_arguments(parser)
     sub = parser.add_subparsers(dest="command", required=True)
     for name, (help_text, add_arguments, _) in COMMANDS.items():
         add_arguments(sub.add_parser(name, help=help_text))
+    _add_config_arguments_below(sub)
     return parser
+
+
+def _add_config_arguments_below(sub: argparse._SubParsersAction) -> None:
+    """``--config FILE`` and ``--no-config`` on every subcommand, at every depth (``bench live`` too): whatever
+    command the table holds, now or later, takes them."""
+    for parser in sub.choices.values():
+        if "--config" not in parser._option_string_actions:
+            config.add_config_arguments(parser)
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                _add_config_arguments_below(action)
 
 
 def main(argv=None) -> int:
@@ -75,9 +95,11 @@ def main(argv=None) -> int:
     os.environ.setdefault("MPLCONFIGDIR", str(Path(os.environ.get("HEADPLOD_CACHE", Path.home() / ".cache" / "headplod"))
                                               / "matplotlib"))
     # "--head -120,40,650": a list starting with a minus sign is the option's value, not another option.
-    args = build_parser().parse_args(attach_negative_lists(sys.argv[1:] if argv is None else argv))
+    # The config file (headplod.toml) fills in what the command line does not give.
+    args = config.parse_args(build_parser(), attach_negative_lists(sys.argv[1:] if argv is None else argv))
     try:
-        return COMMANDS[args.command][2](args)
+        with quiet(getattr(args, "quiet", False)):      # -q: no progress, no notes, however deep in the command
+            return COMMANDS[args.command][2](args)
     except io.ContractError as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 1

@@ -5,15 +5,45 @@ sequence, the benchmarks, the headless demo, board detection in
 ``headplod calibrate``); it imports nothing from ``headplod``, so any of them
 can use it. Each update shows what is being done (the label and the last
 note), the count against the total and the rate. A command's ``-q`` /
-``--quiet`` makes it silent (``disable=True``, or no Progress at all).
+``--quiet`` makes it silent (``disable=True``, or no Progress at all); the
+command line also sets it for the whole run (:func:`quiet`, from
+``headplod/cli.py``), so every Progress and :func:`note` of a command run with
+``-q`` is silent, however deep in the command it is made.
 """
 from __future__ import annotations
 
+import contextlib
 import sys
 
 from tqdm import tqdm
 
-__all__ = ["Progress"]
+__all__ = ["Progress", "quiet", "is_quiet", "note"]
+
+#: The running command's ``-q`` (:func:`quiet`): no progress and no notes on standard error.
+_QUIET = [False]
+
+
+@contextlib.contextmanager
+def quiet(on: bool = True):
+    """While the block runs, every :class:`Progress` is disabled and :func:`note` prints nothing (a command's
+    ``-q``; errors and the command's requested output are not affected)."""
+    before = _QUIET[0]
+    _QUIET[0] = bool(on) or before
+    try:
+        yield
+    finally:
+        _QUIET[0] = before
+
+
+def is_quiet() -> bool:
+    """Whether the running command was given ``-q`` (:func:`quiet`)."""
+    return _QUIET[0]
+
+
+def note(text: str, stream=None) -> None:
+    """A line of progress or a note on standard error (or ``stream``), unless the command runs ``-q``."""
+    if not _QUIET[0]:
+        print(text, file=sys.stderr if stream is None else stream, flush=True)
 
 
 class _Lines:
@@ -57,6 +87,7 @@ class Progress:
     def __init__(self, total: int | None, label: str, stream=None, every_s: float = 0.5,
                  unit: str = "it", disable: bool = False):
         stream = sys.stderr if stream is None else stream      # the stderr of the moment (tests capture it)
+        disable = disable or _QUIET[0]
         tty = hasattr(stream, "isatty") and stream.isatty()
         self._bar = tqdm(total=total or None, desc=label, unit=unit, file=stream if tty else _Lines(stream),
                          mininterval=every_s, maxinterval=max(every_s, 10.0), dynamic_ncols=tty,

@@ -1,13 +1,15 @@
 """The renderer's command line, one parser for ``python -m synthetic render`` and ``headplod synth``.
 
-    python -m synthetic render PRESET OUT_DIR [--frames N] [--seed S] [-q] [--overwrite]
+    python -m synthetic render PRESET --out DIR [--frames N] [--seed S] [-q] [--overwrite]
     python -m synthetic list
-    headplod synth PRESET OUT_DIR [--frames N] [--seed S] [-q] [--overwrite]     (the same arguments and run)
+    headplod synth PRESET --out DIR [--frames N] [--seed S] [-q] [--overwrite]     (the same arguments and run)
 
 :func:`add_render_arguments` adds the arguments of ``render`` to a parser and
 :func:`run_render` runs it, so ``headplod synth`` (``headplod/cli.py``) is this
 command under another name. Progress (frames, rate) goes to standard error
-through tqdm, silent with ``-q``.
+through tqdm, silent with ``-q``. The old spelling, a positional OUT_DIR after
+PRESET, still works for one release and prints a note with the new one (the
+line ``headplod``'s old spellings print: this package never imports headplod).
 
 OUT_DIR is never mixed with what it held: a folder that is not empty is
 refused unless ``--overwrite``, and then only the entries a dataset folder
@@ -56,12 +58,20 @@ def _frames(text: str) -> int:
     return value
 
 
+def note_old_spelling(old: str, new: str) -> None:
+    """The one-line note for an old spelling that still works, word for word ``headplod.argtypes``'s."""
+    print(f"note: {old} is now {new}; the old spelling goes in the next release", file=sys.stderr)
+
+
 def add_render_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add ``render``'s arguments to a (sub)parser; returns it."""
     parser.add_argument("preset", type=_preset, metavar="PRESET", help="one of: " + ", ".join(PRESETS))
-    parser.add_argument("out_dir", metavar="OUT_DIR",
-                        help="dataset folder to write (created; an existing one must be empty, or hold only a "
-                             "dataset, replaced with --overwrite)")
+    out = parser.add_mutually_exclusive_group(required=True)
+    out.add_argument("--out", dest="out_dir", metavar="DIR",
+                     help="dataset folder to write (created; an existing one must be empty, or hold only a "
+                          "dataset, replaced with --overwrite)")
+    out.add_argument("old_out_dir", nargs="?", metavar="OUT_DIR",
+                     help="old spelling of --out OUT_DIR (goes in the next release)")
     parser.add_argument("--frames", type=_frames, default=None, help="number of frames (preset default)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the scene and of the noise")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on standard error")
@@ -123,6 +133,11 @@ def run_render(args: argparse.Namespace) -> int:
     # Imported on use: the renderer's modules are not needed to parse (or to print --help).
     from .dataset import write_dataset
 
+    if getattr(args, "old_out_dir", None):
+        name = "headplod synth" if getattr(args, "command", None) == "synth" else "python -m synthetic render"
+        note_old_spelling(f"'{name} {args.preset} {args.old_out_dir}'",
+                          f"'{name} {args.preset} --out {args.old_out_dir}'")
+        args.out_dir = args.old_out_dir
     problem = _refuse_out_dir(args.out_dir, args.overwrite)
     if problem:
         print(f"synth: {problem}", file=sys.stderr)

@@ -11,6 +11,7 @@ it from these (e.g. ``small_rig(rms_px=0.3)``) rather than copying them.
 - ``synth``: synthetic presets rendered once per session.
 - ``default_screen``, ``terrain_scene``: the embedded screen and the PLOD terrain behind it.
 - ``gl_context``: a headless OpenGL context per module, or a skip that says why.
+- (autouse) no test reads the user's own config file (``$XDG_CONFIG_HOME`` points at an empty folder).
 """
 from __future__ import annotations
 
@@ -26,6 +27,13 @@ from headplod import io
 from headplod.capture.synthetic import ensure_dataset
 
 DATA = Path(__file__).parent / "data"
+
+
+@pytest.fixture(autouse=True)
+def _no_user_config(tmp_path_factory, monkeypatch):
+    """No test reads the config file of the person running the tests (~/.config/headplod/config.toml): the
+    command line's lookup finds an empty folder instead (tests/test_config.py sets its own)."""
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path_factory.getbasetemp() / "no-user-config"))
 
 
 # ---------------------------------------------------------------------------

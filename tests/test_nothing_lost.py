@@ -421,8 +421,8 @@ def test_v4l2_auto_without_identities_names_the_command_that_stores_them(small_r
 # ---------------------------------------------------------------------------
 
 
-def _synth(*argv) -> int:
-    return cli_main(["synth", "static", *argv, "-q"])
+def _synth(out, *argv) -> int:
+    return cli_main(["synth", "static", "--out", out, *argv, "-q"])
 
 
 def test_synth_refuses_a_non_empty_folder_and_overwrite_replaces_the_dataset_whole(tmp_path, capsys):

@@ -8,10 +8,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..argtypes import frame_count, non_negative
+from ..argtypes import add_quiet_argument, frame_count, non_negative, note_old_spelling
 from ..capture import source_kind, synthetic_preset
 from ..capture.synthetic import ensure_dataset
-from ..live.command import note_old_spelling
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..render.command import add_cost_arguments, selection_options
 
@@ -20,6 +19,8 @@ __all__ = ["add_bench_arguments", "run_bench", "BENCHMARKS"]
 
 def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the ``bench`` subcommands and their options to a (sub)parser; returns it."""
+    add_quiet_argument(bench, help="no progress and no notes on standard error (the results, the files and errors "
+                                   "still appear); also after the benchmark's name")
     bench_sub = bench.add_subparsers(dest="bench", required=True)
     bt = bench_sub.add_parser("track", help="tracker accuracy and per-stage time on synthetic sets")
     bt.add_argument("--json", help="write the results as JSON")
@@ -90,6 +91,8 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bpa.add_argument("--vdp", action="store_true",
                      help="also judge each frame with FovVideoVDP fixated at the true POI (slow); needs the "
                           "optional extra: pip install -e '.[vdp]'")
+    for parser in bench_sub.choices.values():
+        add_quiet_argument(parser, below=True)
     return bench
 
 
@@ -180,7 +183,7 @@ def _live(args) -> int:
     if spec is not None:
         preset = synthetic_preset(spec)
         if preset is not None:
-            spec = str(ensure_dataset(preset))
+            spec = str(ensure_dataset(preset, quiet=args.quiet))
         elif source_kind(spec) in ("v4l2", "video"):
             print(f"headplod: bench live replays a recording several times: --source must be a dataset folder or "
                   f"synthetic[:PRESET], got {spec!r}", file=sys.stderr)

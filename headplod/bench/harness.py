@@ -19,8 +19,6 @@ Units: world mm, screen px, images (H, W, 3) uint8 RGB, times ms, angles deg.
 """
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
 from calib import DEFAULT_SCREEN
@@ -28,6 +26,7 @@ from calib import DEFAULT_SCREEN
 from .. import io
 from ..plod.select import SelectorConfig
 from ..plod.view import View
+from ..progress import note
 from ..render.frame import FAR_MM, NEAR_MM, FrameStep, MeshBackend, RayMaskBackend, px_per_deg_at
 from ..render.projection import off_axis_projection
 from ..render.still import TerrainScene, default_head
@@ -55,8 +54,9 @@ FRAME_STAGES = ("select", "build", "upload", "render")
 
 
 def progress(name: str):
-    """A progress callable for a benchmark: ``progress("bench plod")("csf")`` prints ``bench plod: csf`` to stderr."""
-    return lambda text: print(f"{name}: {text}", file=sys.stderr, flush=True)
+    """A progress callable for a benchmark: ``progress("bench plod")("csf")`` prints ``bench plod: csf`` to stderr
+    (nothing with the command's ``-q``)."""
+    return lambda text: note(f"{name}: {text}")
 
 
 def label_axes(ax, xlabel, ylabel=None, title=None, xscale=None, yscale=None, which="major", legend=7) -> None:

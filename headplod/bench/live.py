@@ -9,7 +9,6 @@ capture layer's time (``source.read``) as a ratio to the tracker's.
 from __future__ import annotations
 
 import socket
-import sys
 import tempfile
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from ..capture import DatasetRecorder, DatasetSource
 from ..capture.synthetic import DEFAULT_SEQUENCE, ensure_dataset
 from ..live.loop import run_source
 from ..live.output import OpentrackSender
+from ..progress import note
 from ..tracking.filters import PoseFilter
 from .outputs import write_json
 
@@ -61,7 +61,7 @@ def run_live_bench(dataset=None, json_path=None, repeats: int = 3) -> int:
         results[variant] = {k: (float(np.median([s[k] for s in summaries])) if isinstance(best[k], float) else best[k])
                             for k in best}
         results[variant]["time_dropped"] = max(s["time_dropped"] for s in summaries)
-        print(f"bench live: {variant}", file=sys.stderr)
+        note(f"bench live: {variant}")
     receiver.close()
     lines = [f"recording: {folder} ({results['replay']['frames']} frames, {repeats} passes each, medians)",
              f"{'variant':20s} {'rate Hz':>8s} {'lat p50':>8s} {'lat p95':>8s} {'lat max':>8s} "

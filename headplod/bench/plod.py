@@ -34,6 +34,7 @@ from ..plod.contrast import project_to_screen_px, readback_contrast
 from ..plod.csf import CSF_MODELS
 from ..plod.select import MODES, UNCERTAINTY_MODES, SelectorConfig
 from ..plod.view import head_axes
+from ..progress import note
 from ..render import TerrainRenderer, overlay_poi, screen_frame
 from .outputs import write_json
 
@@ -282,7 +283,7 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
         _chart(report, chart_path)
         for mode in (DEFAULT_MODE, "full"):
             write_png(out_dir / f"plod_{mode}.png", images[mode])
-        print(f"chart: {chart_path}; pictures: {out_dir}/plod_*.png", file=sys.stderr)
+        note(f"chart: {chart_path}; pictures: {out_dir}/plod_*.png")
     b.release()
     return 0
 

@@ -17,12 +17,12 @@ shading), at 1 and 4x4 samples per pixel.
 from __future__ import annotations
 
 import resource
-import sys
 import time
 from dataclasses import replace
 
 import numpy as np
 
+from ..progress import note
 from .harness import (DEFAULT_SCREEN, DISC_DEG, FRAME_DT_S, SIZE, TRACKER_COV_DEG2, label_axes, pyplot,
                       save_figure)
 
@@ -402,7 +402,7 @@ def _chart(report, path) -> None:
 def run_scale_bench(json_path=None, chart_path=None, quick: bool = False) -> int:
     """``headplod bench plod --scale``: measure, print the table and the goals, write JSON and the chart; 0."""
     def say(text):
-        print(text, file=sys.stderr, flush=True)
+        note(text)                                  # nothing with -q
 
     report = scale_report(samples=QUICK_SAMPLES if quick else SCALE_SAMPLES, frames=2 if quick else 9, progress=say,
                           patch_sweep=not quick)

@@ -25,7 +25,7 @@ from . import rig as bench_rig
 from .. import io
 from ..capture.synthetic import ensure_dataset
 from ..live.loop import result_record, track_frames
-from ..progress import Progress
+from ..progress import Progress, note
 from ..tracking.tracker import ESTIMATORS, Tracker, TrackerConfig
 from .baseline import threshold_baseline_s
 from .outputs import pyplot, save_figure, write_json
@@ -151,17 +151,17 @@ def run_track_bench(json_path=None, chart_path=None, quick: bool = False, sets=N
     if json_path:
         out_json["quick"] = bool(quick)
         write_json(json_path, out_json)              # whole or untouched
-        print(f"results: {json_path}", file=sys.stderr)
+        note(f"results: {json_path}")
     if chart_path:
         if results:
             _chart(results, chart_path)
-            print(f"chart: {chart_path}", file=sys.stderr)
+            note(f"chart: {chart_path}")
         if rig_results:
             # Beside the accuracy-against-time chart, or in its place when only rig sets ran.
             path = Path(chart_path)
             rig_path = path.with_name(f"{path.stem}_rig{path.suffix or '.png'}") if results else path
             bench_rig.rig_chart(rig_results, rig_path)
-            print(f"chart: {rig_path}", file=sys.stderr)
+            note(f"chart: {rig_path}")
     return 0
 
 

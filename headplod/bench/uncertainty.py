@@ -17,7 +17,6 @@ the two viewing rays of pixel pairs, with the 2.0 mm threshold) and Fig. 17
 """
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
@@ -27,7 +26,7 @@ import numpy as np
 from .. import io
 from ..capture.synthetic import ensure_dataset
 from ..live.loop import track_frames
-from ..progress import Progress
+from ..progress import Progress, note
 from ..tracking.tracker import Tracker, TrackerConfig
 from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE, PaperPixelClouds, make_covariance_estimator, view_angles_deg
 from .outputs import pyplot, save_figure, write_json
@@ -136,7 +135,7 @@ def run_uncertainty_bench(json_path=None, chart_path=None, quick: bool = False) 
     if json_path:
         write_json(json_path, {"sets": results, "goals": summary, "default": DEFAULT_COVARIANCE,
                                "fig17": {k: v for k, v in curves.items() if k != "ray_gaps_mm"}})
-        print(f"results: {json_path}", file=sys.stderr)
+        note(f"results: {json_path}")
     if chart_path:
         _charts(results, curves, chart_path)
     return 0
@@ -206,4 +205,4 @@ def _charts(results: dict, curves: dict, chart_path: str) -> None:
     b2.set_title("reconstruction error of pixel pairs (their Fig. 10)")
     b2.legend()
     other = save_figure(fig, base.with_name(base.stem + "_paper" + base.suffix), dpi=110)
-    print(f"charts: {base}, {other}", file=sys.stderr)
+    note(f"charts: {base}, {other}")

@@ -1,7 +1,12 @@
 """``headplod calibrate``: its arguments (:func:`add_calibrate_arguments`) and its run (:func:`run_calibrate`).
 
-    headplod calibrate [FOLDER | --camera LEFT RIGHT] --board chessboard|charuco --cols N --rows M
-                       --square-mm S [--marker-mm S] --out rig.yaml
+    headplod calibrate --source FOLDER|v4l2:LEFT,RIGHT --board chessboard|charuco --cols N --rows M
+                       --square-mm S [--marker-mm S] --out rig.yaml [-q]
+
+The pairs are named as every source is (``--source``): a folder of image pairs,
+or ``v4l2:/dev/video0,/dev/video2`` (``v4l2:0,2``) to capture them live. The
+old spellings, a positional FOLDER and ``--camera LEFT RIGHT``, still work for
+one release and print a note with the new one.
 
 Exit status: 0 on success, 1 when the calibration failed, 2 on bad usage.
 
@@ -22,9 +27,9 @@ from pathlib import Path
 import cv2
 
 from .. import io
-from ..argtypes import floats
+from ..argtypes import floats, note_old_spelling
 from ..capture import V4L2StereoSource
-from ..progress import Progress
+from ..progress import Progress, note
 from .board import BOARD_KINDS
 from .calibrate import BoardSpec, CalibrationError, calibrate_folder, coverage_guide, detect_board, format_report
 
@@ -48,11 +53,14 @@ def add_board_spec_arguments(parser: argparse.ArgumentParser) -> argparse.Argume
 
 def add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add ``calibrate``'s options to a (sub)parser; returns it."""
-    calibrate.add_argument("folder", nargs="?", help="image pairs: left/ and right/ with matching names, or "
-                                                     "leftNN.* and rightNN.* side by side")
+    calibrate.add_argument("--source", metavar="FOLDER|v4l2:LEFT,RIGHT",
+                           help="the image pairs: a folder (left/ and right/ with matching names, or leftNN.* and "
+                                "rightNN.* side by side), or live cameras v4l2:/dev/video0,/dev/video2 (or "
+                                "v4l2:0,2), captured with a guide to the poses still missing and kept in --save")
+    calibrate.add_argument("folder", nargs="?", metavar="FOLDER",
+                           help="old spelling of --source FOLDER (goes in the next release)")
     calibrate.add_argument("--camera", nargs="+", metavar="DEV",
-                           help="capture the pairs live from the cameras LEFT RIGHT (/dev/videoN or N), with a "
-                                "guide to the poses still missing; they are kept in --save")
+                           help="old spelling of --source v4l2:LEFT,RIGHT (goes in the next release)")
     add_board_spec_arguments(calibrate)
     calibrate.add_argument("--out", required=True,
                            help="rig.yaml to write (after the report is printed; if it cannot be written, the "
@@ -60,7 +68,55 @@ def add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> argparse.Argu
     calibrate.add_argument("--save", help="live: folder for the captured pairs (default: beside --out)")
     calibrate.add_argument("--pairs", type=int, default=20, help="live: pairs to capture (default 20)")
     calibrate.add_argument("--size", type=floats(2), help="live: camera image size W,H (default 640,480)")
+    calibrate.add_argument("--quiet", "-q", action="store_true",
+                           help="no progress and no notes (the report and errors are still printed)")
     return calibrate
+
+
+class _Usage(ValueError):
+    """A calibrate command line that cannot be run (exit status 2)."""
+
+
+def calibrate_source(args) -> tuple[str | None, tuple | None]:
+    """``(folder, None)`` or ``(None, (left, right))``: the pairs' folder, or the two cameras to capture them from.
+
+    From ``--source``, or from an old spelling (a positional FOLDER, ``--camera LEFT RIGHT``), for which a
+    one-line note gives the new one. Raises _Usage for a source named twice, a missing one, or one calibrate
+    cannot read (video files, the synthetic sequence, ``v4l2:auto``).
+    """
+    given = [name for name, value in (("--source", args.source), ("FOLDER", args.folder),
+                                      ("--camera", args.camera)) if value]
+    if len(given) > 1:
+        raise _Usage(f"the pairs are named twice ({' and '.join(given)}); give them once, as --source SPEC")
+    if args.camera:
+        if len(args.camera) != 2:
+            raise _Usage("--camera takes LEFT RIGHT (two devices); it is now --source v4l2:LEFT,RIGHT")
+        spec = "v4l2:{},{}".format(*args.camera)
+        note_old_spelling(f"--camera {' '.join(args.camera)}", f"--source {spec}")
+        return None, tuple(_device(d) for d in args.camera)
+    if args.folder:
+        note_old_spelling(f"'headplod calibrate {args.folder}'", f"'headplod calibrate --source {args.folder}'")
+        return args.folder, None
+    spec = (args.source or "").strip()
+    if not spec:
+        raise _Usage("calibrate needs the image pairs: --source FOLDER, or --source v4l2:LEFT,RIGHT to capture "
+                     "them live")
+    parts = [p.strip() for p in spec.split(",")]
+    live = spec.lower().startswith("v4l2:")
+    if live or (len(parts) == 2 and all(p.isdigit() for p in parts)):
+        body = spec[5:] if live else spec
+        devices = [p.strip() for p in body.split(",")]
+        if body.strip().lower() == "auto":
+            raise _Usage("calibrate --source v4l2:auto: name the two cameras, v4l2:LEFT,RIGHT (auto finds the "
+                         "cameras a rig.yaml names, and calibrate is what makes it)")
+        if len(devices) != 2 or not all(devices):
+            raise _Usage(f"calibrate --source {spec}: expected two devices, left first, as "
+                         "v4l2:/dev/video0,/dev/video2 or v4l2:0,2")
+        return None, tuple(_device(d) for d in devices)
+    if spec == "synthetic" or spec.startswith("synthetic:") or (len(parts) == 2 and not Path(spec).is_dir()):
+        raise _Usage(f"calibrate --source {spec}: calibrate reads board pairs from a folder of images or from two "
+                     "cameras: --source FOLDER or --source v4l2:LEFT,RIGHT")
+    return spec, None
 
 
 def run_calibrate(args) -> int:
@@ -75,19 +131,21 @@ def run_calibrate(args) -> int:
         print(f"headplod: --out {args.out}: is a folder; give the file to write, e.g. "
               f"{Path(args.out) / 'rig.yaml'}", file=sys.stderr)
         return 2
-    folder = args.folder
-    if args.camera:
-        if folder:
-            print("headplod: give either FOLDER or --camera, not both", file=sys.stderr)
-            return 2
+    try:
+        folder, devices = calibrate_source(args)
+    except _Usage as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
+    if devices is not None:
         folder = args.save or str(Path(args.out).with_suffix("")) + "_pairs"
-        code = _capture_calibration_pairs(args, spec, Path(folder))
+        try:
+            code = _capture_calibration_pairs(args, spec, devices, Path(folder))
+        except OSError as exc:                          # SourceOpenError: a camera that is not there
+            print(f"headplod: {exc}", file=sys.stderr)
+            return 1
         if code:
             return code
-    if not folder:
-        print("headplod: calibrate needs FOLDER (image pairs) or --camera LEFT RIGHT", file=sys.stderr)
-        return 2
-    progress = Progress(0, "detect board", unit="pair")
+    progress = Progress(0, "detect board", unit="pair", disable=args.quiet)
 
     def step(done, total):
         progress.total = total
@@ -129,7 +187,7 @@ def _write_rig_or_keep(rig, out: str, folder) -> int:
         print(f"headplod: --out {out}: cannot be written ({reason}), nor beside the pairs or in "
               f"{tempfile.gettempdir()}; the report above is all that is left", file=sys.stderr)
         return 1
-    print(f"rig: {out}", file=sys.stderr)
+    note(f"rig: {out}")
     return 0
 
 
@@ -137,20 +195,17 @@ def _device(text: str):
     return int(text) if text.isdigit() else text
 
 
-def _capture_calibration_pairs(args, spec, folder: Path) -> int:
-    """Live: keep board pairs seen by both cameras, with a guide to the poses still missing."""
-    if len(args.camera) != 2:
-        print("headplod: calibrate --camera takes LEFT RIGHT", file=sys.stderr)
-        return 2
+def _capture_calibration_pairs(args, spec, devices, folder: Path) -> int:
+    """Live: keep board pairs seen by both cameras ``devices`` (left, right), with a guide to the poses still
+    missing (not with ``-q``)."""
     width, height = (int(v) for v in (args.size or (640, 480)))
-    (folder / "left").mkdir(parents=True, exist_ok=True)
-    (folder / "right").mkdir(parents=True, exist_ok=True)
     kept, last_kept = [], None
-    with V4L2StereoSource(_device(args.camera[0]), _device(args.camera[1]), width=width, height=height,
-                          fps=15, fourcc=None) as source:
-        print(source.settings_report(text=True), file=sys.stderr)
-        print(f"show the board to both cameras; {args.pairs} pairs are kept, at least 1 s apart "
-              "(Ctrl-C to stop early)", file=sys.stderr)
+    with V4L2StereoSource(devices[0], devices[1], width=width, height=height, fps=15, fourcc=None) as source:
+        (folder / "left").mkdir(parents=True, exist_ok=True)        # once the cameras are open: nothing before
+        (folder / "right").mkdir(parents=True, exist_ok=True)
+        note(source.settings_report(text=True))
+        note(f"show the board to both cameras; {args.pairs} pairs are kept, at least 1 s apart "
+             "(Ctrl-C to stop early)")
         try:
             while len(kept) < args.pairs:
                 frame = source.read(timeout_s=2.0)
@@ -168,10 +223,9 @@ def _capture_calibration_pairs(args, spec, folder: Path) -> int:
                 kept.append(det_l)
                 last_kept = frame.t
                 missing = coverage_guide(kept, (width, height))
-                print(f"  pair {len(kept)}/{args.pairs} kept" + (": still missing: " + "; ".join(missing)
-                                                                  if missing else ": coverage is good"),
-                      file=sys.stderr)
+                note(f"  pair {len(kept)}/{args.pairs} kept" + (": still missing: " + "; ".join(missing)
+                                                                 if missing else ": coverage is good"))
         except KeyboardInterrupt:
-            print("  stopped; calibrating with the pairs kept", file=sys.stderr)
-    print(f"pairs: {folder}", file=sys.stderr)
+            note("  stopped; calibrating with the pairs kept")
+    note(f"pairs: {folder}")
     return 0

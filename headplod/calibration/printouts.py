@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from .. import io
+from ..argtypes import add_quiet_argument
 from .board import BoardSpec, _charuco
 from .command import add_board_spec_arguments
 
@@ -394,6 +395,7 @@ def _common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dpi", type=float, default=300.0,
                         help="px per inch of a PNG, and of a ChArUco board's image in a PDF/SVG (default 300)")
     parser.add_argument("--out", required=True, help="file to write: .pdf, .png or .svg")
+    add_quiet_argument(parser, help="no line saying what was written (errors still appear)")
 
 
 def add_board_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -423,8 +425,9 @@ def run_board(args) -> int:
     except OSError as exc:                      # a full disk, a read-only folder: nothing is left behind
         return _write_failed("board", exc, args.out)
     w, h = layout.box[2:]
-    print(f"wrote {args.out}: {spec.describe()}, {w:g} x {h:g} mm on {args.paper} "
-          f"{'landscape' if layout.landscape else 'portrait'}; print at 100 % and measure a square")
+    if not args.quiet:
+        print(f"wrote {args.out}: {spec.describe()}, {w:g} x {h:g} mm on {args.paper} "
+              f"{'landscape' if layout.landscape else 'portrait'}; print at 100 % and measure a square")
     return 0
 
 
@@ -451,6 +454,7 @@ def run_glasses(args) -> int:
     except OSError as exc:
         return _write_failed("glasses", exc, args.out)
     also = f" and {args.yaml}" if args.yaml else ""
-    print(f"wrote {args.out}{also}: five {printed.diameter_mm:g} mm markers on {args.paper}; "
-          "print at 100 % and check the scale bar")
+    if not args.quiet:
+        print(f"wrote {args.out}{also}: five {printed.diameter_mm:g} mm markers on {args.paper}; "
+              "print at 100 % and check the scale bar")
     return 0

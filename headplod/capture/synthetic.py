@@ -23,7 +23,7 @@ from pathlib import Path
 
 import synthetic
 
-from ..progress import Progress
+from ..progress import Progress, is_quiet
 
 #: The sequence ``headplod track`` runs without a dataset.
 DEFAULT_SEQUENCE = "looking_around"
@@ -69,6 +69,7 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
     from synthetic import dataset as synth_dataset
     from synthetic import scenes
 
+    quiet = quiet or is_quiet()                         # the command's -q
     if preset not in scenes.PRESETS:
         raise ValueError(f"unknown synthetic preset {preset!r}; choose one of {', '.join(sorted(scenes.PRESETS))}")
     root = Path(root) if root is not None else cache_root()

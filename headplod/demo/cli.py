@@ -38,9 +38,9 @@ import numpy as np
 
 from .. import io
 from ..io import write_atomically
-from ..argtypes import frame_count
+from ..argtypes import add_quiet_argument, frame_count
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
-from ..progress import Progress
+from ..progress import Progress, note
 from ..render import TerrainRenderer, create_context
 from ..plod.select import MODES
 from ..render.command import add_cost_arguments, add_csf_argument, raymask_config, selection_options
@@ -140,6 +140,8 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     head.add_argument("--scenarios", type=_names(lp.SCENARIOS), default=list(lp.SCENARIOS),
                       help="comma-separated uncertainty scenarios to run with --mode (default all four)")
     head.add_argument("--no-full", action="store_true", help="skip the 'full' runs (no frame-rate ratio)")
+    add_quiet_argument(parser, help="no progress and no notes on standard error (headless: the table and the files "
+                                    "still appear; errors always)")
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.epilog = "what each back end supports:\n" + capability_table()
     return parser
@@ -195,7 +197,7 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
     source_name = first.name
     first.close()
     if scene is None:
-        print(f"demo: building the terrain mesh; poses from {source_name}", file=err)
+        note(f"demo: building the terrain mesh; poses from {source_name}", stream=err)
     if scene is None:
         scene = mesh_options(args).build(screen, getattr(args, "terrain_loaded", None))
     if renderer is None:

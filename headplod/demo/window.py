@@ -15,6 +15,7 @@ import sys
 
 import numpy as np
 
+from ..progress import note
 from ..render.command import raymask_config, selection_options
 from ..render.frame import default_mode
 from ..render import TerrainRenderer
@@ -69,7 +70,7 @@ def make_window_class():
             super().__init__(**kwargs)
             args = demo_args
             self.poses = make_poses(args)
-            print("building the terrain mesh ...", file=sys.stderr)
+            note("building the terrain mesh ...")
             scene = mesh_options(args).build(self.poses.screen, getattr(args, "terrain_loaded", None))
             size = tuple(args.size)
             mode = args.mode or default_mode(getattr(args, "backend", "mesh"))

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io
-from ..argtypes import frame_count, readout_ms
+from ..argtypes import frame_count, note_old_spelling, readout_ms
 from ..capture import DatasetRecorder, open_source, source_kind, synthetic_preset
 from ..capture.signals import StopSignals
 from ..capture.synthetic import ensure_dataset, rerender
@@ -73,12 +73,6 @@ TRACK_EPILOG = ("exit status: 0 success (a fault in one frame is that frame's 'o
                 "there was none). Ctrl-C, SIGTERM or SIGHUP stops cleanly between frames: the records and frames "
                 "so far are kept. With --udp, the key c (standard input a terminal) or SIGUSR1 (kill -USR1 PID) "
                 "recentres what is sent to opentrack, from the next frame: the current pose becomes its zero.")
-
-
-def note_old_spelling(old: str, new: str) -> None:
-    """The one-line note (standard error) for an old spelling that still works: what to write instead, and
-    that it goes."""
-    print(f"note: {old} is now {new}; the old spelling goes in the next release", file=sys.stderr)
 
 
 def _threshold_arg(text: str):

@@ -23,7 +23,8 @@ from calib import DEFAULT_SCREEN
 
 from .. import io
 from ..plod.export import check_export_path
-from ..argtypes import floats, level_bias, triangle_budget
+from ..argtypes import add_quiet_argument, floats, level_bias, triangle_budget
+from ..progress import note
 from ..plod.csf import CSF_MODELS
 from ..plod.raymask import RAYMASK_CSF_MODELS, RayMaskConfig
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
@@ -75,6 +76,8 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
                              "variable-size patches walked on the CPU (headplod.plod.patch_tree; needs "
                              "(grid samples - 1) / 64 a power of two). Default: TessellationConfig's")
     render.add_argument("--out", required=True, help="output image (PNG)")
+    add_quiet_argument(render, help="no notes on standard error (the triangles and times line); errors, warnings "
+                                    "and --compare's line still appear")
     render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
     render.add_argument("--compare", choices=("full",),
                         help="also render full from the same view and print the frame's PSNR (whole, and within 5° "
@@ -221,19 +224,19 @@ def run_render(args) -> int:
         return 1
     if "raymask" in stats:
         r = stats["raymask"]
-        print(f"{r['rays']} rays ({r['fill_rays']} inset, {r['ring_rays']} rings, {r['silhouette_rays']} in "
-              f"{r['silhouette_quads']} silhouette quads), {stats['triangles']} triangles; mask "
-              f"{stats['select_ms']:.1f} ms, render {stats['render_ms']:.1f} ms; image: {args.out}", file=sys.stderr)
+        note(f"{r['rays']} rays ({r['fill_rays']} inset, {r['ring_rays']} rings, {r['silhouette_rays']} in "
+             f"{r['silhouette_quads']} silhouette quads), {stats['triangles']} triangles; mask "
+             f"{stats['select_ms']:.1f} ms, render {stats['render_ms']:.1f} ms; image: {args.out}")
         return 0
     m = stats["mesh"]
     lazy = (f", lazy mesh: {m['vertices']:,} vertices, cache {m['cache_bytes'] / 2 ** 20:.0f} of "
             f"{m['cache_budget_bytes'] / 2 ** 20:.0f} MB" if m["kind"] == "lazy" else "")
     budget = (f", budget {args.budget:,} met with a level bias of {stats['budget_bias']:+.2f}"
               if "budget_bias" in stats else "")
-    print(f"{stats['triangles']} triangles (level {m['max_level']}{lazy}{budget}); select {stats['select_ms']:.1f} ms, "
-          f"build {stats['build_ms']:.1f} ms, "
-          f"render {stats['render_ms']:.1f} ms; image: {args.out}"
-          + (f"; mesh: {args.export}" if args.export else ""), file=sys.stderr)
+    note(f"{stats['triangles']} triangles (level {m['max_level']}{lazy}{budget}); select {stats['select_ms']:.1f} ms, "
+         f"build {stats['build_ms']:.1f} ms, "
+         f"render {stats['render_ms']:.1f} ms; image: {args.out}"
+         + (f"; mesh: {args.export}" if args.export else ""))
     return 0
 
 
@@ -322,6 +325,6 @@ def _run_tessellation(args, screen, cov, size) -> int:
         except (OSError, ValueError) as exc:
             print(f"headplod: could not write the output: {getattr(exc, 'strerror', None) or exc}", file=sys.stderr)
             return 1
-    print(f"{stats['triangles']} triangles ({grid.full_triangles} at full detail); select {stats['select_ms']:.1f} ms, "
-          f"render {stats['render_ms']:.1f} ms; image: {args.out}", file=sys.stderr)
+    note(f"{stats['triangles']} triangles ({grid.full_triangles} at full detail); select {stats['select_ms']:.1f} ms, "
+         f"render {stats['render_ms']:.1f} ms; image: {args.out}")
     return 0
