@@ -21,6 +21,8 @@ import math
 from pathlib import Path
 
 import cv2
+import datetime
+
 import numpy as np
 import pytest
 
@@ -158,9 +160,11 @@ def test_too_few_pairs_is_a_clear_error(chess_set):
 
 def test_outlier_threshold_does_not_reject_good_pairs(chess_set):
     pairs = [p for p in cal.find_pairs(chess_set.folder) if p[0] in chess_set.good]
-    result = cal.calibrate_stereo(pairs, CHESS_SPEC, refine=False)
+    result = cal.calibrate_stereo(pairs, CHESS_SPEC, refine=False, clock=lambda: 1_800_000_000.0)
     assert result.rejected == []
     assert "joint refinement" not in result.rig.extra["calibration_method"]
+    # the rig says when it was calibrated (headplod doctor's rig age; a copy's file time would not tell)
+    assert result.rig.extra["calibration_date"] == "2027-01-15T08:00:00+00:00"
 
 
 # ---------------------------------------------------------------------------
@@ -177,6 +181,9 @@ def test_rig_yaml_written_and_read_back(chess_result):
     assert back.extra["calibration_rms_stereo_px"] == pytest.approx(result.rms_stereo_px)
     assert back.extra["calibration_board"] == "chessboard 9x6 inner corners, 25 mm squares"
     assert back.extra["calibration_pairs"] == len(result.used)
+    from headplod.doctor import _calibration_time
+    assert _calibration_time(back) == pytest.approx(
+        datetime.datetime.fromisoformat(result.rig.extra["calibration_date"]).timestamp())
     # X_right = R X_left + T: the right camera centre is at +x of the left one
     assert back.right_center_mm[0] > 500
 

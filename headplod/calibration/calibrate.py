@@ -51,7 +51,9 @@ folder without pairs or with unmatched files.
 
 from __future__ import annotations
 
+import datetime as _dt
 import math
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
@@ -405,7 +407,8 @@ def _stereo_covariance(pairs: list[_Pair], K1, D1, K2, D2, R, T, rvecs, tvecs,
 def calibrate_stereo(pairs: Sequence[tuple[str, Any, Any]], spec: BoardSpec, image_size=None, *,
                      refine: bool = True, flags: int = 0, outlier_factor: float = OUTLIER_FACTOR,
                      outlier_floor_px: float = OUTLIER_FLOOR_PX,
-                     progress: Optional[Callable[[int, int], None]] = None) -> CalibrationResult:
+                     progress: Optional[Callable[[int, int], None]] = None,
+                     clock: Callable[[], float] = time.time) -> CalibrationResult:
     """Calibrate a stereo rig from image pairs of a board.
 
     Steps: detect the board in every image; set aside pairs that cannot be
@@ -437,6 +440,9 @@ def calibrate_stereo(pairs: Sequence[tuple[str, Any, Any]], spec: BoardSpec, ima
         ``cv2.CALIB_FIX_K3`` with few pairs).
     outlier_factor, outlier_floor_px : float
         The outlier rule above.
+    clock : callable
+        Seconds since the epoch, for the rig's ``calibration_date`` (UTC, ISO 8601: how old the rig is,
+        ``headplod doctor``; a copied file's modification time would not tell).
     progress : callable, optional
         ``progress(done, total)`` after each pair's detection.
 
@@ -571,6 +577,7 @@ def calibrate_stereo(pairs: Sequence[tuple[str, Any, Any]], spec: BoardSpec, ima
         "calibration_pairs": int(len(good)),
         "calibration_pairs_rejected": int(len(rejected)),
         "calibration_method": method,
+        "calibration_date": _dt.datetime.fromtimestamp(clock(), _dt.timezone.utc).isoformat(timespec="seconds"),
     }
     # Rodrigues round trip makes R orthonormal to machine precision
     R = cv2.Rodrigues(cv2.Rodrigues(np.asarray(R, np.float64))[0])[0]
