@@ -205,9 +205,9 @@ class ConfigDefaults:
     path : Path or None
         The file read; None when there is none.
     calib : Path or None
-        Its ``calib`` (top level, else ``[track]``), relative to the file's folder.
+        Its ``calib`` (``[track]``, else the top level), relative to the file's folder.
     source : str or None
-        Its ``source`` (top level, else ``[track]``) when it names V4L2 cameras.
+        Its ``source`` (``[track]``, else the top level) when it names V4L2 cameras.
     error : str or None
         Why the file cannot be used.
     """
@@ -236,8 +236,8 @@ def read_config_defaults(explicit: str | None = None, no_config: bool = False) -
         return ConfigDefaults(error=str(exc))
     track = table.get("track") if isinstance(table.get("track"), dict) else {}
 
-    def value(key):
-        v = table.get(key, track.get(key))
+    def value(key):             # as headplod.config: the command's table over the top level
+        v = track.get(key, table.get(key))
         return v if isinstance(v, str) and v.strip() else None
 
     calib = value("calib")
@@ -394,9 +394,9 @@ class _Survey:
 
     def calibrate_fix(self) -> str:
         devs = list(self.named) if self.named else [c.device for c in self.capture][:2]
-        cams = " ".join(devs) if len(devs) == 2 else "LEFT RIGHT"
+        cams = ",".join(devs) if len(devs) == 2 else "LEFT,RIGHT"
         out = self.rig_path or "rig.yaml"
-        return f"headplod calibrate --camera {cams} --cols N --rows M --square-mm S --out {out}"
+        return f"headplod calibrate --source v4l2:{cams} --cols N --rows M --square-mm S --out {out}"
 
     # -- the cameras' USB identities ------------------------------------------
 
@@ -717,7 +717,7 @@ def _rig_rms(sv: _Survey, rig, path) -> list[Result]:
 
 def _rig_cameras(sv: _Survey, rig, path) -> list[Result]:
     name = "rig cameras"
-    store = f"headplod cameras --store LEFT RIGHT --rig {path}"
+    store = f"headplod cameras --store --source v4l2:LEFT,RIGHT --rig {path}"
     if not sv.capture:
         return [Result(FAIL if sv.auto else SKIP, name, "no camera connected to compare with the rig's")]
     if usb.LEFT_KEY not in rig.extra or usb.RIGHT_KEY not in rig.extra:

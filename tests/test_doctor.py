@@ -25,6 +25,23 @@ from headplod.capture.usb import CameraInfo, LibusbMissingError
 from headplod.cli import main as cli_main
 
 NOW = 1_800_000_000.0            # the fake clock, s since the epoch
+
+
+def _parses(fix: str) -> None:
+    """A fix that is a headplod command line is one the parser takes, in today's spelling (no old-spelling
+    note), with numbers for its placeholders N, M, S."""
+    import contextlib
+    import io as _io
+    import shlex
+
+    from headplod.cli import build_parser
+
+    words = ["8" if w in ("N", "M", "S") else w for w in shlex.split(fix[fix.index("headplod "):].split(";")[0])]
+    assert words[0] == "headplod", fix
+    err = _io.StringIO()
+    with contextlib.redirect_stderr(err):
+        build_parser().parse_args(words[1:])
+    assert "note:" not in err.getvalue(), (fix, err.getvalue())
 DAY = 86400.0
 
 
@@ -203,7 +220,8 @@ def test_a_stale_rig_is_a_warning_with_the_calibrate_fix(tmp_path):
     rig = rig_file(tmp_path, age_days=45)
     age = run(machine(), calib=str(rig))["rig age"]
     assert age.status == "warn" and "45 days ago" in age.found and "older than 30 days" in age.found
-    assert "headplod calibrate --camera /dev/video0 /dev/video2" in age.fix and str(rig) in age.fix
+    assert "headplod calibrate --source v4l2:/dev/video0,/dev/video2" in age.fix and str(rig) in age.fix
+    _parses(age.fix)
     # a calibration_date in the file wins over the modification time
     dated = rig_file(tmp_path, "dated.yaml", age_days=45, calibration_date="2027-01-10T12:00:00Z")
     r = run(machine(), calib=str(dated))["rig age"]
@@ -267,7 +285,8 @@ def test_rig_cameras_other_than_the_connected_ones(tmp_path):
     assert r.status == "FAIL"
     # no identities stored
     r = run(machine(), calib=str(rig_file(tmp_path, "bare.yaml", cameras=None)))["rig cameras"]
-    assert r.status == "warn" and r.fix == f"headplod cameras --store LEFT RIGHT --rig {tmp_path / 'bare.yaml'}"
+    assert r.status == "warn" and r.fix == f"headplod cameras --store --source v4l2:LEFT,RIGHT --rig {tmp_path / 'bare.yaml'}"
+    _parses(r.fix)
     # after a reboot the device numbers swapped: still the rig's cameras, found by identity
     swapped = [_node(2, 0, "ABC123", "1-2"), _node(0, 0, "XYZ789", "1-3")]
     r = run(machine(nodes=swapped), calib=str(rig_file(tmp_path, "r2.yaml")))["rig cameras"]
