@@ -51,6 +51,11 @@ def _f(value, spec: str, scale: float = 1.0) -> str:
     return format(number, spec)
 
 
+def _home(text) -> str:
+    """``text`` with this machine's home folder written ``~`` (a page names no path of one machine)."""
+    return str(text).replace(str(Path.home()), "~")
+
+
 def _mark(met) -> str:
     return "met" if met else "**not met**"
 
@@ -191,14 +196,16 @@ def live_page(data: dict, source: str, stamp: str, quick: bool = False) -> str:
 def paper_page(data: dict, source: str, stamp: str, quick: bool = False) -> str:
     """The page for one ``bench paper`` JSON: Table 1 per tracker condition, the true POI's share, the goals."""
     config = data.get("config") or {}
-    quick = quick or (config.get("frames") == 30 and list(config.get("viewpoints") or []) == ["mountains"])
+    viewpoints = list(config.get("viewpoints") or dict.fromkeys(
+        r.get("viewpoint") for c in (data.get("conditions") or {}).values() for r in c.get("rows", [])))
+    quick = quick or (config.get("frames") == 30 and viewpoints == ["mountains"])     # --quick's settings
     out = _header("paper", "paper", source, stamp, quick,
-                  f"{config.get('frames', '–')} frames per run ({config.get('warmup', '–')} of warm-up left out), "
-                  f"viewpoints {', '.join(config.get('viewpoints') or []) or '–'}, "
+                  f"The mode `{config.get('mode', '–')}`, {config.get('frames', '–')} frames per run "
+                  f"({config.get('warmup', '–')} of warm-up left out), viewpoints {', '.join(map(str, viewpoints)) or '–'}, "
                   f"jitter of `honest`/`overconfident` {_f(config.get('noise_deg'), 'g')}° per angle.")
     for condition, c in (data.get("conditions") or {}).items():
         out += [f"## {condition}", "",
-                f"{c.get('poses', '')}; a pose in {c.get('frames_with_pose', '–')}/{c.get('frames', '–')} frames, "
+                f"{_home(c.get('poses', ''))}; a pose in {c.get('frames_with_pose', '–')}/{c.get('frames', '–')} frames, "
                 f"median σ of V {_f(c.get('sigma_deg_median'), '.3g')}°, mean NEES of V "
                 f"{_f(c.get('nees_mean'), '.3g')}. Table 1 (mean over the viewpoints):", ""]
         out += _table(["scenario", "hysteresis", "level changes / frame", "reversals / frame", "fps", "x full",
