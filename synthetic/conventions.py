@@ -170,7 +170,7 @@ def viewing_axes(
 ) -> np.ndarray:
     """Head axes (rows Ξ, Ψ, V) from the five world marker positions.
 
-    Implements conventions.md exactly: V is the normalized mean of the unit
+    Implements docs/contract.md exactly: V is the normalized mean of the unit
     normals of the triangles (P0, P1, P3), (P1, P2, P4), (P1, P3, P4), each
     turned to the side of G's +z; Ξ is P0 − P1 with its V component removed,
     normalized; Ψ = V × Ξ.

@@ -1,4 +1,4 @@
-"""Write a scene as a contract dataset folder (see conventions.md).
+"""Write a scene as a contract dataset folder (see docs/contract.md).
 
 ::
 

@@ -124,7 +124,7 @@ class Setup:
         return np.asarray(d_m, float) @ self.R_world_from_M.T
 
     def screen_point(self, x_px: float, y_px: float) -> np.ndarray:
-        """World position (3,) mm of screen pixel (x, y), per conventions.md."""
+        """World position (3,) mm of screen pixel (x, y), per docs/contract.md."""
         w, h = self.screen_size_px
         tl = np.asarray(self.top_left, float)
         return tl + (x_px / w) * (np.asarray(self.top_right) - tl) + (y_px / h) * (np.asarray(self.bottom_left) - tl)

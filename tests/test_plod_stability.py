@@ -111,3 +111,14 @@ def test_bench_stability_refuses_an_unknown_mode_before_it_runs(monkeypatch, cap
     monkeypatch.setattr(stability, "stability_report", lambda *a, **k: pytest.fail("the report ran"))
     assert main(["bench", "stability", "--modes", "csf,bogus"]) == 2
     assert "unknown mode 'bogus'" in capsys.readouterr().err
+
+
+def test_bench_stability_refuses_too_few_frames_before_it_runs(monkeypatch, capsys):
+    """--frames 8 used to crash (max() of an empty sequence): every frame lay in the warm-up."""
+    from headplod.bench import stability
+    from headplod.cli import main
+
+    monkeypatch.setattr(stability, "stability_report", lambda *a, **k: pytest.fail("the report ran"))
+    assert main(["bench", "stability", "--frames", "8"]) == 2
+    err = capsys.readouterr().err
+    assert "leaves no frame to count" in err and len(err.strip().splitlines()) == 1

@@ -257,7 +257,11 @@ def run_stability_bench(json_path=None, chart_path=None, frames: int = 60, dista
     bad = [m for m in modes if m not in MODES]
     if bad:
         raise ValueError(f"bench stability: unknown mode {bad[0]!r}; choose from {', '.join(MODES)} or all")
-    report = stability_report(frames=frames, modes=modes, distance_mm=distance_mm, seed=seed)
+    warmup = 10          # stability_report's: the filters and the hysteresis settle first
+    if frames <= warmup + 1:
+        raise ValueError(f"bench stability: --frames {frames} leaves no frame to count: changes are counted after "
+                         f"the first {warmup} (the filters settle); give at least {warmup + 2}")
+    report = stability_report(frames=frames, modes=modes, distance_mm=distance_mm, seed=seed, warmup=warmup)
     print(format_table(report))
     if json_path:
         write_json(json_path, report, indent=1)

@@ -15,7 +15,7 @@ same loop::
 Conventions
 -----------
 - Images are 8-bit grayscale, shape ``(height, width)``, px; pixel (u, v) =
-  (0, 0) is the centre of the top-left pixel (``spec/conventions.md``).
+  (0, 0) is the centre of the top-left pixel (``docs/contract.md``).
 - ``t`` / ``t_right``: times of the left / right image, s. For replay they
   come from the recording (mid-exposure for the synthetic renderer; a
   recording of live cameras holds their capture times). For live cameras

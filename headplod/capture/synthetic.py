@@ -1,7 +1,7 @@
 """Built-in synthetic stereo sequences, rendered once and cached on disk.
 
 The tracker never sees how these are made: :mod:`synthetic` renders a
-dataset folder in the contract's format (conventions.md), and the tracker
+dataset folder in the contract's format (docs/contract.md), and the tracker
 reads it like any recording. Renders are cached under ``$HEADPLOD_CACHE``
 (default ``~/.cache/headplod``), keyed by preset, frame count and seed.
 

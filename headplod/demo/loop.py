@@ -6,7 +6,7 @@ measures is what the window shows.
 
 Frames and units
 ----------------
-World frame: the left camera's, mm (conventions.md). The eye of the
+World frame: the left camera's, mm (docs/contract.md). The eye of the
 head-coupled projection is the tracked head position P1, the bridge of the
 glasses, about 10-20 mm in front of the eyes' midpoint; no eye offset is
 applied (one could be added to :class:`TrackerPoses` when a per-user offset

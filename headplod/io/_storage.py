@@ -38,7 +38,7 @@ AXES_TOL_READ = 1e-4
 
 
 class ContractError(ValueError):
-    """A file (or an object) breaks the contract of ``spec/conventions.md``.
+    """A file (or an object) breaks the contract of ``docs/contract.md``.
 
     The message names the file (or the object) first, then what is wrong,
     expected against actual, and usually a ``Hint:`` on how to fix it.

@@ -38,7 +38,7 @@ _MARKER_KEYS = ("markers", "diameter")
 
 _MARKER_HINT = (
     "markers is a 5x3 matrix of P0..P4 in the glasses frame G (mm) with P1 at "
-    "the origin and P0 (x > 0), P2 (x < 0) on G's x axis; see spec/conventions.md"
+    "the origin and P0 (x > 0), P2 (x < 0) on G's x axis; see docs/contract.md"
 )
 #: Triangles whose normals define V (indices into P0..P4).
 VIEW_TRIANGLES = ((0, 1, 3), (1, 2, 4), (1, 3, 4))
@@ -73,7 +73,7 @@ def _validate_markers(ctx: _Ctx, points: Any, diameter: Any) -> tuple[np.ndarray
             f"the markers span {_fmt(span_mm)} mm, expected the glasses' size in mm "
             f"(the default model spans {_fmt(float(np.ptp(_DEFAULT_MARKERS_MM, axis=0).max()))} mm)",
             ("this looks like metres; markers.yaml is in mm: multiply every coordinate by 1000"
-             if metres else "markers.yaml is in mm (spec/conventions.md)"),
+             if metres else "markers.yaml is in mm (docs/contract.md)"),
         )
     tol = MARKER_TOL_MM
     if np.abs(P[1]).max() > tol:
@@ -187,7 +187,7 @@ class MarkerModel:
 
 
 def default_marker_model() -> MarkerModel:
-    """The contract's default model (P0..P4 of ``spec/conventions.md``, 6 mm disks)."""
+    """The contract's default model (P0..P4 of ``docs/contract.md``, 6 mm disks)."""
     return MarkerModel(_DEFAULT_MARKERS_MM.copy(), 6.0)
 
 

@@ -51,7 +51,7 @@ _RIG_KEYS = ("image_width", "image_height", "K1", "D1", "K2", "D2", "R", "T")
 
 _RIG_HINT = (
     "rig.yaml holds image_width, image_height (px) and K1, D1, K2, D2, R, T "
-    "(T in mm) as written by cv2.stereoCalibrate; see spec/conventions.md"
+    "(T in mm) as written by cv2.stereoCalibrate; see docs/contract.md"
 )
 
 

@@ -90,7 +90,7 @@ def _threshold_arg(text: str):
 def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add ``track``'s options to a (sub)parser; returns it."""
     track.add_argument("--source", metavar="SPEC",
-                       help="what to track: a dataset folder (conventions.md), LEFT.avi,RIGHT.avi, "
+                       help="what to track: a dataset folder (docs/contract.md), LEFT.avi,RIGHT.avi, "
                             "'synthetic[:PRESET]' (default: the built-in synthetic sequence, rendered on first "
                             "use), or live cameras 'v4l2:/dev/video0,/dev/video2' or 'v4l2:auto' (the cameras "
                             "named in --calib, found by USB identity; see 'headplod cameras') with --calib")

@@ -259,7 +259,7 @@ def track_frames(frames: Iterable[io.Frame], tracker: Tracker, *, max_frames: in
 
 def result_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen | None = None,
                   extras: bool = True) -> dict:
-    """The contract's pose record for one frame (conventions.md), with diagnostics.
+    """The contract's pose record for one frame (docs/contract.md), with diagnostics.
 
     A frame the dataset could not load (``frame.error``) gives ``ok: false``
     with that error as the reason.

@@ -54,7 +54,7 @@ negated, in cm. ``"opencv"`` (``headplod track --udp-axes opencv``) keeps y
 down, which is what opentrack's ArUco tracker sends
 (``tracker-aruco/ftnoir_tracker_aruco.cpp``: ``tvec * .1`` of
 ``cv::solvePnP``) and what headplod sent before. The JSON pose records are not
-affected: they keep the contract's frame (``spec/conventions.md``, y down)
+affected: they keep the contract's frame (``docs/contract.md``, y down)
 and P1.
 
 The point sent is the head's pivot, not P1: ``P1 + axes^T @ pivot_mm`` with

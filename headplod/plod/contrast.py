@@ -31,7 +31,7 @@ def project_to_screen_px(points_mm, eye_mm, screen) -> np.ndarray:
     Returns
     -------
     (N, 2) float64
-        Screen pixels (x right, y down, conventions.md); NaN for points not
+        Screen pixels (x right, y down, docs/contract.md); NaN for points not
         in front of the eye through the screen's plane.
     """
     points = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)

@@ -16,7 +16,7 @@ How frequency scales with eccentricity decides how much the periphery loses:
   (what a level removes) falls off more slowly than resolution; FovVideoVDP
   scales its CSF the same way. Capped at the display's Nyquist frequency
   where it sets a level (:func:`display_nyquist_cpd`). Units: frequency cpd, speed deg/s, eccentricity deg, contrast
-Michelson. The equations and the papers' slips: ``shared/spec/methods.md``.
+Michelson. The equations and the papers' slips: docs/plod.md.
 """
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 Everything here is pure numpy/scipy and vectorized over triangles (arrays of
 shape ``(n,)`` or broadcastable ones; no Python loop over triangles). The
 equations, constants and the papers' slips are gathered in
-``shared/spec/methods.md``; the papers are Martinez et al. (2008, PLOD with
+docs/plod.md; the papers are Martinez et al. (2008, PLOD with
 head-pose uncertainty), Ohshima et al. (1996, gaze-directed adaptive
 rendering), Wakatsuki et al. (tolerance of micro-motion) and Murphy et al.
 (2009, Geisler-Perry CSF).
@@ -160,7 +160,7 @@ def triangle_frequency_cpd(vertices_mm, eye_mm):
 
 
 def view_offsets_deg(points_mm, head_position_mm, axes):
-    """(φ, θ) of points about the viewing direction, deg (conventions.md).
+    """(φ, θ) of points about the viewing direction, deg (docs/contract.md).
 
     Parameters
     ----------
@@ -485,7 +485,7 @@ def vergence_deg(points_mm, eye_mid_mm, ipd_mm, interocular_axis=(1.0, 0.0, 0.0)
     interocular_axis : (3,) array_like
         Direction of the line through both eyes, either sign (the angle does
         not depend on it): the eyes are at eye_mid ± ipd/2 · axis. Default
-        the frame's x axis; in the world frame of conventions.md pass Ξ.
+        the frame's x axis; in the world frame of docs/contract.md pass Ξ.
 
     Returns
     -------

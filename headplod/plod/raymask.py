@@ -44,7 +44,7 @@ Construction (the paper's, with the project's CSF forms and uncertainty):
    the 1-D array is laid out in degrees at ``px_per_deg`` px/deg.
 
 Frames and units: image pixels, x right, y down, (0, 0) the centre of the
-top-left pixel (``conventions.md``); the image covers the screen's visible
+top-left pixel (``docs/contract.md``); the image covers the screen's visible
 area (image pixel column ``floor(x W_img / W_screen)`` holds screen pixel x).
 World frame mm, angles deg.
 """
@@ -352,7 +352,7 @@ def build_ray_mask(screen, eye_mm, poi_px, size, px_per_deg: float, cov_deg2=Non
     px_per_deg : float
         Image px per degree at the POI (the 1-D array's scale), > 0.
     cov_deg2 : (2, 2) array_like or None
-        Covariance of the gaze's (φ, θ), deg² (conventions.md); its
+        Covariance of the gaze's (φ, θ), deg² (docs/contract.md); its
         ``n_sigma`` ellipse gets full density.
     config : RayMaskConfig
 

@@ -2,7 +2,7 @@
 
 A view is the viewer's eye position (world frame = left camera frame, mm), the
 point of interest on the screen (POI, screen px) and the covariance of the
-viewing direction (deg², conventions.md). The terrain lives in scene units
+viewing direction (deg², docs/contract.md). The terrain lives in scene units
 and is placed in the world by a 4x4 model matrix (scene → world mm).
 
 Every criterion computes, for all base triangles at once, a *continuous*

@@ -2,7 +2,7 @@
 
 A PLOD frame starts from a raw :class:`View`: the eye (world frame = left
 camera frame, mm), the point of interest (POI, screen px), the covariance of
-the viewing direction (deg², conventions.md) and the time (s). Before any
+the viewing direction (deg², docs/contract.md) and the time (s). Before any
 level is chosen, that view is *conditioned* once:
 
 - the eye and the POI go through One Euro filters (the tracker's noise out,

@@ -28,7 +28,7 @@ def overlay_poi(image: np.ndarray, poi_px: Any, cov_deg2: Any, px_per_deg: float
         POI in image pixels (x right, y down). ``None`` or non-finite: the
         image is returned unchanged (a frame without a pose).
     cov_deg2 : array_like, shape (2, 2), or None
-        Covariance of (φ, θ), deg² (conventions.md: φ vertical, positive up;
+        Covariance of (φ, θ), deg² (docs/contract.md: φ vertical, positive up;
         θ horizontal, positive right). ``None``: crosshair only.
     px_per_deg : float
         Image pixels per degree of viewing direction at the POI (about

@@ -3,7 +3,7 @@
 Frames and units
 ----------------
 - world: the left camera frame (OpenCV: x right, y down, z forward), mm —
-  the frame of ``screen.yaml`` and of the head position (conventions.md).
+  the frame of ``screen.yaml`` and of the head position (docs/contract.md).
 - screen-eye frame ("eye"): origin at the eye, x along
   ``top_left → top_right`` (right), y up (``bottom_left → top_left``, made
   orthogonal to x), z = x × y toward the viewer, mm. The screen plane is

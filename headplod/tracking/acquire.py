@@ -33,7 +33,7 @@ def _scale_hint(points_mm: np.ndarray, model_mm: np.ndarray) -> str:
     if not (model > 0 and np.isfinite(seen)) or 0.5 <= seen / model <= 2.0:
         return ""
     return (f"; the markers seen are {seen / model:.3g} times the size of the marker model: "
-            "is markers.yaml in mm (conventions.md), and is it these glasses?")
+            "is markers.yaml in mm (docs/contract.md), and is it these glasses?")
 
 
 class _Acquisition:

@@ -1,6 +1,6 @@
 """Marker blob detection in one IR image.
 
-Pixel convention (the whole project, conventions.md): pixel (u, v) = (0, 0) is
+Pixel convention (the whole project, docs/contract.md): pixel (u, v) = (0, 0) is
 the centre of the top-left pixel, u to the right, v down. Every centre this
 module returns is in full-image pixel coordinates, even when detection ran on a
 sub-region.

@@ -24,7 +24,7 @@ def pose_errors(records: list[dict], truth: dict) -> dict:
 
     Parameters
     ----------
-    records : list of pose records (dicts, conventions.md)
+    records : list of pose records (dicts, docs/contract.md)
     truth : {frame: (position_mm (3,), axes (3, 3))}
 
     Returns

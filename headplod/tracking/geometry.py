@@ -1,6 +1,6 @@
 """Stereo geometry and head-pose estimators.
 
-Frames (conventions.md): world = left camera frame, mm; the right camera sees
+Frames (docs/contract.md): world = left camera frame, mm; the right camera sees
 ``R @ X + T``; the glasses frame G has P1 at its origin. A head pose is the
 transform from G to world, ``R_world_G`` (3, 3) and ``p1_world_mm`` (3,), so a
 marker at ``m_G`` sits at ``R_world_G @ m_G + p1_world_mm``.
@@ -28,7 +28,7 @@ from .. import io
 #: The pose estimators above, by name (``TrackerConfig.estimator``, ``headplod track --estimator``).
 ESTIMATORS = ("paper", "rigid", "reproj")
 
-# Triangles whose normals define V (conventions.md), as marker indices: the
+# Triangles whose normals define V (docs/contract.md), as marker indices: the
 # triples of headplod.io.VIEW_TRIANGLES as a (3, 3) int index array.
 VIEW_TRIANGLES = np.array(io.VIEW_TRIANGLES)
 
@@ -170,7 +170,7 @@ def _kabsch_single(model_mm: np.ndarray, pts: np.ndarray):
 
 
 def model_axes(model_mm: np.ndarray) -> np.ndarray:
-    """Rows Ξ, Ψ, V of the head axes in G, computed per conventions.md.
+    """Rows Ξ, Ψ, V of the head axes in G, computed per docs/contract.md.
 
     For the default model this is the identity; for a curved frame V tilts.
     """
@@ -513,7 +513,7 @@ def view_angle_covariance(R_world_G: np.ndarray, JtJ: np.ndarray, sigma_px: floa
     The pose parameters (δ, ε) have covariance σ² (JᵀJ)⁻¹ for centroid noise
     σ (px) in every coordinate (or s² (Jᵀ Σ⁻¹ J)⁻¹ with a scale s on a
     per-centre noise Σ). A rotation δ moves V by δ × V; in the
-    reported head frame (conventions.md) that is dφ = Ψ·(δ × V) = −Ξ·δ and
+    reported head frame (docs/contract.md) that is dφ = Ψ·(δ × V) = −Ξ·δ and
     dθ = Ξ·(δ × V) = Ψ·δ (radians).
     """
     cov_rot = sigma_px ** 2 * np.linalg.inv(JtJ)[:3, :3]

@@ -4,7 +4,7 @@ Martinez et al. (2008, §4.1, steps 4-7): the three collinear markers are P0,
 P1, P2 with P1 in the middle; of the two others, the one nearer an end marker
 Pa is Pa's partner, and the sign of (Pa − P1) × (Pa' − P1) tells whether Pa is
 P0 or P2. The paper prints the rule for its own glasses and image axes; here
-every part of it is derived from the marker model (conventions.md):
+every part of it is derived from the marker model (docs/contract.md):
 
 - the partner of P0 is whichever of P3, P4 is nearer to it in the model;
 - a camera sees the glasses from their front (retro-reflectors face G's +z),

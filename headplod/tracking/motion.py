@@ -1,6 +1,6 @@
 """The head's recent poses: its velocity, and its motion over the right image's exposure offset.
 
-Frames and units (conventions.md): world = the left camera's frame, mm; a
+Frames and units (docs/contract.md): world = the left camera's frame, mm; a
 pose is (R_world_G, p1), p1 the bridge marker in mm; velocities are ω in
 rad/s (world frame, a rotation about P1) and v in mm/s (of P1).
 

@@ -110,7 +110,7 @@ class TrackResult:
     position_mm : (3,) or None
         P1 in the world (left camera) frame, mm.
     axes : (3, 3) or None
-        Rows Ξ, Ψ, V in the world frame (conventions.md).
+        Rows Ξ, Ψ, V in the world frame (docs/contract.md).
     R_world_G : (3, 3) or None
         Rotation from the glasses frame to the world frame.
     centers_px : (2, 5, 2)
@@ -126,7 +126,7 @@ class TrackResult:
     timings_s : dict[str, float]
         Seconds per stage.
     cov_deg2 : (2, 2) or None
-        Covariance of (φ, θ) of V, deg² (conventions.md).
+        Covariance of (φ, θ) of V, deg² (docs/contract.md).
     notes : list of str
         What happened to the tracker's state at this frame, for a person
         (e.g. a time discontinuity that reset the motion); in the record's

@@ -1,4 +1,4 @@
-"""Uncertainty of the viewing direction: cov of (φ, θ) in deg² (conventions.md).
+"""Uncertainty of the viewing direction: cov of (φ, θ) in deg² (docs/contract.md).
 
 Estimators, all fed the same :class:`CovarianceInput` by the tracker:
 
