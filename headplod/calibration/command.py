@@ -31,7 +31,8 @@ from ..argtypes import floats, note_old_spelling
 from ..capture import V4L2StereoSource
 from ..progress import Progress, note
 from .board import BOARD_KINDS
-from .calibrate import BoardSpec, CalibrationError, calibrate_folder, coverage_guide, detect_board, format_report
+from .calibrate import (BoardSpec, CalibrationError, calibrate_stereo, coverage_guide, detect_board, find_pairs,
+                        format_report)
 
 __all__ = ["add_calibrate_arguments", "run_calibrate"]
 
@@ -145,14 +146,14 @@ def run_calibrate(args) -> int:
             return 1
         if code:
             return code
-    progress = Progress(0, "detect board", unit="pair", disable=args.quiet)
-
-    def step(done, total):
-        progress.total = total
-        progress.step()
-
     try:
-        result = calibrate_folder(folder, spec, progress=step)
+        pairs = find_pairs(folder)         # a folder without pairs is one line, before any progress bar
+    except CalibrationError as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 1
+    progress = Progress(len(pairs), "detect board", unit="pair", disable=args.quiet)
+    try:
+        result = calibrate_stereo(pairs, spec, progress=lambda done, total: progress.step())
     except CalibrationError as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 1
