@@ -421,3 +421,31 @@ def test_key_c_recentres_and_ctrl_c_leaves_the_terminal_as_it_was(long_dataset, 
     assert "udp: recentred (key c)" in out
     assert "stopped (Ctrl-C)" in out
     assert "child: exit 0; terminal mode restored" in out
+
+
+def test_a_realtime_replays_latency_leaves_out_its_pacing_wait():
+    """--realtime --status used to count each frame's pacing wait as latency (the replay's latency runs from
+    the start of reading the frame): a frame held back 490 ms of a 500 ms read is 10 ms late, not 500."""
+    from headplod.capture.base import CaptureFrame
+    from headplod.live.loop import FrameTimes, _latency_ms
+
+    times = FrameTimes(read_start=100.0, read_end=100.5, read_end_monotonic=50.0)
+    paced = CaptureFrame(index=0, t=0.0, t_right=None, left=None, right=None, paced_s=0.49)
+    unpaced = CaptureFrame(index=0, t=0.0, t_right=None, left=None, right=None)
+    assert _latency_ms(paced, times, now_monotonic=50.002) == pytest.approx(12.0)
+    assert _latency_ms(unpaced, times, now_monotonic=50.002) == pytest.approx(502.0)
+    live = CaptureFrame(index=0, t=0.0, t_right=None, left=None, right=None, t_monotonic_left=49.99, paced_s=0.3)
+    assert _latency_ms(live, times, now_monotonic=50.002) == pytest.approx(12.0)   # a camera's own capture time
+
+
+def test_a_paced_replay_says_how_long_it_held_each_frame(sample):
+    from headplod.capture.sources import DatasetSource
+
+    waits = []
+    with DatasetSource(sample, realtime=True) as source:
+        source._pacer._clock = lambda: 0.0                  # always early: every frame waits its full period
+        source._pacer._sleep = waits.append
+        frames = [source.read() for _ in range(3)]
+    assert frames[0].paced_s == 0.0
+    assert [f.paced_s for f in frames[1:]] == pytest.approx(waits)
+    assert all(w > 0 for w in waits)

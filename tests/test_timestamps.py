@@ -174,6 +174,6 @@ def test_headplod_track_reports_them_at_the_end(tmp_path, capsys):
     assert ("timestamps: 2 frames dropped (1 zero, 1 repeated); first: frame 1: left time 0 s "
             "(no timestamp)") in err
     assert "timestamps: 1 discontinuities (a time gone back or far ahead), tracked afresh" in err
-    assert "from the start of reading the frame (replay: no capture time)" in err
+    assert "from the start of reading the frame, less a --realtime replay's pacing wait (replay: no capture time)" in err
     assert f"bad_times: 5/{len(TIMES) + 1} frames tracked" in err        # an honest summary: 2 frames dropped
     assert len(out.read_text().splitlines()) == len(TIMES) + 1            # every frame read has its record

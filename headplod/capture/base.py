@@ -77,6 +77,10 @@ class CaptureFrame(io.Frame):
         V4L2 buffer timestamp: start of exposure or end of frame, as the
         driver decides) or ``'grab'`` (when ``grab()`` returned); ``None``
         for replay. Latencies are measured from it.
+    paced_s : float
+        Seconds a ``realtime`` replay held the frame back to keep the
+        recording's pace (0 otherwise): waiting, not latency, so a replay's
+        latency leaves it out.
     """
 
     t_monotonic_left: float | None = None
@@ -85,6 +89,7 @@ class CaptureFrame(io.Frame):
     dropped: int = 0
     flags: list[str] = field(default_factory=list)
     time_source: str | None = None
+    paced_s: float = 0.0
 
     @classmethod
     def from_frame(cls, frame: io.Frame, **diagnostics: Any) -> "CaptureFrame":

@@ -212,9 +212,9 @@ class DatasetSource(FrameSource):
         skew = None
         if frame.ok:
             skew = 0.0 if frame.t_right is None else abs(frame.t_right - frame.t) * 1000.0
-        self._pacer.wait(frame.t)
+        paced = self._pacer.wait(frame.t)
         return self._emit(CaptureFrame.from_frame(
-            frame, skew_ms=skew, dropped=dropped, flags=_skew_flag(skew, self.skew_bound_ms)))
+            frame, skew_ms=skew, dropped=dropped, flags=_skew_flag(skew, self.skew_bound_ms), paced_s=paced))
 
 
 class SyntheticSource(DatasetSource):
@@ -409,11 +409,11 @@ class VideoSource(FrameSource):
         if errors:
             images = [None, None]
         skew = None if errors else (0.0 if t_right is None else abs(t_right - t) * 1000.0)
-        self._pacer.wait(t)
+        paced = self._pacer.wait(t)
         return self._emit(CaptureFrame(
             index=index, t=t, t_right=t_right, left=images[0], right=images[1],
             error="; ".join(errors) or None, warning=note, skew_ms=skew,
-            flags=_skew_flag(skew, self.skew_bound_ms)))
+            flags=_skew_flag(skew, self.skew_bound_ms), paced_s=paced))
 
     def close(self) -> None:
         for cap in self._caps:

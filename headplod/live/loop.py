@@ -107,7 +107,7 @@ LATENCY_FROM = {
     "driver": "the driver's buffer timestamp (V4L2, CLOCK_MONOTONIC: start of exposure or end of frame, "
               "as the driver decides; not mid-exposure)",
     "grab": "the grab time (time.monotonic() when the camera's grab() returned)",
-    None: "the start of reading the frame (replay: no capture time)",
+    None: "the start of reading the frame, less a --realtime replay's pacing wait (replay: no capture time)",
 }
 
 
@@ -398,13 +398,16 @@ def _frame_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen
     return record
 
 
-def _latency_ms(frame: io.Frame, times: FrameTimes) -> float:
-    """From the frame's capture time (``t_monotonic_left``; without one, from the start of its reading) to
-    now, ms."""
+def _latency_ms(frame: io.Frame, times: FrameTimes, now_monotonic: float | None = None) -> float:
+    """From the frame's capture time (``t_monotonic_left``; without one, from the start of its reading, less
+    the wait of a realtime replay's pacing, ``paced_s``) to ``now_monotonic`` (default: now,
+    ``time.monotonic()``), ms."""
     captured = getattr(frame, "t_monotonic_left", None)
-    now_mono = time.monotonic()
+    now_mono = time.monotonic() if now_monotonic is None else now_monotonic
     latency = 1e3 * (now_mono - (captured if captured is not None else times.read_end_monotonic))
-    return latency + (1e3 * times.read_s if captured is None else 0.0)
+    if captured is not None:
+        return latency
+    return latency + 1e3 * max(times.read_s - float(getattr(frame, "paced_s", 0.0) or 0.0), 0.0)
 
 
 def _count_frame(stats: LiveStats, frame: io.Frame, record: dict, times: FrameTimes, latency: float,
