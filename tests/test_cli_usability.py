@@ -227,3 +227,19 @@ def test_a_negative_pivot_runs_through_main(tmp_path, monkeypatch, capsys):
                      "-q"]) == 1
     err = capsys.readouterr().err
     assert "expected one argument" not in err and "--pivot" not in err
+
+
+def test_track_and_preview_ask_the_cameras_alike_and_say_how_to_set_them(capsys):
+    """One declaration of --fps/--fourcc/--exposure/--gain (capture.command.add_camera_settings) for every command
+    that opens cameras: the same checks, and the advice the issue found missing."""
+    import pytest
+
+    parser = cli.build_parser()
+    for command in ("track", "preview"):
+        with pytest.raises(SystemExit) as stop:
+            parser.parse_args([command, "--fps", "0"])
+        assert stop.value.code == 2
+        assert "a frame rate is above 0" in capsys.readouterr().err
+        helps = {a.dest: a.help for a in parser._subparsers._group_actions[0].choices[command]._actions}
+        assert "saturated" in helps["exposure"] and "noise" in helps["gain"]
+    assert parser.parse_args(["track"]).fps == 60.0 and parser.parse_args(["preview"]).fps is None

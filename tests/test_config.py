@@ -164,7 +164,7 @@ def test_relative_paths_are_from_the_files_folder(home):
     ('[board]\ncols = 9\n', "[board]", "takes no config keys"),
     ('track = 5\n', "track", "a [track] table"),
     ('source = 5\n', "source", "expected a string"),
-    ('[track]\nfps = "fast"\n', "fps", "could not convert"),
+    ('[track]\nfps = "fast"\n', "fps", "expected a frame rate in Hz"),
     ('[track]\nfps = [1, 2]\n', "fps", "expected a number"),
     ('[track]\npivot = [1, 2]\n', "pivot", "X,Y,Z"),
     ('[track]\npivot = ["a", 2, 3]\n', "pivot", "array of numbers"),

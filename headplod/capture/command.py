@@ -19,7 +19,42 @@ from ..argtypes import note_old_spelling
 from ..progress import note
 from .usb import format_cameras, list_cameras, store_rig_cameras
 
-__all__ = ["add_cameras_arguments", "run_cameras"]
+__all__ = ["add_cameras_arguments", "run_cameras", "add_camera_settings", "DEFAULT_FPS"]
+
+#: The frame rate asked of live cameras unless --fps says otherwise, Hz.
+DEFAULT_FPS = 60.0
+
+
+def _frame_rate(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a frame rate in Hz, got {text!r}") from None
+    if not (value > 0 and value < 1000):
+        raise argparse.ArgumentTypeError(f"a frame rate is above 0 and below 1000 Hz, got {text!r}")
+    return value
+
+
+def add_camera_settings(group, fps_default: float | None = DEFAULT_FPS) -> None:
+    """``--fps``, ``--fourcc``, ``--exposure`` and ``--gain``: what every command that opens live cameras asks
+    of them (``track``, ``preview``), with the advice for setting them. ``fps_default`` None leaves ``--fps``
+    None when not given (the command then asks :data:`DEFAULT_FPS`, and can tell that it was not given)."""
+    from .v4l2 import FOURCCS
+
+    group.add_argument("--fps", type=_frame_rate, default=fps_default, metavar="HZ",
+                       help=f"frame rate to request, Hz (default {DEFAULT_FPS:g}); a camera that cannot "
+                            "gives its nearest, and the status line shows the rate measured")
+    group.add_argument("--fourcc", type=str.upper, choices=FOURCCS,
+                       help="pixel format to request (default: the camera's); GREY or YUYV keep the markers' "
+                            "edges, MJPG compresses them but is often the only format at 60 fps")
+    group.add_argument("--exposure", type=float, metavar="E",
+                       help="manual exposure, in the camera's V4L2 units (auto exposure is then off; default: "
+                            "the camera's auto exposure, which brightens the markers into saturation and drifts "
+                            "with the room). Lower it until 'headplod preview' no longer says the markers are "
+                            "saturated; a short exposure also blurs a moving head less")
+    group.add_argument("--gain", type=float, metavar="G",
+                       help="camera gain, in the camera's V4L2 units (default: the camera's). Raise it last, "
+                            "only when the markers are too dim at the exposure you need: gain adds noise")
 
 
 def add_cameras_arguments(cameras: argparse.ArgumentParser) -> argparse.ArgumentParser:

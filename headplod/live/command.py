@@ -48,7 +48,7 @@ from ..argtypes import frame_count, note_old_spelling, readout_ms
 from ..capture import DatasetRecorder, open_source, source_kind, synthetic_preset
 from ..capture.signals import StopSignals
 from ..capture.synthetic import ensure_dataset, rerender
-from ..capture.v4l2 import FOURCCS
+from ..capture.command import add_camera_settings
 from ..tracking import evaluate
 from ..tracking.detect import DetectionParams
 from ..tracking.filters import PoseFilter
@@ -132,11 +132,7 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
     live.add_argument("--calib", help="rig.yaml of the cameras (required with --source v4l2:...)")
     live.add_argument("--markers", help="markers.yaml (default: the dataset's, else the default model)")
     live.add_argument("--screen", help="screen.yaml, for the POI in the records (default: the dataset's)")
-    live.add_argument("--fps", type=float, default=60.0, help="camera frame rate to request (default 60)")
-    live.add_argument("--fourcc", type=str.upper, choices=FOURCCS,
-                      help="camera pixel format to request (default: the camera's)")
-    live.add_argument("--exposure", type=float, help="manual exposure (V4L2 units; auto exposure is then off)")
-    live.add_argument("--gain", type=float, help="camera gain (V4L2 units)")
+    add_camera_settings(live)
     live.add_argument("--record", metavar="DIR",
                       help="write the frames as a dataset folder while tracking (not the dataset being read, "
                            "nor inside it); a folder that holds a recording is refused unless --overwrite")

@@ -73,7 +73,7 @@ from .. import io
 from ..argtypes import frame_count
 from ..capture import open_source, source_kind, synthetic_preset
 from ..capture.synthetic import ensure_dataset
-from ..capture.v4l2 import FOURCCS
+from ..capture.command import DEFAULT_FPS, add_camera_settings
 from ..progress import Progress
 from ..tracking.detect import Blobs, DetectionParams, above_threshold, detect_blobs, estimate_background
 from ..tracking.geometry import essential_matrix
@@ -87,7 +87,7 @@ HEADLESS_FRAMES = 10
 #: The name of frame k's picture in ``--out DIR`` (k counts the frames shown, from 0).
 OUT_NAME = "preview_{:04d}.png"
 #: Frame rate requested from live cameras when ``--fps`` is not given, Hz (as ``headplod track``).
-LIVE_FPS = 60.0
+LIVE_FPS = DEFAULT_FPS
 #: What the pictures say when there is no rig.
 NO_RIG_NOTE = "no rig: epipolar lines and identification after 'headplod calibrate'"
 #: Title of the window.
@@ -685,11 +685,7 @@ def add_preview_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentP
                              "the source ends or q)")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress on standard error")
     live = parser.add_argument_group("live cameras (--source v4l2:...)")
-    live.add_argument("--fps", type=float, help=f"frame rate to request, Hz (default {LIVE_FPS:g})")
-    live.add_argument("--fourcc", type=str.upper, choices=FOURCCS, help="pixel format to request (default: "
-                                                                        "the camera's)")
-    live.add_argument("--exposure", type=float, help="manual exposure (V4L2 units; auto exposure is then off)")
-    live.add_argument("--gain", type=float, help="camera gain (V4L2 units)")
+    add_camera_settings(live, fps_default=None)
     parser.epilog = PREVIEW_EPILOG
     return parser
 
@@ -713,8 +709,6 @@ def _check_usage(args) -> tuple[str, Path | None, int | None]:
     if given and not live and not args.quiet:
         # Not refused: the config file's shared camera settings apply to preview too (headplod.toml).
         print(f"note: {', '.join(given)} set live cameras; ignored for the replay {spec!r}", file=sys.stderr)
-    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
-        raise _Usage(f"--fps must be a positive number of frames per second, got {args.fps:g}")
     if live and spec.partition(":")[2].strip().lower() == "auto" and not args.calib:
         raise _Usage("--source v4l2:auto finds the cameras --calib rig.yaml names; give --calib "
                      "(or name the devices, v4l2:0,2)")
