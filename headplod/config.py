@@ -56,7 +56,7 @@ __all__ = ["KEYS", "Key", "ConfigError", "CONFIG_NAME", "find_config", "read_con
 CONFIG_NAME = "headplod.toml"
 
 #: The commands that track a head (they share ``source`` and ``calib``; ``doctor`` reads the file itself).
-_TRACKERS = ("track", "pivot", "demo", "preview")
+_TRACKERS = ("track", "pivot", "demo", "preview", "doctor")
 
 
 def _udp_address(text: str) -> str:
@@ -97,6 +97,8 @@ def _live_cameras(args) -> bool:
     file are for the person's own cameras: a dataset folder or the synthetic sequence keeps its own."""
     if not hasattr(args, "source"):
         return True
+    if getattr(args, "command", None) == "doctor" and not args.source:
+        return True             # doctor with no source checks the person's own cameras and rig
     if getattr(args, "camera", None):
         return True
     spec = str(args.source or "").strip()
@@ -375,6 +377,7 @@ def parse_args(parser: argparse.ArgumentParser, argv, cwd: Path | None = None,
     """
     stream = sys.stderr if stream is None else stream
     args = parser.parse_args(argv)
+    args.config_file, args.config_used = None, ()          # which file gave which keys (headplod doctor says)
     explicit = getattr(args, "config", None)
     if getattr(args, "no_config", False):
         if explicit is not None:
@@ -391,6 +394,7 @@ def parse_args(parser: argparse.ArgumentParser, argv, cwd: Path | None = None,
     except ConfigError as exc:
         print(f"headplod: config {exc}", file=stream)
         raise SystemExit(2) from None
+    args.config_file = path
     if not values:
         return args
     given = _given(parser, sub, argv, set(values))
@@ -404,6 +408,7 @@ def parse_args(parser: argparse.ArgumentParser, argv, cwd: Path | None = None,
                 continue
             setattr(args, dest, value)
             used.append(name)
+    args.config_used = tuple(used)
     if used and not getattr(args, "quiet", False):
         order = list(KEYS)
         print(f"config: {path} ({', '.join(sorted(used, key=order.index))})", file=stream)

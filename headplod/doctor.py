@@ -55,7 +55,7 @@ from .capture.sources import source_kind, source_forms
 from .render.context import EGL_PACKAGES, create_context
 
 __all__ = ["DoctorSettings", "Result", "Machine", "GroupInfo", "ConfigDefaults", "video_group_info",
-           "read_config_defaults", "judge_formats", "doctor", "format_results",
+           "config_from_args", "judge_formats", "doctor", "format_results",
            "add_doctor_arguments", "run_doctor", "OK", "WARN", "FAIL", "SKIP"]
 
 OK, WARN, FAIL, SKIP = "ok", "warn", "FAIL", "skip"
@@ -205,9 +205,9 @@ class ConfigDefaults:
     path : Path or None
         The file read; None when there is none.
     calib : Path or None
-        Its ``calib`` (``[track]``, else the top level), relative to the file's folder.
+        The ``calib`` it gave doctor (``[doctor]``, else the top level), relative to the file's folder.
     source : str or None
-        Its ``source`` (``[track]``, else the top level) when it names V4L2 cameras.
+        The ``source`` it gave doctor (``[doctor]``, else the top level).
     error : str or None
         Why the file cannot be used.
     """
@@ -218,36 +218,15 @@ class ConfigDefaults:
     error: str | None = None
 
 
-def read_config_defaults(explicit: str | None = None, no_config: bool = False) -> ConfigDefaults:
-    """``calib`` and a V4L2 ``source`` from the config file ``track`` reads (``--config``, ``./headplod.toml``,
-    ``~/.config/headplod/config.toml``); empty with ``no_config`` or without a file."""
-    if no_config:
-        return ConfigDefaults()
-    try:
-        from .config import ConfigError, find_config, read_config
-    except ImportError:                     # a tree without the config file's module
-        return ConfigDefaults()
-    try:
-        path = find_config(explicit)
-        if path is None:
-            return ConfigDefaults()
-        table = read_config(path)
-    except ConfigError as exc:
-        return ConfigDefaults(error=str(exc))
-    track = table.get("track") if isinstance(table.get("track"), dict) else {}
-
-    def value(key):             # as headplod.config: the command's table over the top level
-        v = track.get(key, table.get(key))
-        return v if isinstance(v, str) and v.strip() else None
-
-    calib = value("calib")
-    if calib is not None:
-        calib = Path(calib).expanduser()
-        calib = calib if calib.is_absolute() else path.expanduser().resolve().parent / calib
-    source = value("source")
-    if source is not None and source_kind(source) != "v4l2":
-        source = None
-    return ConfigDefaults(path=path, calib=calib, source=source)
+def config_from_args(args) -> ConfigDefaults:
+    """What the config file gave ``headplod doctor``'s parsed ``args``: :func:`headplod.config.parse_args` reads
+    and checks the file as for every command (the command's table over the top level, a bad file refused in one
+    line) and records the file and the keys it applied (``config_file``, ``config_used``)."""
+    path = getattr(args, "config_file", None)
+    used = getattr(args, "config_used", ())
+    calib = getattr(args, "calib", None) if "calib" in used else None
+    return ConfigDefaults(path=path, calib=Path(calib) if calib is not None else None,
+                          source=getattr(args, "source", None) if "source" in used else None)
 
 
 def _file_mtime(path: Path) -> float:
@@ -282,7 +261,7 @@ class Machine:
     gl_context : () -> context
         A headless moderngl context (:func:`headplod.render.create_context`).
     config : () -> ConfigDefaults
-        The config file's ``calib`` and ``source`` (:func:`read_config_defaults`).
+        The config file's ``calib`` and ``source`` (:func:`config_from_args`; default: no file).
     find_rig : () -> Path or None
         The rig.yaml to check without ``--calib`` or a config file's
         ``calib`` (default ``./rig.yaml``).
@@ -299,7 +278,7 @@ class Machine:
     groups: Callable[[], GroupInfo] = field(default=lambda: video_group_info())
     clock: Callable[[], float] = time.time
     gl_context: Callable[[], Any] = create_context
-    config: Callable[[], ConfigDefaults] = field(default=lambda: read_config_defaults())
+    config: Callable[[], ConfigDefaults] = field(default=ConfigDefaults)
     find_rig: Callable[[], Path | None] = _cwd_rig
     read_rig: Callable[[Any], Any] = io.read_rig
     file_mtime: Callable[[Any], float] = _file_mtime
@@ -827,10 +806,13 @@ def add_doctor_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPa
 
 def run_doctor(args, machine: Machine | None = None, settings: DoctorSettings | None = None) -> int:
     """Run ``headplod doctor`` from parsed arguments; 0 when no check FAILs, else 1."""
+    given = config_from_args(args)
     if machine is None:
-        explicit, no_config = getattr(args, "config", None), getattr(args, "no_config", False)
-        machine = Machine(config=lambda: read_config_defaults(explicit, no_config))
-    results = doctor(machine, settings, calib=getattr(args, "calib", None), source=getattr(args, "source", None))
+        machine = Machine(config=lambda: given)
+    # what the command line gave; the config file's values are reported as the config's
+    calib = None if given.calib is not None else getattr(args, "calib", None)
+    source = None if given.source is not None else getattr(args, "source", None)
+    results = doctor(machine, settings, calib=calib, source=source)
     text = format_results(results, quiet=getattr(args, "quiet", False))
     if text:
         print(text)

@@ -260,19 +260,35 @@ def test_the_rig_found_without_calib(tmp_path):
     assert cfg.status == "ok" and "from config" in cfg.found
 
 
-def test_the_config_file_gives_calib_and_source(tmp_path):
-    pytest.importorskip("headplod.config")
+def test_the_config_file_gives_calib_and_source(tmp_path, capsys):
+    """Doctor reads the config file as every command does (headplod.config): checked, relative paths from the
+    file's folder, [doctor] over the top level, the command line over both."""
+    from headplod import config
+    from headplod.cli import build_parser
+
     (tmp_path / "cams").mkdir()
     rig = rig_file(tmp_path / "cams")
     toml = tmp_path / "headplod.toml"
-    toml.write_text('source = "v4l2:auto"\n[track]\ncalib = "cams/rig.yaml"\n')
-    got = dr.read_config_defaults(str(toml))
+    toml.write_text('source = "v4l2:auto"\ncalib = "elsewhere.yaml"\n[doctor]\ncalib = "cams/rig.yaml"\n')
+    args = config.parse_args(build_parser(), ["doctor", "--config", str(toml)])
+    got = dr.config_from_args(args)
     assert got.path == toml and got.calib == rig.resolve() and got.source == "v4l2:auto"
-    assert dr.read_config_defaults(str(toml), no_config=True) == dr.ConfigDefaults()
+    r = run(machine(config=lambda: got))
+    assert r["config"].status == "ok" and "calib" in r["config"].found
+    assert r["rig"].status == "ok" and "from config" in r["rig"].found
+    # the command line wins, and is reported as the command line's
+    given = config.parse_args(build_parser(), ["doctor", "--config", str(toml), "--calib", str(rig)])
+    assert dr.config_from_args(given).calib is None and given.calib == str(rig)
+    assert dr.config_from_args(config.parse_args(build_parser(), ["doctor", "--no-config"])) == dr.ConfigDefaults()
+    # a broken file is one line naming it, before any check
     toml.write_text("source = [\n")
-    assert "not valid TOML" in dr.read_config_defaults(str(toml)).error
-    r = run(machine(config=lambda: dr.read_config_defaults(str(toml))))["config"]
-    assert r.status == "FAIL" and "--no-config" in r.fix
+    with pytest.raises(SystemExit) as stop:
+        config.parse_args(build_parser(), ["doctor", "--config", str(toml)])
+    assert stop.value.code == 2 and str(toml) in capsys.readouterr().err
+    toml.write_text('[doctor]\nudp = "127.0.0.1"\n')
+    with pytest.raises(SystemExit):
+        config.parse_args(build_parser(), ["doctor", "--config", str(toml)])
+    assert "not a key of 'headplod doctor'" in capsys.readouterr().err
 
 
 def test_rig_cameras_other_than_the_connected_ones(tmp_path):
