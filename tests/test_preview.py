@@ -318,3 +318,17 @@ def test_the_written_pictures_are_whole_or_absent(sweep12_dir, tmp_path, monkeyp
     line = _one_line_error(capsys.readouterr().err)
     assert "No space left on device" in line and "1 pictures were written" in line
     assert sorted(p.name for p in out.iterdir()) == [OUT_NAME.format(0)]
+
+
+def test_a_shorter_run_leaves_one_runs_pictures(sweep12_dir, tmp_path, capsys):
+    """A 2-frame preview into the folder of a 4-frame one used to leave pictures 2 and 3 of the earlier run beside
+    the new ones; the user's own files there stay."""
+    out = tmp_path / "pictures"
+    assert cli_main(["preview", "--source", str(sweep12_dir), "--frames", "4", "--out", str(out), "-q"]) == 0
+    (out / "notes.txt").write_text("mine")
+    (out / "preview_old.png").write_bytes(b"not ours: no frame number")
+    capsys.readouterr()
+    assert cli_main(["preview", "--source", str(sweep12_dir), "--frames", "2", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt", OUT_NAME.format(0), OUT_NAME.format(1),
+                                                      "preview_old.png"]
+    assert "removed 2 pictures of an earlier, longer preview" in capsys.readouterr().err

@@ -170,7 +170,8 @@ def add_udp_arguments(group) -> None:
     group.add_argument("--udp", metavar="HOST[:PORT]",
                        help="send each pose to opentrack's 'UDP over network' input (six float64: x, y, z cm, "
                             "yaw, pitch, roll deg; default port 4242), with the axes and signs of opentrack's "
-                            "point tracker: nothing to invert in opentrack")
+                            "point tracker: nothing to invert in opentrack. A frame without a pose sends nothing "
+                            "(opentrack holds the last pose it got); press c or send SIGUSR1 to recentre")
     group.add_argument("--pivot", type=pivot_arg, metavar="X,Y,Z",
                        help="with --udp: the point sent, the head's pivot (the neck), from the bridge of the "
                             "glasses in the head frame (x to the wearer's left, y up, z forward), mm. Default: "

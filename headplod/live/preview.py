@@ -61,6 +61,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import sys
 from collections import deque
 from dataclasses import dataclass, field
@@ -631,6 +632,17 @@ class _Folder:
         self.written.append(path)
         return True
 
+    def remove_stale(self) -> int:
+        """Remove the pictures of an earlier, longer run (``preview_kkkk.png`` past the last one this run wrote), so
+        the folder holds one run; the number removed. Called when the run ends as it should: a run that fails
+        halfway leaves the earlier pictures."""
+        pattern = re.compile(r"preview_(\d{4,})\.png")
+        stale = [p for p in self.folder.glob("preview_*.png")
+                 if (m := pattern.fullmatch(p.name)) and int(m.group(1)) >= len(self.written)]
+        for path in stale:
+            path.unlink(missing_ok=True)
+        return len(stale)
+
     def close(self) -> None:
         pass
 
@@ -679,7 +691,8 @@ def add_preview_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentP
     parser.add_argument("--out", metavar="DIR",
                         help=f"write the annotated frames as DIR/{OUT_NAME.format(0)}, ... instead of a window "
                              "(DIR is made if missing; its parent must exist; not inside the dataset folder "
-                             "being read; pictures of the same names are replaced)")
+                             "being read; an earlier preview's pictures there are replaced, and those past this "
+                             "run's last removed)")
     parser.add_argument("--frames", type=frame_count, metavar="N",
                         help=f"stop after N frames (default with --out: {HEADLESS_FRAMES}; in a window: until "
                              "the source ends or q)")
@@ -831,6 +844,10 @@ def _run(args, source, rig, markers, requested, out: Path | None, frames: int | 
     if count == 0:
         print(f"headplod: preview: the source gave no frame ({source.name})", file=sys.stderr)
         return 1
+    if isinstance(output, _Folder):
+        removed = output.remove_stale()
+        if removed and not args.quiet:
+            print(f"note: removed {removed} pictures of an earlier, longer preview from {out}", file=sys.stderr)
     _summary(count, failed, first_failure, advice, out, previewer)
     return 0
 
