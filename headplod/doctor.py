@@ -49,9 +49,10 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from . import io
+from .argtypes import add_quiet_argument
 from .capture import usb
 from .capture.formats import PixelFormat, device_formats
-from .capture.sources import source_kind, source_forms
+from .capture.sources import source_forms, source_kind, v4l2_devices
 from .render.context import EGL_PACKAGES, create_context
 
 __all__ = ["DoctorSettings", "Result", "Machine", "GroupInfo", "ConfigDefaults", "video_group_info",
@@ -328,14 +329,11 @@ class _Survey:
         self.kind = source_kind(self.source)
         if self.kind != "v4l2":
             return
-        text = self.source.strip()
-        body = text[5:] if text.lower().startswith("v4l2:") else text
-        if body.strip().lower() == "auto":
+        devices = v4l2_devices(self.source)
+        if devices == "auto":
             self.auto = True
-            return
-        parts = [p.strip() for p in body.split(",")]
-        if len(parts) == 2 and all(parts):
-            self.named = [f"/dev/video{p}" if p.isdigit() else p for p in parts]
+        elif devices is not None:
+            self.named = [f"/dev/video{d}" if isinstance(d, int) else d for d in devices]
 
     @property
     def live(self) -> bool:
@@ -800,7 +798,7 @@ def add_doctor_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPa
     parser.add_argument("--source", metavar="SPEC",
                         help="the source you will track: v4l2:/dev/video0,/dev/video2 checks those two devices, "
                              "v4l2:auto the ones --calib names (as 'headplod track --source')")
-    parser.add_argument("-q", "--quiet", action="store_true", help="print only the warn and FAIL lines")
+    add_quiet_argument(parser, help="print only the warn and FAIL lines")
     return parser
 
 

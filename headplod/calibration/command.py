@@ -27,8 +27,8 @@ from pathlib import Path
 import cv2
 
 from .. import io
-from ..argtypes import floats, note_old_spelling
-from ..capture import V4L2StereoSource
+from ..argtypes import add_quiet_argument, floats, note_old_spelling
+from ..capture import V4L2StereoSource, source_kind, v4l2_devices
 from ..progress import Progress, note
 from .board import BOARD_KINDS
 from .calibrate import (BoardSpec, CalibrationError, calibrate_stereo, coverage_guide, detect_board, find_pairs,
@@ -69,8 +69,7 @@ def add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> argparse.Argu
     calibrate.add_argument("--save", help="live: folder for the captured pairs (default: beside --out)")
     calibrate.add_argument("--pairs", type=int, default=20, help="live: pairs to capture (default 20)")
     calibrate.add_argument("--size", type=floats(2), help="live: camera image size W,H (default 640,480)")
-    calibrate.add_argument("--quiet", "-q", action="store_true",
-                           help="no progress and no notes (the report and errors are still printed)")
+    add_quiet_argument(calibrate, help="no progress and no notes (the report and errors are still printed)")
     return calibrate
 
 
@@ -102,19 +101,17 @@ def calibrate_source(args) -> tuple[str | None, tuple | None]:
     if not spec:
         raise _Usage("calibrate needs the image pairs: --source FOLDER, or --source v4l2:LEFT,RIGHT to capture "
                      "them live")
-    parts = [p.strip() for p in spec.split(",")]
-    live = spec.lower().startswith("v4l2:")
-    if live or (len(parts) == 2 and all(p.isdigit() for p in parts)):
-        body = spec[5:] if live else spec
-        devices = [p.strip() for p in body.split(",")]
-        if body.strip().lower() == "auto":
+    kind = source_kind(spec)
+    if kind == "v4l2":
+        devices = v4l2_devices(spec)
+        if devices == "auto":
             raise _Usage("calibrate --source v4l2:auto: name the two cameras, v4l2:LEFT,RIGHT (auto finds the "
                          "cameras a rig.yaml names, and calibrate is what makes it)")
-        if len(devices) != 2 or not all(devices):
+        if devices is None:
             raise _Usage(f"calibrate --source {spec}: expected two devices, left first, as "
                          "v4l2:/dev/video0,/dev/video2 or v4l2:0,2")
-        return None, tuple(_device(d) for d in devices)
-    if spec == "synthetic" or spec.startswith("synthetic:") or (len(parts) == 2 and not Path(spec).is_dir()):
+        return None, devices
+    if kind in ("synthetic", "video"):
         raise _Usage(f"calibrate --source {spec}: calibrate reads board pairs from a folder of images or from two "
                      "cameras: --source FOLDER or --source v4l2:LEFT,RIGHT")
     return spec, None

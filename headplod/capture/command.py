@@ -15,8 +15,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..argtypes import note_old_spelling
+from ..argtypes import add_quiet_argument, note_old_spelling
 from ..progress import note
+from .sources import v4l2_devices
 from .usb import format_cameras, list_cameras, store_rig_cameras
 
 __all__ = ["add_cameras_arguments", "run_cameras", "add_camera_settings", "DEFAULT_FPS"]
@@ -67,8 +68,7 @@ def add_cameras_arguments(cameras: argparse.ArgumentParser) -> argparse.Argument
     cameras.add_argument("--source", metavar="v4l2:LEFT,RIGHT",
                          help="with --store: the two cameras, left first, v4l2:/dev/video0,/dev/video2 or v4l2:0,2")
     cameras.add_argument("--rig", help="rig.yaml to update with --store")
-    cameras.add_argument("--quiet", "-q", action="store_true",
-                         help="no note of what --store wrote (the list and errors are still printed)")
+    add_quiet_argument(cameras, help="no note of what --store wrote (the list and errors are still printed)")
     return cameras
 
 
@@ -84,16 +84,14 @@ def _store_devices(args) -> tuple[str, str]:
         spec = "v4l2:{},{}".format(*args.store)
         note_old_spelling(f"--store {' '.join(args.store)}", f"--store --source {spec}")
         return args.store[0], args.store[1]
-    spec = (args.source or "").strip()
-    body = spec[5:] if spec.lower().startswith("v4l2:") else spec
-    devices = [d.strip() for d in body.split(",")]
-    if body.strip().lower() == "auto":
+    devices = v4l2_devices(args.source or "")
+    if devices == "auto":
         raise ValueError("cameras --store --source v4l2:auto: name the two devices, v4l2:LEFT,RIGHT (auto finds "
                          "the cameras a rig names, and --store is what names them)")
-    if not spec or len(devices) != 2 or not all(devices):
+    if devices is None:
         raise ValueError("--store needs the two cameras, left first: --store --source v4l2:/dev/video0,/dev/video2 "
                          "--rig rig.yaml")
-    return devices[0], devices[1]
+    return str(devices[0]), str(devices[1])
 
 
 def run_cameras(args) -> int:

@@ -61,6 +61,7 @@ __all__ = [
     "source_forms",
     "source_kind",
     "synthetic_preset",
+    "v4l2_devices",
 ]
 
 
@@ -535,9 +536,21 @@ def _accepts_v4l2(text: str) -> bool:
     return parts is not None and all(_is_int(p) for p in parts)
 
 
-def _open_v4l2(text: str, **options: Any) -> FrameSource:
+def v4l2_devices(spec: str) -> str | tuple | None:
+    """The cameras a ``v4l2`` source spec names (with or without its ``v4l2:``): ``"auto"`` (the cameras a rig
+    names), ``(left, right)`` (an int for a bare index such as ``0``, else the path as written), or None when
+    it names neither. The one reading of the form, for every command that takes cameras."""
+    text = spec.strip()
     body = text[5:] if text.lower().startswith("v4l2:") else text
     if body.strip().lower() == "auto":
+        return "auto"
+    parts = _two_parts(body)
+    return None if parts is None else tuple(int(p) if _is_int(p) else p for p in parts)
+
+
+def _open_v4l2(text: str, **options: Any) -> FrameSource:
+    devices = v4l2_devices(text)
+    if devices == "auto":
         rig = options.get("rig")
         if rig is None:
             raise ValueError(f"cannot open source {text!r}: v4l2:auto finds the cameras the rig names by USB "
@@ -546,12 +559,10 @@ def _open_v4l2(text: str, **options: Any) -> FrameSource:
             rig = options["rig"] = io.read_rig(Path(rig))
         left, right = resolve_rig_cameras(rig, list_cameras())
         return V4L2StereoSource(left, right, **options)
-    parts = _two_parts(body)
-    if parts is None:
+    if devices is None:
         raise ValueError(f"cannot open source {text!r}: expected two devices, left first, "
                          "as v4l2:/dev/video0,/dev/video2 or v4l2:0,2")
-    left, right = (int(p) if _is_int(p) else p for p in parts)
-    return V4L2StereoSource(left, right, **options)
+    return V4L2StereoSource(*devices, **options)
 
 
 def _accepts_synthetic(text: str) -> bool:

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io
-from ..argtypes import frame_count, note_old_spelling, readout_ms
+from ..argtypes import add_quiet_argument, frame_count, note_old_spelling, readout_ms
 from ..capture import DatasetRecorder, open_source, source_kind, synthetic_preset
 from ..capture.signals import StopSignals
 from ..capture.synthetic import ensure_dataset, rerender
@@ -111,8 +111,7 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
                             + ", ".join(n for n in COVARIANCE_ESTIMATORS if n != DEFAULT_COVARIANCE))
     track.add_argument("--no-tracking", action="store_true",
                        help="detect and identify from scratch in every frame")
-    track.add_argument("--quiet", "-q", action="store_true",
-                       help="no per-frame lines and no progress (the summary at the end is still printed)")
+    add_quiet_argument(track, help="no per-frame lines and no progress (the summary at the end is still printed)")
     track.add_argument("--refine-rig", choices=("on", "off"), default="on",
                        help="refine the rig online from the tracked glasses (right camera's turn and shift, "
                             "baseline scale, right focal length, exposure offset); rig.yaml is never "

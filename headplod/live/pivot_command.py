@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io
+from ..argtypes import add_quiet_argument
 from ..capture import synthetic_preset
 from .pivot import PIVOT_FILE, PivotFitConfig, fit_pivot, write_pivot
 
@@ -59,7 +60,7 @@ def add_pivot_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     parser.add_argument("--out", metavar="FILE",
                         help=f"where to write the pivot (default: {PIVOT_FILE} next to rig.yaml, where "
                              "'headplod track --udp' finds it)")
-    parser.add_argument("--quiet", "-q", action="store_true", help="no instructions nor progress")
+    add_quiet_argument(parser, help="no instructions nor progress")
     return parser
 
 

@@ -71,7 +71,7 @@ import cv2
 import numpy as np
 
 from .. import io
-from ..argtypes import frame_count
+from ..argtypes import add_quiet_argument, frame_count
 from ..capture import open_source, source_kind, synthetic_preset
 from ..capture.synthetic import ensure_dataset
 from ..capture.command import DEFAULT_FPS, add_camera_settings
@@ -696,7 +696,7 @@ def add_preview_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentP
     parser.add_argument("--frames", type=frame_count, metavar="N",
                         help=f"stop after N frames (default with --out: {HEADLESS_FRAMES}; in a window: until "
                              "the source ends or q)")
-    parser.add_argument("--quiet", "-q", action="store_true", help="no progress on standard error")
+    add_quiet_argument(parser, help="no progress on standard error")
     live = parser.add_argument_group("live cameras (--source v4l2:...)")
     add_camera_settings(live, fps_default=None)
     parser.epilog = PREVIEW_EPILOG
