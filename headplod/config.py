@@ -27,7 +27,7 @@ one line naming the file and the key, and exit status 2, before anything is
 read or written (:class:`ConfigError`). The file's keys that were used are
 named on one line of standard error (``config: FILE (source, calib)``), not
 with ``-q``. Only the commands that take a key read the file (``board``,
-``synth``, ``bench``, ... never do; ``doctor`` reads it itself, to report on it).
+``synth``, ``bench``, ... never do; ``doctor`` takes ``source`` and ``calib`` and reports which file gave them).
 
 Some keys apply only where they mean something (:attr:`Key.when`): ``calib``,
 ``markers``, ``screen`` and the camera settings only with live cameras
@@ -41,7 +41,10 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import tomllib
+try:
+    import tomllib
+except ModuleNotFoundError:          # Python 3.10: the same parser, as the tomli package (pyproject.toml)
+    import tomli as tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
@@ -55,7 +58,7 @@ __all__ = ["KEYS", "Key", "ConfigError", "CONFIG_NAME", "find_config", "read_con
 #: The config file looked for in the current folder.
 CONFIG_NAME = "headplod.toml"
 
-#: The commands that track a head (they share ``source`` and ``calib``; ``doctor`` reads the file itself).
+#: The commands that read cameras or recordings (they share ``source`` and ``calib``; ``doctor`` checks them).
 _TRACKERS = ("track", "pivot", "demo", "preview", "doctor")
 
 
@@ -101,9 +104,9 @@ def _live_cameras(args) -> bool:
         return True             # doctor with no source checks the person's own cameras and rig
     if getattr(args, "camera", None):
         return True
-    spec = str(args.source or "").strip()
-    parts = [p.strip() for p in spec.split(",")]
-    return spec.lower().startswith("v4l2:") or (len(parts) == 2 and all(p.isdigit() for p in parts))
+    from .capture.sources import source_kind      # on use, as _udp_address: the config module stays light
+
+    return source_kind(str(args.source or "")) == "v4l2"
 
 
 def _with_udp(args) -> bool:
