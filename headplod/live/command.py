@@ -45,7 +45,7 @@ import numpy as np
 
 from .. import io
 from ..argtypes import add_quiet_argument, frame_count, note_old_spelling, readout_ms
-from ..capture import DatasetRecorder, open_source, source_kind, synthetic_preset
+from ..capture import DatasetRecorder, open_source, source_kind, synthetic_preset, v4l2_devices
 from ..capture.signals import StopSignals
 from ..capture.synthetic import ensure_dataset, rerender
 from ..capture.command import add_camera_settings
@@ -269,7 +269,7 @@ def _open_track_source(args, spec: str):
         width, height = rig.image_size
         source = open_source(spec, width=width, height=height, fps=args.fps, fourcc=args.fourcc,
                              exposure=args.exposure, gain=args.gain, rig=rig)
-        if spec.partition(":")[2].strip().lower() == "auto":
+        if v4l2_devices(spec) == "auto":
             left, right = source.devices
             print(f"cameras from {args.calib}: left {left}, right {right}", file=sys.stderr)
         print(source.settings_report(text=True), file=sys.stderr)

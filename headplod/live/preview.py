@@ -72,7 +72,7 @@ import numpy as np
 
 from .. import io
 from ..argtypes import add_quiet_argument, frame_count
-from ..capture import open_source, source_kind, synthetic_preset
+from ..capture import open_source, source_kind, synthetic_preset, v4l2_devices
 from ..capture.synthetic import ensure_dataset
 from ..capture.command import DEFAULT_FPS, add_camera_settings
 from ..progress import Progress
@@ -87,6 +87,8 @@ __all__ = ["add_preview_arguments", "run_preview", "AdviceSettings", "Advice", "
 HEADLESS_FRAMES = 10
 #: The name of frame k's picture in ``--out DIR`` (k counts the frames shown, from 0).
 OUT_NAME = "preview_{:04d}.png"
+#: The names OUT_NAME gives, with the frame number as group 1 (pictures past 9999 take more digits).
+_OUT_PATTERN = re.compile(r"preview_(\d{4,})\.png")
 #: Frame rate requested from live cameras when ``--fps`` is not given, Hz (as ``headplod track``).
 LIVE_FPS = DEFAULT_FPS
 #: What the pictures say when there is no rig.
@@ -204,9 +206,8 @@ def advise(views, skew_ms, rate_hz, rate_frames: int, requested_fps, settings: A
         elif n < s.markers:
             out.append(Advice("too_few", f"{side}: {n} blobs, {s.markers} needed: a marker hidden, turned away or "
                                          "too dim; face the cameras, or raise --exposure or --gain", side))
-        unsaturated = ~saturated
-        if unsaturated.any() and not saturated.any():
-            peak = float(np.median(b.peak_dn[unsaturated]))
+        if not saturated.any():
+            peak = float(np.median(b.peak_dn))
             if peak < s.dim_peak_dn:
                 out.append(Advice("dim", f"{side}: markers dim (median peak {peak:.0f} DN above the background): "
                                          "raise --exposure or --gain, or bring the IR light closer", side))
@@ -605,8 +606,6 @@ def _ascii(s: str) -> str:
 
 def window_problem() -> str | None:
     """Why no OpenCV window can be opened here (no GUI in the OpenCV build, no display), or None."""
-    import re
-
     gui = re.search(r"^\s*GUI:\s*(\S+)", cv2.getBuildInformation(), re.MULTILINE)
     if gui is not None and gui.group(1).upper() == "NONE":
         return "the installed OpenCV has no GUI (opencv-python-headless)"
@@ -636,9 +635,8 @@ class _Folder:
         """Remove the pictures of an earlier, longer run (``preview_kkkk.png`` past the last one this run wrote), so
         the folder holds one run; the number removed. Called when the run ends as it should: a run that fails
         halfway leaves the earlier pictures."""
-        pattern = re.compile(r"preview_(\d{4,})\.png")
         stale = [p for p in self.folder.glob("preview_*.png")
-                 if (m := pattern.fullmatch(p.name)) and int(m.group(1)) >= len(self.written)]
+                 if (m := _OUT_PATTERN.fullmatch(p.name)) and int(m.group(1)) >= len(self.written)]
         for path in stale:
             path.unlink(missing_ok=True)
         return len(stale)
@@ -722,7 +720,7 @@ def _check_usage(args) -> tuple[str, Path | None, int | None]:
     if given and not live and not args.quiet:
         # Not refused: the config file's shared camera settings apply to preview too (headplod.toml).
         print(f"note: {', '.join(given)} set live cameras; ignored for the replay {spec!r}", file=sys.stderr)
-    if live and spec.partition(":")[2].strip().lower() == "auto" and not args.calib:
+    if live and v4l2_devices(spec) == "auto" and not args.calib:
         raise _Usage("--source v4l2:auto finds the cameras --calib rig.yaml names; give --calib "
                      "(or name the devices, v4l2:0,2)")
     out = None
