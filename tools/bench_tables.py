@@ -30,10 +30,11 @@ import argparse
 import datetime as _dt
 import json
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))    # the repository's headplod, as the other tools
+from headplod.io import write_atomically     # noqa: E402 (whole or untouched, as every output of the project)
 
 
 def _f(value, spec: str, scale: float = 1.0) -> str:
@@ -325,18 +326,6 @@ PAGES = {"track": track_page, "uncertainty": uncertainty_page, "live": live_page
          "plod": plod_page}
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary name in its folder (whole or untouched)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent if str(path.parent) else ".")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def main(argv=None, prog: str = "bench_tables", kind: str | None = None) -> int:
     parser = argparse.ArgumentParser(prog=prog, description="Markdown tables from `headplod bench KIND --json`.")
     if kind is None:
@@ -364,7 +353,7 @@ def main(argv=None, prog: str = "bench_tables", kind: str | None = None) -> int:
         return 2
     out = Path(args.out)
     try:
-        write_atomic(out, text)
+        write_atomically(out, lambda name: Path(name).write_text(text))
     except OSError as exc:
         print(f"{prog}: cannot write {out}: {exc}", file=sys.stderr)
         return 1

@@ -154,9 +154,9 @@ def main(argv=None) -> int:
             print(f"{out} is stale: run python tools/commands_page.py", file=sys.stderr)
             return 1
         return 0
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, out)
+    from headplod.io import write_atomically     # imported by page() above from the repository root
+
+    write_atomically(out, lambda name: Path(name).write_text(text))
     print(f"commands: {out}")
     return 0
 

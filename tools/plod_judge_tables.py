@@ -19,10 +19,11 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))    # the repository's headplod, as the other tools
+from headplod.io import write_atomically     # noqa: E402
 
 
 def _jod(value) -> str:
@@ -116,15 +117,8 @@ def _section(report: dict, source: str, when: str, images: dict) -> list:
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o644)                     # mkstemp makes it private; the page and charts are for everyone
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """``data`` to ``path``, whole or untouched (the project's own atomic write)."""
+    write_atomically(path, lambda name: Path(name).write_bytes(data))
 
 
 def main(argv=None) -> int:
