@@ -401,7 +401,7 @@ def _check_config(sv: _Survey) -> list[Result]:
     if c.path is None:
         return [Result(SKIP, "config", "no config file (./headplod.toml, ~/.config/headplod/config.toml)")]
     used = [f"calib {c.calib}"] * (c.calib is not None) + [f"source {c.source}"] * (c.source is not None)
-    return [Result(OK, "config", f"{c.path}" + (f": {', '.join(used)}" if used else ": no calib or v4l2 source"))]
+    return [Result(OK, "config", f"{c.path}" + (f": {', '.join(used)}" if used else ": no calib or source for doctor"))]
 
 
 def _check_source(sv: _Survey) -> list[Result]:
