@@ -92,8 +92,9 @@ class _Pacer:
       restarts after it (a Ctrl-C is seen within ``max_wait_s``).
 
     ``clock`` (s, monotonic) and ``sleep`` are injectable, so that tests use a
-    fake clock and never assert wall-clock time. :attr:`slept_s` is the total
-    time waited and :attr:`restarts` how often the schedule restarted.
+    fake clock and never assert wall-clock time. :meth:`wait` returns the time
+    it waited (the frame's ``paced_s``); :attr:`restarts` counts how often the
+    schedule restarted.
     """
 
     def __init__(self, enabled: bool, *, clock: Callable[[], float] | None = None,
@@ -104,7 +105,6 @@ class _Pacer:
         self._sleep = sleep or time.sleep
         self.slack_s, self.max_wait_s = float(slack_s), float(max_wait_s)
         self._origin: tuple[float, float] | None = None   # (clock, frame time) the schedule counts from
-        self.slept_s = 0.0
         self.restarts = 0
 
     def wait(self, t: float) -> float:
@@ -127,7 +127,6 @@ class _Pacer:
             delay = self.max_wait_s
             self._restart(now + delay, t)               # a pause in the recording, shortened
         self._sleep(delay)
-        self.slept_s += delay
         return delay
 
     def _restart(self, now: float, t: float) -> None:
