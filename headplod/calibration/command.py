@@ -93,7 +93,7 @@ def calibrate_source(args) -> tuple[str | None, tuple | None]:
             raise _Usage("--camera takes LEFT RIGHT (two devices); it is now --source v4l2:LEFT,RIGHT")
         spec = "v4l2:{},{}".format(*args.camera)
         note_old_spelling(f"--camera {' '.join(args.camera)}", f"--source {spec}")
-        return None, tuple(_device(d) for d in args.camera)
+        return None, v4l2_devices(spec)
     if args.folder:
         note_old_spelling(f"'headplod calibrate {args.folder}'", f"'headplod calibrate --source {args.folder}'")
         return args.folder, None
@@ -187,10 +187,6 @@ def _write_rig_or_keep(rig, out: str, folder) -> int:
         return 1
     note(f"rig: {out}")
     return 0
-
-
-def _device(text: str):
-    return int(text) if text.isdigit() else text
 
 
 def _capture_calibration_pairs(args, spec, devices, folder: Path) -> int:
