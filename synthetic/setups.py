@@ -54,12 +54,20 @@ __all__ = [
     "distortion_is_monotonic",
     "max_monotonic_radius",
     "write_setup",
+    "SCREEN_49IN_MM",
+    "SCREEN_49IN_PX",
+    "wide_screen_setup",
 ]
 
 #: Visible area of a 24-inch 16:9 monitor, (width, height) mm.
 SCREEN_24IN_MM = (531.4, 298.9)
 #: Its resolution, (width, height) px.
 SCREEN_24IN_PX = (1920, 1080)
+#: Visible area of a 49-inch 32:9 monitor (a flight-simulator user's wide screen), (width, height) mm: its
+#: 1244.6 mm diagonal split 32:9. Drawn flat; such screens are often curved (1000-1800 mm radius).
+SCREEN_49IN_MM = (1198.1, 337.0)
+#: Its resolution, (width, height) px.
+SCREEN_49IN_PX = (3840, 1080)
 #: Nominal head (P1) position in the monitor frame M, mm.
 NOMINAL_HEAD_M = np.array([0.0, -80.0, 650.0])
 #: Camera centres in M, mm: left camera (user's right) and right camera.
@@ -273,6 +281,15 @@ def distortion_is_monotonic(K: np.ndarray, D: np.ndarray, image_size, margin: fl
     return bool(margin * r < max_monotonic_radius(D))
 
 
+def wide_screen_setup() -> Setup:
+    """The embedded rig beside a 49-inch 32:9 monitor (``calib/screen_wide.yaml``) centred where the 24-inch one
+    is: the same cameras and monitor frame M, a wider visible area. Only its screen is written
+    (``--write-wide-screen``): the cameras would sit on the wide monitor's face, so a real rig moves them."""
+    base = default_setup()
+    return build_setup(base.image_size, base.K1, base.D1, base.K2, base.D2, screen_mm=SCREEN_49IN_MM,
+                       screen_px=SCREEN_49IN_PX, name="wide_screen")
+
+
 def write_setup(folder, setup: Optional[Setup] = None, markers_mm=DEFAULT_MARKERS_MM,
                 diameter_mm: float = DEFAULT_DIAMETER_MM):
     """Write ``rig.yaml``, ``screen.yaml`` and ``markers.yaml`` into ``folder``.
@@ -293,12 +310,17 @@ def _main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m synthetic.setups", description=__doc__.split("\n")[0])
     ap.add_argument("--write", metavar="DIR", help="write rig.yaml, screen.yaml, markers.yaml into DIR")
     ap.add_argument("--setup", default="default", choices=["default", "wide_hd"])
+    ap.add_argument("--write-wide-screen", metavar="FILE",
+                    help="write the 49-inch 32:9 screen beside the default rig (calib/screen_wide.yaml)")
     a = ap.parse_args(argv)
     s = default_setup() if a.setup == "default" else wide_hd_setup()
+    if a.write_wide_screen:
+        w = wide_screen_setup()
+        print(write_screen(a.write_wide_screen, w.screen_size_px, w.top_left, w.top_right, w.bottom_left))
     if a.write:
         for p in write_setup(a.write, s):
             print(p)
-    else:
+    elif not a.write_wide_screen:
         np.set_printoptions(precision=4, suppress=True)
         print(s)
     return 0

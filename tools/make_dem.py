@@ -27,6 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from headplod.bench import landscapes  # noqa: E402
 from headplod.plod.terrain import Terrain  # noqa: E402
 
 
@@ -64,28 +65,13 @@ def make_dem(path, factor: int = 12, holes: int = 0, seed: int = 0, detail_m: fl
     return rows, cols
 
 
-#: ``--ridges``: samples per side, spacing (m) and heights (m) of the ridged landscape.
-RIDGES_SAMPLES, RIDGES_SPACING_M = 1025, 25.0
+#: ``--ridges``: samples per side and spacing (m) of the ridged landscape (headplod.bench.landscapes).
+RIDGES_SAMPLES, RIDGES_SPACING_M = landscapes.SAMPLES, landscapes.SPACING_M
 
 
 def ridges_heights(seed: int, n: int = RIDGES_SAMPLES) -> np.ndarray:
-    """(n, n) float32 heights, metres, of a landscape unlike the built-in one: sharp ridges (the folded mid-level of
-    a smooth spectral field, amplitude ∝ f^-1.8) over rolling ground, with fine relief (∝ f^-1.3) up to 40 m.
-    Row 0 is north; the spacing is meant to be :data:`RIDGES_SPACING_M` (``--spacing-m 25``)."""
-    rng = np.random.default_rng(seed)
-    fy, fx = np.fft.fftfreq(n)[:, None], np.fft.rfftfreq(n)[None, :]
-    f = np.hypot(fy, fx)
-    f[0, 0] = 1.0
-
-    def field(beta):
-        spectrum = (rng.normal(size=f.shape) + 1j * rng.normal(size=f.shape)) / f ** beta
-        spectrum[0, 0] = 0.0
-        h = np.fft.irfft2(spectrum, s=(n, n))
-        return (h - h.min()) / np.ptp(h)
-
-    base, detail = field(1.8), field(1.3)
-    ridged = 1.0 - np.abs(2.0 * base - 1.0)
-    return (900.0 * (0.7 * ridged ** 3 + 0.25 * base) + 40.0 * detail).astype(np.float32)
+    """(n, n) float32 heights, metres, of the ``ridges`` landscape of ``seed`` (:mod:`headplod.bench.landscapes`)."""
+    return landscapes.heights("ridges", seed, n)
 
 
 def main(argv=None) -> int:

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..render import scene_to_world
+from ..render.projection import screen_fit
 
 
 @dataclass(frozen=True)
@@ -61,12 +62,13 @@ class Viewpoint:
 
     def model(self, terrain, screen, fit: float = 1.0) -> np.ndarray:
         """``T_world_scene``, (4, 4) float64: terrain metres → world mm, for ``screen``; ``fit`` scales
-        ``scale_mm_per_m`` for a terrain of another size (``TerrainScene.fit``; 1 for the built-in)."""
+        ``scale_mm_per_m`` for a terrain of another size (``TerrainScene.fit``; 1 for the built-in), and
+        :func:`headplod.render.projection.screen_fit` for a screen of another width."""
         x0, x1, y0, y1 = terrain.extent
         fx, fy = self.centre_frac
         cx, cy = x0 + fx * (x1 - x0), y0 + fy * (y1 - y0)
         centre = np.array([cx, cy, float(np.median(terrain.dem_z_m))])
-        placed = np.asarray(scene_to_world(self.scale_mm_per_m * fit, centre, screen, depth_mm=self.depth_mm,
+        placed = np.asarray(scene_to_world(self.scale_mm_per_m * fit * screen_fit(screen), centre, screen, depth_mm=self.depth_mm,
                                            pitch_deg=self.pitch_deg).matrix, dtype=np.float64)
         # Yaw about the vertical through the centre point, in scene coordinates.
         c, s = math.cos(math.radians(self.yaw_deg)), math.sin(math.radians(self.yaw_deg))

@@ -76,7 +76,9 @@ __all__ = ["CSF_MODES", "DIAMETER_FLOOR_DEG", "FMAX_FLOOR_CPD", "ANGLE_SLACK_DEG
            "unit", "chord_angle_deg", "angle_between_deg", "subtended_deg", "sphere_reach_deg",
            "triangle_sizes_deg", "patch_pieces", "patch_piece_contrast",
            "shifted_offsets_deg", "piece_eccentricity_deg", "angular_speed_deg_s", "point_speed_deg_s",
-           "CHANGE_MODES", "VISIBILITY_FLOOR", "CROSSING_MIN_DROP", "crossing_level", "change_visibility",
+           "CHANGE_MODES", "GAZE_DISTRIBUTION_MODES", "GAZE_NODES_PER_AXIS", "gaze_nodes_deg",
+           "node_eccentricity_deg", "expected_change_visibility", "sse_continuous_level", "hybrid_level",
+           "VISIBILITY_FLOOR", "CROSSING_MIN_DROP", "crossing_level", "change_visibility",
            "displacement_visibility", "change_visibility_levels", "change_level",
            "foveal_fmax_cpd", "fmax_cpd", "frequency_level", "csf_level", "distance_level", "continuous_level",
            "patch_piece_levels",
@@ -87,6 +89,11 @@ CSF_MODES = ("csf", "gp")
 """The modes whose level is ``log2(f_max · diameter)`` (:func:`csf_level`)."""
 CHANGE_MODES = ("change",)
 """The modes whose level is where what a level removes stops being visible (:func:`change_level`)."""
+GAZE_DISTRIBUTION_MODES = ("hybrid",)
+"""The modes that weigh what a level removes over every place the viewer may look (:func:`gaze_nodes_deg`)."""
+GAZE_NODES_PER_AXIS = 5
+"""Gauss–Hermite nodes per principal axis of the gaze distribution (:func:`gaze_nodes_deg`): exact for
+polynomials of degree 9 in each axis, far smoother than the eccentricity laws weighed over it."""
 VISIBILITY_FLOOR = -60.0
 """Visibility (log2 of contrast x sensitivity) of a change of contrast 0: far below any level's (a flat piece)."""
 CROSSING_MIN_DROP = 0.25
@@ -251,6 +258,44 @@ def shifted_offsets_deg(points_mm, eye_mm, axes, cov_deg2=None, *, shift: str = 
     """
     offsets = pc.view_offsets_deg(points_mm, eye_mm, axes)
     return pc.uncertainty_shift(offsets, cov_deg2, shift, ellipse_sigma) if cov_deg2 is not None else offsets
+
+
+def gaze_nodes_deg(cov_deg2, per_axis: int = GAZE_NODES_PER_AXIS) -> tuple[np.ndarray, np.ndarray]:
+    """Where the viewer may look about V, as quadrature nodes of a normal distribution: ((K, 2) (φ, θ) deg,
+    (K,) weights summing to 1).
+
+    ``cov_deg2`` (2, 2) deg² over (φ, θ), or None: the gaze covariance
+    (:func:`headplod.plod.view.gaze_covariance`). A product Gauss–Hermite rule
+    of ``per_axis`` nodes along each principal axis; a single node at V, weight 1,
+    for None or a zero covariance. The expectation of a smooth function of the
+    gaze is the weighted sum over the nodes (Gaussian quadrature: no sampling
+    noise, and the same nodes every frame for the same covariance).
+    """
+    if cov_deg2 is None or not np.any(np.asarray(cov_deg2) != 0):
+        return np.zeros((1, 2)), np.ones(1)
+    x, w = np.polynomial.hermite_e.hermegauss(int(per_axis))
+    w = w / w.sum()
+    values, vectors = np.linalg.eigh(np.asarray(cov_deg2, dtype=np.float64))
+    grid = np.stack(np.meshgrid(x, x, indexing="ij"), -1).reshape(-1, 2)
+    nodes = (grid * np.sqrt(np.maximum(values, 0.0))) @ vectors.T
+    return nodes, np.outer(w, w).ravel()
+
+
+def node_eccentricity_deg(offsets_deg, reach_deg, nodes_deg) -> np.ndarray:
+    """(S, K) eccentricity of each piece's nearest point from each gaze node, deg.
+
+    The angle from the node's direction (``nodes_deg`` (K, 2) (φ, θ) deg about V, :func:`gaze_nodes_deg`) to
+    the piece's reference point's (``offsets_deg`` (S, 2) (φ, θ) deg about V, unshifted), less ``reach_deg``
+    (S,) deg, floored at 0 (:func:`piece_eccentricity_deg` seen from another fixation).
+    """
+    # (φ, θ) are atan2 angles about V: the direction is (tan θ, tan φ, 1), normalised.
+    def directions(offsets):
+        t = np.tan(np.radians(np.asarray(offsets, dtype=np.float64)))
+        d = np.stack([t[..., 1], t[..., 0], np.ones(t.shape[:-1])], -1)
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    cos = np.clip(directions(offsets_deg) @ directions(nodes_deg).T, -1.0, 1.0)
+    return np.maximum(np.degrees(np.arccos(cos)) - np.asarray(reach_deg, dtype=np.float64)[:, None], 0.0)
 
 
 def piece_eccentricity_deg(shifted_deg, reach_deg) -> np.ndarray:
@@ -484,8 +529,8 @@ def continuous_level(config, max_level: int, *, ecc_deg, angular_deg, distance_m
         return csf_level(contrast, speed_deg_s, ecc_deg, angular_deg[:, 0], mode=mode, csf_model=config.csf,
                          foveal_cpd=foveal_cpd, level_bias=bias, cortical_exponent=config.cortical_exponent,
                          nyquist_cpd=nyquist_cpd)
-    if mode in CHANGE_MODES:
-        raise ValueError("mode 'change' is per level: change_visibility_levels, then change_level")
+    if mode in CHANGE_MODES + GAZE_DISTRIBUTION_MODES:
+        raise ValueError(f"mode {mode!r} needs each level's visibility: change_level or hybrid_level")
     if mode == "distance":
         return distance_level(distance_mm, max_level, config.distance_ref_mm) + bias
     if mode == "acuity":
@@ -494,11 +539,54 @@ def continuous_level(config, max_level: int, *, ecc_deg, angular_deg, distance_m
         return pc.acuity_level(k1, k2, k3, a0, distance_mm, edge_len_mm, return_continuous=True)[1] + bias
     pixels_per_radian = px_per_mm * float(np.median(distance_mm))
     if mode == "sse":
-        return pc.sse_level(error_mm, distance_mm, pixels_per_radian, config.sse_tolerance_px,
-                            speed_deg_s=speed_deg_s, frame_s=config.frame_s, return_continuous=True)[1] + bias
+        return sse_continuous_level(error_mm, distance_mm, px_per_mm, speed_deg_s, config) + bias
     base = pc.sse_level(error_mm, distance_mm, pixels_per_radian, config.sse_tolerance_px, return_continuous=True)[1]
     return pc.velocity_baseline_level(base, speed_deg_s, mode=mode, v_ref=config.velocity_ref_deg_s,
                                       max_level=max_level, return_continuous=True)[1] + bias
+
+
+def sse_continuous_level(error_mm, distance_mm, px_per_mm: float, speed_deg_s, config) -> np.ndarray:
+    """Mode ``sse``'s continuous level (S,), no bias: :func:`perception.sse_level` with the screen's ``px_per_mm``
+    at the median of ``distance_mm`` (S,) mm, ``error_mm`` (S, L+1) mm, ``speed_deg_s`` (S,) deg/s and
+    ``config``'s ``sse_tolerance_px`` and ``frame_s``."""
+    pixels_per_radian = px_per_mm * float(np.median(distance_mm))
+    return pc.sse_level(error_mm, distance_mm, pixels_per_radian, config.sse_tolerance_px, speed_deg_s=speed_deg_s,
+                        frame_s=config.frame_s, return_continuous=True)[1]
+
+
+def expected_change_visibility(change_contrast, angular_deg, error_mm, distance_mm, displacement_contrast,
+                               speed_deg_s, node_ecc_deg, node_weights, **options) -> np.ndarray:
+    """(S, L+1) log2 of the expected visibility of what each level removes, over where the viewer may look.
+
+    :func:`change_visibility_levels` (its inputs and keyword ``options``) at each gaze node's eccentricity
+    (``node_ecc_deg`` (S, K) deg, :func:`node_eccentricity_deg`), weighed by ``node_weights`` (K,) in linear
+    units (contrast over threshold): a change seen plainly from a few likely fixations counts, which the
+    eccentricity of the most likely one alone would miss.
+    """
+    ecc = np.asarray(node_ecc_deg, dtype=np.float64)
+    n, k = ecc.shape
+
+    def tile(a):
+        a = np.asarray(a, dtype=np.float64)
+        return np.repeat(a, k, axis=0)
+
+    vis = change_visibility_levels(tile(change_contrast), tile(angular_deg), tile(error_mm), tile(distance_mm),
+                                   tile(displacement_contrast), tile(speed_deg_s), ecc.ravel(), **options)
+    vis = vis.reshape(n, k, -1)
+    top = vis.max(axis=1)                                   # log-sum-exp in base 2, against overflow
+    weighted = np.einsum("skl,k->sl", np.exp2(vis - top[:, None, :]), np.asarray(node_weights, dtype=np.float64))
+    with np.errstate(divide="ignore"):
+        return np.maximum(top + np.log2(weighted), VISIBILITY_FLOOR)
+
+
+def hybrid_level(sse_level, change_visibility, change_share: float) -> np.ndarray:
+    """Mode ``hybrid``'s continuous level (S,), no bias: ``sse``'s (``sse_level`` (S,), the geometric error in
+    pixels) and :func:`change_level` of ``change_visibility`` (S, L+1) (what the level removes as the viewer
+    would see it), mixed ``1 − change_share`` : ``change_share``. ``change_share`` 0 is ``sse`` exactly."""
+    if change_share == 0:
+        return np.asarray(sse_level, dtype=np.float64)
+    return (1.0 - change_share) * np.asarray(sse_level, dtype=np.float64) + change_share * change_level(
+        change_visibility)
 
 
 def patch_piece_levels(corners_mm, piece_contrast, eye_mm, axes, cov_deg2=None, *, shift: str = "ellipse",

@@ -48,11 +48,19 @@ from .csf import display_nyquist_cpd
 from . import perception as pc
 from .view import UNCERTAINTY_MODES, ConditionedView, UncertaintyPolicy, View, ViewConditioner  # noqa: F401
 
-MODES = ("change", "csf", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full")
+MODES = ("change", "hybrid", "csf", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full")
 """The level-selection criteria (:attr:`SelectorConfig.mode`), in the order the tools list them."""
 #: Each CSF-based mode's own CSF model (:attr:`SelectorConfig.csf_model` None): the paper's for ``csf``, the
 #: detection model for ``change``.
 DEFAULT_CSF_MODEL = {"csf": "kelly_scaled", "change": "cortical"}
+#: The modes that weigh every place the viewer may look (the gaze distribution), not the eccentricity shifted
+#: by its σ: their default eye-in-head prior is :data:`GAZE_PRIOR_DEG`.
+GAZE_DISTRIBUTION_MODES = criteria.GAZE_DISTRIBUTION_MODES
+#: The σ of the eyes' offset in the head while a viewer looks about a desk screen, (horizontal, vertical) deg:
+#: the viewer model's (``synthetic/gaze.py``; docs/viewer-model.md gives the sources).
+GAZE_PRIOR_DEG = (10.7, 6.3)
+#: The largest σ of the prior accepted, deg: beyond it the eyes would leave their orbit's range.
+MAX_GAZE_PRIOR_DEG = 45.0
 
 
 @dataclass(frozen=True)
@@ -98,6 +106,23 @@ class SelectorConfig:
         the bench's default view, ``headplod bench plod --vdp``: Kelly's CSF
         is that of a stabilized grating, far keener than the judge at a
         change in a textured image).
+    gaze_prior_deg : (float, float) or None
+        σ of the eyes' offset in the head, horizontal and vertical, deg: the
+        uncertainty of where the viewer looks that the head's pose cannot
+        tell, added to the tracker's covariance of V (:func:`view.gaze_covariance`).
+        ``(0, 0)``: the paper's head-only view. None (the default) takes the
+        mode's own (:attr:`gaze_prior`): :data:`GAZE_PRIOR_DEG` for the modes
+        that weigh the whole gaze distribution (:data:`GAZE_DISTRIBUTION_MODES`),
+        ``(0, 0)`` for the others, whose 2σ ellipse would take a disc of tens of
+        degrees as the fovea.
+    change_share : float
+        Mode ``hybrid``: the share of ``change``'s level (what a level removes as
+        the viewer would see it, expected over the gaze distribution) in its
+        mix with ``sse``'s (the geometric error in pixels), 0..1 (0 is ``sse``;
+        :func:`criteria.hybrid_level`).
+    gaze_nodes_per_axis : int
+        Mode ``hybrid``: Gauss–Hermite nodes per principal axis of the gaze
+        distribution over which the change's visibility is averaged (3: 9 nodes).
     level_bias : float
         Added to every continuous level before rounding, levels (0.0): the one
         knob that trades triangles for image error in every mode alike, for
@@ -177,6 +202,9 @@ class SelectorConfig:
     cortical_exponent: float = 0.9
     silhouette_contrast: float = 0.5
     change_threshold: float = 8.0
+    gaze_prior_deg: tuple[float, float] | None = None
+    change_share: float = 0.25
+    gaze_nodes_per_axis: int = 3
     level_bias: float = 0.0
     budget_triangles: int | None = None
     budget_tolerance: float = 0.03
@@ -207,13 +235,23 @@ class SelectorConfig:
                                        and budget >= 1):
             raise ValueError(f"SelectorConfig.budget_triangles must be a whole number of triangles >= 1 or None, "
                              f"got {budget!r}")
+        prior = self.gaze_prior_deg
+        if prior is not None:
+            try:
+                ok = (len(prior) == 2 and all(isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+                                              and math.isfinite(v) and 0 <= v <= MAX_GAZE_PRIOR_DEG for v in prior))
+            except TypeError:
+                ok = False
+            if not ok:
+                raise ValueError(f"SelectorConfig.gaze_prior_deg must be two σ in 0..{MAX_GAZE_PRIOR_DEG:g} deg "
+                                 f"(horizontal, vertical) or None, got {prior!r}")
         if not isinstance(self.hysteresis, (bool, np.bool_)):
             raise ValueError(f"SelectorConfig.hysteresis must be True or False, got {self.hysteresis!r}")
         # (field, lower bound, bound allowed, unit)
         for name, low, closed, unit in (
                 ("uncertainty_smoothing_frames", 1.0, True, "frames"), ("ellipse_sigma", 0.0, True, "sigma"),
                 ("cortical_exponent", 0.0, False, "dimensionless"), ("silhouette_contrast", 0.0, False, "Michelson"),
-                ("change_threshold", 0.0, False, "thresholds"),
+                ("change_threshold", 0.0, False, "thresholds"), ("change_share", 0.0, True, "fraction"),
                 ("level_bias", -math.inf, False, "levels"), ("sse_tolerance_px", 0.0, True, "px"),
                 ("frame_s", 0.0, False, "s"), ("velocity_ref_deg_s", 0.0, False, "deg/s"),
                 ("distance_ref_mm", 0.0, False, "mm"), ("hysteresis_margin", 0.0, True, "levels"),
@@ -230,9 +268,21 @@ class SelectorConfig:
                 bound = ("any finite number" if low == -math.inf
                          else f"a finite number {'>=' if closed else '>'} {low:g}")
                 raise ValueError(f"SelectorConfig.{name} must be {bound} ({unit}), got {value!r}")
+        if self.change_share > 1:
+            raise ValueError(f"SelectorConfig.change_share must lie in 0..1 (fraction), got {self.change_share!r}")
+        nodes = self.gaze_nodes_per_axis
+        if not (isinstance(nodes, numbers.Integral) and not isinstance(nodes, bool) and 1 <= nodes <= 9):
+            raise ValueError(f"SelectorConfig.gaze_nodes_per_axis must be a whole number in 1..9, got {nodes!r}")
         if self.budget_tolerance >= 0.5:
             raise ValueError(f"SelectorConfig.budget_tolerance must be below 0.5 (fraction), "
                              f"got {self.budget_tolerance!r}")
+
+    @property
+    def gaze_prior(self) -> tuple[float, float]:
+        """The eye-in-head prior in use, (horizontal, vertical) σ deg: ``gaze_prior_deg``, else the mode's own."""
+        if self.gaze_prior_deg is not None:
+            return (float(self.gaze_prior_deg[0]), float(self.gaze_prior_deg[1]))
+        return GAZE_PRIOR_DEG if self.mode in GAZE_DISTRIBUTION_MODES else (0.0, 0.0)
 
     @property
     def csf(self) -> str:
@@ -278,8 +328,8 @@ class LevelSelector:
             raise TypeError(f"LevelSelector: config must be a SelectorConfig, got {type(config).__name__}")
         if config.budget_triangles is not None and triangle_count is None:
             raise ValueError("LevelSelector: a triangle budget needs triangle_count (the mesh's)")
-        if config.mode in criteria.CHANGE_MODES and change is None:
-            raise ValueError("LevelSelector: mode 'change' needs the mesh's change features (change=...)")
+        if config.mode in criteria.CHANGE_MODES + criteria.GAZE_DISTRIBUTION_MODES and change is None:
+            raise ValueError(f"LevelSelector: mode {config.mode!r} needs the mesh's change features (change=...)")
         self.config = config
         self.triangle_count = triangle_count
         self.max_level = edge_len_scene.shape[1] - 1
@@ -351,8 +401,11 @@ class LevelSelector:
         rel = self.centroids_mm - eye
         distance = np.linalg.norm(rel, axis=1)
         directions = rel / distance[:, None]
-        shifted = criteria.shifted_offsets_deg(self.centroids_mm, eye, view.axes, cov, shift=cfg.shift,
-                                               ellipse_sigma=cfg.ellipse_sigma)
+        # The modes that weigh the whole gaze distribution read it from its nodes, not from a shift.
+        gaze = (criteria.gaze_nodes_deg(cov, cfg.gaze_nodes_per_axis) if cfg.mode in criteria.GAZE_DISTRIBUTION_MODES
+                else None)
+        shifted = criteria.shifted_offsets_deg(self.centroids_mm, eye, view.axes, cov if gaze is None else None,
+                                               shift=cfg.shift, ellipse_sigma=cfg.ellipse_sigma)
         speed = self._angular_speed(view.t, eye, directions)
         # Frustum culling (the paper's renderer culled too): a base triangle
         # wholly outside the screen as seen from the eye gets the coarsest
@@ -362,7 +415,7 @@ class LevelSelector:
         ecc = np.full(len(rel), np.nan)
         continuous = np.zeros(len(rel))
         ecc[seen], continuous[seen] = self._criterion(seen, eye, shifted[seen], distance[seen], directions[seen],
-                                                      speed[seen])
+                                                      speed[seen], gaze)
         budget_bias = 0.0
         if cfg.budget_triangles is not None:
             budget_bias, continuous[seen] = self._budget_bias(continuous, seen, ecc[seen])
@@ -457,7 +510,7 @@ class LevelSelector:
         with np.errstate(invalid="ignore"):      # NaN eccentricity: culled, not eager
             return ecc < self.config.hysteresis_eager_deg
 
-    def _criterion(self, seen, eye, shifted, distance, directions, speed):
+    def _criterion(self, seen, eye, shifted, distance, directions, speed, gaze=None):
         """Eccentricities (S,) deg and continuous levels (S,) of the base triangles ``seen`` (S,) int.
 
         The per-triangle features and :func:`criteria.continuous_level`,
@@ -465,7 +518,9 @@ class LevelSelector:
         (``headplod.bench.quadtree_selector``): ``shifted`` (S, 2) deg are
         their centroids' (φ, θ) after the uncertainty shift, ``distance``
         (S,) mm, ``directions`` (S, 3) unit vectors from the eye (3,) world
-        mm to their centroids, ``speed`` (S,) deg/s. The level bias is included.
+        mm to their centroids, ``speed`` (S,) deg/s, ``gaze`` the gaze distribution's nodes and weights
+        (:func:`criteria.gaze_nodes_deg`; the modes of :data:`GAZE_DISTRIBUTION_MODES`, whose ``shifted``
+        are then unshifted). The level bias is included.
         """
         if self.corners_mm is not None:
             angular_deg, reach_deg = criteria.triangle_sizes_deg(eye, directions, corners_mm=self.corners_mm[seen],
@@ -478,11 +533,11 @@ class LevelSelector:
         # fovea must be refined there.
         ecc = criteria.piece_eccentricity_deg(shifted, reach_deg)
         change = {}
-        if self.config.mode in criteria.CHANGE_MODES or self.config.csf == "cortical":
+        cfg = self.config
+        if cfg.mode in criteria.CHANGE_MODES + criteria.GAZE_DISTRIBUTION_MODES or cfg.csf == "cortical":
             change["nyquist_cpd"] = display_nyquist_cpd(self.px_per_mm, abs(float(
                 np.dot(self.screen.normal, eye - np.asarray(self.screen.top_left, dtype=np.float64)))))
-        if self.config.mode in criteria.CHANGE_MODES:
-            cfg = self.config
+        if cfg.mode in criteria.CHANGE_MODES:
             # The per-level visibility is kept: a budget moves its threshold (_budget_bias).
             self._visibility = criteria.change_visibility_levels(
                 self.change_contrast[seen], angular_deg, self.error_mm[seen], distance,
@@ -490,6 +545,17 @@ class LevelSelector:
                 cortical_exponent=cfg.cortical_exponent, nyquist_cpd=change["nyquist_cpd"],
                 threshold=cfg.change_threshold)
             return ecc, criteria.change_level(self._visibility, cfg.level_bias)
+        if gaze is not None:
+            sse = criteria.sse_continuous_level(self.error_mm[seen], distance, self.px_per_mm, speed, cfg)
+            visibility = None
+            if cfg.change_share > 0:
+                visibility = criteria.expected_change_visibility(
+                    self.change_contrast[seen], angular_deg, self.error_mm[seen], distance,
+                    self._displacement_contrast(seen, directions, reach_deg), speed,
+                    criteria.node_eccentricity_deg(shifted, reach_deg, gaze[0]), gaze[1], csf_model="cortical",
+                    cortical_exponent=cfg.cortical_exponent, nyquist_cpd=change["nyquist_cpd"],
+                    threshold=cfg.change_threshold)
+            return ecc, criteria.hybrid_level(sse, visibility, cfg.change_share) + cfg.level_bias
         continuous = criteria.continuous_level(
             self.config, self.max_level, ecc_deg=ecc, angular_deg=angular_deg, distance_mm=distance,
             speed_deg_s=speed, contrast=self.contrast[seen], edge_len_mm=self.edge_len_mm[seen],

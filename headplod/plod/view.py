@@ -34,7 +34,7 @@ import numpy as np
 from ..filters import OneEuroFilter
 
 __all__ = ["UNCERTAINTY_MODES", "View", "ConditionedView", "UncertaintyPolicy", "ViewConditioner", "head_axes",
-           "poi_direction", "default_head", "still_view"]
+           "poi_direction", "default_head", "still_view", "gaze_covariance"]
 
 UNCERTAINTY_MODES = ("none", "fixed", "adaptive", "smoothed")
 """Which covariance the selection uses (:attr:`SelectorConfig.uncertainty`, :class:`UncertaintyPolicy`)."""
@@ -78,8 +78,11 @@ class ConditionedView:
         Rows Ξ, Ψ, V of the head frame looking from ``eye_mm`` at ``poi_px``
         (Ξ along the screen's rows; :func:`head_axes`).
     cov_deg2 : (2, 2) float64 or None
-        The covariance of (φ, θ) the scenario gives the selection, deg²; None
-        for ``none`` (and before any covariance was seen).
+        The covariance of where the viewer looks about V, (φ, θ) deg², that
+        the selection uses: the covariance of V the scenario gives (none for
+        ``none``, and before any covariance was seen) plus the eye-in-head
+        prior (:attr:`SelectorConfig.gaze_prior`; :func:`gaze_covariance`).
+        None when there is neither.
     raw_eye_mm : (3,) float64
         The tracker's eye, world mm: the camera is placed here (the image is
         drawn from where the eye is; only the levels are smoothed).
@@ -196,6 +199,23 @@ class UncertaintyPolicy:
         self.smoothed = None
 
 
+def gaze_covariance(cov_deg2, prior_sigma_deg) -> np.ndarray | None:
+    """(2, 2) deg² over (φ, θ): the covariance of where the viewer looks about V, or None.
+
+    ``cov_deg2`` (2, 2) deg² or None: the tracker's covariance of V (after the
+    scenario); ``prior_sigma_deg`` (horizontal, vertical) deg: the σ of the
+    eyes' offset in the head (:attr:`SelectorConfig.gaze_prior`). The two are
+    independent, so their covariances add; φ is vertical and θ horizontal
+    (docs/contract.md), hence the prior's diagonal (vertical², horizontal²).
+    None when ``cov_deg2`` is None and the prior is zero (the paper's head-only view with ``none``).
+    """
+    horizontal, vertical = (float(v) for v in prior_sigma_deg)
+    if horizontal == 0 and vertical == 0:
+        return cov_deg2
+    prior = np.diag([vertical ** 2, horizontal ** 2])
+    return prior if cov_deg2 is None else np.asarray(cov_deg2, dtype=np.float64) + prior
+
+
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(math.acos(min(1.0, max(-1.0, float(a @ b)))))
 
@@ -235,7 +255,8 @@ class ViewConditioner:
         gaze_speed = self._speed("_previous_gaze", view.t, axes[2])
         poi_speed = self._speed("_previous_poi", view.t, poi_direction(self.screen, raw_eye, raw_poi))
         cfg = self.config
-        return ConditionedView(view.t, eye, poi, axes, self.policy(raw_cov), raw_eye, raw_poi, raw_cov,
+        cov = gaze_covariance(self.policy(raw_cov), cfg.gaze_prior)
+        return ConditionedView(view.t, eye, poi, axes, cov, raw_eye, raw_poi, raw_cov,
                                restart=restart, gaze_speed_deg_s=gaze_speed,
                                moving=gaze_speed > cfg.hysteresis_eager_deg_s,
                                saccade=poi_speed > cfg.saccade_hold_deg_s, poi_speed_deg_s=poi_speed)

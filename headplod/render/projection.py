@@ -27,6 +27,7 @@ matrix is uploaded as ``prog['u_mvp'].write(M.T.astype('f4').tobytes())``.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -222,6 +223,27 @@ class SceneTransform:
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         return self.matrix.astype(dtype) if dtype is not None else self.matrix.copy()
+
+
+@functools.lru_cache(maxsize=1)
+def _frame_width_mm() -> float:
+    from calib import DEFAULT_SCREEN
+
+    from ..io import read_screen
+
+    return screen_width_mm(read_screen(DEFAULT_SCREEN))
+
+
+def screen_width_mm(screen: Screen) -> float:
+    """The visible area's width, mm (top-left to top-right corner)."""
+    return float(np.linalg.norm(np.asarray(screen.top_right, dtype=np.float64) - np.asarray(screen.top_left)))
+
+
+def screen_fit(screen: Screen) -> float:
+    """Factor on a scene's scale that fills ``screen`` as the embedded screen (``calib/screen.yaml``, for which
+    the scenes were framed) is filled: its width over the embedded screen's; 1 for that screen. A 32:9 screen
+    then shows the terrain across its width, not on its middle third between sky."""
+    return screen_width_mm(screen) / _frame_width_mm()
 
 
 def scene_to_world(scale_mm_per_unit: float, center_scene: Any, screen: Screen,

@@ -33,7 +33,7 @@ from .foveate import FoveatedRenderer, LayerAnchor
 from .frame import FrameStep, MeshBackend, RayMaskBackend, TessellationBackend, options_problem, px_per_deg_at
 from .gl import TerrainRenderer
 from .overlay import overlay_poi
-from .projection import scene_to_world
+from .projection import scene_to_world, screen_fit
 
 # Where the terrain sits: its centre 250 mm behind the screen, 30 km shown as
 # about 600 mm, seen from above at 35° (pitch 55° from the "window" pose).
@@ -125,11 +125,12 @@ def scene_model(extent, centre_z_m: float, screen, fit: float = 1.0) -> np.ndarr
 
     ``extent`` (x0, x1, y0, y1) scene m; the terrain's centre at height
     ``centre_z_m`` sits :data:`DEPTH_MM` behind the screen centre, at
-    ``SCALE_MM_PER_M * fit`` mm per m, seen from above at :data:`PITCH_DEG`.
+    ``SCALE_MM_PER_M * fit`` mm per m times :func:`screen_fit` (a wider screen is filled too), seen from above
+    at :data:`PITCH_DEG`.
     """
     x0, x1, y0, y1 = extent
     centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, float(centre_z_m)])
-    return np.asarray(scene_to_world(SCALE_MM_PER_M * fit, centre, screen, depth_mm=DEPTH_MM,
+    return np.asarray(scene_to_world(SCALE_MM_PER_M * fit * screen_fit(screen), centre, screen, depth_mm=DEPTH_MM,
                                      pitch_deg=PITCH_DEG).matrix, dtype=np.float64)
 
 
