@@ -37,7 +37,7 @@ __all__ = ["add_render_arguments", "run_render", "build_parser", "main", "DATASE
 
 #: What a dataset folder owns: the contract's files and folders, and what the renderer and a recording add.
 DATASET_ENTRIES = ("left", "right", "rig.yaml", "markers.yaml", "screen.yaml", "times.csv", "truth.csv",
-                   "rig_truth.json", "webcam_truth.json", "recording.log")
+                   "gaze_truth.csv", "rig_truth.json", "webcam_truth.json", "recording.log")
 
 
 def _preset(text: str) -> str:

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from headplod.io import GAZE_TRUTH_COLUMNS, GazeTruth, read_gaze_truth, write_gaze_truth
 from headplod.io import ContractError, Dataset, Frame, MarkerModel, PoseWriter, Rig, Screen, default_marker_model, pose_record, read_markers, read_poses, read_rig, read_screen, read_times, read_truth, rig_calibration_std, write_markers, write_rig, write_screen, write_times, write_truth
 
 
@@ -212,6 +213,63 @@ def test_truth_round_trip(tmp_path, sweep12_dir):
     back2 = read_truth(tmp_path / "t2.csv")
     assert list(back2) == [2, 5]
     np.testing.assert_array_equal(back2[5][0], [1.0, 2.0, 3.0])
+
+
+def test_gaze_truth_round_trip_and_a_missed_screen(tmp_path):
+    d = np.array([0.3, -0.1, -1.0]) / np.linalg.norm([0.3, -0.1, -1.0])
+    rows = {4: GazeTruth(np.array([12.5, -3.25]), d, np.array([1200.5, 300.0])),
+            1: ([0.0, 0.0], [0.0, 0.0, -1.0], [np.nan, np.nan])}           # the ray misses the screen plane
+    write_gaze_truth(tmp_path / "gaze_truth.csv", rows)
+    lines = (tmp_path / "gaze_truth.csv").read_text().splitlines()
+    assert lines[0] == ",".join(GAZE_TRUTH_COLUMNS) and lines[1].endswith(",,")      # sorted; empty pixel cells
+    back = read_gaze_truth(tmp_path / "gaze_truth.csv")
+    assert list(back) == [1, 4]
+    np.testing.assert_array_equal(back[4].eye_in_head_deg, [12.5, -3.25])
+    np.testing.assert_array_equal(back[4].direction, d)
+    np.testing.assert_array_equal(back[4].screen_px, [1200.5, 300.0])
+    assert np.isnan(back[1].screen_px).all()
+
+
+def test_synthetic_gaze_truth_reads_back(tmp_path):
+    from synthetic.dataset import true_gaze, write_dataset
+    from synthetic.scenes import make_scene
+
+    scene = make_scene("static", n_frames=3)
+    out = write_dataset(tmp_path / "ds", scene, seed=2)
+    back = read_gaze_truth(out / "gaze_truth.csv")
+    expected = true_gaze(scene, seed=2)
+    assert list(back) == [0, 1, 2]
+    for k, row in back.items():
+        np.testing.assert_allclose(row.direction, expected.direction[k], atol=1e-6)   # 6 decimals
+        np.testing.assert_allclose(row.screen_px, expected.screen_px[k], atol=1e-6)
+    assert len(Dataset(out)) == 3                       # the dataset reader is not disturbed by it
+
+
+@pytest.mark.parametrize("line, fragment", [
+    ("0,1,2,0,0,1,5", "7 fields"),
+    ("0,1,2,0,0,2,5,6", "length 2"),
+    ("0,1,2,0,0,1,,6", "one of gaze_px_x"),
+    ("0,x,2,0,0,1,5,6", "eye_h_deg"),
+])
+def test_bad_gaze_truth_is_a_contract_error(tmp_path, line, fragment):
+    path = tmp_path / "gaze_truth.csv"
+    path.write_text(",".join(GAZE_TRUTH_COLUMNS) + "\n" + line + "\n")
+    with pytest.raises(ContractError, match=fragment):
+        read_gaze_truth(path)
+    path.write_text("frame,x,y\n")
+    with pytest.raises(ContractError, match="header"):
+        read_gaze_truth(path)
+    with pytest.raises(ValueError, match="length"):
+        write_gaze_truth(path, {0: ([0, 0], [0, 0, 2.0], [1.0, 2.0])})
+
+
+def test_the_tracker_never_reads_the_gaze_truth():
+    """Where the viewer looks is for benches: no module of tracking/, live/ or capture/ names the file."""
+    root = Path(__file__).resolve().parents[1] / "headplod"
+    for package in ("tracking", "live", "capture"):
+        for path in (root / package).rglob("*.py"):
+            text = path.read_text(encoding="utf-8")
+            assert "gaze_truth" not in text and "read_gaze_truth" not in text, path
 
 
 def test_times_round_trip(tmp_path):

@@ -9,9 +9,10 @@ import pytest
 from headplod.bench.harness import poi_disc
 from headplod.render.image_metrics import psnr_db
 from headplod.bench.paper_tables import (OVERCONFIDENT_NEES, JitteredPoses, PaperTablesConfig, format_tables,
-                                         goal_verdicts, paper_tables, pose_nees, track_poses, true_poi_goals,
-                                         true_pois)
-from headplod.io import read_truth
+                                         goal_verdicts, paper_tables, point_disc, pose_nees, prior_variants,
+                                         track_poses, tracker_share, true_poi_goals, true_pois)
+from headplod.io import GazeTruth, read_truth, write_gaze_truth
+from headplod.plod.view import gaze_covariance
 from headplod.plod.select import SelectorConfig
 from headplod.demo.loop import ReplayPoses
 from headplod.demo import loop as lp
@@ -176,3 +177,108 @@ def test_report_has_the_true_poi_figures(gl_context, default_screen):
     assert {g["condition"] for g in report["goals"]} == {"honest"}
     text = format_tables(report)
     assert "PSNR true" in text and "NEES" in text
+
+
+
+# --- The true gaze (head and eyes) and the gaze prior ---------------------------------------------------------
+
+def test_tracker_share_is_the_trackers_part_of_the_pois_variance():
+    cov = np.array([[0.3, 0.05], [0.05, 0.2]])
+    for prior in ((8.0, 6.0), (2.0, 0.0), (0.0, 0.0)):
+        share = tracker_share(gaze_covariance(cov, prior), prior)
+        assert 0.0 <= share <= 1.0
+        assert share == pytest.approx(0.5 / (0.5 + prior[0] ** 2 + prior[1] ** 2), rel=1e-12)
+    assert tracker_share(gaze_covariance(cov, (0.0, 0.0)), (0.0, 0.0)) == 1.0         # head only: all the tracker's
+    assert tracker_share(gaze_covariance(None, (8.0, 6.0)), (8.0, 6.0)) == 0.0        # none with a prior
+    assert np.isnan(tracker_share(gaze_covariance(None, (0.0, 0.0)), (0.0, 0.0)))     # nothing uncertain
+
+
+def test_the_gaze_disc_is_centred_on_the_gaze_point():
+    screen = lp.default_screen()
+    eye = default_head(screen)
+    size = (192, 108)
+    gaze_px = np.array([1400.0, 300.0])                          # screen px
+    disc = point_disc((108, 192, 3), screen, gaze_px, eye, size)
+    ys, xs = np.nonzero(disc)
+    centre = gaze_px * np.array(size) / np.array(screen.size_px)
+    # The mask's centroid is the point (pixel centres at integers + 0.5 in poi_disc's convention): within a pixel.
+    assert np.hypot(xs.mean() + 0.5 - centre[0], ys.mean() + 0.5 - centre[1]) < 1.0
+    assert point_disc((108, 192, 3), screen, [np.nan, np.nan], eye, size) is None
+
+
+def test_priors_compared_are_the_default_and_head_only():
+    assert [v[0] for v in prior_variants(PaperTablesConfig(gaze_prior_deg=(8.0, 6.0)))] == ["default", "head only"]
+    assert prior_variants(PaperTablesConfig(gaze_prior_deg=(8.0, 6.0)))[0][2] == (8.0, 6.0)
+    assert [v[0] for v in prior_variants(PaperTablesConfig(gaze_prior_deg=(0.0, 0.0)))] == ["default"]
+    assert [v[0] for v in prior_variants(PaperTablesConfig(gaze_prior_deg=(8.0, 6.0), head_only=False))] == ["default"]
+    own = SelectorConfig().gaze_prior
+    assert prior_variants(PaperTablesConfig())[0][2] == own
+    with pytest.raises(ValueError, match="gaze_prior_deg"):
+        PaperTablesConfig(gaze_prior_deg=(-1.0, 2.0))
+    with pytest.raises(ValueError, match="mode"):
+        PaperTablesConfig(mode="full")
+
+
+@pytest.fixture()
+def sweep12_with_gaze(tmp_path):
+    """The sample sequence with a gaze_truth.csv: on even frames the gaze is the true POI (eyes centred), on odd
+    ones it misses the screen plane. Returns the folder and each frame's true POI."""
+    import shutil
+
+    folder = tmp_path / "sweep12"
+    shutil.copytree(SWEEP12, folder)
+    screen = lp.default_screen()
+    truth = read_truth(folder / "truth.csv")
+    rows, pois = {}, {}
+    for k, (position, axes) in truth.items():
+        v = axes[2] / np.linalg.norm(axes[2])
+        pois[k] = true_pois(screen, position, v)[0]
+        rows[k] = (GazeTruth(np.zeros(2), v, pois[k]) if k % 2 == 0
+                   else GazeTruth(np.zeros(2), v, np.full(2, np.nan)))
+    write_gaze_truth(folder / "gaze_truth.csv", rows)
+    return folder, pois
+
+
+def test_tracked_run_carries_the_gaze_truth_of_each_pose(sweep12_with_gaze):
+    folder, pois = sweep12_with_gaze
+    run = track_poses("today", 12, source=str(folder))
+    assert run.true_gaze_px.shape == (12, 2)
+    np.testing.assert_allclose(run.true_gaze_px[::2], np.array([pois[k] for k in range(0, 12, 2)]))
+    assert np.isnan(run.true_gaze_px[1::2]).all()
+    assert np.isnan(track_poses("today", 3, source=SWEEP12).true_gaze_px).all()     # no file: no gaze
+
+
+def test_report_at_the_true_gaze_with_and_without_the_prior(gl_context, default_screen, sweep12_with_gaze):
+    from headplod.render.still import TerrainScene
+
+    folder, _ = sweep12_with_gaze
+    scene = TerrainScene.build(default_screen, max_level=2)
+    config = PaperTablesConfig(frames=4, warmup=1, viewpoints=("mountains",), conditions=("honest",),
+                               size=(96, 54), source=str(folder), gaze_prior_deg=(8.0, 6.0))
+    report = paper_tables(config, err=io.StringIO(), scene=scene, ctx=gl_context)
+    c = report["conditions"]["honest"]
+    assert c["true_gaze_frames"] == 2
+    assert report["config"]["gaze_priors"] == {"default": [8.0, 6.0], "head only": [0.0, 0.0]}
+    rows = {(r["scenario"], r["hysteresis"], r.get("prior")): r for r in c["rows"]}
+    assert len(c["rows"]) == 13                                     # 4 x 2 default, 4 head only, full
+    for scenario in ("none", "fixed", "adaptive", "smoothed"):
+        default, head = rows[scenario, True, "default"], rows[scenario, True, "head only"]
+        assert default["gaze_prior_deg"] == [8.0, 6.0] and head["gaze_prior_deg"] == [0.0, 0.0]
+        for row in (default, head):
+            per = row["per_frame"]
+            # The gaze disc is the true POI's where the gaze truth puts the gaze there, and none where it misses.
+            assert per["psnr_gaze_db"][0::2] == per["psnr_true_db"][0::2]
+            assert per["psnr_gaze_db"][1::2] == [None, None]
+            shares = [v for v in per["tracker_cov_share"] if v is not None]
+            assert all(0.0 <= v <= 1.0 for v in shares)
+        if scenario == "none":
+            assert default["per_frame"]["tracker_cov_share"] == [0.0] * 4           # all the prior's
+            assert head["per_frame"]["tracker_cov_share"] == [None] * 4             # nothing uncertain
+        else:
+            assert head["per_frame"]["tracker_cov_share"] == [1.0] * 4              # all the tracker's
+            assert 0.0 < default["tracker_cov_share"] < 0.05                        # σ 0.5° against 8° x 6°
+    # The goals and Table 1's first block stay the default prior's; the head-only rows follow them.
+    assert {r["prior"] for r in c["table1"]} == {"default", "head only"}
+    assert c["true_poi"]["all"]["on"]["frames"] == 3
+    text = format_tables(report)
+    assert "PSNR gaze" in text and "trk share" in text and " head " in text and "8x6" in text

@@ -21,7 +21,7 @@ from synthetic.conventions import (
     model_view_direction,
     viewing_axes,
 )
-from synthetic.dataset import write_dataset
+from synthetic.dataset import GAZE_TRUTH_HEADER, gaze_seed, true_gaze, write_dataset
 from synthetic.render import Lamp, RenderOptions, marker_radiance, render_pair, render_pair_float
 from synthetic.scenes import CURVED_MARKERS_MM, PRESETS, make_pose_fn, make_scene
 from synthetic.setups import (
@@ -488,6 +488,15 @@ def test_write_dataset_contract(tmp_path):
         np.testing.assert_allclose(vals[:3], p1, atol=1e-6)
         np.testing.assert_allclose(vals[3:].reshape(3, 3), axes, atol=1e-6)
         np.testing.assert_allclose(vals[3:].reshape(3, 3) @ vals[3:].reshape(3, 3).T, np.eye(3), atol=1e-5)
+    # The viewer's true gaze sits in a file of its own, one row per frame, as true_gaze computes it.
+    gaze_rows = list(csv.reader(open(out / "gaze_truth.csv")))
+    assert gaze_rows[0] == GAZE_TRUTH_HEADER.split(",") and len(gaze_rows) == 4
+    expected = true_gaze(sc, seed=4)
+    for k, r in enumerate(gaze_rows[1:]):
+        assert int(r[0]) == k
+        np.testing.assert_allclose([float(x) for x in r[1:3]], expected.eye_in_head_deg[k], atol=1e-6)
+        np.testing.assert_allclose([float(x) for x in r[3:6]], expected.direction[k], atol=1e-6)
+        np.testing.assert_allclose([float(x) for x in r[6:8]], expected.screen_px[k], atol=1e-6)
 
 
 def test_write_dataset_custom_model_and_plain_times(tmp_path):
@@ -503,3 +512,59 @@ def test_write_dataset_custom_model_and_plain_times(tmp_path):
     a = cv2.imread(str(out / "left" / "000001.png"), cv2.IMREAD_UNCHANGED)
     b = cv2.imread(str(out2 / "left" / "000001.png"), cv2.IMREAD_UNCHANGED)
     np.testing.assert_array_equal(a, b)
+
+
+# ----------------------------------------------------------------------------
+# the viewer's true gaze (gaze_truth.csv)
+# ----------------------------------------------------------------------------
+
+def _contract_angles_deg(axes, d):
+    """(θ, φ) deg of direction d in the head frame with rows Ξ, Ψ, V (docs/contract.md)."""
+    x, y, z = axes @ d
+    return np.degrees(np.arctan2(x, z)), np.degrees(np.arctan2(y, z))
+
+
+def test_true_gaze_is_the_head_turned_by_the_models_eyes():
+    sc = make_scene("static", n_frames=150)            # 5 s: some fifteen fixations about the screen
+    g = true_gaze(sc, seed=0)
+    s = sc.setup
+    assert g.eye_in_head_deg.shape == (150, 2) and g.direction.shape == (150, 3) and g.screen_px.shape == (150, 2)
+    # Seen from 60 cm, the 24-inch screen's half extents (the viewer model's screen).
+    w, h = (np.linalg.norm(np.subtract(s.top_right, s.top_left)), np.linalg.norm(np.subtract(s.bottom_left, s.top_left)))
+    assert g.screen_half_deg == pytest.approx((np.degrees(np.arctan(w / 2 / 600)), np.degrees(np.arctan(h / 2 / 600))),
+                                              abs=0.5)
+    moved = np.abs(g.eye_in_head_deg).max(axis=1) > 1.0
+    assert moved.sum() > 50                             # the eyes do move, and within the orbit
+    assert np.linalg.norm(g.eye_in_head_deg, axis=1).max() <= 35.0 + 1e-6
+    np.testing.assert_allclose(np.linalg.norm(g.direction, axis=1), 1.0, atol=1e-12)
+    for k in range(0, 150, 7):
+        p1, axes = sc.truth(sc.times[k])
+        theta, phi = _contract_angles_deg(axes, g.direction[k])
+        # θ is measured toward Ξ (the wearer's left): the eye's rightward offset is -θ; up is φ.
+        assert (-theta, phi) == pytest.approx(tuple(g.eye_in_head_deg[k]), abs=1e-9)
+        # The written pixel lies on the gaze ray from P1 (docs/contract.md's pixel formula).
+        q = s.screen_point(*g.screen_px[k]) - p1
+        np.testing.assert_allclose(q / np.linalg.norm(q), g.direction[k], atol=1e-9)
+    # The head looks at the screen's centre: gaze to the right lands right of it on the screen (+x px), up above it.
+    centre = np.array(s.screen_size_px) / 2
+    right, up = g.eye_in_head_deg[:, 0] > 1, g.eye_in_head_deg[:, 1] > 1
+    assert (g.screen_px[right, 0] > centre[0]).all() and (g.screen_px[up, 1] < centre[1]).all()
+
+
+def test_true_gaze_is_seeded_apart_from_the_images():
+    sc = make_scene("static", n_frames=60)
+    a, b, c = true_gaze(sc, seed=1), true_gaze(sc, seed=1), true_gaze(sc, seed=2)
+    np.testing.assert_array_equal(a.eye_in_head_deg, b.eye_in_head_deg)
+    assert not np.array_equal(a.eye_in_head_deg, c.eye_in_head_deg)
+    assert gaze_seed(1) != 1 and gaze_seed(1) == gaze_seed(1) != gaze_seed(2)
+
+
+def test_true_gaze_off_the_screen_plane_has_no_pixel():
+    sc = make_scene("static", n_frames=3)
+    # A head turned away from the screen: V points back, away from its plane.
+    def away(t):
+        R, p = sc.pose_fn(t)
+        return np.asarray(R) @ np.diag([-1.0, 1.0, -1.0]), p
+    from dataclasses import replace
+    g = true_gaze(replace(sc, pose_fn=away), seed=0)
+    assert np.isnan(g.screen_px).all() and np.isfinite(g.direction).all()

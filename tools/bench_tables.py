@@ -200,8 +200,13 @@ def paper_page(data: dict, source: str, stamp: str, quick: bool = False) -> str:
     viewpoints = list(config.get("viewpoints") or dict.fromkeys(
         r.get("viewpoint") for c in (data.get("conditions") or {}).values() for r in c.get("rows", [])))
     quick = quick or (config.get("frames") == 30 and viewpoints == ["mountains"])     # --quick's settings
+    priors = config.get("gaze_priors") or {}
     out = _header("paper", "paper", source, stamp, quick,
-                  f"The mode `{config.get('mode', '–')}`, {config.get('frames', '–')} frames per run "
+                  f"The mode `{config.get('mode', '–')}`"
+                  + (f" (gaze prior σ {_prior(priors.get('default'))}"
+                     + (", and each scenario again head only" if "head only" in priors else "") + ")"
+                     if priors else "")
+                  + f", {config.get('frames', '–')} frames per run "
                   f"({config.get('warmup', '–')} of warm-up left out), viewpoints {', '.join(map(str, viewpoints)) or '–'}, "
                   f"jitter of `honest`/`overconfident` {_f(config.get('noise_deg'), 'g')}° per angle.")
     for condition, c in (data.get("conditions") or {}).items():
@@ -209,13 +214,21 @@ def paper_page(data: dict, source: str, stamp: str, quick: bool = False) -> str:
                 f"{_home(c.get('poses', ''))}; a pose in {c.get('frames_with_pose', '–')}/{c.get('frames', '–')} frames, "
                 f"median σ of V {_f(c.get('sigma_deg_median'), '.3g')}°, mean NEES of V "
                 f"{_f(c.get('nees_mean'), '.3g')}. Table 1 (mean over the viewpoints):", ""]
-        out += _table(["scenario", "hysteresis", "level changes / frame", "reversals / frame", "fps", "x full",
-                       "triangles", "PSNR 5°, tracked POI (dB)", "PSNR 5°, true POI (dB)"],
-                      [[r["scenario"], "on" if r.get("hysteresis") else "off", _f(r.get("changes"), ".1f"),
-                        _f(r.get("flicker"), ".1f"), _f(r.get("fps"), ".1f"), _f(r.get("fps_ratio_to_full"), ".1f"),
-                        _f(r.get("triangles"), ",.0f"), _f(r.get("psnr_tracked_disc_db"), ".1f"),
-                        _f(r.get("psnr_true_disc_db"), ".1f")] for r in c.get("table1", [])])
-        out.append("")
+        out += _table(["scenario", "hysteresis", "gaze prior σ", "level changes / frame", "reversals / frame", "fps",
+                       "x full", "triangles", "PSNR 5°, tracked POI (dB)", "PSNR 5°, true POI (dB)",
+                       "PSNR 5°, true gaze (dB)", "tracker's share of the POI's variance"],
+                      [[r["scenario"], "on" if r.get("hysteresis") else "off", _prior(r.get("gaze_prior_deg")),
+                        _f(r.get("changes"), ".1f"), _f(r.get("flicker"), ".1f"), _f(r.get("fps"), ".1f"),
+                        _f(r.get("fps_ratio_to_full"), ".1f"), _f(r.get("triangles"), ",.0f"),
+                        _f(r.get("psnr_tracked_disc_db"), ".1f"), _f(r.get("psnr_true_disc_db"), ".1f"),
+                        _f(r.get("psnr_gaze_disc_db"), ".1f"), _f(r.get("tracker_cov_share"), ".3f")]
+                       for r in c.get("table1", [])])
+        gaze_frames = c.get("true_gaze_frames")
+        out += ["", "The true POI is where the head points (truth.csv's V), the true gaze where the viewer looks "
+                "(head and eyes, gaze_truth.csv: on "
+                + (f"{gaze_frames} frames" if gaze_frames is not None else "frames not recorded")
+                + "). The share is trace(the tracker's covariance after the scenario) / trace(that + the gaze "
+                "prior's), median per frame: 1 head only, 0 for `none` with a prior.", ""]
     rows = []
     for condition, c in (data.get("conditions") or {}).items():
         for vp, g in (c.get("true_poi") or {}).items():
@@ -247,6 +260,13 @@ def paper_page(data: dict, source: str, stamp: str, quick: bool = False) -> str:
     if findings:
         out += ["What the run printed as its findings:", ""] + [f"- {f.strip()}" for f in findings if f.strip()]
     return "\n".join(out) + "\n"
+
+
+def _prior(sigma) -> str:
+    """A gaze prior (horizontal, vertical) σ deg in a cell: `head only` for none, a dash when not recorded."""
+    if not sigma:
+        return "–"
+    return "head only" if not any(sigma) else f"{_f(sigma[0], 'g')}° × {_f(sigma[1], 'g')}°"
 
 
 # --- bench plod --------------------------------------------------------------------------------------------

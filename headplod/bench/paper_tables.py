@@ -10,9 +10,20 @@ for every run, this reports what stands in for satisfaction (README: the paper's
 - ``psnr_tracked_disc_db``: median PSNR within ``DISC_DEG`` of the *tracked* POI against ``full`` drawn from the
   same (tracked) pose: the POI every scenario refines;
 - ``psnr_true_disc_db``: the same within ``DISC_DEG`` of the *true* POI (:func:`true_pois`: the dataset's true V
-  from the true head, on the screen), where the viewer really looks; with ``vdp``, ``jod_true`` (FovVideoVDP,
+  from the true head, on the screen), where the head points; with ``vdp``, ``jod_true`` (FovVideoVDP,
   fixated there);
-- per frame (``per_frame``): those PSNRs, the JOD and the triangles.
+- ``psnr_gaze_disc_db``: the same within ``DISC_DEG`` of the *true gaze* (head and eyes: the dataset's
+  ``gaze_truth.csv``, docs/contract.md), where the viewer really looks; NaN without that file;
+- ``tracker_cov_share``: the tracker's share of the POI's uncertainty, trace(the tracker's covariance after the
+  scenario) / trace(that + the gaze prior's) (:func:`tracker_share`), median per frame; 1 with no prior,
+  0 for ``none`` with one, NaN where there is no uncertainty at all;
+- per frame (``per_frame``): those PSNRs, the share, the JOD and the triangles.
+
+Each scenario runs with the mode's own gaze prior (``SelectorConfig.gaze_prior``, or
+``PaperTablesConfig.gaze_prior_deg``), hysteresis on and off, and, when that prior is not zero, once more with
+hysteresis on and the prior ``(0, 0)`` (head only: the paper's view): rows ``prior`` ``"default"`` and
+``"head only"``, each with its ``gaze_prior_deg``. Table 1, the goals and the charts are the default rows';
+``table1`` has the head-only rows after them.
 
 Goals (:func:`true_poi_goals`, :func:`goal_verdicts`), per condition and viewpoint, over the frames after the
 warm-up where ``none``'s true-POI PSNR is below :data:`GOAL_PSNR_DB`: the fraction where ``adaptive`` (and
@@ -35,7 +46,8 @@ import numpy as np
 
 from ..demo import loop as lp
 from ..demo.viewpoints import VIEWPOINTS
-from ..plod.select import SelectorConfig
+from ..io import read_gaze_truth
+from ..plod.select import MODES, SelectorConfig
 from ..plod.view import default_head, head_axes, poi_direction
 from ..progress import Progress
 from ..render.context import create_context
@@ -47,7 +59,7 @@ from .outputs import write_json
 from .uncertainty import nees
 
 __all__ = ["CONDITIONS", "ALL_CONDITIONS", "PaperTablesConfig", "JitteredPoses", "TrackedRun", "track_poses",
-           "true_pois", "pose_nees", "level_statistics", "true_poi_goals", "goal_verdicts", "paper_tables",
+           "true_pois", "true_gaze_pois", "tracker_share", "point_disc", "prior_variants", "pose_nees", "level_statistics", "true_poi_goals", "goal_verdicts", "paper_tables",
            "format_tables", "plot_tables", "plot_true_poi", "true_poi_chart_path"]
 
 #: Tracker conditions run by default, in report order.
@@ -68,6 +80,10 @@ GOAL_PSNR_DB = 45.0
 GOAL_FRACTION = 0.95
 #: JOD within which of ``full`` a frame also counts as kept (FovVideoVDP, fixated at the true POI).
 GOAL_JOD_LOSS = 0.05
+#: The gaze prior of the head-only runs, (horizontal, vertical) σ deg: the paper's view, V alone.
+HEAD_ONLY_PRIOR_DEG = (0.0, 0.0)
+#: ``prior`` of a row: the run with the configured (or the mode's own) prior, and the extra head-only run.
+PRIOR_DEFAULT, PRIOR_HEAD_ONLY = "default", "head only"
 
 
 @dataclass(frozen=True)
@@ -76,8 +92,11 @@ class PaperTablesConfig:
     statistics and the goals, ``viewpoints`` (``demo.viewpoints.VIEWPOINTS``), ``conditions``
     (:data:`ALL_CONDITIONS`), ``noise_deg`` (σ per angle of the jitter of ``honest`` and ``overconfident``, deg),
     image ``size`` (w, h) px, ``seed`` of the jitter, ``source`` (the frame source tracked, a spec for
-    :func:`headplod.capture.open_source` whose dataset has ``truth.csv``), ``vdp`` (also FovVideoVDP's JOD at the
-    true POI, hysteresis-on scenarios; needs the optional extra)."""
+    :func:`headplod.capture.open_source` whose dataset has ``truth.csv``; its ``gaze_truth.csv``, when there is
+    one, gives the true gaze), ``vdp`` (also FovVideoVDP's JOD at the true POI, hysteresis-on scenarios; needs
+    the optional extra), ``mode`` (the PLOD mode; None: ``SelectorConfig().mode``), ``gaze_prior_deg`` (the
+    default runs' gaze prior, (horizontal, vertical) σ deg; None: the mode's own), ``head_only`` (also run each
+    scenario, hysteresis on, with the prior (0, 0) when the default runs' prior is not zero)."""
 
     frames: int = 60
     warmup: int = 10
@@ -88,6 +107,9 @@ class PaperTablesConfig:
     seed: int = 0
     source: str = "synthetic"
     vdp: bool = False
+    mode: str | None = None
+    gaze_prior_deg: tuple | None = None
+    head_only: bool = True
 
     def __post_init__(self):
         if not (isinstance(self.frames, int) and self.frames >= 3):
@@ -102,6 +124,30 @@ class PaperTablesConfig:
             raise ValueError(f"PaperTablesConfig.noise_deg must be a finite number >= 0, got {self.noise_deg!r}")
         if len(self.size) != 2 or any(int(v) != v or v < 1 for v in self.size):
             raise ValueError(f"PaperTablesConfig.size must be two positive integers (w, h) px, got {self.size!r}")
+        if self.mode is not None and (self.mode not in MODES or self.mode == "full"):
+            raise ValueError(f"PaperTablesConfig.mode must be None or one of "
+                             f"{tuple(m for m in MODES if m != 'full')}, got {self.mode!r}")
+        try:
+            self.selector_config()
+        except ValueError as exc:
+            raise ValueError(f"PaperTablesConfig.gaze_prior_deg: {exc}") from None
+
+    def selector_config(self, gaze_prior_deg="default") -> SelectorConfig:
+        """The selector settings of the default runs (their mode and prior), or of ``gaze_prior_deg``'s."""
+        prior = self.gaze_prior_deg if isinstance(gaze_prior_deg, str) else gaze_prior_deg
+        mode = SelectorConfig().mode if self.mode is None else self.mode
+        return SelectorConfig(mode=mode, gaze_prior_deg=None if prior is None else tuple(prior))
+
+
+def prior_variants(config: PaperTablesConfig) -> list:
+    """The gaze priors a run compares: ``[(prior label, gaze_prior_deg for the selector, effective (h, v) σ
+    deg)]``: the default (the configured prior or the mode's own) and, with ``config.head_only`` and a
+    default that is not zero, :data:`HEAD_ONLY_PRIOR_DEG`."""
+    default = config.selector_config().gaze_prior
+    out = [(PRIOR_DEFAULT, config.gaze_prior_deg, default)]
+    if config.head_only and tuple(default) != HEAD_ONLY_PRIOR_DEG:
+        out.append((PRIOR_HEAD_ONLY, HEAD_ONLY_PRIOR_DEG, HEAD_ONLY_PRIOR_DEG))
+    return out
 
 
 class JitteredPoses(lp.PoseSource):
@@ -147,7 +193,9 @@ class TrackedRun:
 
     ``poses``: list of N :class:`headplod.demo.pose_sources.Pose`; ``screen``; ``name`` of the source;
     ``true_eye_mm`` (N, 3) and ``true_v`` (N, 3): the true head position P1 (world mm) and unit viewing
-    direction V (world frame) of each pose's frame, NaN where ``truth.csv`` has no row.
+    direction V (world frame) of each pose's frame, NaN where ``truth.csv`` has no row; ``true_gaze_px`` (N, 2)
+    screen px: where the viewer really looks (head and eyes, ``gaze_truth.csv``), NaN where that file has no row
+    or its ray misses the screen plane (all NaN without the file).
     """
 
     poses: list
@@ -155,6 +203,11 @@ class TrackedRun:
     name: str
     true_eye_mm: np.ndarray
     true_v: np.ndarray
+    true_gaze_px: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.true_gaze_px is None:
+            self.true_gaze_px = np.full((len(self.poses), 2), np.nan)
 
 
 def track_poses(condition: str, frames: int, noise_deg: float = PAPER_NOISE_DEG, seed: int = 0,
@@ -184,7 +237,20 @@ def track_poses(condition: str, frames: int, noise_deg: float = PAPER_NOISE_DEG,
         if index in dataset.truth:
             position, axes = dataset.truth[index]
             eyes[k], vs[k] = position, axes[2] / np.linalg.norm(axes[2])
-    return TrackedRun(poses, poses_source.screen, poses_source.name, eyes, vs)
+    gaze_path = Path(dataset.folder) / "gaze_truth.csv"
+    gaze = true_gaze_pois(read_gaze_truth(gaze_path) if gaze_path.is_file() else {}, indices, len(poses))
+    return TrackedRun(poses, poses_source.screen, poses_source.name, eyes, vs, gaze)
+
+
+def true_gaze_pois(gaze_truth: dict, indices, n: int) -> np.ndarray:
+    """(n, 2) screen px: the true gaze point (``gaze_truth``, :func:`headplod.io.read_gaze_truth`) of the frame
+    ``indices[k]`` of each pose k; NaN where there is none (no row, the ray missed the screen plane, no index)."""
+    out = np.full((n, 2), np.nan)
+    for k, index in enumerate(list(indices)[:n]):
+        row = gaze_truth.get(index)
+        if row is not None:
+            out[k] = row.screen_px
+    return out
 
 
 def true_pois(screen, eye_mm, v) -> np.ndarray:
@@ -201,6 +267,34 @@ def true_pois(screen, eye_mm, v) -> np.ndarray:
             if poi is not None:
                 out[k] = poi
     return out
+
+
+def tracker_share(gaze_cov_deg2, prior_sigma_deg) -> float:
+    """The tracker's share of the POI's uncertainty: trace(C) / trace(C + P), or NaN.
+
+    ``gaze_cov_deg2`` (2, 2) deg² or None: the conditioned view's covariance of where the viewer looks, C + P
+    (:func:`headplod.plod.view.gaze_covariance`: C the tracker's covariance of V after the scenario, P the gaze
+    prior's); ``prior_sigma_deg`` (horizontal, vertical) σ deg of that prior. In [0, 1]: 1 with no prior, 0 for
+    ``none`` (C = 0) with one; NaN when there is no uncertainty at all (None, or a zero trace).
+    """
+    if gaze_cov_deg2 is None:
+        return float("nan")
+    total = float(np.trace(np.asarray(gaze_cov_deg2, dtype=np.float64)))
+    if not math.isfinite(total) or total <= 0:
+        return float("nan")
+    prior = float(prior_sigma_deg[0]) ** 2 + float(prior_sigma_deg[1]) ** 2
+    return min(1.0, max(0.0, (total - prior) / total))
+
+
+def point_disc(shape, screen, point_px, eye_mm, size):
+    """The ``DISC_DEG`` disc (:func:`headplod.bench.harness.poi_disc`) of an image of ``shape`` drawn at ``size``
+    (w, h) px about the screen point ``point_px`` (2,) screen px seen from ``eye_mm`` (3,) world mm, or None when
+    either is missing (NaN)."""
+    point_px, eye_mm = np.asarray(point_px, dtype=np.float64), np.asarray(eye_mm, dtype=np.float64)
+    if not (np.isfinite(point_px).all() and np.isfinite(eye_mm).all()):
+        return None
+    scale = np.array(size, dtype=np.float64) / np.array(screen.size_px, dtype=np.float64)
+    return poi_disc(shape, point_px * scale, DISC_DEG * px_per_deg_at(screen, eye_mm, size))
 
 
 def pose_nees(screen, poses, true_v) -> np.ndarray:
@@ -250,29 +344,30 @@ def _listed(values) -> list:
 
 def _run_group(scene, run: TrackedRun, pois_true, viewpoint, renderers, config: PaperTablesConfig, progress,
                judge=None) -> list:
-    """One viewpoint of one condition: the scenarios (hysteresis on, off) and full, interleaved; rows.
+    """One viewpoint of one condition: the scenarios (hysteresis on, off; head only, on) and full, interleaved;
+    rows.
 
     ``pois_true`` (N, 2) screen px, the true POI of each pose (:func:`true_pois`); ``judge`` a
-    :class:`headplod.bench.plod_judge.Judge` of ``config.size`` or None.
+    :class:`headplod.bench.plod_judge.Judge` of ``config.size`` or None. Needs ``len(_plan(config))`` renderers.
     """
     from .plod_judge import fixation_px
 
     screen = run.screen
-    mode = SelectorConfig().mode
-    plan = [(sc, h) for h in (True, False) for sc in SCENARIOS] + [("full", False)]
+    mode = config.selector_config().mode
+    plan = _plan(config)
     tee = lp.TeePoses(lp.ReplayPoses(run.poses, screen), len(plan))
     loops = []
-    for k, (scenario, hysteresis) in enumerate(plan):
+    for k, (scenario, hysteresis, (_, prior, _)) in enumerate(plan):
         m, unc = ("full", "none") if scenario == "full" else (mode, scenario)
         loops.append(lp.DemoLoop(scene, tee.consumer(k), renderers[k], mode=m, uncertainty=unc,
                                  viewpoint=viewpoint, view_mode="shaded", hud=False,
-                                 selector_options={"hysteresis": hysteresis}))
+                                 selector_options={"hysteresis": hysteresis, "gaze_prior_deg": prior}))
     levels = [[] for _ in plan]
     psnr_tracked = [[] for _ in plan]
     psnr_true = [[] for _ in plan]
+    psnr_gaze = [[] for _ in plan]
+    share = [[] for _ in plan]
     jod_true = [[] for _ in plan]
-    w, h = config.size
-    scale = np.array([w, h], dtype=np.float64) / np.array(screen.size_px, dtype=np.float64)
     try:
         for frame in range(config.frames):
             results = []
@@ -287,48 +382,74 @@ def _run_group(scene, run: TrackedRun, pois_true, viewpoint, renderers, config: 
                 break
             full = results[-1]
             pose = full.pose
-            radius = DISC_DEG * px_per_deg_at(screen, pose.eye_mm, config.size)
-            disc = poi_disc(full.image.shape, pose.poi_px * scale, radius)
+            shape = full.image.shape
+            disc = point_disc(shape, screen, pose.poi_px, pose.eye_mm, config.size)
             true_poi, true_eye = pois_true[frame], run.true_eye_mm[frame]
-            true_disc = None
-            if np.isfinite(true_poi).all():
-                true_disc = poi_disc(full.image.shape, true_poi * scale,
-                                     DISC_DEG * px_per_deg_at(screen, true_eye, config.size))
+            true_disc = point_disc(shape, screen, true_poi, true_eye, config.size)
+            gaze_disc = point_disc(shape, screen, run.true_gaze_px[frame], true_eye, config.size)
             fixation = None
             if (judge is not None and true_disc is not None and frame >= config.warmup
                     and 0 <= true_poi[0] <= screen.size_px[0] and 0 <= true_poi[1] <= screen.size_px[1]):
                 fixation = fixation_px(screen, true_poi, config.size)
             for k, r in enumerate(results[:-1]):
-                psnr_tracked[k].append(psnr_db(r.image, full.image, disc))
+                psnr_tracked[k].append(float("nan") if disc is None else psnr_db(r.image, full.image, disc))
                 psnr_true[k].append(float("nan") if true_disc is None else psnr_db(r.image, full.image, true_disc))
-                judged = fixation is not None and plan[k][1]
+                psnr_gaze[k].append(float("nan") if gaze_disc is None else psnr_db(r.image, full.image, gaze_disc))
+                share[k].append(tracker_share(r.view.cov_deg2, plan[k][2][2]))
+                judged = fixation is not None and _judged(plan[k])
                 jod_true[k].append(judge.jod(full.image, r.image, fixation) if judged else float("nan"))
     finally:
         tee.close()
     rows = []
     full_fps = loops[-1].stats.summary()["fps"]
-    for k, (scenario, hysteresis) in enumerate(plan):
+    for k, (scenario, hysteresis, (label, _, effective)) in enumerate(plan):
         summary = loops[k].stats.summary()
         row = {"viewpoint": viewpoint, "scenario": scenario, "hysteresis": hysteresis,
                "fps": summary["fps"], "frame_ms": summary["frame_ms_median"],
                "triangles": summary["triangles_median"]}
         if scenario != "full":
+            row["prior"], row["gaze_prior_deg"] = label, [float(v) for v in effective]
             row.update(level_statistics(np.array(levels[k]), min(config.warmup, len(levels[k]) - 2)))
             row["psnr_tracked_disc_db"] = _median(psnr_tracked[k][config.warmup:])
             row["psnr_true_disc_db"] = _median(psnr_true[k][config.warmup:])
-            if judge is not None and hysteresis:
+            row["psnr_gaze_disc_db"] = _median(psnr_gaze[k][config.warmup:])
+            row["tracker_cov_share"] = _median(share[k][config.warmup:])
+            if judge is not None and _judged(plan[k]):
                 row["jod_true"] = _median(jod_true[k])
             row["fps_ratio_to_full"] = summary["fps"] / full_fps
             row["per_frame"] = {"psnr_tracked_db": _listed(psnr_tracked[k]), "psnr_true_db": _listed(psnr_true[k]),
+                                "psnr_gaze_db": _listed(psnr_gaze[k]), "tracker_cov_share": _listed(share[k]),
                                 "triangles": [int(t) for t in loops[k].stats.triangles]}
-            if judge is not None and hysteresis:
+            if judge is not None and _judged(plan[k]):
                 row["per_frame"]["jod_true"] = _listed(jod_true[k])
         rows.append(row)
     return rows
 
 
+def _plan(config: PaperTablesConfig) -> list:
+    """The runs of one viewpoint, in order: ``(scenario, hysteresis, prior variant)`` (:func:`prior_variants`):
+    every scenario with the default prior, hysteresis on and off; with the head-only prior, hysteresis on;
+    ``full`` last."""
+    variants = prior_variants(config)
+    plan = [(sc, hyst, variants[0]) for hyst in (True, False) for sc in SCENARIOS]
+    plan += [(sc, True, v) for v in variants[1:] for sc in SCENARIOS]
+    return plan + [("full", False, variants[0])]
+
+
+def _judged(run) -> bool:
+    """Whether a run of :func:`_plan` gets the judge's JOD (slow): hysteresis on, the default prior."""
+    scenario, hysteresis, (label, _, _) = run
+    return hysteresis and label == PRIOR_DEFAULT
+
+
+def _default_rows(rows) -> list:
+    """The rows run with the default prior (``prior`` absent: a report of before the head-only runs)."""
+    return [r for r in rows if r.get("prior", PRIOR_DEFAULT) == PRIOR_DEFAULT]
+
+
 def true_poi_goals(rows, warmup: int, threshold_db: float = GOAL_PSNR_DB) -> dict:
-    """The true-POI figures of one condition's rows (:func:`_run_group`), per viewpoint and pooled (``"all"``).
+    """The true-POI figures of one condition's rows (:func:`_run_group`; those of the default prior), per
+    viewpoint and pooled (``"all"``).
 
     Over the frames from ``warmup`` on, per hysteresis (``on``, ``off``): ``frames`` counted, ``none_below``
     (frames where ``none``'s PSNR within the disc about the true POI is below ``threshold_db``, dB), ``kept``
@@ -344,6 +465,7 @@ def true_poi_goals(rows, warmup: int, threshold_db: float = GOAL_PSNR_DB) -> dic
             return None
         return np.array([np.nan if v is None else v for v in values], dtype=np.float64)[warmup:]
 
+    rows = _default_rows(rows)
     table = {(r["viewpoint"], r["scenario"], r["hysteresis"]): r for r in rows if r["scenario"] != "full"}
     viewpoints = list(dict.fromkeys(r["viewpoint"] for r in rows))
     out = {}
@@ -430,13 +552,17 @@ def paper_tables(config: PaperTablesConfig = PaperTablesConfig(), err=None, scen
     start = time.perf_counter()
     report = {"config": {"frames": config.frames, "warmup": config.warmup, "size": list(config.size),
                          "noise_deg": config.noise_deg, "overconfident_nees": OVERCONFIDENT_NEES,
-                         "disc_deg": DISC_DEG, "flicker_frames": FLICKER_FRAMES, "mode": SelectorConfig().mode,
+                         "disc_deg": DISC_DEG, "flicker_frames": FLICKER_FRAMES,
+                         "mode": config.selector_config().mode,
+                         "gaze_priors": {label: [float(v) for v in effective]
+                                         for label, _, effective in prior_variants(config)},
                          "goal_psnr_db": GOAL_PSNR_DB, "goal_fraction": GOAL_FRACTION, "vdp": config.vdp,
                          "source": config.source},
               "conditions": {}}
     own_ctx = ctx is None
     ctx = create_context() if own_ctx else ctx
-    renderers = [TerrainRenderer(ctx, size=tuple(config.size)) for _ in range(9)]
+    runs = len(_plan(config))
+    renderers = [TerrainRenderer(ctx, size=tuple(config.size)) for _ in range(runs)]
     judge = None
     try:
         for condition in config.conditions:
@@ -451,7 +577,7 @@ def paper_tables(config: PaperTablesConfig = PaperTablesConfig(), err=None, scen
             errors = errors[np.isfinite(errors)]
             if config.vdp and judge is None:
                 judge = _make_judge(run, config.size)
-            progress = Progress(len(config.viewpoints) * 9 * config.frames, f"paper tables: {condition}",
+            progress = Progress(len(config.viewpoints) * runs * config.frames, f"paper tables: {condition}",
                                 stream=err)
             rows = []
             for vp in config.viewpoints:
@@ -466,6 +592,7 @@ def paper_tables(config: PaperTablesConfig = PaperTablesConfig(), err=None, scen
                 "nees_median": float(np.median(errors)) if errors.size else None,
                 "nees_frames": int(errors.size),
                 "true_poi_frames": int(np.isfinite(pois).all(axis=1).sum()),
+                "true_gaze_frames": int(np.isfinite(run.true_gaze_px).all(axis=1).sum()),
                 "rows": rows, "table1": _table1(rows), "true_poi": true_poi_goals(rows, config.warmup)}
     finally:
         for r in renderers:
@@ -501,16 +628,20 @@ def _mean(values) -> float:
 
 
 def _table1(rows) -> list:
-    """Table 1: each scenario's figures averaged over the viewpoints (test cases)."""
+    """Table 1: each scenario's figures averaged over the viewpoints (test cases): the default prior's rows
+    (hysteresis on, off), then the head-only ones; each with its ``prior`` and ``gaze_prior_deg``."""
     out = []
     keys = ("changes", "flicker", "fps", "fps_ratio_to_full", "triangles", "psnr_tracked_disc_db",
-            "psnr_true_disc_db", "jod_true")
-    for hysteresis in (True, False):
-        for scenario in SCENARIOS:
-            mine = [r for r in rows if r["scenario"] == scenario and r["hysteresis"] == hysteresis]
-            if mine:
-                out.append({"scenario": scenario, "hysteresis": hysteresis,
-                            **{k: _mean([r[k] for r in mine]) for k in keys if k in mine[0]}})
+            "psnr_true_disc_db", "psnr_gaze_disc_db", "tracker_cov_share", "jod_true")
+    for prior in (PRIOR_DEFAULT, PRIOR_HEAD_ONLY):
+        for hysteresis in (True, False):
+            for scenario in SCENARIOS:
+                mine = [r for r in rows if r["scenario"] == scenario and r["hysteresis"] == hysteresis
+                        and r.get("prior", PRIOR_DEFAULT) == prior]
+                if mine:
+                    extra = {"gaze_prior_deg": mine[0]["gaze_prior_deg"]} if "gaze_prior_deg" in mine[0] else {}
+                    out.append({"scenario": scenario, "hysteresis": hysteresis, "prior": prior, **extra,
+                                **{k: _mean([r[k] for r in mine]) for k in keys if k in mine[0]}})
     return out
 
 
@@ -523,7 +654,7 @@ def _findings(report) -> list:
     paper's), and what the true POI shows (hysteresis on)."""
     lines = []
     for condition, c in report["conditions"].items():
-        t = {(r["scenario"], r["hysteresis"]): r for r in c["table1"]}
+        t = {(r["scenario"], r["hysteresis"]): r for r in _default_rows(c["table1"])}
         a, f, n = t[("adaptive", False)], t[("fixed", False)], t[("none", False)]
         worse = a["flicker"] > 1.2 * f["flicker"] + 0.5
         sigma = c["sigma_deg_median"]
@@ -540,21 +671,52 @@ def _findings(report) -> list:
                 f"{condition}, hysteresis on, at the true POI: none below {GOAL_PSNR_DB:g} dB on "
                 f"{pooled['none_below']}/{pooled['frames']} frames; of those kept by fixed {_fraction(k['fixed'])}, "
                 f"adaptive {_fraction(k['adaptive'])}, smoothed {_fraction(k['smoothed'])}")
+        gaze = {(r.get("prior", PRIOR_DEFAULT), r["scenario"]): r for r in c["table1"] if r["hysteresis"]}
+        if c.get("true_gaze_frames"):
+            parts = []
+            for prior in (PRIOR_DEFAULT, PRIOR_HEAD_ONLY):
+                row = gaze.get((prior, "adaptive"))
+                if row is not None and "psnr_gaze_disc_db" in row:
+                    parts.append(f"{_prior_name(row)} {row['psnr_gaze_disc_db']:.1f} dB "
+                                 f"(tracker's share of the variance {row.get('tracker_cov_share', float('nan')):.3f})")
+            if parts:
+                lines.append(f"{condition}, hysteresis on, adaptive, median PSNR within {DISC_DEG:g}° of the true "
+                             f"gaze (head and eyes, {c['true_gaze_frames']} frames): " + "; ".join(parts))
     return lines
 
 
+def _prior_name(row) -> str:
+    """A row's gaze prior for the tables: ``head only`` or ``prior H×V°``."""
+    prior = row.get("gaze_prior_deg")
+    if prior is None:
+        return "-"
+    return "head only" if not any(prior) else f"prior {prior[0]:g}×{prior[1]:g}°"
+
+
+def _prior_short(row) -> str:
+    """A row's gaze prior in a column: ``head`` or ``HxV`` σ deg (``-`` in a report without priors)."""
+    prior = row.get("gaze_prior_deg")
+    return "-" if prior is None else ("head" if not any(prior) else f"{prior[0]:g}x{prior[1]:g}")
+
+
 def format_tables(report: dict) -> str:
-    """The tables as text: per condition Table 1 (mean over viewpoints), then per viewpoint; then the goals."""
+    """The tables as text: per condition Table 1 (mean over viewpoints), then per viewpoint; then the goals.
+
+    Columns: the gaze prior (σ deg, ``head``: none), PSNR within the disc about the tracked POI, the true POI
+    (head) and the true gaze (head and eyes), and the tracker's share of the POI's variance (medians)."""
     lines = []
     judged = any("jod_true" in r for c in report["conditions"].values() for r in c["table1"])
-    head = (f"{'scenario':9} {'hyst':4} {'changes':>8} {'flicker':>8} {'fps':>6} {'x full':>7} {'triangles':>9} "
-            f"{'PSNR trk':>8} {'PSNR true':>9}" + (f" {'JOD true':>8}" if judged else ""))
+    head = (f"{'scenario':9} {'hyst':4} {'prior':>9} {'changes':>8} {'flicker':>8} {'fps':>6} {'x full':>7} "
+            f"{'triangles':>9} {'PSNR trk':>8} {'PSNR true':>9} {'PSNR gaze':>9} {'trk share':>9}"
+            + (f" {'JOD true':>8}" if judged else ""))
     for condition, c in report["conditions"].items():
         sigma, mean_nees = c["sigma_deg_median"], c.get("nees_mean")
         lines.append(f"\n{condition}: {c['poses']}; pose in {c['frames_with_pose']}/{c['frames']} frames, "
                      + (f"median σ of V {sigma:.3g}°" if sigma is not None else "no covariance")
                      + (f", mean NEES of V {mean_nees:.3g} ({c['nees_frames']} frames)" if mean_nees is not None
-                        else ""))
+                        else "")
+                     + (f"; true gaze on {c['true_gaze_frames']} frames" if c.get("true_gaze_frames")
+                        else "; no gaze truth (PSNR gaze: nan)" if "true_gaze_frames" in c else ""))
         blocks = [("Table 1 (mean over viewpoints)", c["table1"])]
         for vp in dict.fromkeys(r["viewpoint"] for r in c["rows"]):
             blocks.append((vp, [r for r in c["rows"] if r["viewpoint"] == vp and r["scenario"] != "full"]))
@@ -562,9 +724,11 @@ def format_tables(report: dict) -> str:
             lines.append(f"  {title}")
             lines.append("  " + head)
             for r in rows:
-                lines.append(f"  {r['scenario']:9} {'on' if r['hysteresis'] else 'off':4} {r['changes']:8.1f} "
-                             f"{r['flicker']:8.1f} {r['fps']:6.1f} {r['fps_ratio_to_full']:6.1f}x "
-                             f"{r['triangles']:9.0f} {r['psnr_tracked_disc_db']:8.1f} {r['psnr_true_disc_db']:9.1f}"
+                lines.append(f"  {r['scenario']:9} {'on' if r['hysteresis'] else 'off':4} {_prior_short(r):>9} "
+                             f"{r['changes']:8.1f} {r['flicker']:8.1f} {r['fps']:6.1f} {r['fps_ratio_to_full']:6.1f}x "
+                             f"{r['triangles']:9.0f} {r['psnr_tracked_disc_db']:8.1f} {r['psnr_true_disc_db']:9.1f} "
+                             f"{r.get('psnr_gaze_disc_db', float('nan')):9.1f} "
+                             f"{r.get('tracker_cov_share', float('nan')):9.3f}"
                              + (f" {r.get('jod_true', float('nan')):8.2f}" if judged else ""))
     lines.append(f"\nAt the true POI, hysteresis on, frames after the warm-up: of the frames where none is below "
                  f"{GOAL_PSNR_DB:g} dB within {DISC_DEG:g}°, the share each scenario keeps at or above it")
@@ -608,7 +772,7 @@ def plot_tables(report: dict, path) -> None:
         for i, (key, label) in enumerate(panels):
             ax = axes[i, j]
             for off, hysteresis, colour in ((-0.2, False, "tab:red"), (0.2, True, "tab:blue")):
-                t = {r["scenario"]: r for r in c["table1"] if r["hysteresis"] == hysteresis}
+                t = {r["scenario"]: r for r in _default_rows(c["table1"]) if r["hysteresis"] == hysteresis}
                 ax.bar(x + off, [t[s][key] for s in SCENARIOS], 0.4, color=colour,
                        label=f"hysteresis {'on' if hysteresis else 'off'}")
             ax.set_xticks(x, SCENARIOS)
@@ -618,7 +782,7 @@ def plot_tables(report: dict, path) -> None:
                 ax.set_title(condition + (f"\nσ of V {sigma:.2g}°" if sigma is not None else "")
                              + (f", NEES {mean_nees:.3g}" if mean_nees is not None else ""))
             if key != "flicker":
-                finite = [r[key] for r in c["table1"] if math.isfinite(r[key])]
+                finite = [r[key] for r in _default_rows(c["table1"]) if math.isfinite(r[key])]
                 if finite:
                     ax.set_ylim(min(finite) - 3, max(finite) + 3)
                 ax.axhline(GOAL_PSNR_DB, color="k", lw=0.8, ls=":")
@@ -650,7 +814,7 @@ def plot_true_poi(report: dict, path) -> None:
     x = np.arange(len(SCENARIOS))
     for j, condition in enumerate(conditions):
         c = report["conditions"][condition]
-        rows = [r for r in c["rows"] if r["scenario"] != "full" and r["hysteresis"]]
+        rows = [r for r in _default_rows(c["rows"]) if r["scenario"] != "full" and r["hysteresis"]]
         pooled = {}
         for key in ("psnr_true_db", "psnr_tracked_db"):
             for sc in SCENARIOS:
@@ -694,9 +858,13 @@ def plot_true_poi(report: dict, path) -> None:
 
 
 def run_paper_bench(json_path=None, chart_path=None, quick: bool = False, noise_deg: float = PAPER_NOISE_DEG,
-                    out=None, err=None, vdp: bool = False, conditions=CONDITIONS) -> int:
+                    out=None, err=None, vdp: bool = False, conditions=CONDITIONS, mode: str | None = None,
+                    gaze_prior_deg=None, head_only: bool = True) -> int:
     """``headplod bench paper``: run, print the tables, write the JSON and the charts (``chart_path`` and
     :func:`true_poi_chart_path` beside it); the exit status.
+
+    ``mode``, ``gaze_prior_deg`` and ``head_only`` are :class:`PaperTablesConfig`'s (None: the default mode,
+    the mode's own prior).
 
     The output paths are checked (their folders must exist or be creatable)
     before the run, and each is written whole or not at all.
@@ -707,7 +875,9 @@ def run_paper_bench(json_path=None, chart_path=None, quick: bool = False, noise_
 
     out = out or sys.stdout
     config = PaperTablesConfig(frames=30, warmup=10, viewpoints=("mountains",)) if quick else PaperTablesConfig()
-    config = replace(config, noise_deg=noise_deg, vdp=bool(vdp), conditions=tuple(conditions))
+    config = replace(config, noise_deg=noise_deg, vdp=bool(vdp), conditions=tuple(conditions), mode=mode,
+                     gaze_prior_deg=None if gaze_prior_deg is None else tuple(gaze_prior_deg),
+                     head_only=bool(head_only))
     if vdp:
         from .plod_judge import vdp_available
 

@@ -3,7 +3,7 @@
 This package is the one place where headplod reads and writes the files that
 ``docs/contract.md`` defines: the stereo rig (``rig.yaml``), the marker
 model (``markers.yaml``), the screen (``screen.yaml``), a stereo dataset folder
-(``left/``, ``right/``, ``times.csv``, ``truth.csv``) and the pose records
+(``left/``, ``right/``, ``times.csv``, ``truth.csv``, ``gaze_truth.csv``) and the pose records
 (JSON Lines). Every public name is available here (``io.read_rig``,
 ``io.Dataset``, ...); the modules hold one kind of file each:
 
@@ -13,7 +13,7 @@ model (``markers.yaml``), the screen (``screen.yaml``), a stereo dataset folder
 ``rig``         ``rig.yaml``: :class:`Rig`, :func:`read_rig`, ...
 ``markers``     ``markers.yaml``: :class:`MarkerModel`, ...
 ``screen``      ``screen.yaml``: :class:`Screen`, ...
-``tables``      ``times.csv`` and ``truth.csv``
+``tables``      ``times.csv``, ``truth.csv`` and ``gaze_truth.csv``
 ``dataset``     the dataset folder: :class:`Dataset`, :class:`Frame`
 ``poses``       pose records (JSON Lines): :func:`pose_record`, ...
 ==============  ==========================================================
@@ -63,7 +63,17 @@ from .rig import (
     write_rig,
 )
 from .screen import Screen, read_screen, write_screen
-from .tables import TRUTH_COLUMNS, read_times, read_truth, write_times, write_truth
+from .tables import (
+    GAZE_TRUTH_COLUMNS,
+    TRUTH_COLUMNS,
+    GazeTruth,
+    read_gaze_truth,
+    read_times,
+    read_truth,
+    write_gaze_truth,
+    write_times,
+    write_truth,
+)
 
 __all__ = [
     "ContractError",
@@ -85,6 +95,9 @@ __all__ = [
     "Dataset",
     "read_truth",
     "write_truth",
+    "GazeTruth",
+    "read_gaze_truth",
+    "write_gaze_truth",
     "read_times",
     "write_times",
     "pose_record",
@@ -92,6 +105,7 @@ __all__ = [
     "read_poses",
     "POSE_KEYS",
     "TRUTH_COLUMNS",
+    "GAZE_TRUTH_COLUMNS",
     "DEFAULT_FPS",
     # the contract's constants and the tolerances of the checks
     "VIEW_TRIANGLES",

@@ -1,8 +1,11 @@
-"""The CSV tables of a dataset folder: ``times.csv`` and ``truth.csv``.
+"""The CSV tables of a dataset folder: ``times.csv``, ``truth.csv`` and ``gaze_truth.csv``.
 
-:func:`read_times`, :func:`write_times` (``frame,t[,t_right]``, s) and
+:func:`read_times`, :func:`write_times` (``frame,t[,t_right]``, s),
 :func:`read_truth`, :func:`write_truth` (the true position, mm, and axes rows
-Ξ, Ψ, V per frame).
+Ξ, Ψ, V per frame) and :func:`read_gaze_truth`, :func:`write_gaze_truth`
+(where the viewer really looks: the eyes' offset in the head, deg, the gaze
+direction and its point on the screen, px). The gaze truth is for benches:
+the tracker never reads it.
 """
 
 from __future__ import annotations
@@ -12,7 +15,7 @@ import math
 import operator
 import re
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, NamedTuple
 
 import numpy as np
 
@@ -30,6 +33,32 @@ TRUTH_COLUMNS = (
     "v_x", "v_y", "v_z",
 )
 _TIMES_COLUMNS = ("frame", "t", "t_right")
+#: Columns of gaze_truth.csv, in order.
+GAZE_TRUTH_COLUMNS = (
+    "frame", "eye_h_deg", "eye_v_deg",
+    "gaze_x", "gaze_y", "gaze_z",
+    "gaze_px_x", "gaze_px_y",
+)
+#: Tolerance on the unit length of a gaze direction read from gaze_truth.csv (6 decimals give ~1e-6), and of
+#: one handed to :func:`write_gaze_truth` (full precision).
+GAZE_UNIT_TOL_READ = 1e-4
+GAZE_UNIT_TOL_WRITE = 1e-6
+
+
+class GazeTruth(NamedTuple):
+    """One frame of ``gaze_truth.csv``.
+
+    eye_in_head_deg : (2,) float, deg: the eyes' rotation in the head, horizontal (positive to the wearer's
+        right, -Ξ) and vertical (positive up, Ψ); the gaze's contract angles in the true head frame are
+        θ = -horizontal, φ = vertical.
+    direction : (3,) float, unit vector in the world frame: the gaze, from P1.
+    screen_px : (2,) float, screen px: where the gaze ray meets the screen plane (possibly outside the screen);
+        NaN where it meets it nowhere in front of the head.
+    """
+
+    eye_in_head_deg: np.ndarray
+    direction: np.ndarray
+    screen_px: np.ndarray
 
 
 def _read_csv_rows(path: str | Path, headers: Iterable[tuple[str, ...]], hint: str):
@@ -219,4 +248,91 @@ def write_truth(path: str | Path, rows: Mapping[int, tuple[Any, Any]] | Iterable
         if why:
             raise ValueError(f"write_truth: frame {frame}: {why}")
         lines.append(",".join([str(frame)] + [repr(float(x)) for x in np.concatenate([p, A.reshape(-1)])]))
+    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def read_gaze_truth(path: str | Path) -> dict[int, GazeTruth]:
+    """Read ``gaze_truth.csv``: ``frame,eye_h_deg,eye_v_deg,gaze_x,gaze_y,gaze_z,gaze_px_x,gaze_px_y``.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    dict
+        frame index -> :class:`GazeTruth` (the pixel NaN where both pixel cells are empty). Sorted by frame.
+
+    Raises
+    ------
+    ContractError
+        On a missing file, a wrong header or field count, a non-numeric or non-finite value, one pixel cell
+        empty and the other not, a repeated frame, or a direction that is not a unit vector (tolerance
+        ``GAZE_UNIT_TOL_READ``).
+    """
+    hint = ("gaze_truth.csv has the header " + ",".join(GAZE_TRUTH_COLUMNS)
+            + " (deg, a unit gaze direction, screen px or two empty cells)")
+    ctx, header, rows = _read_csv_rows(path, [GAZE_TRUTH_COLUMNS], hint)
+    out: dict[int, GazeTruth] = {}
+    for lineno, f in rows:
+        if len(f) != len(GAZE_TRUTH_COLUMNS):
+            raise ctx.error(f"line {lineno}: {len(f)} fields, expected {len(GAZE_TRUTH_COLUMNS)}", hint)
+        frame = _csv_frame(ctx, lineno, f[0])
+        if frame in out:
+            raise ctx.error(f"line {lineno}: frame {frame} appears twice", "keep one row per frame")
+        eye = np.array([_csv_float(ctx, lineno, c, x, "deg") for c, x in zip(GAZE_TRUTH_COLUMNS[1:3], f[1:3])])
+        d = np.array([_csv_float(ctx, lineno, c, x, "unit vector") for c, x in zip(GAZE_TRUTH_COLUMNS[3:6], f[3:6])])
+        if abs(float(np.linalg.norm(d)) - 1.0) > GAZE_UNIT_TOL_READ:
+            raise ctx.error(f"line {lineno} (frame {frame}): the gaze direction has length {np.linalg.norm(d):.6g}, "
+                            "expected 1", "write a unit vector with at least 6 decimals")
+        cells = f[6:8]
+        if cells == ["", ""]:
+            px = np.full(2, np.nan)
+        elif "" in cells:
+            raise ctx.error(f"line {lineno}: one of gaze_px_x, gaze_px_y is empty and the other is not",
+                            "leave both empty when the gaze misses the screen plane")
+        else:
+            px = np.array([_csv_float(ctx, lineno, c, x, "px") for c, x in zip(GAZE_TRUTH_COLUMNS[6:], cells)])
+        out[frame] = GazeTruth(eye, d, px)
+    return dict(sorted(out.items()))
+
+
+def write_gaze_truth(path: str | Path, rows: Mapping[int, Any]) -> None:
+    """Write ``gaze_truth.csv``.
+
+    Parameters
+    ----------
+    path : str or Path
+    rows : mapping
+        frame -> :class:`GazeTruth` or ``(eye_in_head_deg (2,) deg, direction (3,) world, screen_px (2,) px)``;
+        the direction a unit vector (within ``GAZE_UNIT_TOL_WRITE``: a wrong vector is refused, not
+        normalized); a NaN pixel is written as two empty cells. Written sorted by frame with full
+        (round-trip) precision.
+
+    Raises
+    ------
+    ValueError
+        On wrong shapes, non-finite angles or directions, a direction not of unit length, one pixel
+        coordinate NaN and the other not, or a negative frame.
+    """
+    lines = [",".join(GAZE_TRUTH_COLUMNS)]
+    for frame, row in sorted(rows.items(), key=lambda kv: kv[0]):
+        frame = operator.index(frame)
+        if frame < 0:
+            raise ValueError(f"write_gaze_truth: frame {frame} is negative")
+        eye, d, px = (np.asarray(v, dtype=np.float64).reshape(-1) for v in row)
+        if eye.shape != (2,) or d.shape != (3,) or px.shape != (2,):
+            raise ValueError(f"write_gaze_truth: frame {frame}: shapes {eye.shape}, {d.shape}, {px.shape}; "
+                             "expected (2,), (3,) and (2,)")
+        if not (np.isfinite(eye).all() and np.isfinite(d).all()):
+            raise ValueError(f"write_gaze_truth: frame {frame}: non-finite angles or direction")
+        if abs(float(np.linalg.norm(d)) - 1.0) > GAZE_UNIT_TOL_WRITE:
+            raise ValueError(f"write_gaze_truth: frame {frame}: the direction has length {np.linalg.norm(d):.9g}, "
+                             "expected 1")
+        missing = np.isnan(px)
+        if (missing.any() and not missing.all()) or np.isinf(px).any():
+            raise ValueError(f"write_gaze_truth: frame {frame}: the pixel {px.tolist()} must be finite or all NaN")
+        cells = [repr(float(x)) for x in np.concatenate([eye, d])]
+        cells += ["", ""] if missing.all() else [repr(float(x)) for x in px]
+        lines.append(",".join([str(frame)] + cells))
     Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
