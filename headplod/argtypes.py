@@ -7,7 +7,7 @@ import re
 import sys
 
 __all__ = ["cache_mb", "floats", "frame_count", "max_level", "non_negative", "level_bias", "triangle_budget",
-           "attach_negative_lists", "note_old_spelling", "add_quiet_argument"]
+           "gaze_prior", "attach_negative_lists", "note_old_spelling", "add_quiet_argument"]
 
 #: What ``-q`` means, for every command.
 QUIET_HELP = "no progress and no notes on standard error (errors and the requested output still appear)"
@@ -121,6 +121,25 @@ def triangle_budget(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a whole number of triangles >= 1, got {text!r}")
     return int(value)
 
+
+#: The largest σ ``--gaze-prior`` accepts, deg (as :data:`headplod.plod.select.MAX_GAZE_PRIOR_DEG`, which
+#: SelectorConfig checks; kept here so the parser's types import nothing of the library; a test checks they agree).
+MAX_GAZE_PRIOR_DEG = 45.0
+
+
+def gaze_prior(text: str) -> tuple[float, float]:
+    """An argparse type: the σ of the eyes' offset in the head, ``SH,SV`` (horizontal, vertical) deg, two finite
+    numbers in 0..:data:`MAX_GAZE_PRIOR_DEG` (``0,0``: the head alone, the paper's view); a tuple of two floats
+    (:attr:`headplod.plod.select.SelectorConfig.gaze_prior_deg`)."""
+    expected = (f"expected SH,SV: two σ in 0..{MAX_GAZE_PRIOR_DEG:g} deg, horizontal and vertical "
+                "(0,0: the head alone)")
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{expected}, got {text!r}") from None
+    if len(values) != 2 or not all(math.isfinite(v) and 0 <= v <= MAX_GAZE_PRIOR_DEG for v in values):
+        raise argparse.ArgumentTypeError(f"{expected}, got {text!r}")
+    return tuple(v + 0.0 for v in values)           # -0 reads as 0
 
 
 #: A comma-separated list of numbers that starts with a minus sign ("-120,40,650", "-0.5,1e3"): never an option.

@@ -12,7 +12,7 @@ from ..argtypes import add_quiet_argument, frame_count, non_negative, note_old_s
 from ..capture import source_kind, synthetic_preset
 from ..capture.synthetic import ensure_dataset
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
-from ..render.command import add_cost_arguments, selection_options
+from ..render.command import add_cost_arguments, add_gaze_prior_argument, selection_options
 
 __all__ = ["add_bench_arguments", "run_bench", "BENCHMARKS"]
 
@@ -49,7 +49,9 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bp.add_argument("--json", help="write the results as JSON")
     bp.add_argument("--chart", help="write the chart (PNG); the level-colour pictures go beside it")
     bp.add_argument("--quick", action="store_true", help="fewer points on the curves and sweeps (a smoke run)")
-    add_cost_arguments(bp.add_argument_group("every mode's cost (part 1: the modes at the default view)"))
+    part1 = bp.add_argument_group("every mode's cost and gaze prior (part 1: the modes at the default view)")
+    add_cost_arguments(part1)
+    add_gaze_prior_argument(part1)
     bp.add_argument("--vdp", nargs="?", const="fvvdp", metavar="METRICS",
                     help="also judge every mode and CSF form with a visible-difference predictor, JOD against frame "
                          "time: fvvdp (FovVideoVDP, foveated on the POI; the default) and/or cvvdp (ColorVideoVDP, "

@@ -43,7 +43,8 @@ from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
 from ..progress import Progress, note
 from ..render import TerrainRenderer, create_context
 from ..plod.select import MODES
-from ..render.command import add_cost_arguments, add_csf_argument, raymask_config, selection_options
+from ..render.command import (add_cost_arguments, add_csf_argument, add_gaze_prior_argument, raymask_config,
+                              selection_options)
 from ..render.frame import capability_table, default_mode, options_problem
 from ..render.still import FULL_MAX_LEVEL, add_mesh_arguments, mesh_options, mesh_options_problem, mesh_stats
 from . import loop as lp
@@ -116,6 +117,7 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
                            f"default: the back end's, mesh: {default_mode('mesh')}, raymask: csf)")
     add_cost_arguments(view)
     add_csf_argument(view)
+    add_gaze_prior_argument(view)
     view.add_argument("--uncertainty", default="adaptive", choices=lp.SCENARIOS,
                       help="uncertainty scenario (window: initial; default adaptive)")
     view.add_argument("--viewpoint", default="overview", choices=tuple(VIEWPOINTS),

@@ -1,7 +1,8 @@
 """``headplod render``: its arguments (:func:`add_render_arguments`) and its run (:func:`run_render`).
 
     headplod render [--backend mesh|tessellation|raymask] [--mode MODE] [--uncertainty U]
-                    [--head X,Y,Z] [--poi X,Y] [--cov PP,PT,TT] [--inset-deg D] [--no-silhouettes]
+                    [--gaze-prior SH,SV] [--head X,Y,Z] [--poi X,Y] [--cov PP,PT,TT] [--inset-deg D]
+                    [--no-silhouettes]
                     [--size W,H] [--view shaded|wire|levels] --out IMAGE.png [--stats STATS.json]
                     [--export MESH.glb|.ply|.obj|.stl]
                     [--terrain DEM.tif|HEIGHTS.png|HEIGHTS.npy [--spacing-m D|DX,DY] [--height-scale S]]
@@ -23,18 +24,19 @@ from calib import DEFAULT_SCREEN
 
 from .. import io
 from ..plod.export import check_export_path
-from ..argtypes import add_quiet_argument, floats, level_bias, triangle_budget
+from ..argtypes import add_quiet_argument, floats, gaze_prior, level_bias, triangle_budget
 from ..progress import note
 from ..plod.csf import CSF_MODELS
 from ..plod.raymask import RAYMASK_CSF_MODELS, RayMaskConfig
 from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
-from ..plod.select import DEFAULT_CSF_MODEL, MODES, UNCERTAINTY_MODES, SelectorConfig
+from ..plod.select import (DEFAULT_CSF_MODEL, GAZE_DISTRIBUTION_MODES, GAZE_PRIOR_DEG, MAX_GAZE_PRIOR_DEG, MODES,
+                           UNCERTAINTY_MODES, SelectorConfig)
 from .frame import BACKENDS, VIEW_MODES, capability_table, default_mode, options_problem
 from .still import (CONTRAST_SOURCES, MeshOptions, add_mesh_arguments, mesh_options, mesh_options_problem,
                     render_still, scene_model)
 
-__all__ = ["add_render_arguments", "run_render", "add_cost_arguments", "add_csf_argument", "selection_options",
-           "raymask_config"]
+__all__ = ["add_render_arguments", "run_render", "add_cost_arguments", "add_csf_argument", "add_gaze_prior_argument",
+           "selection_options", "raymask_config"]
 
 
 def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -47,6 +49,7 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
                         help="which covariance of the viewing direction the levels use (default adaptive)")
     add_cost_arguments(render)
     add_csf_argument(render)
+    add_gaze_prior_argument(render)
     render.add_argument("--head", type=floats(3), help="eye position X,Y,Z in the world frame, mm "
                                                          "(default: 600 mm in front of the screen centre)")
     render.add_argument("--poi", type=floats(2), help="point of interest X,Y in screen pixels (default: centre)")
@@ -111,11 +114,25 @@ def add_csf_argument(parser) -> None:
                                "below")
 
 
+def add_gaze_prior_argument(parser) -> None:
+    """Add ``--gaze-prior SH,SV`` (the σ of the eyes' offset in the head, :attr:`SelectorConfig.gaze_prior_deg`) to
+    a parser or group. Every back end takes it: it widens the conditioned view's covariance."""
+    own = ", ".join(f"{m}: {GAZE_PRIOR_DEG[0]:g},{GAZE_PRIOR_DEG[1]:g}" for m in GAZE_DISTRIBUTION_MODES)
+    parser.add_argument("--gaze-prior", type=gaze_prior, default=None, metavar="SH,SV",
+                        help="σ of the eyes' offset in the head, horizontal,vertical deg (0.."
+                             f"{MAX_GAZE_PRIOR_DEG:g}): where the viewer may look besides along the head's direction, "
+                             "added to the covariance of the viewing direction (every back end); 0,0: the head "
+                             f"alone, the paper's view. Default: the mode's own ({own}; the others: 0,0)")
+
+
 def selection_options(args) -> dict:
-    """The :class:`SelectorConfig` fields of :func:`add_cost_arguments`' options and of ``--csf`` (the selector's
-    CSF; raymask's own CSF is :func:`raymask_config`'s)."""
+    """The :class:`SelectorConfig` fields of :func:`add_cost_arguments`' options, of ``--csf`` (the selector's
+    CSF; raymask's own CSF is :func:`raymask_config`'s) and of ``--gaze-prior`` (absent: the mode's own)."""
     options = {"level_bias": float(getattr(args, "level_bias", 0.0)),
                "budget_triangles": getattr(args, "budget", None)}
+    prior = getattr(args, "gaze_prior", None)
+    if prior is not None:
+        options["gaze_prior_deg"] = tuple(float(v) for v in prior)
     csf = getattr(args, "csf", None)
     if csf in CSF_MODELS:              # gp is raymask's alone (the mesh's Geisler-Perry is --mode gp)
         options["csf_model"] = csf

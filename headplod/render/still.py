@@ -349,6 +349,7 @@ def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_p
     if cov_deg2 is not None or view_mode == "levels":
         image = overlay_poi(image, poi_image, cov_deg2, px_per_deg)
     stats = _frame_stats(result, backend, mode, uncertainty, view_mode, size, head, poi, contrast, scene)
+    stats["gaze_prior_deg"] = list(config.gaze_prior)       # the eye-in-head σ in use (given, or the mode's own)
     if readback_ms is not None:
         stats["readback_ms"] = readback_ms
     stats.update(details or {})
