@@ -62,10 +62,12 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bp.add_argument("--scale", action="store_true",
                     help="instead: cost against terrain size (2M-134M triangles), tessellation back end and full "
                          "(headplod.bench.plod_scale)")
-    bp.add_argument("--only", choices=("foveate", "raymask", "judge") + tuple(_PLOD_PARTS),
+    bp.add_argument("--only", choices=("foveate", "raymask", "judge", "gaze") + tuple(_PLOD_PARTS),
                     help="instead: only the foveated layers' part (headplod.bench.plod_foveate), the ray mask's "
                          "(headplod.bench.plod_raymask) or the perceptual judge's (--vdp's metrics, default "
-                         "fvvdp); --json gets its report, its charts and pictures go into the folder of --chart. "
+                         "fvvdp; with the judge at the true gaze); gaze: only the judge at the true gaze, the "
+                         "held-out terrains and views on the desk and the wide screen (headplod.bench.plod_gaze); "
+                         "--json gets its report, its charts and pictures go into the folder of --chart. "
                          "Or: lazy, the level-8 lazy mesh against the level-5 one, each in its own process "
                          "(headplod.bench.plod_lazy); quadtree, the flat against the quadtree selection's time on "
                          "base grids of 32² to 512² quads (headplod.bench.plod_quadtree; --chart: its chart)")
@@ -93,6 +95,7 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bpa.add_argument("--vdp", action="store_true",
                      help="also judge each frame with FovVideoVDP fixated at the true POI (slow); needs the "
                           "optional extra: pip install -e '.[vdp]'")
+    add_gaze_prior_argument(bpa)
     for parser in bench_sub.choices.values():
         add_quiet_argument(parser, below=True)
     return bench
@@ -169,7 +172,8 @@ def _paper(args) -> int:
               f"{', '.join(paper_tables.ALL_CONDITIONS)}", file=sys.stderr)
         return 2
     return paper_tables.run_paper_bench(json_path=args.json, chart_path=args.chart, quick=args.quick,
-                                        noise_deg=args.noise_deg, vdp=args.vdp, conditions=conditions)
+                                        noise_deg=args.noise_deg, vdp=args.vdp, conditions=conditions,
+                                        gaze_prior_deg=args.gaze_prior)
 
 
 def _live(args) -> int:

@@ -7,7 +7,7 @@ law f^-β (the slope of real relief: β about 2 in amplitude for eroded ground, 
 
 - ``ridges``: sharp crests, the folded mid-level of a smooth field (the ridged-multifractal idea), over rolling
   ground, with fine relief (∝ f^-1.3) up to 40 m: relief finer than the mesh's levels can follow;
-- ``hills``: smooth rolling hills (β 2.4) with gentle fine relief: little for a level to remove but shading;
+- ``hills``: rolling hills (β 2.2) over rough ground (β 1.4, up to 30 m): no crests, detail everywhere;
 - ``mesas``: flat tables and terraces bounded by steep scarps (a smooth field pushed through a soft staircase):
   long silhouettes and flat tops, where geometric and shading error part ways.
 
@@ -43,8 +43,8 @@ def _ridges(rng, n):
 
 
 def _hills(rng, n):
-    base, detail = _field(rng, n, 2.4), _field(rng, n, 1.6)
-    return 600.0 * base + 12.0 * detail
+    base, detail = _field(rng, n, 2.2), _field(rng, n, 1.4)
+    return 700.0 * base + 30.0 * detail
 
 
 def _mesas(rng, n):

@@ -53,8 +53,8 @@ SWEEP_SACCADE_HOLD_DEG_S = 1e6
 #: The mode the goals are measured on: the default criterion (the ellipse's goal is csf's: a triangle in the
 #: 2σ ellipse at eccentricity 0 is at the finest level only under csf's rule, which refines by size alone).
 DEFAULT_MODE = SelectorConfig().mode
-#: The parts ``run_plod_bench(only=...)`` runs alone.
-PARTS = ("foveate", "raymask", "judge")
+#: The parts ``run_plod_bench(only=...)`` runs alone (``judge`` includes ``gaze``, the judge at the true gaze).
+PARTS = ("foveate", "raymask", "judge", "gaze")
 
 _progress = progress("bench plod")
 
@@ -239,10 +239,12 @@ def run_plod_bench(json_path=None, chart_path=None, frames: int = 3, quick: bool
     status. Prints the table and the goals; writes ``json_path``, ``chart_path`` and the pictures beside it.
     ``terrain``: a :class:`headplod.plod.terrain.Terrain` the judge (part 8) runs on instead of the built-in
     (``terrain_label``: its name in the JSON, e.g. the file)."""
-    vdp = tuple(vdp) or (("fvvdp",) if only == "judge" else ())
+    vdp = tuple(vdp) or (("fvvdp",) if only in ("judge", "gaze") else ())
     problem = _vdp_problem(vdp) if vdp else None
     if only is not None and only not in PARTS:
         problem = f"--only {only}: choose one of {', '.join(PARTS)}"
+    elif only == "gaze" and "fvvdp" not in vdp:
+        problem = "--only gaze judges with FovVideoVDP: leave --vdp out or include fvvdp in it"
     elif terrain is not None and (not vdp or only not in (None, "judge")):
         problem = "--terrain FILE is the judge's terrain: give --vdp or --only judge with it"
     if problem:
@@ -297,6 +299,8 @@ def _terrain_scene(screen, terrain):
 
 def _one_part(only: str, frames: int, quick: bool, biases, vdp, chart_path, terrain=None) -> dict:
     """The part ``only`` alone (``--only``): its report, its summary printed."""
+    if only == "gaze":
+        return _gaze(chart_path, quick)
     if only == "judge":
         if terrain is None:
             b = BenchScene(frames=frames)
@@ -335,7 +339,23 @@ def _judge(b: BenchScene, reference, biases, metrics, chart_path, quick: bool = 
         if chart_path:
             eq["charts"] = [str(p) for p in views.views_charts(eq, Path(chart_path).parent)]
         jod["equal_triangles"] = eq
+        jod["gaze"] = _gaze(chart_path, quick)
     return jod
+
+
+def _gaze(chart_path, quick: bool = False) -> dict:
+    """The judge at the true gaze (:mod:`.plod_gaze`) on the held-out cases of both screens: its report, its table
+    printed, its charts ``gaze_judge_<screen>.png`` beside ``chart_path``."""
+    from . import plod_gaze as pg
+
+    _progress("the judge at the true gaze on the held-out cases")
+    config = pg.GazeJudgeConfig(budgets=pg.QUICK_BUDGETS, fixations=3) if quick else pg.GazeJudgeConfig()
+    report = pg.gaze_report(pg.cases_of(("held_out",)), config, progress=_progress)
+    report["quick"] = bool(quick)
+    print(pg.gaze_table(report))
+    if chart_path:
+        report["charts"] = [str(p) for p in pg.gaze_charts(report, Path(chart_path).parent)]
+    return report
 
 
 def _lines(report) -> list:

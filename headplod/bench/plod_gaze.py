@@ -43,8 +43,11 @@ __all__ = ["SCREENS", "GEOMETRIC", "BUDGETS", "QUICK_BUDGETS", "TRAINING", "HELD
 SCREENS = {"desk": (DEFAULT_SCREEN, (1280, 720)), "wide": (CALIB_DIR / "screen_wide.yaml", (2560, 720))}
 #: The geometric modes the default must not lose to (issue 32).
 GEOMETRIC = ("sse", "dpv", "ipv")
-#: Triangle budgets (the issue's range, 100k-400k), and those of ``--quick``.
-BUDGETS = (100_000, 150_000, 250_000, 400_000)
+#: Triangle budgets (the issue's range, :data:`GOAL_RANGE`, and one below it, where the savings are read), and
+#: those of ``--quick``.
+BUDGETS = (50_000, 100_000, 150_000, 250_000, 400_000)
+#: The budgets the margins are judged over (issue 32), triangles.
+GOAL_RANGE = (100_000, 400_000)
 QUICK_BUDGETS = (150_000,)
 #: Terrains (``builtin`` or a :mod:`.landscapes` name) and views (:data:`.plod_judge_views.VIEWS`) of the fit and
 #: of the report: no terrain and no view of one is in the other.
@@ -190,7 +193,7 @@ def rules(default_settings: dict | None = None) -> dict:
     from ..plod.select import SelectorConfig
 
     default = dict(default_settings or {})
-    mode = default.pop("mode", SelectorConfig().mode)
+    mode = default.pop("mode", FIT_MODE if default else SelectorConfig().mode)
     return {"default": (mode, default), "head_only": (mode, {**default, "gaze_prior_deg": (0.0, 0.0)}),
             **{g: (g, {}) for g in GEOMETRIC}}
 
@@ -257,7 +260,7 @@ def judge_case(case: GazeCase, config: GazeJudgeConfig = GazeJudgeConfig(), defa
         ecc = eccentricity_deg(display, fixations[0])
         report["rings"] = {"budget": int(rings_budget)}
         for name, image in ring_images.items():
-            jod, error_map = mapper.jod_map(reference, image, fixations[0])
+            jod, error_map = mapper.jod_error_map(reference, image, fixations[0])
             report["rings"][name] = {**ring_reduce(np.asarray(error_map, dtype=np.float64), ecc), "jod": jod}
     return report
 
@@ -278,8 +281,9 @@ def case_summary(report: dict) -> dict:
     - ``oracle_gain``: oracle − head-only, mean over fixations, and ``oracle_worst`` its lowest fixation;
     - ``prior_gain``: default − head-only, mean, and ``prior_worst`` its lowest fixation;
     - ``recovered``: prior_gain / oracle_gain (None where the oracle gains nothing).
-    And ``jod_at``: {rule: JOD at each budget}; ``target``: the default's triangles and frame-rate ratio
-    against ``full`` at :data:`GOALS` ``target_jod`` (None beyond its curve).
+    And ``target``: for the default and each geometric mode, the triangles at which its mean JOD reaches
+    :data:`GOALS` ``target_jod`` and its frame-rate ratio against ``full`` there (None outside its curve:
+    ``state`` ``"below"`` when its smallest budget already reaches it, ``"beyond"`` when its largest does not).
     """
     curves = report["curves"]
     out = {"case": report["case"], "budgets": []}
@@ -302,14 +306,17 @@ def case_summary(report: dict) -> dict:
                 row.update(oracle_gain=float(oracle.mean()), oracle_worst=float(oracle.min()),
                            recovered=float(prior.mean() / oracle.mean()) if oracle.mean() > 0 else None)
         out["budgets"].append(row)
-    dx, dy = _mean_curve(curves["default"])
-    need, state = first_crossing_log(GOALS["target_jod"], dx, dy)
-    ratio = None
-    if need is not None:
-        ms = np.interp(math.log(need), np.log(dx), sorted(p["frame_ms"] for p in curves["default"]))
-        ratio = report["full"]["frame_ms"] / ms
-    out["target"] = {"jod": GOALS["target_jod"], "triangles": need, "state": state, "full_triangles":
-                     report["full"]["triangles"], "frame_rate_ratio": ratio}
+    out["target"] = {"jod": GOALS["target_jod"], "full_triangles": report["full"]["triangles"]}
+    for name in ("default",) + GEOMETRIC:
+        if name not in curves:
+            continue
+        dx, dy = _mean_curve(curves[name])
+        need, state = first_crossing_log(GOALS["target_jod"], dx, dy)
+        ratio = None
+        if need is not None:
+            ms = [p["frame_ms"] for p in sorted(curves[name], key=lambda p: p["triangles"])]
+            ratio = report["full"]["frame_ms"] / float(np.interp(math.log(need), np.log(dx), ms))
+        out["target"][name] = {"triangles": need, "state": state, "frame_rate_ratio": ratio}
     return out
 
 
@@ -329,7 +336,7 @@ def verdicts(summaries, held_out_only: bool = True) -> dict:
     out = {}
     for screen, goal in GOALS["margin"].items():
         rows = [(s["case"], r["budget"], r["margin"]) for s in held if s["case"]["screen"] == screen
-                for r in s["budgets"] if r["margin"] is not None]
+                for r in s["budgets"] if r["margin"] is not None and GOAL_RANGE[0] <= r["budget"] <= GOAL_RANGE[1]]
         worst = min(rows, key=lambda r: r[2]) if rows else None
         out[f"margin_{screen}"] = {"goal": goal, "met": bool(rows) and worst[2] >= goal,
                                    "worst": None if worst is None else worst[2],
@@ -360,8 +367,9 @@ def verdicts(summaries, held_out_only: bool = True) -> dict:
 
 # --- Fitting ------------------------------------------------------------------------------------------------------
 
-#: The default mode's settings searched by :func:`fit_settings` (``change_share`` 0 is ``sse``).
-FIT_GRID = {"change_share": (0.0, 0.25, 0.4, 0.55), "cortical_exponent": (0.3, 0.6, 0.9)}
+#: The default mode's settings searched by :func:`fit_settings` (``change_share`` 0 is ``sse``), and its mode.
+FIT_GRID = {"change_share": (0.25, 0.4, 0.55, 0.7), "cortical_exponent": (0.3, 0.6, 0.9)}
+FIT_MODE = "hybrid"
 
 
 def fit_settings(cases, grid=None, config: GazeJudgeConfig = GazeJudgeConfig(oracle=False, rings=False),
@@ -386,15 +394,16 @@ def fit_settings(cases, grid=None, config: GazeJudgeConfig = GazeJudgeConfig(ora
     scores = []
     for values in itertools.product(*(grid[k] for k in keys)):
         settings = dict(zip(keys, values))
-        if settings.get("change_share", 1) == 0 and any(s["settings"].get("change_share") == 0 for s in scores):
-            continue                                     # sse: the other settings do not apply
-        margins = []
+        per_case = {}
         for c in cases:
             r = judge_case(c, config, settings, names=("default",), ctx=ctx, scenes=scenes)
             r["curves"].update(geometric[c]["curves"])
-            margins += [row["margin"] for row in case_summary(r)["budgets"] if row["margin"] is not None]
-        scores.append({"settings": settings, "worst": float(min(margins)), "mean": float(np.mean(margins))})
-        progress(f"fit {settings}: worst margin {scores[-1]['worst']:+.3f}, mean {scores[-1]['mean']:+.3f}")
+            per_case[c.name] = [row["margin"] for row in case_summary(r)["budgets"] if row["margin"] is not None]
+        margins = [m for ms in per_case.values() for m in ms]
+        scores.append({"settings": settings, "worst": float(min(margins)), "mean": float(np.mean(margins)),
+                       "cases": per_case})
+        progress(f"fit {settings}: worst margin {scores[-1]['worst']:+.3f}, mean {scores[-1]['mean']:+.3f}; "
+                 + ", ".join(f"{n} {min(ms):+.3f}" for n, ms in per_case.items()))
     best = max(scores, key=lambda s: (round(s["worst"], 3), s["mean"]))
     for b in scenes.values():
         b.release()
