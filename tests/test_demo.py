@@ -208,7 +208,7 @@ def test_window_module_imports_without_moderngl_window():
         import headplod.demo.window as window
 
         window = importlib.reload(window)
-        assert window.action_for_key("1") == ("mode", "change") and window.action_for_key("2") == ("mode", "csf")
+        assert window.action_for_key("1") == ("mode", "hybrid") and window.action_for_key("2") == ("mode", "change")
         assert window.run_window(argparse.Namespace(size=(64, 64))) == 1
     finally:
         sys.modules.pop("moderngl_window", None)

@@ -215,6 +215,9 @@ BAD = [
     ("budget_triangles", 0), ("budget_triangles", 1.5), ("budget_triangles", True), ("budget_tolerance", 0.0),
     ("budget_tolerance", 0.5), ("cortical_exponent", 0.0), ("cortical_exponent", math.nan),
     ("silhouette_contrast", -0.1), ("change_threshold", 0.0),
+    ("gaze_prior_deg", (-1.0, 2.0)), ("gaze_prior_deg", (1.0,)), ("gaze_prior_deg", (50.0, 1.0)),
+    ("gaze_prior_deg", (math.nan, 1.0)), ("gaze_prior_deg", 3.0), ("change_share", 1.5), ("change_share", -0.1),
+    ("gaze_nodes_per_axis", 0), ("gaze_nodes_per_axis", 2.5), ("gaze_nodes_per_axis", True),
 ]
 
 
@@ -237,7 +240,7 @@ def test_config_is_frozen_and_replace_checks_again():
     with pytest.raises(dataclasses.FrozenInstanceError):
         cfg.sse_tolerance_px = 2.0
     assert cfg == SelectorConfig() and hash(cfg) == hash(SelectorConfig())
-    assert dataclasses.replace(cfg, mode="gp").mode == "gp" and cfg.mode == "change"
+    assert dataclasses.replace(cfg, mode="gp").mode == "gp" and cfg.mode == "hybrid"
     with pytest.raises(ValueError, match=r"SelectorConfig\.frame_s"):
         dataclasses.replace(cfg, frame_s=-1.0)
 

@@ -21,7 +21,7 @@ from ..render.vdp import (METRICS, DisplayGeometry, Judge, JudgeSettings, displa
                           fixation_px, vdp_available)
 
 #: The criteria whose levels come from a contrast-sensitivity function.
-CSF_BASED = ("change", "csf", "gp", "acuity")
+CSF_BASED = ("hybrid", "change", "csf", "gp", "acuity")
 #: The criteria whose levels come from geometry alone (screen-space error, velocity, distance).
 GEOMETRIC = ("sse", "ipv", "dpv", "distance")
 #: The image-side CSF techniques judged beside the modes: Murphy & Duchowski's ray mask (its knob: the

@@ -55,7 +55,7 @@ GOAL_RANGE = (100_000, 400_000)
 #: met within ``SelectorConfig.budget_tolerance`` (3 %), so a curve's ends miss the budgets by that much.
 BUDGET_SLACK = 0.05
 #: The modes judged beside the default (the geometric ones of the goal and the other CSF-based ones).
-OTHER_MODES = ("sse", "dpv", "ipv", "csf", "gp")
+OTHER_MODES = ("sse", "dpv", "ipv", "change", "csf", "gp")
 
 
 @dataclass(frozen=True)

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 __all__ = ["DEMO_MODES", "KEYMAP", "action_for_key", "key_help"]
 
-#: Criteria the demo switches between (keys 1-7; 1 the default criterion).
-DEMO_MODES = ("change", "csf", "gp", "acuity", "sse", "distance", "full")
+#: Criteria the demo switches between (keys 1-8; 1 the default criterion).
+DEMO_MODES = ("hybrid", "change", "csf", "gp", "acuity", "sse", "distance", "full")
 
 #: Key → action. Keys are single characters (digits, lower-case letters) or "escape".
 KEYMAP = {
@@ -33,12 +33,12 @@ def action_for_key(name: str):
     Parameters
     ----------
     name : str
-        ``"1"``-``"6"``, a letter (either case) or ``"escape"``.
+        ``"1"``-``"8"``, a letter (either case) or ``"escape"``.
 
     Returns
     -------
     tuple (setting, value) or None
-        ``("mode", "csf")`` … ``("mode", "full")`` for 1-7,
+        ``("mode", "hybrid")`` … ``("mode", "full")`` for 1-8,
         ``("uncertainty", ...)`` for N/F/A/S, ``("view_mode", ...)`` for
         V (shaded), W (wire), L (levels), ``("hud", "toggle")`` for H,
         ``("viewpoint", "next")`` for C, ``("quit", None)`` for Esc and Q;
@@ -70,7 +70,7 @@ def key_help(values=("mode",), sep: str = "  ") -> str:
     ----------
     values : iterable of str
         Settings whose values are listed after their keys, in brackets
-        (``1-7 criterion (change csf gp acuity sse distance full)``).
+        (``1-8 criterion (hybrid change csf gp acuity sse distance full)``).
     sep : str
         Between the groups.
     """

@@ -14,6 +14,11 @@ level (for hysteresis) and returns integer levels in [0, max_level]:
   sign the paper's print dropped), angular speed relative to the head
   (floored at 0.1 deg/s), contrast of the shaded terrain over the triangle;
   the CSF inverted for the highest visible frequency; LOD = ⌈log2(α_max/α)⌉.
+- ``hybrid`` (the default): ``sse``'s level mixed with ``change``'s, whose
+  visibility is expected over where the viewer may look: the gaze
+  distribution, the tracker's covariance of V plus the eye-in-head prior,
+  taken at Gauss–Hermite nodes (:func:`headplod.plod.criteria.hybrid_level`);
+  ``change_share`` 0 is ``sse``.
 - ``change``: whether what each level removes is visible: the shading it
   changes and the displacement of the surface, against the CSF scaled by
   cortical magnification (:func:`headplod.plod.criteria.change_level`).
@@ -48,11 +53,11 @@ from .csf import display_nyquist_cpd
 from . import perception as pc
 from .view import UNCERTAINTY_MODES, ConditionedView, UncertaintyPolicy, View, ViewConditioner  # noqa: F401
 
-MODES = ("change", "hybrid", "csf", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full")
+MODES = ("hybrid", "change", "csf", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full")
 """The level-selection criteria (:attr:`SelectorConfig.mode`), in the order the tools list them."""
 #: Each CSF-based mode's own CSF model (:attr:`SelectorConfig.csf_model` None): the paper's for ``csf``, the
 #: detection model for ``change``.
-DEFAULT_CSF_MODEL = {"csf": "kelly_scaled", "change": "cortical"}
+DEFAULT_CSF_MODEL = {"csf": "kelly_scaled", "change": "cortical", "hybrid": "cortical"}
 #: The modes that weigh every place the viewer may look (the gaze distribution), not the eccentricity shifted
 #: by its σ: their default eye-in-head prior is :data:`GAZE_PRIOR_DEG`.
 GAZE_DISTRIBUTION_MODES = criteria.GAZE_DISTRIBUTION_MODES
@@ -70,8 +75,9 @@ class SelectorConfig:
     Attributes
     ----------
     mode : one of MODES
-        The criterion (module notes); default ``"change"``, the one the
-        judge prefers (``headplod bench plod --vdp``; ``csf`` is the paper's).
+        The criterion (module notes); default ``"hybrid"``, the one the
+        judge prefers at the true gaze (``headplod bench plod --only gaze``,
+        docs/plod-gaze.md; ``csf`` is the paper's).
     uncertainty : one of UNCERTAINTY_MODES
         Which covariance of the viewing direction the selection uses
         (:class:`UncertaintyPolicy`); default ``"adaptive"``.
@@ -87,10 +93,10 @@ class SelectorConfig:
     ellipse_sigma : float
         Size of that ellipse, standard deviations (2.0); ``"ellipse"`` only.
     csf_model : one of perception.CSF_MODELS, or None
-        The CSF of modes ``"csf"`` and ``"change"`` (the other modes have
-        no CSF form to choose and ignore it); None (the default)
+        The CSF of modes ``"csf"``, ``"change"`` and ``"hybrid"`` (the other
+        modes have no CSF form to choose and ignore it); None (the default)
         takes the mode's own: ``"kelly_scaled"`` for ``csf`` (the paper's
-        reproduction), ``"cortical"`` for ``change``.
+        reproduction), ``"cortical"`` for ``change`` and ``hybrid``.
     cortical_exponent : float
         k of the CSF model ``"cortical"``: frequencies scale with
         eccentricity as (1 + e / 3.67)^k (0.9, fitted with the judge on the
@@ -193,7 +199,7 @@ class SelectorConfig:
         culled (level 0, criterion not evaluated), level-0 edges (1.5).
     """
 
-    mode: str = "change"
+    mode: str = "hybrid"
     uncertainty: str = "adaptive"
     uncertainty_smoothing_frames: float = 15
     shift: str = "ellipse"
@@ -269,7 +275,7 @@ class SelectorConfig:
                          else f"a finite number {'>=' if closed else '>'} {low:g}")
                 raise ValueError(f"SelectorConfig.{name} must be {bound} ({unit}), got {value!r}")
         if self.change_share > 1:
-            raise ValueError(f"SelectorConfig.change_share must lie in 0..1 (fraction), got {self.change_share!r}")
+            raise ValueError(f"SelectorConfig.change_share must be in 0..1 (fraction), got {self.change_share!r}")
         nodes = self.gaze_nodes_per_axis
         if not (isinstance(nodes, numbers.Integral) and not isinstance(nodes, bool) and 1 <= nodes <= 9):
             raise ValueError(f"SelectorConfig.gaze_nodes_per_axis must be a whole number in 1..9, got {nodes!r}")
@@ -552,7 +558,7 @@ class LevelSelector:
                 visibility = criteria.expected_change_visibility(
                     self.change_contrast[seen], angular_deg, self.error_mm[seen], distance,
                     self._displacement_contrast(seen, directions, reach_deg), speed,
-                    criteria.node_eccentricity_deg(shifted, reach_deg, gaze[0]), gaze[1], csf_model="cortical",
+                    criteria.node_eccentricity_deg(shifted, reach_deg, gaze[0]), gaze[1], csf_model=cfg.csf,
                     cortical_exponent=cfg.cortical_exponent, nyquist_cpd=change["nyquist_cpd"],
                     threshold=cfg.change_threshold)
             return ecc, criteria.hybrid_level(sse, visibility, cfg.change_share) + cfg.level_bias
