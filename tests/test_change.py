@@ -215,9 +215,10 @@ def test_a_silhouette_is_judged_against_the_silhouette_contrast(terrain_scene):
     np.testing.assert_allclose(face_on[cone < 80], own[cone < 80])
 
 
-def test_the_default_is_change_with_its_own_csf():
+def test_change_and_the_default_take_their_own_csf():
     cfg = SelectorConfig()
-    assert cfg.mode == "change" and cfg.csf == "cortical"
+    assert cfg.mode == "hybrid" and cfg.csf == "cortical"             # issue 32: hybrid mixes change's
+    assert dataclasses.replace(cfg, mode="change").csf == "cortical"
     assert dataclasses.replace(cfg, mode="csf").csf == "kelly_scaled"
 
 

@@ -190,7 +190,7 @@ def test_key_mapping_and_apply(terrain_scene, renderer, default_screen):
     assert loop.apply(action_for_key("c")) and loop.settings["viewpoint"] == "mountains"
     assert loop.apply(action_for_key("l")) and loop.settings["view_mode"] == "levels"
     assert loop.apply(action_for_key("h")) and loop.hud is False
-    assert loop.apply(action_for_key("3")) and loop.settings["mode"] == "gp"
+    assert loop.apply(action_for_key("4")) and loop.settings["mode"] == "gp"
     assert loop.apply(action_for_key("x"))
     assert loop.apply(action_for_key("q")) is False
     result = loop.step()

@@ -17,6 +17,7 @@ from synthetic.gaze import (
     PHASE_FIXATION,
     PHASE_SACCADE,
     EyeHeadSettings,
+    eye_lead_fit,
     eye_offset_distribution,
     flat_screen_half_extent_deg,
     offset_sigma_deg,
@@ -312,3 +313,37 @@ def test_bad_simulation_arguments_raise():
         simulate_viewer(SETTINGS, screen_half_deg=DESK_HALF_DEG, duration_s=1, rate_hz=0)
     with pytest.raises(ValueError, match="orbit"):
         simulate_gaze_shift(SETTINGS, (0, 0), gaze_start_deg=(40, 0))
+
+
+# ---- eye lead: does the head's velocity tell where the eyes are? ----------------------
+
+def test_eye_lead_fit_recovers_a_known_tau():
+    from types import SimpleNamespace
+    rate = 200.0
+    t = np.arange(int(20 * rate)) / rate
+    head = np.stack([30 * np.sin(2 * np.pi * 0.3 * t), 10 * np.sin(2 * np.pi * 0.5 * t + 1.0)], axis=1)
+    omega = np.zeros_like(head)
+    omega[1:] = np.diff(head, axis=0) * rate          # the function's own estimate, unsmoothed
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0.0, 0.5, head.shape)
+    eye = np.array([0.1, 0.05]) * omega + noise
+    fit = eye_lead_fit(SimpleNamespace(rate_hz=rate, head_deg=head, eye_in_head_deg=eye), smoothing_s=0.0)
+    assert fit["tau_s"] == pytest.approx((0.1, 0.05), abs=0.003)
+    assert fit["rms_about_fit_deg"] == pytest.approx((0.5, 0.5), rel=0.05)
+    assert min(fit["r2"]) > 0.9
+    assert fit["moving_fraction"] > 0.8
+    # a short smoothing window barely changes a slow movement's velocity
+    smooth = eye_lead_fit(SimpleNamespace(rate_hz=rate, head_deg=head, eye_in_head_deg=eye), smoothing_s=0.05)
+    assert smooth["smoothing_samples"] == 10
+    assert smooth["tau_s"] == pytest.approx((0.1, 0.05), rel=0.05)
+
+
+def test_eyes_lead_the_head_on_the_wide_screen():
+    trace = simulate_viewer(SETTINGS, screen_half_deg=(42.7, 14.5), duration_s=120, rate_hz=100, seed=4)
+    fit = eye_lead_fit(trace)
+    assert fit["tau_s"][0] > 0.1                      # the offset points along the head's motion
+    assert math.isnan(fit["tau_s"][1])                # the head never turns vertically here
+    assert fit["r2_moving"][0] > 0.5
+    assert fit["rms_about_fit_moving_deg"][0] < fit["rms_about_zero_moving_deg"][0]
+    assert fit["rms_about_fit_deg"][0] < fit["rms_about_zero_deg"][0]
+    assert 0.02 < fit["moving_fraction"] < 0.5

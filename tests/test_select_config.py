@@ -31,6 +31,11 @@ PREVIOUS = {
 # (csf_model None: the mode's, "cortical"); "csf" keeps "kelly_scaled"; the new criterion's settings.
 NOW = {**PREVIOUS, "mode": "change", "csf_model": None, "cortical_exponent": 0.9, "silhouette_contrast": 0.5,
        "change_threshold": 8.0}
+# Issue 32: judged at the true gaze, the default is "hybrid" (sse's level mixed with change's, expected over the
+# gaze distribution) with the eye-in-head prior of its mode (None: GAZE_PRIOR_DEG) and its fitted share and k
+# (cortical_exponent None: the mode's own, 1.2 for hybrid, 0.9 for change).
+NOW = {**NOW, "mode": "hybrid", "cortical_exponent": None, "gaze_prior_deg": None, "change_share": 0.45,
+       "gaze_nodes_per_axis": 3}
 
 
 @pytest.fixture(scope="module")
@@ -97,7 +102,8 @@ def test_defaults_agree_with_the_perception_functions():
     assert cfg.sse_tolerance_px == default(pc.sse_level, "tolerance_px")
     assert cfg.frame_s == default(pc.sse_level, "frame_s")
     assert SelectorConfig(mode="csf").csf == default(pc.max_visible_freq_cpd, "model")
-    assert cfg.cortical_exponent == default(pc.max_visible_freq_cpd, "cortical_exponent")
+    assert SelectorConfig(mode="change").cortical == default(pc.max_visible_freq_cpd, "cortical_exponent")
+    assert cfg.cortical == 1.2 and SelectorConfig(mode="change", cortical_exponent=0.5).cortical == 0.5
 
 
 def _expected_first_frame(field, cfg, poi, cov):

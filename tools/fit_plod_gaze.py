@@ -6,8 +6,8 @@
 Every combination of :data:`headplod.bench.plod_gaze.FIT_GRID` is drawn with mode ``hybrid`` on the training
 terrains and views (:data:`headplod.bench.plod_gaze.TRAINING`) on both screens, at two budgets, and judged by
 FovVideoVDP at the viewer model's fixations; the chosen settings have the best mean margin over the best
-geometric mode among those whose worst margin is no lower than the desk goal's tolerance or ``sse``'s own
-(``change_share`` 0 is ``sse``: :func:`headplod.bench.plod_gaze.choose_settings`). The held-out
+geometric mode (``change_share`` 0 is ``sse``, so never below its mean: :func:`headplod.bench.plod_gaze.choose_settings`);
+each combination's worst margin is written beside it. The held-out
 report is ``headplod bench plod --only judge``. The JSON is written whole (a temporary name, then renamed).
 """
 from __future__ import annotations

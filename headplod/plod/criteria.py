@@ -527,7 +527,7 @@ def continuous_level(config, max_level: int, *, ecc_deg, angular_deg, distance_m
     mode, bias = config.mode, float(config.level_bias)
     if mode in CSF_MODES:
         return csf_level(contrast, speed_deg_s, ecc_deg, angular_deg[:, 0], mode=mode, csf_model=config.csf,
-                         foveal_cpd=foveal_cpd, level_bias=bias, cortical_exponent=config.cortical_exponent,
+                         foveal_cpd=foveal_cpd, level_bias=bias, cortical_exponent=config.cortical,
                          nyquist_cpd=nyquist_cpd)
     if mode in CHANGE_MODES + GAZE_DISTRIBUTION_MODES:
         raise ValueError(f"mode {mode!r} needs each level's visibility: change_level or hybrid_level")

@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import criteria, cull
-from .csf import display_nyquist_cpd
+from .csf import CORTICAL_EXPONENT, display_nyquist_cpd
 from . import perception as pc
 from .view import UNCERTAINTY_MODES, ConditionedView, UncertaintyPolicy, View, ViewConditioner  # noqa: F401
 
@@ -58,6 +58,9 @@ MODES = ("hybrid", "change", "csf", "gp", "acuity", "sse", "ipv", "dpv", "distan
 #: Each CSF-based mode's own CSF model (:attr:`SelectorConfig.csf_model` None): the paper's for ``csf``, the
 #: detection model for ``change``.
 DEFAULT_CSF_MODEL = {"csf": "kelly_scaled", "change": "cortical", "hybrid": "cortical"}
+#: Each mode's own k of the CSF model ``cortical`` (:attr:`SelectorConfig.cortical_exponent` None; the others
+#: :data:`headplod.plod.csf.CORTICAL_EXPONENT`): ``hybrid``'s fitted at the true gaze (tools/fit_plod_gaze.py).
+DEFAULT_CORTICAL_EXPONENT = {"hybrid": 1.2}
 #: The modes that weigh every place the viewer may look (the gaze distribution), not the eccentricity shifted
 #: by its σ: their default eye-in-head prior is :data:`GAZE_PRIOR_DEG`.
 GAZE_DISTRIBUTION_MODES = criteria.GAZE_DISTRIBUTION_MODES
@@ -97,10 +100,14 @@ class SelectorConfig:
         modes have no CSF form to choose and ignore it); None (the default)
         takes the mode's own: ``"kelly_scaled"`` for ``csf`` (the paper's
         reproduction), ``"cortical"`` for ``change`` and ``hybrid``.
-    cortical_exponent : float
+    cortical_exponent : float or None
         k of the CSF model ``"cortical"``: frequencies scale with
-        eccentricity as (1 + e / 3.67)^k (0.9, fitted with the judge on the
-        bench's default view; :mod:`headplod.plod.csf`).
+        eccentricity as (1 + e / 3.67)^k (:mod:`headplod.plod.csf`); None
+        (the default) takes the mode's own (:attr:`cortical`,
+        :data:`DEFAULT_CORTICAL_EXPONENT`): 1.2 for ``hybrid`` (fitted with the
+        judge at the true gaze, ``tools/fit_plod_gaze.py``), 0.9 for the
+        others (``change``'s, fitted with the judge at the POI on the bench's
+        default view).
     silhouette_contrast : float
         Mode ``change``: the Michelson contrast of a silhouette against
         what lies behind it, against which a level's displacement of a
@@ -125,7 +132,8 @@ class SelectorConfig:
         Mode ``hybrid``: the share of ``change``'s level (what a level removes as
         the viewer would see it, expected over the gaze distribution) in its
         mix with ``sse``'s (the geometric error in pixels), 0..1 (0 is ``sse``;
-        :func:`criteria.hybrid_level`).
+        :func:`criteria.hybrid_level`); 0.45, fitted with the judge at the true
+        gaze (``tools/fit_plod_gaze.py``, docs/plod-gaze.md).
     gaze_nodes_per_axis : int
         Mode ``hybrid``: Gauss–Hermite nodes per principal axis of the gaze
         distribution over which the change's visibility is averaged (3: 9 nodes).
@@ -205,11 +213,11 @@ class SelectorConfig:
     shift: str = "ellipse"
     ellipse_sigma: float = 2.0
     csf_model: str | None = None
-    cortical_exponent: float = 0.9
+    cortical_exponent: float | None = None
     silhouette_contrast: float = 0.5
     change_threshold: float = 8.0
     gaze_prior_deg: tuple[float, float] | None = None
-    change_share: float = 0.25
+    change_share: float = 0.45
     gaze_nodes_per_axis: int = 3
     level_bias: float = 0.0
     budget_triangles: int | None = None
@@ -256,7 +264,7 @@ class SelectorConfig:
         # (field, lower bound, bound allowed, unit)
         for name, low, closed, unit in (
                 ("uncertainty_smoothing_frames", 1.0, True, "frames"), ("ellipse_sigma", 0.0, True, "sigma"),
-                ("cortical_exponent", 0.0, False, "dimensionless"), ("silhouette_contrast", 0.0, False, "Michelson"),
+                ("silhouette_contrast", 0.0, False, "Michelson"),
                 ("change_threshold", 0.0, False, "thresholds"), ("change_share", 0.0, True, "fraction"),
                 ("level_bias", -math.inf, False, "levels"), ("sse_tolerance_px", 0.0, True, "px"),
                 ("frame_s", 0.0, False, "s"), ("velocity_ref_deg_s", 0.0, False, "deg/s"),
@@ -274,6 +282,11 @@ class SelectorConfig:
                 bound = ("any finite number" if low == -math.inf
                          else f"a finite number {'>=' if closed else '>'} {low:g}")
                 raise ValueError(f"SelectorConfig.{name} must be {bound} ({unit}), got {value!r}")
+        k = self.cortical_exponent
+        if k is not None and not (isinstance(k, numbers.Real) and not isinstance(k, (bool, np.bool_))
+                                  and math.isfinite(k) and k > 0):
+            raise ValueError(f"SelectorConfig.cortical_exponent must be a finite number > 0 (dimensionless) or None, "
+                             f"got {k!r}")
         if self.change_share > 1:
             raise ValueError(f"SelectorConfig.change_share must be in 0..1 (fraction), got {self.change_share!r}")
         nodes = self.gaze_nodes_per_axis
@@ -289,6 +302,13 @@ class SelectorConfig:
         if self.gaze_prior_deg is not None:
             return (float(self.gaze_prior_deg[0]), float(self.gaze_prior_deg[1]))
         return GAZE_PRIOR_DEG if self.mode in GAZE_DISTRIBUTION_MODES else (0.0, 0.0)
+
+    @property
+    def cortical(self) -> float:
+        """k of the CSF model ``"cortical"`` in use: ``cortical_exponent``, else the mode's own."""
+        if self.cortical_exponent is not None:
+            return float(self.cortical_exponent)
+        return DEFAULT_CORTICAL_EXPONENT.get(self.mode, CORTICAL_EXPONENT)
 
     @property
     def csf(self) -> str:
@@ -548,7 +568,7 @@ class LevelSelector:
             self._visibility = criteria.change_visibility_levels(
                 self.change_contrast[seen], angular_deg, self.error_mm[seen], distance,
                 self._displacement_contrast(seen, directions, reach_deg), speed, ecc, csf_model=cfg.csf,
-                cortical_exponent=cfg.cortical_exponent, nyquist_cpd=change["nyquist_cpd"],
+                cortical_exponent=cfg.cortical, nyquist_cpd=change["nyquist_cpd"],
                 threshold=cfg.change_threshold)
             return ecc, criteria.change_level(self._visibility, cfg.level_bias)
         if gaze is not None:
@@ -559,7 +579,7 @@ class LevelSelector:
                     self.change_contrast[seen], angular_deg, self.error_mm[seen], distance,
                     self._displacement_contrast(seen, directions, reach_deg), speed,
                     criteria.node_eccentricity_deg(shifted, reach_deg, gaze[0]), gaze[1], csf_model=cfg.csf,
-                    cortical_exponent=cfg.cortical_exponent, nyquist_cpd=change["nyquist_cpd"],
+                    cortical_exponent=cfg.cortical, nyquist_cpd=change["nyquist_cpd"],
                     threshold=cfg.change_threshold)
             return ecc, criteria.hybrid_level(sse, visibility, cfg.change_share) + cfg.level_bias
         continuous = criteria.continuous_level(
