@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -86,13 +87,15 @@ def savings_rows(report: dict) -> list:
 
 
 def fit_rows(fit: dict) -> list:
-    """The fit's scores, best first."""
+    """The fit's scores, by mean margin (what the choice maximises), the chosen one marked."""
     keys = list(fit["grid"])
-    rows = ["| " + " | ".join(keys) + " | worst margin | mean margin |", "|" + "---|" * (len(keys) + 2)]
-    for s in sorted(fit["scores"], key=lambda s: (-round(s["worst"], 3), -s["mean"])):
+    rows = ["| " + " | ".join(keys) + " | mean margin | worst margin (case) |", "|" + "---|" * (len(keys) + 2)]
+    for s in sorted(fit["scores"], key=lambda s: (-s["mean"], -s["worst"])):
         best = " **(chosen)**" if s["settings"] == fit["best"] else ""
-        rows.append("| " + " | ".join(f"{s['settings'][k]:g}" for k in keys)
-                    + f" | {s['worst']:+.3f}{best} | {s['mean']:+.3f} |")
+        worst_case = min(s.get("cases", {}).items(), key=lambda kv: min(kv[1]) if kv[1] else math.inf,
+                         default=(None, None))[0]
+        rows.append("| " + " | ".join(f"{s['settings'][k]:g}" for k in keys) + f" | {s['mean']:+.3f}{best} | "
+                    + f"{s['worst']:+.3f}" + (f" ({worst_case})" if worst_case else "") + " |")
     return rows
 
 
@@ -116,7 +119,7 @@ def markdown(report: dict, fit: dict | None, sources: dict, images: list) -> str
     out += ["", "## Every held-out case", ""] + case_rows(report)
     for path in images:
         out += ["", f"![JOD at the true gaze against triangles, and the error by eccentricity]({path})"]
-    if fit:
+    if fit is not None:
         out += ["", "## The fit", "",
                 f"Mode `hybrid` on the training cases ({len(fit['cases'])}: {', '.join(fit['cases'])}), at "
                 f"{', '.join(str(b // 1000) + 'k' for b in fit['config']['budgets'])} triangles with "
@@ -139,8 +142,12 @@ def main(argv=None) -> int:
     except (OSError, ValueError) as exc:
         print(f"gaze_judge_tables: {exc}", file=sys.stderr)
         return 2
-    report = report.get("gaze", report.get("jod", {}).get("gaze", report))
-    if "summaries" not in report:
+    if isinstance(report, dict):
+        report = report.get("gaze", (report.get("jod") or {}).get("gaze", report))
+    if fit is not None and not (isinstance(fit, dict) and {"grid", "cases", "scores", "best", "config"} <= set(fit)):
+        print(f"gaze_judge_tables: {args.fit} is not the JSON of tools/fit_plod_gaze.py", file=sys.stderr)
+        return 2
+    if not isinstance(report, dict) or "summaries" not in report:
         print(f"gaze_judge_tables: {args.gaze} has no judge-at-the-true-gaze report", file=sys.stderr)
         return 2
     out = Path(args.out)

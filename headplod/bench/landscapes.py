@@ -76,8 +76,10 @@ def parse_name(name: str) -> tuple[str, int]:
 
 
 def terrain(name: str):
-    """The :class:`headplod.plod.terrain.Terrain` of landscape ``name`` (``KIND:SEED``), no synthetic detail."""
+    """The :class:`headplod.plod.terrain.Terrain` of landscape ``name`` (``KIND:SEED``), no synthetic detail: the
+    same ground as its ``.npy`` (``tools/make_dem.py --ridges``) read with ``--terrain``, whose row 0 is north
+    (a :class:`Terrain`'s row 0 is south)."""
     from ..plod.terrain import Terrain
 
     kind, seed = parse_name(name)
-    return Terrain(heights(kind, seed), SPACING_M, SPACING_M, detail=False)
+    return Terrain(heights(kind, seed)[::-1], SPACING_M, SPACING_M, detail=False)

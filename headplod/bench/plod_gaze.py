@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,10 +90,15 @@ class GazeJudgeConfig:
     rings: bool = True
 
     def __post_init__(self):
-        if not self.budgets or any(int(b) != b or b < 1 for b in self.budgets):
+        def whole(b):
+            return isinstance(b, numbers.Real) and not isinstance(b, bool) and math.isfinite(b) and b == int(b)
+
+        if not self.budgets or not all(whole(b) and b >= 1 for b in self.budgets):
             raise ValueError(f"GazeJudgeConfig.budgets must be whole numbers of triangles, got {self.budgets!r}")
-        if int(self.fixations) != self.fixations or self.fixations < 1:
+        if not (whole(self.fixations) and self.fixations >= 1):
             raise ValueError(f"GazeJudgeConfig.fixations must be a positive integer, got {self.fixations!r}")
+        object.__setattr__(self, "budgets", tuple(int(b) for b in self.budgets))
+        object.__setattr__(self, "fixations", int(self.fixations))
 
 
 # --- Where the viewer looks ---------------------------------------------------------------------------------------
