@@ -61,6 +61,7 @@ __all__ = [
     "simulate_gaze_shift",
     "eye_offset_distribution",
     "offset_sigma_deg",
+    "eye_lead_fit",
 ]
 
 #: Phase codes of :attr:`ViewerTrace.phase`.
@@ -713,3 +714,126 @@ def offset_sigma_deg(settings: EyeHeadSettings, screen_half_deg: Sequence[float]
     off = eye_offset_distribution(settings, screen_half_deg, n, seed, targets, weights)
     rms = np.sqrt(np.mean(off ** 2, axis=0))
     return float(rms[0]), float(rms[1])
+
+
+# ----------------------------------------------------------------------------
+# does the head's motion tell where the eyes are?
+# ----------------------------------------------------------------------------
+
+#: Default window, s, of the causal moving average on the head's angular
+#: velocity in :func:`eye_lead_fit`: about what a tracker's pose filter
+#: (e.g. a One Euro filter at 60-100 Hz) averages over, and short against a
+#: head movement (0.15 s or more in the model).
+EYE_LEAD_SMOOTHING_S = 0.05
+
+#: Default head speed, deg/s, above which :func:`eye_lead_fit` counts the head
+#: as moving: well above a tracker's jitter, well below a head turn's peak.
+EYE_LEAD_MOVING_DEG_S = 10.0
+
+
+def _causal_mean(x: np.ndarray, n: int) -> np.ndarray:
+    """Trailing mean over ``n`` samples (fewer at the start) along axis 0."""
+    if n <= 1:
+        return x.copy()
+    c = np.cumsum(np.concatenate([np.zeros((1,) + x.shape[1:]), x]), axis=0)
+    k = np.arange(1, len(x) + 1)
+    lo = np.maximum(k - n, 0)
+    counts = (k - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+    return (c[k] - c[lo]) / counts
+
+
+def eye_lead_fit(trace, smoothing_s: float = EYE_LEAD_SMOOTHING_S, max_speed_deg_s: float | None = None,
+                 moving_threshold_deg_s: float = EYE_LEAD_MOVING_DEG_S) -> dict:
+    """Fit eye-in-head ≈ τ·ω, ω the head's angular velocity, per axis.
+
+    The question: could a renderer that knows only the head's pose and its
+    velocity centre its gaze prior at ``τ·ω`` (eyes leading the head) rather
+    than at the head's direction, and how much would that explain?
+
+    Parameters
+    ----------
+    trace : ViewerTrace, or any object with ``rate_hz`` (Hz),
+        ``head_deg`` (T, 2) deg and ``eye_in_head_deg`` (T, 2) deg.
+    smoothing_s : float, s, default 0.05
+        Window of a causal (trailing) moving average on the velocity, as a
+        tracker's filtered pose would give it; a renderer cannot see the
+        future, so the window only looks back (its lag is about half the
+        window). 0 (or under 1.5 samples): the raw backward
+        difference.
+    max_speed_deg_s : float, deg/s, optional
+        If given, ω's norm is clipped to it (a renderer saturating
+        implausible speeds); None: no clip.
+    moving_threshold_deg_s : float, deg/s, default 10
+        |ω| (norm of both axes) above which the head counts as moving.
+
+    ω is the backward difference of ``head_deg`` times ``rate_hz`` (0 at the
+    first sample), then smoothed. τ per axis is the least-squares slope
+    through the origin ``Σ e ω / Σ ω²`` over all samples; NaN on an axis where
+    ω is identically zero (the prediction there is 0).
+
+    Returns
+    -------
+    dict with
+        tau_s : (τ_h, τ_v), s.
+        r2 : (h, v), ``1 - Σ (e - τω)² / Σ e²``: the share of the offset's
+            mean square about zero (the head-centred prior's) that the
+            velocity-centred prior removes; on moving samples ``r2_moving``.
+        rms_about_zero_deg, rms_about_fit_deg : (h, v), deg, over all samples.
+        rms_about_zero_moving_deg, rms_about_fit_moving_deg : (h, v), deg,
+            over samples where the head moves (NaN if none).
+        moving_fraction : share of samples where |ω| > the threshold.
+        omega_rms_deg_s : (h, v), deg/s, RMS of ω over all samples.
+        smoothing_s, smoothing_samples, moving_threshold_deg_s, n_samples.
+    """
+    rate = float(trace.rate_hz)
+    head = np.asarray(trace.head_deg, dtype=float)
+    eye = np.asarray(trace.eye_in_head_deg, dtype=float)
+    if head.ndim != 2 or head.shape[1] != 2 or eye.shape != head.shape or len(head) < 2:
+        raise ValueError(f"head_deg and eye_in_head_deg must both be (T, 2), T >= 2; got {head.shape}, {eye.shape}")
+    if not (math.isfinite(rate) and rate > 0):
+        raise ValueError(f"rate_hz must be positive, got {rate!r}")
+    if not (math.isfinite(smoothing_s) and smoothing_s >= 0):
+        raise ValueError(f"smoothing_s must be >= 0, got {smoothing_s!r}")
+    if max_speed_deg_s is not None and not max_speed_deg_s > 0:
+        raise ValueError(f"max_speed_deg_s must be positive or None, got {max_speed_deg_s!r}")
+
+    omega = np.zeros_like(head)
+    omega[1:] = np.diff(head, axis=0) * rate
+    n_smooth = max(1, int(round(smoothing_s * rate)))
+    omega = _causal_mean(omega, n_smooth)
+    speed = np.linalg.norm(omega, axis=1)
+    if max_speed_deg_s is not None:
+        omega = omega * np.minimum(1.0, max_speed_deg_s / np.maximum(speed, 1e-300))[:, None]
+        speed = np.minimum(speed, max_speed_deg_s)
+
+    ww = np.sum(omega ** 2, axis=0)
+    ew = np.sum(eye * omega, axis=0)
+    tau = np.where(ww > 0, ew / np.where(ww > 0, ww, 1.0), np.nan)
+    pred = np.nan_to_num(tau) * omega
+    resid = eye - pred
+    moving = speed > moving_threshold_deg_s
+
+    def rms(x):
+        return tuple(float(v) for v in np.sqrt(np.mean(x ** 2, axis=0))) if len(x) else (math.nan, math.nan)
+
+    def r2(e, r):
+        if not len(e):
+            return (math.nan, math.nan)
+        ee = np.sum(e ** 2, axis=0)
+        return tuple(float(1.0 - a / b) if b > 0 else math.nan for a, b in zip(np.sum(r ** 2, axis=0), ee))
+
+    return {
+        "tau_s": tuple(float(v) for v in tau),
+        "r2": r2(eye, resid),
+        "r2_moving": r2(eye[moving], resid[moving]),
+        "rms_about_zero_deg": rms(eye),
+        "rms_about_fit_deg": rms(resid),
+        "rms_about_zero_moving_deg": rms(eye[moving]),
+        "rms_about_fit_moving_deg": rms(resid[moving]),
+        "moving_fraction": float(moving.mean()),
+        "omega_rms_deg_s": rms(omega),
+        "smoothing_s": n_smooth / rate,
+        "smoothing_samples": n_smooth,
+        "moving_threshold_deg_s": float(moving_threshold_deg_s),
+        "n_samples": int(len(head)),
+    }
