@@ -68,8 +68,8 @@ def test_settings_refuse_bad_values():
 
 def test_judge_entries_are_every_mode_and_the_other_csf_forms():
     names = [n for n, _ in pj.judge_entries()]
-    assert names[:8] == ["change", "csf", "gp", "acuity", "sse", "ipv", "dpv", "distance"]
-    assert names[8:] == ["csf[paper]", "csf[kelly]", "csf[daly]", "csf[cortical]"]   # kelly_scaled is csf itself
+    assert names[:9] == ["hybrid", "change", "csf", "gp", "acuity", "sse", "ipv", "dpv", "distance"]
+    assert names[9:] == ["csf[paper]", "csf[kelly]", "csf[daly]", "csf[cortical]"]   # kelly_scaled is csf itself
     assert dict(pj.judge_entries(modes=[], forms=["daly"])) == {"csf[daly]": {"csf_model": "daly"}}
     with pytest.raises(ValueError, match="unknown mode"):
         pj.judge_entries(modes=["full"])

@@ -245,6 +245,12 @@ class Backend:
     def capabilities(self) -> BackendCapabilities:
         return CAPABILITIES[self.name]
 
+    @property
+    def mode(self) -> str:
+        """The selection mode this back end draws (its default when it has no selector of its own): what a
+        :class:`FrameStep` given no settings conditions the view for (the mode's own gaze prior)."""
+        return self.capabilities.default_mode
+
     def select(self, cv: ConditionedView):
         return None
 
@@ -278,6 +284,10 @@ class MeshBackend(Backend):
         self.foveated, self.anchor, self.foveation = foveated, anchor, foveation
         self._uploaded = None          # the index array the renderer (or the layers) last received
         self.last_info = None          # the last selection's per-triangle features (LevelSelector.select's dict)
+
+    @property
+    def mode(self) -> str:
+        return self.selector.config.mode
 
     def select(self, cv):
         levels, self.last_info = self.selector.select(cv)
@@ -351,6 +361,7 @@ class TessellationBackend(Backend):
     """
 
     name = "tessellation"
+    mode = "csf"                       # an attribute here: the one it is given
 
     def __init__(self, renderer, mode: str = "csf", *, region_ndc=None, supersample: int = 1):
         self.renderer, self.mode = renderer, mode
@@ -402,11 +413,13 @@ class FrameStep:
     ----------
     backend : Backend
     screen : headplod.io.Screen
-    config : SelectorConfig
-        The view conditioning's settings (its filters, scenario, saccade hold).
+    config : SelectorConfig or None
+        The view conditioning's settings (its filters, scenario, saccade hold, gaze prior); None: the
+        defaults for the mode the back end draws (:attr:`Backend.mode`: its gaze prior is that mode's own).
     """
 
-    def __init__(self, backend: Backend, screen, config: SelectorConfig = SelectorConfig()):
+    def __init__(self, backend: Backend, screen, config: SelectorConfig | None = None):
+        config = SelectorConfig(mode=backend.mode) if config is None else config
         self.backend, self.screen, self.config = backend, screen, config
         self.conditioner = ViewConditioner(screen, config)
         self.levels = None             # the last levels (kept during a saccade)
@@ -436,12 +449,13 @@ class FrameStep:
 
 
 def one_frame(backend: Backend, screen, model, head_mm=None, poi_px=None, cov_deg2=None, *, t: float | None = 0.0,
-              config: SelectorConfig = SelectorConfig(), view_mode: str = "shaded") -> FrameOutput:
+              config: SelectorConfig | None = None, view_mode: str = "shaded") -> FrameOutput:
     """One frame of a fresh :class:`FrameStep` over ``backend``: a still view, no history.
 
     ``head_mm`` (3,) world mm (default 600 mm in front of the screen centre), ``poi_px`` (2,) screen px
     (default the centre), ``cov_deg2`` (2, 2) deg² or None, ``t`` s (the back end keeps its own last
-    frame, e.g. for the tessellation's angular speeds), ``config`` the conditioning's settings.
+    frame, e.g. for the tessellation's angular speeds), ``config`` the conditioning's settings (None: those of
+    the back end's mode, :class:`FrameStep`).
     """
     return FrameStep(backend, screen, config)(still_view(screen, head_mm, poi_px, cov_deg2, t), model, view_mode)
 
