@@ -199,7 +199,7 @@ def rules(default_settings: dict | None = None) -> dict:
     from ..plod.select import SelectorConfig
 
     default = dict(default_settings or {})
-    mode = default.pop("mode", FIT_MODE if default else SelectorConfig().mode)
+    mode = default.pop("mode", SelectorConfig().mode)
     return {"default": (mode, default), "head_only": (mode, {**default, "gaze_prior_deg": (0.0, 0.0)}),
             **{g: (g, {}) for g in GEOMETRIC}}
 
@@ -373,9 +373,8 @@ def verdicts(summaries, held_out_only: bool = True) -> dict:
 
 # --- Fitting ------------------------------------------------------------------------------------------------------
 
-#: The default mode's settings searched by :func:`fit_settings` (``change_share`` 0 is ``sse``), and its mode.
+#: The default mode's settings searched by :func:`fit_settings` (``change_share`` 0 is ``sse``).
 FIT_GRID = {"change_share": (0.0, 0.3, 0.45, 0.6), "cortical_exponent": (0.9, 1.2)}
-FIT_MODE = "hybrid"
 
 
 def fit_settings(cases, grid=None, config: GazeJudgeConfig = GazeJudgeConfig(oracle=False, rings=False),
