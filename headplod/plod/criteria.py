@@ -345,10 +345,12 @@ def fmax_cpd(contrast, speed_deg_s, ecc_deg, *, mode: str = "csf", csf_model: st
     """Highest visible frequency of pieces, cpd, (...,).
 
     ``csf``: :func:`csf.max_visible_freq_cpd` of ``csf_model`` at the
-    pieces' contrast, speed and eccentricity; with ``kelly_scaled`` and
-    ``foveal_cpd`` (their f_max at eccentricity 0, :func:`foveal_fmax_cpd`,
-    e.g. kept from the last frame) it is ``foveal_cpd / (1 + 0.29 e)``, the
-    same number without solving Lambert's W again. ``gp``: Geisler & Perry's
+    pieces' contrast, speed and eccentricity; with a frequency-scaled model
+    (``kelly_scaled``, ``cortical``) and ``foveal_cpd`` (their f_max at
+    eccentricity 0, :func:`foveal_fmax_cpd`, e.g. kept from the last frame,
+    or shared by several eccentricities) it is ``foveal_cpd`` over the
+    model's eccentricity factor, the same number without solving Lambert's
+    W again. ``gp``: Geisler & Perry's
     cutoff (no speed). ``cortical_exponent``: k of ``csf_model="cortical"``.
     ``nyquist_cpd`` (scalar or (...,)): the display's Nyquist frequency
     (:func:`csf.display_nyquist_cpd`), the cap of ``"cortical"``'s f_max:
@@ -358,7 +360,11 @@ def fmax_cpd(contrast, speed_deg_s, ecc_deg, *, mode: str = "csf", csf_model: st
         return gp_cutoff_cpd(contrast, ecc_deg)
     if foveal_cpd is not None and csf_model == "kelly_scaled":
         return foveal_cpd / eccentricity_factor(ecc_deg)
-    fmax = max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model=csf_model, cortical_exponent=cortical_exponent)
+    if foveal_cpd is not None and csf_model in FREQUENCY_SCALED_MODELS:
+        fmax = foveal_cpd / eccentricity_factor(ecc_deg, csf_model, cortical_exponent)
+    else:
+        fmax = max_visible_freq_cpd(contrast, speed_deg_s, ecc_deg, model=csf_model,
+                                    cortical_exponent=cortical_exponent)
     if nyquist_cpd is not None and csf_model == "cortical":
         fmax = np.minimum(fmax, nyquist_cpd)
     return fmax
@@ -443,17 +449,19 @@ def change_visibility(change_contrast, angular_deg, speed_deg_s, ecc_deg, *, csf
 
 
 def displacement_visibility(error_mm, distance_mm, contrast, speed_deg_s, ecc_deg, *, csf_model: str = "cortical",
-                            cortical_exponent: float = CORTICAL_EXPONENT, nyquist_cpd=None) -> np.ndarray:
+                            cortical_exponent: float = CORTICAL_EXPONENT, nyquist_cpd=None,
+                            foveal_cpd=None) -> np.ndarray:
     """log2(displacement / threshold) (S, L+1) of each level's geometric error.
 
     ``error_mm`` (S, L+1) the level's largest distance from the finest surface, seen at ``distance_mm`` (S,):
     its angle is the displacement. The threshold is half a period of the highest frequency visible at the
     ``contrast`` (S,) of what moves, at the piece's speed and eccentricity (S,); f_max is capped at
-    ``nyquist_cpd``, so nothing under half a pixel counts.
+    ``nyquist_cpd``, so nothing under half a pixel counts. ``foveal_cpd`` (S,): that f_max at eccentricity 0,
+    if known (:func:`fmax_cpd`).
     """
     displacement = np.degrees(np.asarray(error_mm, dtype=np.float64) / np.asarray(distance_mm)[:, None])
     fmax = fmax_cpd(contrast, speed_deg_s, ecc_deg, csf_model=csf_model, cortical_exponent=cortical_exponent,
-                    nyquist_cpd=nyquist_cpd)
+                    nyquist_cpd=nyquist_cpd, foveal_cpd=foveal_cpd)
     threshold = 0.5 / np.maximum(fmax, FMAX_FLOOR_CPD)
     with np.errstate(divide="ignore"):
         return np.maximum(np.log2(displacement / threshold[:, None]), VISIBILITY_FLOOR)
@@ -475,16 +483,17 @@ def change_level(visibility, level_bias: float = 0.0) -> np.ndarray:
 def change_visibility_levels(change_contrast, angular_deg, error_mm, distance_mm, displacement_contrast,
                              speed_deg_s, ecc_deg, *, csf_model: str = "cortical",
                              cortical_exponent: float = CORTICAL_EXPONENT, nyquist_cpd=None,
-                             threshold: float = 1.0) -> np.ndarray:
+                             threshold: float = 1.0, foveal_cpd=None) -> np.ndarray:
     """Visibility (S, L+1) of what each level removes, log2 units: the larger of :func:`change_visibility` and
     :func:`displacement_visibility`, both contrasts divided by ``threshold`` (how many times its detection
-    threshold a change's contrast must be to count: 1, at threshold). Shapes as those functions'.
+    threshold a change's contrast must be to count: 1, at threshold). Shapes as those functions';
+    ``foveal_cpd`` (S,): the displacement's f_max at eccentricity 0, if known.
     """
     shading = change_visibility(np.asarray(change_contrast) / threshold, angular_deg, speed_deg_s, ecc_deg,
                                 csf_model=csf_model, cortical_exponent=cortical_exponent, nyquist_cpd=nyquist_cpd)
     moving = displacement_visibility(error_mm, distance_mm, np.asarray(displacement_contrast) / threshold,
                                      speed_deg_s, ecc_deg, csf_model=csf_model, cortical_exponent=cortical_exponent,
-                                     nyquist_cpd=nyquist_cpd)
+                                     nyquist_cpd=nyquist_cpd, foveal_cpd=foveal_cpd)
     return np.maximum(shading, moving)
 
 
@@ -570,6 +579,12 @@ def expected_change_visibility(change_contrast, angular_deg, error_mm, distance_
         a = np.asarray(a, dtype=np.float64)
         return np.repeat(a, k, axis=0)
 
+    model = options.get("csf_model", "cortical")
+    if model in FREQUENCY_SCALED_MODELS:
+        # The displacement's f_max at each node is its foveal one over the eccentricity factor: Lambert's W is
+        # solved once per piece, not once per piece and node.
+        contrast = np.asarray(displacement_contrast, dtype=np.float64) / options.get("threshold", 1.0)
+        options = {**options, "foveal_cpd": tile(foveal_fmax_cpd(contrast, speed_deg_s, model))}
     vis = change_visibility_levels(tile(change_contrast), tile(angular_deg), tile(error_mm), tile(distance_mm),
                                    tile(displacement_contrast), tile(speed_deg_s), ecc.ravel(), **options)
     vis = vis.reshape(n, k, -1)
