@@ -91,9 +91,10 @@ CHANGE_MODES = ("change",)
 """The modes whose level is where what a level removes stops being visible (:func:`change_level`)."""
 GAZE_DISTRIBUTION_MODES = ("hybrid",)
 """The modes that weigh what a level removes over every place the viewer may look (:func:`gaze_nodes_deg`)."""
-GAZE_NODES_PER_AXIS = 5
-"""Gauss–Hermite nodes per principal axis of the gaze distribution (:func:`gaze_nodes_deg`): exact for
-polynomials of degree 9 in each axis, far smoother than the eccentricity laws weighed over it."""
+GAZE_NODES_PER_AXIS = 3
+"""Gauss–Hermite nodes per principal axis of the gaze distribution (:func:`gaze_nodes_deg`;
+:attr:`SelectorConfig.gaze_nodes_per_axis`'s default): exact for polynomials of degree 5 in each axis, so for
+the distribution's mean, covariance and fourth moments."""
 VISIBILITY_FLOOR = -60.0
 """Visibility (log2 of contrast x sensitivity) of a change of contrast 0: far below any level's (a flat piece)."""
 CROSSING_MIN_DROP = 0.25

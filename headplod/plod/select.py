@@ -218,7 +218,7 @@ class SelectorConfig:
     change_threshold: float = 8.0
     gaze_prior_deg: tuple[float, float] | None = None
     change_share: float = 0.45
-    gaze_nodes_per_axis: int = 3
+    gaze_nodes_per_axis: int = criteria.GAZE_NODES_PER_AXIS
     level_bias: float = 0.0
     budget_triangles: int | None = None
     budget_tolerance: float = 0.03
