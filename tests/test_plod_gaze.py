@@ -464,3 +464,17 @@ def test_the_config_accepts_whole_numbers():
 def test_the_config_rejects_non_numbers_with_value_error(budgets):
     with pytest.raises(ValueError, match="budgets"):
         pg.GazeJudgeConfig(budgets=budgets)
+
+
+def test_eye_offsets_refuse_an_eye_from_which_no_gaze_lands_on_the_screen(monkeypatch):
+    """Where no gaze lands on the screen (here: every ray misses), a ValueError after a bounded number of draws,
+    not an endless loop. (An eye in the screen's plane is refused earlier, by the viewer model's extents.)"""
+    from headplod.plod.view import default_head
+
+    screen = io.read_screen(DEFAULT_SCREEN)
+    monkeypatch.setattr(pg, "gaze_point_px", lambda *args: None)
+    with pytest.raises(ValueError, match="land on the screen"):
+        pg.eye_offsets_deg(screen, default_head(screen), 3)
+    beside = screen.pixel_to_world(np.array([-screen.size_px[0], screen.size_px[1] / 2], float))
+    with pytest.raises(ValueError, match="screen_half_deg"):
+        pg.eye_offsets_deg(screen, beside, 3)

@@ -59,6 +59,9 @@ HELD_OUT = {"terrains": ("mesas:5", "ridges:7"), "views": ("overview", "plains")
 #: gain it recovers on average, and how much it may lose to head-only on a view.
 GOALS = {"margin": {"desk": -0.02, "wide": 0.05}, "oracle_tolerance": 0.02, "oracle_gain": 0.05,
          "prior_share": 0.5, "prior_tolerance": 0.02, "target_jod": 9.5}
+#: How many offsets per fixation :func:`eye_offsets_deg` draws at most before it gives up (most land on a screen
+#: seen from in front of it; none do from behind it).
+MAX_OFFSET_DRAWS = 64
 #: Budget at which the rings are measured (the middle of the range).
 RINGS_BUDGET = 150_000
 
@@ -144,6 +147,9 @@ def eye_offsets_deg(screen, eye_mm, n: int, seed: int = 0) -> np.ndarray:
     w, h = screen.size_px
     kept, draw = [], 2 * int(n)
     while len(kept) < n:
+        if draw > MAX_OFFSET_DRAWS * int(n):
+            raise ValueError(f"fewer than {n} of {draw // 2} eye offsets land on the screen from its centre: is the "
+                             f"eye {np.round(eye_mm, 1).tolist()} mm in front of it?")
         kept = []
         for off in gaze.eye_offset_distribution(gaze.EyeHeadSettings(), half, draw, seed=seed):
             p = gaze_point_px(screen, eye_mm, centre, off)
