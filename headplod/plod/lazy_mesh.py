@@ -141,11 +141,6 @@ class PieceCache:
             n += 1
         return n
 
-    def clear(self) -> None:
-        self.entries.clear()
-        self.used.clear()
-        self.nbytes = 0
-
 
 class LazyAdaptiveMesh(AdaptiveMeshBase):
     """:class:`AdaptiveMesh`'s triangles for per-face levels, with geometry made only when asked for.
@@ -281,11 +276,6 @@ class LazyAdaptiveMesh(AdaptiveMeshBase):
 
     def _trim(self) -> int:
         return self._pieces_cache.trim()
-
-    def drop_cache(self) -> None:
-        """Free every cached piece (the next update makes all it needs again; sharers included)."""
-        self._pieces_cache.clear()
-        self.clear()
 
     def clear(self) -> None:
         """Forget the last frame (output, table, face blocks; the cache stays): the next update builds every face.

@@ -312,11 +312,6 @@ class PatchTree:
         """Nodes of every depth."""
         return int(self.offset[-1])
 
-    def node_id(self, depth, row, col) -> np.ndarray:
-        """Index of nodes (depth, row, col) (arrays broadcast)."""
-        depth = np.asarray(depth, np.int64)
-        return self.offset[depth] + (np.asarray(row, np.int64) << depth) + np.asarray(col, np.int64)
-
     def _children(self, ids) -> np.ndarray:
         """(4 m,) the children of nodes ``ids`` (not leaves), in (row, col) order per parent."""
         d = self.node_depth[ids] + 1

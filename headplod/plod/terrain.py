@@ -540,26 +540,3 @@ class Terrain:
     def normals(self, x, y) -> np.ndarray:
         """Upward unit normals, (..., 3) float64, from the analytic gradient (see ``sample``)."""
         return self.sample(x, y)[1]
-
-    def albedo(self, x, y) -> np.ndarray:
-        """A plausible surface colour: vegetation by elevation, bare rock on steep slopes.
-
-        Parameters
-        ----------
-        x, y : array_like, broadcastable
-            Scene coordinates, metres.
-
-        Returns
-        -------
-        rgb : (..., 3) float32
-            Linear reflectance in [0, 1].
-        """
-        shape, xf, yf = self._flat(x, y)
-        z, gx, gy = self._evaluate(xf, yf)
-        lo, hi = float(self.dem_z_m.min()), float(self.dem_z_m.max())
-        t = np.clip((z - lo) / max(hi - lo, 1e-9), 0, 1)[:, None]
-        valley, ridge, rock = np.array([0.20, 0.32, 0.12]), np.array([0.30, 0.33, 0.18]), np.array([0.42, 0.40, 0.37])
-        veg = (1 - t) * valley + t * ridge
-        slope = np.hypot(gx, gy) / max(self.vertical_exaggeration, 1e-9)
-        r = np.clip((slope - 0.35) / 0.4, 0, 1)[:, None]
-        return ((1 - r) * veg + r * rock).astype(np.float32).reshape(shape + (3,))
