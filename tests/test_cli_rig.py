@@ -11,7 +11,7 @@ from headplod import io
 from headplod.capture import open_source
 from headplod.cli import main as cli_main
 from headplod.live.loop import make_tracker, run_source
-from headplod.live.output import StatusLine, short_rig_message
+from headplod.live.status import StatusLine, short_rig_message
 from headplod.tracking.tracker import TrackerConfig
 from headplod.tracking.rig_refine import RigRefineConfig
 

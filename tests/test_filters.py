@@ -7,7 +7,7 @@ import pytest
 
 from headplod.filters import OneEuroFilter, smoothing_factor
 from headplod.tracking.filters import PoseFilter
-from headplod.live.output import axes_from_opentrack
+from headplod.live.opentrack import axes_from_opentrack
 
 
 def run(f, values, times):

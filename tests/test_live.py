@@ -7,7 +7,7 @@ import numpy as np
 
 from headplod import io
 from headplod.cli import main as cli_main
-from headplod.live.output import DEFAULT_PIVOT_MM, decode_opentrack, opentrack_values
+from headplod.live.opentrack import DEFAULT_PIVOT_MM, decode_opentrack, opentrack_values
 
 
 def test_record_while_tracking_then_replay_gives_the_same_records(sample, tmp_path):

@@ -8,8 +8,10 @@ import struct
 import numpy as np
 import pytest
 
-from headplod.live.output import (OPENTRACK_PACKET_BYTES, OpentrackSender, StatusLine, axes_from_opentrack,
-                                  decode_opentrack, encode_opentrack, opentrack_values, parse_host_port)
+from headplod.live.opentrack import (OPENTRACK_PACKET_BYTES, axes_from_opentrack, decode_opentrack, encode_opentrack,
+                                     opentrack_values, parse_host_port)
+from headplod.live.status import StatusLine
+from headplod.live.udp import OpentrackSender
 
 # Head facing the cameras: V toward -z, Ψ (up) = -y, Ξ (wearer's left) = +x.
 FACING = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])

@@ -17,7 +17,8 @@ from headplod.capture import open_source
 from headplod.capture.synthetic import ensure_dataset
 from headplod.cli import main
 from headplod.live.loop import run_source
-from headplod.live.output import OpentrackSender, decode_opentrack, opentrack_values
+from headplod.live.opentrack import decode_opentrack, opentrack_values
+from headplod.live.udp import OpentrackSender
 from headplod.live.pivot import PivotFitConfig, fit_pivot, read_pivot, write_pivot
 from synthetic.conventions import head_rotation
 from synthetic.scenes import NECK_PIVOT_HEAD_MM

@@ -136,17 +136,17 @@ def test_an_exception_while_making_a_record_is_that_frames_failure(long_dataset,
 
 def test_a_bug_outside_the_frames_keeps_everything_and_replaces_nothing_behind_the_users_back(
         long_dataset, old_outputs, monkeypatch, capsys):
-    from headplod.live import output
+    from headplod.live import status
     out, rec = old_outputs
     old_rows = io.read_times(rec / "times.csv")
-    real = output.StatusLine.update
+    real = status.StatusLine.update
 
     def update(self, record, **kwargs):
         if record["frame"] == 7:
             raise RuntimeError("status line broke")
         return real(self, record, **kwargs)
 
-    monkeypatch.setattr(output.StatusLine, "update", update)
+    monkeypatch.setattr(status.StatusLine, "update", update)
     code = cli_main(["track", "--source", str(long_dataset), "--out", str(out), "--record", str(rec),
                      "--overwrite", "--status", "-q"])
     line = _one_line_error(capsys.readouterr().err)

@@ -19,7 +19,7 @@ from headplod.capture import DatasetSource, TimestampCheck
 from headplod.capture.base import CaptureFrame, FrameSource
 from headplod.cli import main as cli_main
 from headplod.live.loop import LATENCY_FROM, make_tracker, run_source, track_frames
-from headplod.live.output import StatusLine
+from headplod.live.status import StatusLine
 
 SWEEP = Path(__file__).parent / "data" / "sweep12"
 #: The brief's times, s: a zero, two good ones, a repeat, a backward one, a good one.

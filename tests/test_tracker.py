@@ -15,7 +15,7 @@ from headplod.tracking import evaluate
 from headplod import io
 from headplod.cli import main as cli_main
 from headplod.tracking.detect import DetectionParams
-from headplod.live.pipeline import track_dataset
+from dataset_run import track_dataset
 from headplod.tracking.tracker import Tracker, TrackerConfig
 
 

@@ -18,7 +18,7 @@ import numpy as np
 from ..capture import DatasetRecorder, DatasetSource
 from ..capture.synthetic import DEFAULT_SEQUENCE, ensure_dataset
 from ..live.loop import run_source
-from ..live.output import OpentrackSender
+from ..live.udp import OpentrackSender
 from ..progress import note
 from ..tracking.filters import PoseFilter
 from .outputs import write_json

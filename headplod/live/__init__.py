@@ -2,7 +2,7 @@
 
 - :mod:`.loop`: tracking a frame source frame by frame (``headplod track``), and
   the pose record of a frame.
-- :mod:`.pipeline`: the same loop over a dataset folder.
-- :mod:`.output`: opentrack's UDP protocol and the live status line.
+- :mod:`.opentrack`: opentrack's UDP protocol (the six values and their datagram);
+  :mod:`.udp`: the socket that sends them; :mod:`.status`: the live status line.
 - :mod:`.command`: ``headplod track``'s arguments and run.
 """
