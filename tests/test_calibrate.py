@@ -181,8 +181,8 @@ def test_rig_yaml_written_and_read_back(chess_result):
     assert back.extra["calibration_rms_stereo_px"] == pytest.approx(result.rms_stereo_px)
     assert back.extra["calibration_board"] == "chessboard 9x6 inner corners, 25 mm squares"
     assert back.extra["calibration_pairs"] == len(result.used)
-    from headplod.doctor import _calibration_time
-    assert _calibration_time(back) == pytest.approx(
+    from headplod.doctor.rig_checks import calibration_time
+    assert calibration_time(back) == pytest.approx(
         datetime.datetime.fromisoformat(result.rig.extra["calibration_date"]).timestamp())
     # X_right = R X_left + T: the right camera centre is at +x of the left one
     assert back.right_center_mm[0] > 500

@@ -1,6 +1,6 @@
 """``headplod doctor`` (issue 25): simulated machines, each check's status and fix, and one real run.
 
-A :class:`~headplod.doctor.Machine` made of fakes stands for a machine: two
+A :class:`~headplod.doctor.machine.Machine` made of fakes stands for a machine: two
 UVC webcams (a capture and a metadata node each), a user outside the video
 group, a stale or poor rig, no libusb, no EGL, a camera that offers only
 MJPG at 60 fps. The V4L2 enumeration ioctls are tested against a fake driver
@@ -18,6 +18,9 @@ import numpy as np
 import pytest
 
 from headplod import doctor as dr
+from headplod.doctor.checks import judge_formats
+from headplod.doctor.machine import (ConfigDefaults, DoctorSettings, GroupInfo, Machine, config_from_args,
+                                    video_group_info)
 from headplod import io
 from headplod.capture import formats as v4l2fmt
 from headplod.capture.formats import FrameSize, PixelFormat
@@ -75,7 +78,7 @@ class FakeGL:
         self.released = True
 
 
-def machine(nodes=None, **changes) -> dr.Machine:
+def machine(nodes=None, **changes) -> Machine:
     """Two cameras, everything in order; ``changes`` replaces any input."""
     nodes = LEFT_NODES + RIGHT_NODES if nodes is None else nodes
     base = dict(
@@ -85,14 +88,14 @@ def machine(nodes=None, **changes) -> dr.Machine:
         formats=good_formats,
         usb_cameras=lambda: [n for n in nodes if n.index == 0],
         libusb=lambda: (True, "pyusb backend usb.backend.libusb1: 5 USB devices"),
-        groups=lambda: dr.GroupInfo("alice", in_group_db=True, in_session=True),
+        groups=lambda: GroupInfo("alice", in_group_db=True, in_session=True),
         clock=lambda: NOW,
         gl_context=FakeGL,
-        config=lambda: dr.ConfigDefaults(),
+        config=lambda: ConfigDefaults(),
         find_rig=lambda: None,
     )
     base.update(changes)
-    return dr.Machine(**base)
+    return Machine(**base)
 
 
 def rig_file(tmp_path, name="rig.yaml", age_days=3.0, rms=0.3, cameras=(LEFT_NODES[0], RIGHT_NODES[0]), **extra):
@@ -169,7 +172,7 @@ def test_no_cameras_skips_the_camera_checks_with_a_reason_and_exits_0(capsys):
 
 
 def test_user_not_in_the_video_group_cannot_open_the_cameras(capsys):
-    m = machine(groups=lambda: dr.GroupInfo("bob"), open_rw=_oserror(errno.EACCES))
+    m = machine(groups=lambda: GroupInfo("bob"), open_rw=_oserror(errno.EACCES))
     results = run(m)
     group, access = results["video group"], results["device access"]
     assert group.status == "warn" and "bob is not in group video" in group.found
@@ -187,7 +190,7 @@ def test_user_not_in_the_video_group_cannot_open_the_cameras(capsys):
 
 
 def test_added_to_the_group_but_not_logged_in_again():
-    r = run(machine(groups=lambda: dr.GroupInfo("carol", in_group_db=True, in_session=False)))["video group"]
+    r = run(machine(groups=lambda: GroupInfo("carol", in_group_db=True, in_session=False)))["video group"]
     assert r.status == "warn" and "log out and in" in r.fix and "usermod" not in r.fix
 
 
@@ -196,16 +199,16 @@ def test_a_group_file_member_is_told_apart_from_a_session_member():
     pw = SimpleNamespace(pw_name="dave", pw_gid=1000)
     kw = dict(getgrnam=lambda name: gr, getpwuid=lambda uid: pw, getuid=lambda: 1000, geteuid=lambda: 1000,
               getegid=lambda: 1000)
-    assert dr.video_group_info(getgroups=lambda: [1000, 44], **kw) == dr.GroupInfo("dave", False, True, True, True)
-    assert dr.video_group_info(getgroups=lambda: [1000], **kw) == dr.GroupInfo("dave", False, True, True, False)
+    assert video_group_info(getgroups=lambda: [1000, 44], **kw) == GroupInfo("dave", False, True, True, True)
+    assert video_group_info(getgroups=lambda: [1000], **kw) == GroupInfo("dave", False, True, True, False)
     eve = SimpleNamespace(pw_name="eve", pw_gid=1001)
-    info = dr.video_group_info(**{**kw, "getpwuid": lambda uid: eve}, getgroups=lambda: [1001])
+    info = video_group_info(**{**kw, "getpwuid": lambda uid: eve}, getgroups=lambda: [1001])
     assert (info.in_group_db, info.in_session) == (False, False)
 
     def no_group(name):
         raise KeyError(name)
-    assert dr.video_group_info(**{**kw, "getgrnam": no_group}, getgroups=lambda: []).group_exists is False
-    assert run(machine(groups=lambda: dr.GroupInfo("x", group_exists=False)))["video group"].status == "skip"
+    assert video_group_info(**{**kw, "getgrnam": no_group}, getgroups=lambda: []).group_exists is False
+    assert run(machine(groups=lambda: GroupInfo("x", group_exists=False)))["video group"].status == "skip"
 
 
 def test_a_busy_camera_is_a_warning_and_a_missing_node_a_failure():
@@ -227,7 +230,7 @@ def test_a_stale_rig_is_a_warning_with_the_calibrate_fix(tmp_path):
     r = run(machine(), calib=str(dated))["rig age"]
     assert r.status == "ok" and "from its calibration_date" in r.found and "2027-01-10" in r.found
     # the threshold is a setting
-    assert run(machine(), settings=dr.DoctorSettings(rig_max_age_days=60), calib=str(rig))["rig age"].status == "ok"
+    assert run(machine(), settings=DoctorSettings(rig_max_age_days=60), calib=str(rig))["rig age"].status == "ok"
 
 
 @pytest.mark.parametrize("rms, status", [(0.3, "ok"), (0.7, "warn"), (1.3, "FAIL"), (None, "warn")])
@@ -256,7 +259,7 @@ def test_the_rig_found_without_calib(tmp_path):
     rig = rig_file(tmp_path)
     here = run(machine(find_rig=lambda: rig))["rig"]
     assert here.status == "ok" and "from the current folder" in here.found
-    cfg = run(machine(config=lambda: dr.ConfigDefaults(path=tmp_path / "headplod.toml", calib=rig)))["rig"]
+    cfg = run(machine(config=lambda: ConfigDefaults(path=tmp_path / "headplod.toml", calib=rig)))["rig"]
     assert cfg.status == "ok" and "from config" in cfg.found
 
 
@@ -271,15 +274,15 @@ def test_the_config_file_gives_calib_and_source(tmp_path, capsys):
     toml = tmp_path / "headplod.toml"
     toml.write_text('source = "v4l2:auto"\ncalib = "elsewhere.yaml"\n[doctor]\ncalib = "cams/rig.yaml"\n')
     args = config.parse_args(build_parser(), ["doctor", "--config", str(toml)])
-    got = dr.config_from_args(args)
+    got = config_from_args(args)
     assert got.path == toml and got.calib == rig.resolve() and got.source == "v4l2:auto"
     r = run(machine(config=lambda: got))
     assert r["config"].status == "ok" and "calib" in r["config"].found
     assert r["rig"].status == "ok" and "from config" in r["rig"].found
     # the command line wins, and is reported as the command line's
     given = config.parse_args(build_parser(), ["doctor", "--config", str(toml), "--calib", str(rig)])
-    assert dr.config_from_args(given).calib is None and given.calib == str(rig)
-    assert dr.config_from_args(config.parse_args(build_parser(), ["doctor", "--no-config"])) == dr.ConfigDefaults()
+    assert config_from_args(given).calib is None and given.calib == str(rig)
+    assert config_from_args(config.parse_args(build_parser(), ["doctor", "--no-config"])) == ConfigDefaults()
     # a broken file is one line naming it, before any check
     toml.write_text("source = [\n")
     with pytest.raises(SystemExit) as stop:
@@ -389,11 +392,11 @@ def _fmt(code, rate, compressed=False, size=(640, 480)):
     return PixelFormat(code, code, compressed, (FrameSize(*size, (rate,)),))
 
 
-SETTINGS = dr.DoctorSettings()
+SETTINGS = DoctorSettings()
 
 
 def test_only_mjpg_at_60_fps_is_a_warning_naming_the_uncompressed_rate():
-    r = dr.judge_formats("/dev/video0", [_fmt("YUYV", 30), _fmt("MJPG", 60, True)], (640, 480), SETTINGS)
+    r = judge_formats("/dev/video0", [_fmt("YUYV", 30), _fmt("MJPG", 60, True)], (640, 480), SETTINGS)
     assert r.status == "warn" and "only MJPG, compressed" in r.found
     assert r.fix == "headplod track --fourcc MJPG --fps 60 takes it; uncompressed: --fourcc YUYV --fps 30"
 
@@ -408,7 +411,7 @@ def test_only_mjpg_at_60_fps_is_a_warning_naming_the_uncompressed_rate():
     ([], "warn", "name a capture node"),
 ])
 def test_format_verdicts(formats, status, fix):
-    r = dr.judge_formats("/dev/video0", formats, (640, 480), SETTINGS)
+    r = judge_formats("/dev/video0", formats, (640, 480), SETTINGS)
     assert r.status == status
     assert (r.fix is None) if fix is None else r.fix.startswith(fix)
 
@@ -507,7 +510,7 @@ def test_enumerate_formats_reads_the_drivers_lists():
     assert yuyv.rate_at(640, 480) == 30.0 and mjpg.rate_at(640, 480) == 60.0 and yuyv.rate_at(800, 600) == 0
     # a stepwise size range: its largest size and the wanted one inside it, at the range's rates
     assert grey.sizes == (FrameSize(1280, 960, (90.0, 5.0)), FrameSize(640, 480, (90.0, 5.0)))
-    verdict = dr.judge_formats("/dev/video0", fmts, (640, 480), SETTINGS)
+    verdict = judge_formats("/dev/video0", fmts, (640, 480), SETTINGS)
     assert verdict.status == "ok" and "GREY 90 fps" in verdict.found
 
 
