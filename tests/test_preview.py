@@ -18,8 +18,9 @@ import pytest
 from headplod import io
 from headplod.cli import main as cli_main
 from headplod.live import preview
-from headplod.live.preview import (NO_RIG_NOTE, OUT_NAME, AdviceSettings, Previewer, composite_size,
-                                   epipolar_curves, threshold_mask)
+from headplod.live.preview import OUT_NAME, Previewer
+from headplod.live.preview_analysis import AdviceSettings, epipolar_curves, threshold_mask
+from headplod.live.preview_picture import NO_RIG_NOTE, composite_size, render
 from headplod.tracking.detect import DetectionParams, detect_blobs, estimate_background
 
 W, H = 640, 480
@@ -209,7 +210,7 @@ def test_without_a_rig_the_blobs_are_shown_and_the_note_says_why_no_more(sweep):
         assert view.epilines == [] and np.isnan(view.markers_px).all()
         nearest = np.linalg.norm(view.blobs.centers_px[None] - truth[cam][:, None], axis=2).min(axis=1)
         assert nearest.max() < 1.0
-    assert preview.render(analysis).shape == (*composite_size(W, H)[::-1], 3)
+    assert render(analysis).shape == (*composite_size(W, H)[::-1], 3)
 
 
 def _write_video(path, images) -> None:

@@ -22,7 +22,7 @@ and a panel of text under them. On each image:
 
 The panel gives the frame, the frame rate measured from the frames' times, the
 stereo skew ``|t_right - t|`` and advice derived from the measurements
-(:class:`AdviceSettings` holds every threshold): saturated markers, no blobs,
+(:class:`~headplod.live.preview_analysis.AdviceSettings` holds every threshold): saturated markers, no blobs,
 too many blobs, too few, dim markers, a large skew, a rate below the one
 requested.
 
@@ -64,7 +64,6 @@ import os
 import re
 import sys
 from collections import deque
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -76,12 +75,12 @@ from ..capture import open_source, source_kind, synthetic_preset, v4l2_devices
 from ..capture.synthetic import ensure_dataset
 from ..capture.command import DEFAULT_FPS, add_camera_settings
 from ..progress import Progress
-from ..tracking.detect import Blobs, DetectionParams, above_threshold, detect_blobs, estimate_background
-from ..tracking.geometry import essential_matrix
+from ..tracking.detect import DetectionParams, detect_blobs, estimate_background
+from .preview_analysis import (AdviceSettings, FrameAnalysis, ViewAnalysis, advise, box_counts, epipolar_curves,
+                               threshold_mask)
+from .preview_picture import NO_RIG_NOTE, composite_size, render
 
-__all__ = ["add_preview_arguments", "run_preview", "AdviceSettings", "Advice", "ViewAnalysis", "FrameAnalysis",
-           "Previewer", "threshold_mask", "fundamental_matrix", "epipolar_curves", "render", "composite_size",
-           "HEADLESS_FRAMES", "OUT_NAME", "NO_RIG_NOTE"]
+__all__ = ["add_preview_arguments", "run_preview", "Previewer", "HEADLESS_FRAMES", "OUT_NAME"]
 
 #: Frames written with ``--out`` when ``--frames`` is not given.
 HEADLESS_FRAMES = 10
@@ -91,301 +90,10 @@ OUT_NAME = "preview_{:04d}.png"
 _OUT_PATTERN = re.compile(r"preview_(\d{4,})\.png")
 #: Frame rate requested from live cameras when ``--fps`` is not given, Hz (as ``headplod track``).
 LIVE_FPS = DEFAULT_FPS
-#: What the pictures say when there is no rig.
-NO_RIG_NOTE = "no rig: epipolar lines and identification after 'headplod calibrate'"
 #: Title of the window.
 WINDOW_NAME = "headplod preview"
-#: Lines of text in the panel under the images.
-PANEL_LINES = 8
 #: Most epipolar lines drawn in an image (the other image's blobs beyond these, brightest first, are left out).
 MAX_EPILINES = 16
-#: Points along each epipolar curve.
-EPILINE_SAMPLES = 96
-
-# Colours, BGR.
-_MASK_TINT = (0, 0, 255)
-_MASK_ALPHA = 0.45
-_BLOB = (255, 255, 0)
-_GLINT = (0, 255, 255)
-_SATURATED = (0, 0, 255)
-_EPILINE = (255, 0, 255)
-_MARKER_OK = (0, 255, 0)
-_MARKER_NO_POSE = (0, 165, 255)
-_TEXT = (255, 255, 255)
-_ADVICE = (0, 255, 255)
-_FAULT = (60, 60, 255)
-_FONT = cv2.FONT_HERSHEY_SIMPLEX
-_SHIFT = 4                                   # fixed-point bits of the sub-pixel drawing
-_SIDES = ("left", "right")
-
-
-# ---------------------------------------------------------------------------
-# settings and advice
-# ---------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class AdviceSettings:
-    """When the preview gives advice: every threshold, with its unit.
-
-    Attributes
-    ----------
-    saturated_dn : int
-        A pixel at or above this value is clipped, DN (255 for 8-bit images).
-    saturated_min_px : int
-        A blob with at least this many clipped pixels is saturated, px: its
-        centre is then a plateau's, less precise than a peak's.
-    markers : int
-        Blobs an image should hold: the glasses' five markers.
-    dim_peak_dn : float
-        Markers whose median peak above the local background is below this are
-        dim, DN: noise then moves their centres.
-    max_skew_ms : float
-        A stereo skew ``|t_right - t|`` above this is advised on, ms (half a
-        period at 60 Hz).
-    min_rate_fraction : float
-        A measured frame rate below this fraction of the requested one is
-        advised on.
-    rate_window_frames : int
-        The frame rate is measured over the times of this many recent frames.
-    rate_min_frames : int
-        ... and judged against the requested one from this many frames on.
-    """
-
-    saturated_dn: int = 255
-    saturated_min_px: int = 4
-    markers: int = 5
-    dim_peak_dn: float = 40.0
-    max_skew_ms: float = 8.0
-    min_rate_fraction: float = 0.9
-    rate_window_frames: int = 30
-    rate_min_frames: int = 10
-
-
-@dataclass(frozen=True)
-class Advice:
-    """One piece of advice: ``kind`` (e.g. ``'saturated'``), the camera it is about (``'left'``,
-    ``'right'``, or None for the pair) and the line shown. (kind, side) is what is counted over frames."""
-
-    kind: str
-    text: str
-    side: str | None = None
-
-
-def advise(views, skew_ms, rate_hz, rate_frames: int, requested_fps, settings: AdviceSettings) -> list[Advice]:
-    """The advice a frame's measurements call for.
-
-    Parameters
-    ----------
-    views : sequence of 2 ViewAnalysis
-        Left, right.
-    skew_ms : float or None
-        ``|t_right - t|``, ms.
-    rate_hz : float or None
-        Frame rate measured from the frames' times, Hz, over ``rate_frames`` frames.
-    requested_fps : float or None
-        The rate asked of live cameras, Hz; None for a replay.
-    settings : AdviceSettings
-    """
-    s = settings
-    out = []
-    for side, view in zip(_SIDES, views):
-        b = view.blobs
-        n = len(b)
-        if n == 0:
-            out.append(Advice("no_blobs", f"{side}: no blobs above threshold ({b.threshold_dn:.0f} DN): raise "
-                                          "--exposure or --gain, or check the IR light", side))
-            continue
-        saturated = view.saturated
-        if saturated.any():
-            out.append(Advice("saturated", f"{side}: markers saturated ({int(saturated.sum())} of {n} blobs with "
-                                           f"{s.saturated_min_px}+ px at {s.saturated_dn} DN): lower --exposure "
-                                           "(or --gain)", side))
-        if n > s.markers:
-            out.append(Advice("too_many", f"{side}: more than {s.markers} blobs ({n}): glints or lamps; move shiny "
-                                          "things and IR lamps out of view, or lower --gain", side))
-        elif n < s.markers:
-            out.append(Advice("too_few", f"{side}: {n} blobs, {s.markers} needed: a marker hidden, turned away or "
-                                         "too dim; face the cameras, or raise --exposure or --gain", side))
-        if not saturated.any():
-            peak = float(np.median(b.peak_dn))
-            if peak < s.dim_peak_dn:
-                out.append(Advice("dim", f"{side}: markers dim (median peak {peak:.0f} DN above the background): "
-                                         "raise --exposure or --gain, or bring the IR light closer", side))
-    if skew_ms is not None and skew_ms > s.max_skew_ms:
-        out.append(Advice("skew", f"skew {skew_ms:.1f} ms above {s.max_skew_ms:g} ms: the cameras do not expose "
-                                  "together; give each camera its own USB controller and the same --fps"))
-    if (requested_fps and rate_hz is not None and rate_frames >= s.rate_min_frames
-            and rate_hz < s.min_rate_fraction * requested_fps):
-        out.append(Advice("rate", f"frame rate {rate_hz:.1f} Hz below the {requested_fps:g} Hz requested: lower "
-                                  "--exposure (a long one caps the rate), try --fourcc MJPG, or another USB port"))
-    return out
-
-
-# ---------------------------------------------------------------------------
-# what a frame shows
-# ---------------------------------------------------------------------------
-
-@dataclass
-class ViewAnalysis:
-    """One camera's image and what was found in it.
-
-    Attributes
-    ----------
-    image : (H, W) uint8
-        The camera's image, px.
-    blobs : Blobs
-        The detection's blobs (centres in this image's pixels, u right, v down).
-    mask : (H, W) bool
-        The pixels above the detection threshold.
-    saturated_px : (n,) int
-        Pixels at or above ``AdviceSettings.saturated_dn`` in each blob's box, px.
-    saturated : (n,) bool
-        The blobs with at least ``AdviceSettings.saturated_min_px`` of them.
-    markers_px : (5, 2) float64
-        P0..P4 as identified, px; NaN where not identified.
-    epilines : list of (k, 2) float64
-        The epipolar curves of the other image's blobs in this image, px
-        (points along each, through the lens distortion); empty without a rig.
-    """
-
-    image: np.ndarray
-    blobs: Blobs
-    mask: np.ndarray
-    saturated_px: np.ndarray
-    saturated: np.ndarray
-    markers_px: np.ndarray = field(default_factory=lambda: np.full((5, 2), np.nan))
-    epilines: list = field(default_factory=list)
-
-
-@dataclass
-class FrameAnalysis:
-    """Everything a frame's picture shows.
-
-    Attributes
-    ----------
-    index : int
-        The source's frame index.
-    t : float or None
-        The left image's time, s.
-    views : tuple of 2 ViewAnalysis, or None
-        Left and right; None when the frame failed (``error``).
-    size : (width, height)
-        One image's size, px.
-    rig : bool
-        A rig was there (epipolar lines, identification).
-    skew_ms : float or None
-        ``|t_right - t|``, ms.
-    rate_hz : float or None
-        Frame rate from the recent frames' times, Hz.
-    identified : bool
-        The tracker labeled the markers P0..P4.
-    pose_ok : bool
-        ... and verified a pose.
-    position_mm : (3,) or None
-        P1 in the world (left camera) frame, mm, when ``pose_ok``.
-    reason : str or None
-        Why there is no pose (the tracker's reason).
-    advice : list of Advice
-    warning : str or None
-        The frame's own warning (e.g. a colour image converted to gray).
-    error : str or None
-        Why the frame could not be shown (the source's error, or a fault while annotating it).
-    """
-
-    index: int
-    t: float | None
-    views: tuple | None
-    size: tuple
-    rig: bool
-    skew_ms: float | None = None
-    rate_hz: float | None = None
-    identified: bool = False
-    pose_ok: bool = False
-    position_mm: np.ndarray | None = None
-    reason: str | None = None
-    advice: list = field(default_factory=list)
-    warning: str | None = None
-    error: str | None = None
-
-
-def threshold_mask(image: np.ndarray, blobs: Blobs, params: DetectionParams) -> np.ndarray:
-    """The pixels :func:`~headplod.tracking.detect.detect_blobs` found above its threshold, (H, W) bool: its own
-    rule (:func:`~headplod.tracking.detect.above_threshold`) at the threshold and background ``blobs`` holds."""
-    return above_threshold(image, blobs.threshold_dn, blobs.background_dn, params) > 0
-
-
-def _box_counts(flags: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """Count of true pixels of ``flags`` (H, W) inside each box (n, 4) x, y, w, h px (summed-area table)."""
-    if len(boxes) == 0:
-        return np.zeros(0, np.int64)
-    table = cv2.integral(flags.astype(np.uint8)).astype(np.int64)     # (H + 1, W + 1)
-    x, y, w, h = (np.asarray(boxes, np.int64)[:, i] for i in range(4))
-    return table[y + h, x + w] - table[y, x + w] - table[y + h, x] + table[y, x]
-
-
-def fundamental_matrix(rig: io.Rig) -> np.ndarray:
-    """F (3, 3) of the rig for undistorted pixels: ``x_rightᵀ F x_left = 0`` for homogeneous pixel
-    coordinates (u, v, 1) of the two images' ideal (distortion-free) cameras K1, K2."""
-    E = essential_matrix(rig.R, rig.T)
-    return np.linalg.inv(rig.K2).T @ E @ np.linalg.inv(rig.K1)
-
-
-def epipolar_curves(points_px: np.ndarray, rig: io.Rig, from_camera: int,
-                    samples: int = EPILINE_SAMPLES) -> tuple[np.ndarray, list]:
-    """The epipolar lines of points of one image in the other image.
-
-    Parameters
-    ----------
-    points_px : (n, 2)
-        Pixels (u, v) in the image of ``from_camera`` (0 left, 1 right), as
-        detected (with the lens distortion).
-    rig : io.Rig
-    from_camera : {0, 1}
-    samples : int
-        Points along each curve.
-
-    Returns
-    -------
-    lines : (n, 3) float64
-        ``a u + b v + c = 0`` with ``a² + b² = 1`` in the other image's
-        undistorted pixels (``cv2.computeCorrespondEpilines`` on the points
-        undistorted through ``cv2.undistortPoints(..., P=K)``, with
-        :func:`fundamental_matrix`).
-    curves : list of n (k, 2) float64
-        Each line through the other camera's distortion, in its image's pixels
-        as detected (k ≤ ``samples``: the points that fall within the lens
-        model's reach, the undistorted image corners' radius).
-    """
-    pts = np.asarray(points_px, np.float64).reshape(-1, 1, 2)
-    if len(pts) == 0:
-        return np.zeros((0, 3)), []
-    K_from, D_from = (rig.K1, rig.D1) if from_camera == 0 else (rig.K2, rig.D2)
-    K_to, D_to = (rig.K2, rig.D2) if from_camera == 0 else (rig.K1, rig.D1)
-    ideal = cv2.undistortPoints(pts, K_from, D_from, P=K_from)
-    lines = cv2.computeCorrespondEpilines(ideal, from_camera + 1, fundamental_matrix(rig)).reshape(-1, 3)
-    lines = lines.astype(np.float64)
-    width, height = rig.image_size
-    corners = np.array([[0, 0], [width - 1, 0], [0, height - 1], [width - 1, height - 1]], np.float64)
-    reach = 1.05 * np.linalg.norm(cv2.undistortPoints(corners.reshape(-1, 1, 2), K_to, D_to).reshape(-1, 2),
-                                  axis=1).max()
-    margin = 0.25 * max(width, height)
-    K_inv = np.linalg.inv(K_to)
-    curves = []
-    for a, b, c in lines:
-        if abs(b) >= abs(a):        # more horizontal: sample along u
-            u = np.linspace(-margin, width - 1 + margin, samples)
-            v = -(a * u + c) / b
-        else:
-            v = np.linspace(-margin, height - 1 + margin, samples)
-            u = -(b * v + c) / a
-        normalized = np.column_stack([u, v, np.ones_like(u)]) @ K_inv.T       # rays, z = 1
-        normalized = normalized[np.linalg.norm(normalized[:, :2], axis=1) <= reach]
-        if len(normalized) < 2:
-            curves.append(np.zeros((0, 2)))
-            continue
-        seen, _ = cv2.projectPoints(normalized, np.zeros(3), np.zeros(3), K_to, D_to)
-        curves.append(seen.reshape(-1, 2))
-    return lines, curves
 
 
 class Previewer:
@@ -443,7 +151,7 @@ class Previewer:
                       for b, img in zip(result.blobs if result is not None else (None, None), images))
         views = []
         for img, b in zip(images, blobs):
-            clipped = _box_counts(img >= self.settings.saturated_dn, b.bbox_px)
+            clipped = box_counts(img >= self.settings.saturated_dn, b.bbox_px)
             views.append(ViewAnalysis(img, b, threshold_mask(img, b, self.detection), clipped,
                                       clipped >= self.settings.saturated_min_px))
         identified = result is not None and result.marker_blob is not None
@@ -484,120 +192,6 @@ class Previewer:
                                      error=internal_error_reason(exc))
             return render(analysis), analysis
 
-
-# ---------------------------------------------------------------------------
-# drawing
-# ---------------------------------------------------------------------------
-
-def _font_scale(width: int) -> float:
-    """Text size for images ``width`` px wide (OpenCV's Hershey scale)."""
-    return float(np.clip(width / 1200.0, 0.35, 1.2))
-
-
-def _line_px(width: int) -> int:
-    """Height of a line of text, px."""
-    return int(round(40 * _font_scale(width)))
-
-
-def composite_size(width: int, height: int) -> tuple[int, int]:
-    """(width, height) of the picture of two ``width`` x ``height`` px images: side by side, the panel under."""
-    return 2 * width, height + PANEL_LINES * _line_px(width) + _line_px(width) // 2
-
-
-def _fixed(u: float, v: float) -> tuple[int, int]:
-    return int(round(u * (1 << _SHIFT))), int(round(v * (1 << _SHIFT)))
-
-
-def _text(image, s: str, u: int, v: int, scale: float, colour) -> None:
-    """``s`` (ASCII) with its baseline at (u, v) px, on a black box so it reads on any background."""
-    thick = max(1, int(round(2 * scale)))
-    (w, h), base = cv2.getTextSize(s, _FONT, scale, thick)
-    cv2.rectangle(image, (u - 2, v - h - 2), (u + w + 2, v + base), (0, 0, 0), -1)
-    cv2.putText(image, s, (u, v), _FONT, scale, colour, thick, cv2.LINE_AA)
-
-
-def _draw_view(canvas: np.ndarray, view: ViewAnalysis, side: str, offset: int, analysis: FrameAnalysis) -> None:
-    """One camera's image and its annotations into ``canvas`` at column ``offset``."""
-    h, w = view.image.shape
-    gray = cv2.cvtColor(view.image, cv2.COLOR_GRAY2BGR)
-    tinted = cv2.addWeighted(gray, 1.0 - _MASK_ALPHA, np.full_like(gray, _MASK_TINT), _MASK_ALPHA, 0.0)
-    np.copyto(gray, tinted, where=view.mask[:, :, None])
-    canvas[:h, offset:offset + w] = gray
-    sub = canvas[:h, offset:offset + w]
-    scale = _font_scale(w)
-    for curve in view.epilines:
-        if len(curve) >= 2:
-            pts = np.round(curve * (1 << _SHIFT)).astype(np.int32).reshape(-1, 1, 2)
-            cv2.polylines(sub, [pts], False, _EPILINE, 1, cv2.LINE_AA, _SHIFT)
-    b = view.blobs
-    for i in range(len(b)):
-        u, v = b.centers_px[i]
-        radius = math.sqrt(b.area_px[i] / math.pi) + 4.0
-        colour = _SATURATED if view.saturated[i] else (_GLINT if b.glint[i] else _BLOB)
-        cv2.circle(sub, _fixed(u, v), int(round(radius * (1 << _SHIFT))), colour, 1, cv2.LINE_AA, _SHIFT)
-        cv2.drawMarker(sub, (int(round(u)), int(round(v))), colour, cv2.MARKER_CROSS, 5, 1)
-        _text(sub, f"{int(b.area_px[i])}", int(round(u + radius)), int(round(v + radius + 10 * scale)),
-              0.8 * scale, colour)
-    colour = _MARKER_OK if analysis.pose_ok else _MARKER_NO_POSE
-    for k, (u, v) in enumerate(view.markers_px):
-        if np.isfinite(u) and np.isfinite(v):
-            _text(sub, f"P{k}", int(round(u - 12 * scale)), int(round(v - 14 * scale - 4)), scale, colour)
-    line = _line_px(w)
-    _text(sub, f"{side}: threshold {b.threshold_dn:.1f} DN (background {b.background_dn:.1f}, noise "
-               f"{b.noise_dn:.1f} DN), {len(b)} blobs", 8, line, scale, _TEXT)
-    if not analysis.rig:
-        _text(sub, NO_RIG_NOTE, 8, h - line // 2, scale, _ADVICE)
-
-
-def render(analysis: FrameAnalysis) -> np.ndarray:
-    """The picture of a frame, (height + panel, 2 width, 3) uint8 BGR (:func:`composite_size`).
-
-    The left image at columns [0, width), the right at [width, 2 width), the
-    panel of text under them; a failed frame (``error``) is a dark picture of
-    the same size saying why.
-    """
-    w, h = analysis.size
-    cw, ch = composite_size(w, h)
-    canvas = np.zeros((ch, cw, 3), np.uint8)
-    scale, line = _font_scale(w), _line_px(w)
-    rows = []
-    if analysis.views is None:
-        canvas[:h] = 40
-        rows.append((f"frame {analysis.index}: FAILED: {analysis.error}", _FAULT))
-    else:
-        for cam, view in enumerate(analysis.views):
-            _draw_view(canvas, view, _SIDES[cam], cam * w, analysis)
-        rate = "-" if analysis.rate_hz is None else f"{analysis.rate_hz:.1f} Hz"
-        skew = "-" if analysis.skew_ms is None else f"{analysis.skew_ms:.1f} ms"
-        t = "-" if analysis.t is None else f"{analysis.t:.3f} s"
-        rows.append((f"frame {analysis.index}  t {t}  rate {rate} (from frame times)  skew |t_right - t| {skew}",
-                     _TEXT))
-        if not analysis.rig:
-            rows.append((NO_RIG_NOTE, _ADVICE))
-        elif analysis.pose_ok:
-            p = analysis.position_mm
-            rows.append((f"markers P0..P4 identified; pose: P1 ({p[0]:.1f}, {p[1]:.1f}, {p[2]:.1f}) mm", _MARKER_OK))
-        elif analysis.identified:
-            rows.append((f"markers P0..P4 identified, no pose: {analysis.reason}", _MARKER_NO_POSE))
-        else:
-            rows.append((f"markers not identified: {analysis.reason}", _MARKER_NO_POSE))
-        if analysis.warning:
-            rows.append((f"warning: {analysis.warning}", _ADVICE))
-        rows += [(a.text, _ADVICE) for a in analysis.advice]
-        if not analysis.advice:
-            rows.append(("advice: none; the images look right", _MARKER_OK))
-        rows.append(("red: above threshold; circles: blobs (area px), red saturated, yellow glint; "
-                     "magenta: epipolar lines of the other image's blobs", (200, 200, 200)))
-    if len(rows) > PANEL_LINES:
-        rows = rows[:PANEL_LINES - 1] + [(f"(+{len(rows) - PANEL_LINES + 1} more lines)", _TEXT)]
-    for k, (s, colour) in enumerate(rows):
-        _text(canvas, _ascii(s), 8, h + (k + 1) * line, scale, colour)
-    return canvas
-
-
-def _ascii(s: str) -> str:
-    """OpenCV's Hershey fonts draw ASCII only: the rest becomes '?'."""
-    return s.encode("ascii", "replace").decode("ascii")
 
 
 # ---------------------------------------------------------------------------
