@@ -8,9 +8,10 @@ import pytest
 
 from headplod.bench.harness import poi_disc
 from headplod.render.image_metrics import psnr_db
-from headplod.bench.paper_tables import (OVERCONFIDENT_NEES, JitteredPoses, PaperTablesConfig, format_tables,
-                                         goal_verdicts, paper_tables, point_disc, pose_nees, prior_variants,
-                                         track_poses, tracker_share, true_poi_goals, true_pois)
+from headplod.bench.paper_report import format_tables, goal_verdicts, true_poi_goals
+from headplod.bench.paper_tables import (OVERCONFIDENT_NEES, JitteredPoses, PaperTablesConfig, paper_tables,
+                                         point_disc, pose_nees, prior_variants, track_poses, tracker_share,
+                                         true_pois)
 from headplod.io import GazeTruth, read_truth, write_gaze_truth
 from headplod.plod.view import gaze_covariance
 from headplod.plod.select import SelectorConfig
