@@ -4,9 +4,10 @@
   and ``--record`` as they were; ``--record`` replaces a recording only with
   ``--overwrite``;
 - no output inside the dataset folder being read;
-- a recording cut by Ctrl-C or SIGTERM is consistent (a loop of timed
-  interrupts of the real command), and a pair interrupted or failing in the
-  middle of its step is finished or dropped;
+- a recording cut by Ctrl-C or SIGTERM is consistent (a loop of interrupts
+  of the real command, each at a chosen frame and point of its step), and a
+  pair interrupted or failing in the middle of its step is finished or
+  dropped;
 - ``synth`` refuses a non-empty folder unless ``--overwrite``;
 - ``calibrate`` prints its report and keeps the rig when ``--out`` cannot
   be written;
@@ -21,8 +22,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
 import cv2
@@ -228,69 +227,111 @@ def _check_interrupted_run(rec: Path, out: Path, code: int, err: str, sig) -> bo
     return True
 
 
-def test_a_recording_stays_consistent_over_20_timed_interrupts(long_dataset, tmp_path, capsys):
-    """``headplod track --record --out``, interrupted 20 times (SIGINT and SIGTERM in turn) after a random delay.
+#: Where in a frame's step an interrupt comes: before its pair is written, between the pair's two images
+#: (inside the step a signal may not cut), after its times.csv row.
+CUT_POINTS = ("before the pair", "between its images", "after its row")
 
-    In this process, to keep it fast (the process-level test below starts a command per interrupt): a thread
-    sends the signal a seeded-random 0-0.4 s after the recording has begun (times.csv exists), while frames
-    are being written (the whole recording takes ~1 s). After each: a clean stop (exit 0, a line that says
-    so), and the recording, the records and the replay agree; the last recording is replayed through the
-    whole command. A signal that comes after the run is caught here (and the run counts as not cut).
+
+def test_a_recording_stays_consistent_over_20_interrupts(long_dataset, tmp_path, capsys, monkeypatch):
+    """``headplod track --record --out``, interrupted 20 times (SIGINT and SIGTERM in turn), each at a
+    seeded-random frame and point of its step (:data:`CUT_POINTS`).
+
+    In this process, to keep it fast (the process-level test below starts a command per interrupt). The
+    signal is sent by the recorder's own calls when they reach that frame and point (an event, not a
+    delay), so every run is cut there, whatever the machine's speed. After each: a clean stop (exit 0, a
+    line that says so) with the frames up to the one cut, whole; the recording, the records and the replay
+    agree; the last recording is replayed through the whole command. A stray signal (none is expected) is
+    caught here rather than ending the test run.
     """
+    record_module = sys.modules["headplod.capture.record"]
+    real_write, real_replace = record_module.DatasetRecorder.write, os.replace
     rng = random.Random(15)
-    late = []
-    previous = {sig: signal.signal(sig, lambda signum, frame: late.append(signum)) for sig in STOP}
-    interrupted = 0
+    cut = {}                                                 # this run's frame, point and signal
+
+    def write(self, frame):
+        here = self.count == cut["frame"]
+        if here and cut["point"] == "before the pair":
+            signal.raise_signal(cut["sig"])
+        index = real_write(self, frame)
+        if here and cut["point"] == "after its row":
+            signal.raise_signal(cut["sig"])
+        return index
+
+    def replace(src, dst):
+        real_replace(src, dst)
+        dst = Path(dst)
+        if (cut and cut["point"] == "between its images" and dst.parent.name == "left"
+                and dst.name == f"{cut['frame']:06d}.png"):
+            signal.raise_signal(cut["sig"])
+
+    monkeypatch.setattr(record_module.DatasetRecorder, "write", write)
+    monkeypatch.setattr(record_module.os, "replace", replace)
+    stray = []
+    previous = {sig: signal.signal(sig, lambda signum, frame: stray.append(signum)) for sig in STOP}
     try:
         for run in range(20):
-            sig = STOP[run % 2]
+            cut.update(frame=rng.randrange(0, 24), point=rng.choice(CUT_POINTS), sig=STOP[run % 2])
             rec, out = tmp_path / f"rec{run}", tmp_path / f"poses{run}.jsonl"
-            delay_s = rng.uniform(0.0, 0.4)
-
-            def fire():
-                deadline = time.monotonic() + 30
-                while not (rec / "times.csv").exists() and time.monotonic() < deadline:
-                    time.sleep(0.002)
-                time.sleep(delay_s)
-                os.kill(os.getpid(), sig)
-
-            sender = threading.Thread(target=fire)
-            sender.start()
             code = cli_main(["track", "--source", str(long_dataset), "--record", str(rec), "--out", str(out),
                              "-q"])
-            sender.join()
-            time.sleep(0.01)                                 # a late signal's handler runs here
-            interrupted += _check_interrupted_run(rec, out, code, capsys.readouterr().err, sig)
+            assert _check_interrupted_run(rec, out, code, capsys.readouterr().err, cut["sig"]), cut
+            assert _check_consistent(rec) == cut["frame"] + 1, cut        # the cut frame is whole, no later one
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    assert interrupted >= 15, f"only {interrupted} of 20 runs were cut mid-recording (late signals: {late})"
+        cut.clear()
+    assert stray == []
+    monkeypatch.undo()
     replay = tmp_path / "replay.jsonl"
     n = _check_consistent(rec)
     assert cli_main(["track", "--source", str(rec), "--out", str(replay), "-q"]) == (0 if n else 3)
     assert len(io.read_poses(replay)) == n
 
 
+#: The command in a process of its own that stops after recording frame ARGV[1] to say so on stdout, and goes on
+#: when a line comes on stdin: the test sends its signal in between (an event, not a delay).
+_PAUSING_TRACK = """
+import sys
+import headplod.capture.record
+from headplod.cli import main
+
+record = sys.modules["headplod.capture.record"]      # (headplod.capture.record is also a function's name)
+
+pause_after = int(sys.argv[1])
+real_write = record.DatasetRecorder.write
+
+def write(self, frame):
+    index = real_write(self, frame)
+    if index == pause_after:
+        print(f"recorded {index}", flush=True)
+        sys.stdin.readline()
+    return index
+
+record.DatasetRecorder.write = write
+sys.exit(main(sys.argv[2:]))
+"""
+
+
 def test_the_command_stops_cleanly_on_sigint_and_sigterm(long_dataset, tmp_path):
     """The same, as a process: a command started per interrupt, 3 x SIGINT and 3 x SIGTERM (the default
-    SIGTERM would kill the process)."""
+    SIGTERM would kill the process), each sent while the command waits after a seeded-random frame."""
     rng = random.Random(16)
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    interrupted = 0
     for run in range(6):
-        sig = STOP[run % 2]
+        sig, frame = STOP[run % 2], rng.randrange(0, 24)
         rec, out = tmp_path / f"rec{run}", tmp_path / f"poses{run}.jsonl"
-        proc = subprocess.Popen([sys.executable, "-m", "headplod.cli", "track", "--source", str(long_dataset),
-                                 "--record", str(rec), "--out", str(out), "-q"],
-                                env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        deadline = time.monotonic() + 30
-        while not (rec / "times.csv").exists() and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.005)
-        time.sleep(rng.uniform(0.0, 0.4))
+        proc = subprocess.Popen([sys.executable, "-c", _PAUSING_TRACK, str(frame), "track",
+                                 "--source", str(long_dataset), "--record", str(rec), "--out", str(out), "-q"],
+                                env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True)
+        said = proc.stdout.readline()
+        if said != f"recorded {frame}\n":
+            proc.kill()
+            raise AssertionError(f"the command did not reach frame {frame}: {said!r} {proc.communicate()[1]}")
         proc.send_signal(sig)
-        _, err = proc.communicate(timeout=30)
-        interrupted += _check_interrupted_run(rec, out, proc.returncode, err, sig)
-    assert interrupted >= 4, f"only {interrupted} of 6 runs were cut mid-recording"
+        _, err = proc.communicate(input="go on\n", timeout=120)
+        assert _check_interrupted_run(rec, out, proc.returncode, err, sig), err
+        assert _check_consistent(rec) == frame + 1
 
 
 def _frame(i: int, size=(64, 48)) -> io.Frame:

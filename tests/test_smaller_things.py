@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import cv2
@@ -272,14 +273,28 @@ def test_an_older_cache_is_read_once_then_given_a_manifest(cached, capsys):
     assert (folder / "left" / "000002.png").read_bytes() == original
 
 
-def test_ensure_dataset_stays_cheap_on_a_cached_sequence(cached):
-    import time
+def test_ensure_dataset_stays_cheap_on_a_cached_sequence(cached, monkeypatch):
+    """On an intact cache the check is one stat per file: no file is hashed or decoded, nothing rendered."""
+    import synthetic.dataset
+
     root, folder, _ = cached
-    start = time.perf_counter()
-    for _ in range(20):
-        cache.ensure_dataset("yaw_sweep", frames=6, root=root, quiet=True)
-    # About 2 ms for the 150 frames of the default sequence (0.2 ms before the manifest); generous for CI.
-    assert (time.perf_counter() - start) / 20 < 0.05
+    work, real_hash = [], cache._file_hash
+
+    def file_hash(path):
+        work.append(("hash", path))
+        return real_hash(path)
+
+    monkeypatch.setattr(cache, "_file_hash", file_hash)
+    monkeypatch.setattr(cache, "verify_dataset", lambda path: work.append(("decode", path)))
+    monkeypatch.setattr(synthetic.dataset, "write_dataset", lambda *a, **k: work.append(("render", a)))
+    for _ in range(3):
+        assert cache.ensure_dataset("yaw_sweep", frames=6, root=root, quiet=True) == folder
+    assert work == []
+    # A file whose time changed is the one hashed (and, its bytes the same, the cache is still used).
+    frame = folder / "left" / "000002.png"
+    os.utime(frame, ns=(frame.stat().st_atime_ns, frame.stat().st_mtime_ns + 1000))
+    assert cache.ensure_dataset("yaw_sweep", frames=6, root=root, quiet=True) == folder
+    assert work == [("hash", frame)]
 
 
 def test_track_renders_a_damaged_default_sequence_again_and_tracks_it(tmp_path, monkeypatch, capsys):
