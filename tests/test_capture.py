@@ -13,6 +13,7 @@ import pytest
 
 from headplod import io
 from headplod.capture import CaptureFrame, DatasetRecorder, DatasetSource, FrameSource, SourceOpenError, SyntheticSource, V4L2StereoSource, VideoSource, open_source, record
+from headplod.capture.sources import _Pacer
 
 W, H = 64, 48          # the size of small_rig (conftest.py) and of the fake cameras
 
@@ -63,16 +64,21 @@ def test_dataset_replay_skew_flag_gaps_and_realtime(tmp_path, make_dataset):
     folder = make_dataset(tmp_path / "d", n=4, times=times)
     for side in ("left", "right"):
         (folder / side / "000002.png").unlink()                 # a gap: frame 2 lost
-    start = time.monotonic()
+    now, slept = [1000.0], []
+
+    def sleep(s):
+        slept.append(s)
+        now[0] += s
+
     with DatasetSource(folder, realtime=True) as source:
-        got = list(source)
-    elapsed = time.monotonic() - start
+        assert source._pacer.enabled                             # the replay is paced ...
+        source._pacer = _Pacer(True, clock=lambda: now[0], sleep=sleep)   # ... here on a clock that reading
+        got = list(source)                                       # and tracking do not move
     assert [f.index for f in got] == [0, 1, 3]
     assert [f.dropped for f in got] == [0, 0, 1]
     assert got[1].flags == ["skew 15.0 ms > 10.0 ms bound"]      # half of the 20 ms period
-    # Paced: frame 3 is 60 ms after frame 0. A lower bound on the wall clock holds however loaded the
-    # machine is (load only makes the replay slower); no upper bound is asserted.
-    assert elapsed >= 0.055
+    # Paced: frame 1 waits 20 ms after frame 0, frame 3 the 40 ms of the gap; each frame says what it waited.
+    assert slept == pytest.approx([0.02, 0.04]) and [f.paced_s for f in got] == pytest.approx([0.0, 0.02, 0.04])
 
 
 def test_synthetic_source_replays_rendered_dataset(tmp_path):

@@ -203,17 +203,21 @@ def test_pivot_command_usage(tmp_path, capsys):
     assert exc.value.code == 2
 
 
-class _SlowLive:
-    """A dataset replayed at 20 Hz, posing as live cameras (for the time limit and the progress lines)."""
+class _FakeLive:
+    """A dataset posing as live cameras at 16 Hz: each read moves the fake clock (``now``, s) on by 1/16 s
+    (exact in binary, so that the time limit falls on a known frame)."""
+
+    PERIOD_S = 1 / 16
 
     def __init__(self, folder):
         self.inner = open_source(str(folder))
         self.rig, self.markers, self.screen = self.inner.rig, self.inner.markers, self.inner.screen
         self.name, self.warnings = "fake cameras", []
+        self.now, self.reads = 100.0, 0
 
     def read(self, timeout_s=1.0):
-        import time
-        time.sleep(0.05)
+        self.now += self.PERIOD_S
+        self.reads += 1
         return self.inner.read()
 
     def close(self):
@@ -222,12 +226,18 @@ class _SlowLive:
 
 def test_pivot_command_live_stops_on_time_and_says_what_is_missing(neck_turns, monkeypatch, capsys):
     import headplod.live.command as command
+    from headplod.cli import build_parser
+    from headplod.live.pivot_command import run_pivot
 
     folder, _ = neck_turns
-    monkeypatch.setattr(command, "_open_track_source", lambda args, spec: (_SlowLive(folder), None, True))
-    # 1.3 s at 20 Hz: ~26 of the 48 frames, the left-right half only: the pivot's height is not determined.
-    assert main(["pivot", "--source", "v4l2:auto", "--seconds", "1.3"]) == 1
+    live = _FakeLive(folder)
+    monkeypatch.setattr(command, "_open_track_source", lambda args, spec: (live, None, True))
+    args = build_parser().parse_args(["pivot", "--source", "v4l2:auto", "--seconds", "1.3"])
+    # 1.3 s from the first frame at 16 Hz: 22 of the 48 frames (the 22nd at 1.3125 s), the left-right half
+    # only: the pivot's height is not determined.
+    assert run_pivot(args, clock=lambda: live.now) == 1
+    assert live.reads == 22
     err = capsys.readouterr().err
     assert "turn the head left and right" in err.splitlines()[0]
-    assert re.search(r"^ +1\.[0-3] s of 1\.3: \d+ poses$", err, re.M)
+    assert re.search(r"^ +1\.0 s of 1\.3: \d+ poses$", err, re.M)                 # one line a second
     assert err.strip().splitlines()[-1].startswith("headplod: no pivot:") and "nod up and down" in err

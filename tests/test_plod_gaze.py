@@ -155,11 +155,7 @@ def test_eye_offsets_are_seeded_and_land_on_the_screen(desk, wide):
 
 def test_the_wide_screen_draws_wider_horizontal_offsets(desk, wide):
     """The viewer looks about the whole screen: the 32:9 one spreads the eyes further horizontally."""
-    import time
-
-    t0 = time.perf_counter()
     rms = [float(np.sqrt(np.mean(pg.eye_offsets_deg(s, e, 50, seed=0)[:, 0] ** 2))) for s, e in (desk, wide)]
-    assert time.perf_counter() - t0 < 3.0                  # the judge calls it per case (measured ~0.1 s)
     assert rms[1] > 1.3 * rms[0]
 
 

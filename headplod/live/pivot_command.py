@@ -20,6 +20,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -73,8 +74,11 @@ def _default_out(args, source, live: bool, spec: str) -> Path | None:
     return Path(dataset.folder) / PIVOT_FILE if dataset is not None else None
 
 
-def run_pivot(args) -> int:
-    """Run ``headplod pivot`` from parsed arguments; the exit status."""
+def run_pivot(args, clock: Callable[[], float] = time.monotonic) -> int:
+    """Run ``headplod pivot`` from parsed arguments; the exit status.
+
+    ``clock`` gives the time, s, that ``--seconds`` and the progress lines count (a monotonic one).
+    """
     from .command import open_source_or_report
     from ..tracking.tracker import TrackerConfig
     from .loop import make_tracker, run_source
@@ -94,21 +98,21 @@ def run_pivot(args) -> int:
     source, rig, live = opened
     log = sys.stderr
     positions, axes = [], []
-    clock = {"start": None, "printed": None}        # the time starts with the first frame, not the camera's start-up
+    seen = {"start": None, "printed": None}         # the time starts with the first frame, not the camera's start-up
 
     def on_record(record, result):
         if record["ok"]:
             positions.append(record["position"])
             axes.append(record["axes"])
-        now = time.monotonic()
-        if clock["start"] is None:
-            clock["start"] = clock["printed"] = now
-        if live and not args.quiet and now - clock["printed"] >= 1.0:
-            clock["printed"] = now
-            print(f"  {now - clock['start']:4.1f} s of {args.seconds:g}: {len(positions)} poses", file=log)
+        now = clock()
+        if seen["start"] is None:
+            seen["start"] = seen["printed"] = now
+        if live and not args.quiet and now - seen["printed"] >= 1.0:
+            seen["printed"] = now
+            print(f"  {now - seen['start']:4.1f} s of {args.seconds:g}: {len(positions)} poses", file=log)
 
     def stop() -> bool:
-        return live and clock["start"] is not None and time.monotonic() - clock["start"] >= args.seconds
+        return live and seen["start"] is not None and clock() - seen["start"] >= args.seconds
 
     try:
         markers = io.read_markers(args.markers) if args.markers else None
