@@ -30,6 +30,7 @@ def tree():
     return boxes, arch.discover_edges(boxes, ROOT)
 
 
+@pytest.mark.slow
 def test_every_package_folder_is_a_box(tree):
     boxes, _ = tree
     folders = {p.parent.name for p in (ROOT / "headplod").glob("*/__init__.py")}

@@ -39,6 +39,7 @@ def _frames(loop):
     return out
 
 
+@pytest.mark.slow
 def test_the_steady_frame_is_the_demos_frame_of_the_still_pose(bench):
     loop = _demo(bench, [bench.poi] * bench.frames, mode="csf", uncertainty="adaptive")
     demo = _frames(loop)
@@ -51,6 +52,7 @@ def test_the_steady_frame_is_the_demos_frame_of_the_still_pose(bench):
     assert stats["frame_ms"] == pytest.approx(sum(stats[f"{s}_ms"] for s in FRAME_STAGES))
 
 
+@pytest.mark.slow
 def test_run_views_gives_the_demos_levels_on_a_moving_poi(bench):
     """A POI sweeping across the screen, then a jump (a saccade: the demo keeps its last levels)."""
     path = [bench.poi + [30.0 * k, 0.0] for k in range(6)] + [bench.poi + [-600.0, 200.0]] * 2
@@ -67,6 +69,7 @@ def test_run_views_gives_the_demos_levels_on_a_moving_poi(bench):
         assert o.image is None
 
 
+@pytest.mark.slow
 def test_alternate_leaves_out_the_warm_up_round_and_keeps_only_the_last_images(bench):
     renderers = [TerrainRenderer(bench.ctx, size=SMALL) for _ in range(2)]
     try:
@@ -100,6 +103,7 @@ def test_the_disc_is_about_pixel_centres():
     assert np.argwhere(disc).tolist() == [[1, 1], [1, 2], [2, 1], [2, 2]]
 
 
+@pytest.mark.slow
 def test_the_benches_take_the_one_tracker_covariance(bench):
     np.testing.assert_array_equal(TRACKER_COV_DEG2, np.diag([0.05 ** 2] * 2))
     assert not TRACKER_COV_DEG2.flags.writeable

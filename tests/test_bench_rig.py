@@ -5,12 +5,14 @@ computes are the ones the truth says (before any refinement the rig's errors
 are the faults themselves) and are consistent with one another.
 """
 import numpy as np
+import pytest
 
 from headplod.bench import rig as bench_rig
 from headplod.tracking import evaluate
 from headplod.bench.track import run_track_bench
 
 
+@pytest.mark.slow
 def test_rig_set_numbers_match_the_truth(synth, tmp_path):
     faults = {"rotation_deg": 0.5, "baseline_scale": 1.02, "focal_scale": 1.01, "offset_s": 0.008}
     ds = synth("imperfect_rig", 24, **faults)

@@ -25,6 +25,7 @@ def report(tmp_path_factory):
                                    patch_sweep=False)
 
 
+@pytest.mark.slow
 def test_every_case_runs_and_reports(report):
     assert {(c["samples"], c.get("hierarchy")) for c in report["cases"] if c["backend"] == "tessellation"} == {
         (257, True), (257, False), (513, True), (513, False)}                  # both selections on every terrain
@@ -45,6 +46,7 @@ def test_every_case_runs_and_reports(report):
     json.dumps(report)                                                     # the report is what --json writes
 
 
+@pytest.mark.slow
 def test_goals_follow_the_cases(report):
     from headplod.render.tessellate import TessellationConfig
 
@@ -60,6 +62,7 @@ def test_goals_follow_the_cases(report):
     assert fps["value"] == pytest.approx(big["fps"]) and fps["met"] == (big["fps"] >= plod_scale.GOAL_FPS)
 
 
+@pytest.mark.slow
 def test_a_case_runs_in_a_fresh_process_and_its_errors_come_back():
     import os
 

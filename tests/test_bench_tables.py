@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from conftest import load_tool
 
 
@@ -11,6 +13,7 @@ def _tool():
     return load_tool("bench_track_tables")
 
 
+@pytest.mark.slow
 def test_tables_carry_every_set_and_goal_from_the_json(tmp_path):
     from headplod.bench.track import run_track_bench
 

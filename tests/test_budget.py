@@ -19,6 +19,7 @@ def _frame(scene, mode, **settings):
     return scene.mesh.triangle_count(levels), info
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", [m for m in MODES if m != "full"])
 @pytest.mark.parametrize("budget", [60_000, 250_000])
 def test_every_mode_meets_the_budget_within_its_tolerance(terrain_scene, mode, budget):
@@ -84,6 +85,7 @@ def test_a_budget_needs_the_meshs_count(terrain_scene):
                       terrain_scene.screen, SelectorConfig(budget_triangles=1000))
 
 
+@pytest.mark.slow
 def test_the_commands_take_the_budget_and_refuse_it_where_it_is_not_supported(tmp_path, capsys):
     import json
 

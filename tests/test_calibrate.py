@@ -95,6 +95,7 @@ def _check_rig(rig: io.Rig, truth: io.Rig, rot_tol_deg: float) -> None:
 # ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_chessboard_recovers_default_rig(chess_set, chess_result, default_rig):
     result, _ = chess_result
     truth = io.read_rig(chess_set.truth_rig)
@@ -106,6 +107,7 @@ def test_chessboard_recovers_default_rig(chess_set, chess_result, default_rig):
     assert max(max(e) for e in result.pair_errors_px.values()) < 0.3
 
 
+@pytest.mark.slow
 def test_charuco_side_by_side_recovers_default_rig(charuco_set, charuco_result):
     truth = io.read_rig(charuco_set.truth_rig)
     _check_rig(charuco_result.rig, truth, rot_tol_deg=0.5)
@@ -113,6 +115,7 @@ def test_charuco_side_by_side_recovers_default_rig(charuco_set, charuco_result):
     assert len(charuco_result.used) >= 10
 
 
+@pytest.mark.slow
 def test_wide_angle_rig(tmp_path):
     """1280x720, ≈ 100 degree field of view, k1 ≈ -0.32 (fewer, coarser renders for speed)."""
     from synthetic.setups import wide_hd_setup
@@ -129,6 +132,7 @@ def test_wide_angle_rig(tmp_path):
 # ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_bad_pairs_rejected_with_reasons(chess_set, chess_result):
     result, _ = chess_result
     rejected = dict(result.rejected)
@@ -143,6 +147,7 @@ def test_bad_pairs_rejected_with_reasons(chess_set, chess_result):
     assert result.rig.extra["calibration_pairs_rejected"] == 4
 
 
+@pytest.mark.slow
 def test_too_few_pairs_is_a_clear_error(chess_set):
     pairs = cal.find_pairs(chess_set.folder)
     good = [p for p in pairs if p[0] in chess_set.good][:4]
@@ -158,6 +163,7 @@ def test_too_few_pairs_is_a_clear_error(chess_set):
     assert isinstance(info.value, ValueError)
 
 
+@pytest.mark.slow
 def test_outlier_threshold_does_not_reject_good_pairs(chess_set):
     pairs = [p for p in cal.find_pairs(chess_set.folder) if p[0] in chess_set.good]
     result = cal.calibrate_stereo(pairs, CHESS_SPEC, refine=False, clock=lambda: 1_800_000_000.0)
@@ -172,6 +178,7 @@ def test_outlier_threshold_does_not_reject_good_pairs(chess_set):
 # ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_rig_yaml_written_and_read_back(chess_result):
     result, out = chess_result
     back = io.read_rig(out)
@@ -210,6 +217,7 @@ def _check_std(rig: io.Rig, truth: io.Rig, max_rot_deg: float, max_t_mm: float) 
     assert np.all(np.abs(z_t) < 5), z_t
 
 
+@pytest.mark.slow
 def test_rig_yaml_has_calibration_std(chess_set, chess_result):
     result, out = chess_result
     back = io.read_rig(out)
@@ -225,6 +233,7 @@ def test_rig_yaml_has_calibration_std(chess_set, chess_result):
     np.testing.assert_allclose(std["calibration_std_translation_mm"], result.std_translation_mm)
 
 
+@pytest.mark.slow
 def test_charuco_calibration_std(charuco_set, charuco_result):
     _check_std(charuco_result.rig, io.read_rig(charuco_set.truth_rig), max_rot_deg=0.5, max_t_mm=5.0)
 
@@ -234,6 +243,7 @@ def test_charuco_calibration_std(charuco_set, charuco_result):
 # ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_find_pairs_both_layouts(chess_set, charuco_set):
     sub = cal.find_pairs(chess_set.folder)
     assert [n for n, _, _ in sub] == chess_set.names
@@ -294,6 +304,7 @@ def _truth_corners(cs, name: str, side: int, board: Board, ids: np.ndarray) -> n
     return project_points(cam, obj[ids] @ R_wb.T + t_wb)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["chess", "charuco"])
 def test_detect_board_numbers_corners_like_the_board(which, chess_set, charuco_set):
     cs, board, spec = (chess_set, CHESS, CHESS_SPEC) if which == "chess" else (charuco_set, CHARUCO, CHARUCO_SPEC)
@@ -309,6 +320,7 @@ def test_detect_board_numbers_corners_like_the_board(which, chess_set, charuco_s
                                else det.object_mm)
 
 
+@pytest.mark.slow
 def test_chessboard_numbering_survives_a_half_turn(chess_set):
     img = cv2.imread(str(chess_set.left_paths[chess_set.good[0]]), cv2.IMREAD_GRAYSCALE)
     h, w = img.shape
@@ -385,6 +397,7 @@ def test_coverage_guide():
     assert not any("tilted" in m for m in cal.coverage_guide(plain, size))
 
 
+@pytest.mark.slow
 def test_format_report(chess_result):
     result, _ = chess_result
     text = cal.format_report(result)

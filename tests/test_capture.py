@@ -382,6 +382,7 @@ def test_v4l2_settings_read_back_and_refused_reported(fakes):
         open_fake(fakes, fourcc="H264")
 
 
+@pytest.mark.slow
 def test_v4l2_pairs_skew_flags_colour_and_times(fakes):
     fakes.left.colour = True
     with open_fake(fakes) as source:
@@ -458,6 +459,7 @@ def test_v4l2_frames_say_they_carry_the_driver_timestamp(fakes):
             assert f.time_source == "grab" and f.t_monotonic_left - exposure > DEVICE_TIME_WINDOW_S
 
 
+@pytest.mark.slow
 def test_v4l2_dropped_frames_counted(fakes):
     with open_fake(fakes) as source:
         frames = read_good(source, 3)
@@ -476,6 +478,7 @@ def test_v4l2_dropped_frames_counted(fakes):
     assert status.dropped == frames[0].dropped + sum(missing)
 
 
+@pytest.mark.slow
 def test_v4l2_stall_then_recovery(fakes):
     with open_fake(fakes) as source:
         read_good(source, 2)
@@ -502,6 +505,7 @@ def test_v4l2_stall_then_recovery(fakes):
     assert source.read() is None and source.status().state == "ended"
 
 
+@pytest.mark.slow
 def test_v4l2_lost_then_reconnect(fakes):
     source = open_fake(fakes, reconnect_s=0.1)
     try:
@@ -529,6 +533,7 @@ def test_v4l2_lost_then_reconnect(fakes):
     assert source.read() is None and source.status().state == "ended"
 
 
+@pytest.mark.slow
 def test_v4l2_close_does_not_wait_for_a_stalled_camera(fakes):
     """close() gives up on a capture thread stuck in a driver call (it cannot be interrupted) instead of
     hanging with it: the fake's grab() stays blocked until the test ends, so a close() that waited for

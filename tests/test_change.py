@@ -175,6 +175,7 @@ def test_displacement_is_judged_against_half_a_period_of_fmax():
 # --- the selector ------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_change_needs_the_meshs_features(terrain_scene):
     from headplod.plod.select import LevelSelector
 
@@ -184,6 +185,7 @@ def test_change_needs_the_meshs_features(terrain_scene):
                       terrain_scene.screen, SelectorConfig(mode="change"))
 
 
+@pytest.mark.slow
 def test_change_refines_near_the_poi_and_a_higher_threshold_draws_less(terrain_scene):
     from headplod.plod.view import View, default_head
 
@@ -200,6 +202,7 @@ def test_change_refines_near_the_poi_and_a_higher_threshold_draws_less(terrain_s
     assert counts[0] > counts[1] > counts[2]
 
 
+@pytest.mark.slow
 def test_a_silhouette_is_judged_against_the_silhouette_contrast(terrain_scene):
     sel = terrain_scene.selector("change", "adaptive", silhouette_contrast=0.9)
     seen = np.arange(4)

@@ -260,6 +260,7 @@ def test_track_quiet_prints_only_the_summary(sample, capsys):
     assert f"{Path(sample).name}: 12/12 frames tracked" in err
 
 
+@pytest.mark.slow
 def test_calibrate_runs_from_its_package_with_progress(tmp_path, capsys):
     from headplod import io
     from synthetic.boards import Board, write_calibration_set
@@ -287,6 +288,7 @@ def test_v4l2_auto_needs_the_rig_that_names_the_cameras():
         open_source("v4l2:auto")
 
 
+@pytest.mark.slow
 def test_the_command_keeps_matplotlib_in_its_own_cache(tmp_path, monkeypatch):
     """matplotlib's config and font cache go under HEADPLOD_CACHE, not the home folder (unless MPLCONFIGDIR is set)."""
     import os

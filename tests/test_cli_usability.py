@@ -40,12 +40,14 @@ def test_a_coordinate_list_may_start_with_a_minus_sign(tmp_path):
     assert list(args.head) == [-120.0, 40.0, 650.0]
 
 
+@pytest.mark.slow
 def test_the_command_line_takes_a_negative_coordinate_list(tmp_path, capsys):
     out = tmp_path / "r.png"
     assert cli.main(["render", "--head", "-40,20,640", "--size", "64,36", "--out", str(out)]) == 0
     assert out.is_file()
 
 
+@pytest.mark.slow
 def test_render_compares_with_full_and_refuses_where_it_cannot(tmp_path, capsys):
     assert cli.main(["render", "--size", "96,54", "--compare", "full", "--out", str(tmp_path / "a.png")]) == 0
     line = next(t for t in capsys.readouterr().err.splitlines() if t.startswith("against full"))
@@ -97,6 +99,7 @@ def test_every_command_that_reads_frames_names_them_with_source():
             assert action is None or "old spelling" in action.help, (name, option)
 
 
+@pytest.mark.slow
 def test_quiet_is_honoured_by_render_and_the_progress_it_reaches(tmp_path, capsys):
     assert cli.main(["render", "--size", "64,36", "--out", str(tmp_path / "a.png")]) == 0
     assert "triangles" in capsys.readouterr().err

@@ -22,6 +22,7 @@ def _triangles(tmp_path, name, *extra):
     return json.loads(stats.read_text())["triangles"]
 
 
+@pytest.mark.slow
 def test_the_csf_form_changes_the_levels(tmp_path):
     """Daly's CSF sees less at the periphery than the scaled Kelly form the csf mode follows by default, so
     the same view needs fewer triangles; naming the default form gives the default's count exactly."""

@@ -46,6 +46,7 @@ def _terrain_fraction(image):
     return float(np.mean(np.abs(image.astype(float) - BACKGROUND).sum(axis=2) > 6))
 
 
+@pytest.mark.slow
 def test_headless_run_writes_frames_and_summary(tmp_path, terrain_scene, renderer):
     from headplod.demo.cli import add_demo_arguments, run_headless
 
@@ -83,6 +84,7 @@ def test_headless_run_writes_frames_and_summary(tmp_path, terrain_scene, rendere
     assert "overview" in text and "x full" in text and "picture overview" in text
 
 
+@pytest.mark.slow
 def test_levels_follow_the_poi(terrain_scene, renderer, default_screen):
     from headplod.plod.contrast import project_to_screen_px
 
@@ -105,6 +107,7 @@ def test_levels_follow_the_poi(terrain_scene, renderer, default_screen):
     assert not results[7].saccade_skipped
 
 
+@pytest.mark.slow
 def test_tracker_failure_keeps_running_on_the_last_pose(tmp_path_factory, terrain_scene, renderer):
     """The real tracker on the synthetic sequence, two frames blanked mid-run."""
     from headplod.capture.synthetic import ensure_dataset
@@ -138,6 +141,7 @@ def test_tracker_failure_keeps_running_on_the_last_pose(tmp_path_factory, terrai
     assert results[6].pose.images[0].shape == results[0].pose.images[0].shape
 
 
+@pytest.mark.slow
 def test_saccade_rule_keeps_levels(terrain_scene, renderer, default_screen):
     w, h = default_screen.size_px
     # 30 fps; 1920 px over 531 mm at 600 mm: 300 px per frame is ~240 deg/s, 2 px per frame ~1.6 deg/s.
@@ -157,6 +161,7 @@ def test_saccade_rule_keeps_levels(terrain_scene, renderer, default_screen):
     assert loop.stats.saccade_skipped == 3
 
 
+@pytest.mark.slow
 def test_viewpoints_differ_and_render(terrain_scene, renderer, default_screen):
     models = {name: place(terrain_scene, name).model for name in VIEWPOINTS}
     assert set(models) == {"overview", "mountains", "plains"}
@@ -172,6 +177,7 @@ def test_viewpoints_differ_and_render(terrain_scene, renderer, default_screen):
         assert _terrain_fraction(result.image) > 0.3, name
 
 
+@pytest.mark.slow
 def test_key_mapping_and_apply(terrain_scene, renderer, default_screen):
     assert [action_for_key(str(k)) for k in range(1, len(DEMO_MODES) + 1)] == [("mode", m) for m in DEMO_MODES]
     assert action_for_key("N") == action_for_key("n") == ("uncertainty", "none")
@@ -215,6 +221,7 @@ def test_window_module_imports_without_moderngl_window():
         sys.modules.update(saved)
 
 
+@pytest.mark.slow
 def test_window_runs_on_the_headless_backend():
     """The WindowConfig subclass on moderngl-window's headless (EGL) window: frames reach its framebuffer."""
     import weakref
@@ -319,6 +326,7 @@ def test_tee_gives_every_consumer_every_pose_and_reads_each_once():
         tee.consumer(3)
 
 
+@pytest.mark.slow
 def test_loops_side_by_side_keep_their_own_mesh_state(terrain_scene, renderer, default_screen):
     """Two loops interleaved on one scene each rebuild only what their own selection changes."""
     fine = terrain_scene.mesh.share()
@@ -333,6 +341,7 @@ def test_loops_side_by_side_keep_their_own_mesh_state(terrain_scene, renderer, d
     assert coarse.stats["rebuilt_faces"] == 0 and len(lv0) == n
 
 
+@pytest.mark.slow
 def test_demo_loop_draws_raymask_frames_and_a_still_poi_repeats_them(gl_context):
     """The raymask back end in the demo's loop: a frame per pose, the mask about the filtered POI; a still POI, same frame."""
     from headplod.demo import loop as lp

@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "python.md"
 
@@ -19,6 +21,7 @@ def code_blocks(text: str) -> list[str]:
     return re.findall(r"^```python\n(.*?)^```", text, re.S | re.M)
 
 
+@pytest.mark.slow
 def test_the_python_page_runs_and_prints_a_real_outcome(tmp_path):
     blocks = code_blocks(PAGE.read_text())
     assert len(blocks) >= 2, "docs/python.md: the tracking and the rendering blocks"

@@ -71,6 +71,7 @@ def test_bad_export_paths_are_refused_before_any_work(tmp_path, name, message):
     assert not out.exists()                                                     # nothing rendered
 
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("gl_context")
 def test_rendered_frame_exports_a_crack_free_mesh_with_the_stats_triangle_count(tmp_path, ending=".glb"):
     """``headplod render --export`` end to end on the built-in scene: trimesh reloads the file with as many

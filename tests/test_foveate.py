@@ -46,6 +46,7 @@ def test_settings_are_checked():
         layer_plan(0.0)
 
 
+@pytest.mark.slow
 def test_composite_is_the_plain_frame_inside_the_fovea(gl_context, default_screen, terrain_scene):
     from headplod.plod.select import View
     from headplod.render import TerrainRenderer, off_axis_projection
@@ -80,6 +81,7 @@ def test_composite_is_the_plain_frame_inside_the_fovea(gl_context, default_scree
         renderer.release()
 
 
+@pytest.mark.slow
 def test_render_foveate_reports_its_layers(gl_context, tmp_path):
     import json
 
@@ -109,6 +111,7 @@ def _still_view(default_screen, terrain_scene, viewpoint, size=(1280, 720), poi_
             poi_screen, px_per_deg_at(default_screen, head, size), head)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("viewpoint,poi_frac", [("mountains", (0.5, 0.5)), ("plains", (0.3, 0.7))])
 def test_face_spans_hold_every_triangle_touching_a_layer(default_screen, terrain_scene, viewpoint, poi_frac):
     """Each triangle whose own screen rectangle meets a layer's ring belongs to a face whose span has that layer."""
@@ -153,6 +156,7 @@ def test_face_spans_hold_every_triangle_touching_a_layer(default_screen, terrain
     assert checked <= drawn < 3 * len(faces)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("max_layers,viewpoint", [(2, "mountains"), (3, "plains")])
 def test_layer_subsets_give_the_pixels_of_the_whole_mesh(gl_context, default_screen, terrain_scene, max_layers,
                                                          viewpoint):
@@ -203,6 +207,7 @@ def test_layer_subsets_give_the_pixels_of_the_whole_mesh(gl_context, default_scr
         renderer.release()
 
 
+@pytest.mark.slow
 def test_a_still_head_gives_identical_frames_after_warm_up(gl_context, default_screen, terrain_scene):
     """The POI jitters by tracker-like noise (σ 4 screen px, ~0.1°; the covariance ±20 %): the layers sit on the filtered
     POI, held by the anchor, so the frames stop changing once the filters settle."""
@@ -239,6 +244,7 @@ def test_a_still_head_gives_identical_frames_after_warm_up(gl_context, default_s
         renderer.release()
 
 
+@pytest.mark.slow
 def test_seams_step_no_more_than_full_does(gl_context, default_screen, terrain_scene):
     """Across the fovea's border the foveated frame's luminance steps as full's does (within 0.25 % of white)."""
     from headplod.bench.plod_foveate import seam_profiles, viewpoint_frames
@@ -280,6 +286,7 @@ def test_foveation_settings_are_checked(gl_context):
         renderer.release()
 
 
+@pytest.mark.slow
 def test_headless_demo_runs_the_mode_again_foveated(tmp_path, gl_context, terrain_scene):
     import argparse
     import json

@@ -91,6 +91,7 @@ def _detail(out) -> float:
     return float(out.details["raymask"]["fill_rays"] + out.details["raymask"]["ring_rays"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", BACKENDS)
 def test_none_ignores_the_covariance(backends, terrain_scene, name):
     screen, model = terrain_scene.screen, terrain_scene.model
@@ -103,6 +104,7 @@ def test_none_ignores_the_covariance(backends, terrain_scene, name):
     assert all(np.array_equal(a.image, b.image) for a, b in zip(runs[0], runs[1]))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", BACKENDS)
 @pytest.mark.parametrize("scenario", ["fixed", "adaptive", "smoothed"])
 def test_a_larger_covariance_never_draws_less(backends, terrain_scene, name, scenario):
@@ -114,6 +116,7 @@ def test_a_larger_covariance_never_draws_less(backends, terrain_scene, name, sce
     assert sum(map(_detail, large)) > sum(map(_detail, small))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", BACKENDS)
 def test_after_the_covariance_drops_fixed_keeps_most_and_adaptive_least(backends, terrain_scene, name):
     screen, model = terrain_scene.screen, terrain_scene.model
@@ -127,6 +130,7 @@ def test_after_the_covariance_drops_fixed_keeps_most_and_adaptive_least(backends
     assert sum(detail["fixed"]) > sum(detail["adaptive"])
 
 
+@pytest.mark.slow
 def test_every_back_end_reads_the_same_conditioned_view(backends, terrain_scene):
     screen, model = terrain_scene.screen, terrain_scene.model
     poses = _poses(screen, LARGE, SMALL)
@@ -142,6 +146,7 @@ def test_every_back_end_reads_the_same_conditioned_view(backends, terrain_scene)
     assert not np.array_equal(views["mesh"][-1].eye_mm, views["mesh"][-1].raw_eye_mm)
 
 
+@pytest.mark.slow
 def test_a_saccade_keeps_the_last_levels(backends, terrain_scene):
     screen, model = terrain_scene.screen, terrain_scene.model
     config = SelectorConfig(uncertainty="none")

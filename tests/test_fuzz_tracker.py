@@ -318,6 +318,7 @@ def _describe(case: Case, k: int, f: FrameSpec) -> str:
             f"baseline x{case.baseline_scale:.3f}, seed {case.seed}) frame {k}: {f}")
 
 
+@pytest.mark.slow
 def test_fuzz_tracker(grids):
     cases = make_cases(grids)
     tracked, wrong, errors = {}, [], []
@@ -360,6 +361,7 @@ def _errors(result, grid: Grid, i: int):
             float(np.degrees(np.arccos(np.clip(result.axes[2] @ grid.v[i], -1, 1)))))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("exc", [
     np.linalg.LinAlgError("Singular matrix"),
     cv2.error("(-215:Assertion failed) 0 <= i in function 'solve'"),
@@ -397,6 +399,7 @@ def test_an_exception_costs_its_frame_only(grids, monkeypatch, exc):
     assert results[FAULT_FRAME + 1][0].mode == "acquire"
 
 
+@pytest.mark.slow
 def test_an_exception_in_the_refinement_drops_its_chunk_and_keeps_its_estimate(grids, monkeypatch):
     grid = grids[0]
     tracker = Tracker(grid.rig, grid.markers)
@@ -425,6 +428,7 @@ def test_an_exception_in_the_refinement_drops_its_chunk_and_keeps_its_estimate(g
             assert pos < 0.5 and ang < 0.3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("exc", [KeyboardInterrupt, SystemExit])
 def test_interrupts_are_not_isolated(grids, monkeypatch, exc):
     grid = grids[0]
@@ -447,6 +451,7 @@ def test_interrupts_are_not_isolated(grids, monkeypatch, exc):
 SWEEP = Path(__file__).parent / "data" / "sweep12"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("refine", [False, True])
 @pytest.mark.parametrize("offset_s", [-0.033, -0.016, 0.004, 0.016, 0.033])
 def test_frames_a_ms_apart_never_give_a_pose_their_times_cannot_support(refine, offset_s):
@@ -468,6 +473,7 @@ def test_frames_a_ms_apart_never_give_a_pose_their_times_cannot_support(refine, 
     assert tracker.internal_errors == 0
 
 
+@pytest.mark.slow
 def test_frames_a_ms_apart_keep_their_poses_when_the_cameras_are_synchronous():
     # The same stream without an offset: nothing is extrapolated, every stereo pair is a pose,
     # as accurate as with true times (sweep12 with its own times: ~0.05 mm, ~0.05°).
@@ -481,6 +487,7 @@ def test_frames_a_ms_apart_keep_their_poses_when_the_cameras_are_synchronous():
         assert np.degrees(np.arccos(np.clip(r.axes[2] @ axes[2], -1, 1))) < 0.3
 
 
+@pytest.mark.slow
 def test_a_jump_in_time_resets_the_motion_and_says_so(grids):
     grid = grids[1]
     tracker = Tracker(grid.rig, grid.markers)
@@ -502,6 +509,7 @@ def test_a_jump_in_time_resets_the_motion_and_says_so(grids):
     assert "went back 467 ms" in results[6].notes[0] and "jumped 3.0 s ahead" in results[11].notes[0]
 
 
+@pytest.mark.slow
 def test_repeated_times_divide_nothing_by_zero(grids):
     grid = grids[1]
     tracker = Tracker(grid.rig, grid.markers, TrackerConfig())

@@ -166,6 +166,7 @@ def _levels(scene, view, mode, **settings):
     return scene.selector(mode, "none", hysteresis=False, **settings).select(view)
 
 
+@pytest.mark.slow
 def test_hybrid_at_share_0_and_no_prior_chooses_sses_levels(terrain_scene, default_screen):
     view = still_view(default_screen)
     sse, _ = _levels(terrain_scene, view, "sse")
@@ -178,6 +179,7 @@ def test_hybrid_at_share_0_and_no_prior_chooses_sses_levels(terrain_scene, defau
     np.testing.assert_array_equal(wide, sse)
 
 
+@pytest.mark.slow
 def test_a_gaze_prior_changes_hybrids_levels(terrain_scene, default_screen):
     view = still_view(default_screen)
     head_only, _ = _levels(terrain_scene, view, "hybrid", gaze_prior_deg=(0.0, 0.0))
@@ -189,6 +191,7 @@ def test_a_gaze_prior_changes_hybrids_levels(terrain_scene, default_screen):
     np.testing.assert_array_equal(own, given)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("share", [SelectorConfig().change_share, 1.0])
 def test_a_wider_prior_moves_the_detail_away_from_the_poi(terrain_scene, default_screen, share):
     """The wider the distribution of where the viewer looks, the less the POI's neighbourhood stands out:
@@ -219,6 +222,7 @@ def test_a_wider_prior_moves_the_detail_away_from_the_poi(terrain_scene, default
 # the command line
 # ---------------------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("gl_context")
 def test_render_takes_the_prior_and_records_the_one_in_use(tmp_path):
     stats = tmp_path / "s.json"

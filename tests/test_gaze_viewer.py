@@ -258,6 +258,7 @@ def test_a_wide_screen_moves_the_head_more_than_a_desk_screen():
     assert np.isfinite(wide.head_onset_s).mean() > np.isfinite(desk.head_onset_s).mean()
 
 
+@pytest.mark.slow
 def test_eye_offsets_are_larger_on_the_wide_screen_and_inside_the_orbit():
     desk = eye_offset_distribution(SETTINGS, DESK_HALF_DEG, 1500, seed=1)
     wide = eye_offset_distribution(SETTINGS, WIDE_HALF_DEG, 1500, seed=1)

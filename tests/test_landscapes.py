@@ -24,6 +24,7 @@ def fields():
     return {(k, s): landscapes.heights(k, s) for k in landscapes.KINDS for s in (5, 24)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", sorted(landscapes.KINDS))
 def test_every_kind_is_seeded_float32_and_finite(kind, fields):
     a = fields[kind, 5]

@@ -29,6 +29,8 @@ import ast
 from dataclasses import dataclass
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "headplod"
 
@@ -275,12 +277,14 @@ def test_walker_sees_no_cycle_in_layers(tmp_path):
 # the package
 # ----------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_no_import_cycles():
     cycles = import_cycles()
     assert not cycles, (f"import cycles in {PACKAGE}/ (every import inside a cycle is shown in one; "
                         f"move the shared piece to the lower module):\n" + _describe(cycles))
 
 
+@pytest.mark.slow
 def test_no_dynamic_imports():
     """The graph above only sees import statements."""
     found = []
@@ -297,6 +301,7 @@ def _within(name: str, package: str) -> bool:
     return name == package or name.startswith(package + ".")
 
 
+@pytest.mark.slow
 def test_plod_is_below_render_tracking_and_demo():
     """No module of plod/ reaches render, tracking or demo, directly or through any chain of imports."""
     files, edges = import_edges()

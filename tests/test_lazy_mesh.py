@@ -43,6 +43,7 @@ def _per_face(mesh, soup):
     return out
 
 
+@pytest.mark.slow
 def test_equals_adaptive_mesh_per_base_triangle(pair):
     """Same triangles, bit for bit, per base face, and in the same order as a build from scratch."""
     adaptive, lazy = pair
@@ -60,6 +61,7 @@ def test_equals_adaptive_mesh_per_base_triangle(pair):
         np.testing.assert_array_equal(a[0], b[0])
 
 
+@pytest.mark.slow
 def test_equals_adaptive_mesh_on_the_built_in_scene():
     """The built-in scene (32 x 32 base, level 5): the default view's csf/quadtree selection and a mixed
     one give AdaptiveMesh's soup bit for bit, and the selector inputs are AdaptiveMesh's."""
@@ -132,6 +134,7 @@ def _check_watertight(positions, extent):
     assert np.all(counts[on_boundary] == 1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_watertight_across_every_neighbour_pair_at_mixed_levels(terrain, seed):
     """Random levels 0..7 on a 3 x 2 base: every pair of neighbours, any jump between their levels."""
@@ -145,6 +148,7 @@ def test_watertight_across_every_neighbour_pair_at_mixed_levels(terrain, seed):
         _check_watertight(positions, terrain.extent)
 
 
+@pytest.mark.slow
 def test_watertight_level_8_next_to_level_0(terrain):
     """The biggest jump at the finest level: a level-8 face among level-0 and level-4 faces."""
     base = BaseMesh.grid(terrain, 2, 2)
@@ -155,6 +159,7 @@ def test_watertight_level_8_next_to_level_0(terrain):
     _check_watertight(positions, terrain.extent)
 
 
+@pytest.mark.slow
 def test_cache_stays_within_its_budget_and_evicts(terrain):
     """A hot spot walking over the base: the cache never exceeds its budget, evicts the pieces left
     behind, and the frames stay those of an unbounded cache (pieces made again are the same)."""
@@ -216,6 +221,7 @@ def test_rejects_bad_settings(terrain):
         lazy.update(np.full(lazy.n_faces, 3))
 
 
+@pytest.mark.slow
 def test_level_8_default_view_builds_within_the_budget():
     """The 32 x 32 base at level 8, the default view's csf/quadtree selection, and one with the level
     bias raised by 3 (so that faces reach levels 6..8): built within a 256 MB cache."""
@@ -264,6 +270,7 @@ def test_rebuilds_only_faces_whose_case_changed(pair):
             np.testing.assert_array_equal(x, y)
 
 
+@pytest.mark.slow
 def test_the_lazy_bench_frames_are_the_frame_steps(gl_context, default_screen):
     """bench plod --only lazy: each frame through FrameStep over the mesh back end with the quadtree
     selector, the figures from its stages; a still scene's later frames reuse the cached pieces."""

@@ -43,6 +43,7 @@ def lazy_level5_scene(terrain_scene):
     return dataclasses.replace(terrain_scene, mesh=LazyAdaptiveMesh(mesh.base, terrain_scene.terrain, max_level=5))
 
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("gl_context")
 @pytest.mark.parametrize("view", ["shaded", "levels"])
 def test_lazy_mesh_at_level_5_renders_the_table_mesh_image(default_screen, terrain_scene, lazy_level5_scene,
@@ -69,6 +70,7 @@ def fine_dem(tmp_path_factory):
     return _fine_dem(tmp_path_factory.mktemp("dem") / "fine.npy")
 
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("gl_context")
 def test_level_7_frames_show_the_dem_near_the_poi(default_screen, fine_dem, gl_context):
     """Frames of a DemoLoop at --max-level 7 on the fine DEM: levels above 5 are selected near the POI, the
@@ -119,6 +121,7 @@ def test_level_7_frames_show_the_dem_near_the_poi(default_screen, fine_dem, gl_c
         assert a.stats.summary()["triangles_median"] == results[-1].triangles
 
 
+@pytest.mark.slow
 def test_headless_demo_at_level_7_stays_within_the_cache_budget(tmp_path, fine_dem, capfd):
     """``headplod demo --headless --max-level 7 --terrain`` end to end: frames written, the summary says the
     mesh is lazy at level 7, its triangles are counted per frame, and the shared cache never held more than

@@ -4,12 +4,14 @@ import socket
 import threading
 
 import numpy as np
+import pytest
 
 from headplod import io
 from headplod.cli import main as cli_main
 from headplod.live.opentrack import DEFAULT_PIVOT_MM, decode_opentrack, opentrack_values
 
 
+@pytest.mark.slow
 def test_record_while_tracking_then_replay_gives_the_same_records(sample, tmp_path):
     rec = tmp_path / "rec"
     first, second = tmp_path / "first.jsonl", tmp_path / "second.jsonl"
@@ -55,6 +57,7 @@ def test_udp_output_reaches_a_receiver(sample, tmp_path):
                                    opentrack_values(record["position"], record["axes"], DEFAULT_PIVOT_MM), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_filter_smooths_the_records_but_keeps_cov(sample, tmp_path):
     raw, smooth = tmp_path / "raw.jsonl", tmp_path / "smooth.jsonl"
     assert cli_main(["track", "--source", str(sample), "--out", str(raw), "-q"]) == 0
@@ -74,6 +77,7 @@ def test_camera_needs_calibration(capsys):
     assert "--calib" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_bench_live_reports_rate_latency_and_capture_ratio(sample, tmp_path, capsys):
     out = tmp_path / "live.json"
     assert cli_main(["bench", "live", "--source", str(sample), "--repeats", "1", "--json", str(out)]) == 0

@@ -63,6 +63,7 @@ def damaged(tmp_path) -> Path:
     return folder
 
 
+@pytest.mark.slow
 def test_same_results_as_process_frame_by_frame():
     dataset = io.Dataset(SWEEP)
     by_hand = _tracker(dataset)
@@ -76,6 +77,7 @@ def test_same_results_as_process_frame_by_frame():
     assert [r.mode for _, r in got][2:] == ["track"] * 10          # the state carried over between frames
 
 
+@pytest.mark.slow
 def test_a_frame_source_gives_the_same_results_and_is_read_with_the_timeout():
     dataset = io.Dataset(SWEEP)
     source = ListSource(dataset, dataset.rig)
@@ -121,6 +123,7 @@ def test_stop_ends_it_between_frames():
     assert len(source.timeouts) == 3
 
 
+@pytest.mark.slow
 def test_an_unreadable_frame_is_reported_and_resets_the_tracker(damaged):
     dataset = io.Dataset(damaged)
     got = list(track_frames(dataset, _tracker(dataset)))
@@ -142,6 +145,7 @@ def test_an_unreadable_frame_is_reported_and_resets_the_tracker(damaged):
         _same_result(result, by_hand.process(again.left, again.right, again.t, again.t_right))
 
 
+@pytest.mark.slow
 def test_run_source_reports_the_unreadable_frame_as_it_did(damaged):
     dataset = io.Dataset(damaged)
     generator = list(track_frames(dataset, _tracker(dataset)))
@@ -175,6 +179,7 @@ def test_a_stalled_camera_frame_resets_the_tracker_and_the_loop_goes_on():
     assert source.status().errors == 1
 
 
+@pytest.mark.slow
 def test_demo_tracker_poses_go_through_the_loop(damaged):
     from headplod.demo.loop import TrackerPoses
 

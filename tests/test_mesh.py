@@ -112,6 +112,7 @@ def test_template_rejects_an_edge_below_its_face():
 
 
 # ---------------------------------------------------------------------------- watertight
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None)
 @given(st.lists(st.integers(0, 4), min_size=40, max_size=40))
 def test_flat_watertight_and_area_kept(levels):
@@ -152,6 +153,7 @@ def test_shared_vertices_are_sampled_once():
         check_watertight(mesh, rng.integers(0, 4, mesh.n_faces))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed,smooth", [(1, False), (2, True)])
 def test_default_mesh_watertight(big, seed, smooth):
     """The 2048-face mesh at arbitrary (neighbours up to 5 apart) and smooth level fields."""
@@ -168,6 +170,7 @@ def test_default_mesh_watertight(big, seed, smooth):
 
 
 # ---------------------------------------------------------------------------- sizes
+@pytest.mark.slow
 def test_full_detail_reaches_two_million_triangles(big):
     full = np.full(big.n_faces, big.max_level)
     assert big.triangle_count(full) == 2048 * 4 ** 5 >= 2_000_000
@@ -239,6 +242,7 @@ def test_incremental_equals_from_scratch(sequence):
         assert np.array_equal(a, b)
 
 
+@pytest.mark.slow
 def test_indices_address_the_vertex_table_and_give_the_soup(big):
     """update_indices + the static vertex table is the soup of update, also after an incremental change."""
     rng = np.random.default_rng(5)
@@ -397,6 +401,7 @@ def test_prefiltered_normals_keep_heights_and_tend_to_the_dem(terrain):
     assert all(a > b for a, b in zip(d, d[1:]))
 
 
+@pytest.mark.slow
 def test_finest_level_normals_are_exact_and_coarse_ones_filtered(big, terrain):
     M = big.max_level
     assert big.normal_filter_m[M] == 0 and np.all(np.diff(big.normal_filter_m) < 0)

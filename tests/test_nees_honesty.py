@@ -31,24 +31,28 @@ def _mean_nees(preset, frames, **options):
     return float(np.mean(values))
 
 
+@pytest.mark.slow
 def test_perfect_rig_nees_within_the_perfect_band():
     """imperfect_rig with no fault: rig.yaml is right; 5 s of looking around (was 1.55)."""
     folder = ensure_dataset("imperfect_rig", frames=150, quiet=True)
     assert 1.5 <= run_rig_set(folder)["nees_mean"] <= 2.6
 
 
+@pytest.mark.slow
 def test_still_head_nees_within_the_perfect_band():
     """A still head at 55 cm, 3 s, rig.yaml right: what a still head cannot teach of the rig stays
     unknown, and the share of it stayed the error model's (was 1.22)."""
     assert 1.5 <= _mean_nees("static", 90, distance_mm=550.0) <= 2.6
 
 
+@pytest.mark.slow
 def test_short_extreme_pose_nees_within_the_perfect_band():
     """40 frames at yaw 60° and roll 35°: most of them before the refinement knows much, when the share was
     the error model's whole (was 0.86)."""
     assert 1.5 <= _mean_nees("extreme", 40) <= 2.6
 
 
+@pytest.mark.slow
 def test_stale_rig_nees_within_the_band():
     """The right camera turned 0.5° since rig.yaml: the rig's share must stay as large as its error."""
     folder = ensure_dataset("imperfect_rig", frames=150, quiet=True, rotation_deg=0.5)
@@ -64,6 +68,7 @@ def _linear_frame(rng, m=10, k=5):
     return J, Jr, w
 
 
+@pytest.mark.slow
 def test_pose_error_covariance_is_the_fits_second_moment():
     """δp = G (J_r e + n), r = −(I − H)(J_r e + n): averaged over r, the conditional second moment given r
     is the fit's second moment (law of total expectation), signs included."""

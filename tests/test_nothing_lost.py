@@ -84,6 +84,7 @@ def test_a_bad_later_option_keeps_the_existing_out(sample, keep, capsys):
     assert keep.read_text() == "precious\n" and not _leftovers(keep.parent)
 
 
+@pytest.mark.slow
 def test_record_over_a_recording_is_refused_naming_the_option_and_nothing_is_touched(sample, keep, old_recording,
                                                                                      capsys):
     before = _snapshot(old_recording)
@@ -94,6 +95,7 @@ def test_record_over_a_recording_is_refused_naming_the_option_and_nothing_is_tou
     assert _snapshot(old_recording) == before and keep.read_text() == "precious\n"
 
 
+@pytest.mark.slow
 def test_a_run_that_fails_midway_keeps_its_outputs_and_the_old_ones_under_visible_names(sample, keep, old_recording,
                                                                                         monkeypatch, capsys):
     """Issue 21: an error after the start keeps what was made under the names given, keeps what it was
@@ -120,6 +122,7 @@ def test_a_run_that_fails_midway_keeps_its_outputs_and_the_old_ones_under_visibl
     assert not (keep.parent / ".keep.jsonl.headplod-run").exists() and not (old_recording / ".headplod-run").exists()
 
 
+@pytest.mark.slow
 def test_overwrite_replaces_the_recording_at_the_end_and_keeps_other_files(sample, keep, old_recording):
     assert cli_main(["track", "--source", str(sample), "--out", str(keep), "--record", str(old_recording),
                      "--overwrite", "--frames", "6", "-q"]) == 0
@@ -129,6 +132,7 @@ def test_overwrite_replaces_the_recording_at_the_end_and_keeps_other_files(sampl
     assert len(io.read_poses(keep)) == 6 and not _leftovers(old_recording.parent)
 
 
+@pytest.mark.slow
 def test_out_is_written_as_it_goes_and_a_folder_is_refused(sample, tmp_path, capsys):
     out = tmp_path / "poses.jsonl"
     assert cli_main(["track", "--source", str(sample), "--out", str(out), "-q"]) == 0
@@ -232,6 +236,7 @@ def _check_interrupted_run(rec: Path, out: Path, code: int, err: str, sig) -> bo
 CUT_POINTS = ("before the pair", "between its images", "after its row")
 
 
+@pytest.mark.slow
 def test_a_recording_stays_consistent_over_20_interrupts(long_dataset, tmp_path, capsys, monkeypatch):
     """``headplod track --record --out``, interrupted 20 times (SIGINT and SIGTERM in turn), each at a
     seeded-random frame and point of its step (:data:`CUT_POINTS`).
@@ -312,6 +317,7 @@ sys.exit(main(sys.argv[2:]))
 """
 
 
+@pytest.mark.slow
 def test_the_command_stops_cleanly_on_sigint_and_sigterm(long_dataset, tmp_path):
     """The same, as a process: a command started per interrupt, 3 x SIGINT and 3 x SIGTERM (the default
     SIGTERM would kill the process), each sent while the command waits after a seeded-random frame."""
@@ -466,6 +472,7 @@ def _synth(out, *argv) -> int:
     return cli_main(["synth", "static", "--out", out, *argv, "-q"])
 
 
+@pytest.mark.slow
 def test_synth_refuses_a_non_empty_folder_and_overwrite_replaces_the_dataset_whole(tmp_path, capsys):
     out = tmp_path / "s"
     assert _synth(str(out), "--frames", "3") == 0
@@ -537,6 +544,7 @@ def _calibrate(pairs: Path, out) -> int:
     return cli_main(["calibrate", str(pairs), "--cols", "9", "--rows", "6", "--square-mm", "25", "--out", str(out)])
 
 
+@pytest.mark.slow
 def test_calibrate_prints_the_report_and_keeps_the_rig_when_out_cannot_be_written(calibration_pairs, tmp_path,
                                                                                    capsys):
     blocker = tmp_path / "not_a_folder"
@@ -554,6 +562,7 @@ def test_calibrate_prints_the_report_and_keeps_the_rig_when_out_cannot_be_writte
     kept.unlink()
 
 
+@pytest.mark.slow
 def test_calibrate_falls_back_to_the_temporary_folder_and_refuses_a_folder_as_out(calibration_pairs, tmp_path,
                                                                                   monkeypatch, capsys):
     from headplod.calibration import command

@@ -105,6 +105,7 @@ def jittered_runs():
     return {c: track_poses(c, 12, source=SWEEP12) for c in ("honest", "overconfident")}
 
 
+@pytest.mark.slow
 def test_overconfident_tracker_is_far_less_calibrated_than_the_honest_one(jittered_runs):
     nees = {c: pose_nees(r.screen, r.poses, r.true_v) for c, r in jittered_runs.items()}
     assert all(np.isfinite(n).sum() == 12 for n in nees.values())
@@ -159,6 +160,7 @@ def test_a_non_positive_covariance_scale_is_refused():
         JitteredPoses(ReplayPoses([], lp.default_screen()), noise_deg=0.5, cov_scale=0.0)
 
 
+@pytest.mark.slow
 def test_report_has_the_true_poi_figures(gl_context, default_screen):
     from headplod.render.still import TerrainScene
 
@@ -240,6 +242,7 @@ def sweep12_with_gaze(tmp_path):
     return folder, pois
 
 
+@pytest.mark.slow
 def test_tracked_run_carries_the_gaze_truth_of_each_pose(sweep12_with_gaze):
     folder, pois = sweep12_with_gaze
     run = track_poses("today", 12, source=str(folder))
@@ -249,6 +252,7 @@ def test_tracked_run_carries_the_gaze_truth_of_each_pose(sweep12_with_gaze):
     assert np.isnan(track_poses("today", 3, source=SWEEP12).true_gaze_px).all()     # no file: no gaze
 
 
+@pytest.mark.slow
 def test_report_at_the_true_gaze_with_and_without_the_prior(gl_context, default_screen, sweep12_with_gaze):
     from headplod.render.still import TerrainScene
 

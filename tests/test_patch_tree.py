@@ -152,6 +152,7 @@ def _depth_map(tree, sel):
     return out
 
 
+@pytest.mark.slow
 def test_nodes_are_conservative_on_random_views(grid, default_screen):
     """Every flat patch (and patch edge on a node's border) below a drawn node gets at least its need."""
     p = grid.patch_samples
@@ -227,6 +228,7 @@ def _assert_watertight(tri, n):
     assert np.all(counts[~border] == 2), f"{np.sum(counts[~border] != 2)} edges not shared by two triangles"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("split_factor, bias, poi", [(4, -3.0, (700.0, 500.0)), (16, -3.0, (100.0, 900.0)),
                                                      (8, -2.0, (1500.0, 300.0))])
 def test_hierarchy_is_watertight_across_sizes(ctx430, grid, default_screen, split_factor, bias, poi):
@@ -244,6 +246,7 @@ def test_hierarchy_is_watertight_across_sizes(ctx430, grid, default_screen, spli
     _assert_watertight(tri, grid.heights_m.shape[0] - 1)
 
 
+@pytest.mark.slow
 def test_hierarchy_is_watertight_on_the_scale_view(ctx430, default_screen):
     """The scale bench's view (head, POI at the centre, σ 0.05°) over 128² patches, as 8193² in patches of 64."""
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer
@@ -260,6 +263,7 @@ def test_hierarchy_is_watertight_on_the_scale_view(ctx430, default_screen):
     _assert_watertight(tri, 2048)
 
 
+@pytest.mark.slow
 def test_hierarchy_renders_like_flat(ctx430, grid, default_screen):
     """Both paths draw the terrain; where the tree refines to leaves the frames agree within the disc."""
     from headplod.render.frame import TessellationBackend, one_frame

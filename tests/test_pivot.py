@@ -104,6 +104,7 @@ def neck_turns():
     return folder, records
 
 
+@pytest.mark.slow
 def test_pivot_recovered_from_tracked_neck_turns(neck_turns):
     _, records = neck_turns
     ok = [r for r in records if r["ok"]]
@@ -162,6 +163,7 @@ def test_pivot_yaml_round_trip_and_errors(tmp_path):
         read_pivot(tmp_path / "far.yaml")
 
 
+@pytest.mark.slow
 def test_pivot_command_writes_beside_the_rig_and_track_uses_it(neck_turns, tmp_path, capsys):
     folder, _ = neck_turns
     dataset = tmp_path / "turns"
@@ -188,6 +190,7 @@ def test_pivot_command_writes_beside_the_rig_and_track_uses_it(neck_turns, tmp_p
     assert first[:3] == pytest.approx(opentrack_values(position, axes, pivot)[:3], abs=0.1)  # cm
 
 
+@pytest.mark.slow
 def test_pivot_command_refuses_yaw_only(capsys):
     assert main(["pivot", "--source", "synthetic:yaw_sweep", "-q"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
@@ -224,6 +227,7 @@ class _FakeLive:
         self.inner.close()
 
 
+@pytest.mark.slow
 def test_pivot_command_live_stops_on_time_and_says_what_is_missing(neck_turns, monkeypatch, capsys):
     import headplod.live.command as command
     from headplod.cli import build_parser

@@ -141,6 +141,7 @@ def test_half_extents_from_the_centres_normal(which, request):
 # eye_offsets_deg
 # ---------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_eye_offsets_are_seeded_and_land_on_the_screen(desk, wide):
     for screen, eye in (desk, wide):
         a = pg.eye_offsets_deg(screen, eye, 40, seed=3)

@@ -55,6 +55,7 @@ def test_fixation_is_the_poi_scaled_to_the_image_minus_half_a_pixel(default_scre
         pj.fixation_px(default_screen, (np.nan, 3), (1280, 720))
 
 
+@pytest.mark.slow
 def test_settings_refuse_bad_values():
     pj.JudgeSettings()
     for bad in ({"metric": "psnr"}, {"peak_luminance_cd_m2": 0}, {"contrast": -1}, {"ambient_lux": -5},
@@ -112,6 +113,7 @@ def small_display(default_screen):
     return pj.display_geometry(default_screen, default_head(default_screen), (320, 180))
 
 
+@pytest.mark.slow
 def test_fvvdp_is_foveated_on_the_fixation_point(small_display):
     if not pj.vdp_available("fvvdp"):
         pytest.skip("the optional extra .[vdp] (torch, pyfvvdp) is not installed")
@@ -140,6 +142,7 @@ def test_fvvdp_is_foveated_on_the_fixation_point(small_display):
     assert heatmap[30:50, 40:60, 0].mean() > heatmap[120:170, 200:300, 0].mean() + 50
 
 
+@pytest.mark.slow
 def test_cvvdp_scores_identical_images_10_and_ignores_fixation(small_display):
     if not pj.vdp_available("cvvdp"):
         pytest.skip("the optional extra .[vdp] (torch, cvvdp) is not installed")
@@ -176,6 +179,7 @@ def test_the_judge_alone_refuses_a_missing_or_unknown_metric(monkeypatch, capsys
     assert main(["bench", "plod", "--only", "judge", "--vdp", "psnr"]) == 2
 
 
+@pytest.mark.slow
 def test_ray_mask_points_have_no_triangles_and_are_compared_by_time_only(tmp_path):
     def pt(setting, tris, ms, jod, bias=0.0):
         return {"bias": bias, "setting": setting, "triangles": tris, "frame_ms": ms, "jod_fvvdp": jod}

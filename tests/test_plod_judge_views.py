@@ -225,6 +225,7 @@ def _report():
             "views": {"default": view, "plains": view}}
 
 
+@pytest.mark.slow
 def test_table_and_charts_of_a_synthetic_report(tmp_path):
     report = _report()
     text = pv.views_table(report)
@@ -281,6 +282,7 @@ def _picture(h=180, w=320):
     return np.clip(np.round(np.stack([base, 0.8 * base + 0.1, 0.6 * base + 0.2], -1) * 255), 0, 255).astype(np.uint8)
 
 
+@pytest.mark.slow
 def test_video_judge_follows_the_per_frame_fixation_and_maps_the_error(default_screen):
     if not pj.vdp_available("fvvdp"):
         pytest.skip("the optional extra .[vdp] (torch, pyfvvdp) is not installed")

@@ -32,6 +32,7 @@ def renderer(gl_context):
     r.release()
 
 
+@pytest.mark.slow
 def test_the_tracker_sees_a_still_head(still):
     tracked, truth, scene = still
     assert len(tracked) == FRAMES and tracked.lost == 0
@@ -42,6 +43,7 @@ def test_the_tracker_sees_a_still_head(still):
     assert all(v.cov_deg2 is not None and np.trace(v.cov_deg2) > 0 for v in tracked)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("uncertainty", ["fixed", "smoothed"])
 def test_fixed_and_smoothed_reach_zero_changes_with_hysteresis(still, renderer, uncertainty):
     tracked, _, scene = still
@@ -50,6 +52,7 @@ def test_fixed_and_smoothed_reach_zero_changes_with_hysteresis(still, renderer, 
     assert result["changes_per_frame"] == [0] * (FRAMES - WARMUP), result
 
 
+@pytest.mark.slow
 def test_the_truth_driven_reference_is_still(still, renderer):
     _, truth, scene = still
     # The true pose does not move: without uncertainty nothing may change even without hysteresis.
@@ -73,6 +76,7 @@ def _still_then_jump(still, renderer, uncertainty, jump_px=300.0):
     return levels[-1], after, info, fresh
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("uncertainty", ["fixed", "smoothed"])
 def test_levels_still_follow_a_real_movement(still, renderer, uncertainty):
     """The zero above is not a frozen selector: a 300 px POI jump changes levels in the same frame."""
@@ -84,11 +88,13 @@ def test_levels_still_follow_a_real_movement(still, renderer, uncertainty):
     assert after[nearest] == after.max() > before[nearest]
 
 
+@pytest.mark.slow
 def test_after_a_real_movement_levels_match_a_fresh_selection(still, renderer):
     _, after, _, fresh = _still_then_jump(still, renderer, "smoothed")
     assert np.count_nonzero(after != fresh) <= 0.02 * len(after)
 
 
+@pytest.mark.slow
 def test_report_and_chart(still, renderer, tmp_path):
     tracked, truth, scene = still
     report = stability_report(scene, frames=FRAMES, uncertainties=("adaptive", "smoothed"),

@@ -60,6 +60,7 @@ def _one_line_error(err: str) -> str:
 # the pictures
 # ---------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_headless_writes_the_frames_asked_at_the_composite_size(sweep12_dir, sweep, tmp_path, capsys):
     out = tmp_path / "pictures"
     assert cli_main(["preview", "--source", str(sweep12_dir), "--frames", "3", "--out", str(out), "-q"]) == 0
@@ -224,6 +225,7 @@ def _write_video(path, images) -> None:
     pytest.skip("no video codec available for cv2.VideoWriter")
 
 
+@pytest.mark.slow
 def test_videos_without_a_rig_then_with_calib(sweep, sweep12_dir, tmp_path, capsys):
     frames = [sweep.frame(i) for i in range(2)]
     _write_video(tmp_path / "left.avi", [f.left for f in frames])
@@ -275,6 +277,7 @@ def test_bad_usage_is_one_line_exit_2_and_nothing_written(sample, tmp_path, caps
     assert "--out DIR" in _one_line_error(capsys.readouterr().err)
 
 
+@pytest.mark.slow
 def test_a_frame_that_fails_is_that_frames_picture_not_the_runs(sample, tmp_path, capsys, monkeypatch):
     (sample / "left" / "000001.png").write_bytes(b"not a png at all")
     calls = {"n": 0}
@@ -321,6 +324,7 @@ def test_the_written_pictures_are_whole_or_absent(sweep12_dir, tmp_path, monkeyp
     assert sorted(p.name for p in out.iterdir()) == [OUT_NAME.format(0)]
 
 
+@pytest.mark.slow
 def test_a_shorter_run_leaves_one_runs_pictures(sweep12_dir, tmp_path, capsys):
     """A 2-frame preview into the folder of a 4-frame one used to leave pictures 2 and 3 of the earlier run beside
     the new ones; the user's own files there stay."""

@@ -26,6 +26,7 @@ def _board(tmp_path, *args, name="board.png"):
     return code, out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cols, rows, square_mm, paper", [(9, 6, 25.0, "a4"), (7, 4, 20.0, "letter"),
                                                           (8, 5, 23.3, "a4")])
 def test_chessboard_png_has_the_requested_corners_and_square_size(tmp_path, cols, rows, square_mm, paper):
@@ -68,6 +69,7 @@ def test_charuco_png_is_detected_with_all_its_corners(tmp_path):
     assert np.abs(spacing / (24.0 * PX_PER_MM) - 1).max() < 0.01
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ending", [".pdf", ".svg"])
 def test_vector_boards_are_the_paper_size(tmp_path, ending):
     for kind in ("chessboard", "charuco"):
@@ -167,6 +169,7 @@ def test_glasses_draws_a_given_model_and_refuses_bad_sizes(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command,name", [("board", "b.png"), ("board", "b.pdf"), ("glasses", "g.pdf"),
                                           ("glasses", "g.svg")])
 def test_a_full_disk_is_one_line_exit_1_and_leaves_nothing(tmp_path, command, name):

@@ -38,6 +38,7 @@ POIS = {"centre": (W / 2, H / 2), "top left": (0.0, 0.0), "top right": (W, 0.0),
         "bottom right": (W, H)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("viewpoint", [None, "overview", "mountains", "plains"])
 @pytest.mark.parametrize("poi", list(POIS))
 @pytest.mark.parametrize("cov", [None, ((0.4, 0.1), (0.1, 0.9))], ids=["no cov", "cov"])
@@ -58,6 +59,7 @@ def test_quadtree_levels_equal_the_flat_ones_on_the_builtin_scene(terrain_scene,
         tree.reset()
 
 
+@pytest.mark.slow
 def test_the_scene_gives_a_quadtree_selector_on_request(terrain_scene):
     sel = scene_quadtree_selector(terrain_scene, "csf", "adaptive")
     assert isinstance(sel, QuadtreeSelector) and (sel.tree.nx, sel.tree.ny) == (32, 32)
@@ -66,6 +68,7 @@ def test_the_scene_gives_a_quadtree_selector_on_request(terrain_scene):
     np.testing.assert_array_equal(flat.select(view)[0], sel.select(view)[0])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("settings", [{"hysteresis": False}, {"mode": "gp"}, {"mode": "distance"},
                                       {"csf_model": "kelly"}, {"shift": "eq1"}, {"level_bias": -1.0},
                                       {"uncertainty": "fixed"}])
@@ -166,6 +169,7 @@ def test_refuses_modes_that_are_not_per_triangle(default_screen, hills):
 
 
 # ----------------------------------------------------------------------------- cost
+@pytest.mark.slow
 def test_cost_follows_what_is_seen_on_a_fine_grid(default_screen):
     """256² quads of the built-in terrain (131k base triangles) from the default view: the same levels as
     the flat selection, with a small fraction of the nodes and triangles evaluated."""

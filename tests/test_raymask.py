@@ -70,6 +70,7 @@ def test_the_mask_samples_at_least_as_densely_as_the_csf_asks(default_screen):
     assert wide.r_fill_deg == 15.0 and wide.n_fill > mask.n_fill
 
 
+@pytest.mark.slow
 def test_the_uncertainty_widens_the_full_density_region_to_the_2_sigma_ellipse(default_screen):
     from headplod.render.still import default_head
 
@@ -118,6 +119,7 @@ def test_settings_are_checked():
     assert np.all(np.diff(t[2:][np.isfinite(t[2:])]) > 0)
 
 
+@pytest.mark.slow
 def test_the_height_field_is_the_full_mesh(terrain_scene):
     grid = height_grid(terrain_scene.mesh)
     assert grid.heights.shape == (1025, 1025)
@@ -139,6 +141,7 @@ def raymask_setup(gl_context, terrain_scene, default_screen):
             "size": size}
 
 
+@pytest.mark.slow
 def test_the_inset_matches_full_and_a_still_view_repeats_exactly(raymask_setup, terrain_scene, default_screen):
     from headplod.render.image_metrics import psnr_db
     from headplod.render.still import default_head, px_per_deg_at, render_still
@@ -155,6 +158,7 @@ def test_the_inset_matches_full_and_a_still_view_repeats_exactly(raymask_setup, 
     assert psnr_db(frames[-1], full) >= 35.0
 
 
+@pytest.mark.slow
 def test_silhouette_quads_are_where_the_terrain_meets_the_sky(raymask_setup, terrain_scene, default_screen):
     from headplod.demo.viewpoints import place
     from headplod.render import off_axis_projection
@@ -204,6 +208,7 @@ def test_silhouette_quads_are_where_the_terrain_meets_the_sky(raymask_setup, ter
     assert (ours != sky)[ring_edge].mean() <= 0.02
 
 
+@pytest.mark.slow
 def test_render_command_draws_raymask_and_refuses_what_it_cannot(tmp_path, gl_context, capsys):
     import json
 

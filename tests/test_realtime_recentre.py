@@ -134,6 +134,7 @@ def test_dataset_source_realtime_paces_every_frame(tmp_path, make_dataset, monke
     assert [now - got[0][1] for _, now in got] == pytest.approx([0.0, 0.04, 0.05, 0.09], abs=1e-12)
 
 
+@pytest.mark.slow
 def test_track_realtime_paces_the_replay(sample, tmp_path, monkeypatch):
     fake = FakeTime()
     monkeypatch.setattr(sources, "time", fake)
@@ -145,6 +146,7 @@ def test_track_realtime_paces_the_replay(sample, tmp_path, monkeypatch):
     assert len(fake.clock.sleeps) == 11
 
 
+@pytest.mark.slow
 def test_track_without_realtime_does_not_pace(sample, tmp_path, monkeypatch):
     fake = FakeTime()
     monkeypatch.setattr(sources, "time", fake)
@@ -288,6 +290,7 @@ def test_sigusr1_without_a_sender_is_ignored_not_fatal():
     assert controls.ignored == 1
 
 
+@pytest.mark.slow
 def test_signal_mid_run_recentres_from_the_next_frame(sample, receiver):
     """run_source with a real sender: SIGUSR1 during frame 4's record makes frame 5's pose the zero."""
     got = []
@@ -311,6 +314,7 @@ def test_signal_mid_run_recentres_from_the_next_frame(sample, receiver):
     assert sender.recentred_frame == 5
 
 
+@pytest.mark.slow
 def test_recentre_at_start_and_the_records_keep_the_camera_frame(sample, tmp_path, receiver, capsys):
     out, plain = tmp_path / "poses.jsonl", tmp_path / "plain.jsonl"
     port = receiver.getsockname()[1]
@@ -381,6 +385,7 @@ def _read_until(master, text, timeout_s, buffer, child):
             raise AssertionError(f"{text!r} not seen; the child ended ({child.returncode}) after:\n{buffer[0]}")
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs a pseudo-terminal")
 def test_key_c_recentres_and_ctrl_c_leaves_the_terminal_as_it_was(long_dataset, receiver):
     master, slave = os.openpty()

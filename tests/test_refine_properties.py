@@ -118,6 +118,7 @@ def _flush(ref: RigRefiner):
 # --------------------------------------------------------------------------- the refiner
 
 
+@pytest.mark.slow
 @settings(max_examples=20, deadline=None)
 @given(motion=st.sampled_from(MOTIONS), amp=st.floats(0.0, 3.0),
        step=st.sampled_from([1 / 30, 1e-3, 0.0]),
@@ -145,6 +146,7 @@ def test_refiner_stays_definite_whatever_the_motion(motion, amp, step, right_dt,
                                        rig_refine.SKIP_INCONSISTENT}
 
 
+@pytest.mark.slow
 @settings(max_examples=20, deadline=None)
 @given(depth=st.floats(120.0, 1e5), lateral=st.floats(-1e4, 1e4), sigma_exp=st.floats(-6.0, 3.0),
        off_px=st.floats(-1e4, 1e4), visible=st.lists(st.booleans(), min_size=10, max_size=10),
@@ -211,6 +213,7 @@ def test_singular_chunk_leaves_the_state_unchanged():
     assert ref.updates == 3
 
 
+@pytest.mark.slow
 def test_rolling_shutter_sequence_keeps_the_prior_definite():
     """Bug 1: rows exposed over 30 ms, a head moving fast; `np.linalg.cholesky(prior)` in `_solve` raised
     'Matrix is not positive definite' at frame 63 (the noise-inflated posterior's variances passed the
@@ -317,6 +320,7 @@ def _rows(R, p1, visible, dt, omega, velocity, sigma):
             np.repeat(1.0 / np.square(sigma[visible]), 2))
 
 
+@pytest.mark.slow
 @settings(max_examples=150, deadline=None)
 @given(motion=st.sampled_from(MOTIONS), t=st.floats(0.0, 10.0), depth=st.floats(150.0, 5000.0),
        dt=st.sampled_from([0.0, 1e-3, -1e-3, -0.021, -0.042, 0.5, -0.5]),

@@ -9,6 +9,7 @@ from headplod.cli import main as cli_main
 needs_gl = pytest.mark.usefixtures("gl_context")
 
 
+@pytest.mark.slow
 @needs_gl
 def test_render_writes_image_and_stats(tmp_path):
     out, stats = tmp_path / "csf.png", tmp_path / "csf.json"
@@ -21,6 +22,7 @@ def test_render_writes_image_and_stats(tmp_path):
     assert out.stat().st_size > 1000
 
 
+@pytest.mark.slow
 @needs_gl
 def test_csf_keeps_full_detail_at_the_poi_and_far_fewer_triangles(default_screen, terrain_scene):
     from headplod.render.still import render_still
@@ -37,6 +39,7 @@ def test_bad_cov_is_refused(tmp_path, capsys):
     assert "positive definite" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @needs_gl
 def test_readback_contrast_variant_renders_and_reports_its_cost(tmp_path):
     out, stats = tmp_path / "rb.png", tmp_path / "rb.json"
@@ -61,6 +64,7 @@ def test_render_refuses_bad_outputs_before_rendering(tmp_path, capsys, extra, ex
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 @needs_gl
 def test_render_that_cannot_write_fails_with_one_line(tmp_path, capsys):
     """The image's folder cannot be made (a file stands in its way): exit 1, one line, nothing left."""
@@ -72,6 +76,7 @@ def test_render_that_cannot_write_fails_with_one_line(tmp_path, capsys):
     assert blocker.read_text() == "keep me\n" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
 
 
+@pytest.mark.slow
 @needs_gl
 def test_render_warns_of_a_poi_off_the_screen(tmp_path, capsys):
     out = tmp_path / "x.png"
@@ -81,6 +86,7 @@ def test_render_warns_of_a_poi_off_the_screen(tmp_path, capsys):
     assert "outside the screen" not in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_full_disk_while_writing_the_image_is_one_line_and_leaves_nothing(tmp_path, capsys, monkeypatch):
     """The encoder fails on a known ending (as on a full disk): exit 1, one line naming the file, nothing left."""
     import cv2

@@ -35,6 +35,7 @@ def _turn_error_deg(R, segment):
     return float(np.degrees(np.linalg.norm(cv2.Rodrigues(R @ np.asarray(segment["R"]).T)[0])))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("faults", [
     dict(rotation_deg=0.5), dict(baseline_scale=1.02), dict(offset_s=0.008),
     dict(rotation_deg=0.3, baseline_scale=1.02, offset_s=0.008)])
@@ -59,6 +60,7 @@ def test_refinement_recovers_the_rig(faults):
     assert np.median(late) < 0.1
 
 
+@pytest.mark.slow
 def test_still_head_leaves_the_rig_unchanged():
     # A perfect rig seen by a still head: nothing to learn about the offset or the focal length,
     # and what is learnt about the turn and baseline must stay at the noise level.
@@ -76,6 +78,7 @@ def test_still_head_leaves_the_rig_unchanged():
     assert all(r.ok for _, r in results)
 
 
+@pytest.mark.slow
 def test_bump_mid_sequence_is_detected_and_reconverged():
     ds, truth, tracker, results, states = _track(dict(bump_frame=60, bump_deg=0.4), 150)
     assert len(truth["segments"]) == 2
@@ -87,6 +90,7 @@ def test_bump_mid_sequence_is_detected_and_reconverged():
     assert max(evaluate.angle_deg(r.axes[2], ds.truth[f.index][1][2]) for f, r in results if r.ok) < 5.0
 
 
+@pytest.mark.slow
 def test_refinement_off_keeps_rig_yaml():
     config = TrackerConfig(rig_refine=RigRefineConfig(enabled=False))
     ds, truth, tracker, results, _ = _track(dict(rotation_deg=0.3), 40, config)

@@ -163,6 +163,7 @@ def test_rig_jacobian_rows_readout_column_in_both_cameras(readout_s):
 # --------------------------------------------------------------------------- recovery
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("readout_s, offset_s", [(0.0, 0.0), (0.0, 0.012), (0.015, 0.0), (0.015, 0.008),
                                                  (0.03, 0.0), (0.03, 0.010)])
 def test_refiner_recovers_readout_and_offset(readout_s, offset_s):
@@ -182,6 +183,7 @@ def test_refiner_recovers_readout_and_offset(readout_s, offset_s):
     assert ref.state.rig().extra["refined_readout_ms"] == round(ref.state.readout_s * 1e3, 4)
 
 
+@pytest.mark.slow
 def test_still_head_leaves_the_readout_at_its_prior():
     """A still head shows no row's time: the readout is not refined, the estimate stays at the prior's mean
     (the turn and shift are still learnt)."""
@@ -194,6 +196,7 @@ def test_still_head_leaves_the_readout_at_its_prior():
         assert ref.status()["readout_ms"] == round(mean * 1e3, 3)
 
 
+@pytest.mark.slow
 def test_a_global_shutter_rig_stays_global():
     """Global-shutter cameras (readout 0, as the user says): nothing to learn, and the moving head's
     offset is recovered as well as with a free readout."""
@@ -297,6 +300,7 @@ def synchronous():
     return _feed(rig_refine.RigRefineConfig(synchronous=True))
 
 
+@pytest.mark.slow
 def test_incremental_solve_is_bounded_and_equals_the_synchronous_one(synchronous):
     sync_ref, sync_passes, sync_results = synchronous
     ref, passes, results = _feed(JOB)
@@ -314,6 +318,7 @@ def test_incremental_solve_is_bounded_and_equals_the_synchronous_one(synchronous
     assert not ref.busy
 
 
+@pytest.mark.slow
 def test_a_job_still_running_is_finished_first(synchronous):
     """One pass a frame: a bump's retry (10 passes) outlasts its chunk's 7 following frames; the next
     chunk's completion finishes it first, and the results stay those of the synchronous solve."""
@@ -324,6 +329,7 @@ def test_a_job_still_running_is_finished_first(synchronous):
     _assert_same_results(results, sync_results)
 
 
+@pytest.mark.slow
 def test_a_copy_or_a_readout_prior_restarts_the_job_with_the_same_result(synchronous):
     import copy
     import pickle
@@ -434,6 +440,7 @@ def test_frames_given_during_a_job_are_moved_onto_the_new_rig():
         np.testing.assert_allclose(ref.refit_poses[t][1], turn @ p1 + p_new - turn @ p_old, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_the_first_update_is_solved_at_once_and_the_next_ones_over_the_frames_after():
     """first_at_once (the default): the call that completes the first chunk solves it (until then the rig is
     only rig.yaml); every later update is a job over the following calls, at most passes_per_frame each."""

@@ -78,6 +78,7 @@ def old_outputs(tmp_path, long_dataset):
 # ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("error", [
     np.linalg.LinAlgError("Matrix is not positive definite"), RuntimeError("boom"),
     cv2.error("OpenCV(4.x) error: (-215:Assertion failed) in function 'x'"),
@@ -111,6 +112,7 @@ def test_an_exception_in_frame_k_is_that_frames_failure_and_the_run_goes_on(erro
     assert "internal errors: 1 frames" in err          # counted and reported at the end
 
 
+@pytest.mark.slow
 def test_an_exception_while_making_a_record_is_that_frames_failure(long_dataset, tmp_path, monkeypatch, capsys):
     from headplod.live import loop
     real = loop.result_record
@@ -134,6 +136,7 @@ def test_an_exception_while_making_a_record_is_that_frames_failure(long_dataset,
 # ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_bug_outside_the_frames_keeps_everything_and_replaces_nothing_behind_the_users_back(
         long_dataset, old_outputs, monkeypatch, capsys):
     from headplod.live import status
@@ -158,6 +161,7 @@ def test_a_bug_outside_the_frames_keeps_everything_and_replaces_nothing_behind_t
     assert f"kept as {previous_out}" in line and f"kept as {previous_rec}" in line
 
 
+@pytest.mark.slow
 def test_the_record_folder_vanishing_mid_run_keeps_the_records_and_says_so(long_dataset, tmp_path, monkeypatch,
                                                                           capsys):
     real = DatasetRecorder.write
@@ -183,6 +187,7 @@ def _run(args, *, fsize_bytes=None, **popen):
                           preexec_fn=limit, **popen)
 
 
+@pytest.mark.slow
 def test_a_full_disk_for_the_records_keeps_every_whole_record(long_dataset, old_outputs):
     """``ulimit -f``: writes past the limit fail with EFBIG (Python ignores SIGXFSZ)."""
     out, rec = old_outputs
@@ -195,6 +200,7 @@ def test_a_full_disk_for_the_records_keeps_every_whole_record(long_dataset, old_
     assert (out.parent / "poses.previous.jsonl").read_text() == "precious\n"
 
 
+@pytest.mark.slow
 def test_a_full_disk_for_the_recording_keeps_it_consistent_and_the_old_one_aside(long_dataset, old_outputs,
                                                                                   monkeypatch, capsys):
     """The disk fills while frame 6's right image is written: the pair is dropped whole, the run ends."""
@@ -219,6 +225,7 @@ def test_a_full_disk_for_the_recording_keeps_it_consistent_and_the_old_one_aside
     assert (out.parent / "poses.previous.jsonl").read_text() == "precious\n"
 
 
+@pytest.mark.slow
 def test_a_closed_pipe_on_standard_output_ends_the_run_in_one_line(long_dataset):
     proc = subprocess.Popen([*COMMAND, "--source", str(long_dataset), "--out", "-", "-q"], env=ENV,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -232,6 +239,7 @@ def test_a_closed_pipe_on_standard_output_ends_the_run_in_one_line(long_dataset)
     assert "Exception ignored" not in err
 
 
+@pytest.mark.slow
 def test_a_folder_that_cannot_be_written_is_refused_before_the_first_frame(long_dataset, old_outputs,
                                                                            monkeypatch, capsys):
     out, rec = old_outputs
@@ -278,6 +286,7 @@ def _wait_for_records(out: Path, n: int, proc) -> None:
     raise AssertionError(f"the run never wrote {n} records")
 
 
+@pytest.mark.slow
 def test_sigkill_keeps_the_records_under_their_name_and_the_next_run_announces_them(long_dataset, old_outputs,
                                                                                    capsys):
     out, rec = old_outputs
@@ -310,6 +319,7 @@ def test_sigkill_keeps_the_records_under_their_name_and_the_next_run_announces_t
     assert (out.parent / "poses.previous.jsonl").read_text() == "precious\n"   # the killed run's, still there
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signals", [(signal.SIGHUP,), (signal.SIGTERM, signal.SIGTERM)],
                          ids=["sighup", "two-quick-sigterms"])
 def test_a_closed_terminal_or_two_quick_sigterms_keep_everything_whole(signals, long_dataset, old_outputs):
@@ -347,6 +357,7 @@ def test_hidden_leftovers_of_earlier_versions_are_brought_to_light(long_dataset,
 # ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_far_future_time_and_a_clock_reset_cost_two_frames_not_the_rest(tmp_path, long_dataset, capsys):
     folder = tmp_path / "clock"
     shutil.copytree(long_dataset, folder)
@@ -377,6 +388,7 @@ def test_a_far_future_time_and_a_clock_reset_cost_two_frames_not_the_rest(tmp_pa
 # ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_opentrack_not_listening_is_said_during_the_run(long_dataset, capsys):
     import socket
     probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

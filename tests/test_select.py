@@ -92,6 +92,7 @@ def test_fixed_uncertainty_gives_the_2_sigma_ellipse_full_detail(field):
     assert np.mean(eq1_levels[inside] == MAX_LEVEL) < 1.0
 
 
+@pytest.mark.slow
 def test_steady_head_motion_passes_the_smoothing(field):
     """A head translating steadily: the triangles' angular speed is measured at its true value."""
     screen, centroids, *_, eye, px = field

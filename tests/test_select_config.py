@@ -179,6 +179,7 @@ WIRING = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode,name,value", WIRING, ids=[w[1] for w in WIRING])
 def test_every_setting_is_used(field, mode, name, value):
     base_levels, base_cont = run(field, SelectorConfig(mode=mode))
@@ -189,6 +190,7 @@ def test_every_setting_is_used(field, mode, name, value):
         assert not np.array_equal(cont, base_cont, equal_nan=True)
 
 
+@pytest.mark.slow
 def test_smoothed_uncertainty_uses_its_time_constant(field):
     a = run(field, SelectorConfig(uncertainty="smoothed"))[1]
     b = run(field, SelectorConfig(uncertainty="smoothed", uncertainty_smoothing_frames=2))[1]

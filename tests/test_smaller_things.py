@@ -46,6 +46,7 @@ def _colour(folder: Path, side: str = "left") -> None:
         assert cv2.imwrite(str(path), cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("quiet", [False, True])
 def test_colour_pngs_are_tracked_with_one_warning_and_a_count(sample, tmp_path, capsys, quiet):
     _colour(sample, "left")
@@ -65,6 +66,7 @@ def test_colour_pngs_are_tracked_with_one_warning_and_a_count(sample, tmp_path, 
                               "expected 8-bit grayscale"]
 
 
+@pytest.mark.slow
 def test_gray_pngs_give_no_warning(sample, tmp_path, capsys):
     out = tmp_path / "poses.jsonl"
     assert cli_main(["track", "--source", str(sample), "--out", str(out), "-q"]) == 0
@@ -155,6 +157,7 @@ def test_right_times_seconds_off_are_named_as_a_skew(sample, tmp_path, capsys):
         assert "clocks" in r["reason"] and "reprojection" not in r["reason"]
 
 
+@pytest.mark.slow
 def test_right_times_a_little_off_are_tracked_without_a_skew_warning(sample, tmp_path, capsys):
     _shift_right_times(sample, 0.004)                                   # 4 ms: an exposure offset
     out = tmp_path / "poses.jsonl"
@@ -190,6 +193,7 @@ def test_markers_in_metres_are_refused_with_a_units_hint(sample, tmp_path, capsy
         io.Dataset(sample)
 
 
+@pytest.mark.slow
 def test_markers_in_cm_get_a_units_hint_in_the_reason(sample, tmp_path, capsys):
     model = io.default_marker_model()
     path = _write_markers_raw(tmp_path / "markers.yaml", model.points_mm / 10.0, 0.6)   # plausible alone
@@ -202,6 +206,7 @@ def test_markers_in_cm_get_a_units_hint_in_the_reason(sample, tmp_path, capsys):
         assert "the markers seen are 10 times the size of the marker model: is markers.yaml in mm" in r["reason"]
 
 
+@pytest.mark.slow
 def test_no_units_hint_for_the_right_model(sample, tmp_path):
     out = tmp_path / "poses.jsonl"
     assert cli_main(["track", "--source", str(sample), "--out", str(out), "-q"]) == 0
@@ -226,6 +231,7 @@ def _again(root, capsys):
     return folder, capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_an_intact_cache_is_used_as_it_is(cached, capsys):
     root, folder, _ = cached
     marker = (folder / cache.COMPLETE).read_text()
@@ -238,6 +244,7 @@ def test_an_intact_cache_is_used_as_it_is(cached, capsys):
     assert _again(root, capsys)[1] == ""
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage, words", [
     ("truncate", "left/000002.png has"),
     ("delete", "left/000002.png is missing"),
@@ -261,6 +268,7 @@ def test_a_damaged_cached_frame_is_rendered_again(cached, capsys, damage, words)
     assert _again(root, capsys)[1] == ""                                # and trusted from then on
 
 
+@pytest.mark.slow
 def test_an_older_cache_is_read_once_then_given_a_manifest(cached, capsys):
     root, folder, original = cached
     (folder / cache.COMPLETE).write_text("ok\n")                        # as earlier versions wrote it
@@ -273,6 +281,7 @@ def test_an_older_cache_is_read_once_then_given_a_manifest(cached, capsys):
     assert (folder / "left" / "000002.png").read_bytes() == original
 
 
+@pytest.mark.slow
 def test_ensure_dataset_stays_cheap_on_a_cached_sequence(cached, monkeypatch):
     """On an intact cache the check is one stat per file: no file is hashed or decoded, nothing rendered."""
     import synthetic.dataset
@@ -297,6 +306,7 @@ def test_ensure_dataset_stays_cheap_on_a_cached_sequence(cached, monkeypatch):
     assert work == [("hash", frame)]
 
 
+@pytest.mark.slow
 def test_track_renders_a_damaged_default_sequence_again_and_tracks_it(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("HEADPLOD_CACHE", str(tmp_path / "cache"))
     first, second = tmp_path / "first.jsonl", tmp_path / "second.jsonl"
@@ -313,6 +323,7 @@ def test_track_renders_a_damaged_default_sequence_again_and_tracks_it(tmp_path, 
     assert np.allclose(b[3]["position"], a[3]["position"])
 
 
+@pytest.mark.slow
 def test_a_cached_frame_that_fails_to_read_is_rendered_again_next_time(tmp_path, monkeypatch, capsys):
     import os
     monkeypatch.setenv("HEADPLOD_CACHE", str(tmp_path / "cache"))

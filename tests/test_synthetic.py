@@ -82,6 +82,7 @@ def _random_rotation(rng):
 # conventions
 # ----------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_synthetic_never_imports_headplod():
     for f in (ROOT / "synthetic").glob("*.py"):
         tree = ast.parse(f.read_text())
@@ -281,6 +282,7 @@ def test_clean_blob_centroid_wide_hd_strong_distortion(pos_m):
                      max_offcentre=400)
 
 
+@pytest.mark.slow
 def test_clean_blob_centroid_matches_exact_area_centroid_wide_hd():
     """Against the exact centroid of the disk's image (dense back-projection
     of sub-pixel samples here, with cv2.undistortPoints): isolates rendering
@@ -418,6 +420,7 @@ def test_motion_blur_and_time_offset():
     assert np.abs(R_off - R_now).max() > 20
 
 
+@pytest.mark.slow
 def test_all_presets_build_and_render():
     for name in PRESETS:
         sc = make_scene(name, n_frames=3, seed=1)
@@ -448,6 +451,7 @@ def test_random_preset_heads_look_at_screen_and_stay_visible():
 # dataset folder
 # ----------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_write_dataset_contract(tmp_path):
     sc = make_scene("fast_motion", n_frames=3)
     out = write_dataset(tmp_path / "ds", sc, seed=4)

@@ -158,6 +158,7 @@ def _render_module_before(tmp_path):
     return module
 
 
+@pytest.mark.slow
 def test_readout_zero_renders_as_before(tmp_path, monkeypatch):
     before = _render_module_before(tmp_path)
     for name in ("fast_motion", "glints_lamp", "wide_hd"):
@@ -218,6 +219,7 @@ def _marker_light(sc, k, cam=0):
     return float((img - bg).sum()), float(bg.mean())
 
 
+@pytest.mark.slow
 def test_auto_exposure_steps_brightness_noise_blur_and_rate():
     sc = imperfect.imperfect_rig(n_frames=10, base="static", exposure_s=0.004,
                                  auto_exposure=[(4, 0.006, 1.2)], ae_converge_frames=2)
@@ -264,6 +266,7 @@ def _truth(folder):
     return np.array([[float(v) for v in r] for r in rows])
 
 
+@pytest.mark.slow
 def test_dropped_and_repeated_frames(tmp_path):
     sc = imperfect.imperfect_rig(n_frames=8, base="yaw_sweep", drop_frames=[3, 6, 7], duplicate_frames=[2, 5])
     out = write_dataset(tmp_path / "ds", sc, seed=2)
@@ -297,6 +300,7 @@ def test_dropped_and_repeated_frames(tmp_path):
     assert frac.n_frames == 40 and (gaps - 1).sum() == 2 == len(frac.webcam_truth["dropped"])
 
 
+@pytest.mark.slow
 def test_free_running_clock_drifts_and_wraps(tmp_path):
     period = 1 / 30
     sc = imperfect.imperfect_rig(n_frames=6, base="static", offset_s=0.012, clock_drift_ppm=100.0)
@@ -327,6 +331,7 @@ def test_free_running_clock_drifts_and_wraps(tmp_path):
     assert len(set(right_frames)) == 19        # one right frame paired twice where the offset wrapped
 
 
+@pytest.mark.slow
 def test_timestamp_jitter_on_the_declared_times(tmp_path):
     sc = imperfect.imperfect_rig(n_frames=10, base="yaw_sweep", offset_s=0.005, declare_offset=True,
                                  timestamp_jitter_s=0.002, seed=4)
@@ -351,6 +356,7 @@ def test_timestamp_jitter_on_the_declared_times(tmp_path):
 # everything at once
 # ----------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_ordinary_webcams_preset_writes_a_valid_dataset(tmp_path):
     assert "ordinary_webcams" in PRESETS
     out = tmp_path / "webcams"

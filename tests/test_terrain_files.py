@@ -248,6 +248,7 @@ def test_fit_scale_frames_any_extent_like_the_built_in():
 
 
 # ---------------------------------------------------------------------------------------------- command line
+@pytest.mark.slow
 @needs_gl
 def test_render_terrain_writes_image_stats_and_a_crack_free_mesh(small_tif, tmp_path):
     """End to end; the exported mesh reloads in trimesh with the stats' triangle count, and is crack-free.

@@ -55,6 +55,7 @@ def _view(screen, grid, poi_px=None, head_mm=None):
     return view, proj, grid_model(grid, screen), head, head_axes(screen, head, poi)
 
 
+@pytest.mark.slow
 def test_height_grid_equals_terrain_heights(terrain):
     z, dx, dy = height_grid(terrain, 129)
     x0, _, y0, _ = terrain.extent
@@ -165,6 +166,7 @@ def _edges_and_area(tri):
     return key, area
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode, poi_px, stage, rule", [("csf", (700.0, 500.0), "vertex", "whole"),
                                                        ("csf", (100.0, 900.0), "control", "whole"),
                                                        ("csf", (700.0, 500.0), "vertex", "power_of_two"),
@@ -193,6 +195,7 @@ def test_patches_are_watertight(ctx430, grid, default_screen, mode, poi_px, stag
     assert np.all(counts[~on_border] == 2), f"{np.sum(counts[~on_border] != 2)} edges not shared by two triangles"
 
 
+@pytest.mark.slow
 def test_still_view_gives_identical_frames(ctx430, grid, default_screen):
     from headplod.render.frame import TessellationBackend, one_frame
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
@@ -207,6 +210,7 @@ def test_still_view_gives_identical_frames(ctx430, grid, default_screen):
     assert (a.image != np.array([158, 184, 209], np.uint8)).any(axis=-1).mean() > 0.3    # the terrain is in view
 
 
+@pytest.mark.slow
 def test_many_patches_keep_their_ids(ctx430, default_screen):
     """16384 patches in one draw: on llvmpipe gl_PrimitiveID restarts within such a draw (it gave the
     control shader other patches' levels); the patch is known by its vertex instead. Both stages agree,
@@ -233,6 +237,7 @@ def test_many_patches_keep_their_ids(ctx430, default_screen):
     assert counts.max() == 2
 
 
+@pytest.mark.slow
 def test_render_cli_tessellation_backend(ctx430, tmp_path, monkeypatch, capsys):
     from headplod.cli import main as cli_main
 
@@ -288,6 +293,7 @@ def test_texture_shading_bakes_every_samples_colour(ctx430, grid):
         assert np.abs(mip - box).mean() < 2.0 / 255
 
 
+@pytest.mark.slow
 def test_texture_shading_meets_the_full_detail_render(ctx430, default_screen):
     """On a grid whose samples are finer than a pixel, the csf frame with texture shading is within 45 dB of
     the full-detail render in the 5° disc, and clearly closer than per-vertex shading is: that shows each
@@ -434,6 +440,7 @@ def test_shader_rule_equals_criteria_on_a_grid(ctx430, cov_deg2, shift):
     np.testing.assert_allclose(got[clear, 2], want[clear], atol=RULE_LEVEL_ATOL)
 
 
+@pytest.mark.slow
 def test_uncertainty_none_ignores_the_covariance(ctx430, grid, default_screen):
     """Scenario ``none`` draws as without a covariance (the view is conditioned first): a wide covariance
     changes the frame only under a scenario that uses it."""

@@ -13,6 +13,7 @@ import io as textio
 import shutil
 from pathlib import Path
 
+import pytest
 
 from headplod import io
 from headplod.capture import DatasetSource, TimestampCheck
@@ -130,6 +131,7 @@ def test_a_live_source_gives_every_frame_a_record_and_says_where_latency_starts(
     assert "bad time 3 (first: frame 0: left time 0 s (no timestamp))" in line
 
 
+@pytest.mark.slow
 def test_a_replayed_recording_treats_the_same_frames_the_same_way(tmp_path):
     # times.csv: frame 0 at 0 s is the recording's origin (kept); then the brief's times from frame 1:
     # a zero (dropped: not the first frame), two good, a repeat, a backward one, a good one.
@@ -166,6 +168,7 @@ def test_track_frames_yields_dropped_frames_as_error_frames_for_a_plain_iterable
     assert check.dropped == 1
 
 
+@pytest.mark.slow
 def test_headplod_track_reports_them_at_the_end(tmp_path, capsys):
     folder = _dataset(tmp_path, [0.0] + TIMES)
     out = tmp_path / "poses.jsonl"

@@ -24,6 +24,7 @@ def summary_of(dataset, config=TrackerConfig()):
     return records, evaluate.summarize(records, dataset.truth)
 
 
+@pytest.mark.slow
 def test_shared_sample_matches_its_truth(sweep12_dir):
     """sweep12 was rendered by independent code: the contract is read the same way on both sides."""
     records, s = summary_of(io.Dataset(sweep12_dir))
@@ -34,6 +35,7 @@ def test_shared_sample_matches_its_truth(sweep12_dir):
         assert np.all(np.linalg.eigvalsh(np.array(rec["cov"])) > 0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("estimator", ["reproj", "rigid", "paper"])
 def test_near_accuracy_goals(synth, estimator):
     dataset = synth("static", 20, distance_mm=550.0)
@@ -43,6 +45,7 @@ def test_near_accuracy_goals(synth, estimator):
     assert s["pos_err_mm_median"] <= 0.2
 
 
+@pytest.mark.slow
 def test_sweeps_track_within_goals(synth):
     for preset in ("pitch_sweep", "roll_sweep"):
         _, s = summary_of(synth(preset, 24))
@@ -51,6 +54,7 @@ def test_sweeps_track_within_goals(synth):
         assert s["wrong_identifications"] == 0
 
 
+@pytest.mark.slow
 def test_tracking_fast_path_agrees_with_full_detection(synth):
     dataset = synth("yaw_sweep", 16, amplitude_deg=25.0)
     tracked, s_tracked = summary_of(dataset, TrackerConfig(track=True))
@@ -68,6 +72,7 @@ def test_tracking_fast_path_agrees_with_full_detection(synth):
     assert s_tracked["pos_err_mm_median"] <= 1.3 * s_full["pos_err_mm_median"] + 0.01
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset, frames, min_tracked, max_median_deg", [
     ("far", 12, 1.0, 0.8),                 # 120 cm: depth precision ∝ z²; see the bench for the goal
     ("dim_ir", 12, 1.0, 0.2),              # marker peaks 50-110 DN: the adaptive threshold keeps them
@@ -85,12 +90,14 @@ def test_hard_sets(synth, preset, frames, min_tracked, max_median_deg):
     assert s["v_err_deg_median"] <= max_median_deg
 
 
+@pytest.mark.slow
 def test_random_poses_never_misidentify(synth):
     _, s = summary_of(synth("random", 120))
     assert s["wrong_identifications"] == 0
     assert s["tracked_fraction"] >= 0.8
 
 
+@pytest.mark.slow
 def test_paper_threshold_fails_cleanly_on_dim_ir(synth):
     """The paper's fixed threshold of 100 DN misses dim markers: no pose, with a reason, never a wrong one."""
     records, s = summary_of(synth("dim_ir", 8), TrackerConfig(detection=DetectionParams.paper()))
@@ -126,6 +133,7 @@ def test_wrong_image_size_and_nan_free_records(tmp_path, sweep12_dir):
     assert not result.ok and "320x240" in result.reason and "640x480" in result.reason
 
 
+@pytest.mark.slow
 def test_cli_writes_contract_records_and_survives_bad_frames(tmp_path, capsys, sample):
     ds = sample
     (ds / "right" / "000004.png").unlink()                          # missing frame
@@ -143,6 +151,7 @@ def test_cli_writes_contract_records_and_survives_bad_frames(tmp_path, capsys, s
     assert s["ok"] == 9 and s["v_err_deg_median"] <= 0.1
 
 
+@pytest.mark.slow
 def test_cli_stdout_and_malformed_rig(capsys, sample):
     ds = sample
     assert cli_main(["track", "--source", str(ds), "--out", "-", "-q"]) == 0
@@ -163,6 +172,7 @@ def test_cli_malformed_markers_names_the_file(capsys, sample):
     assert "markers.yaml" in err and "5" in err
 
 
+@pytest.mark.slow
 def test_left_right_count_mismatch_processes_the_rest(sample):
     ds = sample
     for k in (10, 11):

@@ -1,5 +1,6 @@
 """Covariance of V against ground truth and against its physics."""
 import numpy as np
+import pytest
 
 from headplod.bench.uncertainty import nees
 from headplod.tracking.tracker import Tracker, TrackerConfig
@@ -16,6 +17,7 @@ def covariances(dataset, name="first_order_smoothed", config=None):
     return out
 
 
+@pytest.mark.slow
 def test_every_estimator_gives_spd_covariances(synth):
     ds = synth("static", 12, distance_mm=600.0)
     tracker = Tracker(ds.rig, ds.markers)
@@ -28,12 +30,14 @@ def test_every_estimator_gives_spd_covariances(synth):
             assert np.all(np.linalg.eigvalsh(cov) > 0), name
 
 
+@pytest.mark.slow
 def test_covariance_grows_with_distance(synth):
     near = np.mean([np.trace(r.cov_deg2) for r, _ in covariances(synth("static", 20, distance_mm=550.0))[5:]])
     far = np.mean([np.trace(r.cov_deg2) for r, _ in covariances(synth("static", 20, distance_mm=1200.0))[5:]])
     assert far > 4 * near          # depth precision ∝ z²/(f B), and the blobs are dimmer and smaller
 
 
+@pytest.mark.slow
 def test_covariance_grows_with_noise_and_shrinks_with_more_pixels(synth):
     """Pure physics, no residuals: σ of the centroids scales with pixel noise and falls with marker size."""
     ds = synth("static", 6, distance_mm=1200.0)
@@ -56,6 +60,7 @@ def test_covariance_grows_with_noise_and_shrinks_with_more_pixels(synth):
     assert np.trace(est_b(xb)) < 0.8 * np.trace(base)
 
 
+@pytest.mark.slow
 def test_first_order_is_calibrated_on_a_still_head(synth):
     """Mean NEES near 2 (the goal band 1.5-2.6) against the true V."""
     pairs = covariances(synth("static", 60, distance_mm=600.0))
@@ -63,6 +68,7 @@ def test_first_order_is_calibrated_on_a_still_head(synth):
     assert 1.3 < np.mean(values) < 2.8
 
 
+@pytest.mark.slow
 def test_smoothed_covariance_is_steady_for_a_still_head(synth):
     traces = np.array([np.trace(r.cov_deg2) for r, _ in covariances(synth("static", 40, distance_mm=600.0))])
     # From frame 16: the rig's first update (its chunk of 8 frames solved over the next few) has shrunk the
@@ -71,6 +77,7 @@ def test_smoothed_covariance_is_steady_for_a_still_head(synth):
     assert change.mean() < 0.05
 
 
+@pytest.mark.slow
 def test_paper_estimator_overstates_and_keeps_its_2mm_pairs(synth):
     ds = synth("static", 4, distance_mm=600.0)
     tracker = Tracker(ds.rig, ds.markers)

@@ -39,6 +39,7 @@ def _errors(dataset, results):
     return np.array(v), np.array(p), np.array(n)
 
 
+@pytest.mark.slow
 def test_rolling_shutter_is_compensated_and_its_readout_learnt(synth):
     """30 ms from the first row to the last, and the right camera 12 ms late, undeclared: the readout and
     the offset are learnt from the motion, and the poses are as good as a global shutter's."""
@@ -57,6 +58,7 @@ def test_rolling_shutter_is_compensated_and_its_readout_learnt(synth):
     assert "rolling shutter" in tracker.refiner.describe()
 
 
+@pytest.mark.slow
 def test_without_compensation_a_rolling_shutter_costs_accuracy(synth):
     """A head turning at up to 140°/s with the compensation off: what the compensation is worth (the test
     above is not passing for want of a rolling shutter in the images)."""
@@ -69,6 +71,7 @@ def test_without_compensation_a_rolling_shutter_costs_accuracy(synth):
     assert np.median(v_off[30:]) > 2 * np.median(v_on[30:])
 
 
+@pytest.mark.slow
 def test_a_global_shutter_stays_one(synth):
     """A global-shutter rig (the default synthetic one): the readout is learnt as 0, nothing is compensated,
     and the accuracy is what it was."""
@@ -81,6 +84,7 @@ def test_a_global_shutter_stays_one(synth):
     assert tracker.readout_s() == 0.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("faults", [dict(rotation_deg=3.0), dict(baseline_scale=1.10),
                                     dict(rotation_deg=2.0, baseline_scale=1.07, focal_scale=1.02)])
 def test_a_far_off_rig_gives_no_wrong_pose_from_the_first_frames(synth, faults):
@@ -118,6 +122,7 @@ def test_one_stray_blob_does_not_make_a_rig():
     assert refiner.versions == 0 and refiner.bootstrapped_at is None
 
 
+@pytest.mark.slow
 def test_a_repeated_buffer_gets_no_pose(synth):
     """A driver handing out the same buffer again: the images were exposed a frame before their time."""
     ds = synth("imperfect_rig", 40, duplicate_frames=[10, 25])
@@ -132,6 +137,7 @@ def test_a_repeated_buffer_gets_no_pose(synth):
             assert r.ok, (f.index, r.reason)
 
 
+@pytest.mark.slow
 def test_readout_option_is_validated_and_reaches_the_tracker(synth, tmp_path, capsys):
     ds = synth("imperfect_rig", 20, readout_s=0.03)
     for bad in ("-1", "1500", "fast"):
@@ -148,6 +154,7 @@ def test_readout_option_is_validated_and_reaches_the_tracker(synth, tmp_path, ca
     assert len(v) >= 18 and np.median(v) <= 0.1
 
 
+@pytest.mark.slow
 def test_the_tracker_names_its_states(synth):
     """acquire → track on the markers; rig.yaml → refining on the rig, as the frames go."""
     ds = synth("imperfect_rig", 40, rotation_deg=0.3)
@@ -163,6 +170,7 @@ def test_the_tracker_names_its_states(synth):
     assert tracker.state()[0] == "acquire"
 
 
+@pytest.mark.slow
 def test_a_saved_rig_brings_its_readout(synth, tmp_path):
     """--save-rig keeps the readout with the refined rig (not in rig.yaml); tracking with that rig starts from
     it: compensated from the first frames, even with the refinement off."""

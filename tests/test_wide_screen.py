@@ -31,6 +31,7 @@ def test_the_scene_is_scaled_by_the_screens_width(wide_screen, default_screen):
     assert io.read_screen(DEFAULT_SCREEN) == default_screen
 
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("gl_context")
 def test_the_terrain_fills_the_wide_screen_not_its_middle_third(gl_context, wide_screen):
     """Left and right of the middle third, the middle row shows terrain, not the sky (the background)."""
