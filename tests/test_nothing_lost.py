@@ -32,6 +32,7 @@ from headplod import io
 from headplod.capture import DatasetRecorder, open_source
 from headplod.capture.signals import StopSignals, deferred_signals
 from headplod.cli import main as cli_main
+from paused_track import start_paused
 
 ROOT = Path(__file__).resolve().parent.parent
 STOP = (signal.SIGINT, signal.SIGTERM)
@@ -293,31 +294,6 @@ def test_a_recording_stays_consistent_over_20_interrupts(long_dataset, tmp_path,
     assert len(io.read_poses(replay)) == n
 
 
-#: The command in a process of its own that stops after recording frame ARGV[1] to say so on stdout, and goes on
-#: when a line comes on stdin: the test sends its signal in between (an event, not a delay).
-_PAUSING_TRACK = """
-import sys
-import headplod.capture.record
-from headplod.cli import main
-
-record = sys.modules["headplod.capture.record"]      # (headplod.capture.record is also a function's name)
-
-pause_after = int(sys.argv[1])
-real_write = record.DatasetRecorder.write
-
-def write(self, frame):
-    index = real_write(self, frame)
-    if index == pause_after:
-        print(f"recorded {index}", flush=True)
-        sys.stdin.readline()
-    return index
-
-record.DatasetRecorder.write = write
-sys.exit(main(sys.argv[2:]))
-"""
-
-
-@pytest.mark.slow
 def test_the_command_stops_cleanly_on_sigint_and_sigterm(long_dataset, tmp_path):
     """The same, as a process: a command started per interrupt, 3 x SIGINT and 3 x SIGTERM (the default
     SIGTERM would kill the process), each sent while the command waits after a seeded-random frame."""
@@ -326,16 +302,10 @@ def test_the_command_stops_cleanly_on_sigint_and_sigterm(long_dataset, tmp_path)
     for run in range(6):
         sig, frame = STOP[run % 2], rng.randrange(0, 24)
         rec, out = tmp_path / f"rec{run}", tmp_path / f"poses{run}.jsonl"
-        proc = subprocess.Popen([sys.executable, "-c", _PAUSING_TRACK, str(frame), "track",
-                                 "--source", str(long_dataset), "--record", str(rec), "--out", str(out), "-q"],
-                                env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                text=True)
-        said = proc.stdout.readline()
-        if said != f"recorded {frame}\n":
-            proc.kill()
-            raise AssertionError(f"the command did not reach frame {frame}: {said!r} {proc.communicate()[1]}")
+        proc = start_paused(["--source", str(long_dataset), "--record", str(rec), "--out", str(out), "-q"],
+                            frame, env)
         proc.send_signal(sig)
-        _, err = proc.communicate(input="go on\n", timeout=120)
+        _, err = proc.communicate(input="go\n", timeout=120)
         assert _check_interrupted_run(rec, out, proc.returncode, err, sig), err
         assert _check_consistent(rec) == frame + 1
 
