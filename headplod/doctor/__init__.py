@@ -51,9 +51,9 @@ __all__ = ["doctor", "format_results", "add_doctor_arguments", "run_doctor", "CH
 #: The checks in the order they run and print.
 CHECKS = (check_config, check_source, check_devices, check_group, check_access, check_formats, check_libusb,
           check_identity, check_rig, check_egl)
-_CHECK_NAMES = {check_config: "config", check_source: "source", check_devices: "video devices", check_group: "video group",
-                check_access: "device access", check_formats: "formats", check_libusb: "libusb",
-                check_identity: "camera identity", check_rig: "rig", check_egl: "EGL"}
+_CHECK_NAMES = {check_config: "config", check_source: "source", check_devices: "video devices",
+                check_group: "video group", check_access: "device access", check_formats: "formats",
+                check_libusb: "libusb", check_identity: "camera identity", check_rig: "rig", check_egl: "EGL"}
 
 
 
