@@ -27,11 +27,16 @@ and under a warning or a failure the fix, a command to run:
   ``source`` doctor takes from it when not given;
 - ``source``: with ``--source``, whether the spec is one ``track`` opens.
 
-The thresholds are :class:`DoctorSettings`. Checks take everything they look
-at from a :class:`Machine` (device lister, opener, group lookup, clock, GL
+The thresholds are :class:`~.machine.DoctorSettings`. Checks take everything they look
+at from a :class:`~.machine.Machine` (device lister, opener, group lookup, clock, GL
 context factory, ...), so tests simulate machines without hardware. A check
 that raises is reported as its own ``FAIL`` line; doctor itself never
 raises. Exit status: 0 when no check FAILs, 1 when one does.
+
+The parts: :mod:`.machine` (the settings, a check's :class:`~.machine.Result`, the
+:class:`~.machine.Machine`), :mod:`.checks` (the run's :class:`~.checks.Survey` and every check but
+the rig's), :mod:`.rig_checks` (the rig's four lines); this module runs them in order
+(:data:`CHECKS`), prints the report and is the command.
 """
 from __future__ import annotations
 
