@@ -294,6 +294,7 @@ def test_a_recording_stays_consistent_over_20_interrupts(long_dataset, tmp_path,
     assert len(io.read_poses(replay)) == n
 
 
+@pytest.mark.slow
 def test_the_command_stops_cleanly_on_sigint_and_sigterm(long_dataset, tmp_path):
     """The same, as a process: a command started per interrupt, 3 x SIGINT and 3 x SIGTERM (the default
     SIGTERM would kill the process), each sent while the command waits after a seeded-random frame."""
