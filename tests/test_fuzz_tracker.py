@@ -41,7 +41,8 @@ import pytest
 
 from headplod import io
 from headplod.tracking.motion import PoseHistory
-from headplod.tracking.rig_refine import RigRefineConfig, RigRefiner
+from headplod.tracking.rig_estimator import RigEstimator
+from headplod.tracking.rig_refine import RigRefineConfig
 from headplod.tracking.tracker import Tracker, TrackerConfig
 
 GRID_HZ = 120.0        # the render grid, Hz
@@ -407,19 +408,20 @@ def test_an_exception_in_the_refinement_drops_its_chunk_and_keeps_its_estimate(g
     for left, right, t, _ in frames[:12]:
         assert tracker.process(left, right, t).ok
     refiner = tracker.refiner
-    assert refiner._pending, "the refinement should be collecting a chunk"
+    assert refiner.scheduler.pending, "the refinement should be collecting a chunk"
     before = (refiner.estimate.R.copy(), refiner.estimate.T.copy(), refiner.updates)
 
     def singular(self, chunk, prior):
         raise np.linalg.LinAlgError("Singular matrix")
 
-    # Raised inside rig_refine.py (its _update calls _solve): the tracker must see where it came from.
-    monkeypatch.setattr(RigRefiner, "_solve", singular)
+    # Raised inside the estimator's solve, run from RigRefiner.add_frame (rig_refine.py) through the
+    # scheduler: the tracker must see where it came from.
+    monkeypatch.setattr(RigEstimator, "solve", singular)
     results = [tracker.process(left, right, t) for left, right, t, _ in frames[12:]]
     failed = [r for r in results if not r.ok]
     assert len(failed) == 1 and failed[0].reason == "internal error: LinAlgError: Singular matrix"
     assert tracker.internal_errors == 1 and tracker.refiner is refiner
-    assert len(refiner._pending) < refiner.config.chunk_frames      # dropped and collecting anew
+    assert len(refiner.scheduler.pending) < refiner.config.chunk_frames      # dropped and collecting anew
     assert np.array_equal(refiner.estimate.R, before[0]) and np.array_equal(refiner.estimate.T, before[1])
     assert refiner.updates == before[2]
     for r, (_, _, _, i) in zip(results, frames[12:]):

@@ -159,4 +159,4 @@ def test_without_data_the_error_model_stands(sweep12_dir):
     mean, cov = refiner.error_distribution()
     np.testing.assert_allclose(mean, 0.0, atol=1e-12)
     np.testing.assert_allclose(cov, refiner.prior, rtol=1e-9)
-    assert not refiner.has_data() and refiner.data_scale() == 1.0
+    assert not refiner.has_data() and refiner.estimator.data_scale() == 1.0

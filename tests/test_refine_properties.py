@@ -22,6 +22,7 @@ from hypothesis import given, settings, strategies as st
 from headplod import io
 from headplod.tracking import geometry as geo
 from headplod.tracking import rig_refine, rig_solve
+from headplod.tracking.rig_estimator import RigEstimator
 from headplod.tracking.rig_refine import N_RIG, RigRefiner, RigState, rig_jacobian_rows
 from headplod.tracking.uncertainty import rig_residual_rows
 
@@ -83,9 +84,9 @@ def _assert_spd(M):
 
 def _snapshot(ref: RigRefiner):
     est, use = ref.estimate, ref.state
-    return (est.R.copy(), est.T.copy(), est.log_focal, est.offset_s, ref.P.copy(), ref.cov().copy(),
+    return (est.R.copy(), est.T.copy(), est.log_focal, est.offset_s, ref.estimator.P.copy(), ref.cov().copy(),
             use.R.copy(), use.T.copy(), use.log_focal, use.offset_s, ref.updates, ref.versions,
-            ref.refined.copy(), len(ref.bumps))
+            ref.estimator.refined.copy(), len(ref.bumps))
 
 
 def _assert_same(a, b):
@@ -97,13 +98,13 @@ def _checked(ref: RigRefiner, call):
     """A call of the refiner, then the invariants: SPD covariances; a skipped chunk changed nothing.
     (A chunk's update runs over the add_frame calls after the one completing it: any call may end one.)"""
     before = _snapshot(ref)
-    skipped, updates = sum(ref.skipped_chunks.values()), ref.updates
+    skipped, updates = sum(ref.estimator.skipped_chunks.values()), ref.updates
     call()
     _assert_spd(ref.cov())
-    _assert_spd(ref.P)
+    _assert_spd(ref.estimator.P)
     # (One call may end a skipped chunk's job and then solve the next chunk at once — the first update
     # is (RigRefineConfig.first_at_once) — which does change the state: the skip alone must not.)
-    if sum(ref.skipped_chunks.values()) > skipped and ref.updates == updates:
+    if sum(ref.estimator.skipped_chunks.values()) > skipped and ref.updates == updates:
         _assert_same(_snapshot(ref), before)
 
 
@@ -140,8 +141,8 @@ def test_refiner_stays_definite_whatever_the_motion(motion, amp, step, right_dt,
         _add(ref, t, right_dt if declared else 0.0, centres, ALL_VISIBLE, sigma, R, p1)
     _flush(ref)                     # the last chunk's update
     # Every chunk either updated the rig or was counted with its reason.
-    assert ref.updates + sum(ref.skipped_chunks.values()) == 3
-    assert set(ref.skipped_chunks) <= {rig_refine.SKIP_UNOBSERVABLE, rig_refine.SKIP_NO_DATA,
+    assert ref.updates + sum(ref.estimator.skipped_chunks.values()) == 3
+    assert set(ref.estimator.skipped_chunks) <= {rig_refine.SKIP_UNOBSERVABLE, rig_refine.SKIP_NO_DATA,
                                        rig_refine.SKIP_NON_FINITE, rig_refine.SKIP_SINGULAR,
                                        rig_refine.SKIP_INCONSISTENT}
 
@@ -170,7 +171,7 @@ def test_refiner_stays_definite_on_extreme_values(depth, lateral, sigma_exp, off
         centres[i % 2, i % 5] += off_px
         _add(ref, t, right_dt, centres, vis, sigma, R, p1)
     _flush(ref)
-    assert ref.updates + sum(ref.skipped_chunks.values()) == 2
+    assert ref.updates + sum(ref.estimator.skipped_chunks.values()) == 2
 
 
 def test_singular_chunk_leaves_the_state_unchanged():
@@ -191,23 +192,23 @@ def test_singular_chunk_leaves_the_state_unchanged():
         _flush(ref)                 # the last chunk's update (the frames make whole chunks)
 
     feed(16)
-    assert ref.updates == 2 and not ref.skipped_chunks
+    assert ref.updates == 2 and not ref.estimator.skipped_chunks
     assert np.abs(ref.estimate.error_from(RigState(RIG))[:3]).max() > 1e-4     # it learnt part of the turn
     before = _snapshot(ref)
     # Two centres of the left image and none of the right: 4 rows for 6 pose parameters per frame.
     two = np.array([[True, True, False, False, False], [False] * 5])
     feed(8, visible=two, start=16)
-    assert ref.skipped_chunks == {rig_refine.SKIP_SINGULAR: 1}
-    assert ref.last_skip == (23 / 30, rig_refine.SKIP_SINGULAR)
+    assert ref.estimator.skipped_chunks == {rig_refine.SKIP_SINGULAR: 1}
+    assert ref.estimator.last_skip == (23 / 30, rig_refine.SKIP_SINGULAR)
     _assert_same(_snapshot(ref), before)
     # Seen but every centre NaN: no usable row at all.
     feed(8, blank=True, start=24)
-    assert ref.skipped_chunks[rig_refine.SKIP_NO_DATA] == 1
+    assert ref.estimator.skipped_chunks[rig_refine.SKIP_NO_DATA] == 1
     _assert_same(_snapshot(ref), before)
     # Frames without a finite time or pose are not used at all (the chunk does not even fill).
     ref.add_frame(float("nan"), 0.0, _centres(1.0, "general"), ALL_VISIBLE, sigma, *_pose(1.0, "general"))
     ref.add_frame(1.0, 0.0, _centres(1.0, "general"), ALL_VISIBLE, sigma, np.full((3, 3), np.nan), CENTRE)
-    assert ref.ignored_frames == 2 and not ref._pending
+    assert ref.estimator.ignored_frames == 2 and not ref.scheduler.pending
     # And the refiner goes on learning afterwards.
     feed(8, start=32)
     assert ref.updates == 3
@@ -227,27 +228,27 @@ def test_rolling_shutter_sequence_keeps_the_prior_definite():
         _add(ref, t, 0.0, centres, ALL_VISIBLE, sigma, *_pose(t, "general", 4.0))
     _flush(ref)
     assert ref.updates >= 8            # of 10 chunks: the refinement still runs
-    assert ref.updates + sum(ref.skipped_chunks.values()) == 10
+    assert ref.updates + sum(ref.estimator.skipped_chunks.values()) == 10
 
 
 def test_predicted_prior_caps_variances_without_losing_definiteness():
     """The mechanism of bug 1: a posterior whose shift-z and focal variances exceed the prior's, the
     two 98% correlated. Capping the diagonal alone gives an indefinite matrix; the prior of the next
     chunk must be SPD, with the variances capped and the correlation kept."""
-    ref = RigRefiner(RIG, MODEL)
-    sd = np.sqrt(np.diag(ref.prior))
+    est = RigEstimator(RIG, MODEL)
+    sd = np.sqrt(np.diag(est.prior))
     corr = np.eye(N_RIG)
     corr[5, 6] = corr[6, 5] = 0.98
     ratio = np.ones(N_RIG)
     ratio[5], ratio[6] = 1.2, 1.1
-    ref.P = corr * np.outer(sd * ratio, sd * ratio)
-    _assert_spd(ref.P)
-    capped_diagonal = ref.P.copy()
-    np.fill_diagonal(capped_diagonal, np.minimum(np.diag(ref.P), np.diag(ref.prior)))
+    est.P = corr * np.outer(sd * ratio, sd * ratio)
+    _assert_spd(est.P)
+    capped_diagonal = est.P.copy()
+    np.fill_diagonal(capped_diagonal, np.minimum(np.diag(est.P), np.diag(est.prior)))
     assert np.linalg.eigvalsh(capped_diagonal).min() < 0          # what the old cap did
-    prior = ref._predicted(0.0)
+    prior = est.predicted_prior(0.0)
     _assert_spd(prior)
-    np.testing.assert_allclose(np.diag(prior), np.minimum(np.diag(ref.P), np.diag(ref.prior)), rtol=1e-12)
+    np.testing.assert_allclose(np.diag(prior), np.minimum(np.diag(est.P), np.diag(est.prior)), rtol=1e-12)
     np.testing.assert_allclose(prior[5, 6] / np.sqrt(prior[5, 5] * prior[6, 6]), 0.98, rtol=1e-12)
 
 
@@ -255,21 +256,21 @@ def test_cov_stays_definite_in_raw_units_for_an_absurd_departure():
     """A posterior singular along one direction (but for the floor), and the rig in use 1e5 prior σ
     from the estimate: P + d dᵀ spans 17 orders of magnitude in rad, mm and s, where rounding alone
     gives eigvalsh a negative eigenvalue (-1e-4 here); cov() must stay positive definite."""
-    ref = RigRefiner(RIG, MODEL)
-    sd = np.sqrt(np.diag(ref.prior))
+    est = RigEstimator(RIG, MODEL)
+    sd = np.sqrt(np.diag(est.prior))
     rng = np.random.default_rng(0)
     u = rng.normal(size=N_RIG)
     u /= np.linalg.norm(u)
-    ref.P = rig_solve._positive_definite(ref.prior - np.outer(sd * u, sd * u), sd)
-    _assert_spd(ref.P)
+    est.P = rig_solve._positive_definite(est.prior - np.outer(sd * u, sd * u), sd)
+    _assert_spd(est.P)
     departure = np.zeros(N_RIG)
     departure[3:6] = 1e5 * sd[3:6] * rng.normal(size=3)
-    ref._estimate = ref.state.moved(departure)
-    ref._cov = None
-    _assert_spd(ref.cov())
+    est._estimate = est.state.moved(departure)
+    est._cov = None
+    _assert_spd(est.cov())
     # The floor acts only at the rounding level: the departure's variance is kept.
-    d = ref._estimate.error_from(ref.state)
-    assert d @ ref.cov() @ d == pytest.approx((d @ d) ** 2, rel=1e-6)
+    d = est._estimate.error_from(est.state)
+    assert d @ est.cov() @ d == pytest.approx((d @ d) ** 2, rel=1e-6)
 
 
 def test_positive_definite_floor():

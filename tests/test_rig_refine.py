@@ -47,7 +47,7 @@ def test_refinement_recovers_the_rig(faults):
     scale = np.linalg.norm(state.T) / np.linalg.norm(seg["T"])
     before = _turn_error_deg(np.asarray(ds.rig.R), seg)
     # Within 0.02°, or three of its own σ (what the refinement says it knows; ~0.01° after 5 s).
-    turn_sd = float(np.degrees(np.sqrt(np.linalg.eigvalsh(tracker.refiner.P[:3, :3]).max())))
+    turn_sd = float(np.degrees(np.sqrt(np.linalg.eigvalsh(tracker.refiner.estimator.P[:3, :3]).max())))
     assert turn < max(0.02, 3 * turn_sd) and (before < 0.02 or turn < 0.2 * before), (turn, turn_sd, before)
     assert abs(scale - 1) < 0.002
     # The offset is known to its own σ (≈ 0.5 ms after 5 s of slow reading motion): within 0.5 ms or 2σ.

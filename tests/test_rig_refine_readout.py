@@ -18,6 +18,7 @@ import pytest
 
 from headplod import io
 from headplod.tracking import rig_refine
+from headplod.tracking.rig_estimator import RigEstimator
 from headplod.tracking.rig_refine import (N_RIG, PARAMETERS, READOUT_ACTIVE_FRACTION, RigErrorModel, RigRefiner,
                                           RigState, readout_prior, rig_jacobian_rows)
 
@@ -99,23 +100,24 @@ def test_refiner_takes_the_readout_prior():
 def test_set_readout_prior_until_the_first_update():
     ref = RigRefiner(RIG, MODEL, JOB)
     ref.widen(0.0)                                       # P twice the prior: stays twice
-    before = ref.P.copy()
+    before = ref.estimator.P.copy()
     assert ref.set_readout_prior(0.0307, 0.015)
     assert ref.state.readout_s == ref.estimate.readout_s == 0.0307
     assert ref.prior[READOUT, READOUT] == pytest.approx(0.015 ** 2)
-    assert ref.P[READOUT, READOUT] == pytest.approx(2 * 0.015 ** 2)
-    np.testing.assert_array_equal(ref.P[:READOUT, :READOUT], before[:READOUT, :READOUT])
-    assert ref._scale[READOUT] == pytest.approx(0.015)
-    np.testing.assert_allclose(ref._prior_L_inv @ ref.prior @ ref._prior_L_inv.T, np.eye(N_RIG), atol=1e-12)
+    assert ref.estimator.P[READOUT, READOUT] == pytest.approx(2 * 0.015 ** 2)
+    np.testing.assert_array_equal(ref.estimator.P[:READOUT, :READOUT], before[:READOUT, :READOUT])
+    assert ref.estimator._scale[READOUT] == pytest.approx(0.015)
+    L_inv = ref.estimator._prior_L_inv
+    np.testing.assert_allclose(L_inv @ ref.prior @ L_inv.T, np.eye(N_RIG), atol=1e-12)
     assert ref.cov()[READOUT, READOUT] == pytest.approx(2 * 0.015 ** 2)
     ref.reset()                                          # back to rig.yaml, with the readout's prior set last
-    assert ref.estimate.readout_s == 0.0307 and ref.P[READOUT, READOUT] == pytest.approx(0.015 ** 2)
+    assert ref.estimate.readout_s == 0.0307 and ref.estimator.P[READOUT, READOUT] == pytest.approx(0.015 ** 2)
     # Once an update has used the prior, it stays.
     ref = _run(0.0, 0.0, seconds=0.6)
     assert ref.updates >= 1
-    P = ref.P.copy()
+    P = ref.estimator.P.copy()
     assert not ref.set_readout_prior(0.01, 0.001)
-    np.testing.assert_array_equal(ref.P, P)
+    np.testing.assert_array_equal(ref.estimator.P, P)
 
 
 # --------------------------------------------------------------------------- the model's derivatives
@@ -171,8 +173,8 @@ def test_refiner_recovers_readout_and_offset(readout_s, offset_s):
     readout within 5% or 1 ms and the undeclared offset within 1 ms, each within 3σ of its own."""
     ref = _run(readout_s, offset_s)
     est = ref.estimate
-    sd = np.sqrt(np.diag(ref.P))
-    assert ref.refined[READOUT] and ref.refined[OFFSET] and not ref.skipped_chunks
+    sd = np.sqrt(np.diag(ref.estimator.P))
+    assert ref.estimator.refined[READOUT] and ref.estimator.refined[OFFSET] and not ref.estimator.skipped_chunks
     err_readout, err_offset = est.readout_s - readout_s, est.offset_s - offset_s
     assert abs(err_readout) <= max(0.05 * readout_s, 1e-3), (err_readout, sd[READOUT])
     assert abs(err_readout) <= 3 * sd[READOUT] and sd[READOUT] < 1e-3
@@ -190,9 +192,9 @@ def test_still_head_leaves_the_readout_at_its_prior():
     for motion, amp in (("still", 1.0), ("general", 0.0)):
         ref = _run(0.03, 0.01, motion=motion, amp=amp, seconds=2.0)
         mean = READOUT_ACTIVE_FRACTION / 30
-        assert not ref.refined[READOUT] and not ref.refined[OFFSET]
+        assert not ref.estimator.refined[READOUT] and not ref.estimator.refined[OFFSET]
         assert ref.estimate.readout_s == mean and ref.state.readout_s == mean
-        assert ref.P[READOUT, READOUT] == pytest.approx(ref.prior[READOUT, READOUT], rel=1e-6)
+        assert ref.estimator.P[READOUT, READOUT] == pytest.approx(ref.prior[READOUT, READOUT], rel=1e-6)
         assert ref.status()["readout_ms"] == round(mean * 1e3, 3)
 
 
@@ -260,23 +262,30 @@ def _feed(config, frames=None, hook=None):
         passes.append(ref.last_call_passes)
         if hook is not None:
             ref = hook(k, ref) or ref
-        if ref.updates + sum(ref.skipped_chunks.values()) > done:
-            done = ref.updates + sum(ref.skipped_chunks.values())
+        if ref.updates + sum(ref.estimator.skipped_chunks.values()) > done:
+            done = ref.updates + sum(ref.estimator.skipped_chunks.values())
             results.append(_record(ref))
-    for finish in (ref.advance, ref.flush):       # the update under way, then the frames short of a chunk
-        finish()
-        if ref.updates + sum(ref.skipped_chunks.values()) > done:
-            done = ref.updates + sum(ref.skipped_chunks.values())
+    # The update under way, run by calls without a frame, then the frames short of a chunk.
+    for finish in (_finish_job, RigRefiner.flush):
+        finish(ref)
+        if ref.updates + sum(ref.estimator.skipped_chunks.values()) > done:
+            done = ref.updates + sum(ref.estimator.skipped_chunks.values())
             results.append(_record(ref))
     return ref, passes, results
+
+
+def _finish_job(ref):
+    """Calls without a frame (t None) until the update under way, if any, is done."""
+    while ref.scheduler.last_step.under_way:
+        ref.add_frame(None, 0.0, None, None, None, None, None)
 
 
 def _record(ref):
     est, use = ref.estimate, ref.state
     return dict(estimate=np.concatenate([est.R.ravel(), est.T, [est.log_focal, est.offset_s, est.readout_s]]),
                 state=np.concatenate([use.R.ravel(), use.T, [use.log_focal, use.offset_s, use.readout_s]]),
-                P=ref.P.copy(), cov=ref.cov().copy(), updates=ref.updates, versions=ref.versions,
-                skipped=dict(ref.skipped_chunks), bumps=list(ref.bumps), refined=ref.refined.copy(),
+                P=ref.estimator.P.copy(), cov=ref.cov().copy(), updates=ref.updates, versions=ref.versions,
+                skipped=dict(ref.estimator.skipped_chunks), bumps=list(ref.bumps), refined=ref.estimator.refined.copy(),
                 refit={t: np.concatenate([R.ravel(), p]) for t, (R, p) in ref.refit_poses.items()})
 
 
@@ -305,17 +314,19 @@ def test_incremental_solve_is_bounded_and_equals_the_synchronous_one(synchronous
     sync_ref, sync_passes, sync_results = synchronous
     ref, passes, results = _feed(JOB)
     # The stream taught something, through both paths of an update: a bump's retry and skips.
-    assert sync_ref.updates >= 15 and sync_ref.bumps and sync_ref.versions >= 2 and sync_ref.ignored_frames == 1
+    assert sync_ref.updates >= 15 and sync_ref.bumps and sync_ref.versions >= 2
+    assert sync_ref.estimator.ignored_frames == 1
     assert max(sync_passes) >= 2 * (sync_ref.config.iterations + 1)   # the retry, at once
     # No call ran more than passes_per_frame passes; the one completing a chunk none.
     budget = ref.config.passes_per_frame
     assert max(passes) == budget
     assert passes[7] == passes[15] == passes[23] == 0      # the calls completing the first chunks
-    assert ref.frame_terms <= ref.passes * ref.config.chunk_frames
+    work, sync_work = ref.scheduler, sync_ref.scheduler
+    assert work.frame_terms <= work.passes * ref.config.chunk_frames
     # The same work, spread, and the same results, update by update.
-    assert ref.passes == sync_ref.passes and ref.frame_terms == sync_ref.frame_terms
+    assert work.passes == sync_work.passes and work.frame_terms == sync_work.frame_terms
     _assert_same_results(results, sync_results)
-    assert not ref.busy
+    assert not ref.scheduler.last_step.under_way
 
 
 @pytest.mark.slow
@@ -337,7 +348,7 @@ def test_a_copy_or_a_readout_prior_restarts_the_job_with_the_same_result(synchro
     seen = {}
 
     def hook(k, ref):
-        if ref.busy and "copy" not in seen:
+        if ref.scheduler.last_step.under_way and "copy" not in seen:
             seen["copy"] = k
             return copy.deepcopy(pickle.loads(pickle.dumps(ref)))     # mid-job: restarted from its chunk
         return None
@@ -350,7 +361,7 @@ def test_a_copy_or_a_readout_prior_restarts_the_job_with_the_same_result(synchro
     given, _, expected = _feed(rig_refine.RigRefineConfig(synchronous=True), frames=frames)
 
     def set_prior(k, ref):
-        if ref.busy and ref.updates == 0 and "prior" not in seen:
+        if ref.scheduler.last_step.under_way and ref.updates == 0 and "prior" not in seen:
             seen["prior"] = k
             ref.set_readout_prior(*readout_prior(1 / 30, None))
         return None
@@ -367,8 +378,8 @@ def test_widen_reset_drop_pending_with_a_job_running(how):
     sigma = np.full((2, 5), 0.03)
     for k, (t, centres, R, p1) in enumerate(_stream(seconds=0.5)[:9]):
         ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1)
-    assert ref.busy and ref.updates == 0 and len(ref._pending) == 1
-    before = (ref.estimate.R.copy(), ref.P.copy())
+    assert ref.scheduler.last_step.under_way and ref.updates == 0 and len(ref.scheduler.pending) == 1
+    before = (ref.estimate.R.copy(), ref.estimator.P.copy())
     if how == "widen":
         ref.widen(0.3)
     elif how == "forget_motion":
@@ -377,14 +388,14 @@ def test_widen_reset_drop_pending_with_a_job_running(how):
         getattr(ref, how)()
     if how == "forget_motion":
         # The job's chunk keeps its velocities and runs on; only the pending frame lost its motion.
-        assert ref.busy and not ref._pending[0].motion_known
+        assert not ref.scheduler.pending[0].motion_known
         ref.flush()
         assert ref.updates == 1
         return
-    # Dropped: nothing of it applied, nothing left to run.
-    assert not ref.busy and ref.updates == 0 and not ref._pending
+    # Dropped: nothing of it applied, nothing left to run (a flush runs no pass).
+    assert ref.updates == 0 and not ref.scheduler.pending
     np.testing.assert_array_equal(ref.estimate.R, before[0])
-    assert not ref.advance() and not ref.flush() and ref.updates == 0
+    assert not ref.flush() and ref.last_call_passes == 0 and ref.updates == 0
 
 
 def test_an_exception_inside_the_job_ends_it(monkeypatch):
@@ -397,12 +408,13 @@ def test_an_exception_inside_the_job_ends_it(monkeypatch):
 
     for t, centres, R, p1 in frames[:8]:
         ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1)
-    assert ref.busy
-    monkeypatch.setattr(RigRefiner, "_solve", singular)
+    assert ref.scheduler.last_step.under_way
+    monkeypatch.setattr(RigEstimator, "solve", singular)
     t, centres, R, p1 = frames[8]
     with pytest.raises(np.linalg.LinAlgError):
         ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1)
-    assert not ref.busy and ref.updates == 0
+    # The job ended with the exception: a flush finds nothing to run (one frame is short of a chunk).
+    assert not ref.flush() and ref.last_call_passes == 0 and ref.updates == 0
     ref.drop_pending()
     monkeypatch.undo()
     for t, centres, R, p1 in frames[9:17]:
@@ -427,7 +439,7 @@ def test_frames_given_during_a_job_are_moved_onto_the_new_rig():
     chunk_times = [f[0] for f in frames[:8]]
     since = [f[0] for f in frames[8:k + 1]]
     assert sorted(ref.refit_poses) == chunk_times + since
-    for f in ref._pending:
+    for f in ref.scheduler.pending:
         assert f.rig_version == 0 and f.refit[0] == 1
         np.testing.assert_array_equal(f.newest()[1], ref.refit_poses[f.t][1])
     # The move is the change of the chunk's last pose: a rigid motion, the same for every frame.

@@ -30,6 +30,7 @@ from .. import io
 from ..argtypes import add_quiet_argument
 from .board import BoardSpec, _charuco
 from .command import add_board_spec_arguments
+from ..tol import tol
 
 #: Paper sizes, (width, height) in mm, portrait.
 PAPERS_MM = {"a4": (210.0, 297.0), "letter": (215.9, 279.4)}
@@ -93,7 +94,7 @@ class RasterPage:
         """A black arrow from (x0, y0) to (x1, y1) mm, ``width`` mm thick."""
         length = math.hypot(x1 - x0, y1 - y0)
         cv2.arrowedLine(self.image, self._fixed(x0, y0), self._fixed(x1, y1), 0, max(1, round(width * self.k)),
-                        cv2.LINE_AA, self._SHIFT, tipLength=min(0.3, 2.5 / max(length, 1e-9)))
+                        cv2.LINE_AA, self._SHIFT, tipLength=min(0.3, 2.5 / max(length, tol.small)))
 
     def text(self, x: float, y: float, s: str, height: float = TEXT_MM, align: str = "left",
              max_width: Optional[float] = None) -> None:

@@ -65,7 +65,7 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
     **options
         Preset options (e.g. ``distance_mm`` for ``static``), part of the cache key.
     """
-    # Imported on use: the renderer pulls in scipy.special (~0.6 s), which live tracking never needs.
+    # Imported on use: the renderer pulls in scipy.special, slow to import, which live tracking never needs.
     from synthetic import dataset as synth_dataset
     from synthetic import scenes
 

@@ -58,6 +58,7 @@ import numpy as np
 
 from .. import io
 from .base import GAP_PERIODS, CaptureFrame, FrameSource, SourceOpenError, _size_error, _skew_flag, to_gray
+from ..tol import tol
 
 __all__ = ["V4L2StereoSource", "CameraSetting", "default_opener", "DEVICE_TIME_WINDOW_S", "FOURCCS"]
 
@@ -154,7 +155,7 @@ def _accepted(name: str, requested: Any, actual: Any) -> bool:
         return actual == requested
     if name == "fps":                     # drivers round frame intervals
         return abs(actual - requested) <= 0.01 * requested
-    return abs(actual - requested) <= 1e-6 * max(1.0, abs(requested))
+    return abs(actual - requested) <= tol.text * max(1.0, abs(requested))
 
 
 def _apply_settings(cap: Any, requested: dict[str, Any]) -> list[CameraSetting]:

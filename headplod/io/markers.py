@@ -24,6 +24,7 @@ from ._storage import (
     _read_numeric,
     _shape_str,
 )
+from ..tol import tol
 
 # --------------------------------------------------------------------------
 # tolerances and constants
@@ -75,18 +76,18 @@ def _validate_markers(ctx: _Ctx, points: Any, diameter: Any) -> tuple[np.ndarray
             ("this looks like metres; markers.yaml is in mm: multiply every coordinate by 1000"
              if metres else "markers.yaml is in mm (docs/contract.md)"),
         )
-    tol = MARKER_TOL_MM
-    if np.abs(P[1]).max() > tol:
+    axis_tol_mm = MARKER_TOL_MM
+    if np.abs(P[1]).max() > axis_tol_mm:
         raise ctx.error(
             f"P1 (the bridge) is at {P[1].tolist()} mm, expected the origin [0, 0, 0] "
-            f"(tolerance {tol:g} mm)",
+            f"(tolerance {axis_tol_mm:g} mm)",
             "subtract P1 from every marker so that G's origin is at P1",
         )
     for i in (0, 2):
-        if max(abs(P[i, 1]), abs(P[i, 2])) > tol:
+        if max(abs(P[i, 1]), abs(P[i, 2])) > axis_tol_mm:
             raise ctx.error(
                 f"P{i} is at {P[i].tolist()} mm, expected on G's x axis (y = z = 0, "
-                f"tolerance {tol:g} mm)",
+                f"tolerance {axis_tol_mm:g} mm)",
                 "rotate the model so that P0 - P1 lies along +x; P0, P1, P2 are collinear",
             )
     if not P[0, 0] > 0:
@@ -96,7 +97,7 @@ def _validate_markers(ctx: _Ctx, points: Any, diameter: Any) -> tuple[np.ndarray
         raise ctx.error(f"P2 has x = {_fmt(P[2, 0])} mm, expected x < 0 (P1 lies between P0 and P2)",
                         _MARKER_HINT)
     for i in (3, 4):
-        if math.hypot(P[i, 1], P[i, 2]) <= tol:
+        if math.hypot(P[i, 1], P[i, 2]) <= axis_tol_mm:
             raise ctx.error(
                 f"P{i} is at {P[i].tolist()} mm, on G's x axis, expected off the line P0-P1-P2",
                 "P3 and P4 sit below the bridge line (default y = -30 mm)",
@@ -106,17 +107,17 @@ def _validate_markers(ctx: _Ctx, points: Any, diameter: Any) -> tuple[np.ndarray
         n = np.cross(b - a, c - a)
         scale = np.linalg.norm(b - a) * np.linalg.norm(c - a)
         name = "(" + ", ".join(f"P{i}" for i in tri) + ")"
-        if np.linalg.norm(n) <= 1e-9 * scale:
+        if np.linalg.norm(n) <= tol.small * scale:
             raise ctx.error(f"triangle {name} is degenerate (its markers are collinear)",
                             "the viewing direction V needs three non-collinear markers per triangle")
-        if abs(n[2]) <= 1e-6 * np.linalg.norm(n):
+        if abs(n[2]) <= tol.text * np.linalg.norm(n):
             raise ctx.error(
                 f"triangle {name} is perpendicular to G's x-y plane (its normal has z = 0), "
                 "so its normal cannot be turned to G's +z",
                 "move P3/P4 so that each triangle faces forward",
             )
     V = np.mean(_oriented_normals(P), axis=0)
-    if np.linalg.norm(V) < 1e-6:
+    if np.linalg.norm(V) < tol.text:
         raise ctx.error("the mean of the triangle normals is zero, so V is undefined", _MARKER_HINT)
     try:
         d = float(diameter)

@@ -18,6 +18,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ._storage import AXES_TOL_READ, AXES_TOL_WRITE, ProgressiveOutput, _Ctx, _check_axes
+from ..tol import tol
 
 # --------------------------------------------------------------------------
 # constants
@@ -99,7 +100,7 @@ def _build_record(frame, t, ok, position, axes, cov, reason, extra, axes_tol) ->
         if why:
             raise ValueError(f"pose record: {why}")
         C = _as_float_array(cov, "cov", (2, 2))
-        if abs(C[0, 1] - C[1, 0]) > 1e-9 * max(1.0, float(np.abs(C).max())):
+        if abs(C[0, 1] - C[1, 0]) > tol.small * max(1.0, float(np.abs(C).max())):
             raise ValueError(f"pose record: cov is not symmetric: {C.tolist()}")
         if not (C[0, 0] > 0 and C[1, 1] > 0 and np.linalg.det(C) > 0):
             raise ValueError(f"pose record: cov is not positive definite: {C.tolist()} (deg²)")

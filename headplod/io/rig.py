@@ -30,6 +30,7 @@ from ._storage import (
     _shape_str,
     _values_equal,
 )
+from ..tol import tol
 
 # --------------------------------------------------------------------------
 # tolerances and constants
@@ -61,13 +62,13 @@ def _check_K(ctx: _Ctx, key: str, K: np.ndarray) -> np.ndarray:
         raise ctx.error(f"{ctx.name(key)} has shape {_shape_str(K)}, expected 3x3", hint)
     _check_finite(ctx, key, K)
     for (i, j) in ((1, 0), (2, 0), (2, 1)):
-        if abs(K[i, j]) > 1e-9:
+        if abs(K[i, j]) > tol.small:
             raise ctx.error(
                 f"{ctx.name(key)} is not upper-triangular: {key}[{i},{j}] = "
                 f"{_fmt(K[i, j])}, expected 0",
                 hint + "; was it written transposed?",
             )
-    if abs(K[2, 2] - 1.0) > 1e-9:
+    if abs(K[2, 2] - 1.0) > tol.small:
         raise ctx.error(f"{ctx.name(key)} has {key}[2,2] = {_fmt(K[2, 2])}, expected 1", hint)
     for (i, label) in ((0, "fx"), (1, "fy")):
         if not K[i, i] > 0:

@@ -23,6 +23,7 @@ from ._storage import (
     _positive_int,
     _read_numeric,
 )
+from ..tol import tol
 
 # --------------------------------------------------------------------------
 # constants
@@ -58,7 +59,7 @@ def _validate_screen(ctx: _Ctx, size_px, tl, tr, bl) -> dict:
     a = corners["top_right"] - corners["top_left"]
     b = corners["bottom_left"] - corners["top_left"]
     na, nb = np.linalg.norm(a), np.linalg.norm(b)
-    if na < 1e-9 or nb < 1e-9 or np.linalg.norm(np.cross(a, b)) <= 1e-9 * na * nb:
+    if na < tol.small or nb < tol.small or np.linalg.norm(np.cross(a, b)) <= tol.small * na * nb:
         raise ctx.error(
             "the corners do not span a plane: top_right − top_left = "
             f"{a.tolist()} mm and bottom_left − top_left = {b.tolist()} mm are zero or parallel",
@@ -150,7 +151,7 @@ class Screen:
             raise ValueError("intersect_ray: direction is the zero vector")
         n = self.normal
         denom = float(np.dot(n, d)) / nd
-        if abs(denom) < 1e-12:
+        if abs(denom) < tol.zero:
             return None
         s = float(np.dot(n, self.top_left - o)) / float(np.dot(n, d))
         if not s > 0:

@@ -322,7 +322,7 @@ def _run_track(args) -> int:
 
 def _tracker_config(args):
     """The tracker's configuration from ``track``'s options (a TrackerConfig)."""
-    # Imported on use: the tracker pulls in scipy.stats (~0.4 s), and `headplod --help` imports this module.
+    # Imported on use: the tracker pulls in scipy.stats, slow to import, and `headplod --help` imports this module.
     from ..tracking.tracker import TrackerConfig
 
     detection = DetectionParams.paper() if args.paper_detection else DetectionParams(threshold_dn=args.threshold)

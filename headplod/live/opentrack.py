@@ -114,6 +114,7 @@ import struct
 from typing import Sequence
 
 import numpy as np
+from ..tol import tol
 
 OPENTRACK_PORT = 4242
 """opentrack's default UDP input port (``tracker-udp/ftnoir_tracker_udp.h``)."""
@@ -200,7 +201,7 @@ def _attitude(axes: np.ndarray) -> np.ndarray:
 def _angles_deg(M: np.ndarray) -> tuple[float, float, float]:
     """Yaw, pitch, roll (degrees, the module's convention) of an attitude ``M`` (:func:`_attitude`)."""
     cos_pitch = math.hypot(M[0, 0], M[1, 0])
-    if cos_pitch > 1e-9:
+    if cos_pitch > tol.small:
         yaw = -math.atan2(M[1, 0], M[0, 0])
         pitch = math.atan2(M[2, 0], cos_pitch)
         roll = -math.atan2(M[2, 1], M[2, 2])

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .shading import AMBIENT, DISPLAY_GAMMA, LIGHT_DIR, height_colour, shade
+from ..tol import tol
 
 __all__ = ["LUMA_WEIGHTS", "drawn_colour", "display_luminance", "level_change_contrast", "normal_cone"]
 
@@ -75,7 +76,7 @@ def level_change_contrast(fine_xyz, fine_normals, interpolation, level_rows, lev
         n = len(xyz)
         fine_y = display_luminance(drawn_colour(xyz[..., 2], fine_normals[a:a + _FACE_CHUNK], height_range,
                                                 light_dir, ambient))                  # (n, P)
-        mean = np.maximum(fine_y.mean(axis=1), 1e-12)
+        mean = np.maximum(fine_y.mean(axis=1), tol.zero)
         for level, (W, rows) in enumerate(zip(interpolation, level_rows)):          # loop over levels
             pts = xyz[:, rows]                                                       # (n, P_l, 3)
             nrm = level_normals(level, pts[..., 0].ravel(), pts[..., 1].ravel()).reshape(n, len(rows), 3)
@@ -96,7 +97,7 @@ def normal_cone(normals) -> tuple[np.ndarray, np.ndarray]:
     normals = np.asarray(normals, dtype=np.float64)
     mean = normals.mean(axis=1)
     length = np.linalg.norm(mean, axis=1)
-    flat = length < 1e-9
+    flat = length < tol.small
     axis = np.where(flat[:, None], [0.0, 0.0, 1.0], mean / np.where(flat, 1.0, length)[:, None])
     cos = np.clip(np.einsum("fpk,fk->fp", normals, axis), -1.0, 1.0)
     half = np.degrees(np.arccos(cos.min(axis=1)))

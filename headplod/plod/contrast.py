@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from ..tol import tol
 
 
 def project_to_screen_px(points_mm, eye_mm, screen) -> np.ndarray:
@@ -101,6 +102,6 @@ def readback_contrast(image_rgb: np.ndarray, points_screen_px, screen_size_px, w
     xi = np.where(inside, px[:, 0], 0).astype(np.int64)
     yi = np.where(inside, px[:, 1], 0).astype(np.int64)
     mx, mn = hi[yi, xi].astype(np.float64), lo[yi, xi].astype(np.float64)
-    contrast = (mx - mn) / np.maximum(mx + mn, 1e-12)
+    contrast = (mx - mn) / np.maximum(mx + mn, tol.zero)
     missing = np.full(len(pts), np.nan) if fallback is None else np.asarray(fallback, dtype=np.float64)
     return np.where(inside, contrast, missing)

@@ -71,6 +71,7 @@ import numpy as np
 from . import perception as pc
 from .csf import (MIN_SPEED_DEG_S, CORTICAL_EXPONENT, FREQUENCY_SCALED_MODELS, csf_coefficients,
                   eccentricity_factor, gp_cutoff_cpd, max_visible_freq_cpd, sensitivity)
+from ..tol import tol
 
 __all__ = ["CSF_MODES", "DIAMETER_FLOOR_DEG", "FMAX_FLOOR_CPD", "ANGLE_SLACK_DEG", "LEVEL_SLACK",
            "unit", "chord_angle_deg", "angle_between_deg", "subtended_deg", "sphere_reach_deg",
@@ -418,7 +419,7 @@ def crossing_level(visibility) -> np.ndarray:
     v_next = v[rows, np.minimum(k + 1, L)]
     v_before = v[rows, np.maximum(k - 1, 0)]
     with np.errstate(divide="ignore", invalid="ignore"):
-        frac = np.where(k < L, np.clip(v_k / np.maximum(v_k - v_next, 1e-12), 0.0, 1.0),
+        frac = np.where(k < L, np.clip(v_k / np.maximum(v_k - v_next, tol.zero), 0.0, 1.0),
                         np.clip(v_k / np.maximum(v_before - v_k, CROSSING_MIN_DROP), 0.0, max(L, 1)))
     return np.where(any_visible, k + frac, np.clip(v[:, 0], -(L + 1.0), 0.0))
 
@@ -500,7 +501,7 @@ def change_visibility_levels(change_contrast, angular_deg, error_mm, distance_mm
 
 def distance_level(distance_mm, max_level: int, distance_ref_mm: float) -> np.ndarray:
     """Mode ``distance``: ``max_level`` at ``distance_ref_mm`` and nearer, one level coarser per doubling beyond."""
-    return max_level - np.log2(np.maximum(np.asarray(distance_mm, dtype=np.float64) / distance_ref_mm, 1e-9))
+    return max_level - np.log2(np.maximum(np.asarray(distance_mm, dtype=np.float64) / distance_ref_mm, tol.small))
 
 
 def continuous_level(config, max_level: int, *, ecc_deg, angular_deg, distance_mm, speed_deg_s, contrast,

@@ -36,6 +36,7 @@ import numpy as np
 
 from .csf import (CSF_MODELS, ECC_SLOPE, MIN_SPEED_DEG_S, csf_coefficients, gp_cutoff_cpd,  # noqa: F401 (re-exported)
                   eccentricity_factor, max_visible_freq_cpd, sensitivity)
+from ..tol import tol
 
 __all__ = [
     "CSF_MODELS", "MIN_SPEED_DEG_S", "ECC_SLOPE",
@@ -260,7 +261,7 @@ def uncertainty_shift(offset_deg, cov_deg2, form="eq1", n_sigma=2.0):
     lmax = lam.max()
     if lmax <= 0.0:
         return P.copy()
-    pos = lam > 1e-12 * lmax
+    pos = lam > tol.zero * lmax
     proj = P @ U                                        # (..., 2) components along eigenvectors
     with np.errstate(divide="ignore", invalid="ignore"):
         terms = np.where(pos, proj ** 2 / np.where(pos, lam, 1.0),
@@ -462,7 +463,7 @@ def acuity_level(k1, k2, k3, a0, distance_mm, edge_len_at_level_mm, combine="min
     e_l, e_n = E[idx, levels], E[idx, nxt]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.log(e_l / r) / np.log(e_l / e_n)
-    t = np.clip(np.nan_to_num(t, nan=0.0, posinf=0.0, neginf=0.0), 0.0, 1.0 - 1e-9)
+    t = np.clip(np.nan_to_num(t, nan=0.0, posinf=0.0, neginf=0.0), 0.0, 1.0 - tol.small)
     cont = np.where(any_ok & (levels < L), levels + t, levels.astype(float))
     return levels, cont
 
@@ -570,7 +571,7 @@ def sse_level(geometric_error_mm, distance_mm, pixels_per_radian, tolerance_px=1
     e_p, e_l = err_px[idx, prv], err_px[idx, levels]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.log(e_p / tolerance_px) / np.log(e_p / e_l)
-    t = np.clip(np.nan_to_num(t, nan=1.0, posinf=1.0, neginf=1.0), 1e-9, 1.0)
+    t = np.clip(np.nan_to_num(t, nan=1.0, posinf=1.0, neginf=1.0), tol.small, 1.0)
     cont = np.where(any_ok & (levels > 0), prv + t, levels.astype(float))
     return levels, cont
 

@@ -60,6 +60,7 @@ import numpy as np
 from . import perception as pc
 from .csf import CSF_MODELS, MIN_SPEED_DEG_S, gp_cutoff_cpd, max_visible_freq_cpd
 from .view import head_axes
+from ..tol import tol
 
 __all__ = ["RAYMASK_CSF_MODELS", "RayMaskConfig", "RayMask", "spacing_thresholds_deg", "spacing_px",
            "radii_deg", "pixel_offsets_deg", "offsets_to_pixels", "build_ray_mask",
@@ -205,7 +206,7 @@ def radii_deg(px_per_deg: float, max_ecc_deg: float, config: RayMaskConfig = Ray
             break
         # Steps of n from r while the step starts before `end` and the radius has not yet passed `stop`.
         last = min(end, stop)
-        k = int(np.ceil((last - r) / n - 1e-12))
+        k = int(np.ceil((last - r) / n - tol.zero))
         k = max(k, 1)
         seg = r + n * np.arange(1, k + 1, dtype=np.float64)
         radii.append(seg)
@@ -267,10 +268,10 @@ def _ellipse_radius_deg(directions, cov_deg2, n_sigma) -> np.ndarray:
     lam, U = np.linalg.eigh(S)
     if lam.max() <= 0:
         return np.zeros(u.shape[:-1])
-    pos = lam > 1e-12 * lam.max()
+    pos = lam > tol.zero * lam.max()
     proj = u @ U
     with np.errstate(divide="ignore", invalid="ignore"):
-        terms = np.where(pos, proj ** 2 / np.where(pos, lam, 1.0), np.where(np.abs(proj) < 1e-12, 0.0, np.inf))
+        terms = np.where(pos, proj ** 2 / np.where(pos, lam, 1.0), np.where(np.abs(proj) < tol.zero, 0.0, np.inf))
         q = terms.sum(axis=-1)
         return np.where(np.isfinite(q) & (q > 0), n_sigma / np.sqrt(q), 0.0)
 

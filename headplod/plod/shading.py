@@ -14,6 +14,7 @@ vector toward the light, both in the scene frame (x east, y north, z up).
 from __future__ import annotations
 
 import numpy as np
+from ..tol import tol
 
 __all__ = ["LIGHT_DIR", "AMBIENT", "DISPLAY_GAMMA", "HEIGHT_COLOURS", "GLSL_HEIGHT_COLOURS", "light_unit", "shade",
            "height_colour", "michelson", "contrast_of_range"]
@@ -65,7 +66,7 @@ def contrast_of_range(brightest, darkest) -> np.ndarray:
     (code values, arrays of one shape); float64 (:func:`michelson`)."""
     hi = np.asarray(brightest, dtype=np.float64) ** DISPLAY_GAMMA
     lo = np.asarray(darkest, dtype=np.float64) ** DISPLAY_GAMMA
-    return (hi - lo) / np.maximum(hi + lo, 1e-12)
+    return (hi - lo) / np.maximum(hi + lo, tol.zero)
 
 
 def height_colour(t) -> np.ndarray:

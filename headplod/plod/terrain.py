@@ -107,7 +107,7 @@ def load_jacksboro_dem() -> DemGrid:
     DemGrid
         344 x 403 elevations (m); ``dx_m`` ≈ 74.6, ``dy_m`` ≈ 92.5.
     """
-    from matplotlib import cbook  # only for its bundled sample file; importing matplotlib takes ~1 s
+    from matplotlib import cbook  # only for its bundled sample file; importing matplotlib is slow
 
     dem = cbook.get_sample_data(DEM_SAMPLE_NAME)
     elevation = np.asarray(dem["elevation"], dtype=np.float64)[::-1]   # file row 0 = north

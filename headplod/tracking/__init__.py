@@ -11,7 +11,10 @@
   rig), :mod:`.rolling_shutter` (readout compensation), :mod:`.tracker_rig`
   (the rig in use, its refinement and bootstrap).
 - :mod:`.uncertainty`: the covariance of the viewing direction.
-- :mod:`.rig_refine`: the rig's online refinement; :mod:`.rig_refine_config`
+- :mod:`.rig_refine`: the rig's online refinement, composed of
+  :mod:`.rig_estimator` (the estimate and its chunk updates),
+  :mod:`.rig_schedule` (the updates spread over frames) and :mod:`.rig_report`
+  (its text and status); :mod:`.rig_refine_config`
   (settings), :mod:`.rig_state` (the refined parameters and their derivatives),
   :mod:`.rig_priors` (the error model and priors), :mod:`.rig_frames` (the
   frames of a chunk and their velocities), :mod:`.rig_solve` (a chunk's solve).

@@ -205,7 +205,7 @@ def scaled_error_distribution(P: np.ndarray, prior: np.ndarray, estimate_from_re
     return L0 @ first, 0.5 * (out + out.T)
 
 
-# count_consistency (RigRefiner.data_scale): each update's normalized innovation squared is kept with this
+# count_consistency (RigEstimator.data_scale): each update's normalized innovation squared is kept with this
 # weight per update after it (forgetting over ~10 updates, ~3 s), and the sums start from this many degrees
 # of freedom at 1.
 _CONSISTENCY_KEEP = 0.9

@@ -31,12 +31,12 @@ class RigRefineConfig:
         Solve the first update at once, in the call that completes its
         chunk: until then the rig is only rig.yaml, and frames that only a
         refined rig can tell from a glint are withheld (one frame a run
-        pays a solve, a few ms; the 99th percentile is not moved).
+        pays a whole solve).
     refit_velocity_change : float
         After a chunk's solve, its frames' velocities are taken again from
         the poses it refitted; when one changed by more than this (rad/s of
-        the turn rate, or 100 times it in mm/s: 6°/s, 10 mm/s; a refitted
-        pose's own noise makes up to ~3°/s), the chunk is solved again with
+        the turn rate, or 100 times it in mm/s: 6°/s, 10 mm/s; above what
+        a refitted pose's own noise makes), the chunk is solved again with
         them.
     observable_fraction : float
         A parameter is refined only when the chunk's information on it is at
@@ -58,8 +58,7 @@ class RigRefineConfig:
         Beyond these, the status recommends recalibrating.
     synchronous : bool
         Solve a chunk in the ``add_frame`` call that completes it (offline
-        use, tests) instead of over the next calls (:mod:`.rig_refine`'s
-        docstring, "Timing").
+        use, tests) instead of over the next calls (:mod:`.rig_schedule`).
     passes_per_frame : int
         Gauss-Newton passes (each over all of a chunk's frames) of the update
         under way run per ``add_frame`` call: a chunk's update takes

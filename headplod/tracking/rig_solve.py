@@ -4,8 +4,8 @@ hands out positive definite.
 A chunk is n tracked frames (:class:`~.rig_frames._ChunkData`). Its
 unknowns are each frame's pose change (6: a turn, rad, and a shift of P1,
 mm, in the world frame) and the rig's error state (9, :mod:`.rig_state`).
-One Gauss-Newton pass (run by :meth:`RigRefiner._solve
-<.rig_refine.RigRefiner._solve>`, which stops before each) is:
+One Gauss-Newton pass (run by :meth:`RigEstimator.solve
+<.rig_estimator.RigEstimator.solve>`, which stops before each) is:
 :func:`chunk_terms` (residuals and derivatives of every frame at once),
 :func:`normal_equations` (Cauchy-weighted, rows standardized by each
 centre's σ), :func:`_eliminate_poses` and :func:`rig_information` (the
@@ -18,7 +18,7 @@ pass decides what the chunk may move), :func:`_whitened_inverse` and
 Definiteness
 ------------
 Every covariance the refiner keeps or hands out (the prior of a chunk, its
-posterior, :meth:`RigRefiner.cov <.rig_refine.RigRefiner.cov>`) is
+posterior, :meth:`RigEstimator.cov <.rig_estimator.RigEstimator.cov>`) is
 symmetric positive definite by construction: symmetrized, and its
 eigenvalues, in units of the prior's σ per component, floored
 (:func:`_positive_definite`). The floor (1e-9 of the prior's variance,
@@ -29,7 +29,7 @@ that teaches some direction almost perfectly. A chunk whose system is
 singular, ill-conditioned or non-finite, or which teaches nothing
 observable, gives no update (:class:`_SkipChunk`): the estimate and its
 covariance stay as they were, and the chunk is counted in
-:attr:`RigRefiner.skipped_chunks <.rig_refine.RigRefiner.skipped_chunks>` by reason.
+:attr:`RigEstimator.skipped_chunks <.rig_estimator.RigEstimator.skipped_chunks>` by reason.
 """
 from __future__ import annotations
 
@@ -62,7 +62,7 @@ _CHI2_7DOF_999 = 24.32
 # Most a centre of a bootstrap's frames may be off its joint fit, in its σ (both coordinates).
 _BOOTSTRAP_MAX_Z = 5.0
 
-# Reasons for a chunk without an update (keys of RigRefiner.skipped_chunks).
+# Reasons for a chunk without an update (keys of RigEstimator.skipped_chunks).
 SKIP_UNOBSERVABLE = "nothing observable"        # e.g. a still head: the usual case, not a fault
 SKIP_NO_DATA = "no usable centres"
 SKIP_NON_FINITE = "non-finite terms"
@@ -104,7 +104,7 @@ def _positive_definite(M: np.ndarray, scale: np.ndarray) -> np.ndarray:
 
 @dataclass
 class _Solution:
-    """What :meth:`RigRefiner._solve <.rig_refine.RigRefiner._solve>` found for a chunk."""
+    """What :meth:`RigEstimator.solve <.rig_estimator.RigEstimator.solve>` found for a chunk."""
 
     increment: np.ndarray       # (9,) rig error-state increment
     posterior: np.ndarray       # (9, 9) its covariance, SPD, inflated by the noise scale
@@ -316,7 +316,7 @@ def refit_poses(chunk: list, data: _ChunkData, poses: np.ndarray) -> dict:
 
 
 def run_to_end(steps):
-    """Run a solve (a generator, :meth:`RigRefiner._solve <.rig_refine.RigRefiner._solve>`) through all
+    """Run a solve (a generator, :meth:`RigEstimator.solve <.rig_estimator.RigEstimator.solve>`) through all
     its passes at once; its :class:`_Solution`."""
     while True:
         try:
