@@ -41,6 +41,7 @@ import pytest
 
 from headplod import io
 from headplod.tracking.motion import PoseHistory
+from headplod.tracking.pose_fit import PoseFitter
 from headplod.tracking.rig_estimator import RigEstimator
 from headplod.tracking.rig_refine import RigRefineConfig
 from headplod.tracking.tracker import Tracker, TrackerConfig
@@ -373,14 +374,14 @@ def _errors(result, grid: Grid, i: int):
 def test_an_exception_costs_its_frame_only(grids, monkeypatch, exc):
     grid = grids[0]
     frame = {"k": None}
-    estimate = Tracker._estimate
+    estimate = PoseFitter.estimate
 
     def failing(self, *args, **kwargs):
         if frame["k"] == FAULT_FRAME:
             raise exc
         return estimate(self, *args, **kwargs)
 
-    monkeypatch.setattr(Tracker, "_estimate", failing)
+    monkeypatch.setattr(PoseFitter, "estimate", failing)
     tracker = Tracker(grid.rig, grid.markers)
     results = []
     for k, (left, right, t, i) in enumerate(_stream_frames(grid, 12)):
@@ -438,7 +439,7 @@ def test_interrupts_are_not_isolated(grids, monkeypatch, exc):
     def interrupted(self, *args, **kwargs):
         raise exc()
 
-    monkeypatch.setattr(Tracker, "_estimate", interrupted)
+    monkeypatch.setattr(PoseFitter, "estimate", interrupted)
     tracker = Tracker(grid.rig, grid.markers)
     left, right, t, _ = _stream_frames(grid, 1)[0]
     with pytest.raises(exc):
@@ -529,7 +530,7 @@ def test_repeated_times_divide_nothing_by_zero(grids):
                 assert pos < 4.0 and ang < 1.0, (k, pos, ang)
             if k % 3 == 2:
                 assert any("repeats the previous frame's" in n for n in r.notes)
-    velocity = tracker._motion.velocity()
+    velocity = tracker.parts.motion.history.velocity()
     assert velocity is not None and np.isfinite(np.concatenate(velocity)).all()
 
 

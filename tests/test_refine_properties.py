@@ -309,7 +309,7 @@ def _assert_projection(J, Jr, w, M, rtol=1e-6):
 
 def _rows(R, p1, visible, dt, omega, velocity, sigma):
     """The pose's and the rig's rows over the visible coordinates, and their weights, as the tracker
-    builds them (``Tracker._rig_after_fit``)."""
+    builds them (``RigChecks.rig_after_fit``)."""
     pose = geo.reprojection_rows(R, p1, MODEL, visible, CAMERAS)
     world = MODEL @ R.T + p1
     rows = np.stack([_project(world, np.eye(3), np.zeros(3), RIG.K1, RIG.D1)[:, 1],

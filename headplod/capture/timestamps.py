@@ -10,7 +10,7 @@ they miss a frame).
 A time that goes back (a clock reset, frames out of order) or jumps far
 ahead (a far-future time) is not dropped: it is a **discontinuity** of the
 motion, which the tracker handles where its motion model lives
-(:meth:`Tracker._check_time <headplod.tracking.tracker.Tracker>`: the
+(:meth:`FrameChecks.check_time <headplod.tracking.frame_checks.FrameChecks.check_time>`: the
 motion state is reset, the markers acquired afresh, the record's ``flags``
 say so, ``Tracker.time_jumps`` counts them). A single wild time (1e300 s)
 thus costs one reset on the way there and one on the way back, never the

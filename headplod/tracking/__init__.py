@@ -3,13 +3,14 @@
 - :mod:`.detect`: marker blobs in one IR image.
 - :mod:`.identify`: which blob is which marker.
 - :mod:`.geometry`: stereo geometry and the pose estimators.
-- :mod:`.tracker`: the stages together, two images in, a verified pose out; its
-  stages: :mod:`.tracker_config` (settings), :mod:`.frame_checks` (images and
-  times), :mod:`.acquire` (detection and identification), :mod:`.lock` (the
-  markers tracked from frame to frame), :mod:`.pose_fit` (the fit and its
-  covariance input), :mod:`.rig_check` (checks against the images and the
-  rig), :mod:`.rolling_shutter` (readout compensation), :mod:`.tracker_rig`
-  (the rig in use, its refinement and bootstrap).
+- :mod:`.tracker`: the parts composed, two images in, a verified pose out, and the
+  state machine; its parts: :mod:`.tracker_config` (settings), :mod:`.frame_checks`
+  (images and times), :mod:`.detection` (blobs, and the locked markers re-measured),
+  :mod:`.acquire` (identification), :mod:`.lock` (the markers of a frame and the
+  lock on them), :mod:`.pose_fit` (the fit), :mod:`.rig_check` (checks against the
+  images and the rig), :mod:`.rolling_shutter` (readout compensation),
+  :mod:`.covariance` (the covariance of V's stage), :mod:`.tracker_rig` (the rig
+  in use, its refinement and bootstrap), :mod:`.motion` (the head's motion).
 - :mod:`.uncertainty`: the covariance of the viewing direction.
 - :mod:`.rig_refine`: the rig's online refinement, composed of
   :mod:`.rig_estimator` (the estimate and its chunk updates),

@@ -1,21 +1,26 @@
 """The *acquire* state: every blob of both images detected, and the five markers identified.
 
-:class:`_Acquisition` is a part of :class:`~.tracker.Tracker` (a mixin, on
-the tracker's rig, tolerances and marker model): the blobs most likely to
-be markers (:meth:`_Acquisition._candidates`), their labelings P0..P4 in
-each image (:mod:`.identify`), the left/right pair of labelings that best
-fits the epipolar geometry and the model (:meth:`_Acquisition._best_pair`),
-or, when none does, one marker hidden in one view
-(:meth:`_Acquisition._hidden_marker`). Centres in px, the model in mm.
+:class:`Identifier` is a part of :class:`~.tracker.Tracker` with no state
+of its own (its settings and the marker model): blobs in, labelled markers
+(a :class:`~.lock.Match`) or the reason for none out
+(:meth:`Identifier.identify`), on the rig in use and the tolerances it
+widens, a :class:`~.tracker_rig.RigGeometry` given with each call. The
+blobs most likely to be markers (:meth:`Identifier.candidates`), their
+labelings P0..P4 in each image (:mod:`.identify`), the left/right pair of
+labelings that best fits the epipolar geometry and the model
+(:meth:`Identifier._best_pair`), or, when none does, one marker hidden in
+one view (:meth:`Identifier._hidden_marker`). The same checks make a match
+of centres already labelled (:meth:`Identifier.match_from_centers`, the
+*track* state's re-measure). Centres in px, the model in mm.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from . import geometry as geo
-from .detect import Blobs, detect_blobs, estimate_background
-from .identify import find_hypotheses
-from .lock import _Match
+from .detect import Blobs
+from .identify import ModelRule, find_hypotheses
+from .lock import Match
 
 
 def _scale_hint(points_mm: np.ndarray, model_mm: np.ndarray) -> str:
@@ -36,25 +41,36 @@ def _scale_hint(points_mm: np.ndarray, model_mm: np.ndarray) -> str:
             "is markers.yaml in mm (docs/contract.md), and is it these glasses?")
 
 
-class _Acquisition:
-    """The *acquire* state's detection and identification of :class:`~.tracker.Tracker` (module docstring)."""
+class Identifier:
+    """The *acquire* state's identification of :class:`~.tracker.Tracker` (module docstring).
 
-    def _detect_full(self, image, cam) -> Blobs:
-        background = estimate_background(image)
-        self._prev_background[cam] = background
-        return detect_blobs(image, self.config.detection, background=background)
+    Parameters
+    ----------
+    config : TrackerConfig
+    model_mm : (5, 3) float
+        The marker model, glasses frame, mm.
+    axes_G : (3, 3) float
+        The model's axes Ξ, Ψ, V (rows), glasses frame.
+    """
 
-    def _match_from_centers(self, centers, visible, index) -> _Match | None:
-        """Triangulate labeled centres and fit the model; None if they break the checks."""
-        xn = [geo.undistort(centers[0], self.rig.K1, self.rig.D1), geo.undistort(centers[1], self.rig.K2, self.rig.D2)]
-        epi = geo.epipolar_error_px(xn[0], xn[1], self.E, *self.focal)
-        points, _ = geo.triangulate_midpoint(xn[0], xn[1], self.rig.R, self.rig.T)
-        R, t, rms = geo.kabsch(self.model_mm, points)
-        if epi.max() > self.epipolar_tol_px or rms > self.fit_tol_mm:
+    def __init__(self, config, model_mm: np.ndarray, axes_G: np.ndarray):
+        self.ident_config = config
+        self.ident_model_mm = model_mm
+        self.ident_axes_G = axes_G
+        self.rule = ModelRule.from_model(model_mm)
+
+    def match_from_centers(self, centers, visible, index, g) -> Match | None:
+        """Triangulate labeled centres (2, 5, 2) px and fit the model, on the rig ``g``
+        (:class:`~.tracker_rig.RigGeometry`); None if they break the checks."""
+        xn = [geo.undistort(centers[0], g.rig.K1, g.rig.D1), geo.undistort(centers[1], g.rig.K2, g.rig.D2)]
+        epi = geo.epipolar_error_px(xn[0], xn[1], g.E, *g.focal)
+        points, _ = geo.triangulate_midpoint(xn[0], xn[1], g.rig.R, g.rig.T)
+        R, t, rms = geo.kabsch(self.ident_model_mm, points)
+        if epi.max() > g.epipolar_tol_px or rms > g.fit_tol_mm:
             return None
-        return _Match(centers, visible, index, epi, points, R, t, float(rms))
+        return Match(centers, visible, index, epi, points, R, t, float(rms))
 
-    def _candidates(self, b: Blobs) -> np.ndarray:
+    def candidates(self, b: Blobs) -> np.ndarray:
         """Indices of the blobs most likely to be markers, best first."""
         n = len(b)
         if n == 0:
@@ -68,10 +84,12 @@ class _Acquisition:
         oversized = b.area_px > 6 * max(typical, 1)
         penalty = 2 * b.glint + 1 * oversized
         order = np.lexsort((-b.flux_dn, penalty))
-        return order[: self.config.max_candidates]
+        return order[: self.ident_config.max_candidates]
 
-    def _identify(self, blobs) -> tuple[_Match | None, str | None]:
-        cand = [self._candidates(b) for b in blobs]
+    def identify(self, blobs, g) -> tuple[Match | None, str | None]:
+        """The five markers labelled in the (left, right) :class:`~.detect.Blobs`, on the rig ``g``
+        (:class:`~.tracker_rig.RigGeometry`): (match, None), or (None, the reason for none)."""
+        cand = [self.candidates(b) for b in blobs]
         counts = [len(c) for c in cand]
         names = ("left", "right")
         if min(counts) < 4 or (max(counts) < 5):
@@ -79,13 +97,13 @@ class _Acquisition:
             return None, f"{names[cam]} image: {counts[cam]} marker blobs, 5 needed"
         hyps = [find_hypotheses(blobs[i].centers_px[cand[i]], self.rule) if counts[i] >= 5 else None
                 for i in range(2)]
-        xn = [geo.undistort(blobs[0].centers_px[cand[0]], self.rig.K1, self.rig.D1),
-              geo.undistort(blobs[1].centers_px[cand[1]], self.rig.K2, self.rig.D2)]
+        xn = [geo.undistort(blobs[0].centers_px[cand[0]], g.rig.K1, g.rig.D1),
+              geo.undistort(blobs[1].centers_px[cand[1]], g.rig.K2, g.rig.D2)]
         match, reason = None, None
         if hyps[0] is not None and hyps[1] is not None and len(hyps[0]) and len(hyps[1]):
-            match, reason = self._best_pair(hyps, xn, cand, blobs)
-        if match is None and self.config.hidden_marker:
-            alt, alt_reason = self._hidden_marker(hyps, xn, cand, blobs)
+            match, reason = self._best_pair(hyps, xn, cand, blobs, g)
+        if match is None and self.ident_config.hidden_marker:
+            alt, alt_reason = self._hidden_marker(hyps, xn, cand, blobs, g)
             if alt is not None:
                 return alt, None
             reason = reason or alt_reason
@@ -95,11 +113,12 @@ class _Acquisition:
                       "and two beside)" if missing else "no consistent stereo identification")
         return match, reason
 
-    def _epipolar_matrix(self, xn) -> np.ndarray:
+    @staticmethod
+    def _epipolar_matrix(xn, g) -> np.ndarray:
         """Epipolar error (px) of every left candidate against every right one: (m_left, m_right)."""
-        return geo.epipolar_error_px(xn[0][:, None, :], xn[1][None, :, :], self.E, *self.focal)
+        return geo.epipolar_error_px(xn[0][:, None, :], xn[1][None, :, :], g.E, *g.focal)
 
-    def _best_pair(self, hyps, xn, cand, blobs) -> tuple[_Match | None, str | None]:
+    def _best_pair(self, hyps, xn, cand, blobs, g) -> tuple[Match | None, str | None]:
         """The left/right pair of labelings that best fits the epipolar geometry and the model.
 
         Pairs are screened by a lookup in the candidates' epipolar-error
@@ -107,8 +126,8 @@ class _Acquisition:
         tried first and the alternatives only when none of those fits.
         """
         hl, hr = hyps
-        epi_matrix = self._epipolar_matrix(xn)
-        tol = self.epipolar_tol_px
+        epi_matrix = self._epipolar_matrix(xn, g)
+        tol = g.epipolar_tol_px
         best_reason = None
         for ranks in ((0,), (0, 1)):
             il_all = np.flatnonzero(hl.rank <= max(ranks))
@@ -124,18 +143,18 @@ class _Acquisition:
             il, ir, epi = il[keep], ir[keep], epi[keep]
             xl = xn[0][hl.index[il]]            # (P, 5, 2)
             xr = xn[1][hr.index[ir]]
-            points, _ = geo.triangulate_midpoint(xl, xr, self.rig.R, self.rig.T)
-            R, t, rms = geo.kabsch(self.model_mm, points)
-            valid = (rms <= self.fit_tol_mm) & self._facing_cameras(R, t)
+            points, _ = geo.triangulate_midpoint(xl, xr, g.rig.R, g.rig.T)
+            R, t, rms = geo.kabsch(self.ident_model_mm, points)
+            valid = (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g)
             if not valid.any():
                 k = int(np.argmin(rms))
                 best_reason = (f"no consistent stereo identification: the best labeling is {rms[k]:.1f} mm "
-                               f"(RMS) from the marker model, tolerance {self.fit_tol_mm:.1f} mm"
-                               + _scale_hint(points[k], self.model_mm))
+                               f"(RMS) from the marker model, tolerance {g.fit_tol_mm:.1f} mm"
+                               + _scale_hint(points[k], self.ident_model_mm))
                 continue
             # Ranked in units of the image-noise tolerances, not of the rig-widened
             # ones: widening must not make a clearly worse assignment a rival.
-            cost = (rms / self.config.fit_tol_mm + epi.max(axis=1) / self.config.epipolar_tol_px
+            cost = (rms / self.ident_config.fit_tol_mm + epi.max(axis=1) / self.ident_config.epipolar_tol_px
                     + 0.05 * (hl.rank[il] + hr.rank[ir]))
             cost = np.where(valid, cost, np.inf)
             best = int(np.argmin(cost))
@@ -145,15 +164,15 @@ class _Acquisition:
             return self._make_match(blobs, index, epi[best], points[best], R[best], t[best], rms[best]), None
         return None, best_reason
 
-    def _hidden_marker(self, hyps, xn, cand, blobs) -> tuple[_Match | None, str | None]:
+    def _hidden_marker(self, hyps, xn, cand, blobs, g) -> tuple[Match | None, str | None]:
         """One marker hidden in one view: label the full view, match the other's blobs to it.
 
         For each labeled marker, the other view's blobs within the epipolar
         tolerance are its only possible partners; the assignments are the
         products of those short lists with exactly one marker hidden.
         """
-        epi_matrix = self._epipolar_matrix(xn)
-        tol = self.epipolar_tol_px
+        epi_matrix = self._epipolar_matrix(xn, g)
+        tol = g.epipolar_tol_px
         best = None
         for full in (0, 1):
             other = 1 - full
@@ -183,13 +202,13 @@ class _Acquisition:
             xo = xn[other][np.maximum(assignments, 0)]
             weights = (assignments >= 0).astype(np.float64)
             xl, xr = (xf, xo) if full == 0 else (xo, xf)
-            epi = np.where(weights > 0, geo.epipolar_error_px(xl, xr, self.E, *self.focal), 0.0)
-            points, _ = geo.triangulate_midpoint(xl, xr, self.rig.R, self.rig.T)
-            R, t, rms = geo.kabsch(self.model_mm, points, weights)
-            valid = (rms <= self.fit_tol_mm) & self._facing_cameras(R, t)
+            epi = np.where(weights > 0, geo.epipolar_error_px(xl, xr, g.E, *g.focal), 0.0)
+            points, _ = geo.triangulate_midpoint(xl, xr, g.rig.R, g.rig.T)
+            R, t, rms = geo.kabsch(self.ident_model_mm, points, weights)
+            valid = (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g)
             if not valid.any():
                 continue
-            cost = np.where(valid, rms / self.config.fit_tol_mm + epi.max(axis=1) / self.config.epipolar_tol_px, np.inf)
+            cost = np.where(valid, rms / self.ident_config.fit_tol_mm + epi.max(axis=1) / self.ident_config.epipolar_tol_px, np.inf)
             k = int(np.argmin(cost))
             if self._ambiguous(R, cost, k):
                 return None, "ambiguous identification with a marker hidden in one view"
@@ -204,7 +223,7 @@ class _Acquisition:
             return None, "no consistent identification with a marker hidden in one view"
         return self._make_match(blobs, *best[1:]), None
 
-    def _make_match(self, blobs, index, epi, points, R, t, rms) -> _Match:
+    def _make_match(self, blobs, index, epi, points, R, t, rms) -> Match:
         visible = index >= 0
         centers = np.full((2, 5, 2), np.nan)
         for cam in range(2):
@@ -216,12 +235,12 @@ class _Acquisition:
             flux[cam, visible[cam]] = blobs[cam].flux_dn[index[cam, visible[cam]]]
             if blobs[cam].shot_var is not None:
                 shot[cam, visible[cam]] = blobs[cam].shot_var[index[cam, visible[cam]]]
-        return _Match(centers, visible, index, epi, points, R, t, float(rms), sigma, flux, shot_var=shot)
+        return Match(centers, visible, index, epi, points, R, t, float(rms), sigma, flux, shot_var=shot)
 
-    def _facing_cameras(self, R, t) -> np.ndarray:
+    def _facing_cameras(self, R, t, g) -> np.ndarray:
         """The glasses' front (V) must face the cameras: retro-reflectors are seen only from the front."""
-        v = np.einsum("...ij,j->...i", R, self.axes_G[2])
-        to_cams = self.cameras_mid_mm - t
+        v = np.einsum("...ij,j->...i", R, self.ident_axes_G[2])
+        to_cams = g.cameras_mid_mm - t
         return np.einsum("...i,...i->...", v, to_cams) > 0
 
     def _ambiguous(self, R, cost, best) -> bool:
@@ -231,7 +250,7 @@ class _Acquisition:
         errors in units of their tolerances). A hypothesis that merely passes
         the tolerances while the best fits at the noise level is not a rival.
         """
-        v = np.einsum("...ij,j->...i", R, self.axes_G[2])
+        v = np.einsum("...ij,j->...i", R, self.ident_axes_G[2])
         rivals = np.isfinite(cost) & (cost <= 2 * cost[best] + 0.2)
         cos = np.clip(v[rivals] @ v[best], -1, 1)
-        return bool(np.any(np.degrees(np.arccos(cos)) > self.config.ambiguity_deg))
+        return bool(np.any(np.degrees(np.arccos(cos)) > self.ident_config.ambiguity_deg))

@@ -1,21 +1,27 @@
 """What a frame must be before it is tracked, and the pair of images it is tracked from.
 
 - Its images: the rig's size, 8-bit grayscale, and not the very buffer the
-  camera delivered last (:meth:`_FrameChecks._check_images`,
-  :meth:`_FrameChecks._repeated_images`).
-- Its time against the previous frames' (:meth:`_FrameChecks._check_time`:
-  a jump back or far ahead resets the motion, a repeat or a glitch is
-  noted) and the usual frame period (:meth:`_FrameChecks._frame_period`).
+  camera delivered last (:meth:`FrameChecks.check_images`,
+  :meth:`FrameChecks.repeated_images`).
+- Its time against the previous frames' (:meth:`FrameChecks.check_time`,
+  a :class:`TimeVerdict`: a jump back or far ahead resets the motion, a
+  repeat or a glitch is noted) and the usual frame period
+  (:meth:`FrameChecks.frame_period`).
 - The right image's time against the left one's: a skew no motion bridges
-  refuses the pair (:meth:`_FrameChecks._implausible_offset`); the right
+  refuses the pair (:meth:`FrameChecks.implausible_offset`); the right
   image to use and its exposure time, with the refinement's estimated
-  offset (:meth:`_FrameChecks._pair`).
+  offset (:meth:`RightPairing.pair`).
 
-:class:`_FrameChecks` is a part of :class:`~.tracker.Tracker` (a mixin: it
-reads and keeps the tracker's state: the recent frame periods, the last
-time, the previous images and right image). Times are in s.
+:class:`FrameChecks` and :class:`RightPairing` are parts of
+:class:`~.tracker.Tracker`. The first owns what the checks remember across
+frames (the recent frame periods, the last time, the previous images, the
+time discontinuities counted); the second the previous right image and the
+right camera's recent periods, which a time discontinuity forgets
+(:meth:`RightPairing.reset`). Times are in s.
 """
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -29,11 +35,42 @@ def describe_offset_s(offset_s: float) -> str:
     return f"{size:.1f} s {side}" if size >= 1.0 else f"{size * 1e3:.0f} ms {side}"
 
 
-class _FrameChecks:
-    """The frame checks of :class:`~.tracker.Tracker` (module docstring)."""
+class TimeVerdict(NamedTuple):
+    """What :meth:`FrameChecks.check_time` made of a frame's time.
 
-    def _check_images(self, left, right) -> str | None:
-        width, height = self.rig.image_size
+    ``notes``: for a person (the result's notes); ``glitch``: the time is no
+    clock's (a repeat, a glitch, jitter): not for the rig's refinement;
+    ``time_glitch``: a repeat or a step of a fraction of a period: not for
+    the motion history either; ``discontinuity``: back in time or far
+    ahead: the motion state is to be forgotten.
+    """
+
+    notes: list
+    glitch: bool = False
+    time_glitch: bool = False
+    discontinuity: bool = False
+
+
+class FrameChecks:
+    """The frame checks of :class:`~.tracker.Tracker` (module docstring).
+
+    Parameters
+    ----------
+    config : TrackerConfig
+        ``max_time_gap_s``, ``max_time_gap_periods``, ``max_right_offset_periods``.
+    """
+
+    def __init__(self, config):
+        self.frames_config = config
+        self.frame_periods = []       # recent frame periods, s, for the right time's plausibility (kept by reset)
+        self._last_t = None
+        self._previous_images = None  # (left, right) of the last frame, to recognize a repeated buffer
+        self.time_jumps = 0           # discontinuities of the frame time (back, or far ahead): motion reset
+        self.first_time_jump: str | None = None
+
+    def check_images(self, left, right, image_size) -> str | None:
+        """Why the images (H, W) cannot be tracked with a rig of ``image_size`` (W, H) px, or None."""
+        width, height = image_size
         for name, img in (("left", left), ("right", right)):
             if img is None:
                 return f"{name} image missing"
@@ -44,7 +81,7 @@ class _FrameChecks:
                         f"for {width}x{height}: wrong camera mode or wrong rig.yaml")
         return None
 
-    def _repeated_images(self, left: np.ndarray, right: np.ndarray) -> str | None:
+    def repeated_images(self, left: np.ndarray, right: np.ndarray) -> str | None:
         """Why a frame is refused when a camera delivered the very image it delivered last (a driver or
         a capture loop handing the same buffer out twice): that image was exposed a frame earlier than
         its time says, so no pose may be made from it. None for new images. (Two exposures are never
@@ -70,55 +107,53 @@ class _FrameChecks:
         return (f"{which} delivered the same image as in the last frame (a repeated buffer, not a new exposure): "
                 "no pose from it")
 
-    def _frame_period(self) -> float | None:
+    def frame_period(self) -> float | None:
         """The usual time between frames, s (None until a step is known): the 75th percentile of the
         last 16 steps, which neither timestamp glitches (steps of a ms) nor a few dropped frames (steps of
         two periods) move far, while up to half of either would move a median."""
-        if not self._frame_periods:
+        if not self.frame_periods:
             return None
-        steps = sorted(self._frame_periods)
+        steps = sorted(self.frame_periods)
         return steps[(3 * (len(steps) - 1)) // 4]
 
-    def _check_time(self, t) -> list:
-        """Notes on this frame's time against the previous frame's; a discontinuity resets the motion.
+    def check_time(self, t) -> TimeVerdict:
+        """This frame's time against the previous frame's; a discontinuity resets the motion.
 
         Back in time, or forward by more than ``max_time_gap_s`` or
         ``max_time_gap_periods`` frame periods: the poses before it are not
         this motion's past, and no velocity bridges the gap, so the motion
-        state is forgotten (:meth:`_reset_motion`) and the markers are
+        state is to be forgotten (``discontinuity``) and the markers
         acquired afresh. A time equal to the previous one is noted (the
         motion model gets no velocity from it). Keeps the recent frame
         periods (s) for this and the right time's plausibility.
         """
-        self._glitch = self._time_glitch = False
         if t is None:
-            return []
+            return TimeVerdict([])
         last, self._last_t = self._last_t, t
         if last is None:
-            return []
+            return TimeVerdict([])
         step = float(t) - float(last)
-        period = self._frame_period()
-        c = self.config
-        known = len(self._frame_periods) >= 4        # a period from fewer steps may be a glitch's
+        period = self.frame_period()
+        c = self.frames_config
+        known = len(self.frame_periods) >= 4        # a period from fewer steps may be a glitch's
         gap = min(c.max_time_gap_s, c.max_time_gap_periods * period) if known else c.max_time_gap_s
         if 0 < step <= c.max_time_gap_s:
             # Every step within the absolute bound counts towards the period,
             # so that a period first learnt from glitches recovers.
-            self._frame_periods = (self._frame_periods + [step])[-16:]
+            self.frame_periods = (self.frame_periods + [step])[-16:]
         if 0 < step <= gap:
             # A step under a third of the usual period is a repeat or a late
             # timestamp more likely than a faster camera (until the period is
             # known, a third of the longest step so far). One a tenth of a
             # period off the frame clock (jitter) is a time the rig's
             # refinement must not learn velocities and offsets from.
-            usual = period if known else max(self._frame_periods, default=step)
-            self._time_glitch = step < 0.3 * usual
-            self._glitch = self._time_glitch or (known and abs(step - period * round(step / period)) > 0.1 * period)
-            return []
+            usual = period if known else max(self.frame_periods, default=step)
+            time_glitch = step < 0.3 * usual
+            glitch = time_glitch or (known and abs(step - period * round(step / period)) > 0.1 * period)
+            return TimeVerdict([], glitch, time_glitch)
         if step == 0:
-            self._glitch = self._time_glitch = True
-            return [f"time {t:.6f} s repeats the previous frame's: no motion measured over it"]
-        self._reset_motion()
+            return TimeVerdict([f"time {t:.6f} s repeats the previous frame's: no motion measured over it"],
+                               True, True)
         if step < 0:
             note = (f"time went back {describe_offset_s(-step).replace(' after', '')} (t={t:.6g} s after "
                     f"{last:.6g} s): motion state reset, markers acquired afresh")
@@ -127,9 +162,9 @@ class _FrameChecks:
                     f"{last:.6g} s, more than {gap * 1e3:.0f} ms): motion state reset, markers acquired afresh")
         self.time_jumps += 1
         self.first_time_jump = self.first_time_jump or note
-        return [note]
+        return TimeVerdict([note], discontinuity=True)
 
-    def _implausible_offset(self, t, t_right) -> str | None:
+    def implausible_offset(self, t, t_right) -> str | None:
         """The reason for refusing a pair whose right time is far from the left one (None if plausible).
 
         Far: more than ``max_right_offset_periods`` frame periods and 0.1 s.
@@ -140,17 +175,34 @@ class _FrameChecks:
         if t is None or t_right is None:
             return None
         offset_s = float(t_right) - float(t)
-        period_s = self._frame_period() or 1.0 / 30.0
-        k = self.config.max_right_offset_periods
+        period_s = self.frame_period() or 1.0 / 30.0
+        k = self.frames_config.max_right_offset_periods
         bound_s = max(k * period_s, 0.1)
         if not abs(offset_s) > bound_s:
             return None
-        periods = f", {k:g} frame periods" if self._frame_periods and bound_s > 0.1 else ""
+        periods = f", {k:g} frame periods" if self.frame_periods and bound_s > 0.1 else ""
         return (f"right image's time is {describe_offset_s(offset_s)} the left's (t_right - t), more than "
                 f"{bound_s * 1e3:.0f} ms{periods}: not a stereo pair; check times.csv / the cameras' clocks")
 
-    def _pair(self, left, right, t, t_right):
-        """The images to use and the right one's exposure time, with the estimated offset.
+
+class RightPairing:
+    """The right image paired with each left one, and its exposure time (module docstring)."""
+
+    def __init__(self):
+        self._last_right = None        # (image, t, t_right) of the previous frame's right camera
+        self.declared_right = None     # the right image's time as given (times.csv, the driver), s
+        self._periods = []             # recent frame periods, s
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous right image and the periods (a time discontinuity)."""
+        self._last_right = None
+        self.declared_right = None
+        self._periods = []
+
+    def pair(self, left, right, t, t_right, refiner):
+        """The images to use and the right one's exposure time, with the offset ``refiner`` (the rig's
+        refinement, or None) estimated.
 
         The right time is the given one (or t) plus the offset the
         refinement estimated, once it is known. When the right camera
@@ -160,18 +212,18 @@ class _FrameChecks:
         what remains of the offset is compensated as usual.
         """
         previous, self._last_right = self._last_right, (right, t, t_right)
-        self._declared_right = t_right
-        if t is None or self.refiner is None:
+        self.declared_right = t_right
+        if t is None or refiner is None:
             return (left, right), t_right
         if previous is not None and previous[1] is not None and 0 < t - previous[1] < 1.0:
             self._periods = (self._periods + [t - previous[1]])[-8:]
-        offset = self.refiner.state.offset_s
-        if not abs(offset) > max(2.0 * self.refiner.sigma()[7], 3e-4):
+        offset = refiner.state.offset_s
+        if not abs(offset) > max(2.0 * refiner.sigma()[7], 3e-4):
             return (left, right), t_right
         period = float(np.median(self._periods)) if self._periods else None
         if (period and offset > 0.5 * period and previous is not None and previous[1] is not None
                 and 0 < t - previous[1] < 1.5 * period):
             right, t_prev, t_right_prev = previous
-            self._declared_right = t_right_prev if t_right_prev is not None else t_prev
-            return (left, right), self._declared_right + offset
+            self.declared_right = t_right_prev if t_right_prev is not None else t_prev
+            return (left, right), self.declared_right + offset
         return (left, right), (t_right if t_right is not None else t) + offset

@@ -343,20 +343,11 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
     n = len(model)
     counts = (int(np.count_nonzero(visible[0])), int(np.count_nonzero(visible[1])))
     m = counts[0] + counts[1]
-    if counts == (n, n):             # the tracking case: no selection to make
-        selection = None
-        obs = np.concatenate([obs_left_px, obs_right_px], axis=None)
-        sig = None if sigma_px is None else np.ravel(sigma_px)
-    else:
-        selection = visible
-        obs = np.concatenate([obs_left_px[visible[0]], obs_right_px[visible[1]]]).ravel()
-        sig = None if sigma_px is None else np.concatenate([sigma_px[0][visible[0]], sigma_px[1][visible[1]]])
+    selection, obs, weight = _observations(obs_left_px, obs_right_px, visible, counts, n, sigma_px)
     chain = cams.R_cam_world
     if right_gain:
         chain = chain.copy()
         chain[1] *= 1.0 + right_gain
-    # Per centre (m, 1, 1): 1/σ on both of its rows.
-    weight = None if sig is None else (1.0 / np.maximum(sig, 1e-4))[:, None, None]
     R = np.asarray(R_world_G, dtype=np.float64)
     p1 = np.asarray(p1_world_mm, dtype=np.float64).ravel()
     rows = np.empty((2 * m, 7))          # [J | r]: Jacobian w.r.t. (δ, ε), residual, px
@@ -389,13 +380,36 @@ def refine_reprojection(R_world_G: np.ndarray, p1_world_mm: np.ndarray, model_mm
         res = rows[:, 6].copy()
     # Products of rotations drift off SO(3) by rounding; frames chain them.
     R = cv2.Rodrigues(cv2.Rodrigues(R)[0])[0]
-    if selection is None:
-        vectors = res.reshape(2, n, 2)
-    else:
-        vectors = np.full((2, n, 2), np.nan)
-        vectors[0, visible[0]] = res[:2 * counts[0]].reshape(-1, 2)
-        vectors[1, visible[1]] = res[2 * counts[0]:].reshape(-1, 2)
+    vectors = _residual_vectors(res, selection, visible, counts, n)
     return PoseFit(R, p1, np.hypot(vectors[..., 0], vectors[..., 1]), np.ascontiguousarray(normal[:6, :6]), vectors)
+
+
+def _residual_vectors(res: np.ndarray, selection, visible, counts, n: int) -> np.ndarray:
+    """The residuals (2m,) px of :func:`refine_reprojection`'s visible centres as vectors (2, n, 2), NaN
+    where hidden."""
+    if selection is None:
+        return res.reshape(2, n, 2)
+    vectors = np.full((2, n, 2), np.nan)
+    vectors[0, visible[0]] = res[:2 * counts[0]].reshape(-1, 2)
+    vectors[1, visible[1]] = res[2 * counts[0]:].reshape(-1, 2)
+    return vectors
+
+
+def _observations(obs_left_px, obs_right_px, visible, counts, n: int, sigma_px):
+    """The visible centres of :func:`refine_reprojection` as one flat array (2m,) px, the selection of
+    them (None when every marker is seen in both views), and each centre's weight 1/σ (m, 1, 1), or
+    None without ``sigma_px``."""
+    if counts == (n, n):             # the tracking case: no selection to make
+        selection = None
+        obs = np.concatenate([obs_left_px, obs_right_px], axis=None)
+        sig = None if sigma_px is None else np.ravel(sigma_px)
+    else:
+        selection = visible
+        obs = np.concatenate([obs_left_px[visible[0]], obs_right_px[visible[1]]]).ravel()
+        sig = None if sigma_px is None else np.concatenate([sigma_px[0][visible[0]], sigma_px[1][visible[1]]])
+    # Per centre (m, 1, 1): 1/σ on both of its rows.
+    weight = None if sig is None else (1.0 / np.maximum(sig, 1e-4))[:, None, None]
+    return selection, obs, weight
 
 
 def _normal_matrix(rows: np.ndarray, weight) -> np.ndarray:

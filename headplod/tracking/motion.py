@@ -29,6 +29,7 @@ the images' (a 1 kHz clock on 30 fps images): it is not used.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -384,3 +385,83 @@ def _inverse(info: np.ndarray):
         return np.linalg.inv(info)
     except np.linalg.LinAlgError:
         return None
+
+
+class HeadMotion:
+    """The head's motion as the tracker knows it: its recent poses (:class:`PoseHistory`, :attr:`history`)
+    and the last pose (:attr:`prev_pose`), and whether the frames' times are suspect.
+
+    Parameters
+    ----------
+    config : TrackerConfig
+        ``extrapolate_velocity``, ``min_velocity_base_s``, ``max_head_rate_dps``, ``max_head_speed_mm_s``.
+    """
+
+    def __init__(self, config):
+        self.motion_config = config
+        self.times_suspect = False     # the last velocity checked was not a head's, none since was
+        self.motion_unknown = False    # the last frame's time did not fit the motion (while times are suspect)
+        self.history: PoseHistory | None = None
+        self.prev_pose = None          # (R_world_G, p1) of the last pose remembered
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the poses (a time discontinuity, a seek); whether the times are suspect stands."""
+        c = self.motion_config
+        self.history = PoseHistory(c.extrapolate_velocity, c.min_velocity_base_s,
+                                   max_rate_dps=c.max_head_rate_dps, max_speed_mm_s=c.max_head_speed_mm_s)
+        self.prev_pose = None
+
+    def predicted(self):
+        """This frame's pose (R, p1) by constant velocity from the last two (the last one if unknown)."""
+        return self.history.predicted(*self.prev_pose)
+
+    def set_pose(self, R: np.ndarray, p1: np.ndarray) -> None:
+        """The last pose, (R_world_G (3, 3), p1 (3,) mm), whether or not its time is kept."""
+        self.prev_pose = (R, p1)
+
+    def remember(self, t, R, p1, rig_version: int, info, checked, time_glitch: bool) -> str | None:
+        """Keep a pose at time ``t`` (s) fitted with rig ``rig_version`` (``info``: its JᵀJ (6, 6)), unless
+        its time is a glitch (``time_glitch``: a repeat, or a step of a fraction of a period, exposed at
+        an unknown time) or unknown. ``checked``: (R, p1, rates) when the fit checked
+        :meth:`PoseHistory.rates_to` on this very pose, else None.
+
+        Returns a note when the head would have moved faster than a head does since the last poses: the
+        history is then cleared, and the rig's refinement must forget its frames' velocities too. Sets
+        :attr:`motion_unknown`: this time does not fit the motion (the refinement must not learn a
+        velocity from it)."""
+        if t is None or time_glitch:
+            # (A frame whose time repeats the last one's, or follows it by a
+            # fraction of a period, was exposed at an unknown time: its pose
+            # would put the motion at the wrong instant.)
+            return None
+        if checked is not None and checked[0] is R and checked[1] is p1:
+            rates = checked[2]                               # the fit made this check on this very pose
+        else:
+            rates = self.history.rates_to(t, R, p1, rig_version)
+        note = None
+        if rates is not None and not rates[2]:
+            # The times do not describe the motion the images show (a
+            # glitching clock, frames out of order): the poses before
+            # this one are no past to take a velocity from, and the rig's
+            # refinement, which learns the exposure offset from velocities
+            # over the frames' times, must not learn from them, nor from
+            # the next frames until a velocity is plausible again.
+            self.history.clear()
+            self.times_suspect = True
+            note = (f"the head would have turned {rates[0]:.0f}°/s and moved {rates[1]:.0f} mm/s "
+                    "since the last poses by these times: not a motion a head makes; "
+                    "motion state reset")
+        elif rates is not None:
+            self.times_suspect = False
+        self.motion_unknown = self.times_suspect and (rates is None or not rates[2])
+        self.history.add(t, R, p1, rig_version, info)
+        return note
+
+    def refit(self, poses: dict, rig_version: int) -> None:
+        """The recent poses refitted with a new rig (version ``rig_version``): the velocity and prediction
+        go on without a jump."""
+        self.history.refit(poses, rig_version)
+        last = self.history.last_pose(rig_version)
+        if last is not None:
+            self.prev_pose = last

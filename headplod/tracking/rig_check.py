@@ -1,15 +1,17 @@
 """The checks of a fitted pose against the images, within what the rig's uncertainty can explain.
 
-:class:`_RigChecks` is a part of :class:`~.tracker.Tracker` (a mixin): the
-reprojection and outlier checks (:meth:`_RigChecks._verify`,
-:meth:`_RigChecks._outlier`), the robust fit that finds the centres which
-disagree with the others (:meth:`_RigChecks._suspect`,
-:meth:`_RigChecks._suspects`), the rig's share of the residuals
-(:meth:`_RigChecks._rig_terms`, :meth:`_RigChecks._rig_after_fit`), whether
-a rig change explains them (:meth:`_RigChecks._rig_explains`: a bump), the
-pose corrected for the rig change they show, or refused, or withheld
-(:meth:`_RigChecks._rig_consistent`), and a pose withheld for an exposure
-offset no known motion bridges (:meth:`_RigChecks._offset_unbridged`).
+:class:`RigChecks` is a part of :class:`~.tracker.Tracker`, with no state
+of its own (its settings and the marker model): the reprojection and
+outlier checks (:meth:`RigChecks.verify`, :meth:`RigChecks.outlier`), the
+robust fit that finds the centres which disagree with the others
+(:meth:`RigChecks.suspect`, :meth:`RigChecks.suspects`), the rig's share of
+the residuals (:meth:`RigChecks.rig_terms`, :meth:`RigChecks.rig_after_fit`),
+whether a rig change explains them (:meth:`RigChecks.rig_explains`: a
+bump), the pose corrected for the rig change they show, or refused, or
+withheld (:meth:`RigChecks.rig_consistent`), and a pose withheld for an
+exposure offset no known motion bridges (:meth:`RigChecks.offset_unbridged`).
+Each takes what it needs of the frame as arguments: the match, the fit, the
+rig's geometry (:class:`~.tracker_rig.RigGeometry`) and refinement.
 
 Residuals and σ are (2, 5) px per image and marker; residual vectors
 (2, 5, 2) px; Jacobian rows (2, 5, 2, k) px per unit of the pose (rad, mm)
@@ -25,7 +27,7 @@ from scipy.stats import chi2
 
 from . import geometry as geo
 from .frame_checks import describe_offset_s
-from .lock import MARKER_NAMES, _Match
+from .lock import MARKER_NAMES, Match, centroid_sigma
 from .rig_state import rig_jacobian_rows
 from .uncertainty import rig_residual_rows
 
@@ -33,7 +35,7 @@ from .uncertainty import rig_residual_rows
 # 65 cm, ~0.5 mm and 0.05°) is refused when the frame cannot tell it from noise
 # or a stray blob: with suspect centres, or P1 known to worse than 1.5 mm (1σ)
 # after it; with five markers in both views a frame knows it to 0.2-1 mm
-# (_RigChecks._rig_consistent).
+# (RigChecks.rig_consistent).
 _AMBIGUOUS_CORRECTION_MM = 5.0
 _AMBIGUOUS_CORRECTION_DEG = 0.5
 _CORRECTED_P1_SD_MM = 1.5
@@ -46,7 +48,7 @@ def _names(mask: np.ndarray) -> str:
 
 def _ambiguous_correction(J, r, M, S, P, G, removed: float, shift: float, turn: float, excess_px):
     """(reason, withheld) for a rig correction of ``shift`` mm and ``turn`` deg (beyond 5 mm or 0.5°) that
-    the frame cannot tell from noise or a stray blob, else None (:meth:`_RigChecks._rig_consistent`).
+    the frame cannot tell from noise or a stray blob, else None (:meth:`RigChecks.rig_consistent`).
 
     At the fit, whitened: pose rows ``J`` (m, 6), residuals ``r`` (m,),
     ``M`` (m, k) what the fit leaves of a rig change, ``S`` = M P Mᵀ + I,
@@ -94,45 +96,60 @@ def _ambiguous_correction(J, r, M, S, P, G, removed: float, shift: float, turn: 
     return None
 
 
-class _RigChecks:
-    """The checks of a fitted pose of :class:`~.tracker.Tracker` (module docstring)."""
+class RigChecks:
+    """The checks of a fitted pose of :class:`~.tracker.Tracker` (module docstring).
 
-    def _outlier(self, residuals, match: _Match, rig_sd=None):
+    Parameters
+    ----------
+    config : TrackerConfig
+    model_mm : (5, 3) float
+        The marker model, glasses frame, mm.
+    """
+
+    def __init__(self, config, model_mm: np.ndarray):
+        self.check_config = config
+        self.check_model_mm = model_mm
+
+    def _sigma(self, match: Match) -> np.ndarray:
+        return centroid_sigma(match, self.check_config.min_centroid_sigma_px)
+
+    def outlier(self, residuals, match: Match, uncompensated: bool, rig_sd=None):
         """(camera, marker) of the worst centre if it is an outlier, else None.
 
         ``rig_sd`` (2, 5), px: the rig's share of each centre's expected
         error (a stale rig displaces the right image's centres together).
+        ``uncompensated``: the right view's motion could not be compensated.
 
         Not tested while the right image's exposure offset cannot be
         compensated (no recent pose to take the velocity from): the motion
         then displaces every right centre, and only the absolute tolerance
         applies.
         """
-        if match.sigma_px is None or self._uncompensated:
+        if match.sigma_px is None or uncompensated:
             return None
-        if not np.fmax.reduce(residuals, axis=None) > self.config.outlier_floor_px:
+        if not np.fmax.reduce(residuals, axis=None) > self.check_config.outlier_floor_px:
             return None                                   # the usual case: nothing near the floor
-        sigma = np.where(np.isfinite(match.sigma_px), np.maximum(self._sigma(match), self.config.outlier_min_sigma_px),
+        sigma = np.where(np.isfinite(match.sigma_px), np.maximum(self._sigma(match), self.check_config.outlier_min_sigma_px),
                          np.inf)
         if rig_sd is not None:
             sigma = np.hypot(sigma, rig_sd)
-        score = np.where(np.isfinite(residuals) & (residuals > self.config.outlier_floor_px),
+        score = np.where(np.isfinite(residuals) & (residuals > self.check_config.outlier_floor_px),
                          residuals / sigma, 0.0)
-        if score.max() <= self.config.outlier_sigma:
+        if score.max() <= self.check_config.outlier_sigma:
             return None
         return np.unravel_index(int(np.argmax(score)), score.shape)
 
-    def _suspect(self, residuals, match: _Match) -> bool:
+    def suspect(self, residuals, match: Match, uncompensated: bool) -> bool:
         """Whether a centre's residual (2, 5) px exceeds ``robust_suspect_sigma`` times its expected
         noise (floored at ``outlier_min_sigma_px``)."""
-        if match.sigma_px is None or self._uncompensated:
+        if match.sigma_px is None or uncompensated:
             return False
-        if not np.fmax.reduce(residuals, axis=None) > self.config.robust_suspect_sigma * self.config.outlier_min_sigma_px:
+        if not np.fmax.reduce(residuals, axis=None) > self.check_config.robust_suspect_sigma * self.check_config.outlier_min_sigma_px:
             return False                      # the usual case: every residual within the floor's 3.5σ
-        expected = np.maximum(self._sigma(match), self.config.outlier_min_sigma_px)
-        return bool(np.nanmax(residuals / expected) > self.config.robust_suspect_sigma)
+        expected = np.maximum(self._sigma(match), self.check_config.outlier_min_sigma_px)
+        return bool(np.nanmax(residuals / expected) > self.check_config.robust_suspect_sigma)
 
-    def _suspects(self, vectors, match: _Match, pose_rows, rig_rows, rig_cov):
+    def suspects(self, vectors, match: Match, pose_rows, rig_rows, rig_cov):
         """The centres (2, 5) bool that disagree with the others, and each one's excess error (2, 5) px;
         (None, None) if none do, or too many for the others to be trusted.
 
@@ -147,7 +164,7 @@ class _RigChecks:
         fit are suspect; their excess, per coordinate, is their residual
         against it over √2.
         """
-        cfg = self.config
+        cfg = self.check_config
         vis = match.visible
         sigma = np.maximum(self._sigma(match), cfg.outlier_min_sigma_px)[vis]          # (m,)
         r = vectors[vis].reshape(-1)
@@ -185,7 +202,7 @@ class _RigChecks:
         excess[vis] = np.where(bad, np.hypot(left[:, 0], left[:, 1]) / math.sqrt(2.0), 0.0)   # per coordinate
         return suspects, excess
 
-    def _verify(self, R, p1, residuals, outlier, match, rig_sd=None) -> str | None:
+    def verify(self, R, p1, residuals, outlier, match, rig_sd=None) -> str | None:
         """Why a fitted pose is not to be trusted, or None.
 
         ``rig_sd`` (2, 5), px: each centre's 1σ displacement from the rig's
@@ -193,9 +210,9 @@ class _RigChecks:
         """
         if not np.isfinite(R.sum() + p1.sum()):
             return "pose fit diverged (non-finite result)"
-        tol = self.config.reproj_tol_px
+        tol = self.check_config.reproj_tol_px
         if rig_sd is not None:
-            tol = np.hypot(tol, self.config.rig_gate_sigma * rig_sd)
+            tol = np.hypot(tol, self.check_config.rig_gate_sigma * rig_sd)
         excess = residuals / tol
         worst = np.fmax.reduce(excess, axis=None)          # ignores hidden markers' NaN
         if np.isnan(worst):
@@ -214,7 +231,7 @@ class _RigChecks:
                     "noise): a glint or partial occlusion; pose not trusted")
         return None
 
-    def _rig_terms(self, R, p1, t, t_right, velocity, P, match, spread: bool = True):
+    def rig_terms(self, R, p1, t, t_right, velocity, P, match, geometry, refiner, spread: bool = True):
         """Rig Jacobian rows (2, 5, 2, 9) at the pose, each centre's 1σ residual from the rig (2, 5), px
         (None unless ``spread``), and the pose's own Jacobian rows (2, 5, 2, 6)
         (:func:`geometry.reprojection_rows`).
@@ -224,16 +241,16 @@ class _RigChecks:
         hat matrix, with the fit's weights), in both images: that is what
         the checks must allow.
         """
-        pose_rows = geo.reprojection_rows(R, p1, self.model_mm, match.visible, self._cameras)
-        if P is None or self.refiner is None:
+        pose_rows = geo.reprojection_rows(R, p1, self.check_model_mm, match.visible, geometry.cameras)
+        if P is None or refiner is None:
             return None, None, pose_rows
         dt = (t_right - t) if (t is not None and t_right is not None) else 0.0
         omega, v = velocity if velocity is not None else (None, None)
-        rows = rig_jacobian_rows(R, p1, self.model_mm, self.refiner.state, self._cameras.D[1], dt, omega, v,
-                                 rows_px=match.centers[..., 1], image_height=int(self.rig.image_size[1]))
+        rows = rig_jacobian_rows(R, p1, self.check_model_mm, refiner.state, geometry.cameras.D[1], dt, omega, v,
+                                 rows_px=match.centers[..., 1], image_height=int(geometry.rig.image_size[1]))
         if not spread:
             return rows, None, pose_rows
-        M, _ = self._rig_after_fit(pose_rows, rows, match.visible, self._sigma(match))
+        M, _ = self.rig_after_fit(pose_rows, rows, match.visible, self._sigma(match))
         var = np.einsum("ij,jk,ik->i", M, P, M).reshape(-1, 2).sum(axis=1)
         sd = np.full(match.visible.shape, np.nan)
         # A spread that cannot be computed (a degenerate fit) widens nothing:
@@ -242,14 +259,14 @@ class _RigChecks:
         return rows, sd, pose_rows
 
     @staticmethod
-    def _rig_after_fit(pose_rows, rig_rows, visible, sigma_px):
+    def rig_after_fit(pose_rows, rig_rows, visible, sigma_px):
         """(I − H) J_r (2m, 8), what a rig change leaves in the residuals after the pose fit (px per unit),
         and the fit's weights 1/σ² (2m,), over the visible centres."""
         w = np.repeat(1.0 / np.square(sigma_px[visible]), 2)
         return rig_residual_rows(pose_rows[visible].reshape(-1, 6),
                                  rig_rows[visible].reshape(-1, rig_rows.shape[-1]), w), w
 
-    def _rig_explains(self, pose_rows, vectors, rig_rows, P, match) -> bool:
+    def rig_explains(self, pose_rows, vectors, rig_rows, P, match) -> bool:
         """Whether one change of the rig (within P) explains the residuals down to the image noise.
 
         A bumped camera displaces every centre of its image coherently; a
@@ -259,8 +276,8 @@ class _RigChecks:
         a tenth of the χ² before.
         """
         vis = match.visible
-        sigma = np.maximum(self._sigma(match), self.config.outlier_min_sigma_px)
-        M, w = self._rig_after_fit(pose_rows, rig_rows, vis, sigma)
+        sigma = np.maximum(self._sigma(match), self.check_config.outlier_min_sigma_px)
+        M, w = self.rig_after_fit(pose_rows, rig_rows, vis, sigma)
         M = M * np.sqrt(w)[:, None]
         r = vectors[vis].reshape(-1) * np.sqrt(w)
         e = np.linalg.solve(M.T @ M + np.linalg.inv(P), M.T @ r)
@@ -271,7 +288,7 @@ class _RigChecks:
         # floor): what is left must be small against what the rig removed.
         return left <= max(float(chi2.ppf(0.999, dof)), 0.1 * before)
 
-    def _rig_consistent(self, R, p1, vectors, pose_rows, rig_rows, P, match):
+    def rig_consistent(self, R, p1, vectors, pose_rows, rig_rows, P, match):
         """The pose of the joint fit of the pose and a rig change e (prior P), from the pose fitted with
         the rig as is: (R, p1, reason, withheld), the last two None for a pose to report.
 
@@ -298,7 +315,7 @@ class _RigChecks:
         refining the rig, not reported): a correction too large for the
         linearization (``max_rig_correction_mm``, ``max_rig_correction_deg``).
         """
-        cfg = self.config
+        cfg = self.check_config
         vis = match.visible
         sigma = np.maximum(self._sigma(match), cfg.outlier_min_sigma_px)[vis]
         sw = np.repeat(1.0 / sigma, 2)                                   # √W, px⁻¹
@@ -336,7 +353,7 @@ class _RigChecks:
                                  f"linear correction is trusted for: pose not reported until the rig is refined")
         return cv2.Rodrigues(delta[:3])[0] @ R, p1 + delta[3:], None, None
 
-    def _offset_unbridged(self, t, t_right) -> str | None:
+    def offset_unbridged(self, t, t_right, compensated: bool) -> str | None:
         """Why the pose is withheld when the right image is known to be exposed at another time than the
         left one and the head's motion over that offset is not known (no recent poses, or none whose
         velocity a head can have): the right view saw the head elsewhere, by an unknown amount. None
@@ -345,9 +362,9 @@ class _RigChecks:
         Only the reproj estimator compensates the offset. The pose is still
         remembered, so the next frame has the velocity.
         """
-        c = self.config
+        c = self.check_config
         if (c.estimator != "reproj" or not c.compensate_offset or t is None or t_right is None
-                or self._compensated or not abs(t_right - t) > c.max_uncompensated_offset_s):
+                or compensated or not abs(t_right - t) > c.max_uncompensated_offset_s):
             return None
         return (f"the right image is exposed {describe_offset_s(t_right - t)} the left one and the head's "
                 "motion over that is not known (no recent poses give a head's velocity): pose not reported")

@@ -21,72 +21,86 @@ Stages (each timed per frame in ``TrackResult.timings_s``):
    evidence supports.
 
 The frames' times are checked against each other and against the motion
-(:meth:`Tracker._check_time`, :class:`~headplod.tracking.motion.PoseHistory`):
+(:meth:`.frame_checks.FrameChecks.check_time`, :class:`~.motion.HeadMotion`):
 a jump back or far ahead resets the motion state, a repeated or glitching
 time gives no velocity, and the result's ``notes`` say so. An exception
 while processing a frame is isolated to it (:meth:`Tracker.process`).
 
-States. The tracker is in one of two states for the markers, and one of
-three for the rig:
+Parts. :class:`Tracker` is composed of parts (:class:`TrackerParts`, made by
+:func:`make_parts`, as opentrack's point tracker is made of a camera, a
+point extractor and a pose model). Each owns its state, takes and returns
+values, and can be built, run and timed alone:
+
+- frame checks (:class:`~.frame_checks.FrameChecks`): images and times in,
+  verdicts out (a repeated buffer, a :class:`~.frame_checks.TimeVerdict`, a
+  right camera's implausible offset); :class:`~.frame_checks.RightPairing`:
+  the right image paired with each left one, and its exposure time;
+- detection (:class:`~.detection.Detector`): images in, blobs out (*acquire*),
+  or the locked markers re-measured (*track*, a :class:`~.detection.Remeasured`);
+- identification (:class:`~.acquire.Identifier`): blobs and the rig's
+  geometry in, labelled markers (a :class:`~.lock.Match`) or a reason out;
+- pose fit (:class:`~.pose_fit.PoseFitter`): markers in, a
+  :class:`~.pose_fit.Fit` (pose, residuals, verdicts) out; its checks
+  (:class:`~.rig_check.RigChecks`) and the rolling shutter's compensation
+  (:class:`~.rolling_shutter.RollingShutter`) are parts of their own;
+- covariance (:class:`~.covariance.Covariance`): a fit in, the covariance of V out;
+- the rig in use, its refinement and bootstrap (:class:`~.tracker_rig.RigInUse`,
+  a :class:`~.tracker_rig.RigGeometry` value for the stages that use it);
+- the head's motion (:class:`~.motion.HeadMotion`).
+
+States. :class:`Tracker` holds the one state machine. The markers (a
+:class:`MarkerState`: a :class:`MarkerPhase` and the lock):
 
 - *acquire* (no lock): detect every blob and identify the five markers;
-  *track* (a :class:`~.lock._Lock` on the last accepted frame's markers):
-  re-measure them in small windows, and acquire when that fails. Only an
-  accepted pose with every marker seen makes a lock; every refusal drops it.
-- the rig: *as rig.yaml says* (no update yet; two consecutive frames that
-  fail against it may replace it by the rig they show,
-  :meth:`Tracker._bootstrap_rig`), *refining* (the online refinement's
-  updates, every 8 tracked frames, solved over the following frames),
-  *refined* (its turn and shift known to a tenth of their prior; a bump
-  widens them again). :meth:`Tracker.state` names both.
+- *track* (a :class:`~.lock.Lock` on the last accepted frame's markers):
+  re-measure them in small windows, and acquire when that fails;
+- *withheld*: the last pass's pose was kept (tracked from, with a lock when
+  every marker was seen) but not reported; a failed re-measure is then not
+  repeated acquiring.
+
+Only an accepted pose with every marker seen makes a lock; every refusal
+drops it. The rig (a :class:`~.tracker_rig.RigPhase`, the rig part's):
+*as rig.yaml says* (no update yet; two consecutive frames that fail against
+it may replace it by the rig they show, :meth:`~.tracker_rig.RigInUse.bootstrap`),
+*refining* (the online refinement's updates, every 8 tracked frames, solved
+over the following frames), *refined* (its turn and shift known to a tenth
+of their prior; a bump widens them again). :meth:`Tracker.state` names both.
 
 A frame is one pass (:meth:`Tracker._attempt`): measure
-(:meth:`Tracker._measure`), fit and check (:meth:`Tracker._fit`, a
-:class:`~.pose_fit._Fit`), the covariance of V (:meth:`Tracker._covariance_input`), the
-rig's refinement (:meth:`Tracker._refine`); a pass that fails while
-tracking is repeated acquiring.
-
-Where the parts live: :class:`Tracker` is one state machine over a stereo
-stream, and its stages share that state (the lock, the rig in use and its
-refinement, the noise tolerances the rig widens, the suspects of a frame,
-the rolling shutter's compensation). This module holds the machine: its
-state, the public API, a frame's pass and what it remembers. Its stages are
-parts of the class (mixins), each in its module: the frame's images and
-times (:mod:`.frame_checks`), the *track* state's lock and the markers of a
-frame (:mod:`.lock`), the *acquire* state's detection and identification
-(:mod:`.acquire`), the pose's fit (:mod:`.pose_fit`) and checks
-(:mod:`.rig_check`), the rolling shutter's compensation
-(:mod:`.rolling_shutter`), the rig in use, its refinement and bootstrap
-(:mod:`.tracker_rig`); the settings are :mod:`.tracker_config`'s. What has no
-state of its own lives elsewhere: detection, identification, geometry, the
-head's recent motion (:mod:`.motion`), the covariance (:mod:`.uncertainty`)
-and the rig's refinement (:mod:`.rig_refine`).
+(:meth:`Tracker._measure`), fit and check (:meth:`~.pose_fit.PoseFitter.fit`),
+remember (:meth:`Tracker._remember`), the covariance of V, the rig's
+refinement; a pass that fails while tracking is repeated acquiring. The
+settings are :mod:`.tracker_config`'s.
 """
 from __future__ import annotations
 
+import enum
 import math
 import time
 import traceback
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from . import geometry as geo
-from .acquire import _Acquisition
-from .frame_checks import _FrameChecks, describe_offset_s
+from .acquire import Identifier
+from .covariance import Covariance
+from .detection import Detector
+from .frame_checks import FrameChecks, RightPairing, TimeVerdict, describe_offset_s
 from .geometry import ESTIMATORS
-from .identify import ModelRule
-from .lock import MARKER_NAMES, _Lock, _Match, _Tracking
-from .motion import PoseHistory
-from .pose_fit import _PoseFit
-from .rig_check import _RigChecks
-from .rolling_shutter import _RollingShutter
+from .lock import _ALL_VISIBLE, _NAN5, _NAN53, _NO_BLOB, MARKER_NAMES, Lock, Match
+from .motion import HeadMotion
+from .pose_fit import Fit, PoseFitter
+from .rig_check import RigChecks
+from .rolling_shutter import RollingShutter
 from .tracker_config import TrackerConfig
-from .tracker_rig import _REFINER_FILES, _RIG_FAILURES, _raised_in, _RigInUse
-from .uncertainty import CovarianceInput, make_covariance_estimator
+from .tracker_rig import _REFINER_FILES, _RIG_FAILURES, RigFailure, RigInUse, _raised_in
+from .uncertainty import CovarianceInput
 
-__all__ = ["Tracker", "TrackResult", "internal_error_reason",
-           # re-exported from the modules the tracker was split into (and geometry's estimators)
+__all__ = ["Tracker", "TrackResult", "TrackerParts", "make_parts", "MarkerPhase", "MarkerState",
+           "internal_error_reason",
+           # re-exported from the modules of the tracker's parts (and geometry's estimators)
            "TrackerConfig", "MARKER_NAMES", "describe_offset_s", "ESTIMATORS"]
 
 
@@ -167,7 +181,86 @@ class TrackResult:
         return out
 
 
-class Tracker(_FrameChecks, _Tracking, _Acquisition, _PoseFit, _RigChecks, _RollingShutter, _RigInUse):
+class MarkerPhase(enum.Enum):
+    """The markers' state (module docstring)."""
+
+    ACQUIRE = "acquire"
+    TRACK = "track"
+    WITHHELD = "withheld"
+
+
+@dataclass(frozen=True)
+class MarkerState:
+    """The markers' state: the phase and the lock on the last accepted frame's markers (None: acquire)."""
+
+    phase: MarkerPhase = MarkerPhase.ACQUIRE
+    lock: Lock | None = None
+
+    @staticmethod
+    def kept(lock: Lock | None, withheld: bool = False) -> MarkerState:
+        """After a pose kept (tracked from): *withheld* if it is not reported, else *track* with a lock,
+        *acquire* without one."""
+        if withheld:
+            return MarkerState(MarkerPhase.WITHHELD, lock)
+        return MarkerState(MarkerPhase.TRACK if lock is not None else MarkerPhase.ACQUIRE, lock)
+
+
+_ACQUIRE = MarkerState()
+
+
+class TrackerParts(NamedTuple):
+    """The parts a :class:`Tracker` is composed of (module docstring)."""
+
+    frames: FrameChecks
+    pairing: RightPairing
+    detector: Detector
+    identifier: Identifier
+    motion: HeadMotion
+    rig: RigInUse
+    shutter: RollingShutter
+    checks: RigChecks
+    fitter: PoseFitter
+    covariance: Covariance
+
+
+def make_parts(rig, model_mm: np.ndarray, axes_G: np.ndarray, config: TrackerConfig,
+               calibration_std: dict | None = None) -> TrackerParts:
+    """The parts of a tracker for a rig (:class:`headplod.io.Rig`), a marker model ``model_mm`` (5, 3) mm
+    with its axes ``axes_G`` (3, 3) (rows Ξ, Ψ, V, glasses frame) and the settings."""
+    checks = RigChecks(config, model_mm)
+    covariance = Covariance(config, model_mm, axes_G, rig, checks)
+    rig_in_use = RigInUse(rig, model_mm, config, calibration_std, on_change=covariance.use_rig)
+    motion = HeadMotion(config)
+    shutter = RollingShutter(config, model_mm, rig_in_use, motion)
+    fitter = PoseFitter(config, model_mm, axes_G, rig_in_use, motion, shutter, checks)
+    return TrackerParts(FrameChecks(config), RightPairing(), Detector(config), Identifier(config, model_mm, axes_G),
+                        motion, rig_in_use, shutter, checks, fitter, covariance)
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """One frame's inputs to its passes: the images to use, their times (s), the time's verdict, and the
+    stages' timings (s, filled in) from ``start`` (``time.perf_counter``)."""
+
+    images: tuple
+    t: float | None
+    t_right: float | None
+    verdict: TimeVerdict
+    timings: dict
+    start: float
+
+
+class _Pass(NamedTuple):
+    """A pass's outcome: the result; the fit, if it got that far; the fit that failed for a reason a
+    rig far from rig.yaml explains, if it did; what the motion made of the pose's time, if anything."""
+
+    result: TrackResult
+    fit: Fit | None = None
+    failure: RigFailure | None = None
+    motion_note: str | None = None
+
+
+class Tracker:
     """Head tracker for one stereo rig and marker model.
 
     Parameters
@@ -175,52 +268,68 @@ class Tracker(_FrameChecks, _Tracking, _Acquisition, _PoseFit, _RigChecks, _Roll
     rig : headplod.io.Rig
     model : headplod.io.MarkerModel
     config : TrackerConfig
+    calibration_std : dict, optional
+        The calibration's uncertainties, for the rig refinement's prior.
+    parts : TrackerParts, optional
+        The parts (default :func:`make_parts`), e.g. with one replaced.
     """
 
-    def __init__(self, rig, model, config: TrackerConfig = TrackerConfig(), calibration_std: dict | None = None):
-        self.calibrated_rig = rig
+    def __init__(self, rig, model, config: TrackerConfig = TrackerConfig(), calibration_std: dict | None = None,
+                 parts: TrackerParts | None = None):
         self.model = model
         self.config = config
         self.model_mm = np.asarray(model.points_mm, dtype=np.float64)
-        self.rule = ModelRule.from_model(self.model_mm)
-        self.normal_signs = geo.normal_signs(self.model_mm)
         self.axes_G = geo.model_axes(self.model_mm)
-        self._calibration_std = calibration_std
-        self.refiner = None           # made at the first frame, when it is known whether t_right is given
-        self._frame_periods = []      # recent frame periods, s, for the right time's plausibility (kept by reset)
-        self._last_t = None
-        self.time_jumps = 0           # discontinuities of the frame time (back, or far ahead): motion reset
-        self.first_time_jump: str | None = None
-        # This frame's time is no clock's (a repeat, a glitch, jitter): not for
-        # the refinement; a repeat or a step of a fraction of a period: not for
-        # the motion history either.
-        self._glitch = self._time_glitch = False
-        self._motion_unknown = False   # this frame's time does not fit the motion (set by _remember)
-        self._motion_note = None      # what the motion model made of this frame's time, for the result's notes
-        self._times_suspect = False   # the last velocity checked was not a head's, none since was
-        self._withheld = False
-        self._last_fit = None         # (match, R, p1) of the last frame fitted but not reported, for _bootstrap_rig
-        self._previous_images = None  # (left, right) of the last frame, to recognize a repeated buffer
-        self._rates = None            # (t, R, p1, rig version, rates_to) of the last pose _fit checked
-        self._bootstrap_note = None
-        self._bootstrap_fits = []      # consecutive frames that failed against the rig, for _bootstrap_rig
-        self._readout_prior_set = False
-        self._declared_offsets = []   # recent t_right - t of the frames fed to the rig's refinement, s
+        self.parts = parts or make_parts(rig, self.model_mm, self.axes_G, config, calibration_std)
+        self._markers = _ACQUIRE
         # Exceptions isolated by process(): counted, never silent (see process).
         self.internal_errors = 0
         self.first_internal_error: str | None = None
         self.first_internal_traceback: str | None = None
-        self._apply_rig(rig)
-        self.uncertainty = make_covariance_estimator(config.uncertainty, rig, self.model_mm, self.axes_G)
         self.reset()
+
+    # ------------------------------------------------------------ the parts' state, read
+    @property
+    def rig(self):
+        """The rig in use (:class:`headplod.io.Rig`): rig.yaml's, or the refined one."""
+        return self.parts.rig.rig
+
+    @property
+    def calibrated_rig(self):
+        """rig.yaml's rig."""
+        return self.parts.rig.calibrated_rig
+
+    @property
+    def refiner(self):
+        """The rig's online refinement (:class:`~.rig_refine.RigRefiner`), None before the first frame."""
+        return self.parts.rig.refiner
+
+    @property
+    def uncertainty(self):
+        """The covariance of V's estimator."""
+        return self.parts.covariance.estimator
+
+    @property
+    def time_jumps(self) -> int:
+        """Discontinuities of the frame time (back, or far ahead) so far: each reset the motion."""
+        return self.parts.frames.time_jumps
+
+    @property
+    def first_time_jump(self) -> str | None:
+        """The first discontinuity's note."""
+        return self.parts.frames.first_time_jump
+
+    def readout_s(self) -> float:
+        """The rolling shutter's readout the centres are compensated for, s
+        (:meth:`~.rolling_shutter.RollingShutter.readout_s`)."""
+        return self.parts.shutter.readout_s()
 
     def reset(self) -> None:
         """Forget the previous frames (e.g. after a seek)."""
-        if hasattr(self, "uncertainty"):
-            self.uncertainty.reset()
-        self._prev_background = [None, None]
-        self._prev_threshold = [None, None]
-        self._disagreements = 0
+        p = self.parts
+        p.covariance.reset()
+        p.detector.reset()
+        p.rig.reset()
         self._reset_motion()
 
     def _reset_motion(self) -> None:
@@ -229,26 +338,15 @@ class Tracker(_FrameChecks, _Tracking, _Acquisition, _PoseFit, _RigChecks, _Roll
         What a time discontinuity invalidates; the image statistics (noise,
         background) and the rig's refinement stand.
         """
-        self._lock: _Lock | None = None   # the markers to re-measure (track), or None (acquire)
-        c = self.config
-        self._motion = PoseHistory(c.extrapolate_velocity, c.min_velocity_base_s,
-                                   max_rate_dps=c.max_head_rate_dps, max_speed_mm_s=c.max_head_speed_mm_s)
-        self._prev_pose = None
-        self._uncompensated = False
-        self._compensated = False      # the last fit moved the right view's model by the head's motion
-        self._last_right = None        # (image, t, t_right) of the previous frame's right camera
-        self._declared_right = None    # the right image's time as given (times.csv, the driver), s
-        self._periods = []             # recent frame periods, s
+        self._markers = _ACQUIRE
+        self.parts.motion.reset()
+        self.parts.pairing.reset()
 
     # ------------------------------------------------------------------ public
     def state(self) -> tuple[str, str]:
         """(markers, rig): 'track' or 'acquire'; 'rig.yaml', 'refining' or 'refined' (module docstring)."""
-        markers = "track" if self._lock is not None and self.config.track else "acquire"
-        refiner = self.refiner
-        if refiner is None or not self.config.rig_refine.enabled or (not refiner.updates
-                                                                       and refiner.bootstrapped_at is None):
-            return markers, "rig.yaml"
-        return markers, "refined" if refiner.converged() else "refining"
+        markers = "track" if self._markers.lock is not None and self.config.track else "acquire"
+        return markers, self.parts.rig.phase().value
 
     def process(self, left: np.ndarray, right: np.ndarray, t: float | None = None,
                 t_right: float | None = None) -> TrackResult:
@@ -287,39 +385,55 @@ class Tracker(_FrameChecks, _Tracking, _Acquisition, _PoseFit, _RigChecks, _Roll
 
     def _process(self, left, right, t, t_right, start) -> TrackResult:
         """:meth:`process` without the isolation of exceptions."""
-        timings = {}
-        self._motion_note = None
-        problem = self._check_images(left, right)
+        p = self.parts
+        problem = p.frames.check_images(left, right, p.rig.rig.image_size)
         if problem:
             return TrackResult(False, problem, timings_s={"total": time.perf_counter() - start})
-        repeated = self._repeated_images(left, right)
+        repeated = p.frames.repeated_images(left, right)
         if repeated:
             return TrackResult(False, repeated, timings_s={"total": time.perf_counter() - start})
-        notes = self._check_time(t)
-        skew = self._implausible_offset(t, t_right)
+        verdict = p.frames.check_time(t)
+        if verdict.discontinuity:
+            self._reset_motion()
+        notes = verdict.notes
+        skew = p.frames.implausible_offset(t, t_right)
         if skew:
-            self._lock = None
+            self._markers = _ACQUIRE
             return TrackResult(False, skew, timings_s={"total": time.perf_counter() - start}, notes=notes)
-        if self.refiner is None:
-            self._start_refiner(t, t_right)
-        self._set_readout_prior()
-        images, t_right = self._pair(left, right, t, t_right)
-        tracking = self.config.track and self._lock is not None
-        result = self._attempt(images, t, t_right, timings, start, tracking)
-        if tracking and not result.ok and result.mode == "track" and not self._withheld:
+        if p.rig.refiner is None:
+            p.rig.start_refiner(t_right)
+        p.shutter.set_readout_prior(p.frames.frame_periods)
+        images, t_right = p.pairing.pair(left, right, t, t_right, p.rig.refiner)
+        frame = _Frame(images, t, t_right, verdict, {}, start)
+        tracking = self.config.track and self._markers.lock is not None
+        passes = [self._attempt(frame, tracking)]
+        result = passes[-1].result
+        if (tracking and not result.ok and result.mode == "track"
+                and self._markers.phase is not MarkerPhase.WITHHELD):
             # The re-measured markers did not verify: detect and identify afresh.
-            result = self._attempt(images, t, t_right, timings, start, False)
-        if self._bootstrap_rig(t):
+            passes.append(self._attempt(frame, False))
+        bootstrap_note = self._bootstrap_rig(frame, passes)
+        if bootstrap_note:
             # rig.yaml is far from the rig: the frame fitted jointly with the
             # rig gave one that explains it. Tracked afresh with that rig,
             # whose uncertainty the pose's covariance carries.
-            result = self._attempt(images, t, t_right, timings, start, False)
-            result.notes = result.notes + [self._bootstrap_note]
-        if self._motion_note:
-            notes = notes + [self._motion_note]
+            passes.append(self._attempt(frame, False))
+            passes[-1].result.notes = passes[-1].result.notes + [bootstrap_note]
+        result = passes[-1].result
+        motion_note = next((q.motion_note for q in reversed(passes) if q.motion_note), None)
+        if motion_note:
+            notes = notes + [motion_note]
         if notes:
             result.notes = notes + result.notes
         return result
+
+    def _bootstrap_rig(self, frame: _Frame, passes: list) -> str | None:
+        """The rig part's bootstrap (:meth:`~.tracker_rig.RigInUse.bootstrap`) on this frame's last fit
+        that failed for a rig reason, with the last fit's compensation of the right view; its note."""
+        failure = next((q.failure for q in reversed(passes) if q.failure is not None), None)
+        fit = next((q.fit for q in reversed(passes) if q.fit is not None), None)
+        return self.parts.rig.bootstrap(frame.t, failure, fit is not None and fit.uncompensated,
+                                        fit is not None and fit.compensated, self.parts.pairing.declared_right)
 
     def _internal_error(self, exc: Exception, start: float) -> TrackResult:
         """The result of a frame whose processing raised ``exc``; the state it may have damaged is reset."""
@@ -328,48 +442,52 @@ class Tracker(_FrameChecks, _Tracking, _Acquisition, _PoseFit, _RigChecks, _Roll
         if self.first_internal_error is None:
             self.first_internal_error = reason
             self.first_internal_traceback = "".join(traceback.format_exception(exc))
+        rig = self.parts.rig
         try:
             self.reset()
-            if self.refiner is not None and _raised_in(exc, _REFINER_FILES):
-                self._restart_refiner()
+            if rig.refiner is not None and _raised_in(exc, _REFINER_FILES):
+                rig.restart_refiner()
         except Exception as again:      # noqa: BLE001 -- a reset that fails too: start over entirely
             reason += f" (and resetting failed: {type(again).__name__}: {again})"
-            self.refiner = None
-            self._apply_rig(self.calibrated_rig)
+            rig.start_over()
             self.reset()
         return TrackResult(False, reason, timings_s={"total": time.perf_counter() - start})
 
-    def _attempt(self, images, t, t_right, timings, start, tracking) -> TrackResult:
+    def _attempt(self, frame: _Frame, tracking: bool) -> _Pass:
         """One pass: measure (track or acquire), fit and check, the covariance of V, the rig's refinement."""
-        self._withheld = False         # a pose verified, kept and tracked from, but not reported
+        p, images, t, t_right = self.parts, frame.images, frame.t, frame.t_right
+        timings, start = frame.timings, frame.start
         match, mode, reason, blobs = self._measure(images, tracking, timings)
         if match is None:
-            self._lock = None
+            self._markers = _ACQUIRE
             timings["total"] = time.perf_counter() - start
-            return TrackResult(False, reason, mode=mode, timings_s=timings, blobs=blobs)
-        fit = self._fit(match, t, t_right, timings)
+            return _Pass(TrackResult(False, reason, mode=mode, timings_s=timings, blobs=blobs))
+        fit = p.fitter.fit(match, t, t_right, timings)
+        failure = None
         if (fit.reason or fit.withheld or "").startswith(_RIG_FAILURES):
-            self._last_fit = (match, *fit.fitted)          # for _bootstrap_rig
+            failure = RigFailure(match, *fit.fitted)          # for the rig's bootstrap
         if fit.reason is not None:
-            self._lock = None
+            self._markers = _ACQUIRE
             timings["total"] = time.perf_counter() - start
-            return TrackResult(False, fit.reason, centers_px=match.centers, residuals_px=fit.residuals, mode=mode,
-                               timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
-                               rig=self._rig_status(), rig_message=self._rig_message())
-        motion_gain, motion_cov = self._motion_terms(t, t_right, fit.fitted)
-        self._remember(match, t, *fit.fitted, blobs, mode, fit.JtJ)
+            return _Pass(TrackResult(False, fit.reason, centers_px=match.centers, residuals_px=fit.residuals,
+                                     mode=mode, timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
+                                     rig=p.rig.status(), rig_message=p.rig.message()), fit, failure)
+        motion_gain, motion_cov = p.fitter.motion_terms(t, t_right, fit.fitted)
+        motion_note = self._remember(match, frame, fit, blobs, mode)
         timings["mean_pose"] = time.perf_counter() - start
 
         # The uncertainty of V is its own stage (the mean pose is done).
         t_cov = time.perf_counter()
-        cov_input = self._covariance_input(images, match, fit, t, t_right, motion_gain, motion_cov)
+        cov_input = p.covariance.input(images, match, fit, t, t_right, motion_gain, motion_cov,
+                                       p.detector.backgrounds, p.detector.thresholds, p.rig)
         timings["covariance_input"] = time.perf_counter() - t_cov
-        cov = self.uncertainty(cov_input)
+        cov = p.covariance.estimate(cov_input)
         timings["covariance"] = time.perf_counter() - t_cov
         if not np.isfinite(cov).all() or np.linalg.det(cov) <= 0:
             timings["total"] = time.perf_counter() - start
-            return TrackResult(False, f"no covariance of V from the {self.uncertainty.name} estimator "
-                                      "(too few marker pixels?)", mode=mode, timings_s=timings, blobs=blobs)
+            return _Pass(TrackResult(False, f"no covariance of V from the {p.covariance.name} estimator "
+                                            "(too few marker pixels?)", mode=mode, timings_s=timings, blobs=blobs),
+                         fit, failure, motion_note)
         withheld = fit.withheld
         sd_deg = math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0))
         if withheld is None and sd_deg > self.config.max_v_sd_deg:
@@ -379,18 +497,20 @@ class Tracker(_FrameChecks, _Tracking, _Acquisition, _PoseFit, _RigChecks, _Roll
 
         # The rig's refinement is its own stage, fed every accepted frame.
         t_ref = time.perf_counter()
-        self._refine(match, t, cov_input=cov_input, R=fit.fitted[0], p1=fit.fitted[1], disagrees=fit.disagrees)
+        self._refine(match, frame, fit, cov_input)
         timings["refine_rig"] = time.perf_counter() - t_ref
         timings["total"] = time.perf_counter() - start
         if withheld is not None:
-            self._withheld = True
-            return TrackResult(False, withheld, centers_px=match.centers, residuals_px=fit.residuals, mode=mode,
-                               timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
-                               rig=self._rig_status(), rig_message=self._rig_message(fit.disagrees))
+            self._markers = MarkerState.kept(self._markers.lock, withheld=True)
+            return _Pass(TrackResult(False, withheld, centers_px=match.centers, residuals_px=fit.residuals,
+                                     mode=mode, timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
+                                     rig=p.rig.status(), rig_message=p.rig.message(fit.disagrees)),
+                         fit, failure, motion_note)
         axes = self.axes_G @ fit.R.T
-        return TrackResult(True, None, fit.p1, axes, fit.R, match.centers, fit.residuals, match.epipolar,
-                           match.fit_rms, mode, timings, blobs, match.blob_index, cov_deg2=cov, cov_input=cov_input,
-                           rig=self._rig_status(), rig_message=self._rig_message(fit.disagrees))
+        return _Pass(TrackResult(True, None, fit.p1, axes, fit.R, match.centers, fit.residuals, match.epipolar,
+                                 match.fit_rms, mode, timings, blobs, match.blob_index, cov_deg2=cov,
+                                 cov_input=cov_input, rig=p.rig.status(), rig_message=p.rig.message(fit.disagrees)),
+                     fit, failure, motion_note)
 
     def _measure(self, images, tracking: bool, timings: dict):
         """The markers of this frame: (match or None, mode, reason for none, blobs).
@@ -399,63 +519,72 @@ class Tracker(_FrameChecks, _Tracking, _Acquisition, _PoseFit, _RigChecks, _Roll
         them in small windows; *acquire* (no lock, or the re-measure failed):
         detect every blob and identify the five markers.
         """
+        p = self.parts
         match, mode, reason, blobs = None, "acquire", None, (None, None)
         if tracking:
             t_det = time.perf_counter()
-            match = self._track_fast(images)
+            match = self._remeasure(images)
             timings["detect"] = time.perf_counter() - t_det
             mode = "track"
         if match is None:
             t_det = time.perf_counter()
-            blobs = tuple(self._detect_full(img, i) for i, img in enumerate(images))
+            blobs = p.detector.detect(images)
             timings["detect"] = timings.get("detect", 0.0) + time.perf_counter() - t_det
             t_id = time.perf_counter()
-            match, reason = self._identify(blobs)
+            match, reason = p.identifier.identify(blobs, p.rig.geometry)
             timings["identify"] = timings.get("identify", 0.0) + time.perf_counter() - t_id
             mode = "acquire"
         return match, mode, reason, blobs
 
-    def _remember(self, match: _Match, t, R, p1, blobs, mode, info=None) -> None:
-        self._prev_pose = (R, p1)
-        previous = self._lock.centers if self._lock is not None else None
+    def _remeasure(self, images) -> Match | None:
+        """The locked markers re-measured in small windows, labelled as before; None to re-acquire."""
+        p = self.parts
+        found = p.detector.remeasure(images, self._markers.lock)
+        if found is None:
+            return None
+        centers, flux, sigma, size, shot_var = found
+        visible, index = _ALL_VISIBLE, _NO_BLOB
+        if self.config.estimator == "reproj":
+            # The labels are carried over, and the reprojection fit started
+            # from the last pose verifies them: no triangulation needed.
+            R, t = p.motion.predicted()
+            return Match(centers, visible, index, _NAN5, _NAN53, R, t, float("nan"), sigma, flux, size, shot_var)
+        match = p.identifier.match_from_centers(centers, visible, index, p.rig.geometry)
+        if match is not None:
+            match.sigma_px, match.flux, match.size, match.shot_var = sigma, flux, size, shot_var
+        return match
+
+    def _remember(self, match: Match, frame: _Frame, fit: Fit, blobs, mode: str) -> str | None:
+        """Keep a fitted pose: the lock on its markers (when all were seen), the detection's thresholds,
+        and the pose in the head's motion; the motion's note on its time, if any."""
+        p = self.parts
+        R, p1 = fit.fitted
+        p.motion.set_pose(R, p1)
+        lock = self._markers.lock
+        previous = lock.centers if lock is not None else None
         if not match.visible.all():
-            self._lock = None                      # re-identify while a marker is hidden
+            lock = None                            # re-identify while a marker is hidden
         elif mode == "track":
-            self._lock = _Lock(match.centers, previous, match.size, match.flux)
+            lock = Lock(match.centers, previous, match.size, match.flux)
         else:
             # Fluxes of a full detection are measured differently: the first
             # tracked frame skips the flux comparison.
             size = np.stack([np.sqrt(np.maximum(blobs[cam].flux_dn[match.blob_index[cam]]
                                                 / np.maximum(blobs[cam].peak_dn[match.blob_index[cam]], 1e-6),
                                                 1.0) / (2 * np.pi)) for cam in range(2)])
-            self._lock = _Lock(match.centers, previous, size, None)
-        for cam in range(2):
-            if blobs[cam] is not None and len(blobs[cam]):
-                self._prev_threshold[cam] = blobs[cam].threshold_dn
-        if t is not None and not self._time_glitch:
-            # (A frame whose time repeats the last one's, or follows it by a
-            # fraction of a period, was exposed at an unknown time: its pose
-            # would put the motion at the wrong instant.)
-            cached = self._rates
-            if cached is not None and cached[0] == t and cached[1] is R and cached[2] is p1 and cached[3] == self._rig_version():
-                rates = cached[4]                            # _fit made this check on this very pose
-            else:
-                rates = self._motion.rates_to(t, R, p1, self._rig_version())
-            if rates is not None and not rates[2]:
-                # The times do not describe the motion the images show (a
-                # glitching clock, frames out of order): the poses before
-                # this one are no past to take a velocity from, and the rig's
-                # refinement, which learns the exposure offset from velocities
-                # over the frames' times, must not learn from them, nor from
-                # the next frames until a velocity is plausible again.
-                self._motion.clear()
-                self._times_suspect = True
-                if self.refiner is not None:     # its frames so far keep the geometry, lose their velocities
-                    self.refiner.forget_motion()
-                self._motion_note = (f"the head would have turned {rates[0]:.0f}°/s and moved {rates[1]:.0f} mm/s "
-                                     "since the last poses by these times: not a motion a head makes; "
-                                     "motion state reset")
-            elif rates is not None:
-                self._times_suspect = False
-            self._motion_unknown = self._times_suspect and (rates is None or not rates[2])
-            self._motion.add(t, R, p1, self._rig_version(), info)
+            lock = Lock(match.centers, previous, size, None)
+        self._markers = MarkerState.kept(lock)
+        p.detector.keep_thresholds(blobs)
+        note = p.motion.remember(frame.t, R, p1, p.rig.version(), fit.JtJ, fit.checked_rates, frame.verdict.time_glitch)
+        if note is not None:
+            p.rig.forget_motion()          # its frames so far keep the geometry, lose their velocities
+        return note
+
+    def _refine(self, match: Match, frame: _Frame, fit: Fit, cov_input: CovarianceInput) -> None:
+        """Feed an accepted frame to the rig's refinement; when the rig in use changed, the recent poses
+        refitted with it go on in the head's motion (the velocity and prediction without a jump)."""
+        p = self.parts
+        if p.rig.refine(match, frame.t, lambda: p.covariance.centre_sd(cov_input, match), fit.fitted[0],
+                        fit.fitted[1], fit.disagrees, frame.verdict.glitch, p.pairing.declared_right,
+                        motion_known=not p.motion.motion_unknown):
+            p.motion.refit(p.rig.refiner.refit_poses, p.rig.version())

@@ -1,0 +1,111 @@
+"""Detection, a part of :class:`~.tracker.Tracker`: the marker blobs of a frame's two images.
+
+- *acquire*: every blob of each whole image (:meth:`Detector.detect`,
+  :func:`~.detect.detect_blobs` on the image's estimated background);
+- *track*: the locked markers re-measured in small windows around where
+  they should be (:meth:`Detector.remeasure`, a :class:`Remeasured`), or
+  None when that fails (the tracker then acquires).
+
+:class:`Detector` owns the image statistics it carries from frame to frame:
+each camera's background (level and noise, DN) from its last full detection
+and its blob threshold (DN) from the last accepted frame
+(:meth:`Detector.keep_thresholds`). Camera 0 is the left one, 1 the right;
+centres in px.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .detect import Blobs, centroids_near, detect_blobs, estimate_background
+from .lock import Lock
+
+
+class Remeasured(NamedTuple):
+    """The locked markers re-measured in a frame: centres (2, 5, 2) px, flux (2, 5) DN·px, expected
+    centroid noise ``sigma`` (2, 5) px, Gaussian σ ``size`` (2, 5) px, shot-noise variance per unit factor
+    ``shot_var`` (2, 5, 2) px²/DN."""
+
+    centers: np.ndarray
+    flux: np.ndarray
+    sigma: np.ndarray
+    size: np.ndarray
+    shot_var: np.ndarray
+
+
+class Detector:
+    """The marker blobs of both images (module docstring).
+
+    Parameters
+    ----------
+    config : TrackerConfig
+        ``detection``, ``track_margin_px``, ``track_flux_change``.
+    """
+
+    def __init__(self, config):
+        self.detect_config = config
+        self._background = [None, None]
+        self._threshold = [None, None]
+
+    def reset(self) -> None:
+        """Forget the image statistics (a seek, an exception)."""
+        self._background = [None, None]
+        self._threshold = [None, None]
+
+    @property
+    def backgrounds(self) -> tuple:
+        """Each camera's background (level, noise) DN from its last full detection, or None."""
+        return tuple(self._background)
+
+    @property
+    def thresholds(self) -> tuple:
+        """Each camera's blob threshold (DN) of the last accepted frame, or None."""
+        return tuple(self._threshold)
+
+    def detect(self, images) -> tuple[Blobs, Blobs]:
+        """Every blob of the left and right (H, W) uint8 images."""
+        return tuple(self._detect_full(img, i) for i, img in enumerate(images))
+
+    def _detect_full(self, image, cam) -> Blobs:
+        background = estimate_background(image)
+        self._background[cam] = background
+        return detect_blobs(image, self.detect_config.detection, background=background)
+
+    def keep_thresholds(self, blobs) -> None:
+        """Keep the blob threshold of each camera whose full detection found blobs (an accepted frame's)."""
+        for cam in range(2):
+            if blobs[cam] is not None and len(blobs[cam]):
+                self._threshold[cam] = blobs[cam].threshold_dn
+
+    def remeasure(self, images, lock: Lock) -> Remeasured | None:
+        """Re-measure the locked markers in small windows; None to re-acquire."""
+        predicted, size = lock.predicted(), lock.size
+        # Window: the blob (±3 σ) plus the prediction's error.
+        side = 2 * int(np.ceil(3 * size.max() + self.detect_config.track_margin_px / 2)) + 1
+        centers, found, flux, sigma, size, _, shot_var = centroids_near(images, predicted, side, self._background,
+                                                                        self._threshold, size)
+        if not found.all():
+            return None
+        # (Two windows locked onto one blob leave a residual of a marker
+        # spacing, tens of pixels: verification rejects that frame.)
+        # A glint or a neighbour entering a window adds flux to one marker:
+        # re-identify rather than let it pull the centroid. Head motion
+        # changes all markers of a view alike, so compare with the median.
+        if lock.flux is not None:
+            # Allowed: the configured change plus 3σ of the relative flux
+            # noise of the dimmest marker (Gaussian-weighted flux: σ_n √π s,
+            # s the blob's σ), around the median change of the five.
+            changes = np.sort(flux / lock.flux, axis=1).tolist()
+            dimmest = (flux.min(axis=1) / size.max(axis=1)).tolist()
+            for cam in (0, 1):
+                low, _, median, _, high = changes[cam]
+                if not dimmest[cam] > 0:
+                    return None                       # a window with no flux: re-detect
+                rel = self._background[cam][1] * 1.7725 / dimmest[cam]
+                # 3√2 σ of a ratio; beyond a factor e⁵ the check says nothing anyway.
+                limit = self.detect_config.track_flux_change * math.exp(min(4.24 * rel, 5.0))
+                if not (median / limit <= low and high <= median * limit):
+                    return None
+        return Remeasured(centers, flux, sigma, size, shot_var)
