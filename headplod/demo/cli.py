@@ -39,14 +39,15 @@ import numpy as np
 from .. import io
 from ..io import write_atomically
 from ..argtypes import add_quiet_argument, frame_count
-from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
+from ..render.scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_options, mesh_options_problem,
+                                    terrain_for_command)
 from ..progress import Progress, note
 from ..render import TerrainRenderer, create_context
 from ..plod.select import MODES
 from ..render.command import (add_cost_arguments, add_csf_argument, add_gaze_prior_argument, raymask_config,
                               selection_options)
 from ..render.frame import capability_table, default_mode, options_problem
-from ..render.still import FULL_MAX_LEVEL, add_mesh_arguments, mesh_options, mesh_options_problem, mesh_stats
+from ..render.still import FULL_MAX_LEVEL, mesh_stats
 from . import loop as lp
 from .keys import key_help
 from .poses import make_poses

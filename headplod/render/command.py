@@ -28,12 +28,12 @@ from ..argtypes import add_quiet_argument, floats, gaze_prior, level_bias, trian
 from ..progress import note
 from ..plod.csf import CSF_MODELS
 from ..plod.raymask import RAYMASK_CSF_MODELS, RayMaskConfig
-from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
+from .scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_options, mesh_options_problem,
+                            terrain_for_command)
 from ..plod.select import (DEFAULT_CSF_MODEL, GAZE_DISTRIBUTION_MODES, GAZE_PRIOR_DEG, MAX_GAZE_PRIOR_DEG, MODES,
                            UNCERTAINTY_MODES, SelectorConfig)
 from .frame import BACKENDS, VIEW_MODES, capability_table, default_mode, options_problem
-from .still import (CONTRAST_SOURCES, MeshOptions, add_mesh_arguments, mesh_options, mesh_options_problem,
-                    render_still, scene_model)
+from .still import CONTRAST_SOURCES, MeshOptions, render_still, scene_model
 
 __all__ = ["add_render_arguments", "run_render", "add_cost_arguments", "add_csf_argument", "add_gaze_prior_argument",
            "selection_options", "raymask_config"]

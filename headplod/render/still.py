@@ -142,42 +142,6 @@ def builtin_terrain_options(max_level: int) -> dict:
     return {"detail_min_wavelength_m": BUILTIN_DETAIL_M / 2 ** (max_level - DEFAULT_MAX_LEVEL)}
 
 
-def add_mesh_arguments(parser) -> None:
-    """Add ``--max-level``, ``--lazy`` and ``--cache-mb`` (the scene's mesh) to a parser or argument group.
-
-    Their values are checked by :func:`mesh_options_problem` (one line, exit status 2, before anything is
-    written), not by argparse (whose usage message is many lines).
-    """
-    parser.add_argument("--max-level", default=None, metavar="N",
-                        help=f"finest PLOD level, 1..8 (default {DEFAULT_MAX_LEVEL}: the 32x32 base to 1025x1025 "
-                             "samples, 2.1M triangles at full detail); above 5 the mesh is made lazily (only the "
-                             "pieces a frame draws, in a bounded cache) and the terrain is sampled at "
-                             "32*2^N+1 per side (4097 at 7), so a fine --terrain DEM shows its own detail near "
-                             "the POI; the built-in terrain's synthetic detail is refined to match")
-    parser.add_argument("--lazy", action="store_true",
-                        help="use the lazy mesh at --max-level 5 or lower too (the same triangles as the default "
-                             "whole-table mesh)")
-    parser.add_argument("--cache-mb", default=None, metavar="MB",
-                        help=f"lazy mesh: byte budget of its piece cache, MB (default {DEFAULT_CACHE_BYTES >> 20}; "
-                             "the pieces of a frame beyond it are made again when next needed)")
-
-
-def _parse_mesh_values(args) -> None:
-    """``args.max_level`` and ``args.cache_mb`` from their text to numbers, in place;
-    ``argparse.ArgumentTypeError`` (its message names the option) for a bad one."""
-    import argparse
-
-    from ..argtypes import cache_mb, max_level
-
-    for name, option, parse in (("max_level", "--max-level", max_level), ("cache_mb", "--cache-mb", cache_mb)):
-        value = getattr(args, name, None)
-        if isinstance(value, str):
-            try:
-                setattr(args, name, parse(value))
-            except argparse.ArgumentTypeError as exc:
-                raise argparse.ArgumentTypeError(f"{option}: {exc}") from None
-
-
 @dataclass(frozen=True)
 class MeshOptions:
     """The scene's mesh: ``--max-level``, ``--lazy``, ``--cache-mb``.
@@ -213,45 +177,6 @@ class MeshOptions:
         """``TerrainScene.build`` with these options."""
         return TerrainScene.build(screen, self.max_level, terrain=terrain, lazy=self.lazy,
                                   cache_bytes=self.cache_bytes)
-
-
-def mesh_options(args) -> MeshOptions:
-    """The :class:`MeshOptions` of :func:`add_mesh_arguments`'s options (``argparse.ArgumentTypeError``
-    naming the option for a bad value)."""
-    _parse_mesh_values(args)
-    level = getattr(args, "max_level", None)
-    mb = getattr(args, "cache_mb", None)
-    return MeshOptions(DEFAULT_MAX_LEVEL if level is None else int(level), bool(getattr(args, "lazy", False)),
-                       MeshOptions.cache_mb if mb is None else float(mb))
-
-
-def mesh_options_problem(args, modes) -> str | None:
-    """Why the mesh options cannot work with the ``modes`` a command will draw (one line), or None.
-
-    - ``--cache-mb`` without the lazy mesh: it has no cache.
-    - the ``raymask`` back end with the lazy mesh: it casts rays against the height field of the whole ``full`` mesh,
-      which the lazy mesh never holds (at level 8 it would be 67 M samples); use the default mesh.
-    - ``full`` above :data:`FULL_MAX_LEVEL`: 134 M triangles at level 8 do not fit (~3 GB a frame).
-
-    Also the values themselves: ``--max-level`` a whole number in 1..8, ``--cache-mb`` in 1..65536.
-    """
-    import argparse
-
-    try:
-        options = mesh_options(args)
-    except argparse.ArgumentTypeError as exc:
-        return str(exc)
-    level, lazy = options.max_level, options.lazy
-    if getattr(args, "cache_mb", None) is not None and not lazy:
-        return "--cache-mb applies to the lazy mesh only (--max-level above 5, or --lazy)"
-    if "raymask" in modes and lazy:
-        return ("--backend raymask casts rays against the whole full-detail mesh, which the lazy mesh does not "
-                f"keep; use --max-level {TABLE_MAX_LEVEL} or lower without --lazy")
-    if "full" in modes and level > FULL_MAX_LEVEL:
-        return (f"--mode full at --max-level {level} would draw {2048 * 4 ** level:,} triangles (about "
-                f"{2048 * 4 ** level * 24 / 2 ** 30:.1f} GB a frame); use --max-level {FULL_MAX_LEVEL} or lower, "
-                "or a PLOD mode such as csf")
-    return None
 
 
 def mesh_stats(mesh) -> dict:
