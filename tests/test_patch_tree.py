@@ -262,7 +262,7 @@ def test_hierarchy_is_watertight_on_the_scale_view(ctx430, default_screen):
 
 def test_hierarchy_renders_like_flat(ctx430, grid, default_screen):
     """Both paths draw the terrain; where the tree refines to leaves the frames agree within the disc."""
-    from headplod.render.frame import TessellationBackend, one_frame
+    from headplod.render.frame import FrameSettings, one_frame
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
 
     model = grid_model(grid, default_screen)
@@ -270,8 +270,8 @@ def test_hierarchy_renders_like_flat(ctx430, grid, default_screen):
     for hierarchy in (False, True):
         cfg = TessellationConfig(patch_samples=16, hierarchy=hierarchy)
         with TessellationRenderer(ctx430, grid, size=(320, 180), config=cfg) as r:
-            first = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=COV, t=0.0)
-            again = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=COV, t=1 / 60)
+            first = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=COV, t=0.0, renderer=r)
+            again = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=COV, t=1 / 60, renderer=r)
         images[hierarchy] = first.image
         assert np.array_equal(first.image, again.image) and again.triangles == first.triangles > 0
     diff = np.abs(images[True].astype(int) - images[False].astype(int))

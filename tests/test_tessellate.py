@@ -194,14 +194,14 @@ def test_patches_are_watertight(ctx430, grid, default_screen, mode, poi_px, stag
 
 
 def test_still_view_gives_identical_frames(ctx430, grid, default_screen):
-    from headplod.render.frame import TessellationBackend, one_frame
+    from headplod.render.frame import FrameSettings, one_frame
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
 
     cov = np.diag([0.05 ** 2] * 2)
     with TessellationRenderer(ctx430, grid, size=(320, 180), config=TessellationConfig(patch_samples=PATCH)) as r:
         model = grid_model(grid, default_screen)
-        a = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=cov, t=0.0)
-        b = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=cov, t=1 / 60)
+        a = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=cov, t=0.0, renderer=r)
+        b = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=cov, t=1 / 60, renderer=r)
     assert a.triangles == b.triangles > 0
     assert np.array_equal(a.image, b.image)
     assert (a.image != np.array([158, 184, 209], np.uint8)).any(axis=-1).mean() > 0.3    # the terrain is in view
@@ -294,7 +294,7 @@ def test_texture_shading_meets_the_full_detail_render(ctx430, default_screen):
     level's smoothed normals, not the average of the samples' shading."""
     from headplod.render.image_metrics import disc_mask, psnr_db
     from headplod.render.still import px_per_deg_at
-    from headplod.render.frame import TessellationBackend, one_frame
+    from headplod.render.frame import FrameSettings, one_frame
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
 
     terrain = Terrain.jacksboro(detail_min_wavelength_m=20.0)
@@ -308,8 +308,8 @@ def test_texture_shading_meets_the_full_detail_render(ctx430, default_screen):
     for shading in ("texture", "vertex"):
         with TessellationRenderer(ctx430, fine, size=size, config=TessellationConfig(shading=shading)) as r:
             model = grid_model(fine, default_screen)
-            out = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=cov)
-            ref = one_frame(TessellationBackend(r, "full"), default_screen, model, cov_deg2=cov)
+            out = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=cov, renderer=r)
+            ref = one_frame(FrameSettings("tessellation", SelectorConfig(mode="full")), default_screen, model, cov_deg2=cov, renderer=r)
             csf, full = out.image, ref.image
         assert out.triangles < ref.triangles / 4
         psnr[shading] = psnr_db(csf, full, disc)
@@ -438,16 +438,16 @@ def test_uncertainty_none_ignores_the_covariance(ctx430, grid, default_screen):
     """Scenario ``none`` draws as without a covariance (the view is conditioned first): a wide covariance
     changes the frame only under a scenario that uses it."""
     from headplod.plod.select import SelectorConfig
-    from headplod.render.frame import TessellationBackend, one_frame
+    from headplod.render.frame import FrameSettings, one_frame
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
 
     wide = np.diag([9.0, 9.0])
     with TessellationRenderer(ctx430, grid, size=(160, 90), config=TessellationConfig(patch_samples=PATCH)) as r:
         model = grid_model(grid, default_screen)
-        plain = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=None)
-        none = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=wide,
-                         config=SelectorConfig(mode="csf", uncertainty="none"))
-        used = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=wide)
+        plain = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=None, renderer=r)
+        none = one_frame(FrameSettings("tessellation", SelectorConfig(mode="csf", uncertainty="none")),
+                         default_screen, model, cov_deg2=wide, renderer=r)
+        used = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=wide, renderer=r)
     assert np.array_equal(plain.image, none.image) and plain.triangles == none.triangles
     assert used.triangles > none.triangles
 

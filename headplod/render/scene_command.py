@@ -20,6 +20,7 @@ from ..plod.mesh_base import FULL_MAX_LEVEL
 from ..plod.terrain_file import (TerrainFileOptions, TerrainUsageError, check_spacing, check_terrain_path,
                                  terrain_from_file)
 
+from .frame import CAPABILITIES
 from .still import DEFAULT_MAX_LEVEL, TABLE_MAX_LEVEL, MeshOptions
 
 __all__ = ["add_terrain_arguments", "terrain_options", "terrain_from_args", "terrain_for_command",
@@ -134,36 +135,31 @@ def add_mesh_arguments(parser) -> None:
                              "the pieces of a frame beyond it are made again when next needed)")
 
 
-def _parse_mesh_values(args) -> None:
-    """``args.max_level`` and ``args.cache_mb`` from their text to numbers, in place;
-    ``argparse.ArgumentTypeError`` (its message names the option) for a bad one."""
+def mesh_options(args) -> MeshOptions:
+    """The :class:`MeshOptions` of :func:`add_mesh_arguments`'s options (``argparse.ArgumentTypeError``
+    naming the option for a bad value); ``args`` is left as it is."""
     from ..argtypes import cache_mb, max_level
 
+    values = {}
     for name, option, parse in (("max_level", "--max-level", max_level), ("cache_mb", "--cache-mb", cache_mb)):
         value = getattr(args, name, None)
         if isinstance(value, str):
             try:
-                setattr(args, name, parse(value))
+                value = parse(value)
             except argparse.ArgumentTypeError as exc:
                 raise argparse.ArgumentTypeError(f"{option}: {exc}") from None
-
-
-def mesh_options(args) -> MeshOptions:
-    """The :class:`MeshOptions` of :func:`add_mesh_arguments`'s options (``argparse.ArgumentTypeError``
-    naming the option for a bad value)."""
-    _parse_mesh_values(args)
-    level = getattr(args, "max_level", None)
-    mb = getattr(args, "cache_mb", None)
+        values[name] = value
+    level, mb = values["max_level"], values["cache_mb"]
     return MeshOptions(DEFAULT_MAX_LEVEL if level is None else int(level), bool(getattr(args, "lazy", False)),
                        MeshOptions.cache_mb if mb is None else float(mb))
 
 
-def mesh_options_problem(args, modes) -> str | None:
-    """Why the mesh options cannot work with the ``modes`` a command will draw (one line), or None.
+def mesh_options_problem(args, backend: str, mode: str) -> str | None:
+    """Why the mesh options cannot work with the ``backend`` and ``mode`` a command will draw (one line), or None.
 
     - ``--cache-mb`` without the lazy mesh: it has no cache.
-    - the ``raymask`` back end with the lazy mesh: it casts rays against the height field of the whole ``full`` mesh,
-      which the lazy mesh never holds (at level 8 it would be 67 M samples); use the default mesh.
+    - a back end that cannot work over the lazy mesh (:attr:`BackendCapabilities.lazy_mesh`; the ``raymask`` one
+      casts rays against the height field of the whole ``full`` mesh, which the lazy mesh never holds) with it.
     - ``full`` above :data:`FULL_MAX_LEVEL`: 134 M triangles at level 8 do not fit (~3 GB a frame).
 
     Also the values themselves: ``--max-level`` a whole number in 1..8, ``--cache-mb`` in 1..65536.
@@ -175,10 +171,10 @@ def mesh_options_problem(args, modes) -> str | None:
     level, lazy = options.max_level, options.lazy
     if getattr(args, "cache_mb", None) is not None and not lazy:
         return "--cache-mb applies to the lazy mesh only (--max-level above 5, or --lazy)"
-    if "raymask" in modes and lazy:
-        return ("--backend raymask casts rays against the whole full-detail mesh, which the lazy mesh does not "
+    if lazy and not CAPABILITIES[backend].lazy_mesh:
+        return (f"--backend {backend} casts rays against the whole full-detail mesh, which the lazy mesh does not "
                 f"keep; use --max-level {TABLE_MAX_LEVEL} or lower without --lazy")
-    if "full" in modes and level > FULL_MAX_LEVEL:
+    if mode == "full" and level > FULL_MAX_LEVEL:
         return (f"--mode full at --max-level {level} would draw {2048 * 4 ** level:,} triangles (about "
                 f"{2048 * 4 ** level * 24 / 2 ** 30:.1f} GB a frame); use --max-level {FULL_MAX_LEVEL} or lower, "
                 "or a PLOD mode such as csf")
