@@ -30,6 +30,7 @@ from headplod.plod.terrain import Terrain
 from headplod.plod.view import ConditionedView, head_axes
 from headplod.render.projection import off_axis_projection
 from headplod.render.still import default_head
+from render_hooks import triangle_samples
 
 COV = np.diag([0.05 ** 2, 0.05 ** 2])       # the bench's tracker σ
 
@@ -236,7 +237,7 @@ def test_hierarchy_is_watertight_across_sizes(ctx430, grid, default_screen, spli
     view, proj, model, head, axes, _ = _view(default_screen, grid, poi_px=poi)
     with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg,
                               selection=SelectorConfig(mode="csf", level_bias=bias)) as r:
-        tri = r.triangle_samples(view, proj, model, _cv(head, axes, COV))
+        tri = triangle_samples(r, view, proj, model, _cv(head, axes, COV))
         sel = r.last_selection
     assert len(np.unique(sel.size)) >= 3                          # nodes of three sizes or more meet
     assert np.any(sel.outer & (sel.outer - 1))                    # whole-number factors that are not powers of two
@@ -254,7 +255,7 @@ def test_hierarchy_is_watertight_on_the_scale_view(ctx430, default_screen):
     view, proj, model, head, axes, _ = _view(default_screen, big)
     cfg = TessellationConfig(patch_samples=16, cull=False, hierarchy=True)
     with TessellationRenderer(ctx430, big, size=(64, 36), config=cfg) as r:
-        tri = r.triangle_samples(view, proj, model, _cv(head, axes, COV), capacity=1 << 22)
+        tri = triangle_samples(r, view, proj, model, _cv(head, axes, COV), capacity=1 << 22)
         sel = r.last_selection
     assert len(np.unique(sel.depth)) >= 3
     _assert_watertight(tri, 2048)

@@ -20,6 +20,7 @@ from headplod.plod.terrain import Terrain
 from headplod.plod.view import ConditionedView, head_axes
 from headplod.render.projection import off_axis_projection
 from headplod.render.still import default_head
+from render_hooks import triangle_samples
 
 N_SAMPLES = 257      # grid side: 16 x 16 patches of 16 samples
 PATCH = 16
@@ -178,7 +179,7 @@ def test_patches_are_watertight(ctx430, grid, default_screen, mode, poi_px, stag
     view, proj, model, head, axes = _view(default_screen, grid, poi_px=poi_px)
     cv = _cv(head, axes, np.diag([0.05 ** 2] * 2))
     with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg) as r:
-        tri = r.triangle_samples(view, proj, model, cv, mode=mode)
+        tri = triangle_samples(r, view, proj, model, cv, mode=mode)
         _, outer, _ = r.levels(view, proj, model, cv)
     if mode == "csf":
         assert len(np.unique(tess_factors(outer, cfg.max_level, PATCH, rule))) >= 3   # edges of different factors meet
@@ -224,7 +225,7 @@ def test_many_patches_keep_their_ids(ctx430, default_screen):
                                   config=TessellationConfig(patch_samples=16, cull=False, csf_stage=stage)) as r:
             levels[stage] = r.levels(view, proj, model, _cv(head, axes, cov))
             if stage == "control":
-                tri = r.triangle_samples(view, proj, model, _cv(head, axes, cov), capacity=1 << 22)
+                tri = triangle_samples(r, view, proj, model, _cv(head, axes, cov), capacity=1 << 22)
     for a, b in zip(levels["vertex"], levels["control"]):
         np.testing.assert_allclose(a, b, atol=LEVEL_ATOL)
     key, area = _edges_and_area(tri)

@@ -304,10 +304,6 @@ class MeshBackend(Backend):
         self._uploaded = None          # the index array the renderer (or the layers) last received
         self.last_info = None          # the last selection's per-triangle features (LevelSelector.select's dict)
 
-    @property
-    def mode(self) -> str:
-        return self.selector.config.mode
-
     def select(self, cv):
         levels, self.last_info = self.selector.select(cv)
         return levels
@@ -380,7 +376,6 @@ class TessellationBackend(Backend):
     """
 
     name = "tessellation"
-    mode = "csf"                       # an attribute here: the one it is given
 
     def __init__(self, renderer, mode: str = "csf", *, region_ndc=None, supersample: int = 1):
         self.renderer, self.mode = renderer, mode
