@@ -535,10 +535,10 @@ def make_backend(settings: FrameSettings, screen, *, renderer=None, scene=None, 
                                    supersample=settings.supersample)
     if settings.backend == "raymask":
         return RayMaskBackend(renderer, screen, settings.raymask)
-    mesh = scene.mesh if mesh is None else mesh
     selector = scene.selector(config.mode, config.uncertainty, config) if selector is None else selector
-    if not settings.draw:
+    if not settings.draw:                # (no mesh: grids of a selection bench have none)
         return SelectionOnlyBackend(selector, screen)
+    mesh = scene.mesh if mesh is None else mesh
     if settings.foveate:
         from .foveate import FoveatedRenderer, FoveationConfig, LayerAnchor
 
