@@ -8,6 +8,7 @@ import pytest
 from headplod.plod.csf import max_visible_freq_cpd
 from headplod.plod.select import SelectorConfig
 from headplod.render.foveate import FoveationConfig, layer_plan
+from render_hooks import layer_image
 
 
 @pytest.mark.parametrize("ppd", [15.0, 25.2, 40.0])
@@ -180,9 +181,9 @@ def test_layer_subsets_give_the_pixels_of_the_whole_mesh(gl_context, default_scr
         fov.set_mesh(idx, lv, mesh.face_per_triangle(), (mesh.corners, mesh.z_range))
         image_sub = fov.render(view, proj, model, poi, ppd)
         assert sum(fov.last_triangles_per_layer) < max_layers * len(lv)       # the subsets are smaller
-        layers_sub = [fov.layer_image(k) for k in range(max_layers)]
+        layers_sub = [layer_image(fov, k) for k in range(max_layers)]
         image_all = fov.render(view, proj, model, poi, ppd, subsets=False)
-        layers_all = [fov.layer_image(k) for k in range(max_layers)]
+        layers_all = [layer_image(fov, k) for k in range(max_layers)]
         assert np.array_equal(image_sub, image_all)
         regions = layer_regions(fov.last_layers, ppd, fov.config.blend_deg)
         for k, (a, b) in enumerate(zip(layers_sub, layers_all)):

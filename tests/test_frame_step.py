@@ -15,9 +15,8 @@ import pytest
 
 from headplod.plod.select import SelectorConfig
 from headplod.plod.view import UNCERTAINTY_MODES, View
-from headplod.render.frame import (BACKENDS, CAPABILITIES, FrameStep, MeshBackend, RayMaskBackend, capability_table,
-                                   default_mode,
-                                   options_problem)
+from headplod.render.frame import (BACKENDS, CAPABILITIES, DEMO_BACKENDS, FrameSettings, capability_table,
+                                   make_frame_step, options_problem)
 
 SIZE = (320, 180)
 RAYMASK_SIZE = (640, 360)     # below about 10 px/deg the ray mask casts a ray through every pixel whatever the view
@@ -41,9 +40,8 @@ def _poses(screen, cov_before, cov_after=None):
 
 @pytest.fixture(scope="module")
 def backends(gl_context, ctx430, terrain_scene):
-    """Back-end factories: name -> callable(config) -> Backend, all on the same terrain, placed alike."""
+    """Frame steps: name -> callable(config) -> FrameStep of that back end, all on the same terrain, placed alike."""
     from headplod.plod.patches import PatchGrid, height_grid
-    from headplod.render.frame import TessellationBackend
     from headplod.render.gl import TerrainRenderer
     from headplod.render.raymask import RayMaskRenderer
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer
@@ -56,14 +54,14 @@ def backends(gl_context, ctx430, terrain_scene):
     tess = TessellationRenderer(ctx430, grid, size=SIZE, config=TessellationConfig(patch_samples=16))
 
     def mesh(config):
-        return MeshBackend(scene.mesh.share(), scene.selector(config.mode, config.uncertainty, config), renderer,
-                           scene.screen)
+        return make_frame_step(FrameSettings("mesh", config), scene.screen, renderer=renderer, scene=scene,
+                               mesh=scene.mesh.share())
 
     def raymask(config):
-        return RayMaskBackend(rays, scene.screen)
+        return make_frame_step(FrameSettings("raymask", config), scene.screen, renderer=rays)
 
     def tessellation(config):
-        return TessellationBackend(tess, config.mode)
+        return make_frame_step(FrameSettings("tessellation", config), scene.screen, renderer=tess)
 
     yield {"mesh": mesh, "raymask": raymask, "tessellation": tessellation}
     tess.release()
@@ -76,8 +74,7 @@ def _run(factory, screen, model, scenario, poses):
     # eccentricity by the covariance is its rule. (The default mode, hybrid, weighs the whole gaze distribution
     # instead, the eye-in-head prior included, against which a tracker's covariance changes little:
     # tests/test_gaze_prior.py.)
-    config = SelectorConfig(mode="csf", uncertainty=scenario)
-    step = FrameStep(factory(config), screen, config)
+    step = factory(SelectorConfig(mode="csf", uncertainty=scenario))
     return [step(v, model) for v in poses]
 
 
@@ -150,7 +147,7 @@ def test_every_back_end_reads_the_same_conditioned_view(backends, terrain_scene)
 def test_a_saccade_keeps_the_last_levels(backends, terrain_scene):
     screen, model = terrain_scene.screen, terrain_scene.model
     config = SelectorConfig(uncertainty="none")
-    step = FrameStep(backends["mesh"](config), screen, config)
+    step = backends["mesh"](config)
     poses = _poses(screen, None)
     first = step(poses[0], model)
     jump = dataclasses.replace(poses[1], poi_px=poses[0].poi_px + [900.0, 0.0])   # ~30° in 1/30 s
@@ -173,6 +170,15 @@ def test_the_capability_table_is_what_the_commands_check():
         for view in ("shaded", "wire", "levels"):
             assert (options_problem(name, mode=cap.modes[0], view_mode=view) is None) == (view in cap.view_modes)
     assert "does not take --mode sse" in options_problem("tessellation", mode="sse")
+    for name in BACKENDS:            # the rules that once sat in the commands, from the table now
+        cap = CAPABILITIES[name]
+        assert (options_problem(name, mode=cap.modes[0], compare=True) is None) == cap.compare
+        assert (options_problem(name, mode=cap.modes[0], mesh_options=("--lazy",)) is None) == cap.mesh_options
+        for mode in cap.modes:
+            takes_csf = cap.csf_modes is None or mode in cap.csf_modes
+            assert (options_problem(name, mode=mode, csf=cap.csf_forms[-1]) is None) == takes_csf, (name, mode)
+    assert DEMO_BACKENDS == tuple(n for n in BACKENDS if CAPABILITIES[n].demo) and "tessellation" not in DEMO_BACKENDS
+    assert not CAPABILITIES["raymask"].lazy_mesh and CAPABILITIES["mesh"].lazy_mesh
     table = capability_table()
     assert all(name in table for name in BACKENDS) and len(table.splitlines()) == len(BACKENDS) + 1
 
@@ -184,3 +190,38 @@ def test_the_docs_show_the_capability_table_of_the_code():
     start = text.index("<!-- capability table")
     body = text[text.index("\n", start) + 1:text.index("<!-- end of capability table -->")].strip()
     assert body == capability_table(markdown=True)
+
+
+def test_frame_settings_default_to_the_back_ends_mode_and_refuse_what_it_cannot_draw():
+    for name in BACKENDS:
+        assert FrameSettings(name).selection == SelectorConfig(mode=CAPABILITIES[name].default_mode)
+    with pytest.raises(ValueError, match="does not take --mode sse"):
+        FrameSettings("tessellation", SelectorConfig(mode="sse"))
+    with pytest.raises(ValueError, match="--foveate"):
+        FrameSettings("raymask", foveate=True)
+    with pytest.raises(ValueError, match="unknown back end"):
+        FrameSettings("vulkan")
+    with pytest.raises(ValueError, match="draw=False"):
+        FrameSettings("raymask", draw=False)
+
+
+def test_frame_step_is_assembled_in_one_function():
+    """``FrameStep(...)`` is called in exactly one function of headplod/ (make_frame_step); every command,
+    the demo and every bench go through it."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1] / "headplod"
+    callers = []
+    for path in sorted(root.rglob("*.py")):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        stack = [(tree, None)]
+        while stack:
+            node, function = stack.pop()
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                function = node.name
+            if (isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", None))
+                    == "FrameStep"):
+                callers.append((str(path.relative_to(root)), function))
+            stack.extend((child, function) for child in ast.iter_child_nodes(node))
+    assert callers == [("render/frame.py", "make_frame_step")], callers

@@ -18,7 +18,14 @@ The tests:
   modules (PLOD is pure numpy: the tracker and the GL renderer sit on top of
   it, not under it);
 - ``synthetic/`` imports nothing from ``headplod`` (the test data is made by
-  separate code).
+  separate code);
+- every package of ``headplod/`` imports only the packages :data:`LAYERS`
+  allows it (one table for all; a new package must be added to it), and the
+  table itself is a layering (no package reaches itself through it);
+- only command modules know the command line: ``argparse`` is imported only
+  by modules named ``cli.py``, ``command.py``, ``*_command.py`` or listed in
+  :data:`ARGPARSE_MODULES`; nothing under ``headplod/plod/`` imports
+  ``argparse`` or writes to ``sys.stderr`` (the library raises typed errors).
 
 Imports through ``importlib.import_module`` or ``__import__`` cannot be seen
 this way, so the package must not use them (checked too).
@@ -36,6 +43,37 @@ PACKAGE = "headplod"
 
 #: What ``headplod/plod/`` must not reach, directly or through other modules.
 ABOVE_PLOD = ("headplod.render", "headplod.tracking", "headplod.demo")
+
+#: The packages (and top-level modules) of ``headplod/`` each one may import directly, the allowed
+#: directions of the whole package. Below: the pure stages (``plod``: PLOD, pure numpy; ``tracking``: the
+#: tracker; ``filters``, ``io``) import no stage above them; ``render`` draws PLOD; ``capture``,
+#: ``calibration`` and ``live`` are the cameras' side; ``demo``, ``bench``, ``doctor`` and ``cli`` sit on top.
+#: ``argtypes`` and ``progress`` are the commands' shared argument types and notes.
+LAYERS = {
+    "headplod": (),
+    "filters": (),
+    "io": (),
+    "argtypes": (),
+    "progress": (),
+    "plod": ("filters", "io"),
+    "tracking": ("filters", "io"),
+    "capture": ("argtypes", "io", "progress"),
+    "calibration": ("argtypes", "capture", "io", "progress"),
+    "render": ("argtypes", "io", "plod", "progress"),
+    "live": ("argtypes", "capture", "io", "progress", "tracking"),
+    "config": ("argtypes", "capture", "live"),
+    "demo": ("argtypes", "capture", "io", "live", "plod", "progress", "render", "tracking"),
+    "doctor": ("argtypes", "capture", "io", "render"),
+    "bench": ("argtypes", "capture", "demo", "io", "live", "plod", "progress", "render", "tracking"),
+    "cli": ("argtypes", "bench", "calibration", "capture", "config", "demo", "doctor", "io", "live", "progress",
+            "render"),
+}
+
+#: Modules that may import argparse besides those named ``cli.py``, ``command.py`` and ``*_command.py``:
+#: the commands' shared argument types, the config file (it fills the parsers' defaults) and command
+#: modules of their own (``doctor``). Listed by dotted name; the list only shrinks.
+ARGPARSE_MODULES = ("headplod.argtypes", "headplod.config", "headplod.doctor", "headplod.calibration.printouts",
+                    "headplod.live.preview")
 
 @dataclass(frozen=True)
 class Edge:
@@ -342,3 +380,78 @@ def test_synthetic_imports_nothing_from_headplod():
             bad += [f"{path.relative_to(ROOT)}:{node.lineno} imports {n}" for n in names
                     if n == PACKAGE or n.startswith(PACKAGE + ".")]
     assert not bad, "synthetic/ must not import headplod:\n" + "\n".join(bad)
+
+
+def _package(module: str) -> str:
+    """The entry of :data:`LAYERS` a module belongs to: headplod.X.y -> X; headplod -> headplod."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def test_every_package_imports_only_what_the_table_allows():
+    files, edges = import_edges()
+    unknown = sorted({_package(m) for m in files} - set(LAYERS))
+    assert not unknown, f"packages of {PACKAGE}/ missing from LAYERS (say what they may import): {unknown}"
+    bad = [f"    {e}" for e in edges
+           if _package(e.source) != _package(e.target) and _package(e.target) not in LAYERS[_package(e.source)]]
+    assert not bad, ("imports against the layering (tests/test_layout.py LAYERS); move the code to a package "
+                     "that may import it, or the shared piece down:\n" + "\n".join(bad))
+
+
+def test_the_layer_table_is_a_layering():
+    """No package reaches itself through the allowed directions (else the table allows a cycle)."""
+    graph = {k: [t for t in v if t != k] for k, v in LAYERS.items()}
+    for k, targets in graph.items():
+        assert set(targets) <= set(LAYERS), (k, set(targets) - set(LAYERS))
+    assert not _strongly_connected(sorted(graph), graph), "LAYERS allows a cycle"
+
+
+def test_the_layering_check_finds_a_forbidden_import(tmp_path):
+    _write_package(tmp_path, {"headplod/__init__.py": "", "headplod/plod/__init__.py": "",
+                              "headplod/plod/a.py": "from ..render import b\n", "headplod/render/__init__.py": "",
+                              "headplod/render/b.py": "from ..plod import a\n"})
+    _, edges = import_edges(root=tmp_path)
+    wrong = [e for e in edges if _package(e.target) not in LAYERS[_package(e.source)]
+             and _package(e.source) != _package(e.target)]
+    assert [(e.source, e.target) for e in wrong] == [("headplod.plod.a", "headplod.render"),
+                                                      ("headplod.plod.a", "headplod.render.b")]
+
+
+def _imports_argparse(path: Path) -> list[int]:
+    lines = []
+    for node, _ in _statements(ast.parse(path.read_text(), filename=str(path))):
+        names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+        lines += [node.lineno for n in names if n == "argparse" or n.startswith("argparse.")]
+    return lines
+
+
+def _is_command_module(module: str, path: Path) -> bool:
+    stem = path.stem
+    return stem in ("cli", "command") or stem.endswith("_command") or module in ARGPARSE_MODULES
+
+
+def test_only_command_modules_import_argparse():
+    bad = [f"{path.relative_to(ROOT)}:{line}" for module, path in module_files(PACKAGE).items()
+           if not _is_command_module(module, path) for line in _imports_argparse(path)]
+    assert not bad, ("argparse outside the command modules (cli.py, command.py, *_command.py; library code takes "
+                     "typed values and raises typed errors): " + ", ".join(bad))
+
+
+def test_plod_neither_imports_argparse_nor_writes_to_stderr():
+    bad = []
+    for module, path in module_files(PACKAGE).items():
+        if not _within(module, "headplod.plod"):
+            continue
+        tree = ast.parse(path.read_text(), filename=str(path))
+        bad += [f"{path.relative_to(ROOT)}:{line} imports argparse" for line in _imports_argparse(path)]
+        bad += [f"{path.relative_to(ROOT)}:{node.lineno} uses sys.{node.attr}" for node in ast.walk(tree)
+                if isinstance(node, ast.Attribute) and node.attr in ("stderr", "stdout", "exit")
+                and isinstance(node.value, ast.Name) and node.value.id == "sys"]
+    assert not bad, "headplod/plod/ is the library: no command line in it:\n" + "\n".join(bad)
+
+
+def test_the_argparse_check_sees_a_local_import(tmp_path):
+    _write_package(tmp_path, {"m.py": "def f():\n    import argparse\n    from argparse import ArgumentTypeError\n"})
+    assert _imports_argparse(tmp_path / "m.py") == [2, 3]
+    assert _is_command_module("headplod.x.y_command", Path("y_command.py"))
+    assert not _is_command_module("headplod.plod.terrain_file", Path("terrain_file.py"))

@@ -51,14 +51,16 @@ def test_lazy_mesh_at_level_5_renders_the_table_mesh_image(default_screen, terra
     """The lazy path (compact frame table, indexed) gives the default path's image pixel for pixel: the same
     triangles, bit-equal vertices, in the same order (the levels view colours by primitive order)."""
     from headplod.render import TerrainRenderer
-    from headplod.render.still import render_still
+    from headplod.plod.select import SelectorConfig
+    from headplod.render.frame import FrameSettings
+    from headplod.render.still import StillSettings, render_still
 
     poi = np.array([700.0, 500.0])
     with TerrainRenderer(gl_context, size=SIZE) as renderer:
-        table, st_table = render_still(default_screen, mode="csf", poi_px=poi, size=SIZE, view_mode=view,
-                                       scene=terrain_scene, renderer=renderer)
-        lazy, st_lazy = render_still(default_screen, mode="csf", poi_px=poi, size=SIZE, view_mode=view,
-                                     scene=lazy_level5_scene, renderer=renderer)
+        settings = StillSettings(FrameSettings("mesh", SelectorConfig(mode="csf")), poi_px=poi, size=SIZE,
+                                 view_mode=view)
+        table, st_table = render_still(settings, default_screen, scene=terrain_scene, renderer=renderer)
+        lazy, st_lazy = render_still(settings, default_screen, scene=lazy_level5_scene, renderer=renderer)
     assert st_table["mesh"]["kind"] == "table" and st_lazy["mesh"]["kind"] == "lazy"
     assert st_lazy["triangles"] == st_table["triangles"] > 10_000
     assert st_lazy["triangles_per_level"] == st_table["triangles_per_level"]

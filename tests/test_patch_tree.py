@@ -30,6 +30,7 @@ from headplod.plod.terrain import Terrain
 from headplod.plod.view import ConditionedView, head_axes
 from headplod.render.projection import off_axis_projection
 from headplod.render.still import default_head
+from render_hooks import triangle_samples
 
 COV = np.diag([0.05 ** 2, 0.05 ** 2])       # the bench's tracker σ
 
@@ -238,7 +239,7 @@ def test_hierarchy_is_watertight_across_sizes(ctx430, grid, default_screen, spli
     view, proj, model, head, axes, _ = _view(default_screen, grid, poi_px=poi)
     with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg,
                               selection=SelectorConfig(mode="csf", level_bias=bias)) as r:
-        tri = r.triangle_samples(view, proj, model, _cv(head, axes, COV))
+        tri = triangle_samples(r, view, proj, model, _cv(head, axes, COV))
         sel = r.last_selection
     assert len(np.unique(sel.size)) >= 3                          # nodes of three sizes or more meet
     assert np.any(sel.outer & (sel.outer - 1))                    # whole-number factors that are not powers of two
@@ -257,7 +258,7 @@ def test_hierarchy_is_watertight_on_the_scale_view(ctx430, default_screen):
     view, proj, model, head, axes, _ = _view(default_screen, big)
     cfg = TessellationConfig(patch_samples=16, cull=False, hierarchy=True)
     with TessellationRenderer(ctx430, big, size=(64, 36), config=cfg) as r:
-        tri = r.triangle_samples(view, proj, model, _cv(head, axes, COV), capacity=1 << 22)
+        tri = triangle_samples(r, view, proj, model, _cv(head, axes, COV), capacity=1 << 22)
         sel = r.last_selection
     assert len(np.unique(sel.depth)) >= 3
     _assert_watertight(tri, 2048)
@@ -266,7 +267,7 @@ def test_hierarchy_is_watertight_on_the_scale_view(ctx430, default_screen):
 @pytest.mark.slow
 def test_hierarchy_renders_like_flat(ctx430, grid, default_screen):
     """Both paths draw the terrain; where the tree refines to leaves the frames agree within the disc."""
-    from headplod.render.frame import TessellationBackend, one_frame
+    from headplod.render.frame import FrameSettings, one_frame
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
 
     model = grid_model(grid, default_screen)
@@ -274,8 +275,8 @@ def test_hierarchy_renders_like_flat(ctx430, grid, default_screen):
     for hierarchy in (False, True):
         cfg = TessellationConfig(patch_samples=16, hierarchy=hierarchy)
         with TessellationRenderer(ctx430, grid, size=(320, 180), config=cfg) as r:
-            first = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=COV, t=0.0)
-            again = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=COV, t=1 / 60)
+            first = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=COV, t=0.0, renderer=r)
+            again = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=COV, t=1 / 60, renderer=r)
         images[hierarchy] = first.image
         assert np.array_equal(first.image, again.image) and again.triangles == first.triangles > 0
     diff = np.abs(images[True].astype(int) - images[False].astype(int))

@@ -144,11 +144,14 @@ def raymask_setup(gl_context, terrain_scene, default_screen):
 @pytest.mark.slow
 def test_the_inset_matches_full_and_a_still_view_repeats_exactly(raymask_setup, terrain_scene, default_screen):
     from headplod.render.image_metrics import psnr_db
-    from headplod.render.still import default_head, px_per_deg_at, render_still
+    from headplod.plod.select import SelectorConfig
+    from headplod.render.frame import FrameSettings
+    from headplod.render.still import StillSettings, default_head, px_per_deg_at, render_still
 
     size = raymask_setup["size"]
-    full, _ = render_still(default_screen, mode="full", scene=terrain_scene, renderer=raymask_setup["full"], size=size)
-    frames = [render_still(default_screen, backend="raymask", scene=terrain_scene, size=size,
+    full, _ = render_still(StillSettings(FrameSettings("mesh", SelectorConfig(mode="full")), size=size),
+                           default_screen, scene=terrain_scene, renderer=raymask_setup["full"])
+    frames = [render_still(StillSettings(FrameSettings("raymask"), size=size), default_screen, scene=terrain_scene,
                            raymask_renderer=raymask_setup["ray"])[0] for _ in range(3)]
     assert all(np.array_equal(frames[0], f) for f in frames[1:])          # a still view: identical frames
     ppd = px_per_deg_at(default_screen, default_head(default_screen), size)

@@ -341,3 +341,19 @@ def test_msaa_option_renders(gl_context, scene):
         r.upload(pos, nrm, levels)
         img = r.render(view, proj, model, "wire")
     assert img.shape == (H, W, 3) and img.std() > 5
+
+
+def test_screen_to_image_px_scales_corners_and_centres():
+    """The one screen px -> image px mapping: continuous coordinates, corners to corners (a pure scale), and
+    with ``pixel_index`` the centre of pixel (i, j) at (i, j)."""
+    from headplod.render.projection import screen_to_image_px
+
+    screen, image = (1920, 1080), (1280, 720)
+    corners = np.array([[0.0, 0.0], [1920.0, 1080.0], [960.0, 540.0]])
+    np.testing.assert_array_equal(screen_to_image_px(corners, screen, image), [[0, 0], [1280, 720], [640, 360]])
+    # The centre of the screen's top-left pixel (0.5, 0.5) is 1/3 px into the image's (a 2/3 scale) ...
+    np.testing.assert_allclose(screen_to_image_px([0.5, 0.5], screen, image), [1 / 3, 1 / 3], rtol=0, atol=1e-12)
+    # ... and the centre of the image's last pixel, as a pixel index, is that pixel's index.
+    last = screen_to_image_px([1920 - 0.75, 1080 - 0.75], screen, image, pixel_index=True)
+    np.testing.assert_allclose(last, [1279.0, 719.0], rtol=0, atol=1e-12)
+    assert screen_to_image_px(np.zeros((4, 3, 2)), screen, image).shape == (4, 3, 2)

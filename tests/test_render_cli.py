@@ -25,10 +25,15 @@ def test_render_writes_image_and_stats(tmp_path):
 @pytest.mark.slow
 @needs_gl
 def test_csf_keeps_full_detail_at_the_poi_and_far_fewer_triangles(default_screen, terrain_scene):
-    from headplod.render.still import render_still
+    from headplod.plod.select import SelectorConfig
+    from headplod.render.frame import FrameSettings
+    from headplod.render.still import StillSettings, render_still
 
-    _, csf = render_still(default_screen, mode="csf", size=(320, 180), scene=terrain_scene)
-    _, full = render_still(default_screen, mode="full", size=(320, 180), scene=terrain_scene)
+    def still(mode):
+        return StillSettings(FrameSettings("mesh", SelectorConfig(mode=mode)), size=(320, 180))
+
+    _, csf = render_still(still("csf"), default_screen, scene=terrain_scene)
+    _, full = render_still(still("full"), default_screen, scene=terrain_scene)
     assert full["triangles"] >= 2_000_000
     assert csf["triangles"] < full["triangles"] / 5
     assert csf["triangles_per_level"][-1] > 0           # the finest level is used near the POI

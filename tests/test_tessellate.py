@@ -20,6 +20,7 @@ from headplod.plod.terrain import Terrain
 from headplod.plod.view import ConditionedView, head_axes
 from headplod.render.projection import off_axis_projection
 from headplod.render.still import default_head
+from render_hooks import triangle_samples
 
 N_SAMPLES = 257      # grid side: 16 x 16 patches of 16 samples
 PATCH = 16
@@ -180,7 +181,7 @@ def test_patches_are_watertight(ctx430, grid, default_screen, mode, poi_px, stag
     view, proj, model, head, axes = _view(default_screen, grid, poi_px=poi_px)
     cv = _cv(head, axes, np.diag([0.05 ** 2] * 2))
     with TessellationRenderer(ctx430, grid, size=(64, 36), config=cfg) as r:
-        tri = r.triangle_samples(view, proj, model, cv, mode=mode)
+        tri = triangle_samples(r, view, proj, model, cv, mode=mode)
         _, outer, _ = r.levels(view, proj, model, cv)
     if mode == "csf":
         assert len(np.unique(tess_factors(outer, cfg.max_level, PATCH, rule))) >= 3   # edges of different factors meet
@@ -197,14 +198,14 @@ def test_patches_are_watertight(ctx430, grid, default_screen, mode, poi_px, stag
 
 @pytest.mark.slow
 def test_still_view_gives_identical_frames(ctx430, grid, default_screen):
-    from headplod.render.frame import TessellationBackend, one_frame
+    from headplod.render.frame import FrameSettings, one_frame
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
 
     cov = np.diag([0.05 ** 2] * 2)
     with TessellationRenderer(ctx430, grid, size=(320, 180), config=TessellationConfig(patch_samples=PATCH)) as r:
         model = grid_model(grid, default_screen)
-        a = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=cov, t=0.0)
-        b = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=cov, t=1 / 60)
+        a = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=cov, t=0.0, renderer=r)
+        b = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=cov, t=1 / 60, renderer=r)
     assert a.triangles == b.triangles > 0
     assert np.array_equal(a.image, b.image)
     assert (a.image != np.array([158, 184, 209], np.uint8)).any(axis=-1).mean() > 0.3    # the terrain is in view
@@ -228,7 +229,7 @@ def test_many_patches_keep_their_ids(ctx430, default_screen):
                                   config=TessellationConfig(patch_samples=16, cull=False, csf_stage=stage)) as r:
             levels[stage] = r.levels(view, proj, model, _cv(head, axes, cov))
             if stage == "control":
-                tri = r.triangle_samples(view, proj, model, _cv(head, axes, cov), capacity=1 << 22)
+                tri = triangle_samples(r, view, proj, model, _cv(head, axes, cov), capacity=1 << 22)
     for a, b in zip(levels["vertex"], levels["control"]):
         np.testing.assert_allclose(a, b, atol=LEVEL_ATOL)
     key, area = _edges_and_area(tri)
@@ -300,7 +301,7 @@ def test_texture_shading_meets_the_full_detail_render(ctx430, default_screen):
     level's smoothed normals, not the average of the samples' shading."""
     from headplod.render.image_metrics import disc_mask, psnr_db
     from headplod.render.still import px_per_deg_at
-    from headplod.render.frame import TessellationBackend, one_frame
+    from headplod.render.frame import FrameSettings, one_frame
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
 
     terrain = Terrain.jacksboro(detail_min_wavelength_m=20.0)
@@ -314,8 +315,8 @@ def test_texture_shading_meets_the_full_detail_render(ctx430, default_screen):
     for shading in ("texture", "vertex"):
         with TessellationRenderer(ctx430, fine, size=size, config=TessellationConfig(shading=shading)) as r:
             model = grid_model(fine, default_screen)
-            out = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=cov)
-            ref = one_frame(TessellationBackend(r, "full"), default_screen, model, cov_deg2=cov)
+            out = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=cov, renderer=r)
+            ref = one_frame(FrameSettings("tessellation", SelectorConfig(mode="full")), default_screen, model, cov_deg2=cov, renderer=r)
             csf, full = out.image, ref.image
         assert out.triangles < ref.triangles / 4
         psnr[shading] = psnr_db(csf, full, disc)
@@ -445,16 +446,16 @@ def test_uncertainty_none_ignores_the_covariance(ctx430, grid, default_screen):
     """Scenario ``none`` draws as without a covariance (the view is conditioned first): a wide covariance
     changes the frame only under a scenario that uses it."""
     from headplod.plod.select import SelectorConfig
-    from headplod.render.frame import TessellationBackend, one_frame
+    from headplod.render.frame import FrameSettings, one_frame
     from headplod.render.tessellate import TessellationConfig, TessellationRenderer, grid_model
 
     wide = np.diag([9.0, 9.0])
     with TessellationRenderer(ctx430, grid, size=(160, 90), config=TessellationConfig(patch_samples=PATCH)) as r:
         model = grid_model(grid, default_screen)
-        plain = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=None)
-        none = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=wide,
-                         config=SelectorConfig(mode="csf", uncertainty="none"))
-        used = one_frame(TessellationBackend(r), default_screen, model, cov_deg2=wide)
+        plain = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=None, renderer=r)
+        none = one_frame(FrameSettings("tessellation", SelectorConfig(mode="csf", uncertainty="none")),
+                         default_screen, model, cov_deg2=wide, renderer=r)
+        used = one_frame(FrameSettings("tessellation"), default_screen, model, cov_deg2=wide, renderer=r)
     assert np.array_equal(plain.image, none.image) and plain.triangles == none.triangles
     assert used.triangles > none.triangles
 

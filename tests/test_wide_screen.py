@@ -35,15 +35,16 @@ def test_the_scene_is_scaled_by_the_screens_width(wide_screen, default_screen):
 @pytest.mark.usefixtures("gl_context")
 def test_the_terrain_fills_the_wide_screen_not_its_middle_third(gl_context, wide_screen):
     """Left and right of the middle third, the middle row shows terrain, not the sky (the background)."""
-    from headplod.render.frame import MeshBackend, one_frame
+    from headplod.plod.select import SelectorConfig
+    from headplod.render.frame import FrameSettings, one_frame
     from headplod.render.gl import TerrainRenderer
     from headplod.render.still import TerrainScene
 
     scene = TerrainScene.build(wide_screen, max_level=2)
     renderer = TerrainRenderer(gl_context, size=(384, 108))
     try:
-        out = one_frame(MeshBackend(scene.mesh, scene.selector("sse", "none"), renderer, wide_screen), wide_screen,
-                        scene.model)
+        out = one_frame(FrameSettings("mesh", SelectorConfig(mode="sse", uncertainty="none")), wide_screen,
+                        scene.model, renderer=renderer, scene=scene)
     finally:
         renderer.release()
     sky = np.round(np.array(renderer.background) * 255)

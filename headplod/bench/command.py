@@ -11,7 +11,7 @@ import sys
 from ..argtypes import add_quiet_argument, frame_count, non_negative, note_old_spelling
 from ..capture import source_kind, synthetic_preset
 from ..capture.synthetic import ensure_dataset
-from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
+from ..render.scene_command import add_terrain_arguments, terrain_for_command
 from ..render.command import add_cost_arguments, add_gaze_prior_argument, selection_options
 
 __all__ = ["add_bench_arguments", "run_bench", "BENCHMARKS"]

@@ -27,8 +27,8 @@ from .. import io
 from ..plod.select import SelectorConfig
 from ..plod.view import View
 from ..progress import note
-from ..render.frame import FAR_MM, NEAR_MM, FrameStep, MeshBackend, RayMaskBackend, px_per_deg_at
-from ..render.projection import off_axis_projection
+from ..render.frame import FAR_MM, NEAR_MM, FrameSettings, FrameStep, make_frame_step, px_per_deg_at
+from ..render.projection import off_axis_projection, screen_to_image_px
 from ..render.still import TerrainScene, default_head
 from ..render.image_metrics import poi_disc, quality
 from .outputs import pyplot, save_figure, write_png
@@ -80,20 +80,15 @@ def mesh_step(scene, renderer, mode: str, uncertainty: str = "adaptive", *, fove
     ``foveate``: drawn as foveated layers (:func:`release_step` frees them). ``step.backend.last_info``:
     the last selection's features (``speed_deg_s``, ``distance_mm``, ...).
     """
-    from ..render.foveate import FoveatedRenderer, LayerAnchor
-
     config = SelectorConfig(mode=mode, uncertainty=uncertainty, **settings)
-    foveated = FoveatedRenderer(renderer, foveation) if foveate else None
-    backend = MeshBackend(scene.mesh.share(), scene.selector(mode, uncertainty, config), renderer, scene.screen,
-                           foveated=foveated, anchor=LayerAnchor() if foveate else None,
-                           foveation=foveated.config if foveate else None)
-    return FrameStep(backend, scene.screen, config)
+    return make_frame_step(FrameSettings("mesh", config, foveate=foveate, foveation=foveation), scene.screen,
+                           renderer=renderer, scene=scene, mesh=scene.mesh.share())
 
 
 def raymask_step(screen, raymask_renderer, config=None, uncertainty: str = "adaptive") -> FrameStep:
     """A frame step of the ray-mask back end (``config``: a :class:`headplod.plod.raymask.RayMaskConfig`)."""
-    return FrameStep(RayMaskBackend(raymask_renderer, screen, config), screen,
-                     SelectorConfig(mode="csf", uncertainty=uncertainty))
+    return make_frame_step(FrameSettings("raymask", SelectorConfig(mode="csf", uncertainty=uncertainty),
+                                         raymask=config), screen, renderer=raymask_renderer)
 
 
 def release_step(step: FrameStep) -> None:
@@ -195,7 +190,7 @@ class BenchScene:
         self.poi = np.array(self.screen.size_px, dtype=np.float64) / 2
         self.camera = off_axis_projection(self.head, self.screen, near_mm=NEAR_MM, far_mm=FAR_MM)
         self.px_per_deg = px_per_deg_at(self.screen, self.head, self.size)
-        self.poi_image = self.poi * np.array(self.size) / np.array(self.screen.size_px)
+        self.poi_image = screen_to_image_px(self.poi, self.screen.size_px, self.size)
         self.disc = poi_disc((self.size[1], self.size[0]), self.poi_image, DISC_DEG * self.px_per_deg)
         self._raymask_renderer = self._small = None
 

@@ -58,11 +58,12 @@ def run_frames(scene, renderer, screen, frames: int, level_bias: float = 0.0) ->
     (the first frame's figures), ``warm_median`` (medians of :data:`WARM_KEYS` over the rest), ``rss_mb``,
     ``peak_rss_mb`` (MB). ``scene``: a ``TerrainScene`` whose mesh is a ``BaseMesh.grid``'s."""
     from ..plod.view import View
-    from ..render.frame import FrameStep, MeshBackend
+    from ..render.frame import FrameSettings, make_frame_step
     from ..render.still import default_head
 
     selector = scene_quadtree_selector(scene, "csf", "adaptive", level_bias=level_bias)
-    step = FrameStep(MeshBackend(scene.mesh, selector, renderer, screen), screen, selector.config)
+    step = make_frame_step(FrameSettings("mesh", selector.config), screen, renderer=renderer, mesh=scene.mesh,
+                           selector=selector)
     head0 = default_head(screen)
     poi = np.array(screen.size_px, dtype=np.float64) / 2
     rows = []

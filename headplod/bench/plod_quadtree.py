@@ -3,7 +3,7 @@
 Issue 14's goal: selection cost grows at most 2x from the 2M-triangle terrain (32 x 32 base at level 5) to
 the 128M one (256 x 256 at level 5). :func:`selection_scaling` times ``LevelSelector`` and
 :class:`.quadtree_selector.QuadtreeSelector` on base grids of 32² to 512² quads over the built-in terrain,
-from the default view, each frame the frame step's ``select`` stage over a :class:`SelectionOnlyBackend`
+from the default view, each frame the frame step's ``select`` stage over a :class:`headplod.render.frame.SelectionOnlyBackend`
 (no mesh of these sizes fits in memory), and checks that both give the same levels. The selector's inputs
 come from :func:`grid_inputs`, not ``AdaptiveMesh`` (approximations: there).
 """
@@ -17,7 +17,7 @@ import numpy as np
 from .. import io
 from ..plod.select import LevelSelector, SelectorConfig, View
 from ..plod.shading import michelson, shade
-from ..render.frame import FrameStep, MeshBackend
+from ..render.frame import FrameSettings, make_frame_step
 from .harness import DEFAULT_SCREEN, label_axes, progress, pyplot, save_figure
 from .outputs import write_json
 from .quadtree_selector import QuadtreeSelector
@@ -84,26 +84,15 @@ def default_views(screen, frames: int, seed: int = 0) -> list:
     return [View(head + rng.normal(0, 0.3, 3), poi + rng.normal(0, 2.0, 2), cov, k / 30.0) for k in range(frames)]
 
 
-class SelectionOnlyBackend(MeshBackend):
-    """The mesh back end's selection (:meth:`MeshBackend.select`, the demo's) with nothing drawn: the
-    grids of this bench have no mesh (module notes). A frame's image is None and its triangles 0."""
-
-    def __init__(self, selector, screen):
-        super().__init__(None, selector, None, screen)
-
-    def draw(self, cv, levels, camera, model, view_mode):
-        return None, None, {}, {}
-
-
 def _measure_grid(terrain, n: int, level: int, model, screen, views) -> tuple[dict, np.ndarray]:
     """Both selections on the n x n grid at ``level``, each through its own frame step; (row, last levels)."""
     t0 = time.perf_counter()
     g = grid_inputs(terrain, n, n, level)
     args = (g["centroids"], g["edge_length"], g["geometric_error"], g["contrast"], model, screen, SelectorConfig(mode="csf"))
     tree = QuadtreeSelector(*args, corners_scene=g["corners"], grid_shape=g["grid_shape"])
-    steps = {"flat": FrameStep(SelectionOnlyBackend(LevelSelector(*args, corners_scene=g["corners"]), screen),
-                               screen, tree.config),
-             "quadtree": FrameStep(SelectionOnlyBackend(tree, screen), screen, tree.config)}
+    settings = FrameSettings("mesh", tree.config, draw=False)
+    steps = {"flat": make_frame_step(settings, screen, selector=LevelSelector(*args, corners_scene=g["corners"])),
+             "quadtree": make_frame_step(settings, screen, selector=tree)}
     build_s = time.perf_counter() - t0
     ms = {name: [] for name in steps}
     nodes, evaluated, mismatched = [], [], 0

@@ -132,11 +132,11 @@ def _tessellation_frames(tess, screen, model, frames, extra):
     ``extra`` gets the drawn patches and, for the tree, its nodes.
     """
     from ..plod.view import View
-    from ..render.frame import FrameStep, TessellationBackend
+    from ..render.frame import FrameSettings, make_frame_step
     from ..render.still import default_head
 
     head, poi = default_head(screen), np.array(screen.size_px, float) / 2
-    step = FrameStep(TessellationBackend(tess), screen, tess.selection)
+    step = make_frame_step(FrameSettings("tessellation", tess.selection), screen, renderer=tess)
     steady = []
     for k in range(frames + 1):                     # loop over frames: the first is the warm-up
         out = step(View(head, poi, TRACKER_COV_DEG2, k * FRAME_DT_S), model)
@@ -197,7 +197,8 @@ def _references(ctx, terrain, tess, backend, config, p, screen, model, size, reg
     one vertex per sample (made anew unless the case's are those), shaded per vertex for ``full``.
     """
     from ..plod.patches import PatchGrid
-    from ..render.frame import TessellationBackend, one_frame
+    from ..plod.select import SelectorConfig
+    from ..render.frame import FrameSettings, one_frame
     from ..render.still import default_head
     from ..render.tessellate import TessellationConfig, TessellationRenderer
 
@@ -211,10 +212,10 @@ def _references(ctx, terrain, tess, backend, config, p, screen, model, size, reg
             patch_samples=MIN_PATCH_SAMPLES, shading=shading))
     head, poi = default_head(screen), np.array(screen.size_px, float) / 2
     t0 = time.perf_counter()
-    ref = one_frame(TessellationBackend(tess, "full", region_ndc=region), screen, model, head, poi, TRACKER_COV_DEG2)
+    full = FrameSettings("tessellation", SelectorConfig(mode="full"), region_ndc=region)
+    ref = one_frame(full, screen, model, head, poi, TRACKER_COV_DEG2, renderer=tess)
     extra["reference_s"] = time.perf_counter() - t0
-    ss = one_frame(TessellationBackend(tess, "full", region_ndc=region, supersample=SUPERSAMPLE), screen, model,
-                   head, poi, TRACKER_COV_DEG2)
+    ss = one_frame(replace(full, supersample=SUPERSAMPLE), screen, model, head, poi, TRACKER_COV_DEG2, renderer=tess)
     return ref.image, ss.image, ref.triangles
 
 

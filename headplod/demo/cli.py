@@ -39,14 +39,15 @@ import numpy as np
 from .. import io
 from ..io import write_atomically
 from ..argtypes import add_quiet_argument, frame_count
-from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
+from ..render.scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_options, mesh_options_problem,
+                                    terrain_for_command)
 from ..progress import Progress, note
 from ..render import TerrainRenderer, create_context
 from ..plod.select import MODES
 from ..render.command import (add_cost_arguments, add_csf_argument, add_gaze_prior_argument, raymask_config,
                               selection_options)
-from ..render.frame import capability_table, default_mode, options_problem
-from ..render.still import FULL_MAX_LEVEL, add_mesh_arguments, mesh_options, mesh_options_problem, mesh_stats
+from ..render.frame import DEMO_BACKENDS, capability_table, default_mode, options_problem
+from ..render.still import FULL_MAX_LEVEL, mesh_stats
 from . import loop as lp
 from .keys import key_help
 from .poses import make_poses
@@ -109,7 +110,7 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     src.add_argument("--growth", type=float, default=lp.GROWTH_DEG2_PER_S, metavar="DEG2_PER_S",
                      help=f"covariance growth while tracking is lost, deg²/s (default {lp.GROWTH_DEG2_PER_S:g})")
     view = parser.add_argument_group("view")
-    view.add_argument("--backend", default="mesh", choices=lp.DEMO_BACKENDS,
+    view.add_argument("--backend", default="mesh", choices=DEMO_BACKENDS,
                       help="what draws the frames (default mesh; raymask: Murphy & Duchowski's rays, no levels); "
                            "what each supports is in the table below")
     view.add_argument("--mode", choices=MODES,
@@ -424,7 +425,7 @@ def run_demo(args) -> int:
     problem = options_problem(backend, mode=args.mode, uncertainty=args.uncertainty, view_mode=args.view,
                               foveate=args.foveate, level_bias=getattr(args, "level_bias", 0.0) != 0.0,
                               budget=getattr(args, "budget", None) is not None, csf=args.csf)
-    problem = problem or mesh_options_problem(args, ("raymask",) if backend == "raymask" else (args.mode,))
+    problem = problem or mesh_options_problem(args, backend, args.mode)
     if problem:
         print(f"headplod demo: {problem}", file=sys.stderr)
         return 2

@@ -59,7 +59,9 @@ from ..plod.view import View
 from ..render import TerrainRenderer, create_context, off_axis_projection
 from ..plod.raymask import RayMaskConfig
 from ..render.foveate import FoveatedRenderer, FoveationConfig, LayerAnchor
-from ..render.frame import FAR_MM, NEAR_MM, VIEW_MODES, FrameStep, MeshBackend, RayMaskBackend, px_per_deg_at
+from ..render.frame import (CAPABILITIES, DEMO_BACKENDS, FAR_MM, NEAR_MM, VIEW_MODES, FrameSettings, FrameStep,
+                            make_frame_step, px_per_deg_at)
+from ..render.projection import screen_to_image_px
 from ..render.still import default_head
 from . import viewpoints as vps
 from .pose_sources import (GROWTH_DEG2_PER_S, MAX_HELD_VAR_DEG2, DropoutPoses, MousePoses, Pose,  # noqa: F401
@@ -72,8 +74,6 @@ SCENARIOS = tuple(UNCERTAINTY_MODES)
 #: Ohshima et al.: above this POI speed the eye is in a saccade and sees no detail (the view
 #: conditioning's ``SelectorConfig.saccade_hold_deg_s``).
 SACCADE_DEG_S = SelectorConfig.saccade_hold_deg_s
-#: The demo's back ends (:data:`headplod.render.frame.CAPABILITIES`).
-DEMO_BACKENDS = ("mesh", "raymask")
 #: Stage names of a frame, in order.
 STAGES = ("pose", "select", "build", "upload", "render", "readback", "hud")
 
@@ -240,7 +240,7 @@ class DemoLoop:
         # The lazy mesh keeps no whole full mesh for raymask's rays, and full above FULL_MAX_LEVEL does not fit.
         mesh = scene.mesh
         self._modes = tuple(m for m in MODES if not (m == "full" and not mesh.full_fits))
-        self._backends = tuple(b for b in DEMO_BACKENDS if not (b == "raymask" and not mesh.has_full_table))
+        self._backends = tuple(b for b in DEMO_BACKENDS if CAPABILITIES[b].lazy_mesh or mesh.has_full_table)
         self.raymask = raymask or RayMaskConfig()      # the settings of the raymask back end
         self._raymask_renderer = None
         self.settings = {}
@@ -316,13 +316,12 @@ class DemoLoop:
         if step is None:
             scene = self.scene
             config = SelectorConfig(mode=s["mode"], uncertainty=s["uncertainty"], **self.selector_options)
-            if s["backend"] == "raymask":
-                backend = RayMaskBackend(self._raymask(), self.screen, self.raymask)
-            else:
-                backend = MeshBackend(scene.mesh, scene.selector(s["mode"], s["uncertainty"], config), self.renderer,
-                                      self.screen, foveated=self.foveated, anchor=self.anchor,
-                                      foveation=self.foveation)
-            step = self._steps[key] = FrameStep(backend, self.screen, config)
+            raymask = s["backend"] == "raymask"
+            settings = FrameSettings(s["backend"], config, foveate=self.foveated is not None and not raymask,
+                                     foveation=self.foveation, raymask=self.raymask)
+            step = self._steps[key] = make_frame_step(
+                settings, self.screen, renderer=self._raymask() if raymask else self.renderer, scene=scene,
+                foveated=self.foveated, anchor=self.anchor)
         if key != self._active:
             step.reset()                     # stale smoothing, hysteresis, layers and levels from its last use
             self._active = key
@@ -379,7 +378,6 @@ class DemoLoop:
         """The HUD's content for a frame."""
         w, h = self.renderer.size
         pose = result.pose
-        scale = np.array([w, h], dtype=np.float64) / np.array(self.screen.size_px, dtype=np.float64)
         fps = 1e3 / float(np.mean(self._frame_times)) if self._frame_times else 1e3 / result.frame_ms
         return HudInfo(fps=fps, stage_ms=dict(result.stage_ms), frame_ms=result.frame_ms,
                        triangles=result.triangles,
@@ -387,7 +385,7 @@ class DemoLoop:
                        + (" +foveate" if self.foveated is not None else ""),
                        uncertainty=self.settings["uncertainty"], viewpoint=self.settings["viewpoint"],
                        view_mode=self.settings["view_mode"], source=self.poses.name,
-                       poi_image_px=pose.poi_px * scale, cov_deg2=pose.cov_deg2,
+                       poi_image_px=screen_to_image_px(pose.poi_px, self.screen.size_px, (w, h)), cov_deg2=pose.cov_deg2,
                        px_per_deg=px_per_deg_at(self.screen, pose.eye_mm, (w, h)),
                        tracking_lost=result.tracking_lost, lost_s=pose.lost_s,
                        saccade=result.saccade_skipped, poi_speed_deg_s=result.poi_speed_deg_s,

@@ -20,7 +20,7 @@ from ..render.command import raymask_config, selection_options
 from ..render.frame import default_mode
 from ..render import TerrainRenderer
 from ..render.gl import FULLSCREEN_VERTEX_SHADER
-from ..render.still import mesh_options
+from ..render.scene_command import mesh_options
 from .keys import action_for_key
 from .loop import DemoLoop
 from .poses import make_poses

@@ -3,7 +3,9 @@
 ``headplod render --terrain FILE`` and ``headplod demo --terrain FILE`` read
 the file here into a :class:`TerrainGrid` (elevation in metres, row 0 south,
 column 0 west, as :class:`headplod.plod.terrain.Terrain` wants it) and make
-the :class:`Terrain` with :func:`terrain_from_file`.
+the :class:`Terrain` with :func:`terrain_from_file`. This module takes typed
+values and raises typed errors; the options and their messages are the
+commands' (:mod:`headplod.render.terrain_command`).
 
 Formats, by the file's ending
 -----------------------------
@@ -54,10 +56,8 @@ grids, while it runs.
 """
 from __future__ import annotations
 
-import argparse
 import math
 import struct
-import sys
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -111,7 +111,7 @@ class TerrainFileOptions:
             spacing = tuple(float(v) for v in np.broadcast_to(np.asarray(self.spacing_m, dtype=np.float64), (2,)))
             object.__setattr__(self, "spacing_m", spacing)
             for v in spacing:
-                _check_spacing("spacing_m", v)
+                check_spacing("spacing_m", v)
         scale = float(self.height_scale)
         if not (math.isfinite(scale) and scale > 0):
             raise ValueError(f"height_scale must be a finite number > 0 (metres per stored unit), got {scale}")
@@ -161,7 +161,8 @@ class TerrainGrid:
                 f"heights {float(z.min()):.5g}..{float(z.max()):.5g} m")
 
 
-def _check_spacing(name, value_m) -> None:
+def check_spacing(name: str, value_m: float) -> None:
+    """ValueError naming ``name`` unless ``value_m`` (metres) lies in MIN_SPACING_M..MAX_SPACING_M."""
     if not (math.isfinite(value_m) and MIN_SPACING_M <= value_m <= MAX_SPACING_M):
         raise ValueError(f"{name} must lie between {MIN_SPACING_M * 1e3:g} mm and {MAX_SPACING_M / 1e3:g} km, "
                          f"got {value_m:g} m")
@@ -220,7 +221,7 @@ def read_terrain_file(path, options: TerrainFileOptions = TerrainFileOptions()) 
                                "or the file's nodata value")
     for name, v in (("x", dx_m), ("y", dy_m)):
         try:
-            _check_spacing(f"the {name} spacing", v)
+            check_spacing(f"the {name} spacing", v)
         except ValueError as exc:
             raise TerrainFileError(f"{path}: {exc}; check the georeferencing or give --spacing-m") from None
     return TerrainGrid(np.ascontiguousarray(heights), float(dx_m), float(dy_m), str(path), kind, tuple(notes),
@@ -455,82 +456,3 @@ def _read_npy(path, options, notes):
     raw = np.asarray(arr)[::-1]                    # row 0 north, as an image
     invalid, found = _invalid(raw)
     return raw, invalid, found, *options.spacing_m, None
-
-
-# ---------------------------------------------------------------------------------------------- command line
-def _spacing_arg(text: str) -> tuple[float, float]:
-    """argparse type of ``--spacing-m``: ``D`` or ``DX,DY``, metres, each in the accepted range."""
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        values = []
-    if len(values) not in (1, 2):
-        raise argparse.ArgumentTypeError(f"expected D or DX,DY in metres, got {text!r}")
-    try:
-        for v in values:
-            _check_spacing("the spacing", v)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    return (values[0], values[-1])
-
-
-def _height_scale_arg(text: str) -> float:
-    try:
-        return TerrainFileOptions(height_scale=float(text)).height_scale
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc).replace("height_scale", "the height scale")) from None
-
-
-def add_terrain_arguments(parser) -> None:
-    """Add ``--terrain``, ``--spacing-m`` and ``--height-scale`` to a parser or argument group."""
-    parser.add_argument("--terrain", metavar="FILE",
-                        help="your own terrain instead of the built-in one: a GeoTIFF DEM (.tif; spacing from its "
-                             "georeferencing), a 16-bit PNG height map (.png) or a 2-D array (.npy; both row 0 "
-                             "north, with --spacing-m); no-data samples are filled, and said so")
-    parser.add_argument("--spacing-m", type=_spacing_arg, metavar="D|DX,DY",
-                        help="--terrain: sample spacing east[,north], metres (required for .png and .npy; "
-                             "overrides a GeoTIFF's georeferencing)")
-    parser.add_argument("--height-scale", type=_height_scale_arg, metavar="M_PER_UNIT",
-                        help="--terrain: metres per stored height unit (default 1)")
-
-
-def terrain_from_args(args, err=sys.stderr):
-    """The Terrain of ``args.terrain`` (None without it: the built-in scene), notes printed to ``err``.
-
-    Raises
-    ------
-    TerrainUsageError
-        ``--spacing-m``/``--height-scale`` without ``--terrain``, an unknown
-        ending, a PNG or ``.npy`` without ``--spacing-m`` (exit status 2).
-    TerrainFileError
-        A missing or unusable file (exit status 1).
-    """
-    path = getattr(args, "terrain", None)
-    spacing, scale = getattr(args, "spacing_m", None), getattr(args, "height_scale", None)
-    if path is None:
-        given = [name for name, v in (("--spacing-m", spacing), ("--height-scale", scale)) if v is not None]
-        if given:
-            raise TerrainUsageError(f"{' and '.join(given)} only apply with --terrain FILE")
-        return None
-    options = TerrainFileOptions(spacing_m=spacing, height_scale=1.0 if scale is None else scale)
-    check_terrain_path(path, options)
-    print(f"terrain: reading {path}", file=err)
-    terrain, grid = terrain_from_file(path, options)
-    for note in grid.notes:
-        print(f"terrain: {note}", file=err)
-    print(f"terrain: {grid.describe()}", file=err)
-    return terrain
-
-
-def terrain_for_command(args, program: str, err=None):
-    """:func:`terrain_from_args` for a command: (Terrain or None, None), or (None, exit status) with the
-    one-line reason printed as ``program: ...`` (2 for options that cannot work together, 1 for a bad file)."""
-    err = err or sys.stderr
-    try:
-        return terrain_from_args(args, err), None
-    except TerrainUsageError as exc:
-        print(f"{program}: {exc}", file=err)
-        return None, 2
-    except ValueError as exc:
-        print(f"{program}: --terrain {exc}", file=err)
-        return None, 1

@@ -28,12 +28,12 @@ from ..argtypes import add_quiet_argument, floats, gaze_prior, level_bias, trian
 from ..progress import note
 from ..plod.csf import CSF_MODELS
 from ..plod.raymask import RAYMASK_CSF_MODELS, RayMaskConfig
-from ..plod.terrain_file import add_terrain_arguments, terrain_for_command
+from .scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_options, mesh_options_problem,
+                            terrain_for_command)
 from ..plod.select import (DEFAULT_CSF_MODEL, GAZE_DISTRIBUTION_MODES, GAZE_PRIOR_DEG, MAX_GAZE_PRIOR_DEG, MODES,
                            UNCERTAINTY_MODES, SelectorConfig)
-from .frame import BACKENDS, VIEW_MODES, capability_table, default_mode, options_problem
-from .still import (CONTRAST_SOURCES, MeshOptions, add_mesh_arguments, mesh_options, mesh_options_problem,
-                    render_still, scene_model)
+from .frame import BACKENDS, CAPABILITIES, VIEW_MODES, FrameSettings, capability_table, default_mode, options_problem
+from .still import CONTRAST_SOURCES, MeshOptions, StillSettings, render_still, scene_model
 
 __all__ = ["add_render_arguments", "run_render", "add_cost_arguments", "add_csf_argument", "add_gaze_prior_argument",
            "selection_options", "raymask_config"]
@@ -147,6 +147,18 @@ def raymask_config(args) -> RayMaskConfig:
                          csf_model=getattr(args, "csf", None) or RayMaskConfig.csf_model)
 
 
+def still_settings(args, mode: str, cov_deg2=None, size=(1280, 720), raymask: RayMaskConfig | None = None,
+                   uncertainty: str | None = None) -> StillSettings:
+    """The typed settings of ``headplod render``'s frame from its parsed (and checked) options; ``mode`` the
+    mode in use (``--mode`` or the back end's own), ``cov_deg2`` (2, 2) deg² or None, ``size`` (w, h) px."""
+    selection = SelectorConfig(mode=mode, uncertainty=args.uncertainty if uncertainty is None else uncertainty,
+                               **selection_options(args))
+    frame = FrameSettings(args.backend, selection, foveate=args.foveate, raymask=raymask)
+    return StillSettings(frame, head_mm=args.head, poi_px=args.poi, cov_deg2=cov_deg2, size=size,
+                         view_mode=args.view, contrast=args.contrast,
+                         export=None if args.export is None else Path(args.export))
+
+
 def _output_problem(path, image: bool = False) -> str | None:
     """Why ``path`` cannot be an output file (a folder; an image ending OpenCV cannot write), or None."""
     p = Path(path)
@@ -181,30 +193,21 @@ def run_render(args) -> int:
         except ValueError as exc:
             print(f"headplod: --export {exc}", file=sys.stderr)
             return 2
-    args.mode = args.mode or default_mode(args.backend)
-    problem = options_problem(args.backend, mode=args.mode, uncertainty=args.uncertainty, view_mode=args.view,
+    mode = args.mode or default_mode(args.backend)
+    given = tuple(name for name, on in (("--max-level", args.max_level is not None), ("--lazy", args.lazy),
+                                        ("--cache-mb", args.cache_mb is not None)) if on)
+    problem = options_problem(args.backend, mode=mode, uncertainty=args.uncertainty, view_mode=args.view,
                               foveate=args.foveate, contrast=args.contrast, export=args.export is not None,
                               terrain=args.terrain is not None, level_bias=args.level_bias != 0.0,
-                              budget=args.budget is not None, csf=args.csf)
+                              budget=args.budget is not None, csf=args.csf, compare=args.compare is not None,
+                              mesh_options=given)
+    if CAPABILITIES[args.backend].mesh_options:
+        problem = problem or mesh_options_problem(args, args.backend, mode)
     if problem:
         print(f"headplod: {problem}", file=sys.stderr)
         return 2
     if args.backend == "tessellation":
-        given = [name for name, on in (("--max-level", args.max_level is not None), ("--lazy", args.lazy),
-                                       ("--cache-mb", args.cache_mb is not None)) if on]
-        if args.compare is not None:
-            print("headplod: --backend tessellation does not take --compare (use the mesh or raymask back end)",
-                  file=sys.stderr)
-            return 2
-        if given:
-            print(f"headplod: --backend tessellation does not take {', '.join(given)} (its detail is "
-                  "--grid-samples)", file=sys.stderr)
-            return 2
-        return _run_tessellation(args, screen, cov, size)
-    problem = mesh_options_problem(args, ("raymask",) if args.backend == "raymask" else (args.mode,))
-    if problem:
-        print(f"headplod: {problem}", file=sys.stderr)
-        return 2
+        return _run_tessellation(args, mode, screen, cov, size)
     raymask = None
     if args.backend == "raymask":
         try:
@@ -226,14 +229,12 @@ def run_render(args) -> int:
     if terrain is not None or options != MeshOptions() or args.compare:   # else render_still's default scene
         scene = options.build(screen, terrain)                   # (--compare: one scene for both frames)
     try:
-        image, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
-                                    poi_px=args.poi, cov_deg2=cov, size=size, view_mode=args.view, out=args.out,
-                                    stats_path=args.stats, contrast=args.contrast, export=args.export,
-                                    foveate=args.foveate, raymask=raymask, scene=scene,
-                                    backend=args.backend, selector_options=selection_options(args))
-        if getattr(args, "compare", None) == "full":
-            reference, _ = render_still(screen, mode="full", uncertainty="none", head_mm=args.head, poi_px=args.poi,
-                                        size=size, view_mode=args.view, scene=scene)
+        settings = still_settings(args, mode, cov, size, raymask)
+        image, stats = render_still(settings, screen, scene=scene, out=args.out, stats_path=args.stats)
+        if args.compare == "full":
+            full = FrameSettings("mesh", SelectorConfig(mode="full", uncertainty="none"))
+            reference, _ = render_still(replace(settings, frame=full, cov_deg2=None, contrast="shading", export=None),
+                                        screen, scene=scene)
             print(compare_line(image, reference, screen, args.head, args.poi, size), file=sys.stderr)
     except OSError as exc:           # a folder that cannot be written: nothing half-written is left
         print(f"headplod: could not write the output: {exc.strerror or exc} ({exc.filename or args.out})",
@@ -271,12 +272,13 @@ def compare_line(image, reference, screen, head_mm, poi_px, size, judge=None) ->
     from ..plod.view import default_head
     from .frame import px_per_deg_at
     from .image_metrics import poi_disc, quality
+    from .projection import screen_to_image_px
     from .vdp import Judge, display_geometry, fixation_px, vdp_available
 
     head = default_head(screen) if head_mm is None else np.asarray(head_mm, dtype=np.float64)
     poi = np.array(screen.size_px, dtype=np.float64) / 2 if poi_px is None else np.asarray(poi_px, dtype=np.float64)
     ppd = px_per_deg_at(screen, head, size)
-    centre = poi * np.asarray(size, dtype=np.float64) / np.asarray(screen.size_px, dtype=np.float64)
+    centre = screen_to_image_px(poi, screen.size_px, size)
     q = quality(image, reference, poi_disc(image.shape[:2], centre, 5.0 * ppd), ppd)     # the benches' measures
     line = (f"against full: PSNR {q['psnr_db']:.2f} dB, within 5° of the POI {q['psnr_disc_5deg_db']:.2f} dB, "
             f"FLIP {q['flip']:.4f}")
@@ -294,7 +296,7 @@ def compare_line(image, reference, screen, head_mm, poi_px, size, judge=None) ->
     return line + f", JOD {jod:.2f} (FovVideoVDP, fixated at the POI; 10 = no visible difference)"
 
 
-def _run_tessellation(args, screen, cov, size) -> int:
+def _run_tessellation(args, mode, screen, cov, size) -> int:
     """``headplod render --backend tessellation``: one frame of :mod:`headplod.render.tessellate`."""
     from ..plod.patches import PatchGrid, height_grid, jacksboro_grid, patch_samples_for
     from .context import create_context
@@ -330,14 +332,12 @@ def _run_tessellation(args, screen, cov, size) -> int:
         model = scene_model(grid.extent, float(np.median(z[::8, ::8])), screen)
     else:
         model = scene_model(grid.extent, float(np.median(terrain.dem_z_m)), screen, fit_scale(terrain))
-    selection = SelectorConfig(mode=args.mode, uncertainty=args.uncertainty, **selection_options(args))
+    settings = still_settings(args, mode, cov, size)
     with TessellationRenderer(create_context(require=430), grid, size=size, config=config,
-                              selection=selection) as renderer:
+                              selection=settings.frame.selection) as renderer:
         try:                         # each file whole or not at all, as the mesh back end's
-            _, stats = render_still(screen, mode=args.mode, uncertainty=args.uncertainty, head_mm=args.head,
-                                    poi_px=args.poi, cov_deg2=cov, size=size, out=args.out, stats_path=args.stats,
-                                    backend="tessellation", renderer=renderer, model=model,
-                                    selector_options=selection_options(args),
+            _, stats = render_still(settings, screen, renderer=renderer, model=model, out=args.out,
+                                    stats_path=args.stats,
                                     details={"grid_samples": n, "patch_samples": config.patch_samples})
         except (OSError, ValueError) as exc:
             print(f"headplod: could not write the output: {getattr(exc, 'strerror', None) or exc}", file=sys.stderr)

@@ -706,14 +706,6 @@ class FoveatedRenderer:
             image = cv2.resize(image, (w, h), interpolation=cv2.INTER_LINEAR)
         return image
 
-    def layer_image(self, k: int) -> np.ndarray:
-        """Layer k of the last frame as drawn, (h_k, w_k, 3) uint8 RGB, top row first, at its own resolution
-        (outside the layer's rectangle: whatever was there before)."""
-        if not 0 <= k < self.config.max_layers:
-            raise ValueError(f"FoveatedRenderer.layer_image: k must be in 0..{self.config.max_layers - 1}, got {k}")
-        fbo = self._targets[k][1]
-        return _read_rect(fbo, (0, 0, *fbo.size), {})
-
     def release(self) -> None:
         """Free the layers' GL objects (the renderer and its context stay)."""
         for color, fbo in self._targets[1:]:

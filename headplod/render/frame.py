@@ -37,11 +37,12 @@ from ..plod.raymask import RAYMASK_CSF_MODELS, RayMaskConfig
 from ..plod.select import DEFAULT_CSF_MODEL, MODES, SelectorConfig
 from ..plod.view import UNCERTAINTY_MODES, ConditionedView, View, ViewConditioner, still_view
 from .gl import VIEW_MODES as _GL_VIEW_MODES
-from .projection import off_axis_projection
+from .projection import off_axis_projection, screen_to_image_px
 
-__all__ = ["NEAR_MM", "FAR_MM", "VIEW_MODES", "BACKENDS", "BackendCapabilities", "CAPABILITIES", "options_problem",
+__all__ = ["NEAR_MM", "FAR_MM", "VIEW_MODES", "BACKENDS", "DEMO_BACKENDS", "BackendCapabilities", "CAPABILITIES", "options_problem",
            "capability_table", "FrameOutput", "Backend", "MeshBackend", "TessellationBackend", "RayMaskBackend",
-           "FrameStep", "one_frame", "px_per_deg_at"]
+           "FrameStep", "FrameSettings", "SelectionOnlyBackend", "make_backend", "make_frame_step", "one_frame",
+           "px_per_deg_at"]
 
 #: Near and far planes of every frame's off-axis projection, mm from the eye.
 NEAR_MM, FAR_MM = 50.0, 5000.0
@@ -88,6 +89,17 @@ class BackendCapabilities:
     default_csf : str
         The form it uses when none is asked for (the mesh: each CSF-based mode's own,
         :data:`headplod.plod.select.DEFAULT_CSF_MODEL`).
+    csf_modes : tuple of str or None
+        The modes whose CSF ``--csf`` sets; None: every mode it draws.
+    compare : bool
+        Its frame can be compared with ``full`` from the same view (``render --compare full``).
+    mesh_options : bool
+        Draws the scene's PLOD mesh, so takes its options (``--max-level``, ``--lazy``, ``--cache-mb``).
+    lazy_mesh : bool
+        Works over the lazy mesh (the ray mask casts rays against the whole ``full`` mesh, which the lazy mesh
+        never holds).
+    demo : bool
+        The demo draws it live (the tessellation needs an OpenGL 4.3 context of its own).
     """
 
     name: str
@@ -106,6 +118,11 @@ class BackendCapabilities:
     default_mode: str = "csf"
     csf_forms: tuple = ("kelly_scaled",)
     default_csf: str = "kelly_scaled"
+    csf_modes: tuple | None = None
+    compare: bool = True
+    mesh_options: bool = True
+    lazy_mesh: bool = True
+    demo: bool = True
 
 
 CAPABILITIES = {
@@ -114,21 +131,25 @@ CAPABILITIES = {
         VIEW_MODES, foveate=True, own_terrain=True, hysteresis=True, contrast_sources=("shading", "readback"),
         export=True, level_bias=True, budget=True,
         finest_level="--max-level 1..8 (above 5: lazy pieces; full up to 7)", default_mode=SelectorConfig().mode,
-        csf_forms=CSF_MODELS, default_csf=", ".join(f"{m}: {f}" for m, f in DEFAULT_CSF_MODEL.items())),
+        csf_forms=CSF_MODELS, default_csf=", ".join(f"{m}: {f}" for m, f in DEFAULT_CSF_MODEL.items()),
+        csf_modes=tuple(DEFAULT_CSF_MODEL)),
     "tessellation": BackendCapabilities(
         "tessellation", "the CSF per patch on the GPU, tessellated from a height texture", ("csf", "full"),
         UNCERTAINTY_MODES, ("shaded",), foveate=False, own_terrain=True, hysteresis=False,
         contrast_sources=("shading",), export=False, level_bias=True, budget=False,
-        finest_level="one vertex per height sample (--grid-samples)"),
+        finest_level="one vertex per height sample (--grid-samples)", compare=False, mesh_options=False,
+        lazy_mesh=False, demo=False),
     "raymask": BackendCapabilities(
         "raymask", "Murphy & Duchowski: rays through a CSF ray mask, no levels", ("csf",), UNCERTAINTY_MODES,
         ("shaded",), foveate=False, own_terrain=True, hysteresis=False, contrast_sources=("shading",),
         export=False, level_bias=False, budget=False,
         finest_level="the whole-table mesh's finest level (--max-level up to 5)",
-        csf_forms=RAYMASK_CSF_MODELS, default_csf=RayMaskConfig.csf_model),
+        csf_forms=RAYMASK_CSF_MODELS, default_csf=RayMaskConfig.csf_model, lazy_mesh=False),
 }
 #: The back ends, in the order the tools list them.
 BACKENDS = tuple(CAPABILITIES)
+#: The back ends the demo draws live (:attr:`BackendCapabilities.demo`).
+DEMO_BACKENDS = tuple(name for name, cap in CAPABILITIES.items() if cap.demo)
 
 
 def default_mode(backend: str) -> str:
@@ -140,15 +161,16 @@ def default_mode(backend: str) -> str:
 def options_problem(backend: str, *, mode: str = "csf", uncertainty: str = "adaptive", view_mode: str = "shaded",
                     foveate: bool = False, contrast: str = "shading", export: bool = False,
                     terrain: bool = False, level_bias: bool = False, budget: bool = False,
-                    csf: str | None = None) -> str | None:
+                    csf: str | None = None, compare: bool = False, mesh_options: tuple = ()) -> str | None:
     """One line saying which option ``backend`` does not support, or None when it supports them all.
 
-    ``csf``: the CSF form asked for (``--csf``), or None for the back end's own."""
+    ``csf``: the CSF form asked for (``--csf``), or None for the back end's own; ``compare``: ``--compare full``
+    asked for; ``mesh_options``: the mesh options given (their names, e.g. ``("--max-level",)``)."""
     if backend not in CAPABILITIES:
         return f"unknown back end {backend!r}; choose one of {', '.join(BACKENDS)}"
     cap = CAPABILITIES[backend]
-    if csf is not None and backend == "mesh" and mode not in DEFAULT_CSF_MODEL:
-        return (f"--csf sets the CSF of the CSF-based modes ({', '.join(DEFAULT_CSF_MODEL)}); --mode {mode} has "
+    if csf is not None and cap.csf_modes is not None and mode not in cap.csf_modes:
+        return (f"--csf sets the CSF of the CSF-based modes ({', '.join(cap.csf_modes)}); --mode {mode} has "
                 "none")
     bad = [text for text, ok in (
         (f"--mode {mode} (modes: {', '.join(cap.modes)})", mode in cap.modes),
@@ -163,7 +185,14 @@ def options_problem(backend: str, *, mode: str = "csf", uncertainty: str = "adap
         (f"--csf {csf} (forms: {', '.join(cap.csf_forms)}"
          + ("; Geisler-Perry is --mode gp)" if csf == "gp" and "gp" in cap.modes else ")"),
          csf is None or csf in cap.csf_forms)) if not ok]
-    return f"--backend {backend} does not take {', '.join(bad)}" if bad else None
+    if bad:
+        return f"--backend {backend} does not take {', '.join(bad)}"
+    if compare and not cap.compare:
+        return (f"--backend {backend} does not take --compare (use "
+                f"{' or '.join(n for n, c in CAPABILITIES.items() if c.compare)})")
+    if mesh_options and not cap.mesh_options:
+        return f"--backend {backend} does not take {', '.join(mesh_options)} (its detail is --grid-samples)"
+    return None
 
 
 def capability_table(markdown: bool = False) -> str:
@@ -241,16 +270,6 @@ class Backend:
 
     name = ""
 
-    @property
-    def capabilities(self) -> BackendCapabilities:
-        return CAPABILITIES[self.name]
-
-    @property
-    def mode(self) -> str:
-        """The selection mode this back end draws (its default when it has no selector of its own): what a
-        :class:`FrameStep` given no settings conditions the view for (the mode's own gaze prior)."""
-        return self.capabilities.default_mode
-
     def select(self, cv: ConditionedView):
         return None
 
@@ -284,10 +303,6 @@ class MeshBackend(Backend):
         self.foveated, self.anchor, self.foveation = foveated, anchor, foveation
         self._uploaded = None          # the index array the renderer (or the layers) last received
         self.last_info = None          # the last selection's per-triangle features (LevelSelector.select's dict)
-
-    @property
-    def mode(self) -> str:
-        return self.selector.config.mode
 
     def select(self, cv):
         levels, self.last_info = self.selector.select(cv)
@@ -348,9 +363,9 @@ class MeshBackend(Backend):
         from .foveate import layer_plan
 
         w, h = self.renderer.size
-        scale = np.array([w, h], dtype=np.float64) / np.array(self.screen.size_px, dtype=np.float64)
         ppd = px_per_deg_at(self.screen, cv.raw_eye_mm, (w, h))
-        poi, layers = self.anchor.update(cv.poi_px * scale, layer_plan(ppd, cv.cov_deg2, self.foveation), ppd)
+        poi, layers = self.anchor.update(screen_to_image_px(cv.poi_px, self.screen.size_px, (w, h)),
+                                         layer_plan(ppd, cv.cov_deg2, self.foveation), ppd)
         return self.foveated.render(*camera, model, poi, ppd, cv.cov_deg2, view_mode=view_mode, layers=layers)
 
 
@@ -361,7 +376,6 @@ class TessellationBackend(Backend):
     """
 
     name = "tessellation"
-    mode = "csf"                       # an attribute here: the one it is given
 
     def __init__(self, renderer, mode: str = "csf", *, region_ndc=None, supersample: int = 1):
         self.renderer, self.mode = renderer, mode
@@ -413,13 +427,13 @@ class FrameStep:
     ----------
     backend : Backend
     screen : headplod.io.Screen
-    config : SelectorConfig or None
-        The view conditioning's settings (its filters, scenario, saccade hold, gaze prior); None: the
-        defaults for the mode the back end draws (:attr:`Backend.mode`: its gaze prior is that mode's own).
+    config : SelectorConfig
+        The view conditioning's settings (its filters, scenario, saccade hold, gaze prior).
+
+    Made by :func:`make_frame_step` (the one place a step is assembled) from :class:`FrameSettings`.
     """
 
-    def __init__(self, backend: Backend, screen, config: SelectorConfig | None = None):
-        config = SelectorConfig(mode=backend.mode) if config is None else config
+    def __init__(self, backend: Backend, screen, config: SelectorConfig):
         self.backend, self.screen, self.config = backend, screen, config
         self.conditioner = ViewConditioner(screen, config)
         self.levels = None             # the last levels (kept during a saccade)
@@ -448,14 +462,126 @@ class FrameStep:
         return FrameOutput(image, cv, self.levels, tri_levels, int(triangles), bool(held), stage, details)
 
 
-def one_frame(backend: Backend, screen, model, head_mm=None, poi_px=None, cov_deg2=None, *, t: float | None = 0.0,
-              config: SelectorConfig | None = None, view_mode: str = "shaded") -> FrameOutput:
-    """One frame of a fresh :class:`FrameStep` over ``backend``: a still view, no history.
+@dataclass(frozen=True)
+class FrameSettings:
+    """Every setting of a frame step (:func:`make_frame_step`): what draws, what it selects for, and how.
+
+    Attributes
+    ----------
+    backend : str
+        One of :data:`BACKENDS` (default ``mesh``).
+    selection : SelectorConfig or None
+        Mode, uncertainty scenario, level bias, budget, CSF form, gaze prior, hysteresis, ... and the view
+        conditioning's settings (its filters, saccade hold). None: the defaults for the back end's own mode
+        (:attr:`BackendCapabilities.default_mode`; its gaze prior is that mode's own). The ``tessellation``
+        back end draws ``selection.mode`` (``csf``, or ``full``: the reference).
+    foveate : bool
+        ``mesh``: draw foveated resolution layers about the conditioned POI (:mod:`headplod.render.foveate`).
+    foveation : FoveationConfig or None
+        The layers' settings (None: ``FoveationConfig()``).
+    raymask : RayMaskConfig or None
+        ``raymask``: the ray mask's settings (None: ``RayMaskConfig()``).
+    region_ndc : (4,) float or None
+        ``tessellation``: draw only this rectangle (x0, y0, x1, y1) of normalised device coordinates.
+    supersample : int
+        ``tessellation``: samples per pixel side (1: none).
+    draw : bool
+        False: select only, nothing drawn (``mesh``; selection benchmarks over grids that have no mesh): a
+        frame's image is None and its triangles 0.
+    """
+
+    backend: str = "mesh"
+    selection: SelectorConfig | None = None
+    foveate: bool = False
+    foveation: object = None
+    raymask: RayMaskConfig | None = None
+    region_ndc: tuple | None = None
+    supersample: int = 1
+    draw: bool = True
+
+    def __post_init__(self):
+        if self.backend not in CAPABILITIES:
+            raise ValueError(f"FrameSettings: unknown back end {self.backend!r}; choose one of {', '.join(BACKENDS)}")
+        cap = CAPABILITIES[self.backend]
+        if self.selection is None:
+            object.__setattr__(self, "selection", SelectorConfig(mode=cap.default_mode))
+        problem = options_problem(self.backend, mode=self.selection.mode, uncertainty=self.selection.uncertainty,
+                                  foveate=self.foveate)
+        if problem:
+            raise ValueError(f"FrameSettings: {problem}")
+        if not self.draw and self.backend != "mesh":
+            raise ValueError(f"FrameSettings: draw=False is the mesh back end's (selection only), not {self.backend}'s")
+        if not (isinstance(self.supersample, (int, np.integer)) and self.supersample >= 1):
+            raise ValueError(f"FrameSettings: supersample must be a whole number >= 1, got {self.supersample!r}")
+
+
+class SelectionOnlyBackend(MeshBackend):
+    """The mesh back end's selection (:meth:`MeshBackend.select`) with nothing drawn (``FrameSettings.draw``
+    false): a frame's image is None and its triangles 0."""
+
+    def __init__(self, selector, screen):
+        super().__init__(None, selector, None, screen)
+
+    def draw(self, cv, levels, camera, model, view_mode):
+        return None, None, {}, {}
+
+
+def make_backend(settings: FrameSettings, screen, *, renderer=None, scene=None, mesh=None, selector=None,
+                 foveated=None, anchor=None) -> Backend:
+    """The back end of ``settings`` over the parts a caller owns (:func:`make_frame_step`'s parameters)."""
+    config = settings.selection
+    if settings.backend == "tessellation":
+        return TessellationBackend(renderer, config.mode, region_ndc=settings.region_ndc,
+                                   supersample=settings.supersample)
+    if settings.backend == "raymask":
+        return RayMaskBackend(renderer, screen, settings.raymask)
+    selector = scene.selector(config.mode, config.uncertainty, config) if selector is None else selector
+    if not settings.draw:                # (no mesh: grids of a selection bench have none)
+        return SelectionOnlyBackend(selector, screen)
+    mesh = scene.mesh if mesh is None else mesh
+    if settings.foveate:
+        from .foveate import FoveatedRenderer, FoveationConfig, LayerAnchor
+
+        foveated = foveated or FoveatedRenderer(renderer, settings.foveation or FoveationConfig())
+        anchor = anchor or LayerAnchor()
+    return MeshBackend(mesh, selector, renderer, screen, foveated=foveated if settings.foveate else None,
+                       anchor=anchor, foveation=foveated.config if foveated is not None else settings.foveation)
+
+
+def make_frame_step(settings: FrameSettings, screen, *, renderer=None, scene=None, mesh=None, selector=None,
+                    foveated=None, anchor=None) -> FrameStep:
+    """The one place a :class:`FrameStep` is assembled: ``settings``' back end over the parts a caller owns.
+
+    Parameters
+    ----------
+    settings : FrameSettings
+    screen : headplod.io.Screen
+    renderer
+        The back end's renderer: a :class:`headplod.render.gl.TerrainRenderer` (``mesh``), a
+        :class:`headplod.render.tessellate.TessellationRenderer` or a
+        :class:`headplod.render.raymask.RayMaskRenderer`; None for ``draw=False``.
+    scene : headplod.render.still.TerrainScene or None
+        ``mesh``: the scene whose mesh and selector (:meth:`TerrainScene.selector` of ``settings.selection``)
+        are used, unless ``mesh`` or ``selector`` are given.
+    mesh, selector
+        ``mesh``: this step's own build state (e.g. ``scene.mesh.share()`` when steps run side by side) and
+        level selector (any with :class:`headplod.plod.select.LevelSelector`'s ``select(cv)``).
+    foveated, anchor
+        ``mesh`` with ``settings.foveate``: layers and their anchor shared between steps (the demo's); made
+        here when None.
+    """
+    return FrameStep(make_backend(settings, screen, renderer=renderer, scene=scene, mesh=mesh, selector=selector,
+                                  foveated=foveated, anchor=anchor), screen, settings.selection)
+
+
+def one_frame(settings: FrameSettings, screen, model, head_mm=None, poi_px=None, cov_deg2=None, *,
+              t: float | None = 0.0, view_mode: str = "shaded", **parts) -> FrameOutput:
+    """One frame of a fresh frame step (:func:`make_frame_step` of ``settings`` and ``parts``): a still view,
+    no history.
 
     ``head_mm`` (3,) world mm (default 600 mm in front of the screen centre), ``poi_px`` (2,) screen px
     (default the centre), ``cov_deg2`` (2, 2) deg² or None, ``t`` s (the back end keeps its own last
-    frame, e.g. for the tessellation's angular speeds), ``config`` the conditioning's settings (None: those of
-    the back end's mode, :class:`FrameStep`).
+    frame, e.g. for the tessellation's angular speeds).
     """
-    return FrameStep(backend, screen, config)(still_view(screen, head_mm, poi_px, cov_deg2, t), model, view_mode)
-
+    step = make_frame_step(settings, screen, **parts)
+    return step(still_view(screen, head_mm, poi_px, cov_deg2, t), model, view_mode)

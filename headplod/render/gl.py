@@ -39,6 +39,9 @@ void main() {
 #: ``PALETTE[k % 8]`` (modulated by the same Lambert shading as "shaded").
 PALETTE = LEVEL_PALETTE
 
+#: The sky behind the terrain, linear RGB in [0, 1]: every renderer's clear colour (mesh, tessellation, ray mask).
+BACKGROUND_RGB = (0.62, 0.72, 0.82)
+
 #: Accepted values of ``view_mode`` (each has its own shader program).
 VIEW_MODES = {"shaded": 0, "wire": 1, "levels": 2}
 
@@ -50,8 +53,8 @@ VIEW_MODES = {"shaded": 0, "wire": 1, "levels": 2}
 # Shading is per vertex (Gouraud): Lambert + ambient times the height colour,
 # one interpolated colour per fragment. On llvmpipe the cost of a triangle
 # grows with the number of interpolated values; per-pixel lighting (normal,
-# height and the wireframe's barycentric coordinates: 7 values) made a PLOD
-# frame 1.6x as slow as one colour (3) for the same image within a few grey
+# height and the wireframe's barycentric coordinates: 7 values instead of 3)
+# made a PLOD frame markedly slower for the same image within a few grey
 # levels: the terrain's diffuse shading varies across a triangle only
 # through its vertex normals.
 #
@@ -271,7 +274,7 @@ class TerrainRenderer:
     """
 
     def __init__(self, ctx: "moderngl.Context", size: tuple[int, int] = (1280, 720), *,
-                 samples: int = 0, background: tuple[float, float, float] = (0.62, 0.72, 0.82)):
+                 samples: int = 0, background: tuple[float, float, float] = BACKGROUND_RGB):
         w, h = (int(v) for v in size)
         if w <= 0 or h <= 0:
             raise ValueError(f"TerrainRenderer: size must be positive (width, height), got {size!r}")

@@ -41,6 +41,32 @@ from ..io import Screen
 # --------------------------------------------------------------------------
 
 
+
+def screen_to_image_px(points_px, screen_size_px, image_size_px, *, pixel_index: bool = False) -> np.ndarray:
+    """Screen px → image px: the one mapping between the two (every back end, the demo, the benches).
+
+    Convention: both are continuous pixel coordinates with (0, 0) at the top-left *corner* of the top-left
+    pixel and (W, H) at the bottom-right corner (``Screen.pixel_to_world``'s), so the centre of pixel
+    (column i, row j) is (i + 0.5, j + 0.5) and the mapping is a pure scale: x_image = x_screen * W_image /
+    W_screen (the image shows the whole screen). ``pixel_index``: return pixel-index coordinates instead,
+    the centre of pixel (i, j) at (i, j) (half a pixel less; what image metrics such as FovVideoVDP take).
+
+    Parameters
+    ----------
+    points_px : (..., 2) float
+        (x, y) screen px.
+    screen_size_px, image_size_px : (2,)
+        (width, height) of the screen and of the image, px.
+
+    Returns
+    -------
+    (..., 2) float64 image px.
+    """
+    image = np.asarray(points_px, dtype=np.float64) * np.asarray(image_size_px, dtype=np.float64) \
+        / np.asarray(screen_size_px, dtype=np.float64)
+    return image - 0.5 if pixel_index else image
+
+
 def screen_frame(screen: Screen) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Orthonormal frame of the screen, world frame.
 

@@ -71,7 +71,7 @@ import numpy as np
 from ..plod.raymask import HeightGrid, RayMask, RayMaskConfig, build_ray_mask, height_grid
 from ..plod.shading import AMBIENT, LIGHT_DIR, height_colour, shade
 from .context import moderngl
-from .gl import read_rgb
+from .gl import BACKGROUND_RGB, read_rgb
 
 __all__ = ["RayMaskRenderer", "vertex_colors", "classify_quads"]
 
@@ -314,7 +314,7 @@ class RayMaskRenderer:
         (< 0: a miss), in the mask's sample order (the samples after the fill).
     """
 
-    def __init__(self, ctx, mesh, size=(1280, 720), *, background=(0.62, 0.72, 0.82), max_steps: int = 4096):
+    def __init__(self, ctx, mesh, size=(1280, 720), *, background=BACKGROUND_RGB, max_steps: int = 4096):
         w, h = (int(v) for v in size)
         if w <= 0 or h <= 0:
             raise ValueError(f"RayMaskRenderer: size must be positive (width, height), got {size!r}")

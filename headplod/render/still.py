@@ -20,20 +20,18 @@ import numpy as np
 
 from ..plod.contrast import project_to_screen_px, readback_contrast
 from ..io import write_atomically
-from ..plod.export import check_export_path, export_mesh
+from ..plod.export import export_mesh
 from ..plod.lazy_mesh import DEFAULT_CACHE_BYTES, LazyAdaptiveMesh
 from ..plod.mesh import AdaptiveMesh, BaseMesh
 from ..plod.mesh_base import FULL_MAX_LEVEL
-from ..plod.raymask import RayMaskConfig
 from ..plod.select import LevelSelector, SelectorConfig
 from ..plod.terrain import Terrain
 from ..plod.view import default_head, still_view  # noqa: F401 (default_head: the scene's default eye, re-exported)
 from .context import create_context
-from .foveate import FoveatedRenderer, LayerAnchor
-from .frame import FrameStep, MeshBackend, RayMaskBackend, TessellationBackend, options_problem, px_per_deg_at
+from .frame import CAPABILITIES, FrameSettings, make_frame_step, options_problem, px_per_deg_at
 from .gl import TerrainRenderer
 from .overlay import overlay_poi
-from .projection import scene_to_world, screen_fit
+from .projection import scene_to_world, screen_fit, screen_to_image_px
 
 # Where the terrain sits: its centre 250 mm behind the screen, 30 km shown as
 # about 600 mm, seen from above at 35° (pitch 55° from the "window" pose).
@@ -142,42 +140,6 @@ def builtin_terrain_options(max_level: int) -> dict:
     return {"detail_min_wavelength_m": BUILTIN_DETAIL_M / 2 ** (max_level - DEFAULT_MAX_LEVEL)}
 
 
-def add_mesh_arguments(parser) -> None:
-    """Add ``--max-level``, ``--lazy`` and ``--cache-mb`` (the scene's mesh) to a parser or argument group.
-
-    Their values are checked by :func:`mesh_options_problem` (one line, exit status 2, before anything is
-    written), not by argparse (whose usage message is many lines).
-    """
-    parser.add_argument("--max-level", default=None, metavar="N",
-                        help=f"finest PLOD level, 1..8 (default {DEFAULT_MAX_LEVEL}: the 32x32 base to 1025x1025 "
-                             "samples, 2.1M triangles at full detail); above 5 the mesh is made lazily (only the "
-                             "pieces a frame draws, in a bounded cache) and the terrain is sampled at "
-                             "32*2^N+1 per side (4097 at 7), so a fine --terrain DEM shows its own detail near "
-                             "the POI; the built-in terrain's synthetic detail is refined to match")
-    parser.add_argument("--lazy", action="store_true",
-                        help="use the lazy mesh at --max-level 5 or lower too (the same triangles as the default "
-                             "whole-table mesh)")
-    parser.add_argument("--cache-mb", default=None, metavar="MB",
-                        help=f"lazy mesh: byte budget of its piece cache, MB (default {DEFAULT_CACHE_BYTES >> 20}; "
-                             "the pieces of a frame beyond it are made again when next needed)")
-
-
-def _parse_mesh_values(args) -> None:
-    """``args.max_level`` and ``args.cache_mb`` from their text to numbers, in place;
-    ``argparse.ArgumentTypeError`` (its message names the option) for a bad one."""
-    import argparse
-
-    from ..argtypes import cache_mb, max_level
-
-    for name, option, parse in (("max_level", "--max-level", max_level), ("cache_mb", "--cache-mb", cache_mb)):
-        value = getattr(args, name, None)
-        if isinstance(value, str):
-            try:
-                setattr(args, name, parse(value))
-            except argparse.ArgumentTypeError as exc:
-                raise argparse.ArgumentTypeError(f"{option}: {exc}") from None
-
-
 @dataclass(frozen=True)
 class MeshOptions:
     """The scene's mesh: ``--max-level``, ``--lazy``, ``--cache-mb``.
@@ -215,45 +177,6 @@ class MeshOptions:
                                   cache_bytes=self.cache_bytes)
 
 
-def mesh_options(args) -> MeshOptions:
-    """The :class:`MeshOptions` of :func:`add_mesh_arguments`'s options (``argparse.ArgumentTypeError``
-    naming the option for a bad value)."""
-    _parse_mesh_values(args)
-    level = getattr(args, "max_level", None)
-    mb = getattr(args, "cache_mb", None)
-    return MeshOptions(DEFAULT_MAX_LEVEL if level is None else int(level), bool(getattr(args, "lazy", False)),
-                       MeshOptions.cache_mb if mb is None else float(mb))
-
-
-def mesh_options_problem(args, modes) -> str | None:
-    """Why the mesh options cannot work with the ``modes`` a command will draw (one line), or None.
-
-    - ``--cache-mb`` without the lazy mesh: it has no cache.
-    - the ``raymask`` back end with the lazy mesh: it casts rays against the height field of the whole ``full`` mesh,
-      which the lazy mesh never holds (at level 8 it would be 67 M samples); use the default mesh.
-    - ``full`` above :data:`FULL_MAX_LEVEL`: 134 M triangles at level 8 do not fit (~3 GB a frame).
-
-    Also the values themselves: ``--max-level`` a whole number in 1..8, ``--cache-mb`` in 1..65536.
-    """
-    import argparse
-
-    try:
-        options = mesh_options(args)
-    except argparse.ArgumentTypeError as exc:
-        return str(exc)
-    level, lazy = options.max_level, options.lazy
-    if getattr(args, "cache_mb", None) is not None and not lazy:
-        return "--cache-mb applies to the lazy mesh only (--max-level above 5, or --lazy)"
-    if "raymask" in modes and lazy:
-        return ("--backend raymask casts rays against the whole full-detail mesh, which the lazy mesh does not "
-                f"keep; use --max-level {TABLE_MAX_LEVEL} or lower without --lazy")
-    if "full" in modes and level > FULL_MAX_LEVEL:
-        return (f"--mode full at --max-level {level} would draw {2048 * 4 ** level:,} triangles (about "
-                f"{2048 * 4 ** level * 24 / 2 ** 30:.1f} GB a frame); use --max-level {FULL_MAX_LEVEL} or lower, "
-                "or a PLOD mode such as csf")
-    return None
-
-
 def mesh_stats(mesh) -> dict:
     """What a frame's stats say of the mesh: ``kind`` (``table`` or ``lazy``), ``max_level``,
     ``full_triangles``; for a lazy mesh also the last frame's ``vertices`` (compact table rows) and its
@@ -281,87 +204,119 @@ def fit_scale(terrain) -> float:
 
 
 
-def render_still(screen, mode="csf", uncertainty="adaptive", head_mm=None, poi_px=None, cov_deg2=None,
-                 size=(1280, 720), view_mode="shaded", out=None, stats_path=None, scene=None, renderer=None,
-                 contrast="shading", export=None, foveate=False, raymask: RayMaskConfig | None = None,
-                 raymask_renderer=None, backend: str = "mesh", model=None, selector_options=None, details=None):
-    """Render one frame through the frame step (:class:`headplod.render.frame.FrameStep`); (image
-    (H, W, 3) uint8 RGB, stats dict).
+@dataclass(frozen=True)
+class StillSettings:
+    """One still frame (:func:`render_still`): what draws it and from which view, at what size, how coloured.
 
-    ``backend`` (:data:`headplod.render.frame.BACKENDS`; what each takes:
-    :data:`headplod.render.frame.CAPABILITIES`, checked here):
+    Attributes
+    ----------
+    frame : FrameSettings
+        The frame step's settings: back end, selection (mode, scenario, level bias, ...), foveation, ray mask.
+    head_mm : (3,) float or None
+        The eye, world mm; None: :func:`default_head`.
+    poi_px : (2,) float or None
+        The point of interest, screen px; None: the screen's centre.
+    cov_deg2 : (2, 2) float or None
+        Covariance of the viewing direction (φ, θ), deg²; None: none given.
+    size : (2,) int
+        Image (width, height), px.
+    view_mode : str
+        ``shaded``, ``wire`` or ``levels`` (:data:`headplod.render.frame.VIEW_MODES`; what the back end takes).
+    contrast : str
+        :data:`CONTRAST_SOURCES`: the shading's, or ``readback`` (the paper's eq. 2: each base triangle's
+        contrast read from a 10x10 window of a first frame's luminance).
+    export : Path or None
+        Also write the frame's mesh here (:mod:`headplod.plod.export`; the command checks its ending and folder).
+
+    The combination is checked against the back end's capabilities when made (ValueError, one line).
+    """
+
+    frame: FrameSettings = FrameSettings()
+    head_mm: tuple | None = None
+    poi_px: tuple | None = None
+    cov_deg2: np.ndarray | None = None
+    size: tuple = (1280, 720)
+    view_mode: str = "shaded"
+    contrast: str = "shading"
+    export: Path | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "size", tuple(int(v) for v in self.size))
+        f = self.frame
+        problem = options_problem(f.backend, mode=f.selection.mode, uncertainty=f.selection.uncertainty,
+                                  view_mode=self.view_mode, foveate=f.foveate, contrast=self.contrast,
+                                  export=self.export is not None)
+        if problem:
+            raise ValueError(f"StillSettings: {problem}")
+
+
+def render_still(settings: StillSettings, screen, *, scene=None, renderer=None, raymask_renderer=None, model=None,
+                 out=None, stats_path=None, details=None):
+    """Render one frame of ``settings`` through the frame step (:func:`headplod.render.frame.make_frame_step`);
+    (image (H, W, 3) uint8 RGB, stats dict).
+
+    Per back end (``settings.frame.backend``):
 
     - ``mesh``: ``scene`` (default: the built-in :class:`TerrainScene`) and
-      ``renderer`` (a :class:`TerrainRenderer` of ``size``; made here when None);
+      ``renderer`` (a :class:`TerrainRenderer` of ``settings.size``; made here when None);
     - ``tessellation``: ``renderer`` is a
       :class:`headplod.render.tessellate.TessellationRenderer` and ``model``
       (4, 4) its grid's scene → world mm (:func:`scene_model`);
-    - ``raymask``: Murphy & Duchowski's hybrid renderer with the settings
-      ``raymask`` (default ``RayMaskConfig()``); ``raymask_renderer`` is
-      reused when given (its height field and last masks are kept).
+    - ``raymask``: ``raymask_renderer`` is reused when given (its height field and last masks are kept).
 
-    ``head_mm`` (3,) world mm (default :func:`default_head`), ``poi_px`` (2,)
-    screen px (default the centre), ``cov_deg2`` (2, 2) deg² or None.
-    ``foveate``: foveated resolution layers about the POI
-    (:mod:`headplod.render.foveate`). ``export``: also write the frame's mesh
-    to this file (:mod:`headplod.plod.export`), its ending and folder checked
-    first. ``contrast="readback"``: the paper's eq. 2, each base triangle's
-    contrast read from a 10x10 window of a first frame's luminance
-    (``readback_ms`` in the stats). ``selector_options``: other
-    :class:`SelectorConfig` fields. ``details``: more entries for the stats.
+    ``out``, ``stats_path``: the image and the stats (JSON) are written there; ``details``: more entries for
+    the stats.
     """
-    problem = options_problem(backend, mode=mode, uncertainty=uncertainty, view_mode=view_mode, foveate=foveate,
-                              contrast=contrast, export=export is not None)
-    if problem:
-        raise ValueError(f"render_still: {problem}")
-    if export is not None:
-        export = check_export_path(export)
-    view = still_view(screen, head_mm, poi_px, cov_deg2)
-    head, poi = view.eye_mm, view.poi_px
-    config = dataclasses.replace(SelectorConfig(), mode=mode, uncertainty=uncertainty, **(selector_options or {}))
-    if backend == "tessellation":
+    fs = settings.frame
+    view = still_view(screen, settings.head_mm, settings.poi_px, settings.cov_deg2)
+    if fs.backend == "tessellation":
         if renderer is None or model is None:
             raise ValueError("render_still: backend 'tessellation' needs its TessellationRenderer and model")
-        step = FrameStep(TessellationBackend(renderer, mode), screen, config)
+        step = make_frame_step(fs, screen, renderer=renderer)
         scene = None
     else:
         scene = scene or TerrainScene.build(screen)
         model = scene.model
-        if backend == "raymask" and not scene.mesh.has_full_table:
-            raise ValueError("render_still: the raymask back end needs the whole-table mesh "
-                             "(max_level <= 5, not lazy)")
-        if mode == "full" and not scene.mesh.full_fits:
-            raise ValueError(f"render_still: mode 'full' at max_level {scene.mesh.max_level} does not fit "
-                             f"(at most {FULL_MAX_LEVEL})")
-        step = FrameStep(_backend_for_scene(backend, scene, config, size, renderer, foveate, raymask,
-                                            raymask_renderer), screen, config)
+        _check_scene(fs, scene)
+        step = make_frame_step(fs, screen, scene=scene,
+                               renderer=_renderer_for_scene(fs, scene, settings.size, renderer, raymask_renderer))
     readback_ms = None
     try:
-        if contrast == "readback":
+        if settings.contrast == "readback":
             readback_ms = _read_back_contrast(step, view, scene)
-        result = step(view, model, view_mode)
+        result = step(view, model, settings.view_mode)
     finally:
-        if foveate:
+        if fs.foveate:
             step.backend.foveated.release()
     image = result.image
-    px_per_deg = px_per_deg_at(screen, head, size)
-    poi_image = poi * np.array(size) / np.array(screen.size_px)     # the POI in image pixels
-    if cov_deg2 is not None or view_mode == "levels":
-        image = overlay_poi(image, poi_image, cov_deg2, px_per_deg)
-    stats = _frame_stats(result, backend, mode, uncertainty, view_mode, size, head, poi, contrast, scene)
-    stats["gaze_prior_deg"] = list(config.gaze_prior)       # the eye-in-head σ in use (given, or the mode's own)
+    if settings.cov_deg2 is not None or settings.view_mode == "levels":
+        image = overlay_poi(image, screen_to_image_px(view.poi_px, screen.size_px, settings.size),
+                            settings.cov_deg2, px_per_deg_at(screen, view.eye_mm, settings.size))
+    stats = _frame_stats(result, settings, view.eye_mm, view.poi_px, scene)
+    stats["gaze_prior_deg"] = list(fs.selection.gaze_prior)       # the eye-in-head σ in use (given, or the mode's own)
     if readback_ms is not None:
         stats["readback_ms"] = readback_ms
     stats.update(details or {})
     write_outputs(image, stats, out, stats_path)
-    if export is not None:
-        export_mesh(scene.mesh, result.levels, export)
+    if settings.export is not None:
+        export_mesh(scene.mesh, result.levels, settings.export)
     return image, stats
 
 
-def _backend_for_scene(backend, scene, config, size, renderer, foveate, raymask, raymask_renderer):
-    """The mesh or raymask back end of a one-frame render (``render_still``'s arguments)."""
-    if backend == "raymask":
+def _check_scene(fs: FrameSettings, scene) -> None:
+    """ValueError when ``scene``'s mesh cannot serve ``fs`` (a lazy mesh for a back end that needs the whole
+    table, :attr:`BackendCapabilities.lazy_mesh`; ``full`` above :data:`FULL_MAX_LEVEL`)."""
+    if not CAPABILITIES[fs.backend].lazy_mesh and not scene.mesh.has_full_table:
+        raise ValueError(f"render_still: the {fs.backend} back end needs the whole-table mesh "
+                         "(max_level <= 5, not lazy)")
+    if fs.selection.mode == "full" and not scene.mesh.full_fits:
+        raise ValueError(f"render_still: mode 'full' at max_level {scene.mesh.max_level} does not fit "
+                         f"(at most {FULL_MAX_LEVEL})")
+
+
+def _renderer_for_scene(fs: FrameSettings, scene, size, renderer, raymask_renderer):
+    """The renderer of a one-frame render's mesh or raymask back end: the one given, else made here."""
+    if fs.backend == "raymask":
         from .raymask import RayMaskRenderer
 
         rr = raymask_renderer
@@ -370,13 +325,8 @@ def _backend_for_scene(backend, scene, config, size, renderer, foveate, raymask,
             rr = RayMaskRenderer(ctx, scene.mesh, size=tuple(size))
         elif tuple(rr.size) != tuple(int(v) for v in size):
             raise ValueError(f"render_still: raymask_renderer is {rr.size}, the image {tuple(size)}")
-        return RayMaskBackend(rr, scene.screen, raymask)
-    if renderer is None:
-        renderer = TerrainRenderer(create_context(), size=tuple(size))
-    foveated = FoveatedRenderer(renderer) if foveate else None
-    return MeshBackend(scene.mesh, scene.selector(config.mode, config.uncertainty, config), renderer, scene.screen,
-                       foveated=foveated, anchor=LayerAnchor() if foveate else None,
-                       foveation=foveated.config if foveate else None)
+        return rr
+    return TerrainRenderer(create_context(), size=tuple(size)) if renderer is None else renderer
 
 
 def _read_back_contrast(step, view, scene) -> float:
@@ -391,9 +341,13 @@ def _read_back_contrast(step, view, scene) -> float:
     return ms
 
 
-def _frame_stats(result, backend, mode, uncertainty, view_mode, size, head, poi, contrast, scene) -> dict:
-    """The stats of one rendered frame (``render_still``'s; ms, triangles, levels)."""
-    stats = {"backend": backend, "mode": mode, "uncertainty": uncertainty, "view": view_mode, "size": list(size),
+def _frame_stats(result, settings: StillSettings, head, poi, scene) -> dict:
+    """The stats of one rendered frame (``render_still``'s; ms, triangles, levels); ``head`` (3,) world mm,
+    ``poi`` (2,) screen px: the view's."""
+    fs = settings.frame
+    backend, contrast = fs.backend, settings.contrast
+    stats = {"backend": backend, "mode": fs.selection.mode, "uncertainty": fs.selection.uncertainty,
+             "view": settings.view_mode, "size": list(settings.size),
              "head_mm": head.round(2).tolist(), "poi_px": poi.round(2).tolist(), "triangles": result.triangles,
              "select_ms": result.stage_ms["select"], "build_ms": result.stage_ms["build"],
              "render_ms": result.stage_ms["render"], "contrast": contrast, **result.details}

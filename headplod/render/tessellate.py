@@ -95,7 +95,7 @@ from ..plod.shading import AMBIENT, light_unit
 from ..plod.view import ConditionedView
 from . import tess_shaders as ts
 from .context import moderngl
-from .gl import _FRAGMENT_SHADER, FULLSCREEN_VERTEX_SHADER, read_rgb
+from .gl import _FRAGMENT_SHADER, BACKGROUND_RGB, FULLSCREEN_VERTEX_SHADER, read_rgb
 
 __all__ = ["TessellationConfig", "TessellationRenderer", "TESS_MODES", "REQUIRED_GL", "grid_model"]
 
@@ -227,7 +227,7 @@ class TessellationRenderer:
     ----------
     ctx : moderngl.Context
         OpenGL >= 4.0 (``create_context(require=400)``; 4.3 for :meth:`levels`
-        and :meth:`triangle_samples`).
+        and the tests' ``triangle_samples``, tests/render_hooks.py).
     grid : PatchGrid
         The terrain; its ``patch_samples`` must equal ``config.patch_samples``.
     size : (width, height)
@@ -244,7 +244,7 @@ class TessellationRenderer:
     Every frame's view is a :class:`ConditionedView`: the eye, head axes,
     covariance and time the levels are chosen for; the angular speed is the
     motion of the eye since the view of the renderer's last call
-    (:meth:`render`, :meth:`levels` or :meth:`triangle_samples`).
+    (:meth:`render`, :meth:`levels` or the tests' ``triangle_samples``).
 
     Attributes
     ----------
@@ -264,7 +264,7 @@ class TessellationRenderer:
     """
 
     def __init__(self, ctx, grid: PatchGrid, size=(1280, 720), config: TessellationConfig = TessellationConfig(),
-                 background=(0.62, 0.72, 0.82), *, selection: SelectorConfig = SelectorConfig(mode="csf")):
+                 background=BACKGROUND_RGB, *, selection: SelectorConfig = SelectorConfig(mode="csf")):
         w, h = self._check(ctx, grid, size, config, selection)
         self.ctx, self.grid, self.config, self.size, self.selection = ctx, grid, config, (w, h), selection
         self.background = tuple(float(c) for c in background)
@@ -585,30 +585,6 @@ class TessellationRenderer:
         out = self._levels_pass(view, proj, model, cv, "csf", None).copy()
         self._remember(cv)
         return out[..., 0], out[..., 1:5], out[..., 5] > 0.5
-
-    def triangle_samples(self, view, proj, model, cv: ConditionedView, *, mode: str = "csf",
-                         capacity: int = 1 << 20) -> np.ndarray:
-        """Every generated triangle as its three vertices' samples (T, 3, 2) int64 (column, row); GL 4.3."""
-        ranges = self._draw_ranges(view, proj, model, cv, mode, None)
-        kind = "samples_tree" if self._tree_frame else "samples"
-        prog = self._program(kind)
-        self._set_uniforms(prog, view, proj, model, cv, mode, None)
-        self._remember(cv)
-        buf = self.ctx.buffer(np.array([0, capacity, 0, 0], np.uint32).tobytes() + bytes(24 * capacity))
-        try:
-            buf.bind_to_storage_buffer(1)
-            self._bind()
-            self._fbo.use()                  # (not under RASTERIZER_DISCARD: see _levels_pass)
-            for first, count in ranges:
-                self._vaos[kind].render(moderngl.PATCHES, vertices=count, first=first)
-            self.ctx.memory_barrier()
-            raw = buf.read()
-        finally:
-            buf.release()
-        count = int(np.frombuffer(raw[:4], np.uint32)[0])
-        if count > capacity:
-            raise ValueError(f"triangle_samples: {count} triangles, more than capacity={capacity}")
-        return np.frombuffer(raw[16:16 + 24 * count], np.float32).reshape(count, 3, 2).round().astype(np.int64)
 
     def release(self) -> None:
         """Free the GL objects (the context stays)."""

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .projection import screen_to_image_px
+
 __all__ = ["METRICS", "JudgeSettings", "DisplayGeometry", "display_geometry", "fixation_px", "vdp_available",
            "Judge"]
 
@@ -122,8 +124,7 @@ def fixation_px(screen, poi_px, image_size) -> np.ndarray:
     poi = np.asarray(poi_px, dtype=np.float64).reshape(-1)
     if poi.shape != (2,) or not np.all(np.isfinite(poi)):
         raise ValueError(f"poi_px must be a finite (x, y) in screen px, got {poi_px!r}")
-    size = np.asarray(image_size, dtype=np.float64)
-    return poi * size / np.asarray(screen.size_px, dtype=np.float64) - 0.5
+    return screen_to_image_px(poi, screen.size_px, image_size, pixel_index=True)
 
 
 def vdp_available(metric: str = "fvvdp") -> bool:
