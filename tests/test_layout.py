@@ -48,23 +48,25 @@ ABOVE_PLOD = ("headplod.render", "headplod.tracking", "headplod.demo")
 #: directions of the whole package. Below: the pure stages (``plod``: PLOD, pure numpy; ``tracking``: the
 #: tracker; ``filters``, ``io``) import no stage above them; ``render`` draws PLOD; ``capture``,
 #: ``calibration`` and ``live`` are the cameras' side; ``demo``, ``bench``, ``doctor`` and ``cli`` sit on top.
-#: ``argtypes`` and ``progress`` are the commands' shared argument types and notes.
+#: ``argtypes`` and ``progress`` are the commands' shared argument types and notes; ``tol`` the generic
+#: numerical tolerances, below everything.
 LAYERS = {
     "headplod": (),
+    "tol": (),
     "filters": (),
-    "io": (),
+    "io": ("tol",),
     "argtypes": (),
     "progress": (),
-    "plod": ("filters", "io"),
-    "tracking": ("filters", "io"),
-    "capture": ("argtypes", "io", "progress"),
-    "calibration": ("argtypes", "capture", "io", "progress"),
-    "render": ("argtypes", "io", "plod", "progress"),
-    "live": ("argtypes", "capture", "io", "progress", "tracking"),
+    "plod": ("filters", "io", "tol"),
+    "tracking": ("filters", "io", "tol"),
+    "capture": ("argtypes", "io", "progress", "tol"),
+    "calibration": ("argtypes", "capture", "io", "progress", "tol"),
+    "render": ("argtypes", "io", "plod", "progress", "tol"),
+    "live": ("argtypes", "capture", "io", "progress", "tol", "tracking"),
     "config": ("argtypes", "capture", "live"),
-    "demo": ("argtypes", "capture", "io", "live", "plod", "progress", "render", "tracking"),
+    "demo": ("argtypes", "capture", "io", "live", "plod", "progress", "render", "tol", "tracking"),
     "doctor": ("argtypes", "capture", "io", "render"),
-    "bench": ("argtypes", "capture", "demo", "io", "live", "plod", "progress", "render", "tracking"),
+    "bench": ("argtypes", "capture", "demo", "io", "live", "plod", "progress", "render", "tol", "tracking"),
     "cli": ("argtypes", "bench", "calibration", "capture", "config", "demo", "doctor", "io", "live", "progress",
             "render"),
 }

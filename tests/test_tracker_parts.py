@@ -300,7 +300,7 @@ def test_the_tracker_has_no_base_but_object_and_no_mixins_in_tracking():
         bases = [ast.unparse(b) for b in node.bases]
         # Classes in tracking/ derive from object, a value type or an enum, never from one another's
         # parts (a mixin).
-        assert all(b in ("NamedTuple", "enum.Enum", "Enum", "Exception", "ValueError") for b in bases), (name, bases)
+        assert all(b in ("NamedTuple", "enum.Enum", "Enum", "Exception", "ValueError", "Protocol") for b in bases), (name, bases)
 
 
 def test_each_attribute_of_the_tracker_and_its_parts_is_written_by_one_class():
