@@ -26,6 +26,9 @@ class NumericalTolerances:
     """A quantity in its own unit (mm, deg, px, s) too small to be one, and the relative agreement of two float64
     values computed two ways (a matrix's symmetry, a fixed entry of K): far above rounding, far below any
     measurement."""
+    floor: float = 1e-6
+    """The floor of a measured quantity that divides another (a blob's peak in DN, an RMS in px, a span in
+    deg or ms): far below any measurement's resolution, so it only keeps a division finite."""
     text: float = 1e-6
     """The agreement of values written to a text file with 6 decimals and read back, or of a value the user
     typed with one the hardware reports."""

@@ -49,24 +49,25 @@ ABOVE_PLOD = ("headplod.render", "headplod.tracking", "headplod.demo")
 #: tracker; ``filters``, ``io``) import no stage above them; ``render`` draws PLOD; ``capture``,
 #: ``calibration`` and ``live`` are the cameras' side; ``demo``, ``bench``, ``doctor`` and ``cli`` sit on top.
 #: ``argtypes`` and ``progress`` are the commands' shared argument types and notes; ``tol`` the generic
-#: numerical tolerances, below everything.
+#: numerical tolerances and ``angles`` the angle between directions, below everything.
 LAYERS = {
     "headplod": (),
     "tol": (),
+    "angles": (),
     "filters": (),
     "io": ("tol",),
     "argtypes": (),
     "progress": (),
-    "plod": ("filters", "io", "tol"),
-    "tracking": ("filters", "io", "tol"),
+    "plod": ("angles", "filters", "io", "tol"),
+    "tracking": ("angles", "filters", "io", "tol"),
     "capture": ("argtypes", "io", "progress", "tol"),
-    "calibration": ("argtypes", "capture", "io", "progress", "tol"),
+    "calibration": ("angles", "argtypes", "capture", "io", "progress", "tol"),
     "render": ("argtypes", "io", "plod", "progress", "tol"),
     "live": ("argtypes", "capture", "io", "progress", "tol", "tracking"),
     "config": ("argtypes", "capture", "live"),
     "demo": ("argtypes", "capture", "io", "live", "plod", "progress", "render", "tol", "tracking"),
     "doctor": ("argtypes", "capture", "io", "render"),
-    "bench": ("argtypes", "capture", "demo", "io", "live", "plod", "progress", "render", "tol", "tracking"),
+    "bench": ("angles", "argtypes", "capture", "demo", "io", "live", "plod", "progress", "render", "tol", "tracking"),
     "cli": ("argtypes", "bench", "calibration", "capture", "config", "demo", "doctor", "io", "live", "progress",
             "render"),
 }

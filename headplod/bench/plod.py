@@ -37,6 +37,7 @@ from ..plod.view import head_axes
 from ..progress import note
 from ..render import TerrainRenderer, overlay_poi, screen_frame
 from .outputs import write_json
+from ..tol import tol
 
 __all__ = ["SIZE", "DEFAULT_SCREEN", "CSF_FORMS", "measure_modes", "interleaved_speed", "quality_curves",
            "velocity_sweep", "ellipse_coverage", "stability", "run_plod_bench", "image_side_parts"]
@@ -91,7 +92,7 @@ def _readback_frame(b: BenchScene, step) -> tuple:
     shading, contrast = b.scene.mesh.contrast, selector.contrast
     seen = np.isfinite(contrast) & (contrast != shading)
     stats["contrast_correlation"] = float(np.corrcoef(shading[seen], contrast[seen])[0, 1])
-    stats["contrast_median_readback_over_shading"] = float(np.median(contrast[seen] / np.maximum(shading[seen], 1e-6)))
+    stats["contrast_median_readback_over_shading"] = float(np.median(contrast[seen] / np.maximum(shading[seen], tol.floor)))
     return frame, stats
 
 
@@ -194,7 +195,7 @@ def ellipse_coverage(b: BenchScene, sigma_deg=ELLIPSE_SIGMA_DEG, out_dir: Path |
         # The triangle's nearest point to the POI: its centroid pulled in by half its angular size.
         half = 0.5 * np.degrees(2 * np.arctan(selector.edge_len_mm[:, 0] / (2 * info["distance_mm"])))
         norm = np.linalg.norm(offsets, axis=1)
-        nearest = offsets * (np.maximum(norm - half, 0) / np.maximum(norm, 1e-12))[:, None]
+        nearest = offsets * (np.maximum(norm - half, 0) / np.maximum(norm, tol.zero))[:, None]
         maha = np.sqrt(np.einsum("ij,jk,ik->i", nearest, np.linalg.inv(cov), nearest))
         inside = maha <= 2.0
         full_detail = levels == selector.max_level

@@ -34,6 +34,7 @@ import numpy as np
 from calib import CALIB_DIR, DEFAULT_SCREEN
 
 from .plod_judge_views import eccentricity_deg, first_crossing_log, interp_log, ring_reduce
+from ..angles import angle_between_deg
 
 __all__ = ["SCREENS", "GEOMETRIC", "BUDGETS", "QUICK_BUDGETS", "TRAINING", "HELD_OUT", "GOALS", "GazeCase",
            "GazeJudgeConfig", "eye_offsets_deg", "gaze_point_px", "case_bench", "judge_case", "case_summary",
@@ -115,7 +116,7 @@ def screen_half_extent_deg(screen, eye_mm) -> tuple[float, float]:
 
     def half_angle(a_px, b_px):
         a, b = screen.pixel_to_world(np.asarray(a_px, float)) - eye, screen.pixel_to_world(np.asarray(b_px, float)) - eye
-        return 0.5 * math.degrees(math.acos(float(a @ b) / float(np.linalg.norm(a) * np.linalg.norm(b))))
+        return 0.5 * float(angle_between_deg(a, b))
 
     return half_angle((0, h / 2), (w, h / 2)), half_angle((w / 2, 0), (w / 2, h))
 

@@ -25,6 +25,7 @@ import numpy as np
 from ..progress import note
 from .harness import (DEFAULT_SCREEN, DISC_DEG, FRAME_DT_S, SIZE, TRACKER_COV_DEG2, label_axes, pyplot,
                       save_figure)
+from ..tol import tol
 
 SCALE_SAMPLES = (1025, 2049, 4097, 8193)
 QUICK_SAMPLES = (1025, 2049)
@@ -342,14 +343,14 @@ def _goals(cases, samples) -> list:
                            f"reference)", "value": c["psnr_disc_5deg_ssaa_db"],
                    "met": bool(c["psnr_disc_5deg_ssaa_db"] >= GOAL_PSNR_DB)}]
     if big in tess and small in tess:
-        growth = tess[big]["select_ms"] / max(tess[small]["select_ms"], 1e-9)
+        growth = tess[big]["select_ms"] / max(tess[small]["select_ms"], tol.small)
         goals.append({"goal": f"selection grows <= {GOAL_SELECT_GROWTH:g}x from the smallest to the largest terrain",
                       "value": growth, "met": bool(growth <= GOAL_SELECT_GROWTH)})
     for hierarchy in (True, False):        # each selection's growth, for the comparison
         sel = {c["samples"]: c for c in cases if c["backend"] == "tessellation" and c.get("ok")
                and c.get("hierarchy", False) == hierarchy}
         if hierarchy != default and big in sel and small in sel:
-            growth = sel[big]["select_ms"] / max(sel[small]["select_ms"], 1e-9)
+            growth = sel[big]["select_ms"] / max(sel[small]["select_ms"], tol.small)
             goals.append({"goal": f"({'tree' if hierarchy else 'flat'} selection, not the default) selection grows "
                                   f"<= {GOAL_SELECT_GROWTH:g}x", "value": growth,
                           "met": bool(growth <= GOAL_SELECT_GROWTH)})

@@ -23,6 +23,7 @@ import numpy as np
 from ..plod import criteria, cull
 from ..plod import perception as pc
 from ..plod.select import LevelSelector, SelectorConfig, View
+from ..tol import tol
 
 HIERARCHY_MODES = ("csf", "gp", "distance", "full")
 """Modes :class:`QuadtreeSelector` supports: those whose level is a function of the triangle alone."""
@@ -59,7 +60,7 @@ class QuadTree:
         points = np.concatenate([corners, centroids[:, None]], axis=1).reshape(ny, nx, 8, 3)   # 2 faces x 4
         side = np.linalg.norm(corners - corners[:, [1, 2, 0]], axis=2).max(axis=1)
         reach = np.linalg.norm(corners - centroids[:, None], axis=2).max(axis=1)
-        margin = np.asarray(margin_mm, dtype=np.float64).reshape(-1) * (1 + 1e-9) + 1e-9
+        margin = np.asarray(margin_mm, dtype=np.float64).reshape(-1) * (1 + tol.small) + tol.small
 
         def leaf(reduced, fill):
             out = np.full((n, n) + reduced.shape[2:], fill)

@@ -28,6 +28,7 @@ from ..tracking.tracker import Tracker, TrackerConfig
 from .baseline import threshold_baseline_s
 from .outputs import pyplot, save_figure
 from .uncertainty import nees
+from ..tol import tol
 
 #: Seconds of refinement before the "settled" errors are measured (full runs;
 #: quick runs are 2 s long and use QUICK_SETTLE_S).
@@ -246,7 +247,7 @@ def _summarize(series: dict, settle_s: float, repeated=None) -> dict:
     v = np.asarray(series["v_err_deg"], float)
     p = np.asarray(series["pos_err_mm"], float)
     n = np.asarray(series["nees"], float)
-    settled = t >= settle_s - 1e-9
+    settled = t >= settle_s - tol.small
     out = {
         "frames": int(len(ok)), "ok": int(ok.sum()),
         "pose_fraction": float(ok[fresh].mean()) if fresh.any() else 0.0,
@@ -411,7 +412,7 @@ def rig_chart(results: dict, path) -> None:
         col, top = i % ncols, 3 * (i // ncols)
         frames, t = ser["frame"], ser["t"]
         title = f"{name}\npose {s['pose_fraction']:.1%}"
-        settle_frame = frames[np.argmax(t >= s["settle_s"] - 1e-9)] if np.any(t >= s["settle_s"] - 1e-9) else None
+        settle_frame = frames[np.argmax(t >= s["settle_s"] - tol.small)] if np.any(t >= s["settle_s"] - tol.small) else None
         bumps = s["faults"]["segments_first_frame"][1:]
 
         ax = axes[top, col]

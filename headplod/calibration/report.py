@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+
+from ..angles import angle_between_deg
 
 
 def _size_str(size) -> str:
@@ -14,7 +14,7 @@ def _size_str(size) -> str:
 def _convergence_deg(R: np.ndarray) -> float:
     """Angle between the two optical axes, degrees."""
     z_right_in_left = R.T @ np.array([0.0, 0.0, 1.0])
-    return math.degrees(math.acos(float(np.clip(z_right_in_left[2], -1.0, 1.0))))
+    return float(angle_between_deg(z_right_in_left, (0.0, 0.0, 1.0)))
 
 
 def _std_line(result) -> str:

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..render import PALETTE, overlay_poi
 from .keys import key_help
+from ..tol import tol
 
 #: Key help, one line, made from :data:`headplod.demo.keys.KEYMAP`.
 KEY_HELP = "keys: " + key_help()
@@ -100,7 +101,7 @@ def draw_poi(image, info: HudInfo) -> np.ndarray:
     if info.poi_image_px is None:
         return image
     arm = max(6, image.shape[0] // 60)
-    return overlay_poi(image, info.poi_image_px, info.cov_deg2, max(info.px_per_deg, 1e-6), color=_POI,
+    return overlay_poi(image, info.poi_image_px, info.cov_deg2, max(info.px_per_deg, tol.floor), color=_POI,
                        cross_px=arm, thickness=1 if image.shape[0] < 400 else 2, inplace=True)
 
 

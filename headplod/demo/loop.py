@@ -68,6 +68,7 @@ from .pose_sources import (GROWTH_DEG2_PER_S, MAX_HELD_VAR_DEG2, DropoutPoses, M
                            PoseHold, PoseSource, PrefetchPoses, ReplayPoses, TeePoses, TrackerPoses, default_screen,
                            read_all_poses)
 from .hud import HudInfo, draw_hud, draw_picture_overlay
+from ..tol import tol
 
 #: Uncertainty scenarios: the paper's three (none, fixed, adaptive) and smoothed.
 SCENARIOS = tuple(UNCERTAINTY_MODES)
@@ -414,6 +415,6 @@ class DemoLoop:
 
 
 def _same_screen(a, b) -> bool:
-    return (tuple(a.size_px) == tuple(b.size_px) and np.allclose(a.top_left, b.top_left, atol=1e-6)
-            and np.allclose(a.top_right, b.top_right, atol=1e-6)
-            and np.allclose(a.bottom_left, b.bottom_left, atol=1e-6))
+    return (tuple(a.size_px) == tuple(b.size_px) and np.allclose(a.top_left, b.top_left, atol=tol.text)
+            and np.allclose(a.top_right, b.top_right, atol=tol.text)
+            and np.allclose(a.bottom_left, b.bottom_left, atol=tol.text))

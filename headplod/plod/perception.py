@@ -37,6 +37,7 @@ import numpy as np
 from .csf import (CSF_MODELS, ECC_SLOPE, MIN_SPEED_DEG_S, csf_coefficients, gp_cutoff_cpd,  # noqa: F401 (re-exported)
                   eccentricity_factor, max_visible_freq_cpd, sensitivity)
 from ..tol import tol
+from ..angles import angle_between_deg
 
 __all__ = [
     "CSF_MODELS", "MIN_SPEED_DEG_S", "ECC_SLOPE",
@@ -125,13 +126,6 @@ def _unit(v):
         return v / n
 
 
-def _angle_deg(u, v):
-    """Angle between vectors along the last axis, deg (robust atan2 form)."""
-    cr = np.linalg.norm(np.cross(u, v), axis=-1)
-    dt = np.sum(u * v, axis=-1)
-    return np.degrees(np.arctan2(cr, dt))
-
-
 def triangle_frequency_cpd(vertices_mm, eye_mm):
     """Spatial frequency of triangles: 1 / (angular diameter), cpd.
 
@@ -152,9 +146,9 @@ def triangle_frequency_cpd(vertices_mm, eye_mm):
         degenerate (zero-size) projection.
     """
     d = np.asarray(vertices_mm, dtype=float) - np.asarray(eye_mm, dtype=float)
-    a01 = _angle_deg(d[:, 0], d[:, 1])
-    a12 = _angle_deg(d[:, 1], d[:, 2])
-    a20 = _angle_deg(d[:, 2], d[:, 0])
+    a01 = angle_between_deg(d[:, 0], d[:, 1])
+    a12 = angle_between_deg(d[:, 1], d[:, 2])
+    a20 = angle_between_deg(d[:, 2], d[:, 0])
     diam = np.maximum(np.maximum(a01, a12), a20)
     with np.errstate(divide="ignore"):
         return 1.0 / diam
@@ -500,7 +494,7 @@ def vergence_deg(points_mm, eye_mid_mm, ipd_mm, interocular_axis=(1.0, 0.0, 0.0)
     mid = np.asarray(eye_mid_mm, dtype=float)
     e_l = mid + 0.5 * ipd_mm * ax
     e_r = mid - 0.5 * ipd_mm * ax
-    return _angle_deg(e_l - p, e_r - p)
+    return angle_between_deg(e_l - p, e_r - p)
 
 
 # ---------------------------------------------------------------------------

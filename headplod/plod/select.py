@@ -52,6 +52,7 @@ from . import criteria, cull
 from .csf import CORTICAL_EXPONENT, display_nyquist_cpd
 from . import perception as pc
 from .view import UNCERTAINTY_MODES, ConditionedView, UncertaintyPolicy, View, ViewConditioner  # noqa: F401
+from ..tol import tol
 
 MODES = ("hybrid", "change", "csf", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full")
 """The level-selection criteria (:attr:`SelectorConfig.mode`), in the order the tools list them."""
@@ -373,7 +374,7 @@ class LevelSelector:
             homog = np.concatenate([corners, np.ones(corners.shape[:2] + (1,))], axis=2)
             self.corners_mm = (homog @ model.T)[..., :3]
             # A level's pieces are the level-0 triangle scaled by its edge ratio.
-            self._level_scale = self.edge_len_mm / np.maximum(self.edge_len_mm[:, :1], 1e-12)
+            self._level_scale = self.edge_len_mm / np.maximum(self.edge_len_mm[:, :1], tol.zero)
         self.contrast = np.asarray(contrast, dtype=np.float64)
         self.change_contrast = self.normal_axis_world = self.normal_cone_deg = None
         if change is not None:

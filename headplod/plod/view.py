@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..filters import OneEuroFilter
+from ..angles import angle_between_deg
 
 __all__ = ["UNCERTAINTY_MODES", "View", "ConditionedView", "UncertaintyPolicy", "ViewConditioner", "head_axes",
            "poi_direction", "default_head", "still_view", "gaze_covariance"]
@@ -216,10 +217,6 @@ def gaze_covariance(cov_deg2, prior_sigma_deg) -> np.ndarray | None:
     return prior if cov_deg2 is None else np.asarray(cov_deg2, dtype=np.float64) + prior
 
 
-def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    return math.degrees(math.acos(min(1.0, max(-1.0, float(a @ b)))))
-
-
 class ViewConditioner:
     """Makes each frame's :class:`ConditionedView` (module notes). Call once per frame.
 
@@ -267,7 +264,7 @@ class ViewConditioner:
         setattr(self, slot, (t, direction))
         if previous is None or t is None or previous[0] is None or t <= previous[0]:
             return 0.0
-        return _angle_deg(direction, previous[1]) / (t - previous[0])
+        return float(angle_between_deg(direction, previous[1])) / (t - previous[0])
 
     def _filter(self, t, eye, poi, cov):
         """(filtered eye (3,) mm, filtered POI (2,) px, restarted: bool).

@@ -39,6 +39,7 @@ import cv2
 import numpy as np
 
 from ..plod.csf import CSF_MODELS, max_visible_freq_cpd
+from ..tol import tol
 
 __all__ = ["FoveationConfig", "Layer", "layer_plan", "layer_regions", "face_layer_span", "LayerAnchor",
            "FoveatedRenderer"]
@@ -226,8 +227,8 @@ def face_layer_span(corners, z_range, model, view, proj, size, poi_gl, regions, 
     mvp = np.asarray(proj, dtype=np.float64) @ np.asarray(view, dtype=np.float64) @ np.asarray(model, dtype=np.float64)
     clip = pts.reshape(-1, 4) @ mvp[[0, 1, 3]].T                       # (6F, 3): x, y, w
     wc = clip[:, 2].reshape(6, -1)
-    behind = (wc <= 1e-9).any(axis=0)
-    inv = 0.5 / np.where(wc > 1e-9, wc, 1.0)
+    behind = (wc <= tol.small).any(axis=0)
+    inv = 0.5 / np.where(wc > tol.small, wc, 1.0)
     x = (clip[:, 0].reshape(6, -1) * inv + 0.5) * w
     y = (clip[:, 1].reshape(6, -1) * inv + 0.5) * h
     xmin, xmax, ymin, ymax = x.min(axis=0), x.max(axis=0), y.min(axis=0), y.max(axis=0)
@@ -252,7 +253,7 @@ def face_layer_span(corners, z_range, model, view, proj, size, poi_gl, regions, 
 
 def _smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
     """GLSL's smoothstep (0 below ``e0``, 1 above ``e1``, C¹ between), float32."""
-    t = np.clip((x - e0) / max(e1 - e0, 1e-6), 0.0, 1.0).astype(np.float32)
+    t = np.clip((x - e0) / max(e1 - e0, tol.floor), 0.0, 1.0).astype(np.float32)
     return t * t * (3.0 - 2.0 * t)
 
 

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from ..io import Screen
+from ..tol import tol
 
 # --------------------------------------------------------------------------
 # head-coupled (off-axis) projection
@@ -157,9 +158,9 @@ def off_axis_projection(eye_mm: Any, screen: Screen, near_mm: float,
     b = R_eye_world @ (screen.bottom_left - screen.top_left)  # (bx, by, 0)
     d = -tl[2]
     size = max(np.linalg.norm(a), np.linalg.norm(b))
-    if not d > 1e-9 * size:
+    if not d > tol.small * size:
         raise ValueError(
-            f"off_axis_projection: the eye {eye.tolist()} mm is {'on' if abs(d) <= 1e-9 * size else 'behind'} "
+            f"off_axis_projection: the eye {eye.tolist()} mm is {'on' if abs(d) <= tol.small * size else 'behind'} "
             f"the screen plane (signed distance {d:.6g} mm toward the viewer); it must be on the "
             "side the screen is seen from (opposite to screen.normal)"
         )
@@ -210,7 +211,7 @@ class SceneTransform:
             raise ValueError(f"SceneTransform: matrix has shape {m.shape}, expected (4, 4)")
         if not np.isfinite(m).all():
             raise ValueError("SceneTransform: matrix has NaN or inf")
-        if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-12):
+        if not np.allclose(m[3], [0, 0, 0, 1], atol=tol.zero):
             raise ValueError(f"SceneTransform: last row is {m[3].tolist()}, expected [0, 0, 0, 1] (affine)")
         if abs(np.linalg.det(m[:3, :3])) < 1e-300:
             raise ValueError("SceneTransform: the linear part is singular")

@@ -21,6 +21,7 @@ from . import geometry as geo
 from .detect import Blobs
 from .identify import ModelRule, find_hypotheses
 from .lock import Match
+from ..angles import angle_between_deg
 
 
 def _scale_hint(points_mm: np.ndarray, model_mm: np.ndarray) -> str:
@@ -252,5 +253,4 @@ class Identifier:
         """
         v = np.einsum("...ij,j->...i", R, self.ident_axes_G[2])
         rivals = np.isfinite(cost) & (cost <= 2 * cost[best] + 0.2)
-        cos = np.clip(v[rivals] @ v[best], -1, 1)
-        return bool(np.any(np.degrees(np.arccos(cos)) > self.ident_config.ambiguity_deg))
+        return bool(np.any(angle_between_deg(v[rivals], v[best]) > self.ident_config.ambiguity_deg))

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from ..tol import tol
 
 # Scale from the median absolute deviation to σ for Gaussian noise.
 _MAD_TO_SIGMA = 1.4826
@@ -362,7 +363,7 @@ def _window_stats(images, ox, oy, side, threshold, noise_floor, which=None, bord
     shot = np.full((len(centers), 2), np.nan)
     if window_iterations:
         signal = windows - (level - noise_floor)[:, None, None]
-        size = np.sqrt(np.maximum(flux / np.maximum(peak - noise_floor, 1e-6), 1.0) / (2 * np.pi))
+        size = np.sqrt(np.maximum(flux / np.maximum(peak - noise_floor, tol.floor), 1.0) / (2 * np.pi))
         origin = np.stack([ox, oy], axis=1)
         start = centers - origin
         local, spread_w, _, shot_w = _gaussian_windowed_centroid(signal, start, np.maximum(size, 0.7),
@@ -713,7 +714,7 @@ def _finish(centers, area, peak, flux, spread, boxes, truncated, params, thresho
             shot=None):
     with np.errstate(invalid="ignore", divide="ignore"):
         centroid_sigma = sigma * np.sqrt(spread / 2) / flux
-    effective_area = flux / np.maximum(peak - noise_floor, 1e-9)
+    effective_area = flux / np.maximum(peak - noise_floor, tol.small)
     glint = (area <= params.glint_max_area_px) & (effective_area <= params.glint_max_effective_area_px)
     keep = np.isfinite(centers[:, 0]) & (area >= params.min_area_px) & ~truncated
     blobs = Blobs(centers, area, peak, flux, glint, boxes, centroid_sigma, threshold, bg, sigma, pixels)

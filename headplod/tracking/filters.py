@@ -15,6 +15,7 @@ from typing import Mapping
 import numpy as np
 
 from ..filters import OneEuroFilter
+from ..tol import tol
 
 __all__ = ["PoseFilter"]
 
@@ -115,7 +116,7 @@ class PoseFilter:
         v = v_f / np.linalg.norm(v_f)
         xi = xi_f - (xi_f @ v) * v
         n = np.linalg.norm(xi)
-        if not (np.all(np.isfinite(v)) and n > 1e-9):
+        if not (np.all(np.isfinite(v)) and n > tol.small):
             return record  # degenerate (cannot happen with sane input); keep the raw pose
         xi /= n
         out = dict(record)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from itertools import combinations
 
 import numpy as np
+from ..tol import tol
 
 
 @dataclass(frozen=True)
@@ -117,8 +118,8 @@ def find_hypotheses(centers_px: np.ndarray, rule: ModelRule, *, line_tol_px: flo
     a, b, c = (pts[arrangements[:, i]] for i in range(3))
     ab = b - a
     length = np.linalg.norm(ab, axis=1)
-    along = np.einsum("ij,ij->i", c - a, ab) / np.maximum(length, 1e-9) ** 2
-    off_line = np.abs(ab[:, 0] * (c - a)[:, 1] - ab[:, 1] * (c - a)[:, 0]) / np.maximum(length, 1e-9)
+    along = np.einsum("ij,ij->i", c - a, ab) / np.maximum(length, tol.small) ** 2
+    off_line = np.abs(ab[:, 0] * (c - a)[:, 1] - ab[:, 1] * (c - a)[:, 0]) / np.maximum(length, tol.small)
     ratio_ok = (np.abs(along - rule.middle_ratio) <= ratio_tol) | (np.abs(1 - along - rule.middle_ratio) <= ratio_tol)
     ok = (off_line <= line_tol_px + line_tol_rel * length) & ratio_ok & (along > 0.05) & (along < 0.95)
     rows, ranks, lines = [], [], []

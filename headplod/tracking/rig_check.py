@@ -30,12 +30,12 @@ from .frame_checks import describe_offset_s
 from .lock import MARKER_NAMES, Match, centroid_sigma
 from .rig_state import rig_jacobian_rows
 from .uncertainty import rig_residual_rows
+from ..tol import tol
 
-# A rig correction beyond these (mm, deg: ten times a clean pose's noise at
-# 65 cm, ~0.5 mm and 0.05°) is refused when the frame cannot tell it from noise
-# or a stray blob: with suspect centres, or P1 known to worse than 1.5 mm (1σ)
-# after it; with five markers in both views a frame knows it to 0.2-1 mm
-# (RigChecks.rig_consistent).
+# A rig correction beyond these (mm, deg: about ten times a clean pose's noise
+# at a desk's distance) is refused when the frame cannot tell it from noise or
+# a stray blob: with suspect centres, or P1 known to worse than 1.5 mm (1σ)
+# after it (RigChecks.rig_consistent).
 _AMBIGUOUS_CORRECTION_MM = 5.0
 _AMBIGUOUS_CORRECTION_DEG = 0.5
 _CORRECTED_P1_SD_MM = 1.5
@@ -176,12 +176,12 @@ class RigChecks:
             prior[6:, 6:] = np.linalg.inv(rig_cov)
         # Columns in their natural units (rad, mm, ...) differ by orders of
         # magnitude: solve in scaled columns.
-        col = np.sqrt((J ** 2).sum(axis=0)) + 1e-12
+        col = np.sqrt((J ** 2).sum(axis=0)) + tol.zero
         Js, prior = J / col, prior / np.outer(col, col)
         weight = np.ones(len(sigma))
         for _ in range(cfg.robust_iterations):
             w = np.repeat(weight / sigma ** 2, 2)
-            A = Js.T @ (Js * w[:, None]) + prior + 1e-9 * np.eye(Js.shape[1])
+            A = Js.T @ (Js * w[:, None]) + prior + tol.small * np.eye(Js.shape[1])
             left = (r - Js @ np.linalg.solve(A, Js.T @ (w * r))).reshape(-1, 2)
             z = np.hypot(left[:, 0], left[:, 1]) / sigma
             new = 1.0 / (1.0 + (z / cfg.robust_cauchy_sigma) ** 2)
@@ -210,16 +210,16 @@ class RigChecks:
         """
         if not np.isfinite(R.sum() + p1.sum()):
             return "pose fit diverged (non-finite result)"
-        tol = self.check_config.reproj_tol_px
+        tol_px = self.check_config.reproj_tol_px
         if rig_sd is not None:
-            tol = np.hypot(tol, self.check_config.rig_gate_sigma * rig_sd)
-        excess = residuals / tol
+            tol_px = np.hypot(tol_px, self.check_config.rig_gate_sigma * rig_sd)
+        excess = residuals / tol_px
         worst = np.fmax.reduce(excess, axis=None)          # ignores hidden markers' NaN
         if np.isnan(worst):
             worst = np.inf
         if worst > 1.0:
             cam, marker = np.unravel_index(np.nanargmax(excess), residuals.shape)
-            limit = float(np.broadcast_to(tol, residuals.shape)[cam, marker])
+            limit = float(np.broadcast_to(tol_px, residuals.shape)[cam, marker])
             return (f"reprojection error {residuals[cam, marker]:.2f} px of {MARKER_NAMES[marker]} in the "
                     f"{('left', 'right')[cam]} image exceeds {limit:.2f} px: "
                     "the identification is not trusted")

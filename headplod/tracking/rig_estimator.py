@@ -38,6 +38,7 @@ from .rig_solve import (SKIP_INCONSISTENT, _eliminate_poses, _positive_definite,
                         normal_equations, observable_directions, refit_poses, rig_information, run_to_end,
                         whiten_prior)
 from .rig_state import _GEOMETRY, _OFFSET, _READOUT, N_RIG, RigState
+from ..tol import tol
 
 __all__ = ["ChunkUpdate", "RigEstimator", "RigSummary", "solve_at_once"]
 
@@ -288,7 +289,7 @@ class RigEstimator:
             if not (np.isfinite(mean).all() and np.isfinite(spread).all()):
                 mean, spread = self._estimate.error_from(self.state), self.P
             A = self._prior_L_inv @ self.P @ self._prior_L_inv.T
-            learnt = bool(np.linalg.eigvalsh(0.5 * (A + A.T))[0] < 1.0 - 1e-6)
+            learnt = bool(np.linalg.eigvalsh(0.5 * (A + A.T))[0] < 1.0 - tol.floor)
             self._error = (cov, mean, spread, learnt)
         return self._error[1].copy(), self._error[2].copy()
 

@@ -45,6 +45,7 @@ import cv2
 import numpy as np
 
 from .. import io
+from ..tol import tol
 
 PARAMETERS = ("turn_x_rad", "turn_y_rad", "turn_z_rad", "shift_x_mm", "shift_y_mm", "shift_z_mm",
               "log_focal_right", "time_offset_s", "readout_s")
@@ -139,7 +140,7 @@ class RigState:
         centre = -self.R.T @ self.T
         centre_cal = -np.asarray(cal.R).T @ np.asarray(cal.T).reshape(3)
         return {"turn_deg": float(np.degrees(np.linalg.norm(turn))),
-                "turn_axis": (turn / max(np.linalg.norm(turn), 1e-12)).tolist(),
+                "turn_axis": (turn / max(np.linalg.norm(turn), tol.zero)).tolist(),
                 "baseline_scale": float(np.linalg.norm(self.T) / np.linalg.norm(cal.T)),
                 "centre_shift_mm": float(np.linalg.norm(centre - centre_cal)),
                 "focal_scale": float(math.exp(self.log_focal)),

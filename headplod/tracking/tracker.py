@@ -97,6 +97,7 @@ from .rolling_shutter import RollingShutter
 from .tracker_config import TrackerConfig
 from .tracker_rig import _REFINER_FILES, _RIG_FAILURES, RigFailure, RigInUse, _raised_in
 from .uncertainty import CovarianceInput
+from ..tol import tol
 
 __all__ = ["Tracker", "TrackResult", "TrackerParts", "make_parts", "MarkerPhase", "MarkerState",
            "internal_error_reason",
@@ -570,7 +571,7 @@ class Tracker:
             # Fluxes of a full detection are measured differently: the first
             # tracked frame skips the flux comparison.
             size = np.stack([np.sqrt(np.maximum(blobs[cam].flux_dn[match.blob_index[cam]]
-                                                / np.maximum(blobs[cam].peak_dn[match.blob_index[cam]], 1e-6),
+                                                / np.maximum(blobs[cam].peak_dn[match.blob_index[cam]], tol.floor),
                                                 1.0) / (2 * np.pi)) for cam in range(2)])
             lock = Lock(match.centers, previous, size, None)
         self._markers = MarkerState.kept(lock)

@@ -50,6 +50,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from . import geometry as geo
+from ..tol import tol
 
 COVARIANCE_ESTIMATORS = ("first_order", "first_order_smoothed", "first_order_fixed",
                          "paper", "paper_deterministic", "paper_smoothed", "paper_fixed")
@@ -330,7 +331,7 @@ def rig_scale_from_frame(info: np.ndarray, pose_rows: np.ndarray, rig_rows: np.n
     # the frame's estimate of each component is c ~ N(0, τ² + 1/f).
     L = np.linalg.cholesky(rig_cov)
     f, V = np.linalg.eigh(L.T @ F @ L)
-    taught = f > 1e-9 * max(float(f[-1]), 1e-300)
+    taught = f > tol.small * max(float(f[-1]), 1e-300)
     if not taught.any():
         return 1.0
     c = (V.T @ (L.T @ (h - F @ mu)))[taught] / f[taught]
@@ -568,7 +569,7 @@ class FirstOrder:
         for cam in (0, 1):
             e = energy[cam][seen[cam]].reshape(-1)
             d = design[cam][seen[cam]].reshape(-1, 2)
-            expected = d @ np.maximum(self.coefficients[cam], 1e-6)
+            expected = d @ np.maximum(self.coefficients[cam], tol.floor)
             if len(e) == 0:
                 continue
             if self.frames > 10:
@@ -578,7 +579,7 @@ class FirstOrder:
                 # rescaled to what the frame's quieter centres show (its 30th
                 # percentile against χ²₁'s, 0.148), so a model already
                 # inflated by glints cannot keep the glints in.
-                ratio = e / np.maximum(expected, 1e-12)
+                ratio = e / np.maximum(expected, tol.zero)
                 level = max(float(np.percentile(ratio, 30)) / 0.148, 1e-3)
                 keep = ratio <= 6.6 * level
                 e, d, expected = e[keep], d[keep], expected[keep]
@@ -603,7 +604,7 @@ _CHI2_2DOF_99 = -2 * math.log(0.01)
 def _nonnegative_solve(normal: np.ndarray, rhs: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     """argmin of the quadratic with both coefficients ≥ 0 (2x2: try the full solve, then each alone)."""
     candidates = []
-    if abs(np.linalg.det(normal)) > 1e-12 * max(np.abs(normal).max(), 1e-30) ** 2:
+    if abs(np.linalg.det(normal)) > tol.zero * max(np.abs(normal).max(), 1e-30) ** 2:
         full = np.linalg.solve(normal, rhs)
         if (full >= 0).all():
             return full
@@ -729,7 +730,7 @@ def marker_pixels(image: np.ndarray, centers_px: np.ndarray, threshold_dn: float
         pts = np.column_stack([xs + x0, ys + y0]).astype(np.float64)
         dist = np.linalg.norm(pts - c, axis=1)
         rms = math.sqrt(float(np.mean(dist ** 2))) if len(dist) else 1.0
-        out.append((pts, dist / max(rms, 1e-6)))
+        out.append((pts, dist / max(rms, tol.floor)))
     return out
 
 
