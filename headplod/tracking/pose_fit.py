@@ -71,11 +71,8 @@ class PoseFitter:
 
     Parameters
     ----------
-    config : TrackerConfig
-    model_mm : (5, 3) float
-        The marker model, glasses frame, mm.
-    axes_G : (3, 3) float
-        The model's axes Ξ, Ψ, V (rows), glasses frame.
+    config, model_mm, axes_G
+        As :class:`~.acquire.Identifier`'s (the settings, the marker model in G, mm, and its axes).
     rig : RigInUse
     motion : HeadMotion
     shutter : RollingShutter

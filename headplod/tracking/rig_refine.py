@@ -119,21 +119,8 @@ class RigRefiner:
 
     Parameters
     ----------
-    rig : headplod.io.Rig
-        The rig as ``rig.yaml`` describes it.
-    model_mm : (5, 3)
-        The marker model in G, mm.
-    config : RigRefineConfig
-    error_model : RigErrorModel
-    offset_declared : bool
-        Whether the right image's time is given (``t_right``).
-    calibration_std : dict, optional
-        The calibration's own standard deviations (``headplod calibrate``).
-    readout_prior : (mean_s, sd_s), optional
-        Prior of the rolling shutter's readout time, s (default
-        ``error_model.readout_prior()``: the user's value if the error model
-        has one, else :data:`READOUT_PRIOR_UNKNOWN` until
-        :meth:`set_readout_prior` tells the frame period's).
+    rig, model_mm, config, error_model, offset_declared, calibration_std, readout_prior
+        As :class:`~.rig_estimator.RigEstimator`'s, which keeps them.
 
     Attributes
     ----------
