@@ -8,12 +8,13 @@ import pytest
 
 from headplod.plod.select import MODES, SelectorConfig
 from headplod.plod.view import View, default_head
+from raw_views import RawViews
 
 COV = np.diag([0.05 ** 2, 0.05 ** 2])
 
 
 def _frame(scene, mode, **settings):
-    selector = scene.selector(mode, "adaptive", **settings)
+    selector = RawViews(scene.selector(mode, "adaptive", **settings))
     view = View(default_head(scene.screen), np.array(scene.screen.size_px, float) / 2, COV, 0.0)
     levels, info = selector.select(view)
     return scene.mesh.triangle_count(levels), info
@@ -62,7 +63,7 @@ def test_the_level_bias_trades_triangles_in_every_mode(terrain_scene):
 
 def test_a_still_head_keeps_its_levels_under_a_budget(terrain_scene):
     """The budget is found anew each frame from noisy views; the hysteresis still holds a still head still."""
-    selector = terrain_scene.selector("csf", "adaptive", budget_triangles=120_000)
+    selector = RawViews(terrain_scene.selector("csf", "adaptive", budget_triangles=120_000))
     rng = np.random.default_rng(3)
     head, poi = default_head(terrain_scene.screen), np.array(terrain_scene.screen.size_px, float) / 2
     changes, counts, previous = [], [], None

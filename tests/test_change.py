@@ -11,6 +11,7 @@ from headplod.plod.csf import (CORTICAL_E2_DEG, csf_coefficients, display_nyquis
                                max_visible_freq_cpd, sensitivity)
 from headplod.plod.mesh import AdaptiveMesh, BaseMesh
 from headplod.plod.select import SelectorConfig
+from raw_views import RawViews
 
 
 class Ripples(FlatTerrain):
@@ -193,7 +194,7 @@ def test_change_refines_near_the_poi_and_a_higher_threshold_draws_less(terrain_s
     view = View(default_head(screen), np.array(screen.size_px, float) / 2, np.diag([0.01, 0.01]), 0.0)
     counts = []
     for threshold in (4.0, 8.0, 16.0):
-        sel = terrain_scene.selector("change", "adaptive", change_threshold=threshold, hysteresis=False)
+        sel = RawViews(terrain_scene.selector("change", "adaptive", change_threshold=threshold, hysteresis=False))
         levels, info = sel.select(view)
         counts.append(terrain_scene.mesh.triangle_count(levels))
         ecc = info["eccentricity_deg"]

@@ -8,6 +8,7 @@ import pytest
 from headplod.plod.csf import max_visible_freq_cpd
 from headplod.plod.select import SelectorConfig
 from headplod.render.foveate import FoveationConfig, layer_plan
+from raw_views import RawViews
 from render_hooks import layer_image
 
 
@@ -60,7 +61,7 @@ def test_composite_is_the_plain_frame_inside_the_fovea(gl_context, default_scree
     try:
         head = default_head(default_screen)
         poi_screen = np.array(default_screen.size_px, dtype=float) / 2
-        levels, _ = terrain_scene.selector("csf", "none", hysteresis=False).select(View(head, poi_screen))
+        levels, _ = RawViews(terrain_scene.selector("csf", "none", hysteresis=False)).select(View(head, poi_screen))
         renderer.upload(*terrain_scene.mesh.update(levels))
         view, proj = off_axis_projection(head, default_screen, near_mm=50.0, far_mm=5000.0)
         plain = renderer.render(view, proj, terrain_scene.model)
@@ -123,7 +124,7 @@ def test_face_spans_hold_every_triangle_touching_a_layer(default_screen, terrain
     model, view, proj, poi, poi_screen, ppd, head = _still_view(default_screen, terrain_scene, viewpoint, size, poi_frac)
     placed_sel = __import__("headplod.demo.viewpoints", fromlist=["place"]).place(terrain_scene, viewpoint)
     mesh = terrain_scene.mesh.share()
-    levels, _ = placed_sel.selector("csf", "none", hysteresis=False).select(View(head, poi_screen))
+    levels, _ = RawViews(placed_sel.selector("csf", "none", hysteresis=False)).select(View(head, poi_screen))
     idx, _ = mesh.update_indices(levels)
     faces = mesh.face_per_triangle()
     cfg = FoveationConfig(max_layers=3)
@@ -172,7 +173,8 @@ def test_layer_subsets_give_the_pixels_of_the_whole_mesh(gl_context, default_scr
     model, view, proj, poi, poi_screen, ppd, head = _still_view(default_screen, terrain_scene, viewpoint, size,
                                                                 (0.45, 0.55))
     mesh = terrain_scene.mesh.share()
-    levels, _ = place(terrain_scene, viewpoint).selector("csf", "none", hysteresis=False).select(View(head, poi_screen))
+    selector = RawViews(place(terrain_scene, viewpoint).selector("csf", "none", hysteresis=False))
+    levels, _ = selector.select(View(head, poi_screen))
     idx, lv = mesh.update_indices(levels)
     renderer = TerrainRenderer(gl_context, size=size)
     renderer.upload(mesh.vertex_positions, mesh.vertex_normals, lv, idx)

@@ -19,6 +19,7 @@ from headplod.plod import criteria
 from headplod.plod import perception as pc
 from headplod.plod.select import GAZE_PRIOR_DEG, MAX_GAZE_PRIOR_DEG, SelectorConfig
 from headplod.plod.view import ViewConditioner, gaze_covariance, still_view
+from raw_views import RawViews
 
 # The nodes' moments are sums of a few dozen products of O(10²) deg² terms: exact but for rounding.
 MOMENT_TOL = 1e-9
@@ -163,7 +164,7 @@ def test_hybrid_is_sse_at_share_0_and_change_at_share_1():
 def _levels(scene, view, mode, **settings):
     """Levels (F,) and features of a hysteresis-free selector over ``scene`` (render.still.TerrainScene.selector,
     as bench.harness.mesh_step makes it), for one still view, with the scenario ``none``: the prior alone."""
-    return scene.selector(mode, "none", hysteresis=False, **settings).select(view)
+    return RawViews(scene.selector(mode, "none", hysteresis=False, **settings)).select(view)
 
 
 @pytest.mark.slow

@@ -7,6 +7,7 @@ from headplod.bench.quadtree_selector import scene_quadtree_selector
 from headplod.plod.lazy_mesh import LazyAdaptiveMesh
 from headplod.plod.mesh import AdaptiveMesh, BaseMesh
 from headplod.plod.terrain import Terrain
+from raw_views import RawViews
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +78,7 @@ def test_equals_adaptive_mesh_on_the_built_in_scene():
     lazy = LazyAdaptiveMesh(adaptive.base, scene.terrain, max_level=5)
     for name in ("centroids", "corners", "edge_length", "geometric_error", "contrast"):
         np.testing.assert_array_equal(getattr(adaptive, name), getattr(lazy, name), err_msg=name)
-    selector = scene_quadtree_selector(scene, "csf", "adaptive")
+    selector = RawViews(scene_quadtree_selector(scene, "csf", "adaptive"))
     levels, _ = selector.select(View(default_head(screen), np.array(screen.size_px, dtype=np.float64) / 2,
                                      TRACKER_COV_DEG2, 0.0))
     assert len(np.unique(levels)) >= 4                          # neighbours at mixed levels
@@ -241,7 +242,7 @@ def test_level_8_default_view_builds_within_the_budget():
     scene.mesh = lazy
     head, poi = default_head(screen), np.array(screen.size_px, dtype=np.float64) / 2
     for bias in (0.0, 3.0):
-        selector = scene_quadtree_selector(scene, "csf", "adaptive", level_bias=bias)
+        selector = RawViews(scene_quadtree_selector(scene, "csf", "adaptive", level_bias=bias))
         levels, _ = selector.select(View(head, poi, TRACKER_COV_DEG2, 0.0))
         positions, normals, tri_levels = lazy.update(levels)
         assert len(tri_levels) == lazy.triangle_count(levels) > 0

@@ -11,6 +11,7 @@ from headplod.plod.select import View
 from headplod.bench.stability import level_changes, levels_sequence, plot_stability, stability_report, still_head_views
 from headplod.render import TerrainRenderer
 from headplod.render.still import TerrainScene
+from raw_views import RawViews
 
 FRAMES = 40
 WARMUP = 10
@@ -66,7 +67,7 @@ def test_the_truth_driven_reference_is_still(still, renderer):
 def _still_then_jump(still, renderer, uncertainty, jump_px=300.0):
     """Levels of the last still frame, of the frame after a POI jump, its features, and a fresh selection."""
     tracked, _, scene = still
-    selector = scene.selector("csf", uncertainty, hysteresis=True)
+    selector = RawViews(scene.selector("csf", uncertainty, hysteresis=True))
     levels = [selector.select(view)[0] for view in tracked]
     last = tracked[-1]
     moved = View(last.eye_mm, np.asarray(last.poi_px) + [jump_px, 0.0], last.cov_deg2,

@@ -7,6 +7,8 @@ import pytest
 from headplod.bench.quadtree_selector import QuadTree, QuadtreeSelector, scene_quadtree_selector
 from headplod.plod.criteria import sup_max_visible_freq_cpd
 from headplod.plod.select import LevelSelector, SelectorConfig, View
+from headplod.plod.view import ViewConditioner
+from raw_views import RawViews
 
 
 def _pair(mesh, model, screen, config=SelectorConfig(mode="csf"), grid_shape=(32, 32)):
@@ -46,7 +48,7 @@ def test_quadtree_levels_equal_the_flat_ones_on_the_builtin_scene(terrain_scene,
     from headplod.demo.viewpoints import place
 
     scene = terrain_scene if viewpoint is None else place(terrain_scene, viewpoint)
-    flat, tree = _pair(builtin, scene.model, scene.screen)
+    flat, tree = (RawViews(s) for s in _pair(builtin, scene.model, scene.screen))
     # A first frame, then noise and a POI sweeping in (hysteresis, its eager band, the filters' jumps).
     for moving in (False, True):
         for view in _views(scene.screen, POIS[poi], cov, 6, seed=len(poi), moving=moving):
@@ -65,7 +67,7 @@ def test_the_scene_gives_a_quadtree_selector_on_request(terrain_scene):
     assert isinstance(sel, QuadtreeSelector) and (sel.tree.nx, sel.tree.ny) == (32, 32)
     flat = terrain_scene.selector("csf", "adaptive")
     view = _views(terrain_scene.screen, POIS["centre"], None, 1, seed=0, moving=False)[0]
-    np.testing.assert_array_equal(flat.select(view)[0], sel.select(view)[0])
+    np.testing.assert_array_equal(RawViews(flat).select(view)[0], RawViews(sel).select(view)[0])
 
 
 @pytest.mark.slow
@@ -74,7 +76,7 @@ def test_the_scene_gives_a_quadtree_selector_on_request(terrain_scene):
                                       {"uncertainty": "fixed"}])
 def test_quadtree_equals_flat_in_other_settings(terrain_scene, builtin, settings):
     config = dataclasses.replace(SelectorConfig(mode="csf"), **settings)
-    flat, tree = _pair(builtin, terrain_scene.model, terrain_scene.screen, config)
+    flat, tree = (RawViews(s) for s in _pair(builtin, terrain_scene.model, terrain_scene.screen, config))
     for view in _views(terrain_scene.screen, POIS["centre"], ((0.3, 0), (0, 0.2)), 8, seed=3, moving=True):
         np.testing.assert_array_equal(flat.select(view)[0], tree.select(view)[0])
 
@@ -125,8 +127,8 @@ def test_node_bounds_are_conservative_for_random_views(default_screen, hills):
         flat, tree = _pair(hills, model, default_screen, config, grid_shape=hills["grid_shape"])
         cov = None if trial % 3 == 0 else np.diag(rng.uniform(0.01, 4.0, 2))
         view = View(head + rng.uniform(-150, 150, 3), rng.uniform([-300, -300], [W + 300, H + 300]), cov, None)
-        _, info = flat.select(view)
-        cv = tree.condition(view)
+        cv = ViewConditioner(default_screen, config)(view)        # t None: the filters are bypassed
+        _, info = flat.select(cv)
         frame = tree._frame_context(cv.eye_mm, cv.axes, cv.cov_deg2)
         faces = np.arange(len(hills["centroids"]))
         for d, nodes in enumerate(tree.tree.ancestors(faces)):
@@ -179,9 +181,10 @@ def test_cost_follows_what_is_seen_on_a_fine_grid(default_screen):
     terrain = Terrain.jacksboro()
     g = grid_inputs(terrain, 256, 256)
     flat, tree = _pair(g, default_model(terrain, default_screen), default_screen, grid_shape=g["grid_shape"])
+    raw_flat, raw_tree = RawViews(flat), RawViews(tree)
     F = len(g["centroids"])
     for view in default_views(default_screen, 3):
-        np.testing.assert_array_equal(flat.select(view)[0], tree.select(view)[0])
+        np.testing.assert_array_equal(raw_flat.select(view)[0], raw_tree.select(view)[0])
         st = tree.last_stats
         assert st["nodes_visited"] < 0.2 * F and st["triangles_evaluated"] < 0.2 * F, st
 
@@ -196,3 +199,13 @@ def test_the_selection_bench_runs_both_selectors_through_frame_steps(default_scr
     assert row["mismatched_levels"] == 0 and row["levels_above_0"] > 0
     assert row["flat_ms"] > 0 and row["quadtree_ms"] > 0 and 0 < row["nodes_visited"] <= row["tree_nodes"]
     assert report["growth_2M_to_128M"] == {"256x256_level5": None, "32x32_level8": None}
+
+
+def test_the_quadtree_selector_takes_only_a_conditioned_view(default_screen, hills):
+    """Like the flat selector, it conditions nothing: a raw View is a TypeError."""
+    from headplod.render.still import default_head
+
+    _, tree = _pair(hills, np.eye(4), default_screen, grid_shape=hills["grid_shape"])
+    with pytest.raises(TypeError, match=r"^QuadtreeSelector\.select takes a ConditionedView .*, got View$"):
+        tree.select(View(default_head(default_screen), np.array([960.0, 540.0])))
+    assert not hasattr(tree, "conditioner") and not hasattr(tree, "condition")

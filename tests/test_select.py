@@ -5,6 +5,7 @@ import pytest
 from conftest import field_change_features
 from headplod.plod.select import MODES, LevelSelector, SelectorConfig, View
 from headplod.plod.view import head_axes
+from raw_views import RawViews
 
 MAX_LEVEL = 5
 
@@ -25,7 +26,7 @@ def make(field, mode="csf", uncertainty="adaptive", hysteresis=True):
 def test_levels_follow_the_poi(field):
     screen, *_, eye, px = field
     for poi in ([300.0, 300.0], [1600.0, 800.0]):
-        levels, _ = make(field, hysteresis=False).select(View(eye, np.array(poi)))
+        levels, _ = RawViews(make(field, hysteresis=False)).select(View(eye, np.array(poi)))
         nearest = np.argmin(np.linalg.norm(px - poi, axis=1))
         farthest = np.argmax(np.linalg.norm(px - poi, axis=1))
         assert levels[nearest] > levels[farthest]
@@ -35,9 +36,9 @@ def test_levels_follow_the_poi(field):
 def test_uncertainty_widens_the_detailed_disc(field):
     *_, eye, px = field
     poi = np.array([960.0, 540.0])
-    sharp, _ = make(field, uncertainty="adaptive", hysteresis=False).select(View(eye, poi, None))
+    sharp, _ = RawViews(make(field, uncertainty="adaptive", hysteresis=False)).select(View(eye, poi, None))
     cov = np.diag([4.0, 4.0])          # 2° standard deviation
-    wide, _ = make(field, uncertainty="adaptive", hysteresis=False).select(View(eye, poi, cov))
+    wide, _ = RawViews(make(field, uncertainty="adaptive", hysteresis=False)).select(View(eye, poi, cov))
     assert (wide == wide.max()).sum() > (sharp == sharp.max()).sum()
     assert np.all(wide >= sharp)       # the shift only moves triangles toward the POI
 
@@ -45,16 +46,16 @@ def test_uncertainty_widens_the_detailed_disc(field):
 def test_every_mode_gives_valid_levels(field):
     *_, eye, px = field
     for mode in MODES:
-        levels, _ = make(field, mode=mode, hysteresis=False).select(View(eye, np.array([960.0, 540.0])))
+        levels, _ = RawViews(make(field, mode=mode, hysteresis=False)).select(View(eye, np.array([960.0, 540.0])))
         assert levels.dtype.kind == "i" and levels.min() >= 0 and levels.max() <= MAX_LEVEL, mode
-    full, _ = make(field, mode="full").select(View(eye, np.array([960.0, 540.0])))
+    full, _ = RawViews(make(field, mode="full")).select(View(eye, np.array([960.0, 540.0])))
     assert np.all(full == MAX_LEVEL)
 
 
 def test_noisy_still_head_does_not_flicker_with_hysteresis(field):
     *_, eye, px = field
     rng = np.random.default_rng(0)
-    selector = make(field, uncertainty="smoothed")
+    selector = RawViews(make(field, uncertainty="smoothed"))
     changes = []
     previous = None
     for k in range(40):
@@ -76,10 +77,10 @@ def test_fixed_uncertainty_gives_the_2_sigma_ellipse_full_detail(field):
     *_, eye, px = field
     poi = np.array([960.0, 540.0])
     cov = np.diag([1.5 ** 2, 3.0 ** 2])
-    sel = make(field, uncertainty="fixed", hysteresis=False)
+    sel = RawViews(make(field, uncertainty="fixed", hysteresis=False))
     view = View(eye, poi, cov)
     levels, info = sel.select(view)
-    offsets = pc.view_offsets_deg(sel.centroids_mm, eye, head_axes(sel.screen, eye, poi))
+    offsets = pc.view_offsets_deg(sel.selector.centroids_mm, eye, head_axes(sel.selector.screen, eye, poi))
     maha = np.sqrt(np.einsum("ij,jk,ik->i", offsets, np.linalg.inv(cov), offsets))
     inside = maha <= 2.0
     assert inside.sum() > 20
@@ -88,7 +89,7 @@ def test_fixed_uncertainty_gives_the_2_sigma_ellipse_full_detail(field):
     screen, centroids, edge_len, error, contrast, _, _ = field
     eq1 = LevelSelector(centroids, edge_len, error, contrast, np.eye(4), screen,
                         SelectorConfig(mode="csf", uncertainty="fixed", hysteresis=False, shift="eq1"))
-    eq1_levels, _ = eq1.select(view)
+    eq1_levels, _ = RawViews(eq1).select(view)
     assert np.mean(eq1_levels[inside] == MAX_LEVEL) < 1.0
 
 
@@ -96,7 +97,7 @@ def test_fixed_uncertainty_gives_the_2_sigma_ellipse_full_detail(field):
 def test_steady_head_motion_passes_the_smoothing(field):
     """A head translating steadily: the triangles' angular speed is measured at its true value."""
     screen, centroids, *_, eye, px = field
-    sel = make(field, hysteresis=False)
+    sel = RawViews(make(field, hysteresis=False))
     right = np.asarray(screen.top_right, float) - screen.top_left
     right /= np.linalg.norm(right)
     speed_mm_s = 300.0
@@ -124,7 +125,7 @@ def test_a_steady_pursuit_is_not_taken_for_jumps(field):
     right = np.asarray(screen.top_right, float) - screen.top_left
     right /= np.linalg.norm(right)
     rng = np.random.default_rng(0)
-    sel = make(field, hysteresis=False)
+    sel = RawViews(make(field, hysteresis=False))
     levels = []
     for k in range(40):
         # Steps of 25 to 41 px (a real pursuit's unevenness around 33 px a frame).
@@ -146,3 +147,21 @@ def test_level_statistics_counts_reversals_not_progress():
     pingpong = np.array([[0, 5], [1, 5], [0, 5], [1, 5], [1, 4], [1, 5]])   # A-B-A twice, then B-A... back
     stats = level_statistics(pingpong, warmup=0)
     assert stats["changes"] == 1.0 and stats["flicker"] == pytest.approx(3 / 5)
+
+
+@pytest.mark.parametrize("mode", ["csf", "full"])
+def test_select_takes_only_a_conditioned_view(field, mode):
+    """The selector owns no ViewConditioner: a raw View is refused with a one-line TypeError (in mode
+    ``full`` too, which reads nothing of the view), and the same view conditioned is accepted."""
+    from headplod.plod.view import ViewConditioner
+
+    *_, eye, px = field
+    sel = make(field, mode=mode)
+    raw = View(eye, np.array([960.0, 540.0]))
+    with pytest.raises(TypeError, match=r"^LevelSelector\.select takes a ConditionedView .*, got View$") as err:
+        sel.select(raw)
+    assert "\n" not in str(err.value)
+    assert not any(isinstance(v, ViewConditioner) for v in vars(sel).values())
+    assert not hasattr(sel, "conditioner") and not hasattr(sel, "condition")
+    levels, _ = sel.select(ViewConditioner(sel.screen, sel.config)(raw))
+    assert levels.shape == (len(sel.centroids_mm),) and levels.max() > 0

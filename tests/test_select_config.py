@@ -9,6 +9,7 @@ import pytest
 from conftest import field_change_features
 from headplod.plod import perception as pc
 from headplod.plod.select import MODES, UNCERTAINTY_MODES, LevelSelector, SelectorConfig, View
+from raw_views import RawViews
 
 MAX_LEVEL = 5
 
@@ -69,7 +70,7 @@ def run(field, config, frames=36):
     rng = np.random.default_rng(7)
     right = np.asarray(screen.top_right, float) - screen.top_left
     right /= np.linalg.norm(right)
-    sel = make(field, config)
+    sel = RawViews(make(field, config))
     levels, continuous = [], []
     for k in range(frames):
         t = k / 60
@@ -155,7 +156,7 @@ def test_levels_follow_from_the_config(field, settings):
     """A fixed view's levels are the perception functions' with the config's values (defaults and others)."""
     cfg = SelectorConfig(**settings)
     poi, cov = np.array([700.0, 450.0]), np.diag([1.0, 0.5])
-    levels, info = make(field, cfg).select(View(field[5], poi, cov, 0.0))
+    levels, info = RawViews(make(field, cfg)).select(View(field[5], poi, cov, 0.0))
     expected, seen = _expected_first_frame(field, cfg, poi, cov)
     assert 0 < seen.sum() < len(seen)
     np.testing.assert_allclose(info["continuous"], expected, rtol=1e-9, atol=1e-9)

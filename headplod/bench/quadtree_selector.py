@@ -22,7 +22,8 @@ import numpy as np
 
 from ..plod import criteria, cull
 from ..plod import perception as pc
-from ..plod.select import LevelSelector, SelectorConfig, View
+from ..plod.select import LevelSelector, SelectorConfig
+from ..plod.view import ConditionedView, require_conditioned
 from ..tol import tol
 
 HIERARCHY_MODES = ("csf", "gp", "distance", "full")
@@ -133,7 +134,7 @@ class QuadTree:
 
 
 class QuadtreeSelector(LevelSelector):
-    """:class:`LevelSelector` with the same ``select(View) -> (levels, info)``, walking a :class:`QuadTree`.
+    """:class:`LevelSelector` with the same ``select(ConditionedView) -> (levels, info)``, walking a :class:`QuadTree`.
 
     ``LevelSelector``'s arguments, with ``corners_scene`` required and ``grid_shape = (ny, nx)`` (the base
     triangles of ``BaseMesh.grid(terrain, nx, ny)``, in its order). ``info``: ``poi_px``, ``cov_deg2`` and, for
@@ -194,12 +195,13 @@ class QuadtreeSelector(LevelSelector):
                                             csf_model=cfg.csf, foveal_cpd=row[:, 11] if kelly else None,
                                             level_bias=float(cfg.level_bias))
 
-    def select(self, view: View):
-        """Levels (F,) int, equal to ``LevelSelector.select``'s; info (class notes)."""
+    def select(self, view: ConditionedView):
+        """Levels (F,) int for the frame's conditioned ``view``, equal to ``LevelSelector.select``'s; info (class
+        notes)."""
+        require_conditioned(view, f"{type(self).__name__}.select")
         cfg = self.config
         if cfg.mode == "full":
             return super().select(view)
-        view = self.condition(view)
         eye, axes, cov = view.eye_mm, view.axes, view.cov_deg2
         if view.restart and self.hysteresis is not None:
             self.hysteresis.reset()

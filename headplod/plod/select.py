@@ -51,7 +51,7 @@ import numpy as np
 from . import criteria, cull
 from .csf import CORTICAL_EXPONENT, display_nyquist_cpd
 from . import perception as pc
-from .view import UNCERTAINTY_MODES, ConditionedView, UncertaintyPolicy, View, ViewConditioner  # noqa: F401
+from .view import UNCERTAINTY_MODES, ConditionedView, UncertaintyPolicy, View, require_conditioned  # noqa: F401
 from ..tol import tol
 
 MODES = ("hybrid", "change", "csf", "gp", "acuity", "sse", "ipv", "dpv", "distance", "full")
@@ -385,9 +385,6 @@ class LevelSelector:
             self.normal_cone_deg = np.asarray(cone, dtype=np.float64)
         self.screen = screen
         self.px_per_mm = screen.size_px[0] / float(np.linalg.norm(np.asarray(screen.top_right) - screen.top_left))
-        # A raw View given to select() is conditioned here; the frame step conditions once per frame
-        # (headplod.render.frame) and passes the ConditionedView to every back end.
-        self.conditioner = ViewConditioner(screen, config)
         # Eq. 4 and the screen-space error round up; Ohshima's eq. 6 takes the
         # finest level whose edges are long enough, which rounds down.
         self.rounding = "floor" if config.mode == "acuity" else "ceil"
@@ -397,16 +394,12 @@ class LevelSelector:
         self._visibility = None        # mode change: the seen triangles' per-level visibility (S, L+1), last frame
         self._foveal_cache = None      # (contrast, seen, speed, foveal f_max) of the last frame
 
-    def condition(self, view: View | ConditionedView) -> ConditionedView:
-        """``view`` conditioned by this selector's :class:`ViewConditioner` (a raw :class:`View`), or as given."""
-        return view if isinstance(view, ConditionedView) else self.conditioner(view)
-
-    def select(self, view: View | ConditionedView):
+    def select(self, view: ConditionedView):
         """Levels (F,) int, and the continuous levels and per-triangle features used (dict).
 
-        ``view``: the frame's :class:`ConditionedView` (from the frame step's
-        conditioner), or a raw :class:`View`, conditioned here first (one call
-        per frame either way: the conditioner's filters advance).
+        ``view``: the frame's :class:`ConditionedView`, from the frame step's
+        :class:`headplod.plod.view.ViewConditioner` (the selector conditions
+        nothing: a raw :class:`View` is refused with a TypeError).
 
         The features are NaN for base triangles outside the view (frustum-culled: level 0).
         ``full`` computes nothing: every base triangle at the finest level, features NaN.
@@ -414,6 +407,7 @@ class LevelSelector:
         (2,) screen px, after the One Euro filter, and ``cov_deg2`` (2, 2)
         deg² or None, after the scenario's policy (not for ``full``).
         """
+        require_conditioned(view, f"{type(self).__name__}.select")
         cfg = self.config
         if cfg.mode == "full":        # no criterion to evaluate (and no culling: the reference mesh)
             n = len(self.centroids_mm)
@@ -421,7 +415,6 @@ class LevelSelector:
             return (np.full(n, self.max_level, dtype=np.int64),
                     {"eccentricity_deg": nan, "speed_deg_s": nan.copy(), "distance_mm": nan.copy(),
                      "continuous": np.full(n, float(self.max_level))})
-        view = self.condition(view)
         eye, cov = view.eye_mm, view.cov_deg2
         if view.restart and self.hysteresis is not None:
             self.hysteresis.reset()
@@ -634,8 +627,7 @@ class LevelSelector:
         return criteria.angular_speed_deg_s(directions, previous[2], t - previous[0])
 
     def reset(self):
-        """Forget the last frame: the conditioner's filters, the speeds and the hysteresis."""
-        self.conditioner.reset()
+        """Forget the last frame: the speeds and the hysteresis."""
         self._previous = None
         if self.hysteresis is not None:
             self.hysteresis.reset()

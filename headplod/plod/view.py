@@ -35,7 +35,7 @@ from ..filters import OneEuroFilter
 from ..angles import angle_between_deg
 
 __all__ = ["UNCERTAINTY_MODES", "View", "ConditionedView", "UncertaintyPolicy", "ViewConditioner", "head_axes",
-           "poi_direction", "default_head", "still_view", "gaze_covariance"]
+           "poi_direction", "default_head", "still_view", "gaze_covariance", "require_conditioned"]
 
 UNCERTAINTY_MODES = ("none", "fixed", "adaptive", "smoothed")
 """Which covariance the selection uses (:attr:`SelectorConfig.uncertainty`, :class:`UncertaintyPolicy`)."""
@@ -126,6 +126,14 @@ class ConditionedView:
     def gaze(self) -> np.ndarray:
         """(3,) unit vector V from the filtered eye to the filtered POI, world frame."""
         return self.axes[2]
+
+
+def require_conditioned(view, where: str) -> None:
+    """Raise TypeError unless ``view`` is a :class:`ConditionedView`: a back end (``where``, e.g.
+    ``"LevelSelector.select"``) reads only conditioned views and conditions nothing itself."""
+    if not isinstance(view, ConditionedView):
+        raise TypeError(f"{where} takes a ConditionedView (condition the raw view first with a ViewConditioner, "
+                        f"as the frame step does), got {type(view).__name__}")
 
 
 def head_axes(screen, eye_mm, poi_px) -> np.ndarray:
