@@ -101,9 +101,8 @@ class RigChecks:
 
     Parameters
     ----------
-    config : TrackerConfig
-    model_mm : (5, 3) float
-        The marker model, glasses frame, mm.
+    config, model_mm
+        As :class:`~.acquire.Identifier`'s (the settings; the marker model in G, mm).
     """
 
     def __init__(self, config, model_mm: np.ndarray):

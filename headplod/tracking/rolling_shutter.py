@@ -31,9 +31,8 @@ class RollingShutter:
 
     Parameters
     ----------
-    config : TrackerConfig
-    model_mm : (5, 3) float
-        The marker model, glasses frame, mm.
+    config, model_mm
+        As :class:`~.acquire.Identifier`'s (the settings; the marker model in G, mm).
     rig : RigInUse
     motion : HeadMotion
     """
