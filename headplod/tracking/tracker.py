@@ -296,19 +296,9 @@ class Tracker:
         return self.parts.rig.rig
 
     @property
-    def calibrated_rig(self):
-        """rig.yaml's rig."""
-        return self.parts.rig.calibrated_rig
-
-    @property
     def refiner(self):
         """The rig's online refinement (:class:`~.rig_refine.RigRefiner`), None before the first frame."""
         return self.parts.rig.refiner
-
-    @property
-    def uncertainty(self):
-        """The covariance of V's estimator."""
-        return self.parts.covariance.estimator
 
     @property
     def time_jumps(self) -> int:
