@@ -67,7 +67,7 @@ def _identified(scene, frame):
     dataset, _, config, model_mm, axes_G = scene
     rig = RigInUse(dataset.rig, model_mm, config)
     blobs = Detector(config).detect((frame.left, frame.right))
-    match, reason = Identifier(config, model_mm, axes_G).identify(blobs, rig.geometry)
+    match, reason, _ = Identifier(config, model_mm, axes_G).identify(blobs, rig.geometry)
     assert match is not None, reason
     return match, rig
 

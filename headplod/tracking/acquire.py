@@ -15,6 +15,8 @@ of centres already labelled (:meth:`Identifier.match_from_centers`, the
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from . import geometry as geo
@@ -40,6 +42,19 @@ def _scale_hint(points_mm: np.ndarray, model_mm: np.ndarray) -> str:
         return ""
     return (f"; the markers seen are {seen / model:.3g} times the size of the marker model: "
             "is markers.yaml in mm (docs/contract.md), and is it these glasses?")
+
+
+class Identification(NamedTuple):
+    """An identification's outcome: the labelled markers or the reason for none, and its cost.
+
+    ``hypotheses``: the labelled five-marker hypotheses scored (triangulated
+    and fitted to the model), the identification's cost in units that do
+    not depend on the machine.
+    """
+
+    match: Match | None
+    reason: str | None
+    hypotheses: int = 0
 
 
 class Identifier:
@@ -87,39 +102,39 @@ class Identifier:
         order = np.lexsort((-b.flux_dn, penalty))
         return order[: self.ident_config.max_candidates]
 
-    def identify(self, blobs, g) -> tuple[Match | None, str | None]:
+    def identify(self, blobs, g) -> Identification:
         """The five markers labelled in the (left, right) :class:`~.detect.Blobs`, on the rig ``g``
-        (:class:`~.tracker_rig.RigGeometry`): (match, None), or (None, the reason for none)."""
+        (:class:`~.tracker_rig.RigGeometry`), or the reason for none."""
         cand = [self.candidates(b) for b in blobs]
         counts = [len(c) for c in cand]
         names = ("left", "right")
         if min(counts) < 4 or (max(counts) < 5):
             cam = int(np.argmin(counts))
-            return None, f"{names[cam]} image: {counts[cam]} marker blobs, 5 needed"
+            return Identification(None, f"{names[cam]} image: {counts[cam]} marker blobs, 5 needed")
         hyps = [find_hypotheses(blobs[i].centers_px[cand[i]], self.rule) if counts[i] >= 5 else None
                 for i in range(2)]
         xn = [geo.undistort(blobs[0].centers_px[cand[0]], g.rig.K1, g.rig.D1),
               geo.undistort(blobs[1].centers_px[cand[1]], g.rig.K2, g.rig.D2)]
-        match, reason = None, None
+        match, reason, scored = None, None, [0]
         if hyps[0] is not None and hyps[1] is not None and len(hyps[0]) and len(hyps[1]):
-            match, reason = self._best_pair(hyps, xn, cand, blobs, g)
+            match, reason = self._best_pair(hyps, xn, cand, blobs, g, scored)
         if match is None and self.ident_config.hidden_marker:
-            alt, alt_reason = self._hidden_marker(hyps, xn, cand, blobs, g)
+            alt, alt_reason = self._hidden_marker(hyps, xn, cand, blobs, g, scored)
             if alt is not None:
-                return alt, None
+                return Identification(alt, None, scored[0])
             reason = reason or alt_reason
         if match is None and reason is None:
             missing = [names[i] for i in range(2) if hyps[i] is None or not len(hyps[i])]
             reason = (f"{' and '.join(missing)} image: no five blobs in the markers' layout (three in a line "
                       "and two beside)" if missing else "no consistent stereo identification")
-        return match, reason
+        return Identification(match, reason, scored[0])
 
     @staticmethod
     def _epipolar_matrix(xn, g) -> np.ndarray:
         """Epipolar error (px) of every left candidate against every right one: (m_left, m_right)."""
         return geo.epipolar_error_px(xn[0][:, None, :], xn[1][None, :, :], g.E, *g.focal)
 
-    def _best_pair(self, hyps, xn, cand, blobs, g) -> tuple[Match | None, str | None]:
+    def _best_pair(self, hyps, xn, cand, blobs, g, scored) -> tuple[Match | None, str | None]:
         """The left/right pair of labelings that best fits the epipolar geometry and the model.
 
         Pairs are screened by a lookup in the candidates' epipolar-error
@@ -142,6 +157,7 @@ class Identifier:
                                f"one of the right blobs within the epipolar tolerance ({tol:.1f} px)")
                 continue
             il, ir, epi = il[keep], ir[keep], epi[keep]
+            scored[0] += len(il)
             xl = xn[0][hl.index[il]]            # (P, 5, 2)
             xr = xn[1][hr.index[ir]]
             points, _ = geo.triangulate_midpoint(xl, xr, g.rig.R, g.rig.T)
@@ -165,7 +181,7 @@ class Identifier:
             return self._make_match(blobs, index, epi[best], points[best], R[best], t[best], rms[best]), None
         return None, best_reason
 
-    def _hidden_marker(self, hyps, xn, cand, blobs, g) -> tuple[Match | None, str | None]:
+    def _hidden_marker(self, hyps, xn, cand, blobs, g, scored) -> tuple[Match | None, str | None]:
         """One marker hidden in one view: label the full view, match the other's blobs to it.
 
         For each labeled marker, the other view's blobs within the epipolar
@@ -199,6 +215,7 @@ class Identifier:
             labels_full = (h.index[h.rank == 0] if (h.rank == 0).any() else h.index)[np.concatenate(hyp_of_row)]
             if len(assignments) == 0:
                 continue
+            scored[0] += len(assignments)
             xf = xn[full][labels_full]                                   # (P, 5, 2)
             xo = xn[other][np.maximum(assignments, 0)]
             weights = (assignments >= 0).astype(np.float64)

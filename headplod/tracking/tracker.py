@@ -146,6 +146,9 @@ class TrackResult:
         What happened to the tracker's state at this frame, for a person
         (e.g. a time discontinuity that reset the motion); in the record's
         ``notes``.
+    hypotheses : int
+        Labelled five-marker hypotheses the identification scored in this
+        pass (0 when the markers were re-measured): its cost, counted.
     """
 
     ok: bool
@@ -166,6 +169,7 @@ class TrackResult:
     rig: dict | None = None
     rig_message: str | None = None
     notes: list = field(default_factory=list)
+    hypotheses: int = 0
 
     def record_extras(self) -> dict:
         """JSON-ready diagnostics for a pose record (the contract allows more keys)."""
@@ -448,11 +452,11 @@ class Tracker:
         """One pass: measure (track or acquire), fit and check, the covariance of V, the rig's refinement."""
         p, images, t, t_right = self.parts, frame.images, frame.t, frame.t_right
         timings, start = frame.timings, frame.start
-        match, mode, reason, blobs = self._measure(images, tracking, timings)
+        match, mode, reason, blobs, hypotheses = self._measure(images, tracking, timings)
         if match is None:
             self._markers = _ACQUIRE
             timings["total"] = time.perf_counter() - start
-            return _Pass(TrackResult(False, reason, mode=mode, timings_s=timings, blobs=blobs))
+            return _Pass(TrackResult(False, reason, mode=mode, timings_s=timings, blobs=blobs, hypotheses=hypotheses))
         fit = p.fitter.fit(match, t, t_right, timings)
         failure = None
         if (fit.reason or fit.withheld or "").startswith(_RIG_FAILURES):
@@ -461,7 +465,8 @@ class Tracker:
             self._markers = _ACQUIRE
             timings["total"] = time.perf_counter() - start
             return _Pass(TrackResult(False, fit.reason, centers_px=match.centers, residuals_px=fit.residuals,
-                                     mode=mode, timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
+                                     mode=mode, timings_s=timings, blobs=blobs, hypotheses=hypotheses,
+                                     marker_blob=match.blob_index,
                                      rig=p.rig.status(), rig_message=p.rig.message()), fit, failure)
         motion_gain, motion_cov = p.fitter.motion_terms(t, t_right, fit.fitted)
         motion_note = self._remember(match, frame, fit, blobs, mode)
@@ -477,7 +482,8 @@ class Tracker:
         if not np.isfinite(cov).all() or np.linalg.det(cov) <= 0:
             timings["total"] = time.perf_counter() - start
             return _Pass(TrackResult(False, f"no covariance of V from the {p.covariance.name} estimator "
-                                            "(too few marker pixels?)", mode=mode, timings_s=timings, blobs=blobs),
+                                            "(too few marker pixels?)", mode=mode, timings_s=timings, blobs=blobs,
+                                 hypotheses=hypotheses),
                          fit, failure, motion_note)
         withheld = fit.withheld
         sd_deg = math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0))
@@ -494,24 +500,25 @@ class Tracker:
         if withheld is not None:
             self._markers = MarkerState.kept(self._markers.lock, withheld=True)
             return _Pass(TrackResult(False, withheld, centers_px=match.centers, residuals_px=fit.residuals,
-                                     mode=mode, timings_s=timings, blobs=blobs, marker_blob=match.blob_index,
+                                     mode=mode, timings_s=timings, blobs=blobs, hypotheses=hypotheses,
+                                     marker_blob=match.blob_index,
                                      rig=p.rig.status(), rig_message=p.rig.message(fit.disagrees)),
                          fit, failure, motion_note)
         axes = self.axes_G @ fit.R.T
         return _Pass(TrackResult(True, None, fit.p1, axes, fit.R, match.centers, fit.residuals, match.epipolar,
-                                 match.fit_rms, mode, timings, blobs, match.blob_index, cov_deg2=cov,
+                                 match.fit_rms, mode, timings, blobs, match.blob_index, cov_deg2=cov, hypotheses=hypotheses,
                                  cov_input=cov_input, rig=p.rig.status(), rig_message=p.rig.message(fit.disagrees)),
                      fit, failure, motion_note)
 
     def _measure(self, images, tracking: bool, timings: dict):
-        """The markers of this frame: (match or None, mode, reason for none, blobs).
+        """The markers of this frame: (match or None, mode, reason for none, blobs, hypotheses scored).
 
         *Track* (``tracking``: a lock on the last frame's markers): re-measure
         them in small windows; *acquire* (no lock, or the re-measure failed):
         detect every blob and identify the five markers.
         """
         p = self.parts
-        match, mode, reason, blobs = None, "acquire", None, (None, None)
+        match, mode, reason, blobs, hypotheses = None, "acquire", None, (None, None), 0
         if tracking:
             t_det = time.perf_counter()
             match = self._remeasure(images)
@@ -522,10 +529,10 @@ class Tracker:
             blobs = p.detector.detect(images)
             timings["detect"] = timings.get("detect", 0.0) + time.perf_counter() - t_det
             t_id = time.perf_counter()
-            match, reason = p.identifier.identify(blobs, p.rig.geometry)
+            match, reason, hypotheses = p.identifier.identify(blobs, p.rig.geometry)
             timings["identify"] = timings.get("identify", 0.0) + time.perf_counter() - t_id
             mode = "acquire"
-        return match, mode, reason, blobs
+        return match, mode, reason, blobs, hypotheses
 
     def _remeasure(self, images) -> Match | None:
         """The locked markers re-measured in small windows, labelled as before; None to re-acquire."""
