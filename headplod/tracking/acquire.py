@@ -21,7 +21,7 @@ import numpy as np
 
 from . import geometry as geo
 from .detect import Blobs
-from .identify import ModelRule, find_hypotheses
+from .identify import DISTANCE_TOL_PER_FIT_TOL, find_labelings, model_distances, stereo_points
 from .lock import Match
 from ..angles import angle_between_deg
 
@@ -42,6 +42,32 @@ def _scale_hint(points_mm: np.ndarray, model_mm: np.ndarray) -> str:
         return ""
     return (f"; the markers seen are {seen / model:.3g} times the size of the marker model: "
             "is markers.yaml in mm (docs/contract.md), and is it these glasses?")
+
+
+# Cost of one glint-like blob in a labeling, in units of a full tolerance: a tie-breaker.
+_GLINT_COST = 0.1
+
+
+def _distinct(index: np.ndarray) -> np.ndarray:
+    """Rows (H, n) of ``index`` whose entries are all different: (H,) bool."""
+    s = np.sort(index, axis=1)
+    return (s[:, 1:] != s[:, :-1]).all(axis=1)
+
+
+class _Budget:
+    """A frame's identification budget: each search (all five markers; one hidden) fits at most ``limit``
+    labelings, the best first; how many were offered and fitted, and whether any search was cut."""
+
+    def __init__(self, limit: int):
+        self.limit, self.scored, self.offered, self.cut = limit, 0, 0, False
+
+    def take(self, offered: int) -> int:
+        """How many of a search's ``offered`` labelings (best first) it may fit."""
+        allowed = min(offered, self.limit)
+        self.offered += offered
+        self.scored += allowed
+        self.cut |= allowed < offered
+        return allowed
 
 
 class Identification(NamedTuple):
@@ -73,7 +99,7 @@ class Identifier:
         self.ident_config = config
         self.ident_model_mm = model_mm
         self.ident_axes_G = axes_G
-        self.rule = ModelRule.from_model(model_mm)
+        self.model_d = model_distances(model_mm)
 
     def match_from_centers(self, centers, visible, index, g) -> Match | None:
         """Triangulate labeled centres (2, 5, 2) px and fit the model, on the rig ``g``
@@ -104,142 +130,131 @@ class Identifier:
 
     def identify(self, blobs, g) -> Identification:
         """The five markers labelled in the (left, right) :class:`~.detect.Blobs`, on the rig ``g``
-        (:class:`~.tracker_rig.RigGeometry`), or the reason for none."""
+        (:class:`~.tracker_rig.RigGeometry`), or the reason for none.
+
+        Stereo points first, then labelings by the model's distances
+        (:mod:`.identify`), the best ``max_hypotheses`` of them fitted to the
+        model; when no labeling of all five fits, one marker hidden in one
+        view (:meth:`_hidden_marker`) from the same budget.
+        """
         cand = [self.candidates(b) for b in blobs]
         counts = [len(c) for c in cand]
         names = ("left", "right")
         if min(counts) < 4 or (max(counts) < 5):
             cam = int(np.argmin(counts))
             return Identification(None, f"{names[cam]} image: {counts[cam]} marker blobs, 5 needed")
-        hyps = [find_hypotheses(blobs[i].centers_px[cand[i]], self.rule) if counts[i] >= 5 else None
-                for i in range(2)]
         xn = [geo.undistort(blobs[0].centers_px[cand[0]], g.rig.K1, g.rig.D1),
               geo.undistort(blobs[1].centers_px[cand[1]], g.rig.K2, g.rig.D2)]
-        match, reason, scored = None, None, [0]
-        if hyps[0] is not None and hyps[1] is not None and len(hyps[0]) and len(hyps[1]):
-            match, reason = self._best_pair(hyps, xn, cand, blobs, g, scored)
+        stereo = stereo_points(xn[0], xn[1], g, self.ident_config.working_range_mm)
+        budget = _Budget(self.ident_config.max_hypotheses)
+        tol_mm = DISTANCE_TOL_PER_FIT_TOL * g.fit_tol_mm
+        labelings = find_labelings(stereo.points_mm, self.model_d, tuple(range(5)), tol_mm)
+        match, reason = self._best_labeling(labelings, stereo, cand, blobs, g, budget)
         if match is None and self.ident_config.hidden_marker:
-            alt, alt_reason = self._hidden_marker(hyps, xn, cand, blobs, g, scored)
+            alt, alt_reason = self._hidden_marker(stereo, cand, blobs, g, tol_mm, budget)
             if alt is not None:
-                return Identification(alt, None, scored[0])
+                return Identification(alt, None, budget.scored)
             reason = reason or alt_reason
-        if match is None and reason is None:
-            missing = [names[i] for i in range(2) if hyps[i] is None or not len(hyps[i])]
-            reason = (f"{' and '.join(missing)} image: no five blobs in the markers' layout (three in a line "
-                      "and two beside)" if missing else "no consistent stereo identification")
-        return Identification(match, reason, scored[0])
+        if match is None and budget.cut:
+            reason = (f"identification budget: {budget.scored} of {budget.offered} marker labelings fitted, "
+                      f"the best first; {reason}")
+        return Identification(match, reason, budget.scored)
 
-    @staticmethod
-    def _epipolar_matrix(xn, g) -> np.ndarray:
-        """Epipolar error (px) of every left candidate against every right one: (m_left, m_right)."""
-        return geo.epipolar_error_px(xn[0][:, None, :], xn[1][None, :, :], g.E, *g.focal)
+    def _best_labeling(self, labelings, stereo, cand, blobs, g, budget) -> tuple[Match | None, str | None]:
+        """The best of the five-marker labelings that fits the model and faces the cameras, or the reason."""
+        if not len(labelings):
+            return None, ("no consistent stereo identification: no five points pairing the two images within "
+                          f"the epipolar tolerance ({g.epipolar_tol_px:.1f} px) lie as the marker model's do")
+        labelings = labelings.best(budget.take(len(labelings)))
+        left, right = stereo.left[labelings.index], stereo.right[labelings.index]       # (H, 5)
+        distinct = _distinct(left) & _distinct(right)
+        points = stereo.points_mm[labelings.index]
+        epi = stereo.epipolar_px[labelings.index]
+        R, t, rms = geo.kabsch(self.ident_model_mm, points)
+        valid = distinct & (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g)
+        if not valid.any():
+            k = int(np.argmin(np.where(distinct, rms, np.inf)))
+            return None, (f"no consistent stereo identification: the best labeling is {rms[k]:.1f} mm "
+                          f"(RMS) from the marker model, tolerance {g.fit_tol_mm:.1f} mm"
+                          + _scale_hint(points[k], self.ident_model_mm))
+        cost = np.where(valid, self._cost(rms, epi, blobs, cand, left, right), np.inf)
+        best = int(np.argmin(cost))
+        if self._ambiguous(R, cost, best):
+            return None, "ambiguous identification: two marker assignments fit equally well"
+        index = np.stack([cand[0][left[best]], cand[1][right[best]]])
+        return self._make_match(blobs, index, epi[best], points[best], R[best], t[best], rms[best]), None
 
-    def _best_pair(self, hyps, xn, cand, blobs, g, scored) -> tuple[Match | None, str | None]:
-        """The left/right pair of labelings that best fits the epipolar geometry and the model.
+    def _cost(self, rms, epi, blobs, cand, left, right) -> np.ndarray:
+        """A labeling's cost: its errors in units of the image-noise tolerances (not of the rig-widened
+        ones: widening must not make a clearly worse assignment a rival), plus a little per glint used."""
+        glints = blobs[0].glint[cand[0]][left].sum(axis=1) + blobs[1].glint[cand[1]][right].sum(axis=1)
+        return (rms / self.ident_config.fit_tol_mm + np.nanmax(epi, axis=1) / self.ident_config.epipolar_tol_px
+                + _GLINT_COST * glints)
 
-        Pairs are screened by a lookup in the candidates' epipolar-error
-        matrix before anything is triangulated; the paper's labelings are
-        tried first and the alternatives only when none of those fits.
-        """
-        hl, hr = hyps
-        epi_matrix = self._epipolar_matrix(xn, g)
-        tol = g.epipolar_tol_px
-        best_reason = None
-        for ranks in ((0,), (0, 1)):
-            il_all = np.flatnonzero(hl.rank <= max(ranks))
-            ir_all = np.flatnonzero(hr.rank <= max(ranks))
-            il = np.repeat(il_all, len(ir_all))
-            ir = np.tile(ir_all, len(il_all))
-            epi = epi_matrix[hl.index[il], hr.index[ir]]           # (P, 5) by lookup
-            keep = epi.max(axis=1) <= tol
-            if not keep.any():
-                best_reason = (f"no consistent stereo identification: no labeling of the left blobs matches "
-                               f"one of the right blobs within the epipolar tolerance ({tol:.1f} px)")
+    def _hidden_marker(self, stereo, cand, blobs, g, tol_mm, budget) -> tuple[Match | None, str | None]:
+        """One marker hidden in one view: four stereo points labelled by the model's distances (the best
+        labelings over the five choices of the hidden marker, from the budget), the fifth marker the blob
+        nearest its projection in one view (within ``hidden_search_px``)."""
+        found = [find_labelings(stereo.points_mm, self.model_d, tuple(m for m in range(5) if m != hidden), tol_mm)
+                 for hidden in range(5)]
+        error = np.concatenate([f.error_mm for f in found])
+        hidden_of = np.concatenate([np.full(len(f), h) for h, f in enumerate(found)])
+        row_of = np.concatenate([np.arange(len(f)) for f in found])
+        order = np.argsort(error, kind="stable")
+        order = order[:budget.take(len(order))]
+        rows = []
+        for hidden in range(5):
+            mine = np.sort(row_of[order[hidden_of[order] == hidden]])
+            if not len(mine):
                 continue
-            il, ir, epi = il[keep], ir[keep], epi[keep]
-            scored[0] += len(il)
-            xl = xn[0][hl.index[il]]            # (P, 5, 2)
-            xr = xn[1][hr.index[ir]]
-            points, _ = geo.triangulate_midpoint(xl, xr, g.rig.R, g.rig.T)
-            R, t, rms = geo.kabsch(self.ident_model_mm, points)
-            valid = (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g)
-            if not valid.any():
-                k = int(np.argmin(rms))
-                best_reason = (f"no consistent stereo identification: the best labeling is {rms[k]:.1f} mm "
-                               f"(RMS) from the marker model, tolerance {g.fit_tol_mm:.1f} mm"
-                               + _scale_hint(points[k], self.ident_model_mm))
-                continue
-            # Ranked in units of the image-noise tolerances, not of the rig-widened
-            # ones: widening must not make a clearly worse assignment a rival.
-            cost = (rms / self.ident_config.fit_tol_mm + epi.max(axis=1) / self.ident_config.epipolar_tol_px
-                    + 0.05 * (hl.rank[il] + hr.rank[ir]))
-            cost = np.where(valid, cost, np.inf)
-            best = int(np.argmin(cost))
-            if self._ambiguous(R, cost, best):
-                return None, "ambiguous identification: two marker assignments fit equally well"
-            index = np.stack([cand[0][hl.index[il[best]]], cand[1][hr.index[ir[best]]]])
-            return self._make_match(blobs, index, epi[best], points[best], R[best], t[best], rms[best]), None
-        return None, best_reason
-
-    def _hidden_marker(self, hyps, xn, cand, blobs, g, scored) -> tuple[Match | None, str | None]:
-        """One marker hidden in one view: label the full view, match the other's blobs to it.
-
-        For each labeled marker, the other view's blobs within the epipolar
-        tolerance are its only possible partners; the assignments are the
-        products of those short lists with exactly one marker hidden.
-        """
-        epi_matrix = self._epipolar_matrix(xn, g)
-        tol = g.epipolar_tol_px
-        best = None
-        for full in (0, 1):
-            other = 1 - full
-            h = hyps[full]
-            if h is None or not len(h) or len(cand[other]) < 4:
-                continue
-            rows, hyp_of_row = [], []
-            for k, labels in enumerate(h.index[h.rank == 0] if (h.rank == 0).any() else h.index):
-                errors = epi_matrix[labels, :] if full == 0 else epi_matrix[:, labels].T     # (5, m_other)
-                options = [np.flatnonzero(errors[j] <= tol) for j in range(5)]
-                for hidden in range(5):
-                    lists = [options[j] if j != hidden else np.array([-1]) for j in range(5)]
-                    if any(len(o) == 0 for o in lists):
-                        continue
-                    combos = np.array(np.meshgrid(*lists, indexing="ij")).reshape(5, -1).T
-                    shown = combos[:, [j for j in range(5) if j != hidden]]
-                    distinct = np.array([len(set(r)) == 4 for r in shown.tolist()])
-                    rows.append(combos[distinct])
-                    hyp_of_row.append(np.full(int(distinct.sum()), k))
-            if not rows:
-                continue
-            assignments = np.concatenate(rows)
-            labels_full = (h.index[h.rank == 0] if (h.rank == 0).any() else h.index)[np.concatenate(hyp_of_row)]
-            if len(assignments) == 0:
-                continue
-            scored[0] += len(assignments)
-            xf = xn[full][labels_full]                                   # (P, 5, 2)
-            xo = xn[other][np.maximum(assignments, 0)]
-            weights = (assignments >= 0).astype(np.float64)
-            xl, xr = (xf, xo) if full == 0 else (xo, xf)
-            epi = np.where(weights > 0, geo.epipolar_error_px(xl, xr, g.E, *g.focal), 0.0)
-            points, _ = geo.triangulate_midpoint(xl, xr, g.rig.R, g.rig.T)
+            labels = found[hidden].index[mine]                                      # (H, 4) stereo points
+            shown = list(found[hidden].markers)
+            left, right = stereo.left[labels], stereo.right[labels]
+            points = np.zeros((len(labels), 5, 3))
+            points[:, shown] = stereo.points_mm[labels]
+            weights = np.ones(5)
+            weights[hidden] = 0.0
             R, t, rms = geo.kabsch(self.ident_model_mm, points, weights)
-            valid = (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g)
-            if not valid.any():
-                continue
-            cost = np.where(valid, rms / self.ident_config.fit_tol_mm + epi.max(axis=1) / self.ident_config.epipolar_tol_px, np.inf)
-            k = int(np.argmin(cost))
-            if self._ambiguous(R, cost, k):
-                return None, "ambiguous identification with a marker hidden in one view"
-            if best is None or cost[k] < best[0]:
+            valid = _distinct(left) & _distinct(right) & (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g)
+            for h in np.flatnonzero(valid):
+                seen = self._find_hidden(hidden, R[h], t[h], cand, blobs, g, left[h], right[h])
+                if seen is None:
+                    continue
+                view, blob = seen
                 index = np.full((2, 5), -1)
-                index[full] = cand[full][labels_full[k]]
-                shown = assignments[k] >= 0
-                index[other, shown] = cand[other][assignments[k][shown]]
-                pts = np.where(weights[k][:, None] > 0, points[k], np.nan)
-                best = (cost[k], index, epi[k], pts, R[k], t[k], rms[k])
-        if best is None:
+                index[0, shown], index[1, shown] = cand[0][left[h]], cand[1][right[h]]
+                index[view, hidden] = cand[view][blob]
+                epi = np.full(5, np.nan)
+                epi[shown] = stereo.epipolar_px[labels[h]]
+                pts = points[h].copy()
+                pts[hidden] = np.nan
+                rows.append((index, epi, pts, R[h], t[h], rms[h]))
+        if not rows:
             return None, "no consistent identification with a marker hidden in one view"
-        return self._make_match(blobs, *best[1:]), None
+        rms = np.array([r[5] for r in rows])
+        epi = np.array([r[1] for r in rows])
+        cost = rms / self.ident_config.fit_tol_mm + np.nanmax(epi, axis=1) / self.ident_config.epipolar_tol_px
+        best = int(np.argmin(cost))
+        if self._ambiguous(np.array([r[3] for r in rows]), cost, best):
+            return None, "ambiguous identification with a marker hidden in one view"
+        return self._make_match(blobs, *rows[best]), None
+
+    def _find_hidden(self, hidden, R, t, cand, blobs, g, used_left, used_right) -> tuple[int, int] | None:
+        """(view, candidate) of the blob nearest the hidden marker's projection by the pose (R, t) of the
+        other four, within ``hidden_search_px``, among the blobs not labelled; None if there is none."""
+        point = (R @ self.ident_model_mm[hidden] + t)[None, :]
+        best = None
+        for view, used in ((0, used_left), (1, used_right)):
+            if view == 0:
+                px = geo.project(point, np.eye(3), np.zeros(3), g.rig.K1, g.rig.D1)[0]
+            else:
+                px = geo.project(point, g.rig.R, g.rig.T, g.rig.K2, g.rig.D2)[0]
+            dist = np.linalg.norm(blobs[view].centers_px[cand[view]] - px, axis=1)
+            dist[used] = np.inf
+            j = int(np.argmin(dist))
+            if dist[j] <= self.ident_config.hidden_search_px and (best is None or dist[j] < best[0]):
+                best = (dist[j], view, j)
+        return None if best is None else best[1:]
 
     def _make_match(self, blobs, index, epi, points, R, t, rms) -> Match:
         visible = index >= 0

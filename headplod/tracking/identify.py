@@ -1,170 +1,179 @@
-"""Identification of the markers P0..P4 among the blobs of one image.
+"""Identification of the markers P0..P4 among stereo points by the marker model's distances.
 
-Martinez et al. (2008, §4.1, steps 4-7): the three collinear markers are P0,
-P1, P2 with P1 in the middle; of the two others, the one nearer an end marker
-Pa is Pa's partner, and the sign of (Pa − P1) × (Pa' − P1) tells whether Pa is
-P0 or P2. The paper prints the rule for its own glasses and image axes; here
-every part of it is derived from the marker model (docs/contract.md):
+Martinez et al. (2008, §4.1, steps 4-7) label each image on its own: three
+collinear blobs are P0, P1, P2, the nearer of the two others is an end's
+partner, and a cross product's sign tells the ends apart; the stereo stage
+then pairs the left and right labelings. Every trio of blobs, every pair of
+the rest and every pairing of the two images' labelings is a hypothesis, so
+the cost grows with the sixth power of the blobs an image holds, and a few
+glints and a lamp already make a frame stall. The paper does not bound it.
 
-- the partner of P0 is whichever of P3, P4 is nearer to it in the model;
-- a camera sees the glasses from their front (retro-reflectors face G's +z),
-  and such a view maps G's (x, y) plane to the image (x right, y down) with a
-  negative determinant (camera z = −G z gives det R[:2, :2] = R[2, 2] < 0), so
-  the expected image sign of the cross product is minus its sign in G;
-- where P1 sits between P0 and P2, and on which side of the P0-P2 line P3 and
-  P4 lie, also come from the model.
+This module bounds it by doing the stereo step first, as motion-capture
+systems do:
 
-Collinearity survives any projection (lines map to lines, also through lens
-distortion to first order over the glasses' few tens of pixels), so the trio
-test holds at any head angle. The nearest-partner step does not always (strong
-yaw or perspective can reverse it), so besides the paper's labeling each trio
-also yields the other labelings as second-rank hypotheses; the stereo stage
-(epipolar error and rigid fit to the model) decides between them.
+1. a *stereo point* is a left blob and a right blob within the epipolar
+   tolerance of each other (through the lenses' distortion: the centres are
+   undistorted first), triangulated, in front of both cameras and within
+   the working range; a blob far from every epipolar line of the other view
+   makes none, so clutter that is not a 3D point is pruned before anything
+   is combined;
+2. the five markers are labelled among the stereo points by the model's
+   pairwise distances, which no pose changes: an *anchor* (two points as far
+   apart as the model's longest edge), then, for each other marker, the few
+   points at its two distances from the anchor's ends, then the distances
+   among those (the triangles' shapes);
+3. the labelings are ranked by their total distance error, and only the best
+   ``budget`` of them are fitted to the model by the caller.
+
+Costs: the epipolar matrix is blobs², the distance matrix stereo points²,
+and the labelings are at most ``max_anchors`` × ``per_marker``³, fixed, so a
+frame's cost grows with the square of the blobs in its vectorized parts and
+not at all in its combinations. A labeling whose points fit the model rigidly
+within an RMS of ``fit_tol`` mm has no pairwise distance off by more than
+√10 · ``fit_tol`` (two residuals of at most that RMS over five points), so
+that distance tolerance drops no labeling the final fit would accept.
+
+The labeling itself needs no image rule: a labeling that mirrors the model
+(P0↔P2 and P3↔P4 for a symmetric model) fits only with the glasses turned
+away from the cameras, which the caller rejects (retro-reflectors are seen
+only from the front).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from itertools import combinations
+from itertools import product
+from typing import NamedTuple
 
 import numpy as np
-from ..tol import tol
+
+from . import geometry as geo
+
+# The fit-RMS tolerance times this bounds each pairwise distance's error (module docstring).
+DISTANCE_TOL_PER_FIT_TOL = float(np.sqrt(10.0))
 
 
-@dataclass(frozen=True)
-class ModelRule:
-    """The paper's identification rule, derived from a marker model.
+class StereoPoints(NamedTuple):
+    """Left-right blob pairs that satisfy the epipolar geometry, triangulated.
 
-    Attributes
-    ----------
-    middle_ratio : float
-        |P1 − P0| / |P2 − P0| in the model (0.5 for the default).
-    partner_of_p0 : int
-        3 or 4: the marker nearer to P0 in the model.
-    image_sign : float
-        Expected sign of cross(P0 − P1, partner − P1) in an image (x right,
-        y down) of the glasses seen from the front.
-    same_side : bool
-        P3 and P4 lie on the same side of the P0-P2 line.
+    ``left``, ``right`` (K,) indices into the two images' candidate lists;
+    ``points_mm`` (K, 3) world (left camera) frame; ``epipolar_px`` (K,).
     """
 
-    middle_ratio: float
-    partner_of_p0: int
-    image_sign: float
-    same_side: bool
+    left: np.ndarray
+    right: np.ndarray
+    points_mm: np.ndarray
+    epipolar_px: np.ndarray
 
-    @classmethod
-    def from_model(cls, model_mm: np.ndarray) -> "ModelRule":
-        p = np.asarray(model_mm, dtype=np.float64)
-        ratio = np.linalg.norm(p[1] - p[0]) / np.linalg.norm(p[2] - p[0])
-        partner = 3 if np.linalg.norm(p[3] - p[0]) <= np.linalg.norm(p[4] - p[0]) else 4
-        a, b = p[0] - p[1], p[partner] - p[1]
-        sign_g = np.sign(a[0] * b[1] - a[1] * b[0])
-        if sign_g == 0:
-            raise ValueError("marker model: P0's partner lies on the P0-P2 axis; the markers cannot be told apart")
-        same_side = bool(np.sign(p[3, 1]) == np.sign(p[4, 1]) != 0)
-        return cls(float(ratio), partner, float(-sign_g), same_side)
+    def __len__(self) -> int:
+        return len(self.left)
 
 
-@dataclass
-class Hypotheses:
-    """Labeled candidate subsets of one image.
+class Labelings(NamedTuple):
+    """Labelings of some markers among stereo points, best (smallest distance error) first.
 
-    Attributes
-    ----------
-    index : (k, 5) int
-        Blob index of P0..P4 in each hypothesis.
-    rank : (k,) int
-        0 for the paper's labeling, 1 for the alternatives.
-    collinearity_px : (k,)
-        Distance of P1 from the P0-P2 line, px.
+    ``markers`` the marker numbers labelled, in order; ``index`` (H, len(markers))
+    the stereo point of each; ``error_mm`` (H,) the sum of the labelled
+    pairwise distances' absolute errors against the model, mm; ``found``
+    the labelings within the tolerances before any cap.
     """
 
+    markers: tuple
     index: np.ndarray
-    rank: np.ndarray
-    collinearity_px: np.ndarray
+    error_mm: np.ndarray
+    found: int
 
     def __len__(self) -> int:
         return len(self.index)
 
+    def best(self, count: int) -> "Labelings":
+        """The first ``count`` labelings."""
+        return Labelings(self.markers, self.index[:count], self.error_mm[:count], self.found)
 
-def find_hypotheses(centers_px: np.ndarray, rule: ModelRule, *, line_tol_px: float = 1.5,
-                    line_tol_rel: float = 0.04, ratio_tol: float = 0.3,
-                    alternatives: bool = True) -> Hypotheses:
-    """All labelings P0..P4 of 5 of the given blob centres allowed by the rule.
+
+def stereo_points(xn_left: np.ndarray, xn_right: np.ndarray, g, depth_range_mm: tuple) -> StereoPoints:
+    """Every epipolar-consistent left-right pair of undistorted centres, triangulated.
+
+    ``xn_left`` (m, 2), ``xn_right`` (n, 2): normalized coordinates; ``g`` a
+    :class:`~.tracker_rig.RigGeometry` (its ``epipolar_tol_px``, essential
+    matrix, focal lengths and rig); ``depth_range_mm`` (near, far): the
+    points' depth in both cameras, mm.
+    """
+    epi = geo.epipolar_error_px(xn_left[:, None, :], xn_right[None, :, :], g.E, *g.focal)   # (m, n)
+    left, right = np.nonzero(epi <= g.epipolar_tol_px)
+    points, _ = geo.triangulate_midpoint(xn_left[left], xn_right[right], g.rig.R, g.rig.T)
+    depth_right = points @ np.asarray(g.rig.R)[2] + np.reshape(g.rig.T, 3)[2]
+    near, far = depth_range_mm
+    keep = (points[:, 2] >= near) & (points[:, 2] <= far) & (depth_right >= near) & (depth_right <= far)
+    return StereoPoints(left[keep], right[keep], points[keep], epi[left[keep], right[keep]])
+
+
+def model_distances(model_mm: np.ndarray) -> np.ndarray:
+    """Pairwise distances (5, 5) of the marker model, mm."""
+    P = np.asarray(model_mm, dtype=np.float64)
+    return np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)
+
+
+def find_labelings(points_mm: np.ndarray, model_d: np.ndarray, markers: tuple, tol_mm: float, *,
+                   max_anchors: int = 64, per_marker: int = 3) -> Labelings:
+    """Labelings of ``markers`` (3 to 5 marker numbers) among stereo points by the model's distances.
 
     Parameters
     ----------
-    centers_px : (m, 2)
-        Blob centres in one image, px.
-    rule : ModelRule
-    line_tol_px, line_tol_rel : float
-        A trio is collinear when the middle blob is within
-        ``line_tol_px + line_tol_rel · |P0P2|`` of the line through the ends
-        (relative part: centroid errors and lens curvature grow with size).
-    ratio_tol : float
-        Allowed deviation of |P1P0| / |P2P0| from the model (perspective and
-        foreshortening change the ratio; 0.3 still excludes near-end blobs).
-    alternatives : bool
-        Also emit the three other labelings of each trio and pair (rank 1).
+    points_mm : (K, 3)
+        Stereo points, mm.
+    model_d : (5, 5)
+        The model's pairwise distances, mm (:func:`model_distances`).
+    markers : tuple of int
+        The markers to label (all five, or four with one hidden).
+    tol_mm : float
+        Largest error of any pairwise distance, mm.
+    max_anchors, per_marker : int
+        The anchors (ordered point pairs of the longest edge's length, best
+        first) tried, and the points kept per other marker and anchor: the
+        bound on the labelings formed (module docstring).
     """
-    pts = np.asarray(centers_px, dtype=np.float64)
-    m = len(pts)
-    empty = Hypotheses(np.zeros((0, 5), np.int64), np.zeros(0, np.int64), np.zeros(0))
-    if m < 5:
+    P = np.asarray(points_mm, dtype=np.float64)
+    k = len(P)
+    markers = tuple(markers)
+    empty = Labelings(markers, np.zeros((0, len(markers)), np.int64), np.zeros(0), 0)
+    if k < len(markers):
         return empty
-    trios = np.array(list(combinations(range(m), 3)), dtype=np.int64)
-    # Each trio with each of its members as the middle: (ends a, b; middle c).
-    arrangements = np.concatenate([trios[:, [0, 2, 1]], trios[:, [0, 1, 2]], trios[:, [1, 2, 0]]])
-    a, b, c = (pts[arrangements[:, i]] for i in range(3))
-    ab = b - a
-    length = np.linalg.norm(ab, axis=1)
-    along = np.einsum("ij,ij->i", c - a, ab) / np.maximum(length, tol.small) ** 2
-    off_line = np.abs(ab[:, 0] * (c - a)[:, 1] - ab[:, 1] * (c - a)[:, 0]) / np.maximum(length, tol.small)
-    ratio_ok = (np.abs(along - rule.middle_ratio) <= ratio_tol) | (np.abs(1 - along - rule.middle_ratio) <= ratio_tol)
-    ok = (off_line <= line_tol_px + line_tol_rel * length) & ratio_ok & (along > 0.05) & (along < 0.95)
-    rows, ranks, lines = [], [], []
-    for (ia, ib, ic), dev in zip(arrangements[ok], off_line[ok]):
-        rest = [j for j in range(m) if j not in (ia, ib, ic)]
-        for ip, iq in combinations(rest, 2):
-            labelings = _labelings(pts, ia, ib, ic, ip, iq, rule)
-            for rank, lab in labelings:
-                if rank and not alternatives:
-                    continue
-                rows.append(lab)
-                ranks.append(rank)
-                lines.append(dev)
-    if not rows:
-        return empty
-    return Hypotheses(np.array(rows, np.int64), np.array(ranks, np.int64), np.array(lines))
-
-
-def _labelings(pts, ia, ib, ic, ip, iq, rule: ModelRule):
-    """The paper's labeling (rank 0) and the other three (rank 1) of one trio + pair."""
-    mid = pts[ic]
-    if rule.same_side:
-        # P3 and P4 on the same side of the P0-P2 line, as in the model.
-        d = pts[ib] - pts[ia]
-        side_p = np.sign(d[0] * (pts[ip] - pts[ia])[1] - d[1] * (pts[ip] - pts[ia])[0])
-        side_q = np.sign(d[0] * (pts[iq] - pts[ia])[1] - d[1] * (pts[iq] - pts[ia])[0])
-        if side_p != side_q:
-            return []
-    # Paper, steps 6-7: Pa = ia; its partner is the nearer of the two others.
-    near, far = (ip, iq) if np.linalg.norm(pts[ip] - pts[ia]) <= np.linalg.norm(pts[iq] - pts[ia]) else (iq, ip)
-    u, v = pts[ia] - mid, pts[near] - mid
-    sign = np.sign(u[0] * v[1] - u[1] * v[0])
-    if sign == rule.image_sign:
-        p0, p2, partner0, partner2 = ia, ib, near, far
-    else:
-        p0, p2, partner0, partner2 = ib, ia, far, near
-    def label(p0_, p2_, q0, q2):
-        out = [0] * 5
-        out[0], out[1], out[2] = p0_, ic, p2_
-        other = 7 - rule.partner_of_p0       # 3 <-> 4
-        out[rule.partner_of_p0], out[other] = q0, q2
-        return out
-    paper = label(p0, p2, partner0, partner2)
-    result = [(0, paper)]
-    for lab in (label(p0, p2, partner2, partner0), label(p2, p0, partner0, partner2),
-                label(p2, p0, partner2, partner0)):
-        result.append((1, lab))
-    return result
+    D = np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)
+    # The anchor: the longest model edge among the markers labelled.
+    pairs = [(a, b) for i, a in enumerate(markers) for b in markers[i + 1:]]
+    a, b = max(pairs, key=lambda ab: model_d[ab])
+    others = [c for c in markers if c not in (a, b)]
+    anchor_err = np.abs(D - model_d[a, b])
+    np.fill_diagonal(anchor_err, np.inf)
+    ia, ib = np.nonzero(anchor_err <= tol_mm)           # both orders: (i, j) and (j, i)
+    order = np.argsort(anchor_err[ia, ib], kind="stable")[:max_anchors]
+    ia, ib = ia[order], ib[order]
+    err = anchor_err[ia, ib]
+    choices, choice_err = [], []
+    for c in others:
+        e_a, e_b = np.abs(D[ia] - model_d[a, c]), np.abs(D[ib] - model_d[b, c])   # (A, K)
+        e = np.where((e_a <= tol_mm) & (e_b <= tol_mm), e_a + e_b, np.inf)
+        e[np.arange(len(ia)), ia] = np.inf
+        e[np.arange(len(ia)), ib] = np.inf
+        q = min(per_marker, k)
+        best = np.argsort(e, axis=1, kind="stable")[:, :q]                         # (A, q)
+        choices.append(best)
+        choice_err.append(np.take_along_axis(e, best, axis=1))
+    # Every combination of the others' choices per anchor: (A, q^n, n).
+    combos = np.array(list(product(range(choices[0].shape[1]), repeat=len(others))), np.int64)
+    picked = np.stack([choices[j][:, combos[:, j]] for j in range(len(others))], axis=-1)
+    total = err[:, None] + sum(choice_err[j][:, combos[:, j]] for j in range(len(others)))
+    index = np.concatenate([np.broadcast_to(ia[:, None, None], picked.shape[:2] + (1,)),
+                            np.broadcast_to(ib[:, None, None], picked.shape[:2] + (1,)), picked], axis=-1)
+    index, total = index.reshape(-1, len(markers)), total.reshape(-1)
+    ok = np.isfinite(total)
+    for j1 in range(len(others)):
+        for j2 in range(j1 + 1, len(others)):
+            e = np.abs(D[index[:, 2 + j1], index[:, 2 + j2]] - model_d[others[j1], others[j2]])
+            ok &= (e <= tol_mm) & (index[:, 2 + j1] != index[:, 2 + j2])
+            total = total + e
+    index, total = index[ok], total[ok]
+    # Back to the order of ``markers``.
+    labelled = (a, b, *others)
+    index = index[:, [labelled.index(m) for m in markers]]
+    order = np.argsort(total, kind="stable")
+    return Labelings(markers, index[order], total[order], len(index))

@@ -24,7 +24,19 @@ class TrackerConfig:
         well inside the speed goal.
     detection : DetectionParams
     max_candidates : int
-        Blobs per image considered for identification (best ranked first).
+        Blobs per image considered for identification (best ranked first):
+        a bound on the epipolar matrix, not on the labelings.
+    max_hypotheses : int
+        The identification budget: marker labelings fitted to the model per
+        frame, best first (:mod:`headplod.tracking.identify`). A frame whose
+        labelings run past it and none of the best fits says so
+        ("identification budget").
+    working_range_mm : (float, float)
+        Nearest and farthest depth of a marker in both cameras, mm: stereo
+        points outside are not considered.
+    hidden_search_px : float
+        Largest distance of a marker seen in one view only from where the
+        other four put it, px.
     epipolar_tol_px : float
         Largest epipolar error of an accepted marker correspondence, px.
     fit_tol_mm : float
@@ -175,7 +187,10 @@ class TrackerConfig:
 
     estimator: str = "reproj"
     detection: DetectionParams = field(default_factory=DetectionParams)
-    max_candidates: int = 8
+    max_candidates: int = 64
+    max_hypotheses: int = 256
+    working_range_mm: tuple = (150.0, 3000.0)
+    hidden_search_px: float = 4.0
     epipolar_tol_px: float = 2.5
     fit_tol_mm: float = 2.0
     reproj_tol_px: float = 2.0
