@@ -138,7 +138,7 @@ def test_run_source_twice_gives_identical_records_and_uses_the_calibration_std(s
         bare = io.Rig(bare.image_size, bare.K1, bare.D1, bare.K2, bare.D2, bare.R, bare.T)
         plain = make_tracker(source, config, rig=bare)
         run_source(source, tracker=plain, max_frames=1)
-    assert not np.allclose(trackers[0].refiner.prior, plain.refiner.prior)
+    assert not np.allclose(trackers[0].refiner.estimator.prior, plain.refiner.estimator.prior)
 
 
 def test_status_line_shows_the_rig_message():

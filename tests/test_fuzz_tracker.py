@@ -410,7 +410,7 @@ def test_an_exception_in_the_refinement_drops_its_chunk_and_keeps_its_estimate(g
         assert tracker.process(left, right, t).ok
     refiner = tracker.refiner
     assert refiner.scheduler.pending, "the refinement should be collecting a chunk"
-    before = (refiner.estimate.R.copy(), refiner.estimate.T.copy(), refiner.updates)
+    before = (refiner.estimator.estimate.R.copy(), refiner.estimator.estimate.T.copy(), refiner.estimator.updates)
 
     def singular(self, chunk, prior):
         raise np.linalg.LinAlgError("Singular matrix")
@@ -422,9 +422,10 @@ def test_an_exception_in_the_refinement_drops_its_chunk_and_keeps_its_estimate(g
     failed = [r for r in results if not r.ok]
     assert len(failed) == 1 and failed[0].reason == "internal error: LinAlgError: Singular matrix"
     assert tracker.internal_errors == 1 and tracker.refiner is refiner
-    assert len(refiner.scheduler.pending) < refiner.config.chunk_frames      # dropped and collecting anew
-    assert np.array_equal(refiner.estimate.R, before[0]) and np.array_equal(refiner.estimate.T, before[1])
-    assert refiner.updates == before[2]
+    assert len(refiner.scheduler.pending) < refiner.estimator.config.chunk_frames      # dropped and collecting anew
+    estimate = refiner.estimator.estimate
+    assert np.array_equal(estimate.R, before[0]) and np.array_equal(estimate.T, before[1])
+    assert refiner.estimator.updates == before[2]
     for r, (_, _, _, i) in zip(results, frames[12:]):
         if r.ok:
             pos, ang = _errors(r, grid, i)

@@ -156,7 +156,7 @@ def test_a_rig_found_right_shrinks_its_share():
 def test_without_data_the_error_model_stands(sweep12_dir):
     ds = io.Dataset(sweep12_dir)
     refiner = RigRefiner(ds.rig, ds.markers.points_mm)
-    mean, cov = refiner.error_distribution()
+    mean, cov = refiner.estimator.error_distribution()
     np.testing.assert_allclose(mean, 0.0, atol=1e-12)
-    np.testing.assert_allclose(cov, refiner.prior, rtol=1e-9)
-    assert not refiner.has_data() and refiner.estimator.data_scale() == 1.0
+    np.testing.assert_allclose(cov, refiner.estimator.prior, rtol=1e-9)
+    assert not refiner.estimator.has_data() and refiner.estimator.data_scale() == 1.0

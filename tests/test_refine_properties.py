@@ -83,10 +83,10 @@ def _assert_spd(M):
 
 
 def _snapshot(ref: RigRefiner):
-    est, use = ref.estimate, ref.state
-    return (est.R.copy(), est.T.copy(), est.log_focal, est.offset_s, ref.estimator.P.copy(), ref.cov().copy(),
-            use.R.copy(), use.T.copy(), use.log_focal, use.offset_s, ref.updates, ref.versions,
-            ref.estimator.refined.copy(), len(ref.bumps))
+    est, use = ref.estimator.estimate, ref.estimator.state
+    return (est.R.copy(), est.T.copy(), est.log_focal, est.offset_s, ref.estimator.P.copy(), ref.estimator.cov().copy(),
+            use.R.copy(), use.T.copy(), use.log_focal, use.offset_s, ref.estimator.updates, ref.estimator.versions,
+            ref.estimator.refined.copy(), len(ref.estimator.bumps))
 
 
 def _assert_same(a, b):
@@ -98,13 +98,13 @@ def _checked(ref: RigRefiner, call):
     """A call of the refiner, then the invariants: SPD covariances; a skipped chunk changed nothing.
     (A chunk's update runs over the add_frame calls after the one completing it: any call may end one.)"""
     before = _snapshot(ref)
-    skipped, updates = sum(ref.estimator.skipped_chunks.values()), ref.updates
+    skipped, updates = sum(ref.estimator.skipped_chunks.values()), ref.estimator.updates
     call()
-    _assert_spd(ref.cov())
+    _assert_spd(ref.estimator.cov())
     _assert_spd(ref.estimator.P)
     # (One call may end a skipped chunk's job and then solve the next chunk at once — the first update
     # is (RigRefineConfig.first_at_once) — which does change the state: the skip alone must not.)
-    if sum(ref.estimator.skipped_chunks.values()) > skipped and ref.updates == updates:
+    if sum(ref.estimator.skipped_chunks.values()) > skipped and ref.estimator.updates == updates:
         _assert_same(_snapshot(ref), before)
 
 
@@ -141,7 +141,7 @@ def test_refiner_stays_definite_whatever_the_motion(motion, amp, step, right_dt,
         _add(ref, t, right_dt if declared else 0.0, centres, ALL_VISIBLE, sigma, R, p1)
     _flush(ref)                     # the last chunk's update
     # Every chunk either updated the rig or was counted with its reason.
-    assert ref.updates + sum(ref.estimator.skipped_chunks.values()) == 3
+    assert ref.estimator.updates + sum(ref.estimator.skipped_chunks.values()) == 3
     assert set(ref.estimator.skipped_chunks) <= {rig_refine.SKIP_UNOBSERVABLE, rig_refine.SKIP_NO_DATA,
                                        rig_refine.SKIP_NON_FINITE, rig_refine.SKIP_SINGULAR,
                                        rig_refine.SKIP_INCONSISTENT}
@@ -171,7 +171,7 @@ def test_refiner_stays_definite_on_extreme_values(depth, lateral, sigma_exp, off
         centres[i % 2, i % 5] += off_px
         _add(ref, t, right_dt, centres, vis, sigma, R, p1)
     _flush(ref)
-    assert ref.updates + sum(ref.estimator.skipped_chunks.values()) == 2
+    assert ref.estimator.updates + sum(ref.estimator.skipped_chunks.values()) == 2
 
 
 def test_singular_chunk_leaves_the_state_unchanged():
@@ -192,8 +192,8 @@ def test_singular_chunk_leaves_the_state_unchanged():
         _flush(ref)                 # the last chunk's update (the frames make whole chunks)
 
     feed(16)
-    assert ref.updates == 2 and not ref.estimator.skipped_chunks
-    assert np.abs(ref.estimate.error_from(RigState(RIG))[:3]).max() > 1e-4     # it learnt part of the turn
+    assert ref.estimator.updates == 2 and not ref.estimator.skipped_chunks
+    assert np.abs(ref.estimator.estimate.error_from(RigState(RIG))[:3]).max() > 1e-4     # it learnt part of the turn
     before = _snapshot(ref)
     # Two centres of the left image and none of the right: 4 rows for 6 pose parameters per frame.
     two = np.array([[True, True, False, False, False], [False] * 5])
@@ -211,7 +211,7 @@ def test_singular_chunk_leaves_the_state_unchanged():
     assert ref.estimator.ignored_frames == 2 and not ref.scheduler.pending
     # And the refiner goes on learning afterwards.
     feed(8, start=32)
-    assert ref.updates == 3
+    assert ref.estimator.updates == 3
 
 
 @pytest.mark.slow
@@ -227,8 +227,8 @@ def test_rolling_shutter_sequence_keeps_the_prior_definite():
         centres = _centres(t, "general", amp=4.0, rolling_s=0.03) + rng.normal(0.0, 0.05, (2, 5, 2))
         _add(ref, t, 0.0, centres, ALL_VISIBLE, sigma, *_pose(t, "general", 4.0))
     _flush(ref)
-    assert ref.updates >= 8            # of 10 chunks: the refinement still runs
-    assert ref.updates + sum(ref.estimator.skipped_chunks.values()) == 10
+    assert ref.estimator.updates >= 8            # of 10 chunks: the refinement still runs
+    assert ref.estimator.updates + sum(ref.estimator.skipped_chunks.values()) == 10
 
 
 def test_predicted_prior_caps_variances_without_losing_definiteness():
@@ -277,7 +277,7 @@ def test_positive_definite_floor():
     """Indefinite or singular input becomes SPD with the eigenvalues floored in units of the prior;
     an input already above the floor comes back unchanged (only symmetrized)."""
     ref = RigRefiner(RIG, MODEL)
-    sd = np.sqrt(np.diag(ref.prior))
+    sd = np.sqrt(np.diag(ref.estimator.prior))
     rng = np.random.default_rng(1)
     U = np.linalg.qr(rng.normal(size=(N_RIG, N_RIG)))[0]
     lam = np.array([-1e-3, 0.0, 1e-12, 1e-6, 0.1, 0.5, 1.0, 1.5, 2.0])
@@ -287,7 +287,7 @@ def test_positive_definite_floor():
     floored = np.linalg.eigvalsh(out / np.outer(sd, sd))
     assert floored.min() >= rig_solve._VARIANCE_FLOOR * (1 - 1e-6)
     np.testing.assert_allclose(floored[3:], lam[3:], rtol=1e-6)          # the rest untouched
-    good = ref.prior + 0.1 * np.outer(sd, sd)
+    good = ref.estimator.prior + 0.1 * np.outer(sd, sd)
     np.testing.assert_array_equal(rig_solve._positive_definite(good, sd), good)
     with pytest.raises(rig_solve._SkipChunk):
         rig_solve._positive_definite(np.full((N_RIG, N_RIG), np.nan), sd)

@@ -26,8 +26,8 @@ def _track(faults, frames, config=TrackerConfig()):
     for f in ds:
         r = tracker.process(f.left, f.right, f.t, f.t_right)
         results.append((f, r))
-        states.append((tracker.refiner.state.R.copy(), tracker.refiner.state.T.copy(),
-                       tracker.refiner.state.offset_s, len(tracker.refiner.bumps)))
+        states.append((tracker.refiner.estimator.state.R.copy(), tracker.refiner.estimator.state.T.copy(),
+                       tracker.refiner.estimator.state.offset_s, len(tracker.refiner.estimator.bumps)))
     return ds, truth, tracker, results, states
 
 
@@ -42,7 +42,7 @@ def _turn_error_deg(R, segment):
 def test_refinement_recovers_the_rig(faults):
     ds, truth, tracker, results, _ = _track(faults, 150)
     seg = truth["segments"][0]
-    state = tracker.refiner.estimate            # what the refinement recovered (the rig in use follows it within 3σ)
+    state = tracker.refiner.estimator.estimate  # what the refinement recovered (the rig in use follows it within 3σ)
     turn = _turn_error_deg(state.R, seg)
     scale = np.linalg.norm(state.T) / np.linalg.norm(seg["T"])
     before = _turn_error_deg(np.asarray(ds.rig.R), seg)
@@ -51,7 +51,7 @@ def test_refinement_recovers_the_rig(faults):
     assert turn < max(0.02, 3 * turn_sd) and (before < 0.02 or turn < 0.2 * before), (turn, turn_sd, before)
     assert abs(scale - 1) < 0.002
     # The offset is known to its own σ (≈ 0.5 ms after 5 s of slow reading motion): within 0.5 ms or 2σ.
-    offset_sd = tracker.refiner.sigma()[7]
+    offset_sd = tracker.refiner.estimator.sigma()[7]
     assert offset_sd < 1e-3
     assert abs(state.offset_s - truth["time_offset_s"]) < max(0.5e-3, 2 * offset_sd)
     ok = [r for _, r in results if r.ok]
@@ -72,7 +72,7 @@ def test_still_head_leaves_the_rig_unchanged():
         assert _turn_error_deg(R, {"R": ds.rig.R}) < 0.05
         assert abs(np.linalg.norm(T) / np.linalg.norm(ds.rig.T) - 1) < 0.001
         assert abs(offset) < 0.5e-3
-    assert tracker.refiner.state.log_focal == pytest.approx(0.0, abs=2e-3)
+    assert tracker.refiner.estimator.state.log_focal == pytest.approx(0.0, abs=2e-3)
     errors = [evaluate.angle_deg(r.axes[2], ds.truth[f.index][1][2]) for f, r in results]
     assert np.median(errors) < 0.1
     assert all(r.ok for _, r in results)
@@ -82,10 +82,10 @@ def test_still_head_leaves_the_rig_unchanged():
 def test_bump_mid_sequence_is_detected_and_reconverged():
     ds, truth, tracker, results, states = _track(dict(bump_frame=60, bump_deg=0.4), 150)
     assert len(truth["segments"]) == 2
-    assert tracker.refiner.bumps, "the bump was not detected"
-    assert 60 / 30 <= tracker.refiner.bumps[0] <= 90 / 30
+    assert tracker.refiner.estimator.bumps, "the bump was not detected"
+    assert 60 / 30 <= tracker.refiner.estimator.bumps[0] <= 90 / 30
     # What the refinement recovered (the rig in use follows it within 3σ, as in the test above).
-    assert _turn_error_deg(tracker.refiner.estimate.R, truth["segments"][1]) < 0.05
+    assert _turn_error_deg(tracker.refiner.estimator.estimate.R, truth["segments"][1]) < 0.05
     assert sum(r.ok for _, r in results) >= 0.97 * len(results)
     assert max(evaluate.angle_deg(r.axes[2], ds.truth[f.index][1][2]) for f, r in results if r.ok) < 5.0
 
@@ -94,6 +94,6 @@ def test_bump_mid_sequence_is_detected_and_reconverged():
 def test_refinement_off_keeps_rig_yaml():
     config = TrackerConfig(rig_refine=RigRefineConfig(enabled=False))
     ds, truth, tracker, results, _ = _track(dict(rotation_deg=0.3), 40, config)
-    assert np.array_equal(tracker.rig.R, ds.rig.R) and tracker.refiner.updates == 0
+    assert np.array_equal(tracker.rig.R, ds.rig.R) and tracker.refiner.estimator.updates == 0
     # The error model alone still lets the stale rig track, with an honest (wider) covariance.
     assert sum(r.ok for _, r in results) >= 0.9 * len(results)

@@ -215,6 +215,5 @@ def test_the_report_of_an_estimator_states_its_rig_in_use():
 def test_the_refiner_composes_the_parts_and_owns_no_state():
     ref = RigRefiner(RIG, MODEL)
     assert set(vars(ref)) == {"estimator", "scheduler"} and ref.scheduler.solver is ref.estimator
-    assert ref.state is ref.estimator.state and ref.prior is ref.estimator.prior
-    assert ref.describe() == rig_report.describe(ref.estimator.summary(), ref.config)
-    assert RigState(RIG).error_from(ref.estimate) == pytest.approx(np.zeros(9))
+    assert ref.describe() == rig_report.describe(ref.estimator.summary(), ref.estimator.config)
+    assert RigState(RIG).error_from(ref.estimator.estimate) == pytest.approx(np.zeros(9))

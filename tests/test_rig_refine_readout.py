@@ -86,13 +86,14 @@ def test_readout_prior_rule():
 
 def test_refiner_takes_the_readout_prior():
     ref = RigRefiner(RIG, MODEL, JOB)
-    assert ref.prior.shape == (N_RIG, N_RIG) == (9, 9) and ref.estimate.readout_s == 0.0
-    assert math.sqrt(ref.prior[READOUT, READOUT]) == rig_refine.READOUT_PRIOR_UNKNOWN[1]
+    assert ref.estimator.prior.shape == (N_RIG, N_RIG) == (9, 9) and ref.estimator.estimate.readout_s == 0.0
+    assert math.sqrt(ref.estimator.prior[READOUT, READOUT]) == rig_refine.READOUT_PRIOR_UNKNOWN[1]
     user = RigRefiner(RIG, MODEL, error_model=RigErrorModel(readout_s=0.025))
-    assert user.state.readout_s == user.estimate.readout_s == 0.025
-    assert math.sqrt(user.prior[READOUT, READOUT]) == pytest.approx(1.25e-3)
+    assert user.estimator.state.readout_s == user.estimator.estimate.readout_s == 0.025
+    assert math.sqrt(user.estimator.prior[READOUT, READOUT]) == pytest.approx(1.25e-3)
     given = RigRefiner(RIG, MODEL, readout_prior=(0.03, 0.004))
-    assert given.estimate.readout_s == 0.03 and math.sqrt(given.prior[READOUT, READOUT]) == pytest.approx(0.004)
+    assert given.estimator.estimate.readout_s == 0.03
+    assert math.sqrt(given.estimator.prior[READOUT, READOUT]) == pytest.approx(0.004)
     with pytest.raises(ValueError):
         RigRefiner(RIG, MODEL, readout_prior=(0.03, 0.0))
 
@@ -102,19 +103,19 @@ def test_set_readout_prior_until_the_first_update():
     ref.widen(0.0)                                       # P twice the prior: stays twice
     before = ref.estimator.P.copy()
     assert ref.set_readout_prior(0.0307, 0.015)
-    assert ref.state.readout_s == ref.estimate.readout_s == 0.0307
-    assert ref.prior[READOUT, READOUT] == pytest.approx(0.015 ** 2)
+    assert ref.estimator.state.readout_s == ref.estimator.estimate.readout_s == 0.0307
+    assert ref.estimator.prior[READOUT, READOUT] == pytest.approx(0.015 ** 2)
     assert ref.estimator.P[READOUT, READOUT] == pytest.approx(2 * 0.015 ** 2)
     np.testing.assert_array_equal(ref.estimator.P[:READOUT, :READOUT], before[:READOUT, :READOUT])
     assert ref.estimator._scale[READOUT] == pytest.approx(0.015)
     L_inv = ref.estimator._prior_L_inv
-    np.testing.assert_allclose(L_inv @ ref.prior @ L_inv.T, np.eye(N_RIG), atol=1e-12)
-    assert ref.cov()[READOUT, READOUT] == pytest.approx(2 * 0.015 ** 2)
+    np.testing.assert_allclose(L_inv @ ref.estimator.prior @ L_inv.T, np.eye(N_RIG), atol=1e-12)
+    assert ref.estimator.cov()[READOUT, READOUT] == pytest.approx(2 * 0.015 ** 2)
     ref.reset()                                          # back to rig.yaml, with the readout's prior set last
-    assert ref.estimate.readout_s == 0.0307 and ref.estimator.P[READOUT, READOUT] == pytest.approx(0.015 ** 2)
+    assert ref.estimator.estimate.readout_s == 0.0307 and ref.estimator.P[READOUT, READOUT] == pytest.approx(0.015 ** 2)
     # Once an update has used the prior, it stays.
     ref = _run(0.0, 0.0, seconds=0.6)
-    assert ref.updates >= 1
+    assert ref.estimator.updates >= 1
     P = ref.estimator.P.copy()
     assert not ref.set_readout_prior(0.01, 0.001)
     np.testing.assert_array_equal(ref.estimator.P, P)
@@ -172,7 +173,7 @@ def test_refiner_recovers_readout_and_offset(readout_s, offset_s):
     """5 s of a varied head motion (turns up to ±1 rad, moves of ±120 mm), centres to 0.02 px: the
     readout within 5% or 1 ms and the undeclared offset within 1 ms, each within 3σ of its own."""
     ref = _run(readout_s, offset_s)
-    est = ref.estimate
+    est = ref.estimator.estimate
     sd = np.sqrt(np.diag(ref.estimator.P))
     assert ref.estimator.refined[READOUT] and ref.estimator.refined[OFFSET] and not ref.estimator.skipped_chunks
     err_readout, err_offset = est.readout_s - readout_s, est.offset_s - offset_s
@@ -180,9 +181,9 @@ def test_refiner_recovers_readout_and_offset(readout_s, offset_s):
     assert abs(err_readout) <= 3 * sd[READOUT] and sd[READOUT] < 1e-3
     assert abs(err_offset) <= 1e-3 and abs(err_offset) <= 3 * sd[OFFSET]
     status = ref.status()
-    assert status["readout_sd_ms"] == pytest.approx(ref.sigma()[READOUT] * 1e3, abs=1e-3)
+    assert status["readout_sd_ms"] == pytest.approx(ref.estimator.sigma()[READOUT] * 1e3, abs=1e-3)
     assert "rolling shutter" in ref.describe()
-    assert ref.state.rig().extra["refined_readout_ms"] == round(ref.state.readout_s * 1e3, 4)
+    assert ref.estimator.state.rig().extra["refined_readout_ms"] == round(ref.estimator.state.readout_s * 1e3, 4)
 
 
 @pytest.mark.slow
@@ -193,8 +194,8 @@ def test_still_head_leaves_the_readout_at_its_prior():
         ref = _run(0.03, 0.01, motion=motion, amp=amp, seconds=2.0)
         mean = READOUT_ACTIVE_FRACTION / 30
         assert not ref.estimator.refined[READOUT] and not ref.estimator.refined[OFFSET]
-        assert ref.estimate.readout_s == mean and ref.state.readout_s == mean
-        assert ref.estimator.P[READOUT, READOUT] == pytest.approx(ref.prior[READOUT, READOUT], rel=1e-6)
+        assert ref.estimator.estimate.readout_s == mean and ref.estimator.state.readout_s == mean
+        assert ref.estimator.P[READOUT, READOUT] == pytest.approx(ref.estimator.prior[READOUT, READOUT], rel=1e-6)
         assert ref.status()["readout_ms"] == round(mean * 1e3, 3)
 
 
@@ -203,7 +204,7 @@ def test_a_global_shutter_rig_stays_global():
     """Global-shutter cameras (readout 0, as the user says): nothing to learn, and the moving head's
     offset is recovered as well as with a free readout."""
     ref = _run(0.0, 0.01, error_model=RigErrorModel(readout_s=0.0))
-    assert abs(ref.estimate.readout_s) < 3e-4 and abs(ref.estimate.offset_s - 0.01) < 1e-3
+    assert abs(ref.estimator.estimate.readout_s) < 3e-4 and abs(ref.estimator.estimate.offset_s - 0.01) < 1e-3
 
 
 # --------------------------------------------------------------------------- the solve spread over frames
@@ -259,17 +260,17 @@ def _feed(config, frames=None, hook=None):
     done = 0
     for k, (t, centres, R, p1) in enumerate(STREAM if frames is None else frames):
         ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1, independent_pose=True)
-        passes.append(ref.last_call_passes)
+        passes.append(ref.scheduler.last_step.passes)
         if hook is not None:
             ref = hook(k, ref) or ref
-        if ref.updates + sum(ref.estimator.skipped_chunks.values()) > done:
-            done = ref.updates + sum(ref.estimator.skipped_chunks.values())
+        if ref.estimator.updates + sum(ref.estimator.skipped_chunks.values()) > done:
+            done = ref.estimator.updates + sum(ref.estimator.skipped_chunks.values())
             results.append(_record(ref))
     # The update under way, run by calls without a frame, then the frames short of a chunk.
     for finish in (_finish_job, RigRefiner.flush):
         finish(ref)
-        if ref.updates + sum(ref.estimator.skipped_chunks.values()) > done:
-            done = ref.updates + sum(ref.estimator.skipped_chunks.values())
+        if ref.estimator.updates + sum(ref.estimator.skipped_chunks.values()) > done:
+            done = ref.estimator.updates + sum(ref.estimator.skipped_chunks.values())
             results.append(_record(ref))
     return ref, passes, results
 
@@ -281,12 +282,14 @@ def _finish_job(ref):
 
 
 def _record(ref):
-    est, use = ref.estimate, ref.state
+    estimator = ref.estimator
+    est, use = estimator.estimate, estimator.state
     return dict(estimate=np.concatenate([est.R.ravel(), est.T, [est.log_focal, est.offset_s, est.readout_s]]),
                 state=np.concatenate([use.R.ravel(), use.T, [use.log_focal, use.offset_s, use.readout_s]]),
-                P=ref.estimator.P.copy(), cov=ref.cov().copy(), updates=ref.updates, versions=ref.versions,
-                skipped=dict(ref.estimator.skipped_chunks), bumps=list(ref.bumps), refined=ref.estimator.refined.copy(),
-                refit={t: np.concatenate([R.ravel(), p]) for t, (R, p) in ref.refit_poses.items()})
+                P=estimator.P.copy(), cov=estimator.cov().copy(), updates=estimator.updates,
+                versions=estimator.versions, skipped=dict(estimator.skipped_chunks), bumps=list(estimator.bumps),
+                refined=estimator.refined.copy(),
+                refit={t: np.concatenate([R.ravel(), p]) for t, (R, p) in estimator.refit_poses.items()})
 
 
 def _assert_same_results(a, b, atol=1e-9):
@@ -314,15 +317,15 @@ def test_incremental_solve_is_bounded_and_equals_the_synchronous_one(synchronous
     sync_ref, sync_passes, sync_results = synchronous
     ref, passes, results = _feed(JOB)
     # The stream taught something, through both paths of an update: a bump's retry and skips.
-    assert sync_ref.updates >= 15 and sync_ref.bumps and sync_ref.versions >= 2
+    assert sync_ref.estimator.updates >= 15 and sync_ref.estimator.bumps and sync_ref.estimator.versions >= 2
     assert sync_ref.estimator.ignored_frames == 1
-    assert max(sync_passes) >= 2 * (sync_ref.config.iterations + 1)   # the retry, at once
+    assert max(sync_passes) >= 2 * (sync_ref.estimator.config.iterations + 1)   # the retry, at once
     # No call ran more than passes_per_frame passes; the one completing a chunk none.
-    budget = ref.config.passes_per_frame
+    budget = ref.estimator.config.passes_per_frame
     assert max(passes) == budget
     assert passes[7] == passes[15] == passes[23] == 0      # the calls completing the first chunks
     work, sync_work = ref.scheduler, sync_ref.scheduler
-    assert work.frame_terms <= work.passes * ref.config.chunk_frames
+    assert work.frame_terms <= work.passes * ref.estimator.config.chunk_frames
     # The same work, spread, and the same results, update by update.
     assert work.passes == sync_work.passes and work.frame_terms == sync_work.frame_terms
     _assert_same_results(results, sync_results)
@@ -361,7 +364,7 @@ def test_a_copy_or_a_readout_prior_restarts_the_job_with_the_same_result(synchro
     given, _, expected = _feed(rig_refine.RigRefineConfig(synchronous=True), frames=frames)
 
     def set_prior(k, ref):
-        if ref.scheduler.last_step.under_way and ref.updates == 0 and "prior" not in seen:
+        if ref.scheduler.last_step.under_way and ref.estimator.updates == 0 and "prior" not in seen:
             seen["prior"] = k
             ref.set_readout_prior(*readout_prior(1 / 30, None))
         return None
@@ -378,8 +381,8 @@ def test_widen_reset_drop_pending_with_a_job_running(how):
     sigma = np.full((2, 5), 0.03)
     for k, (t, centres, R, p1) in enumerate(_stream(seconds=0.5)[:9]):
         ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1)
-    assert ref.scheduler.last_step.under_way and ref.updates == 0 and len(ref.scheduler.pending) == 1
-    before = (ref.estimate.R.copy(), ref.estimator.P.copy())
+    assert ref.scheduler.last_step.under_way and ref.estimator.updates == 0 and len(ref.scheduler.pending) == 1
+    before = (ref.estimator.estimate.R.copy(), ref.estimator.P.copy())
     if how == "widen":
         ref.widen(0.3)
     elif how == "forget_motion":
@@ -390,12 +393,12 @@ def test_widen_reset_drop_pending_with_a_job_running(how):
         # The job's chunk keeps its velocities and runs on; only the pending frame lost its motion.
         assert not ref.scheduler.pending[0].motion_known
         ref.flush()
-        assert ref.updates == 1
+        assert ref.estimator.updates == 1
         return
     # Dropped: nothing of it applied, nothing left to run (a flush runs no pass).
-    assert ref.updates == 0 and not ref.scheduler.pending
-    np.testing.assert_array_equal(ref.estimate.R, before[0])
-    assert not ref.flush() and ref.last_call_passes == 0 and ref.updates == 0
+    assert ref.estimator.updates == 0 and not ref.scheduler.pending
+    np.testing.assert_array_equal(ref.estimator.estimate.R, before[0])
+    assert not ref.flush() and ref.scheduler.last_step.passes == 0 and ref.estimator.updates == 0
 
 
 def test_an_exception_inside_the_job_ends_it(monkeypatch):
@@ -414,13 +417,13 @@ def test_an_exception_inside_the_job_ends_it(monkeypatch):
     with pytest.raises(np.linalg.LinAlgError):
         ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1)
     # The job ended with the exception: a flush finds nothing to run (one frame is short of a chunk).
-    assert not ref.flush() and ref.last_call_passes == 0 and ref.updates == 0
+    assert not ref.flush() and ref.scheduler.last_step.passes == 0 and ref.estimator.updates == 0
     ref.drop_pending()
     monkeypatch.undo()
     for t, centres, R, p1 in frames[9:17]:
         ref.add_frame(t, 0.0, centres, ALL_VISIBLE, sigma, R, p1)
     ref.flush()
-    assert ref.updates == 1
+    assert ref.estimator.updates == 1
 
 
 def test_frames_given_during_a_job_are_moved_onto_the_new_rig():
@@ -435,21 +438,21 @@ def test_frames_given_during_a_job_are_moved_onto_the_new_rig():
             break
     else:
         raise AssertionError("the rig in use never changed")
-    assert ref.versions == 1 and k > 8
+    assert ref.estimator.versions == 1 and k > 8
     chunk_times = [f[0] for f in frames[:8]]
     since = [f[0] for f in frames[8:k + 1]]
-    assert sorted(ref.refit_poses) == chunk_times + since
+    assert sorted(ref.estimator.refit_poses) == chunk_times + since
     for f in ref.scheduler.pending:
         assert f.rig_version == 0 and f.refit[0] == 1
-        np.testing.assert_array_equal(f.newest()[1], ref.refit_poses[f.t][1])
+        np.testing.assert_array_equal(f.newest()[1], ref.estimator.refit_poses[f.t][1])
     # The move is the change of the chunk's last pose: a rigid motion, the same for every frame.
     last_t = chunk_times[-1]
     R_old, p_old = frames[7][2], frames[7][3]
-    R_new, p_new = ref.refit_poses[last_t]
+    R_new, p_new = ref.estimator.refit_poses[last_t]
     turn = R_new @ R_old.T
     for t, _, R, p1 in frames[8:k + 1]:
-        np.testing.assert_allclose(ref.refit_poses[t][0], turn @ R, atol=1e-12)
-        np.testing.assert_allclose(ref.refit_poses[t][1], turn @ p1 + p_new - turn @ p_old, atol=1e-9)
+        np.testing.assert_allclose(ref.estimator.refit_poses[t][0], turn @ R, atol=1e-12)
+        np.testing.assert_allclose(ref.estimator.refit_poses[t][1], turn @ p1 + p_new - turn @ p_old, atol=1e-9)
 
 
 @pytest.mark.slow
@@ -461,4 +464,4 @@ def test_the_first_update_is_solved_at_once_and_the_next_ones_over_the_frames_af
     first = next(k for k, p in enumerate(passes) if p)
     assert first == config.chunk_frames - 1 and passes[first] > config.passes_per_frame
     assert max(passes[first + 1:]) <= config.passes_per_frame
-    assert ref.updates >= 5
+    assert ref.estimator.updates >= 5

@@ -52,9 +52,9 @@ def test_rolling_shutter_is_compensated_and_its_readout_learnt(synth):
     assert np.median(v[60:]) <= 0.1 and np.median(p[60:]) <= 0.5
     assert v.max() < 5 and p.max() < 20
     assert 1.0 <= n.mean() <= 3.5
-    readout = tracker.refiner.estimate.readout_s
+    readout = tracker.refiner.estimator.estimate.readout_s
     assert abs(readout - 0.03) <= max(1e-3, 0.05 * 0.03), readout
-    assert abs(tracker.refiner.estimate.offset_s - 0.012) <= 1e-3
+    assert abs(tracker.refiner.estimator.estimate.offset_s - 0.012) <= 1e-3
     assert "rolling shutter" in tracker.refiner.describe()
 
 
@@ -80,7 +80,7 @@ def test_a_global_shutter_stays_one(synth):
     v, p, _ = _errors(ds, results)
     assert all(r.ok for _, r in results)
     assert np.median(v) <= 0.1 and np.median(p) <= 0.2
-    assert abs(tracker.refiner.estimate.readout_s) <= 1e-3
+    assert abs(tracker.refiner.estimator.estimate.readout_s) <= 1e-3
     assert tracker.readout_s() == 0.0
 
 
@@ -95,7 +95,7 @@ def test_a_far_off_rig_gives_no_wrong_pose_from_the_first_frames(synth, faults):
     v, p, n = _errors(ds, results)
     assert sum(r.ok for _, r in results) >= 28
     assert v.max() < 1.0 and p.max() < 2.0
-    assert tracker.refiner.bootstrapped_at is not None
+    assert tracker.refiner.estimator.bootstrapped_at is not None
     noted = [r for _, r in results if any("rig.yaml is far from the rig" in note for note in r.notes)]
     assert len(noted) == 1 and noted[0].ok
 
@@ -119,7 +119,7 @@ def test_one_stray_blob_does_not_make_a_rig():
     far = TrackerConfig().rig_far
     frames = [(0.0, good, np.ones((2, 5), bool), sigma, R, p1), (1 / 30, bad, np.ones((2, 5), bool), sigma, R, p1)]
     assert not refiner.bootstrap(frames, far)
-    assert refiner.versions == 0 and refiner.bootstrapped_at is None
+    assert refiner.estimator.versions == 0 and refiner.estimator.bootstrapped_at is None
 
 
 @pytest.mark.slow

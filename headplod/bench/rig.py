@@ -202,11 +202,11 @@ def run_rig_set(folder, settle_s: float = SETTLE_S, estimator: str | None = None
                     row["nees"] = nees(cov, axes_true[2], result.axes)
             refiner = tracker.refiner
             if refiner is not None:
-                state = refiner.state
+                state = refiner.estimator.state
                 declared = (frame.t_right - frame.t) if (frame.t_right is not None and frame.t is not None) else 0.0
                 row.update(rig_errors(state.R, state.T, state.K2(), state.offset_s + declared,
                                       truth_segment(rig_truth, frame.index), rig_truth["time_offset_s"]))
-                sd = refiner.sigma()
+                sd = refiner.estimator.sigma()
                 row["turn_sd_deg"] = float(np.degrees(np.max(sd[:3])))
                 row["offset_sd_ms"] = float(sd[7] * 1e3)
                 if len(sd) > 8:

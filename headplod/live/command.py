@@ -662,7 +662,7 @@ def _report_rig(args, tracker, tracked: int, log) -> int:
     if refiner is not None and args.refine_rig == "on":
         refiner.flush()                                 # the frames short of a full chunk at the end
         line = ""
-        if refiner.updates or refiner.bumps:
+        if refiner.estimator.updates or refiner.estimator.bumps:
             line = refiner.describe()
             print(line, file=log)
         else:
@@ -678,10 +678,11 @@ def _report_rig(args, tracker, tracked: int, log) -> int:
         return 1
     try:
         # The best estimate, not only what was in use; FILE is whole or untouched.
-        io.write_atomically(args.save_rig, lambda name: io.write_rig(name, refiner.estimate.rig()), suffix=".tmp.yaml")
+        io.write_atomically(args.save_rig, lambda name: io.write_rig(name, refiner.estimator.estimate.rig()),
+                            suffix=".tmp.yaml")
     except (OSError, ValueError) as exc:
         print(f"headplod: --save-rig {args.save_rig}: {exc}", file=sys.stderr)
         return 1
-    note = "" if refiner.updates else " (no update from the tracked frames: rig.yaml's values)"
+    note = "" if refiner.estimator.updates else " (no update from the tracked frames: rig.yaml's values)"
     print(f"refined rig: {args.save_rig}{note}", file=log)
     return 0

@@ -91,7 +91,7 @@ class Covariance:
             # V's uncertainty takes the rig's error as the data know it, the
             # error model's scale learnt too (a right rig.yaml's share shrinks);
             # the checks keep the error model as it is.
-            rig_mean, rig_cov = rig.refiner.error_distribution()
+            rig_mean, rig_cov = rig.refiner.estimator.error_distribution()
             rig_parameters = len(rig_mean)
         plain_rows = pose_rows                 # ∂x/∂pose, before the motion's gain below
         right_rows = np.zeros_like(pose_rows)
@@ -127,4 +127,4 @@ class Covariance:
                                fit.vectors, t, match.shot_var,
                                pose_rows, rig_rows, rig_cov, rig.version(), match.excess_px,
                                rig_mean, not (R is fit.fitted[0] and p1 is fit.fitted[1]), rig_parameters,
-                               rig.refiner is None or rig.refiner.has_data())
+                               rig.refiner is None or rig.refiner.estimator.has_data())

@@ -217,8 +217,8 @@ class RightPairing:
             return (left, right), t_right
         if previous is not None and previous[1] is not None and 0 < t - previous[1] < 1.0:
             self._periods = (self._periods + [t - previous[1]])[-8:]
-        offset = refiner.state.offset_s
-        if not abs(offset) > max(2.0 * refiner.sigma()[7], 3e-4):
+        offset = refiner.estimator.state.offset_s
+        if not abs(offset) > max(2.0 * refiner.estimator.sigma()[7], 3e-4):
             return (left, right), t_right
         period = float(np.median(self._periods)) if self._periods else None
         if (period and offset > 0.5 * period and previous is not None and previous[1] is not None

@@ -245,8 +245,8 @@ class RigChecks:
             return None, None, pose_rows
         dt = (t_right - t) if (t is not None and t_right is not None) else 0.0
         omega, v = velocity if velocity is not None else (None, None)
-        rows = rig_jacobian_rows(R, p1, self.check_model_mm, refiner.state, geometry.cameras.D[1], dt, omega, v,
-                                 rows_px=match.centers[..., 1], image_height=int(geometry.rig.image_size[1]))
+        rows = rig_jacobian_rows(R, p1, self.check_model_mm, refiner.estimator.state, geometry.cameras.D[1], dt,
+                                 omega, v, rows_px=match.centers[..., 1], image_height=int(geometry.rig.image_size[1]))
         if not spread:
             return rows, None, pose_rows
         M, _ = self.rig_after_fit(pose_rows, rows, match.visible, self._sigma(match))

@@ -30,7 +30,7 @@ class _Frame:
     omega: np.ndarray | None = None   # (3,) head angular velocity, world, rad/s
     velocity: np.ndarray | None = None  # (3,) P1 velocity, mm/s
     motion_known: bool = True     # False: its time does not fit the motion; no velocity from or across it
-    rig_version: int = 0          # RigRefiner.versions of the rig its pose was fitted with (_INDEPENDENT: none)
+    rig_version: int = 0          # RigEstimator.versions of the rig its pose was fitted with (_INDEPENDENT: none)
     refit: tuple | None = None    # (version, R, p1): its pose refitted with a newer rig, by an update
 
     def newest(self):

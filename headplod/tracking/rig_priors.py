@@ -6,10 +6,10 @@ mm ×3, log focal, s ×2), times in s.
 
 The rig's error for the uncertainty of V
 ----------------------------------------
-:meth:`RigRefiner.cov <.rig_refine.RigRefiner.cov>` (P + ddᵀ) keeps the
+:meth:`RigEstimator.cov <.rig_estimator.RigEstimator.cov>` (P + ddᵀ) keeps the
 error model as it is: what the checks must allow. The covariance of V takes
 the rig in use's error as the data know it
-(:meth:`RigRefiner.error_distribution <.rig_refine.RigRefiner.error_distribution>`):
+(:meth:`RigEstimator.error_distribution <.rig_estimator.RigEstimator.error_distribution>`):
 the error model's scale (how far off this calibration is, against
 calibrations in general) learnt from how far the data find the rig from
 rig.yaml (hierarchical Bayes, :func:`scaled_error_distribution`), the data's

@@ -25,10 +25,10 @@ where the motion left it, and costs one small dense solve per chunk.
 - Parameters the chunk's motion does not make observable (their
   information from the chunk below ``observable_fraction`` of the prior's)
   are held, not refined.
-- The rig in use (:attr:`RigRefiner.state`) follows the filter's estimate
-  only when the two differ by more than ``publish_sigma`` σ of the
-  estimate: a still head or a right rig does not shake the poses with the
-  refinement's own noise.
+- The rig in use (:attr:`RigEstimator.state <.rig_estimator.RigEstimator.state>`)
+  follows the filter's estimate only when the two differ by more than
+  ``publish_sigma`` σ of the estimate: a still head or a right rig does not
+  shake the poses with the refinement's own noise.
 - A chunk inconsistent with the prior (its residuals far beyond the noise)
   is re-solved with the prior widened to the calibration's error model; if
   that explains it, the rig changed (a bump) and the filter re-converges
@@ -59,7 +59,8 @@ its result. When the result changes that rig, they are moved onto the new
 one by the change the update made to its chunk's last pose (a rigid motion
 of the world, nearly the same for poses a few frames apart): that is where
 their own chunk's solve starts from, what their velocities are differenced
-with, and what :attr:`RigRefiner.refit_poses` gives the tracker for them.
+with, and what :attr:`RigEstimator.refit_poses <.rig_estimator.RigEstimator.refit_poses>`
+gives the tracker for them.
 Velocities difference poses of one rig only (a rig's change is not motion).
 
 Parts
@@ -125,7 +126,12 @@ class RigRefiner:
     Attributes
     ----------
     estimator : RigEstimator
+        The estimate and what it knows: the rig in use (``state``), the
+        estimate, its covariance, the prior, the counts, the refitted poses;
+        read them there.
     scheduler : SolveScheduler
+        The frames collected into chunks and the update under way
+        (``last_step.passes``: Gauss-Newton passes of the last call).
     """
 
     def __init__(self, rig, model_mm, config: RigRefineConfig = RigRefineConfig(),
@@ -135,85 +141,14 @@ class RigRefiner:
                                       readout_prior)
         self.scheduler = SolveScheduler.from_config(self.estimator, config)
 
-    # ------------------------------------------------- the estimator's values
-    @property
-    def config(self) -> RigRefineConfig:
-        return self.estimator.config
-
-    @property
-    def state(self) -> RigState:
-        """The rig in use (it follows :attr:`estimate` when they differ by more than the estimate's noise)."""
-        return self.estimator.state
-
-    @property
-    def estimate(self) -> RigState:
-        """The refinement's current estimate of the rig."""
-        return self.estimator.estimate
-
-    @property
-    def prior(self) -> np.ndarray:
-        """The error model's covariance (9, 9) of rig.yaml (the readout's prior as set last)."""
-        return self.estimator.prior
-
-    @property
-    def updates(self) -> int:
-        """Chunks that updated the estimate."""
-        return self.estimator.updates
-
-    @property
-    def versions(self) -> int:
-        """Changes of the rig in use."""
-        return self.estimator.versions
-
-    @property
-    def bumps(self) -> list:
-        """Times (s) of detected changes of the rig."""
-        return self.estimator.bumps
-
-    @property
-    def bootstrapped_at(self) -> float | None:
-        """Time (s) of the frame a far-off rig.yaml was replaced from (:meth:`bootstrap`), or None."""
-        return self.estimator.bootstrapped_at
-
-    @property
-    def refit_poses(self) -> dict:
-        """{t: (R_world_G (3, 3), p1 (3,) mm)} of the last change's frames, fitted with the rig it gave."""
-        return self.estimator.refit_poses
-
-    @property
-    def last_call_passes(self) -> int:
-        """Gauss-Newton passes run in the last :meth:`add_frame` or :meth:`flush`."""
-        return self.scheduler.last_step.passes
-
-    def sigma(self) -> np.ndarray:
-        """1σ of the error of the rig in use (9,): rad ×3, mm ×3, log focal, offset s, readout s."""
-        return self.estimator.sigma()
-
-    def cov(self) -> np.ndarray:
-        """Covariance (9, 9) of the error of the rig in use (:meth:`RigEstimator.cov`)."""
-        return self.estimator.cov()
-
-    def error_distribution(self) -> tuple[np.ndarray, np.ndarray]:
-        """Mean (9,) and covariance (9, 9) of the error of the rig in use, for the uncertainty of V
-        (:meth:`RigEstimator.error_distribution`)."""
-        return self.estimator.error_distribution()
-
-    def has_data(self) -> bool:
-        """Whether the refinement has learnt anything of the rig since its error model was (re)set."""
-        return self.estimator.has_data()
-
-    def converged(self) -> bool:
-        """The turn and shift are known to a tenth of their prior σ."""
-        return self.estimator.converged()
-
     # ----------------------------------------------------------------- report
     def describe(self) -> str:
         """One line for a person: how the rig differs from rig.yaml and what the refinement is doing."""
-        return rig_report.describe(self.estimator.summary(), self.config)
+        return rig_report.describe(self.estimator.summary(), self.estimator.config)
 
     def advice(self) -> str | None:
         """A recommendation to recalibrate, and what the refinement cannot fix, or None."""
-        return rig_report.advice(self.estimator.summary(), self.config)
+        return rig_report.advice(self.estimator.summary(), self.estimator.config)
 
     def status(self) -> dict:
         """JSON-ready state for the pose records."""
@@ -223,7 +158,8 @@ class RigRefiner:
     def add_frame(self, t: float | None, declared_offset_s: float, centers: np.ndarray, visible: np.ndarray,
                   sigma_px: np.ndarray, R_world_G: np.ndarray, p1_mm: np.ndarray, motion_known: bool = True,
                   independent_pose: bool = False) -> bool:
-        """Take one tracked frame; True when the rig in use changed (:attr:`state`, :attr:`refit_poses`).
+        """Take one tracked frame; True when the rig in use changed (``estimator.state``,
+        ``estimator.refit_poses``).
 
         ``centers`` (2, 5, 2) px, ``visible`` (2, 5), ``sigma_px`` (2, 5, 2)
         or (2, 5): each centre's noise, px; the pose is the tracker's.
@@ -231,7 +167,7 @@ class RigRefiner:
         motion (a clock too fast, independent poses), so no velocity is taken
         from or across it; it still tells the rig's geometry, not the
         exposure offset (which is seen only through a velocity).
-        The pose is taken to be fitted with the rig in use (:attr:`state`):
+        The pose is taken to be fitted with the rig in use (``estimator.state``):
         velocities difference poses of one rig (as tracked, or moved onto a
         newer rig by an update). ``independent_pose``: it does not depend on
         the rig (a simulation's, another system's): used as given, never
@@ -240,22 +176,23 @@ class RigRefiner:
 
         The call then runs ``passes_per_frame`` passes of the update under
         way, if any (module docstring, "Timing"): True when that finished it
-        and the rig in use changed; :attr:`refit_poses` then holds the poses
-        of its chunk's frames refitted with the new rig, and those of the
+        and the rig in use changed; ``estimator.refit_poses`` then holds the
+        poses of its chunk's frames refitted with the new rig, and those of the
         frames given since (this one included), tracked with the old rig,
         moved onto the new one. A frame that completes a chunk starts its
         update, to be run by the next calls (in this one with
         ``config.synchronous``).
         """
-        if not self.config.enabled:
+        estimator = self.estimator
+        if not estimator.config.enabled:
             return False
-        frame = self.estimator.frame(t, declared_offset_s, centers, visible, sigma_px, R_world_G, p1_mm,
-                                     motion_known, _INDEPENDENT if independent_pose else self.versions)
+        frame = estimator.frame(t, declared_offset_s, centers, visible, sigma_px, R_world_G, p1_mm,
+                                motion_known, _INDEPENDENT if independent_pose else estimator.versions)
         return self.scheduler.add(frame).changed
 
     def flush(self) -> bool:
         """Finish the update under way, then use the frames waiting for a full chunk (end of a recording).
-        True when the rig in use changed (:attr:`refit_poses`: the last change's)."""
+        True when the rig in use changed (``estimator.refit_poses``: the last change's)."""
         return self.scheduler.flush().changed
 
     def forget_motion(self) -> None:

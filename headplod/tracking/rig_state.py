@@ -51,7 +51,7 @@ PARAMETERS = ("turn_x_rad", "turn_y_rad", "turn_z_rad", "shift_x_mm", "shift_y_m
               "log_focal_right", "time_offset_s", "readout_s")
 N_RIG = len(PARAMETERS)
 _TURN, _SHIFT, _FOCAL, _OFFSET, _READOUT = slice(0, 3), slice(3, 6), 6, 7, 8
-# The parameters a calibration gets more or less right (RigRefiner.error_distribution learns their error
+# The parameters a calibration gets more or less right (RigEstimator.error_distribution learns their error
 # model's scale): the right camera's turn, shift and focal length.
 _GEOMETRY = np.arange(N_RIG) < 7
 

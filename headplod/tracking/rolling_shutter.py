@@ -57,8 +57,8 @@ class RollingShutter:
         configured readout."""
         refiner = self.shutter_rig.refiner
         if refiner is not None and self.shutter_config.rig_refine.enabled:
-            readout = float(refiner.state.readout_s)
-            sd = float(refiner.sigma()[8])
+            readout = float(refiner.estimator.state.readout_s)
+            sd = float(refiner.estimator.sigma()[8])
             return readout if readout > max(2.0 * sd, self.shutter_config.min_readout_s) else 0.0
         return self.given_readout_s() or 0.0
 
@@ -138,7 +138,7 @@ class RollingShutter:
         given = self.given_readout_s()
         if given is None and period is None:
             return
-        if refiner.updates:
+        if refiner.estimator.updates:
             self._readout_prior_set = True     # learnt already: the prior is the refinement's business
             return
         mean, sd = readout_prior(period, given)

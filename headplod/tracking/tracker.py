@@ -585,4 +585,4 @@ class Tracker:
         if p.rig.refine(match, frame.t, lambda: p.covariance.centre_sd(cov_input, match), fit.fitted[0],
                         fit.fitted[1], fit.disagrees, frame.verdict.glitch, p.pairing.declared_right,
                         motion_known=not p.motion.motion_unknown):
-            p.motion.refit(p.rig.refiner.refit_poses, p.rig.version())
+            p.motion.refit(p.rig.refiner.estimator.refit_poses, p.rig.version())

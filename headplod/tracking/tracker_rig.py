@@ -175,16 +175,17 @@ class RigInUse:
         prior (the rig as uncertain as before any refinement)."""
         if self.refiner is None:
             return None
-        P = self.refiner.cov()
-        return P + self.refiner.prior if wide else P
+        estimator = self.refiner.estimator
+        P = estimator.cov()
+        return P + estimator.prior if wide else P
 
     def phase(self) -> RigPhase:
         """As rig.yaml says, refining or refined (module docstring)."""
-        refiner = self.refiner
-        if refiner is None or not self.rig_config.rig_refine.enabled or (not refiner.updates
-                                                                           and refiner.bootstrapped_at is None):
+        estimator = None if self.refiner is None else self.refiner.estimator
+        if estimator is None or not self.rig_config.rig_refine.enabled or (not estimator.updates
+                                                                             and estimator.bootstrapped_at is None):
             return RigPhase.YAML
-        return RigPhase.REFINED if refiner.converged() else RigPhase.REFINING
+        return RigPhase.REFINED if estimator.converged() else RigPhase.REFINING
 
     def bootstrap(self, t, failure: RigFailure | None, uncompensated: bool, compensated: bool,
                   declared_right) -> str | None:
@@ -200,7 +201,8 @@ class RigInUse:
         motion; ``declared_right``: the right image's time as given, s. Returns the note saying what it
         found when the refinement now starts from the rig they gave, else None."""
         refiner, c = self.refiner, self.rig_config
-        if (failure is None or refiner is None or refiner.updates or refiner.bootstrapped_at is not None
+        if (failure is None or refiner is None or refiner.estimator.updates
+                or refiner.estimator.bootstrapped_at is not None
                 or not c.rig_refine.enabled or c.estimator != "reproj" or t is None):
             self._bootstrap_fits = []
             return None
@@ -221,7 +223,7 @@ class RigInUse:
         if not refiner.bootstrap(self._bootstrap_fits, c.rig_far):
             return None
         self._bootstrap_fits = []
-        self.apply(refiner.state.rig())
+        self.apply(refiner.estimator.state.rig())
         return ("rig.yaml is far from the rig these images show: the rig was estimated from the "
                 f"markers of this frame and the last ({refiner.describe()}); the pose carries its "
                 "uncertainty")
@@ -234,21 +236,22 @@ class RigInUse:
         refiner.drop_pending()
         intact = False
         try:
-            P = refiner.cov()
-            state = (refiner.state.R, refiner.state.T, refiner.estimate.R, refiner.estimate.T)
+            estimator = refiner.estimator
+            P = estimator.cov()
+            state = (estimator.state.R, estimator.state.T, estimator.estimate.R, estimator.estimate.T)
             intact = (all(np.isfinite(a).all() for a in state) and np.isfinite(P).all()
                       and np.linalg.eigvalsh(0.5 * (P + P.T)).min() > 0)
         except Exception:              # noqa: BLE001 -- a state that cannot even be read is not intact
             intact = False
         if not intact:
             refiner.reset()
-            self.apply(refiner.state.rig())
+            self.apply(refiner.estimator.state.rig())
         self._gate()
 
     def refine(self, match: Match, t, centre_sd: Callable, R, p1, disagrees: bool, glitch: bool,
                declared_right, motion_known: bool) -> bool:
         """Feed an accepted frame to the rig's refinement; True when the rig in use changed (then
-        :attr:`refiner`'s ``refit_poses`` holds the recent poses refitted with it).
+        :attr:`refiner`'s estimator's ``refit_poses`` holds the recent poses refitted with it).
 
         ``centre_sd()``: each centre's 1σ per coordinate (2, 5, 2) px, asked for only when the frame is
         fed; ``glitch``: the frame's time is a repeat or a glitch; ``declared_right``: the right image's
@@ -281,7 +284,7 @@ class RigInUse:
             # times jitter, and the refinement would take that for the rig.
             return False
         if refiner.add_frame(t, offset, match.centers, match.visible, sigma, R, p1, motion_known=motion_known):
-            self.apply(refiner.state.rig())
+            self.apply(refiner.estimator.state.rig())
             return True
         return False
 
@@ -293,7 +296,7 @@ class RigInUse:
 
     def version(self) -> int:
         """The rig's version: how often the rig in use changed (0 before the refinement)."""
-        return 0 if self.refiner is None else self.refiner.versions
+        return 0 if self.refiner is None else self.refiner.estimator.versions
 
     def status(self):
         """The refinement's status for a result (None before it starts)."""
@@ -305,6 +308,7 @@ class RigInUse:
             return None
         if disagrees:
             return "the images disagree with the refined rig (bumped?); tracking with the calibration's uncertainty"
-        if self.refiner.updates == 0 and not self.refiner.bumps:
+        estimator = self.refiner.estimator
+        if estimator.updates == 0 and not estimator.bumps:
             return None
         return self.refiner.describe()
