@@ -2,16 +2,18 @@
 
 :class:`Identifier` is a part of :class:`~.tracker.Tracker` with no state
 of its own (its settings and the marker model): blobs in, labelled markers
-(a :class:`~.lock.Match`) or the reason for none out
-(:meth:`Identifier.identify`), on the rig in use and the tolerances it
-widens, a :class:`~.tracker_rig.RigGeometry` given with each call. The
-blobs most likely to be markers (:meth:`Identifier.candidates`), their
-labelings P0..P4 in each image (:mod:`.identify`), the left/right pair of
-labelings that best fits the epipolar geometry and the model
-(:meth:`Identifier._best_pair`), or, when none does, one marker hidden in
-one view (:meth:`Identifier._hidden_marker`). The same checks make a match
-of centres already labelled (:meth:`Identifier.match_from_centers`, the
-*track* state's re-measure). Centres in px, the model in mm.
+(a :class:`~.lock.Match`) or the reason for none out, with the count of
+labelings it fitted (:meth:`Identifier.identify`, an
+:class:`Identification`), on the rig in use and the tolerances it widens,
+a :class:`~.tracker_rig.RigGeometry` given with each call. The blobs most
+likely to be markers (:meth:`Identifier.candidates`); their stereo points
+and the labelings of those by the model's distances (:mod:`.identify`, which
+says why this bounds the cost); the best ``max_hypotheses`` labelings fitted
+to the model (:meth:`Identifier._best_labeling`), or, when none fits, one
+marker hidden in one view (:meth:`Identifier._hidden_marker`). The same
+checks make a match of centres already labelled
+(:meth:`Identifier.match_from_centers`, the *track* state's re-measure).
+Centres in px, the model in mm.
 """
 from __future__ import annotations
 

@@ -259,12 +259,21 @@ def detect_blobs(image: np.ndarray, params: DetectionParams = DetectionParams(),
                  | ((boxes[:, 1] == y_off) & (y_off > 0))
                  | ((boxes[:, 0] + boxes[:, 2] == x_off + sub_w) & (x_off + sub_w < width))
                  | ((boxes[:, 1] + boxes[:, 3] == y_off + sub_h) & (y_off + sub_h < height)))
-    side = int(boxes[:, 2:].max()) + 2 * params.pad_px
-    if (side <= _FAST_WINDOW_PX and not params.smooth_px and params.subtract_background
-            and not keep_pixels and side <= min(width, height)):
-        stats = _centroids_fixed_windows(image, boxes, side, threshold, 2.0 * sigma)
+    sides = boxes[:, 2:].max(axis=1) + 2 * params.pad_px
+    small = sides <= min(_FAST_WINDOW_PX, width, height)
+    if small.any() and not params.smooth_px and params.subtract_background and not keep_pixels:
+        # The blobs that fit a small window all at once; the few larger ones
+        # (a lamp, a fused reflection) one at a time, so that one large blob
+        # does not put every other on the slow path.
+        side = int(sides[small].max())
+        stats = _centroids_fixed_windows(image, boxes, side, threshold, 2.0 * sigma, np.flatnonzero(small))
         if stats is not None:
             centers, area, peak, flux, spread, shot = stats
+            if not small.all():
+                large = _centroids_per_blob(image, binary, contours, boxes, (x_off, y_off), params, threshold,
+                                            bg, sigma, False, only=np.flatnonzero(~small))
+                for fast, slow in zip((centers, area, peak, flux, spread, shot), large[:5] + large[6:]):
+                    fast[~small] = slow[~small]
             return _finish(centers, area, peak, flux, spread, boxes, truncated, params, threshold, bg, sigma, [],
                            2.0 * sigma, shot)
     centers, area, peak, flux, spread, pixels, shot = _centroids_per_blob(
@@ -279,23 +288,29 @@ def detect_blobs(image: np.ndarray, params: DetectionParams = DetectionParams(),
 _FAST_WINDOW_PX = 40
 
 
-def _centroids_fixed_windows(image, boxes, side, threshold, noise_floor):
-    """Centroids of all blobs at once from equal square windows (n, side, side).
+def _centroids_fixed_windows(image, boxes, side, threshold, noise_floor, which):
+    """Centroids of the blobs ``which`` (indices into ``boxes`` (n, 4)) at once from equal square windows
+    (len(which), side, side); statistics (n,) for every blob, NaN / 0 where not measured.
 
     Returns None when a window would hold part of another blob (then the
     per-blob path masks it out).
     """
     height, width = image.shape
-    cx = boxes[:, 0] + boxes[:, 2] // 2
-    cy = boxes[:, 1] + boxes[:, 3] // 2
+    chosen = boxes[which]
+    cx = chosen[:, 0] + chosen[:, 2] // 2
+    cy = chosen[:, 1] + chosen[:, 3] // 2
     ox = np.clip(cx - side // 2, 0, width - side)
     oy = np.clip(cy - side // 2, 0, height - side)
     # Another blob's box inside this window would bias the centroid.
     inside = ((boxes[None, :, 0] < (ox + side)[:, None]) & (boxes[None, :, 0] + boxes[None, :, 2] > ox[:, None])
               & (boxes[None, :, 1] < (oy + side)[:, None]) & (boxes[None, :, 1] + boxes[None, :, 3] > oy[:, None]))
-    if inside.sum() > len(boxes):
+    if inside.sum() > len(chosen):
         return None
-    centers, flux, peak, area, _, spread, shot = _window_stats((image,), ox, oy, side, threshold, noise_floor)
+    stats = _window_stats((image,), ox, oy, side, threshold, noise_floor)
+    n = len(boxes)
+    centers, area, peak = np.full((n, 2), np.nan), np.zeros(n, np.int64), np.zeros(n)
+    flux, spread, shot = np.zeros(n), np.zeros(n), np.full((n, 2), np.nan)
+    centers[which], flux[which], peak[which], area[which], _, spread[which], shot[which] = stats
     return centers, area, peak, flux, spread, shot
 
 
@@ -647,8 +662,10 @@ def shot_variance(images, centers_px: np.ndarray, size_px: np.ndarray, backgroun
     return np.where(found[:, None], shot, np.nan).reshape(k, n, 2)
 
 
-def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshold, bg, sigma, keep_pixels):
-    """Centroids one blob at a time: masks out neighbours, smooths (paper), keeps pixel clouds."""
+def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshold, bg, sigma, keep_pixels,
+                        only=None):
+    """Centroids one blob at a time: masks out neighbours, smooths (paper), keeps pixel clouds.
+    ``only``: the indices of the blobs to measure (default all; the others keep NaN / 0)."""
     height, width = image.shape
     x_off, y_off = offset
     pad = params.pad_px
@@ -671,7 +688,7 @@ def _centroids_per_blob(image, binary, contours, boxes, offset, params, threshol
     shot = np.full((n, 2), np.nan)
     pixels = []
     noise_floor = 2.0 * sigma if params.subtract_background else 0.0
-    for i in range(n):  # a handful of blobs; per-pixel work inside is OpenCV/numpy
+    for i in range(n) if only is None else only:  # a few blobs; per-pixel work inside is OpenCV/numpy
         win = image[y0[i]:y1[i], x0[i]:x1[i]].astype(np.float32)
         if crowded[i]:
             mask = np.zeros(win.shape, np.uint8)

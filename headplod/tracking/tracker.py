@@ -6,11 +6,11 @@ Stages (each timed per frame in ``TrackResult.timings_s``):
    only a region around the previous frame's markers is searched and the
    previous labels are carried over by nearest neighbour; the whole image and
    a fresh identification are used when that fails.
-2. ``identify``: labelings P0..P4 per image (:mod:`headplod.tracking.identify`), then
-   the left/right pair that best satisfies the epipolar constraint and the
-   marker model's geometry (rigid fit with the model's true size). When no
-   pair of full labelings works, a marker hidden in one view is tried: the
-   other view's blobs are matched to the labeled view through the same checks.
+2. ``identify``: stereo points (left/right blob pairs on each other's
+   epipolar lines, triangulated), labelled P0..P4 by the marker model's
+   pairwise distances and fitted to the model at its true size, the best
+   ``max_hypotheses`` labelings only (:mod:`headplod.tracking.identify`); when
+   no five-marker labeling fits, four with the fifth marker seen in one view.
 3. ``triangulate`` and ``pose``: one of the estimators of :mod:`headplod.tracking.geometry`.
 4. ``verify``: reprojection residuals in both images and the rigid-fit error;
    a pose that fails them is not reported (``ok`` False with a reason). A
