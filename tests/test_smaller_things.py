@@ -343,3 +343,29 @@ def test_a_cached_frame_that_fails_to_read_is_rendered_again_next_time(tmp_path,
     assert "it will be rendered again" in err and "left/000001.png" in err
     assert cli_main(["track", "--source", "synthetic:yaw_sweep", "--frames", "4", "-q", "--out", str(out)]) == 0
     assert all(r["ok"] for r in _records(out))
+
+
+@pytest.mark.slow
+def test_two_renders_of_one_sequence_at_once_neither_breaks_the_other(tmp_path, monkeypatch):
+    """Another process finishes the same sequence while this one renders it (two benchmarks at once): each
+    renders beside the cache entry and renames it into place, so this one keeps the finished entry, its own
+    half never lands, and no staging folder is left."""
+    import synthetic.dataset
+
+    root = tmp_path / "cache"
+    real_write = synthetic.dataset.write_dataset
+    calls = []
+
+    def write_while_another_finishes(folder, *args, **kwargs):
+        calls.append(folder)
+        if len(calls) == 1:               # the other process, start to end, during this one's render
+            monkeypatch.setattr(synthetic.dataset, "write_dataset", real_write)
+            other = cache.ensure_dataset("yaw_sweep", frames=4, root=root, quiet=True)
+            calls.append(other)
+        real_write(folder, *args, **kwargs)
+
+    monkeypatch.setattr(synthetic.dataset, "write_dataset", write_while_another_finishes)
+    folder = cache.ensure_dataset("yaw_sweep", frames=4, root=root, quiet=True)
+    assert calls[1] == folder and calls[0] != folder and calls[0].parent == folder.parent
+    assert cache._check_manifest(folder) is None
+    assert sorted(p.name for p in root.iterdir()) == [folder.name]

@@ -19,6 +19,7 @@ import json
 import os
 import shutil
 import sys
+import uuid
 from pathlib import Path
 
 import synthetic
@@ -82,15 +83,30 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
             return folder
         print(f"note: the cached synthetic sequence {folder} is damaged ({problem}); rendering it again",
               file=sys.stderr)
-    if folder.exists():
-        shutil.rmtree(folder)          # an interrupted or damaged render
     scene = scenes.make_scene(preset, n_frames=frames, seed=seed, **options)
     if not quiet:
         print(f"rendering synthetic sequence '{preset}' ({len(scene.times)} stereo pairs) into {folder}",
               file=sys.stderr)
     progress = None if quiet else _progress(len(scene.times), preset)
-    synth_dataset.write_dataset(folder, scene, seed=seed, progress=progress)
-    _write_manifest(folder)
+    # Rendered beside the cache entry and renamed into place when complete: two
+    # processes rendering the same sequence (two benchmarks at once) never
+    # write into, or delete, each other's folder.
+    staging = folder.with_name(f".{folder.name}.rendering-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    shutil.rmtree(staging, ignore_errors=True)
+    try:
+        synth_dataset.write_dataset(staging, scene, seed=seed, progress=progress)
+        _write_manifest(staging)
+        if (folder / COMPLETE).exists() and _check_manifest(folder) is None:
+            return folder                      # another process finished it meanwhile
+        if folder.exists():
+            shutil.rmtree(folder)              # an interrupted or damaged render
+        try:
+            os.rename(staging, folder)
+        except OSError:
+            if not ((folder / COMPLETE).exists() and _check_manifest(folder) is None):
+                raise
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
     return folder
 
 
