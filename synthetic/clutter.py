@@ -15,9 +15,12 @@ objects do not depend on ``count`` (the same stream, the same order), so a sweep
 objects.  Where and how bright (the numbers of :data:`KINDS` and :class:`ClutterSettings`):
 
 - **Regions** (monitor frame M, mm; x_M toward the user's left, y_M down, z_M toward the user; the head
-  is at z_M ≈ 550-750 mm, the cameras at z_M = 20 mm): a hand on the keyboard is below the head and in
-  front of it (y_M 120-320, z_M 250-520); a desk lamp or stand stands beside the 24" screen (|x_M|
-  250-600, z_M 80-400); things behind the user are 1-2.6 m from the screen, across the room 1.8-3.5 m.
+  is at z_M ≈ 550-750 mm, the cameras at z_M = 20 mm, toed in to the head, 600 mm apart, ±19° high: the
+  volume both see is a wedge about the head, so a hand on the keyboard or a lamp beside the screen is out
+  of one view or both): a hand raised to the face, a mug or the mouse is in front of the head (x_M ±250,
+  y_M −250..80, z_M 300-560); a desk lamp, a microphone arm or a chair's chrome beside the user (|x_M|
+  200-600, y_M −400..150, z_M 0.7-1.6 m); things behind the user are 1-2.6 m from the screen, across
+  the room 1.8-3.5 m.
   The glasses' metal parts are in G within the frame's outline (x ±90 mm, y −45..+20 mm, up to 15 mm
   behind the markers' plane; the default markers span x ±65 mm and y −30..0 mm), at least
   ``head_gap_mm`` from every marker.
@@ -74,9 +77,10 @@ class ClutterKind:
 
 #: The room's things (module docstring).
 KINDS: Tuple[ClutterKind, ...] = (
-    ClutterKind("watch or ring on a hand at the keyboard", (-350.0, 120.0, 250.0), (350.0, 320.0, 520.0), 0.25),
-    ClutterKind("chrome of a desk lamp or stand beside the screen", (250.0, -350.0, 80.0), (600.0, 150.0, 400.0),
-                0.25, mirror_x=True),
+    ClutterKind("watch or ring on a hand raised to the face, a mug or the mouse", (-250.0, -250.0, 300.0),
+                (250.0, 80.0, 560.0), 0.25),
+    ClutterKind("chrome of a desk lamp, a microphone arm or a chair beside the user", (200.0, -400.0, 700.0),
+                (600.0, 150.0, 1600.0), 0.25, mirror_x=True),
     ClutterKind("retro-reflective strip on a jacket, bag or chair behind the user", (-700.0, -300.0, 1000.0),
                 (700.0, 500.0, 2600.0), 0.3, right_gain=(0.9, 1.1)),
     ClutterKind("picture glass, door handle or window catch across the room", (-1200.0, -700.0, 1800.0),
