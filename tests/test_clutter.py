@@ -92,10 +92,11 @@ def test_clutter_on_the_glasses_moves_with_the_head():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="issue 34: today's identification ranks the blobs by flux and keeps "
-                                        "max_candidates, so bright clutter crowds the markers out (no pose), and "
-                                        "its search over the candidates' combinations scores ~1e6 hypotheses at "
-                                        "10 blobs; the bounded identification (a separate change) flips this")
+@pytest.mark.xfail(strict=False, reason="issue 34: today's identification keeps only the max_candidates (8) "
+                                        "brightest blobs per image, so from 20 blobs on bright clutter crowds the "
+                                        "markers out and no pose is found (that cap is also what keeps its "
+                                        "hypotheses in the thousands); the bounded identification, a separate "
+                                        "change, flips this")
 def test_identification_cost_grows_at_most_linearly_with_clutter_and_finds_the_pose(synth):
     """Acquire one frame at each blob count: the pose found and right, and the hypotheses scored at N blobs at
     most linear in N past the 10-blob case (counted, not timed)."""

@@ -148,8 +148,9 @@ def clutter_page(data: dict, source: str, stamp: str, quick: bool = False) -> st
                   note=f"Load average during the run: {' / '.join(_f(v, '.2f') for v in load)} (1 / 5 / 15 min)."
                   if load else "")
     out += [f"One `cv2.threshold` pass over both images: {_f(data.get('threshold_pass_ms'), '.3f')} ms; "
-            f"{data.get('frames_per_n', '–')} frames per blob count. The chart, `docs/img/bench_clutter.png`, is "
-            "written by the same run (`--chart`).", "",
+            f"{data.get('frames_per_n', '–')} frames per blob count. The chart is written by the same run: "
+            f"`headplod bench clutter{' --quick' if quick else ''} --json {source} --chart docs/img/bench_clutter.png`.",
+            "",
             "![time by stage and hypotheses against blobs per image](img/bench_clutter.png)", ""]
     titles = {"track": "Tracking (acquire, then re-measure the markers)",
               "acquire": "Acquiring every frame (`TrackerConfig(track=False)`)"}
