@@ -47,7 +47,8 @@ Scene model
 - Options: motion blur (average of ``motion_samples`` sub-exposures spread
   over ``exposure_s`` around t), right image at ``t + right_time_offset_s``,
   specular glints near the glasses, lamps (bright extended blobs at a 3D
-  position), occluded markers.
+  position), reflectors (clutter: small shiny things at 3D points, in the room
+  or on the glasses, :class:`Reflector`), occluded markers.
 - Rolling shutter (``readout_s``, ``right_readout_s``; s): the rows of an
   image h rows high are exposed one after the other, row r at
   ``t_cam + (r - (h - 1) / 2) * readout_s / (h - 1)`` (``t_cam``: t for the
@@ -82,6 +83,7 @@ from .conventions import cross3, read_matrix_yaml
 
 __all__ = [
     "Lamp",
+    "Reflector",
     "RenderOptions",
     "CameraModel",
     "rig_cameras",
@@ -115,6 +117,46 @@ class Lamp:
     radius_mm: float = 25.0
     peak_dn: float = 400.0
     halo: float = 0.35
+
+
+@dataclass(frozen=True)
+class Reflector:
+    """A small shiny thing in the room or on the glasses (a watch, a chrome lamp part, a patch of
+    retro-reflective strip, a hinge screw of the spectacles) that the cameras' own IR lights make a blob.
+
+    It is a 3D point (mm), so both cameras see its blob where the rig's epipolar geometry says: the
+    highlight of a small convex object lit by a light beside the camera sits where its normal faces that
+    camera, and for objects of a few mm the two cameras' highlights are a fraction of a mm apart.  Drawn
+    as a disk of ``radius_mm`` facing the camera (image radius ``fx r / d`` px, anti-aliased over
+    4 x 4 sub-pixel cells), blurred by the PSF, of radiance ``peak_dn_at_ref * gain * (d_ref_mm / d) ** 2``
+    (DN for a fully covered pixel; 1/d²: lit by the ring light at the camera, as the markers are).  See
+    :mod:`synthetic.clutter` for where they are put and why.
+
+    Attributes
+    ----------
+    position_mm : (3,) position, mm: in the world (left camera) frame, or in G when ``on_head``.
+    radius_mm : radius of its bright image, mm.
+    peak_dn_at_ref : radiance at ``RenderOptions.d_ref_mm`` from the camera, DN (above 255 saturates).
+    on_head : it moves with the glasses (``position_mm`` in G, through the pose).
+    right_gain : the right camera sees it this many times as bright as the left one (a specular
+        highlight's brightness depends on the surface's slopes toward each camera's light).
+    kind : what it is, for people.
+    """
+
+    position_mm: Tuple[float, float, float]
+    radius_mm: float
+    peak_dn_at_ref: float
+    on_head: bool = False
+    right_gain: float = 1.0
+    kind: str = ""
+
+    def world_position(self, pose_fn: "PoseFn", t: float) -> np.ndarray:
+        """Its world position (3,) mm at time t (through the head's pose when ``on_head``)."""
+        p = np.asarray(self.position_mm, float)
+        if not self.on_head:
+            return p
+        Rwg, p1 = pose_fn(t)
+        return np.asarray(Rwg, float) @ p + np.asarray(p1, float).reshape(3)
 
 
 @dataclass(frozen=True)
@@ -164,6 +206,7 @@ class RenderOptions:
     fused_glint_offset_px : (min, max) distance of a fused glint from its
         marker's centre, px.
     lamps : lamps drawn in both views.
+    reflectors : :class:`Reflector` s (clutter: 3D points, seen by both cameras) drawn in both views.
     occluded : (camera, marker) pairs not drawn; camera 0/'left' or
         1/'right', marker 0..4.
     """
@@ -194,6 +237,7 @@ class RenderOptions:
     fused_glints: Tuple[int, int] = (0, 0)
     fused_glint_offset_px: Tuple[float, float] = (1.0, 3.0)
     lamps: Tuple[Lamp, ...] = ()
+    reflectors: Tuple[Reflector, ...] = ()
     occluded: FrozenSet[Tuple[Union[int, str], int]] = frozenset()
 
     def replace(self, **kw) -> "RenderOptions":
@@ -931,6 +975,39 @@ def _add_lamps(layer: np.ndarray, cam: CameraModel, options: RenderOptions) -> N
         layer[y0:y1 + 1, x0:x1 + 1] += np.float32(lamp.peak_dn) * (core + halo).astype(np.float32)
 
 
+def _add_reflectors(layer: np.ndarray, cam: CameraModel, cam_index: int, pose_fn: PoseFn, t: float,
+                    options: RenderOptions) -> None:
+    """Draw ``options.reflectors`` (:class:`Reflector`) as seen by one camera at its time t into ``layer``."""
+    h, w = layer.shape
+    S = 4
+    sigma = float(options.blur_sigma_px)
+    pad = int(np.ceil(4.0 * sigma)) + 1 if sigma > 0 else 0
+    for ref in options.reflectors:
+        c = cam.to_cam(ref.world_position(pose_fn, t))
+        d = float(np.linalg.norm(c))
+        if c[2] <= 1.0 or np.hypot(c[0] / c[2], c[1] / c[2]) > 0.98 * cam.r_max:
+            continue
+        u, v = _project_cam(cam, c)[0]
+        rad = float(cam.K[0, 0]) * float(ref.radius_mm) / d
+        L = ref.peak_dn_at_ref * (ref.right_gain if cam_index == 1 else 1.0) * (options.d_ref_mm / d) ** 2
+        ext = int(np.ceil(rad)) + pad + 1
+        x0, y0 = int(np.floor(u)) - ext, int(np.floor(v)) - ext
+        n = 2 * ext + 2
+        if x0 + n <= 0 or y0 + n <= 0 or x0 >= w or y0 >= h:
+            continue
+        # sub-pixel cell centres of the patch, relative to the blob's centre
+        g = (np.arange(n * S, dtype=np.float64) + 0.5) / S - 0.5
+        xs, ys = x0 + g - u, y0 + g - v
+        r = np.sqrt(xs[None, :] ** 2 + ys[:, None] ** 2)
+        cov = np.clip((rad - r) * S + 0.5, 0.0, 1.0).astype(np.float32)   # anti-aliased edge, one cell wide
+        if sigma > 0:
+            ks = _gauss_kernel_size(sigma * S)
+            cov = cv2.GaussianBlur(cov, (ks, ks), sigma * S, borderType=cv2.BORDER_CONSTANT)
+        patch = np.float32(L) * _area_down(cov, S)
+        cx0, cy0, cx1, cy1 = max(x0, 0), max(y0, 0), min(x0 + n, w), min(y0 + n, h)
+        layer[cy0:cy1, cx0:cx1] += patch[cy0 - y0:cy1 - y0, cx0 - x0:cx1 - x0]
+
+
 @functools.lru_cache(maxsize=16)
 def _std_table(gain: Optional[float], read_noise: float) -> np.ndarray:
     """Noise sigma (DN) as a function of the signal level 0..255 DN, (1, 256) float32."""
@@ -991,7 +1068,7 @@ def render_signal(cam: CameraModel, cam_index: int, model_points_mm: np.ndarray,
                   rng: Optional[np.random.Generator] = None, out: Optional[np.ndarray] = None) -> np.ndarray:
     """Expected (noise-free) image of one camera at its time ``t``, float32 DN.
 
-    Background, markers, lamps and (when ``rng`` is given) glints; no noise,
+    Background, markers, lamps, reflectors and (when ``rng`` is given) glints; no noise,
     no rounding.  See :func:`render_pair` for the other parameters.
 
     Parameters
@@ -1017,6 +1094,8 @@ def render_signal(cam: CameraModel, cam_index: int, model_points_mm: np.ndarray,
                          _sub_times(t, options), options, readout)
     if options.lamps:
         _add_lamps(layer, cam, options)
+    if options.reflectors:
+        _add_reflectors(layer, cam, cam_index, pose_fn, float(t), options)
     if rng is not None and (options.glints[1] > 0 or options.fused_glints[1] > 0):
         if readout > 0.0 and h > 1:   # each marker where its (sheared) image is: at its own row's time
             pw = _RowClock(cam, np.asarray(model_points_mm, float).reshape(5, 3), pose_fn, h, readout,

@@ -503,6 +503,29 @@ def glints_lamp(n_frames: int = 40, seed: int = 0, fps: float = 30.0) -> Scene:
     return _scene("glints_lamp", s, pf, _times(n_frames, fps), opts, "specular glints and IR lamps")
 
 
+def clutter(n_frames: int = 60, seed: int = 0, fps: float = 30.0, blobs: int = 20, glints: int = 0) -> Scene:
+    """The built-in motion (:func:`looking_around`) in a cluttered room: ``blobs`` blobs per image in all.
+
+    The five markers and ``blobs - 5`` shiny things as 3D points both cameras see (a watch, a lamp's
+    chrome, a reflective strip behind the user, the spectacles' hinges; :mod:`synthetic.clutter` says
+    where and how bright, and why), each its own blob in every frame; plus ``glints`` independent specular
+    glints per image near the glasses (``RenderOptions.glints``; they add to ``blobs``).  ``blobs`` 5 is
+    the markers alone.  The clutter is placed from ``seed``; a larger ``blobs`` adds objects to the
+    smaller one's.
+    """
+    from .clutter import place_reflectors
+
+    if blobs < 5:
+        raise ValueError(f"blobs counts the five markers: at least 5, got {blobs}")
+    base = looking_around(n_frames=n_frames, seed=seed, fps=fps)
+    refs = place_reflectors(base.setup, base.model_points_mm, base.diameter_mm, base.pose_fn, base.times,
+                            int(blobs) - 5, seed=seed, d_ref_mm=base.options.d_ref_mm)
+    opts = base.options.replace(reflectors=refs, glints=(int(glints), int(glints)))
+    extra = f" and {glints} glints" if glints else ""
+    return replace(base, name="clutter", options=opts,
+                   description=f"looking around with {blobs} blobs per image (markers and shiny things){extra}")
+
+
 def occlusion(n_frames: int = 40, seed: int = 0, fps: float = 30.0, hidden=((1, 3),)) -> Scene:
     """Slow yaw sway with a marker hidden in one view (default P3 in the right
     image, e.g. behind a hand or the frame's hinge)."""
@@ -585,6 +608,7 @@ PRESETS: Dict[str, Callable[..., Scene]] = {
     "extreme": extreme,
     "dim_ir": dim_ir,
     "glints_lamp": glints_lamp,
+    "clutter": clutter,
     "occlusion": occlusion,
     "far": far,
     "wide_hd": wide_hd,

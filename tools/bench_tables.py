@@ -6,6 +6,9 @@
     headplod bench uncertainty --json out/bench_uncertainty.json --chart out/bench_uncertainty.png
     python tools/bench_tables.py uncertainty out/bench_uncertainty.json docs/bench-uncertainty.md
 
+    headplod bench clutter --json out/bench_clutter.json --chart docs/img/bench_clutter.png
+    python tools/bench_tables.py clutter out/bench_clutter.json docs/bench-clutter.md
+
     headplod bench live --json out/bench_live.json
     python tools/bench_tables.py live out/bench_live.json docs/bench-live.md
 
@@ -131,6 +134,48 @@ def track_page(data: dict, source: str, stamp: str, quick: bool = False) -> str:
         if timing:
             out += ["", f"The rig's refinement costs {_f(timing.get('refine_ms_mean'), '.2f')} ms per frame "
                         f"(median over the sets; slowest frame {_f(timing.get('refine_ms_max'), '.1f')} ms)."]
+    return "\n".join(out) + "\n"
+
+
+# --- bench clutter -----------------------------------------------------------------------------------------
+
+def clutter_page(data: dict, source: str, stamp: str, quick: bool = False) -> str:
+    """The page for one ``bench clutter`` JSON: per run and blobs per image, the stages' frame times (ms and
+    × the threshold pass), the hypotheses scored and the accuracy."""
+    quick = bool(data.get("quick", quick))
+    load = (data.get("machine") or {}).get("load_1_5_15") or []
+    out = _header("clutter", "clutter", source, stamp, quick,
+                  note=f"Load average during the run: {' / '.join(_f(v, '.2f') for v in load)} (1 / 5 / 15 min)."
+                  if load else "")
+    out += [f"One `cv2.threshold` pass over both images: {_f(data.get('threshold_pass_ms'), '.3f')} ms; "
+            f"{data.get('frames_per_n', '–')} frames per blob count. The chart is written by the same run: "
+            f"`headplod bench clutter{' --quick' if quick else ''} --json {source} --chart docs/img/bench_clutter.png`.",
+            "",
+            "![time by stage and hypotheses against blobs per image](img/bench_clutter.png)", ""]
+    titles = {"track": "Tracking (acquire, then re-measure the markers)",
+              "acquire": "Acquiring every frame (`TrackerConfig(track=False)`)"}
+    for run, by_n in (data.get("runs") or {}).items():
+        rows, stage_rows = [], []
+        for n, s in by_n.items():
+            st = s.get("stages") or {}
+            rows.append([n, _f(s.get("blobs_median"), ".0f"), f"{s.get('frames_with_pose', '–')}/{s.get('frames', '–')}",
+                         str(s.get("wrong_poses", "–")), _f(s.get("hypotheses_median"), ".0f"),
+                         str(s.get("hypotheses_max", "–")),
+                         " / ".join(_f((st.get("total") or {}).get(k), ".1f") for k in ("p50_ms", "p99_ms", "max_ms")),
+                         " / ".join(_f((st.get("total") or {}).get(k), ".0f") for k in ("p50_x", "p99_x", "max_x"))])
+            for stage, t in st.items():
+                stage_rows.append([n, stage, " / ".join(_f(t.get(k), ".2f") for k in ("p50_ms", "p99_ms", "max_ms")),
+                                   " / ".join(_f(t.get(k), ".0f") for k in ("p50_x", "p99_x", "max_x"))])
+        out += [f"## {titles.get(run, run)}", ""]
+        out += _table(["blobs per image", "blobs detected (median)", "frames with a pose", "wrong poses",
+                       "hypotheses (median)", "hypotheses (max)", "total ms p50 / p99 / max",
+                       "total × threshold p50 / p99 / max"], rows)
+        out += ["", "By stage (`mean_pose` and `total` run from the frame's start; a stage that did not run "
+                "counts 0):", ""]
+        out += _table(["blobs", "stage", "ms p50 / p99 / max", "× threshold p50 / p99 / max"], stage_rows)
+        out.append("")
+    out += ["A wrong pose: V more than 5° off the truth. Hypotheses: the labelled five-marker hypotheses the "
+            "identification scored in a frame (`TrackResult.hypotheses`; 0 when the markers were re-measured)."]
     return "\n".join(out) + "\n"
 
 
@@ -342,7 +387,7 @@ def plod_page(data: dict, source: str, stamp: str, quick: bool = False) -> str:
 
 
 #: ``bench_tables.py KIND``: the page maker for that bench's JSON.
-PAGES = {"track": track_page, "uncertainty": uncertainty_page, "live": live_page, "paper": paper_page,
+PAGES = {"track": track_page, "clutter": clutter_page, "uncertainty": uncertainty_page, "live": live_page, "paper": paper_page,
          "plod": plod_page}
 
 

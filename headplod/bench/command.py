@@ -30,6 +30,14 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
     bt.add_argument("--sets", help="comma-separated names of the sets to run (default: all); "
                                    "see headplod.bench.track.TRACK_SETS and headplod.bench.rig.RIG_SETS")
 
+    bc = bench_sub.add_parser("clutter", help="per-frame time by stage and the identification's hypotheses against "
+                                              "the blobs per image (5 to 60), tracking and acquiring every frame")
+    bc.add_argument("--json", help="write the results as JSON")
+    bc.add_argument("--chart", help="write the chart (PNG): time by stage and hypotheses against blobs per image")
+    bc.add_argument("--quick", action="store_true", help="two frames per blob count (a smoke run)")
+    bc.add_argument("--blobs", metavar="LIST", help="comma-separated blobs per image, each ≥ 5 (default "
+                                                    "5,10,20,30,45,60; 5: the markers alone)")
+
     bu = bench_sub.add_parser("uncertainty", help="calibration (NEES), stability and cost of the covariance of V")
     bu.add_argument("--json", help="write the results as JSON")
     bu.add_argument("--chart", help="write the NEES/stability chart (PNG; a second chart *_paper.png "
@@ -108,6 +116,16 @@ def _track(args) -> int:
     from . import track
     sets = [x.strip() for x in args.sets.split(",")] if args.sets else None
     return track.run_track_bench(json_path=args.json, chart_path=args.chart, quick=args.quick, sets=sets)
+
+
+def _clutter(args) -> int:
+    from . import clutter
+    try:
+        blobs = clutter.parse_blobs(args.blobs) if args.blobs else None
+    except ValueError as exc:
+        print(f"headplod: bench clutter {exc}", file=sys.stderr)
+        return 2
+    return clutter.run_clutter_bench(json_path=args.json, chart_path=args.chart, quick=args.quick, blobs=blobs)
 
 
 def _uncertainty(args) -> int:
@@ -198,7 +216,7 @@ def _live(args) -> int:
 
 
 #: ``headplod bench NAME`` → its run(args) -> exit status.
-BENCHMARKS = {"track": _track, "uncertainty": _uncertainty, "live": _live, "plod": _plod, "stability": _stability,
+BENCHMARKS = {"track": _track, "clutter": _clutter, "uncertainty": _uncertainty, "live": _live, "plod": _plod, "stability": _stability,
               "paper": _paper}
 
 
