@@ -63,13 +63,49 @@ class _Budget:
     def __init__(self, limit: int):
         self.limit, self.scored, self.offered, self.cut = limit, 0, 0, False
 
-    def take(self, offered: int) -> int:
+    def allow(self, offered: int) -> int:
         """How many of a search's ``offered`` labelings (best first) it may fit."""
         allowed = min(offered, self.limit)
         self.offered += offered
-        self.scored += allowed
         self.cut |= allowed < offered
         return allowed
+
+
+def _scan(error_mm: np.ndarray, allowed: int, markers: int, fit_tol_mm: float, fit) -> int:
+    """Fit labelings ranked by their distance error (``error_mm`` (H,), ascending) in growing chunks,
+    ``fit(lo, hi)`` returning the best cost of labelings lo..hi-1 (inf: none acceptable); stop when no later
+    labeling can beat the best found or rival it. The number fitted.
+
+    The bound: a labeling whose points fit the model at an RMS ``r`` has its
+    pairwise distances off by at most ``markers · (markers − 1) · r`` in total
+    (each distance by two residuals; Cauchy-Schwarz over the markers), so its
+    cost is at least ``error / (markers · (markers − 1) · fit_tol_mm)``; a rival
+    costs at most twice the best plus 0.2 (:meth:`Identifier._ambiguous`).
+    """
+    lo, chunk, best = 0, 16, np.inf
+    while lo < allowed:
+        hi = min(lo + chunk, allowed)
+        best = min(best, fit(lo, hi))
+        lo, chunk = hi, 2 * chunk
+        if lo < allowed and error_mm[lo] / (markers * (markers - 1) * fit_tol_mm) > 2 * best + 0.2:
+            break
+    return lo
+
+
+class _Fits(NamedTuple):
+    """Labelings (H, 5) fitted to the model: their blobs per view (candidate indices), points (H, 5, 3) mm,
+    epipolar errors (H, 5) px, the fits (R (H, 3, 3), t (H, 3) mm, RMS (H,) mm), whether their blobs are
+    distinct, and their costs (inf: not acceptable)."""
+
+    left: np.ndarray
+    right: np.ndarray
+    points: np.ndarray
+    epi: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    rms: np.ndarray
+    distinct: np.ndarray
+    cost: np.ndarray
 
 
 class Identification(NamedTuple):
@@ -167,24 +203,37 @@ class Identifier:
         if not len(labelings):
             return None, ("no consistent stereo identification: no five points pairing the two images within "
                           f"the epipolar tolerance ({g.epipolar_tol_px:.1f} px) lie as the marker model's do")
-        labelings = labelings.best(budget.take(len(labelings)))
-        left, right = stereo.left[labelings.index], stereo.right[labelings.index]       # (H, 5)
+        fits = []
+
+        def fit(lo, hi):
+            fits.append(self._fit_labelings(labelings.index[lo:hi], stereo, cand, blobs, g))
+            return float(fits[-1].cost.min())
+
+        fitted = _scan(labelings.error_mm, budget.allow(len(labelings)), 5, self.ident_config.fit_tol_mm, fit)
+        budget.scored += fitted
+        f = _Fits(*(np.concatenate(column) for column in zip(*fits)))
+        if not np.isfinite(f.cost).any():
+            k = int(np.argmin(np.where(f.distinct, f.rms, np.inf)))
+            return None, (f"no consistent stereo identification: the best labeling is {f.rms[k]:.1f} mm "
+                          f"(RMS) from the marker model, tolerance {g.fit_tol_mm:.1f} mm"
+                          + _scale_hint(f.points[k], self.ident_model_mm))
+        best = int(np.argmin(f.cost))
+        if self._ambiguous(f.R, f.cost, best):
+            return None, "ambiguous identification: two marker assignments fit equally well"
+        index = np.stack([cand[0][f.left[best]], cand[1][f.right[best]]])
+        return self._make_match(blobs, index, f.epi[best], f.points[best], f.R[best], f.t[best], f.rms[best]), None
+
+    def _fit_labelings(self, labels, stereo, cand, blobs, g) -> "_Fits":
+        """Five-marker labelings (H, 5) of stereo points fitted to the model; cost inf where not acceptable
+        (a blob used twice, RMS beyond the tolerance, the glasses facing away)."""
+        left, right = stereo.left[labels], stereo.right[labels]       # (H, 5)
         distinct = _distinct(left) & _distinct(right)
-        points = stereo.points_mm[labelings.index]
-        epi = stereo.epipolar_px[labelings.index]
+        points = stereo.points_mm[labels]
+        epi = stereo.epipolar_px[labels]
         R, t, rms = geo.kabsch(self.ident_model_mm, points)
         valid = distinct & (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g)
-        if not valid.any():
-            k = int(np.argmin(np.where(distinct, rms, np.inf)))
-            return None, (f"no consistent stereo identification: the best labeling is {rms[k]:.1f} mm "
-                          f"(RMS) from the marker model, tolerance {g.fit_tol_mm:.1f} mm"
-                          + _scale_hint(points[k], self.ident_model_mm))
         cost = np.where(valid, self._cost(rms, epi, blobs, cand, left, right), np.inf)
-        best = int(np.argmin(cost))
-        if self._ambiguous(R, cost, best):
-            return None, "ambiguous identification: two marker assignments fit equally well"
-        index = np.stack([cand[0][left[best]], cand[1][right[best]]])
-        return self._make_match(blobs, index, epi[best], points[best], R[best], t[best], rms[best]), None
+        return _Fits(left, right, points, epi, R, t, rms, distinct, cost)
 
     def _cost(self, rms, epi, blobs, cand, left, right) -> np.ndarray:
         """A labeling's cost: its errors in units of the image-noise tolerances (not of the rig-widened
@@ -203,43 +252,54 @@ class Identifier:
         hidden_of = np.concatenate([np.full(len(f), h) for h, f in enumerate(found)])
         row_of = np.concatenate([np.arange(len(f)) for f in found])
         order = np.argsort(error, kind="stable")
-        order = order[:budget.take(len(order))]
         rows = []
-        for hidden in range(5):
-            mine = np.sort(row_of[order[hidden_of[order] == hidden]])
-            if not len(mine):
-                continue
-            labels = found[hidden].index[mine]                                      # (H, 4) stereo points
-            shown = list(found[hidden].markers)
-            left, right = stereo.left[labels], stereo.right[labels]
-            points = np.zeros((len(labels), 5, 3))
-            points[:, shown] = stereo.points_mm[labels]
-            weights = np.ones(5)
-            weights[hidden] = 0.0
-            R, t, rms = geo.kabsch(self.ident_model_mm, points, weights)
-            valid = _distinct(left) & _distinct(right) & (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g)
-            for h in np.flatnonzero(valid):
-                seen = self._find_hidden(hidden, R[h], t[h], cand, blobs, g, left[h], right[h])
-                if seen is None:
-                    continue
-                view, blob = seen
-                index = np.full((2, 5), -1)
-                index[0, shown], index[1, shown] = cand[0][left[h]], cand[1][right[h]]
-                index[view, hidden] = cand[view][blob]
-                epi = np.full(5, np.nan)
-                epi[shown] = stereo.epipolar_px[labels[h]]
-                pts = points[h].copy()
-                pts[hidden] = np.nan
-                rows.append((index, epi, pts, R[h], t[h], rms[h]))
+
+        def fit(lo, hi):
+            chosen = order[lo:hi]
+            before = len(rows)
+            for hidden in range(5):
+                mine = row_of[chosen[hidden_of[chosen] == hidden]]
+                if len(mine):
+                    rows.extend(self._fit_hidden(found[hidden].index[mine], hidden, stereo, cand, blobs, g))
+            return min((r[-1] for r in rows[before:]), default=np.inf)
+
+        budget.scored += _scan(error[order], budget.allow(len(order)), 4, self.ident_config.fit_tol_mm, fit)
         if not rows:
             return None, "no consistent identification with a marker hidden in one view"
-        rms = np.array([r[5] for r in rows])
-        epi = np.array([r[1] for r in rows])
-        cost = rms / self.ident_config.fit_tol_mm + np.nanmax(epi, axis=1) / self.ident_config.epipolar_tol_px
+        cost = np.array([r[-1] for r in rows])
         best = int(np.argmin(cost))
         if self._ambiguous(np.array([r[3] for r in rows]), cost, best):
             return None, "ambiguous identification with a marker hidden in one view"
-        return self._make_match(blobs, *rows[best]), None
+        return self._make_match(blobs, *rows[best][:-1]), None
+
+    def _fit_hidden(self, labels, hidden, stereo, cand, blobs, g) -> list:
+        """Four-marker labelings (H, 4) of stereo points (marker ``hidden`` not among them) fitted to the
+        model, each acceptable one with its fifth marker found in one view: a list of (index (2, 5),
+        epipolar (5,), points (5, 3), R, t, rms, cost)."""
+        shown = [m for m in range(5) if m != hidden]
+        left, right = stereo.left[labels], stereo.right[labels]
+        points = np.zeros((len(labels), 5, 3))
+        points[:, shown] = stereo.points_mm[labels]
+        weights = np.ones(5)
+        weights[hidden] = 0.0
+        R, t, rms = geo.kabsch(self.ident_model_mm, points, weights)
+        valid = _distinct(left) & _distinct(right) & (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g)
+        rows = []
+        for h in np.flatnonzero(valid):
+            seen = self._find_hidden(hidden, R[h], t[h], cand, blobs, g, left[h], right[h])
+            if seen is None:
+                continue
+            view, blob = seen
+            index = np.full((2, 5), -1)
+            index[0, shown], index[1, shown] = cand[0][left[h]], cand[1][right[h]]
+            index[view, hidden] = cand[view][blob]
+            epi = np.full(5, np.nan)
+            epi[shown] = stereo.epipolar_px[labels[h]]
+            pts = points[h].copy()
+            pts[hidden] = np.nan
+            cost = rms[h] / self.ident_config.fit_tol_mm + np.nanmax(epi) / self.ident_config.epipolar_tol_px
+            rows.append((index, epi, pts, R[h], t[h], rms[h], cost))
+        return rows
 
     def _find_hidden(self, hidden, R, t, cand, blobs, g, used_left, used_right) -> tuple[int, int] | None:
         """(view, candidate) of the blob nearest the hidden marker's projection by the pose (R, t) of the
