@@ -637,7 +637,12 @@ def _report_run(stats, sender, log, rates: bool) -> None:
     if stats.frames and rates:
         s = stats.summary()
         print(f"rate {s['rate_hz'] or 0:.1f} Hz, latency p50 {s['latency_ms_p50'] or 0:.1f} ms, "
-              f"p95 {s['latency_ms_p95'] or 0:.1f} ms, from {s['latency_from'] or '-'}", file=log)
+              f"p99 {s['latency_ms_p99'] or 0:.1f} ms, max {s['latency_ms_max'] or 0:.1f} ms, "
+              f"from {s['latency_from'] or '-'}", file=log)
+        if s["capture_thread"]:
+            print(f"dropped while tracking: {s['dropped_busy']} of {s['offered']} pairs captured (the newest "
+                  "pair is tracked, older ones dropped)"
+                  + ("; the capture thread did not end in time" if s["capture_stuck"] else ""), file=log)
     line = stats.timestamps.summary()
     if line:
         print(line, file=log)
