@@ -161,8 +161,8 @@ def test_run_source_reports_the_unreadable_frame_as_it_did(damaged):
     assert (bad["skew_ms"], bad["dropped"], bad["flags"]) == (None, 0, [])
     for record, (frame, result) in zip(records, generator):
         expected = result_record(frame, result, dataset.screen)
-        kept = {k: v for k, v in record.items() if k not in ("timings_ms", "latency_ms", "skew_ms", "dropped", "dropped_busy",
-                                                               "flags")}
+        kept = {k: v for k, v in record.items() if k not in ("timings_ms", "latency_ms", "skew_ms", "dropped",
+                                                               "dropped_busy", "flags")}
         expected.pop("timings_ms", None)
         assert kept == expected
 
