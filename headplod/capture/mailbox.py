@@ -239,6 +239,11 @@ class CaptureThread:
             changes["t_delivered"] = got.put_s
         return dataclasses.replace(frame, **changes)
 
+    @property
+    def alive(self) -> bool:
+        """Whether the thread is still running (reading, or blocked in the source)."""
+        return self._thread.is_alive()
+
     def close(self) -> None:
         """Stop reading and join the thread (within ``join_s``); idempotent. The source is not closed."""
         self._stop_reading.set()
