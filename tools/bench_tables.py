@@ -217,7 +217,7 @@ def _camera_section(camera: dict | None, load: dict | None) -> list[str]:
     loads = [", ".join(_f(v, ".2f") for v in load.get(k) or []) or "–" for k in ("before", "after")]
     out += ["", f"The machine's load average (1, 5, 15 min) on {load.get('cores', '–')} cores: {loads[0]} before "
                 f"the bench, {loads[1]} after. `capacity`: 1 / the mean time the tracker and the outputs take per "
-                "frame, the rate they could follow with no other load.", "", "Goals (where the machine allows):", ""]
+                "frame, the rate they could follow on this machine at that load.", "", "Goals (where the machine allows):", ""]
     out += _goal_lines(c.get("goals") or [])
     return out
 
