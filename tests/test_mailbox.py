@@ -386,3 +386,24 @@ def test_the_clocked_replay_releases_a_frame_per_tick_stamped_with_its_tick():
 def test_the_clocked_replay_refuses_a_rate_that_is_not_positive():
     with pytest.raises(ValueError, match="rate_hz"):
         ClockedReplay([], 0.0)
+
+
+# ---------------------------------------------------------------------------
+# the status line
+# ---------------------------------------------------------------------------
+
+
+def test_the_status_line_shows_latency_p50_p99_max_and_the_frames_dropped_while_busy():
+    from io import StringIO
+
+    from headplod.live.status import StatusLine
+
+    status = StatusLine(stream=StringIO(), every_s=1.0, window_s=5.0)
+    for i in range(100):                                    # latencies 1 .. 100 ms, one slow frame at the end
+        status.update({"ok": True}, latency_ms=float(i + 1), dropped_busy=1 if i % 25 == 0 else 0, now=i / 50)
+    s = status.summary()
+    assert s["dropped_busy"] == 4 and s["dropped"] == 0
+    assert (s["latency_ms_median"], s["latency_ms_max"]) == (50.5, 100.0)
+    assert s["latency_ms_p99"] == pytest.approx(np.percentile(np.arange(1.0, 101.0), 99))
+    line = status.render()
+    assert "latency 50.5/99.0/100.0 ms (p50/p99/max)" in line and "dropped 0 | dropped while busy 4" in line
