@@ -80,10 +80,17 @@ def test_camera_needs_calibration(capsys):
 @pytest.mark.slow
 def test_bench_live_reports_rate_latency_and_capture_ratio(sample, tmp_path, capsys):
     out = tmp_path / "live.json"
-    assert cli_main(["bench", "live", "--source", str(sample), "--repeats", "1", "--json", str(out)]) == 0
+    assert cli_main(["bench", "live", "--source", str(sample), "--repeats", "1", "--camera-frames", "24",
+                     "--json", str(out)]) == 0
     report = json.loads(out.read_text())
     for variant in ("replay", "replay + outputs", "replay + recording"):
         r = report["results"][variant]
         assert r["frames"] == 12 and r["ok"] == 12
         assert r["rate_hz"] > 0 and r["latency_ms_p95"] >= r["latency_ms_p50"] > 0
         assert r["capture_over_tracking"] > 0
+    camera = report["camera"]                  # how many frames the tracker had time for is the machine's
+    assert camera["preset"] == "glints_lamp" and camera["image_size"] == [640, 480] and camera["rate_hz"] == 120
+    assert camera["offered"] == 24 == camera["tracked"] + camera["dropped_busy"] and camera["tracked"] >= 1
+    assert camera["latency_ms_max"] >= camera["latency_ms_p99"] >= camera["latency_ms_p50"] > 0
+    assert [g["met"] for g in camera["goals"]] == [camera["dropped_busy"] == 0, camera["latency_ms_p99"] <= 8.0]
+    assert len(report["load_avg"]["before"]) == 3 and report["load_avg"]["cores"] >= 1

@@ -234,7 +234,37 @@ def live_page(data: dict, source: str, stamp: str, quick: bool = False) -> str:
     out += ["", "`read`: the capture layer (for a recording, decoding both PNGs; live cameras deliver decoded "
             "frames, so for them the ratio is an upper bound). `outputs`: the pose file and the status line; "
             "`recording`: also writing both images as PNG, as `track --record` does."]
+    out += _camera_section(data.get("camera"), data.get("load_avg"))
     return "\n".join(out) + "\n"
+
+
+def _camera_section(camera: dict | None, load: dict | None) -> list[str]:
+    """``bench live``'s camera case: a cluttered recording delivered at a camera's rate to the drop-oldest
+    mailbox; its rate, latency (p50, p99, max), drops, the machine's load and the goals."""
+    if not camera:
+        return []
+    c, load = camera, load or {}
+    size = "x".join(str(v) for v in c.get("image_size") or []) or "–"
+    out = ["", f"## A camera at {_f(c.get('rate_hz'), 'g')} Hz: `{c.get('preset', '–')}` ({size}), decoded frames "
+               "delivered on the camera's clock", "",
+           f"{c.get('frames', '–')} frames of the cluttered recording (glints on glasses, IR lamps), rendered at the "
+           f"camera's rate, decoded beforehand and pushed at {_f(c.get('rate_hz'), 'g')} Hz by a clocked producer "
+           "thread into the drop-oldest mailbox the live loop reads cameras through; the tracker takes the newest "
+           f"frame. {c.get('repeats', '–')} passes, pooled. Latency runs from {c.get('latency_from', '–')} to the "
+           "finished record (waiting in the mailbox included).", ""]
+    out += _table(["frames delivered", "tracked", "dropped while busy", "with a pose", "tracked (frames/s)",
+                   "capacity (Hz)", "track mean (ms)", "track max (ms)", "latency p50 (ms)", "p99", "max"],
+                  [[str(c.get("offered", "–")), str(c.get("tracked", "–")), str(c.get("dropped_busy", "–")),
+                    str(c.get("ok", "–")), _f(c.get("processing_hz"), ".1f"), _f(c.get("capacity_hz"), ".0f"),
+                    _f(c.get("track_ms_mean"), ".2f"), _f(c.get("track_ms_max"), ".2f"),
+                    _f(c.get("latency_ms_p50"), ".2f"), _f(c.get("latency_ms_p99"), ".2f"),
+                    _f(c.get("latency_ms_max"), ".2f")]])
+    loads = [", ".join(_f(v, ".2f") for v in load.get(k) or []) or "–" for k in ("before", "after")]
+    out += ["", f"The machine's load average (1, 5, 15 min) on {load.get('cores', '–')} cores: {loads[0]} before "
+                f"the bench, {loads[1]} after. `capacity`: 1 / the mean time the tracker and the outputs take per "
+                "frame, the rate they could follow on this machine at that load.", "", "Goals (where the machine allows):", ""]
+    out += _goal_lines(c.get("goals") or [])
+    return out
 
 
 # --- bench paper -------------------------------------------------------------------------------------------

@@ -52,6 +52,11 @@ def add_bench_arguments(bench: argparse.ArgumentParser) -> argparse.ArgumentPars
                     help="old spelling of --source RECORDING (goes in the next release)")
     bl.add_argument("--json", help="write the results as JSON")
     bl.add_argument("--repeats", type=int, default=3, help="passes over the recording (default 3)")
+    bl.add_argument("--camera-hz", type=float, default=120.0, metavar="HZ",
+                    help="the camera case: the rate at which the cluttered recording (glints_lamp, 640x480) is "
+                         "delivered to the capture thread's drop-oldest mailbox (default 120)")
+    bl.add_argument("--camera-frames", type=frame_count, default=360, metavar="N",
+                    help="the camera case: frames of its recording (default 360, 3 s at 120 Hz)")
 
     bp = bench_sub.add_parser("plod", help="speed and image quality of the LOD modes against full (1280x720)")
     bp.add_argument("--json", help="write the results as JSON")
@@ -212,7 +217,11 @@ def _live(args) -> int:
             print(f"headplod: bench live replays a recording several times: --source must be a dataset folder or "
                   f"synthetic[:PRESET], got {spec!r}", file=sys.stderr)
             return 2
-    return live.run_live_bench(spec, json_path=args.json, repeats=args.repeats)
+    if not args.camera_hz > 0:
+        print(f"headplod: --camera-hz must be > 0, got {args.camera_hz:g}", file=sys.stderr)
+        return 2
+    return live.run_live_bench(spec, json_path=args.json, repeats=args.repeats, camera_hz=args.camera_hz,
+                               camera_frames=args.camera_frames)
 
 
 #: ``headplod bench NAME`` → its run(args) -> exit status.

@@ -20,6 +20,13 @@ v4l2
     dropped-frame accounting, stall and reconnect handling.
 record
     :class:`DatasetRecorder` and :func:`record`.
+mailbox
+    :class:`~headplod.capture.mailbox.CaptureThread`: a live source read in
+    a thread into a drop-oldest :class:`~headplod.capture.mailbox.FrameMailbox`,
+    so the tracker takes the newest pair.
+clocked
+    :class:`~headplod.capture.clocked.ClockedReplay`: decoded frames released
+    on a camera's clock (``bench live``).
 timestamps
     :class:`TimestampCheck`: frames whose time is zero or not increasing
     are dropped and counted (Pupil's rule), where every sequence enters the

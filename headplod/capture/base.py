@@ -81,6 +81,15 @@ class CaptureFrame(io.Frame):
         Seconds a ``realtime`` replay held the frame back to keep the
         recording's pace (0 otherwise): waiting, not latency, so a replay's
         latency leaves it out.
+    dropped_busy : int
+        Pairs captured after the previous frame the tracker took and dropped
+        before this one, because the tracker was busy (the drop-oldest
+        mailbox, :mod:`headplod.capture.mailbox`; live cameras and real-time
+        replay only); not counted in ``dropped``, which is the source's own.
+    t_delivered : float or None
+        ``time.monotonic()`` (s) when the capture thread handed a frame
+        without a capture time (replay) to the tracker's mailbox; ``None``
+        otherwise. A real-time replay's latency runs from it.
     """
 
     t_monotonic_left: float | None = None
@@ -90,6 +99,8 @@ class CaptureFrame(io.Frame):
     flags: list[str] = field(default_factory=list)
     time_source: str | None = None
     paced_s: float = 0.0
+    dropped_busy: int = 0
+    t_delivered: float | None = None
 
     @classmethod
     def from_frame(cls, frame: io.Frame, **diagnostics: Any) -> "CaptureFrame":
@@ -282,6 +293,10 @@ class FrameSource(abc.ABC):
 
     #: Short name of the kind of source (registry key).
     kind: ClassVar[str] = "source"
+    #: Whether frames come at the pace of a clock whatever the reader does (live cameras, a real-time
+    #: replay): such a source is read by a capture thread into a drop-oldest mailbox, so the tracker takes
+    #: the newest frame (:mod:`headplod.capture.mailbox`); others are read frame by frame, none dropped.
+    realtime: bool = False
 
     def __init__(self, name: str, rig: io.Rig | None = None, markers: io.MarkerModel | None = None,
                  screen: io.Screen | None = None):

@@ -282,6 +282,10 @@ class DatasetRecorder(io.ProgressiveOutput):
         dropped = int(getattr(frame, "dropped", 0) or 0)
         if dropped:
             self._note(f"before source frame {frame.index} (t={t:.6f} s): {dropped} frames dropped by the source")
+        busy = int(getattr(frame, "dropped_busy", 0) or 0)
+        if busy:
+            self._note(f"before source frame {frame.index} (t={t:.6f} s): {busy} frames dropped while the tracker "
+                       "was busy")
         problem = frame.error or self._check_image("left", frame.left) or self._check_image("right", frame.right)
         if problem:
             self.skipped += 1

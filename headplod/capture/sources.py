@@ -193,6 +193,7 @@ class DatasetSource(FrameSource):
         self._iter = iter(dataset.indices)
         self._previous: int | None = None
         self._pacer = _Pacer(realtime)
+        self.realtime = bool(realtime)
         if skew_bound_ms is None:
             times = [tt[0] for tt in (dataset.times or {}).values()]
             period = _median_period_s(times) or 1.0 / io.DEFAULT_FPS
@@ -353,6 +354,7 @@ class VideoSource(FrameSource):
         self.skew_bound_ms = 500.0 * period if skew_bound_ms is None else float(skew_bound_ms)
         self._index = 0
         self._pacer = _Pacer(realtime)
+        self.realtime = bool(realtime)
 
     @staticmethod
     def _open(path: Path) -> Any:

@@ -474,6 +474,7 @@ class V4L2StereoSource(FrameSource):
     """
 
     kind = "v4l2"
+    realtime = True          # cameras deliver at their own pace: read by a capture thread (capture.mailbox)
 
     def __init__(self, left: int | str, right: int | str, *, width: int | None = None,
                  height: int | None = None, fps: float | None = None, fourcc: str | None = None,

@@ -26,8 +26,10 @@ announced and kept by the next run that writes there. No output may lie
 inside the dataset folder being read. Ctrl-C, SIGTERM and SIGHUP stop the
 run cleanly between frames: the records and frames so far are kept, whole.
 
-``--realtime`` paces a replay at its frame times (:class:`~headplod.capture.sources._Pacer`: no frame
-dropped, no burst after a late one); it is refused with live cameras. With ``--udp``, the key ``c`` and
+``--realtime`` paces a replay at its frame times (:class:`~headplod.capture.sources._Pacer`: no burst after
+a late one) and reads it as live cameras are read, by a capture thread into a drop-oldest mailbox
+(:mod:`headplod.capture.mailbox`: the tracker takes the newest frame, those it had no time for are dropped
+and counted); it is refused with live cameras. Without it, a replay tracks every frame, in order. With ``--udp``, the key ``c`` and
 SIGUSR1 recentre what is sent (:mod:`headplod.live.recentre`; the math in
 :func:`~headplod.live.opentrack.opentrack_values`), from the next frame; the records are not recentred.
 """
@@ -148,8 +150,9 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
     live.add_argument("--frames", type=frame_count, metavar="N", help="stop after N frames (at least 1)")
     live.add_argument("--realtime", action="store_true",
                       help="replay a recording (dataset folder, video pair, synthetic) at the pace of its frame "
-                           "times, as the cameras gave them (e.g. to try opentrack without cameras); behind, no "
-                           "frame is dropped and none waits. Default off: as fast as tracked. Not with live "
+                           "times, as the cameras gave them (e.g. to try opentrack without cameras); as with "
+                           "cameras, the tracker takes the newest frame and those it had no time for are dropped "
+                           "and counted. Default off: every frame, in order, as fast as tracked. Not with live "
                            "cameras (they are real time already)")
     track.epilog = TRACK_EPILOG
     return track
@@ -637,7 +640,12 @@ def _report_run(stats, sender, log, rates: bool) -> None:
     if stats.frames and rates:
         s = stats.summary()
         print(f"rate {s['rate_hz'] or 0:.1f} Hz, latency p50 {s['latency_ms_p50'] or 0:.1f} ms, "
-              f"p95 {s['latency_ms_p95'] or 0:.1f} ms, from {s['latency_from'] or '-'}", file=log)
+              f"p99 {s['latency_ms_p99'] or 0:.1f} ms, max {s['latency_ms_max'] or 0:.1f} ms, "
+              f"from {s['latency_from'] or '-'}", file=log)
+        if s["capture_thread"]:
+            print(f"dropped while tracking: {s['dropped_busy']} of {s['offered']} pairs captured (the newest "
+                  "pair is tracked, older ones dropped)"
+                  + ("; the capture thread did not end in time" if s["capture_stuck"] else ""), file=log)
     line = stats.timestamps.summary()
     if line:
         print(line, file=log)

@@ -14,9 +14,19 @@ the frame, build the contract's pose record, optionally filter it (One Euro;
 off by default), send it to opentrack over UDP, write it, and update the
 status line.
 
+A live source (cameras, a ``--realtime`` replay: ``source.realtime``) is read by
+a capture thread into a drop-oldest mailbox
+(:class:`~headplod.capture.mailbox.CaptureThread`): capture goes on while a
+frame is tracked, the tracker takes the newest pair, and the pairs it had no
+time for are dropped, oldest first, and counted. Any other source (a replay
+for accuracy, ``bench track``, the tests) is read frame by frame: every frame,
+in order, the records the same bit for bit from run to run. Either way the
+frames go through the one loop, :func:`track_frames`.
+
 Records from a capture source carry, beyond the contract's keys:
-``skew_ms`` (left/right capture-time difference), ``dropped`` (pairs lost
-before this one), ``flags`` (e.g. ``"skew 21.3 ms > 16.7 ms bound"``: the
+``skew_ms`` (left/right capture-time difference), ``dropped`` (pairs the
+source lost before this one), ``dropped_busy`` (pairs dropped before this one
+because the tracker was busy; 0 when read frame by frame), ``flags`` (e.g. ``"skew 21.3 ms > 16.7 ms bound"``: the
 pair was not taken at one instant, so the pose may be off for a moving head;
 and the frame's warnings, e.g. ``"left/000003.png: 3-channel image converted
 to gray, expected 8-bit grayscale"``)
@@ -24,8 +34,10 @@ and ``latency_ms``: from the left image's capture time to the finished
 record. For a live camera that is the driver's V4L2 buffer timestamp (start
 of exposure or end of frame, as the driver decides; not mid-exposure), or
 the time ``grab()`` returned when the driver gives none (the frame's
-``time_source``); for replay, from when the frame was asked for
-(:data:`LATENCY_FROM`, ``LiveStats.summary()['latency_from']``).
+``time_source``); for a real-time replay, from when the capture thread
+delivered the frame (after the pacing); for a replay read frame by frame,
+from when the frame was asked for (:data:`LATENCY_FROM`,
+``LiveStats.summary()['latency_from']``). Waiting in the mailbox counts.
 
 Every frame read gets a record. A frame whose time is zero, not finite or a
 repeat of the last is dropped before tracking (its record says why;
@@ -48,6 +60,7 @@ from typing import Callable, Iterable, Iterator
 import numpy as np
 
 from .. import io
+from ..capture.mailbox import CaptureThread
 from ..capture.timestamps import TimestampCheck
 from ..tracking.tracker import Tracker, TrackerConfig, TrackResult, internal_error_reason
 from .frame_notes import FrameNotes, split_frame_warning
@@ -69,6 +82,10 @@ class LiveStats:
     first_time_jump: str | None = None
     internal_errors: int = 0                         # frames failed by an exception (the tracker's or the record's)
     first_internal_error: str | None = None
+    dropped: int = 0                                 # pairs the source lost (its frames' ``dropped``)
+    dropped_busy: int = 0                            # pairs dropped by the mailbox while the tracker was busy
+    capture_thread: bool = False                     # read by a capture thread through the drop-oldest mailbox
+    capture_stuck: bool = False                      # that thread could not be joined in time
     wall_s: float = 0.0
 
     def summary(self) -> dict:
@@ -81,7 +98,12 @@ class LiveStats:
         the first of them (:class:`~headplod.capture.TimestampCheck`);
         ``time_jumps`` counts the discontinuities (a time gone back or far
         forward, tracked afresh), ``time_jumps_first`` the first; ``internal_errors``
-        the frames failed by an exception (``internal error: ...``).
+        the frames failed by an exception (``internal error: ...``); ``dropped`` the
+        pairs the source lost and ``dropped_busy`` those dropped while the
+        tracker was busy (``capture_thread``: read through the drop-oldest
+        mailbox); ``offered`` the pairs captured (tracked + dropped while busy).
+        ``rate_hz`` is frames tracked per second of the run; latencies are ms
+        (p50, p95, p99, max).
         """
         lat = np.asarray(self.latency_ms, dtype=np.float64)
         track = float(np.sum(self.track_s))
@@ -91,9 +113,13 @@ class LiveStats:
             "time_dropped": self.timestamps.dropped, "time_dropped_first": self.timestamps.first,
             "time_jumps": self.time_jumps, "time_jumps_first": self.first_time_jump,
             "internal_errors": self.internal_errors,
+            "dropped": self.dropped, "dropped_busy": self.dropped_busy,
+            "offered": self.frames + self.dropped_busy,
+            "capture_thread": self.capture_thread, "capture_stuck": self.capture_stuck,
             "rate_hz": self.frames / self.wall_s if self.wall_s > 0 else None,
             "latency_ms_p50": float(np.percentile(lat, 50)) if lat.size else None,
             "latency_ms_p95": float(np.percentile(lat, 95)) if lat.size else None,
+            "latency_ms_p99": float(np.percentile(lat, 99)) if lat.size else None,
             "latency_ms_max": float(lat.max()) if lat.size else None,
             "read_ms_mean": 1e3 * float(np.mean(self.read_s)) if self.read_s else None,
             "track_ms_mean": 1e3 * float(np.mean(self.track_s)) if self.track_s else None,
@@ -107,6 +133,9 @@ LATENCY_FROM = {
     "driver": "the driver's buffer timestamp (V4L2, CLOCK_MONOTONIC: start of exposure or end of frame, "
               "as the driver decides; not mid-exposure)",
     "grab": "the grab time (time.monotonic() when the camera's grab() returned)",
+    "clock": "the tick of the clock that delivered the frame, as a camera would (bench live's clocked replay)",
+    "delivered": "when the capture thread delivered the frame to the tracker's mailbox (real-time replay: "
+                 "no capture time; after the pacing)",
     None: "the start of reading the frame, less a --realtime replay's pacing wait (replay: no capture time)",
 }
 
@@ -301,7 +330,8 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
                pose_filter=None, status=None, max_frames: int | None = None,
                timeout_s: float = 1.0, stop: Callable[[], bool] | None = None,
                tracker: Tracker | None = None, notes: FrameNotes | None = None,
-               stats: LiveStats | None = None) -> LiveStats:
+               stats: LiveStats | None = None, drop_when_busy: bool | None = None,
+               mailbox_slots: int = 1) -> LiveStats:
     """Track every frame of a source until it ends (or ``max_frames``, or ``stop()``).
 
     The frames are read and tracked by :func:`track_frames` (its error
@@ -338,6 +368,17 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
     stats : LiveStats, optional
         Filled in as the run goes (and returned), so that a caller whose run
         ends by an exception still has what was measured.
+    drop_when_busy : bool, optional
+        Read the source with a capture thread into a drop-oldest mailbox of
+        ``mailbox_slots`` (:class:`~headplod.capture.mailbox.CaptureThread`):
+        the tracker takes the newest pair and those it had no time for are
+        dropped and counted (``dropped_busy``). Default: when the source is
+        live (``source.realtime``: cameras, a ``--realtime`` replay); else
+        every frame is read and tracked in order. The thread is joined
+        before this returns or raises; what the source raises in it is
+        raised here, after the frames before it.
+    mailbox_slots : int
+        The mailbox's size (1: always the newest pair).
 
     Returns
     -------
@@ -347,9 +388,27 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
     if tracker is None:
         tracker = make_tracker(source, config, rig=rig, markers=markers)
     stats = LiveStats() if stats is None else stats
+    if drop_when_busy is None:
+        drop_when_busy = bool(getattr(source, "realtime", False))
+    stats.capture_thread = bool(drop_when_busy)
+    frames = CaptureThread(source, mailbox_slots, timeout_s, stop=stop) if drop_when_busy else source
+    try:
+        _track_source(frames, tracker, stats, screen=screen, on_record=on_record, recorder=recorder,
+                      sender=sender, pose_filter=pose_filter, status=status, max_frames=max_frames,
+                      timeout_s=timeout_s, stop=stop, notes=notes)
+    finally:
+        if drop_when_busy:
+            frames.close()
+            stats.capture_stuck = frames.stuck
+    return stats
+
+
+def _track_source(frames, tracker: Tracker, stats: LiveStats, *, screen, on_record, recorder, sender,
+                  pose_filter, status, max_frames, timeout_s, stop, notes) -> None:
+    """:func:`run_source`'s loop over :func:`track_frames`: each frame's record, outputs and counts."""
     times = FrameTimes()
     start = time.perf_counter()
-    for frame, result in track_frames(source, tracker, max_frames=max_frames, stop=stop, timeout_s=timeout_s,
+    for frame, result in track_frames(frames, tracker, max_frames=max_frames, stop=stop, timeout_s=timeout_s,
                                       times=times, timestamps=stats.timestamps):
         if recorder is not None:
             recorder.write(frame)                    # an error frame is noted in recording.log, not written
@@ -365,10 +424,10 @@ def run_source(source, config: TrackerConfig = TrackerConfig(), *, rig: io.Rig |
         if status is not None:
             status.update(record, latency_ms=latency, skew_ms=getattr(frame, "skew_ms", None),
                           dropped=record["dropped"], time_dropped=stats.timestamps.dropped + stats.time_jumps,
-                          time_dropped_first=stats.timestamps.first or stats.first_time_jump)
+                          time_dropped_first=stats.timestamps.first or stats.first_time_jump,
+                          dropped_busy=record["dropped_busy"])
         _count_frame(stats, frame, record, times, latency, start)
     stats.wall_s = time.perf_counter() - start
-    return stats
 
 
 def _frame_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen | None, pose_filter,
@@ -376,7 +435,8 @@ def _frame_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen
     """One frame's record as :func:`run_source` sends and writes it, but for its ``latency_ms``.
 
     The contract's record (:func:`result_record`, then ``pose_filter``), with the frame's ``skew_ms``
-    (left/right capture-time difference, ms, or None), ``dropped`` (pairs lost before it) and ``flags``
+    (left/right capture-time difference, ms, or None), ``dropped`` (pairs the source lost before it),
+    ``dropped_busy`` (pairs dropped before it while the tracker was busy) and ``flags``
     (the frame's, its warnings, then the tracker's notes). An exception while making it is the frame's
     failure, ``internal error: TYPE: message``; such failures, the tracker's included, count in ``stats``.
     """
@@ -394,15 +454,18 @@ def _frame_record(frame: io.Frame, result: TrackResult | None, screen: io.Screen
     skew = getattr(frame, "skew_ms", None)
     record["skew_ms"] = None if skew is None else round(float(skew), 3)
     record["dropped"] = int(getattr(frame, "dropped", 0) or 0)
+    record["dropped_busy"] = int(getattr(frame, "dropped_busy", 0) or 0)
     record["flags"] = flags + list(record.pop("notes", None) or ())   # the frame's, then the tracker's
     return record
 
 
 def _latency_ms(frame: io.Frame, times: FrameTimes, now_monotonic: float | None = None) -> float:
-    """From the frame's capture time (``t_monotonic_left``; without one, from the start of its reading, less
-    the wait of a realtime replay's pacing, ``paced_s``) to ``now_monotonic`` (default: now,
-    ``time.monotonic()``), ms."""
+    """From the frame's capture time (``t_monotonic_left``; without one, when the capture thread delivered it,
+    ``t_delivered``; without either, from the start of its reading, less the wait of a realtime replay's
+    pacing, ``paced_s``) to ``now_monotonic`` (default: now, ``time.monotonic()``), ms."""
     captured = getattr(frame, "t_monotonic_left", None)
+    if captured is None:
+        captured = getattr(frame, "t_delivered", None)
     now_mono = time.monotonic() if now_monotonic is None else now_monotonic
     latency = 1e3 * (now_mono - (captured if captured is not None else times.read_end_monotonic))
     if captured is not None:
@@ -422,6 +485,10 @@ def _count_frame(stats: LiveStats, frame: io.Frame, record: dict, times: FrameTi
     stats.track_s.append(times.track_s)
     stats.output_s.append(t_done - times.track_end)
     stats.latency_ms.append(latency)
+    stats.dropped += int(record["dropped"])
+    stats.dropped_busy += int(record["dropped_busy"])
     if frame.error is None:
         origin = getattr(frame, "time_source", None) if getattr(frame, "t_monotonic_left", None) is not None else None
+        if origin is None and getattr(frame, "t_delivered", None) is not None:
+            origin = "delivered"
         stats.latency_from[origin] = stats.latency_from.get(origin, 0) + 1

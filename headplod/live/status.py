@@ -1,5 +1,6 @@
 """The live status line of ``headplod track``: :class:`StatusLine` (frame rate in Hz over a
-sliding window, capture-to-pose latency and left/right skew in ms, counts over the run, the
+sliding window, capture-to-pose latency and left/right skew in ms, counts over the run (dropped
+pairs: the source's losses and those dropped while the tracker was busy), the
 opentrack sender's failures, the rig refinement's message shortened by :func:`short_rig_message`),
 and :class:`ForgivingStream`, a text stream whose writes never raise.
 """
@@ -58,7 +59,7 @@ class StatusLine:
     line is written: on a terminal it overwrites itself (``'\\r'``), otherwise
     (a pipe, a log file) each rendering is its own line. Example::
 
-        59.8 Hz | latency 14.2/19.0 ms (med/p95) | skew 0.3/1.1 ms (med/max) | dropped 2 | ok 97.5% | last failure: ...
+        59.8 Hz | latency 4.2/7.9/9.0 ms (p50/p99/max) | skew 0.3/1.1 ms (med/max) | dropped 2 | dropped while busy 5 | ...
           | rig: right camera turned ~0.42°, baseline x1.021; refining
 
     Parameters
@@ -78,9 +79,12 @@ class StatusLine:
     Rate: (frames in the window - 1) / (time between the first and the last),
     Hz. Latency (capture time to pose, ms; a live camera's capture time is the
     driver's buffer timestamp or the grab time, see
-    :data:`headplod.live.loop.LATENCY_FROM`): median and 95th percentile over
-    the window. Skew (left/right capture-time difference, ms): median and
-    maximum of its absolute value over the window. Dropped frames, frames
+    :data:`headplod.live.loop.LATENCY_FROM`): median, 99th percentile and
+    maximum over the window (the slowest frames are the ones a user feels).
+    Skew (left/right capture-time difference, ms): median and
+    maximum of its absolute value over the window. Dropped frames (the
+    source's losses; ``dropped while busy N``: those the capture thread dropped while the
+    tracker was busy, shown once there is one, over the run), frames
     dropped for a zero or non-increasing time (``bad time N (first: ...)``,
     shown once there is one), % ok and the last failure reason are over the
     whole run. The rig part is the last record's
@@ -109,6 +113,7 @@ class StatusLine:
         self.ok = 0
         self.failed = 0
         self.dropped = 0
+        self.dropped_busy = 0
         self.time_dropped = 0
         self.time_dropped_first: str | None = None
         self.last_failure: str | None = None
@@ -121,7 +126,7 @@ class StatusLine:
 
     def update(self, record: Mapping, latency_ms: float | None = None, skew_ms: float | None = None,
                dropped: int = 0, now: float | None = None, time_dropped: int | None = None,
-               time_dropped_first: str | None = None) -> str | None:
+               time_dropped_first: str | None = None, dropped_busy: int = 0) -> str | None:
         """Account for one frame, and write the line when it is due.
 
         Parameters
@@ -135,7 +140,10 @@ class StatusLine:
         skew_ms : float, optional
             Left minus right capture time, ms (its absolute value is used).
         dropped : int
-            Frames dropped since the previous update.
+            Frames the source lost since the previous update.
+        dropped_busy : int
+            Frames dropped since the previous update because the tracker
+            was busy (the capture thread's drop-oldest mailbox).
         time_dropped : int, optional
             Frames dropped so far for a zero or non-increasing time (a
             running count, not an increment); shown with the first one.
@@ -153,6 +161,7 @@ class StatusLine:
         now = time.monotonic() if now is None else float(now)
         self.frames += 1
         self.dropped += int(dropped)
+        self.dropped_busy += int(dropped_busy)
         if time_dropped is not None:
             self.time_dropped = int(time_dropped)
             self.time_dropped_first = time_dropped_first
@@ -200,11 +209,13 @@ class StatusLine:
         Returns
         -------
         dict
-            ``frames``, ``ok``, ``failed``, ``dropped`` (counts over the run),
+            ``frames``, ``ok``, ``failed``, ``dropped``, ``dropped_busy``
+            (counts over the run),
             ``time_dropped`` and ``time_dropped_first`` (frames dropped for
             a zero or non-increasing time, and the first),
             ``ok_percent``, ``rate_hz``, ``latency_ms_median``,
-            ``latency_ms_p95``, ``skew_ms_median``, ``skew_ms_max`` (over the
+            ``latency_ms_p95``, ``latency_ms_p99``, ``latency_ms_max``,
+            ``skew_ms_median``, ``skew_ms_max`` (over the
             window; None when there is no data), ``last_failure`` and
             ``rig_message`` (the last record's, in full), ``udp_failed``
             (datagrams not sent; None without a sender),
@@ -220,12 +231,15 @@ class StatusLine:
             "ok": self.ok,
             "failed": self.failed,
             "dropped": self.dropped,
+            "dropped_busy": self.dropped_busy,
             "time_dropped": self.time_dropped,
             "time_dropped_first": self.time_dropped_first,
             "ok_percent": 100.0 * self.ok / self.frames if self.frames else None,
             "rate_hz": self.rate_hz(),
             "latency_ms_median": float(np.median(lat)) if lat.size else None,
             "latency_ms_p95": float(np.percentile(lat, 95)) if lat.size else None,
+            "latency_ms_p99": float(np.percentile(lat, 99)) if lat.size else None,
+            "latency_ms_max": float(lat.max()) if lat.size else None,
             "skew_ms_median": float(np.median(skew)) if skew.size else None,
             "skew_ms_max": float(skew.max()) if skew.size else None,
             "last_failure": self.last_failure,
@@ -244,9 +258,11 @@ class StatusLine:
             return "--" if x is None else fmt.format(x)
 
         parts = [f"{num(s['rate_hz'])} Hz",
-                 f"latency {num(s['latency_ms_median'])}/{num(s['latency_ms_p95'])} ms (med/p95)",
+                 f"latency {num(s['latency_ms_median'])}/{num(s['latency_ms_p99'])}/{num(s['latency_ms_max'])} ms "
+                 "(p50/p99/max)",
                  f"skew {num(s['skew_ms_median'])}/{num(s['skew_ms_max'])} ms (med/max)",
                  f"dropped {s['dropped']}",
+                 *([f"dropped while busy {s['dropped_busy']}"] if s["dropped_busy"] else []),
                  *([f"bad time {s['time_dropped']} (first: {s['time_dropped_first']})"]
                    if s["time_dropped"] else []),
                  f"ok {num(s['ok_percent'])}%",
