@@ -35,8 +35,8 @@ def test_the_true_labeling_is_found_among_clutter_points_with_noise(seed, clutte
     found = find_labelings(points[order], model_distances(MODEL), tuple(range(5)), TOL_MM)
     rows = [i for i, row in enumerate(found.index) if np.array_equal(row, truth)]
     assert rows, "the true labeling was not found"
-    # Ranked by distance error: the truth comes before any labeling much worse than noise.
-    assert np.all(np.diff(found.error_mm) >= 0)
+    # Ranked by the shape error.
+    assert np.all(np.diff(found.shape_mm) >= 0)
 
 
 def test_labelings_are_bounded_whatever_the_clutter():
@@ -85,3 +85,17 @@ def test_stereo_points_pair_projections_and_triangulate_them(sweep12_rig):
     assert not np.any(sp.left == len(X) - 1) or np.all(np.linalg.norm(sp.points_mm[sp.left == len(X) - 1]
                                                                       - X[-1], axis=1) > 1.0)
     assert np.all(sp.epipolar_px <= geometry.epipolar_tol_px)
+
+
+def test_the_trio_must_lie_on_its_image_line_between_its_ends():
+    """P1 on the P0-P2 line between them passes; a blob beside the line (a glint standing in for P1) or
+    beyond an end does not, whatever the rig."""
+    from headplod.tracking.identify import collinear_in_image
+
+    p0, p2 = np.array([100.0, 200.0]), np.array([300.0, 210.0])
+    on_line = p0 + 0.5 * (p2 - p0)
+    normal = np.array([-10.0, 200.0]) / np.hypot(10.0, 200.0)
+    assert collinear_in_image(p0, on_line, p2)
+    assert collinear_in_image(p0, on_line + 2.0 * normal, p2)            # centroid noise and lens curvature
+    assert not collinear_in_image(p0, on_line + 12.0 * normal, p2)       # a glint beside the markers
+    assert not collinear_in_image(p0, p0 + 1.2 * (p2 - p0), p2)          # on the line, beyond an end

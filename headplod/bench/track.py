@@ -60,12 +60,16 @@ GOALS = [
     ("zero wrong identifications (V off by > 5°)", [s[0] for s in TRACK_SETS], "wrong_identifications", 0),
 ]
 RATIO_GOAL = 25.0
+# The slowest frames of every set against the clean set's median frame (Tracker.process, whole): issue 34.
+CLEAN_SET = "looking around (default)"
+TAIL_GOALS = (("slowest 1% of frames", "frame_ms_p99", 3.0), ("slowest frame", "frame_ms_max", 6.0))
 
 
 def run_estimator(frames, dataset: io.Dataset, estimator: str) -> dict:
     """Track preloaded frames with one estimator; accuracy, stage times and the baseline ratio."""
     tracker = Tracker(dataset.rig, dataset.markers, TrackerConfig(estimator=estimator))
     records, totals, baselines, stages, by_mode = [], [], [], {}, {"track": [], "acquire": []}
+    hypotheses = []
     for frame, result in track_frames(frames, tracker):
         if result is None:                     # an error frame (the tracker was reset)
             records.append(result_record(frame, None))
@@ -76,6 +80,7 @@ def run_estimator(frames, dataset: io.Dataset, estimator: str) -> dict:
         by_mode[result.mode].append(totals[-1])
         for stage, seconds in result.timings_s.items():
             stages.setdefault(stage, []).append(seconds)
+        hypotheses.append(result.hypotheses)
         records.append(result_record(frame, result, extras=False))
     summary = evaluate.summarize(records, dataset.truth)
     baseline = float(np.median(baselines)) if baselines else float("nan")
@@ -90,6 +95,12 @@ def run_estimator(frames, dataset: io.Dataset, estimator: str) -> dict:
         "mean_pose_ms_tracking": float(np.mean(by_mode["track"])) * 1e3 if by_mode["track"] else None,
         "mean_pose_ms_acquisition": float(np.mean(by_mode["acquire"])) * 1e3 if by_mode["acquire"] else None,
     })
+    # The whole frame (Tracker.process, the covariance included): what a user waits for, slowest first.
+    frame_s = np.array(stages.get("total", [np.nan]))
+    summary.update({"frame_ms_median": float(np.median(frame_s)) * 1e3,
+                    "frame_ms_p99": float(np.percentile(frame_s, 99)) * 1e3,
+                    "frame_ms_max": float(np.max(frame_s)) * 1e3,
+                    "hypotheses_max": int(max(hypotheses, default=0))})
     return summary
 
 
@@ -189,13 +200,29 @@ def _report(results: dict) -> dict:
         r = float(np.median(ratios))
         goals.append({"goal": f"mean-pose time ≤ {RATIO_GOAL:.0f}x one threshold pass (640x480)",
                       "worst": r, "limit": RATIO_GOAL, "met": bool(r <= RATIO_GOAL)})
+    goals += _tail_goals(results, default)
     lines.append("")
     lines.append(f"goals (default estimator '{default}'):")
     for g in goals:
         lines.append(f"  [{'met' if g['met'] else 'NOT MET'}] {g['goal']}: {g['worst']:.3f} (limit {g['limit']})")
     out = {"default_estimator": default, "sets": results, "goals": goals,
-           "mean_pose_ratio_to_threshold": goals[-1]["worst"] if ratios else None}
+           "mean_pose_ratio_to_threshold": r if ratios else None}
     return {"text": "\n".join(lines), "json": out}
+
+
+def _tail_goals(results: dict, estimator: str) -> list[dict]:
+    """Every set's slowest frames as multiples of the clean set's median frame (when the clean set ran)."""
+    if CLEAN_SET not in results:
+        return []
+    median = results[CLEAN_SET][estimator]["frame_ms_median"]
+    goals = []
+    for label, key, limit in TAIL_GOALS:
+        ratios = {name: by[estimator][key] / median for name, by in results.items()}
+        worst = max(ratios, key=ratios.get)
+        goals.append({"goal": f"{label} ≤ {limit:g}x the clean set's median frame, on every set",
+                      "worst": ratios[worst], "limit": limit, "met": bool(ratios[worst] <= limit),
+                      "missed_on": sorted(n for n, v in ratios.items() if v > limit)})
+    return goals
 
 
 def _chart(results: dict, path: str) -> None:

@@ -23,7 +23,8 @@ import numpy as np
 
 from . import geometry as geo
 from .detect import Blobs
-from .identify import DISTANCE_TOL_PER_FIT_TOL, find_labelings, model_distances, stereo_points
+from .identify import (DISTANCE_TOL_PER_FIT_TOL, collinear_in_image, find_labelings, model_distances,
+                       stereo_points)
 from .lock import Match
 from ..angles import angle_between_deg
 
@@ -72,9 +73,10 @@ class _Budget:
 
 
 def _scan(error_mm: np.ndarray, allowed: int, markers: int, fit_tol_mm: float, fit) -> int:
-    """Fit labelings ranked by their distance error (``error_mm`` (H,), ascending) in growing chunks,
-    ``fit(lo, hi)`` returning the best cost of labelings lo..hi-1 (inf: none acceptable); stop when no later
-    labeling can beat the best found or rival it. The number fitted.
+    """Fit ranked labelings in growing chunks, ``fit(lo, hi)`` returning the best cost of labelings lo..hi-1
+    (inf: none acceptable); stop when no later labeling can beat the best found or rival it, by their
+    distance errors against the model at its true size (``error_mm`` (H,), in the ranking's order). The
+    number fitted.
 
     The bound: a labeling whose points fit the model at an RMS ``r`` has its
     pairwise distances off by at most ``markers · (markers − 1) · r`` in total
@@ -82,12 +84,13 @@ def _scan(error_mm: np.ndarray, allowed: int, markers: int, fit_tol_mm: float, f
     cost is at least ``error / (markers · (markers − 1) · fit_tol_mm)``; a rival
     costs at most twice the best plus 0.2 (:meth:`Identifier._ambiguous`).
     """
+    least_after = np.minimum.accumulate(np.asarray(error_mm, dtype=np.float64)[::-1])[::-1]
     lo, chunk, best = 0, 16, np.inf
     while lo < allowed:
         hi = min(lo + chunk, allowed)
         best = min(best, fit(lo, hi))
         lo, chunk = hi, 2 * chunk
-        if lo < allowed and error_mm[lo] / (markers * (markers - 1) * fit_tol_mm) > 2 * best + 0.2:
+        if lo < allowed and least_after[lo] / (markers * (markers - 1) * fit_tol_mm) > 2 * best + 0.2:
             break
     return lo
 
@@ -186,7 +189,8 @@ class Identifier:
         stereo = stereo_points(xn[0], xn[1], g, self.ident_config.working_range_mm)
         budget = _Budget(self.ident_config.max_hypotheses)
         tol_mm = DISTANCE_TOL_PER_FIT_TOL * g.fit_tol_mm
-        labelings = find_labelings(stereo.points_mm, self.model_d, tuple(range(5)), tol_mm)
+        labelings = find_labelings(stereo.points_mm, self.model_d, tuple(range(5)), tol_mm,
+                                   blobs=(stereo.left, stereo.right))
         match, reason = self._best_labeling(labelings, stereo, cand, blobs, g, budget)
         if match is None and self.ident_config.hidden_marker:
             alt, alt_reason = self._hidden_marker(stereo, cand, blobs, g, tol_mm, budget)
@@ -231,9 +235,15 @@ class Identifier:
         points = stereo.points_mm[labels]
         epi = stereo.epipolar_px[labels]
         R, t, rms = geo.kabsch(self.ident_model_mm, points)
-        valid = distinct & (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g)
+        valid = distinct & (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g) & self._trio_on_a_line(
+            blobs[0].centers_px[cand[0][left]], blobs[1].centers_px[cand[1][right]])
         cost = np.where(valid, self._cost(rms, epi, blobs, cand, left, right), np.inf)
         return _Fits(left, right, points, epi, R, t, rms, distinct, cost)
+
+    @staticmethod
+    def _trio_on_a_line(*views_px) -> np.ndarray:
+        """P0, P1, P2 collinear in each view's (H, n ≥ 3, 2) px, markers in order: (H,) bool."""
+        return np.logical_and.reduce([collinear_in_image(v[:, 0], v[:, 1], v[:, 2]) for v in views_px])
 
     def _cost(self, rms, epi, blobs, cand, left, right) -> np.ndarray:
         """A labeling's cost: its errors in units of the image-noise tolerances (not of the rig-widened
@@ -246,12 +256,14 @@ class Identifier:
         """One marker hidden in one view: four stereo points labelled by the model's distances (the best
         labelings over the five choices of the hidden marker, from the budget), the fifth marker the blob
         nearest its projection in one view (within ``hidden_search_px``)."""
-        found = [find_labelings(stereo.points_mm, self.model_d, tuple(m for m in range(5) if m != hidden), tol_mm)
+        found = [find_labelings(stereo.points_mm, self.model_d, tuple(m for m in range(5) if m != hidden), tol_mm,
+                                blobs=(stereo.left, stereo.right))
                  for hidden in range(5)]
+        shape = np.concatenate([f.shape_mm for f in found])
         error = np.concatenate([f.error_mm for f in found])
         hidden_of = np.concatenate([np.full(len(f), h) for h, f in enumerate(found)])
         row_of = np.concatenate([np.arange(len(f)) for f in found])
-        order = np.argsort(error, kind="stable")
+        order = np.argsort(shape, kind="stable")
         rows = []
 
         def fit(lo, hi):
@@ -284,6 +296,8 @@ class Identifier:
         weights[hidden] = 0.0
         R, t, rms = geo.kabsch(self.ident_model_mm, points, weights)
         valid = _distinct(left) & _distinct(right) & (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g)
+        if hidden > 2:                                    # the trio is shown in both views
+            valid &= self._trio_on_a_line(blobs[0].centers_px[cand[0][left]], blobs[1].centers_px[cand[1][right]])
         rows = []
         for h in np.flatnonzero(valid):
             seen = self._find_hidden(hidden, R[h], t[h], cand, blobs, g, left[h], right[h])

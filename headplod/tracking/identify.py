@@ -22,8 +22,10 @@ systems do:
    apart as the model's longest edge), then, for each other marker, the few
    points at its two distances from the anchor's ends, then the distances
    among those (the triangles' shapes);
-3. the labelings are ranked by their total distance error, and only the best
-   ``budget`` of them are fitted to the model by the caller.
+3. the labelings are ranked by how well their shape matches the model's
+   (the distances' errors after the best common scale: a rig whose baseline
+   is off scales every triangulated shape), and only the best ``budget`` of
+   them are fitted to the model, at its true size, by the caller.
 
 Costs: the epipolar matrix is blobs², the distance matrix stereo points²,
 and the labelings are at most ``max_anchors`` × ``per_marker``³, fixed, so a
@@ -33,7 +35,11 @@ within an RMS of ``fit_tol`` mm has no pairwise distance off by more than
 √10 · ``fit_tol`` (two residuals of at most that RMS over five points), so
 that distance tolerance drops no labeling the final fit would accept.
 
-The labeling itself needs no image rule: a labeling that mirrors the model
+Of the paper's image rule one part stays, as a check no rig error affects
+(:func:`collinear_in_image`): P1 lies between P0 and P2 on their image line
+in both views. While the rig is uncertain (the first frames, a stale
+rig.yaml) the 3D checks are wide, and a glint next to the markers can stand
+in for one of them; the line cannot. A labeling that mirrors the model
 (P0↔P2 and P3↔P4 for a symmetric model) fits only with the glasses turned
 away from the cameras, which the caller rejects (retro-reflectors are seen
 only from the front).
@@ -49,6 +55,20 @@ from . import geometry as geo
 
 # The fit-RMS tolerance times this bounds each pairwise distance's error (module docstring).
 DISTANCE_TOL_PER_FIT_TOL = float(np.sqrt(10.0))
+# P1's largest distance from the image line through P0 and P2: centroid errors, plus lens curvature and
+# foreshortening that grow with the trio's length (Martinez et al.'s collinearity, a tolerance of ours).
+LINE_TOL_PX = 1.5
+LINE_TOL_PER_LENGTH = 0.04
+
+
+def collinear_in_image(p0_px: np.ndarray, p1_px: np.ndarray, p2_px: np.ndarray) -> np.ndarray:
+    """Whether P1 (…, 2) px lies on the image line through P0 and P2 and between them, as the contract's
+    markers (P0, P1, P2 on G's x axis) do in any view: (…) bool. A check no rig error affects."""
+    ab, ac = p2_px - p0_px, p1_px - p0_px
+    length = np.linalg.norm(ab, axis=-1)
+    off_line = np.abs(ab[..., 0] * ac[..., 1] - ab[..., 1] * ac[..., 0]) / np.maximum(length, 1e-9)
+    along = np.einsum("...i,...i->...", ac, ab) / np.maximum(length, 1e-9) ** 2
+    return (off_line <= LINE_TOL_PX + LINE_TOL_PER_LENGTH * length) & (along > 0.05) & (along < 0.95)
 
 
 class StereoPoints(NamedTuple):
@@ -68,25 +88,24 @@ class StereoPoints(NamedTuple):
 
 
 class Labelings(NamedTuple):
-    """Labelings of some markers among stereo points, best (smallest distance error) first.
+    """Labelings of some markers among stereo points, best (smallest shape error) first.
 
     ``markers`` the marker numbers labelled, in order; ``index`` (H, len(markers))
-    the stereo point of each; ``error_mm`` (H,) the sum of the labelled
-    pairwise distances' absolute errors against the model, mm; ``found``
-    the labelings within the tolerances before any cap.
+    the stereo point of each; ``shape_mm`` (H,) the sum of the labelled
+    pairwise distances' absolute errors against the model scaled to fit
+    them best, mm (the ranking: a rig whose baseline is off scales every
+    triangulated shape, and must not push the true labeling down);
+    ``error_mm`` (H,) the same against the model at its true size, mm (the
+    bound of :func:`headplod.tracking.acquire._scan`).
     """
 
     markers: tuple
     index: np.ndarray
+    shape_mm: np.ndarray
     error_mm: np.ndarray
-    found: int
 
     def __len__(self) -> int:
         return len(self.index)
-
-    def best(self, count: int) -> "Labelings":
-        """The first ``count`` labelings."""
-        return Labelings(self.markers, self.index[:count], self.error_mm[:count], self.found)
 
 
 def stereo_points(xn_left: np.ndarray, xn_right: np.ndarray, g, depth_range_mm: tuple) -> StereoPoints:
@@ -113,7 +132,7 @@ def model_distances(model_mm: np.ndarray) -> np.ndarray:
 
 
 def find_labelings(points_mm: np.ndarray, model_d: np.ndarray, markers: tuple, tol_mm: float, *,
-                   max_anchors: int = 64, per_marker: int = 3) -> Labelings:
+                   blobs: tuple | None = None, max_anchors: int = 64, per_marker: int = 3) -> Labelings:
     """Labelings of ``markers`` (3 to 5 marker numbers) among stereo points by the model's distances.
 
     Parameters
@@ -126,6 +145,9 @@ def find_labelings(points_mm: np.ndarray, model_d: np.ndarray, markers: tuple, t
         The markers to label (all five, or four with one hidden).
     tol_mm : float
         Largest error of any pairwise distance, mm.
+    blobs : (left (K,), right (K,)), optional
+        Each point's blob in each view: two points that share a blob are
+        never two markers.
     max_anchors, per_marker : int
         The anchors (ordered point pairs of the longest edge's length, best
         first) tried, and the points kept per other marker and anchor: the
@@ -134,16 +156,20 @@ def find_labelings(points_mm: np.ndarray, model_d: np.ndarray, markers: tuple, t
     P = np.asarray(points_mm, dtype=np.float64)
     k = len(P)
     markers = tuple(markers)
-    empty = Labelings(markers, np.zeros((0, len(markers)), np.int64), np.zeros(0), 0)
+    empty = Labelings(markers, np.zeros((0, len(markers)), np.int64), np.zeros(0), np.zeros(0))
     if k < len(markers):
         return empty
     D = np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)
+    if blobs is None:
+        apart = ~np.eye(k, dtype=bool)
+    else:
+        left, right = (np.asarray(b) for b in blobs)
+        apart = (left[:, None] != left[None, :]) & (right[:, None] != right[None, :])
     # The anchor: the longest model edge among the markers labelled.
     pairs = [(a, b) for i, a in enumerate(markers) for b in markers[i + 1:]]
     a, b = max(pairs, key=lambda ab: model_d[ab])
     others = [c for c in markers if c not in (a, b)]
-    anchor_err = np.abs(D - model_d[a, b])
-    np.fill_diagonal(anchor_err, np.inf)
+    anchor_err = np.where(apart, np.abs(D - model_d[a, b]), np.inf)
     ia, ib = np.nonzero(anchor_err <= tol_mm)           # both orders: (i, j) and (j, i)
     order = np.argsort(anchor_err[ia, ib], kind="stable")[:max_anchors]
     ia, ib = ia[order], ib[order]
@@ -151,9 +177,7 @@ def find_labelings(points_mm: np.ndarray, model_d: np.ndarray, markers: tuple, t
     choices, choice_err = [], []
     for c in others:
         e_a, e_b = np.abs(D[ia] - model_d[a, c]), np.abs(D[ib] - model_d[b, c])   # (A, K)
-        e = np.where((e_a <= tol_mm) & (e_b <= tol_mm), e_a + e_b, np.inf)
-        e[np.arange(len(ia)), ia] = np.inf
-        e[np.arange(len(ia)), ib] = np.inf
+        e = np.where((e_a <= tol_mm) & (e_b <= tol_mm) & apart[ia] & apart[ib], e_a + e_b, np.inf)
         q = min(per_marker, k)
         best = np.argsort(e, axis=1, kind="stable")[:, :q]                         # (A, q)
         choices.append(best)
@@ -169,11 +193,22 @@ def find_labelings(points_mm: np.ndarray, model_d: np.ndarray, markers: tuple, t
     for j1 in range(len(others)):
         for j2 in range(j1 + 1, len(others)):
             e = np.abs(D[index[:, 2 + j1], index[:, 2 + j2]] - model_d[others[j1], others[j2]])
-            ok &= (e <= tol_mm) & (index[:, 2 + j1] != index[:, 2 + j2])
+            ok &= (e <= tol_mm) & apart[index[:, 2 + j1], index[:, 2 + j2]]
             total = total + e
     index, total = index[ok], total[ok]
     # Back to the order of ``markers``.
     labelled = (a, b, *others)
     index = index[:, [labelled.index(m) for m in markers]]
-    order = np.argsort(total, kind="stable")
-    return Labelings(markers, index[order], total[order], len(index))
+    shape = _shape_error(D, index, model_d, markers)
+    order = np.argsort(shape, kind="stable")
+    return Labelings(markers, index[order], shape[order], total[order])
+
+
+def _shape_error(D: np.ndarray, index: np.ndarray, model_d: np.ndarray, markers: tuple) -> np.ndarray:
+    """Sum over the labelled pairs of |distance − s · model distance|, s the least-squares scale per
+    labeling: (H,) mm for ``index`` (H, n) into the points' distance matrix ``D`` (K, K)."""
+    pairs = [(i, j) for i in range(len(markers)) for j in range(i + 1, len(markers))]
+    seen = np.stack([D[index[:, i], index[:, j]] for i, j in pairs], axis=1)        # (H, P)
+    model = np.array([model_d[markers[i], markers[j]] for i, j in pairs])
+    scale = seen @ model / (model @ model)
+    return np.abs(seen - scale[:, None] * model).sum(axis=1)
