@@ -57,6 +57,10 @@ def _distinct(index: np.ndarray) -> np.ndarray:
     return (s[:, 1:] != s[:, :-1]).all(axis=1)
 
 
+# The markers shown when marker h (row) is hidden, in order.
+_SHOWN = np.array([[m for m in range(5) if m != h] for h in range(5)])
+
+
 class _Budget:
     """A frame's identification budget: each search (all five markers; one hidden) fits at most ``limit``
     labelings, the best first; how many were offered and fitted, and whether any search was cut."""
@@ -256,26 +260,21 @@ class Identifier:
         """One marker hidden in one view: four stereo points labelled by the model's distances (the best
         labelings over the five choices of the hidden marker, from the budget), the fifth marker the blob
         nearest its projection in one view (within ``hidden_search_px``)."""
-        found = [find_labelings(stereo.points_mm, self.model_d, tuple(m for m in range(5) if m != hidden), tol_mm,
+        found = [find_labelings(stereo.points_mm, self.model_d, tuple(_SHOWN[hidden]), tol_mm,
                                 blobs=(stereo.left, stereo.right))
                  for hidden in range(5)]
-        shape = np.concatenate([f.shape_mm for f in found])
-        error = np.concatenate([f.error_mm for f in found])
-        hidden_of = np.concatenate([np.full(len(f), h) for h, f in enumerate(found)])
-        row_of = np.concatenate([np.arange(len(f)) for f in found])
-        order = np.argsort(shape, kind="stable")
+        labels = np.concatenate([f.index for f in found])                           # (H, 4) stereo points
+        hidden = np.concatenate([np.full(len(f), h) for h, f in enumerate(found)])
+        order = np.argsort(np.concatenate([f.shape_mm for f in found]), kind="stable")
+        error = np.concatenate([f.error_mm for f in found])[order]
         rows = []
 
         def fit(lo, hi):
             chosen = order[lo:hi]
-            before = len(rows)
-            for hidden in range(5):
-                mine = row_of[chosen[hidden_of[chosen] == hidden]]
-                if len(mine):
-                    rows.extend(self._fit_hidden(found[hidden].index[mine], hidden, stereo, cand, blobs, g))
-            return min((r[-1] for r in rows[before:]), default=np.inf)
+            rows.extend(self._fit_hidden(labels[chosen], hidden[chosen], stereo, cand, blobs, g))
+            return min((r[-1] for r in rows), default=np.inf)
 
-        budget.scored += _scan(error[order], budget.allow(len(order)), 4, self.ident_config.fit_tol_mm, fit)
+        budget.scored += _scan(error, budget.allow(len(order)), 4, self.ident_config.fit_tol_mm, fit)
         if not rows:
             return None, "no consistent identification with a marker hidden in one view"
         cost = np.array([r[-1] for r in rows])
@@ -285,52 +284,68 @@ class Identifier:
         return self._make_match(blobs, *rows[best][:-1]), None
 
     def _fit_hidden(self, labels, hidden, stereo, cand, blobs, g) -> list:
-        """Four-marker labelings (H, 4) of stereo points (marker ``hidden`` not among them) fitted to the
-        model, each acceptable one with its fifth marker found in one view: a list of (index (2, 5),
-        epipolar (5,), points (5, 3), R, t, rms, cost)."""
-        shown = [m for m in range(5) if m != hidden]
-        left, right = stereo.left[labels], stereo.right[labels]
-        points = np.zeros((len(labels), 5, 3))
-        points[:, shown] = stereo.points_mm[labels]
-        weights = np.ones(5)
-        weights[hidden] = 0.0
+        """Four-marker labelings (H, 4) of stereo points, marker ``hidden`` (H,) not among them (the others
+        in order), fitted to the model; each acceptable one with its fifth marker found in one view: a list
+        of (index (2, 5), epipolar (5,), points (5, 3), R, t, rms, cost)."""
+        n = len(labels)
+        shown = _SHOWN[hidden]                                                      # (H, 4) marker numbers
+        rows_ = np.arange(n)[:, None]
+        left = np.full((n, 5), -1)
+        right = np.full((n, 5), -1)
+        left[rows_, shown], right[rows_, shown] = stereo.left[labels], stereo.right[labels]
+        points = np.zeros((n, 5, 3))
+        points[rows_, shown] = stereo.points_mm[labels]
+        weights = np.ones((n, 5))
+        weights[np.arange(n), hidden] = 0.0
         R, t, rms = geo.kabsch(self.ident_model_mm, points, weights)
-        valid = _distinct(left) & _distinct(right) & (rms <= g.fit_tol_mm) & self._facing_cameras(R, t, g)
-        if hidden > 2:                                    # the trio is shown in both views
-            valid &= self._trio_on_a_line(blobs[0].centers_px[cand[0][left]], blobs[1].centers_px[cand[1][right]])
-        rows = []
-        for h in np.flatnonzero(valid):
-            seen = self._find_hidden(hidden, R[h], t[h], cand, blobs, g, left[h], right[h])
-            if seen is None:
+        valid = (_distinct(stereo.left[labels]) & _distinct(stereo.right[labels]) & (rms <= g.fit_tol_mm)
+                 & self._facing_cameras(R, t, g))
+        # The trio P0-P1-P2 on a line in both views, where it is shown in both.
+        trio = self._trio_on_a_line(blobs[0].centers_px[cand[0][np.maximum(left, 0)]],
+                                    blobs[1].centers_px[cand[1][np.maximum(right, 0)]])
+        valid &= trio | (hidden <= 2)
+        valid = np.flatnonzero(valid)
+        view, blob = self._find_hidden(hidden[valid], R[valid], t[valid], cand, blobs, g,
+                                       stereo.left[labels[valid]], stereo.right[labels[valid]])
+        out = []
+        for h, v, b in zip(valid, view, blob):
+            if v < 0:
                 continue
-            view, blob = seen
             index = np.full((2, 5), -1)
-            index[0, shown], index[1, shown] = cand[0][left[h]], cand[1][right[h]]
-            index[view, hidden] = cand[view][blob]
+            index[0, shown[h]], index[1, shown[h]] = cand[0][left[h, shown[h]]], cand[1][right[h, shown[h]]]
+            index[v, hidden[h]] = cand[v][b]
             epi = np.full(5, np.nan)
-            epi[shown] = stereo.epipolar_px[labels[h]]
+            epi[shown[h]] = stereo.epipolar_px[labels[h]]
             pts = points[h].copy()
-            pts[hidden] = np.nan
+            pts[hidden[h]] = np.nan
             cost = rms[h] / self.ident_config.fit_tol_mm + np.nanmax(epi) / self.ident_config.epipolar_tol_px
-            rows.append((index, epi, pts, R[h], t[h], rms[h], cost))
-        return rows
+            out.append((index, epi, pts, R[h], t[h], rms[h], cost))
+        return out
 
-    def _find_hidden(self, hidden, R, t, cand, blobs, g, used_left, used_right) -> tuple[int, int] | None:
-        """(view, candidate) of the blob nearest the hidden marker's projection by the pose (R, t) of the
-        other four, within ``hidden_search_px``, among the blobs not labelled; None if there is none."""
-        point = (R @ self.ident_model_mm[hidden] + t)[None, :]
-        best = None
+    def _find_hidden(self, hidden, R, t, cand, blobs, g, used_left, used_right) -> tuple[np.ndarray, np.ndarray]:
+        """For poses (R (V, 3, 3), t (V, 3) mm) of four markers, the (view, candidate) of the blob nearest
+        the projection of the hidden one (``hidden`` (V,)), within ``hidden_search_px``, among the blobs
+        each pose's labeling did not use (``used_left``, ``used_right`` (V, 4)): two (V,) int arrays, −1
+        where none."""
+        points = np.einsum("vij,vj->vi", R, self.ident_model_mm[hidden]) + t                      # (V, 3)
+        best_d = np.full(len(points), np.inf)
+        best_view, best_blob = np.full(len(points), -1), np.full(len(points), -1)
+        if not len(points):
+            return best_view, best_blob
+        rows = np.arange(len(points))[:, None]
         for view, used in ((0, used_left), (1, used_right)):
             if view == 0:
-                px = geo.project(point, np.eye(3), np.zeros(3), g.rig.K1, g.rig.D1)[0]
+                px = geo.project(points, np.eye(3), np.zeros(3), g.rig.K1, g.rig.D1)
             else:
-                px = geo.project(point, g.rig.R, g.rig.T, g.rig.K2, g.rig.D2)[0]
-            dist = np.linalg.norm(blobs[view].centers_px[cand[view]] - px, axis=1)
-            dist[used] = np.inf
-            j = int(np.argmin(dist))
-            if dist[j] <= self.ident_config.hidden_search_px and (best is None or dist[j] < best[0]):
-                best = (dist[j], view, j)
-        return None if best is None else best[1:]
+                px = geo.project(points, g.rig.R, g.rig.T, g.rig.K2, g.rig.D2)
+            dist = np.linalg.norm(blobs[view].centers_px[cand[view]][None, :, :] - px[:, None, :], axis=2)
+            dist[rows, used] = np.inf
+            j = np.argmin(dist, axis=1)
+            d = dist[rows[:, 0], j]
+            better = (d <= self.ident_config.hidden_search_px) & (d < best_d)
+            best_d = np.where(better, d, best_d)
+            best_view, best_blob = np.where(better, view, best_view), np.where(better, j, best_blob)
+        return best_view, best_blob
 
     def _make_match(self, blobs, index, epi, points, R, t, rms) -> Match:
         visible = index >= 0
