@@ -7,7 +7,7 @@ from hypothesis import given, settings, strategies as st
 from headplod.io import default_marker_model
 from headplod.tracking import geometry as geo
 from headplod.tracking.identify import (DISTANCE_TOL_PER_FIT_TOL, find_labelings, model_distances,
-                                        stereo_points)
+                                        point_graph, stereo_points)
 from headplod.tracking.tracker import TrackerConfig
 from headplod.tracking.tracker_rig import RigInUse
 
@@ -32,7 +32,7 @@ def test_the_true_labeling_is_found_among_clutter_points_with_noise(seed, clutte
     points = np.concatenate([markers, p1 + rng.uniform(-300, 300, (clutter, 3))])
     order = rng.permutation(len(points))
     truth = np.argsort(order)[:5]
-    found = find_labelings(points[order], model_distances(MODEL), tuple(range(5)), TOL_MM)
+    found = find_labelings(point_graph(points[order]), model_distances(MODEL), tuple(range(5)), TOL_MM)
     rows = [i for i, row in enumerate(found.index) if np.array_equal(row, truth)]
     assert rows, "the true labeling was not found"
     # Ranked by the shape error.
@@ -47,7 +47,7 @@ def test_labelings_are_bounded_whatever_the_clutter():
     counts = []
     for k in (10, 40, 160):
         points = np.repeat(MODEL, k // 5, axis=0) + rng.normal(0, 1.0, (k // 5 * 5, 3))
-        found = find_labelings(points, d, tuple(range(5)), TOL_MM, max_anchors=64, per_marker=3)
+        found = find_labelings(point_graph(points), d, tuple(range(5)), TOL_MM, max_anchors=64, per_marker=3)
         counts.append(len(found))
         assert len(found) <= 64 * 3 ** 3
     assert counts[-1] > 0        # the cloud does offer labelings: the bound is what stops them
@@ -60,7 +60,7 @@ def test_four_markers_with_one_hidden_are_labelled():
     for hidden in range(5):
         shown = tuple(m for m in range(5) if m != hidden)
         points = np.concatenate([markers[list(shown)], p1 + rng.uniform(-200, 200, (10, 3))])
-        found = find_labelings(points, model_distances(MODEL), shown, TOL_MM)
+        found = find_labelings(point_graph(points), model_distances(MODEL), shown, TOL_MM)
         assert np.array_equal(found.index[0], np.arange(4))
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from . import geometry as geo
 from .detect import Blobs
 from .identify import (DISTANCE_TOL_PER_FIT_TOL, collinear_in_image, find_labelings, model_distances,
-                       stereo_points)
+                       point_graph, stereo_points)
 from .lock import Match
 from ..angles import angle_between_deg
 
@@ -193,11 +193,11 @@ class Identifier:
         stereo = stereo_points(xn[0], xn[1], g, self.ident_config.working_range_mm)
         budget = _Budget(self.ident_config.max_hypotheses)
         tol_mm = DISTANCE_TOL_PER_FIT_TOL * g.fit_tol_mm
-        labelings = find_labelings(stereo.points_mm, self.model_d, tuple(range(5)), tol_mm,
-                                   blobs=(stereo.left, stereo.right))
+        graph = point_graph(stereo.points_mm, (stereo.left, stereo.right))
+        labelings = find_labelings(graph, self.model_d, tuple(range(5)), tol_mm)
         match, reason = self._best_labeling(labelings, stereo, cand, blobs, g, budget)
         if match is None and self.ident_config.hidden_marker:
-            alt, alt_reason = self._hidden_marker(stereo, cand, blobs, g, tol_mm, budget)
+            alt, alt_reason = self._hidden_marker(stereo, graph, cand, blobs, g, tol_mm, budget)
             if alt is not None:
                 return Identification(alt, None, budget.scored)
             reason = reason or alt_reason
@@ -256,13 +256,11 @@ class Identifier:
         return (rms / self.ident_config.fit_tol_mm + np.nanmax(epi, axis=1) / self.ident_config.epipolar_tol_px
                 + _GLINT_COST * glints)
 
-    def _hidden_marker(self, stereo, cand, blobs, g, tol_mm, budget) -> tuple[Match | None, str | None]:
+    def _hidden_marker(self, stereo, graph, cand, blobs, g, tol_mm, budget) -> tuple[Match | None, str | None]:
         """One marker hidden in one view: four stereo points labelled by the model's distances (the best
         labelings over the five choices of the hidden marker, from the budget), the fifth marker the blob
         nearest its projection in one view (within ``hidden_search_px``)."""
-        found = [find_labelings(stereo.points_mm, self.model_d, tuple(_SHOWN[hidden]), tol_mm,
-                                blobs=(stereo.left, stereo.right))
-                 for hidden in range(5)]
+        found = [find_labelings(graph, self.model_d, tuple(_SHOWN[hidden]), tol_mm) for hidden in range(5)]
         labels = np.concatenate([f.index for f in found])                           # (H, 4) stereo points
         hidden = np.concatenate([np.full(len(f), h) for h, f in enumerate(found)])
         order = np.argsort(np.concatenate([f.shape_mm for f in found]), kind="stable")

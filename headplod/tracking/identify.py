@@ -46,6 +46,7 @@ only from the front).
 """
 from __future__ import annotations
 
+from functools import lru_cache
 from itertools import product
 from typing import NamedTuple
 
@@ -131,40 +132,61 @@ def model_distances(model_mm: np.ndarray) -> np.ndarray:
     return np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)
 
 
-def find_labelings(points_mm: np.ndarray, model_d: np.ndarray, markers: tuple, tol_mm: float, *,
-                   blobs: tuple | None = None, max_anchors: int = 64, per_marker: int = 3) -> Labelings:
+class PointGraph(NamedTuple):
+    """Stereo points' pairwise distances ``D`` (K, K) mm, and ``apart`` (K, K) bool: the two points use
+    different blobs in both views (so they may be two markers)."""
+
+    D: np.ndarray
+    apart: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.D)
+
+
+def point_graph(points_mm: np.ndarray, blobs: tuple | None = None) -> PointGraph:
+    """The :class:`PointGraph` of stereo points (K, 3) mm; ``blobs`` (left (K,), right (K,)): each
+    point's blob in each view (default: every point its own)."""
+    P = np.asarray(points_mm, dtype=np.float64)
+    D = np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)
+    if blobs is None:
+        apart = ~np.eye(len(P), dtype=bool)
+    else:
+        left, right = (np.asarray(b) for b in blobs)
+        apart = (left[:, None] != left[None, :]) & (right[:, None] != right[None, :])
+    return PointGraph(D, apart)
+
+
+@lru_cache(maxsize=None)
+def _combinations(choices: int, others: int) -> np.ndarray:
+    """Every choice (choices^others, others) of one of ``choices`` per other marker."""
+    return np.array(list(product(range(choices), repeat=others)), np.int64).reshape(-1, others)
+
+
+def find_labelings(graph: PointGraph, model_d: np.ndarray, markers: tuple, tol_mm: float, *,
+                   max_anchors: int = 64, per_marker: int = 3) -> Labelings:
     """Labelings of ``markers`` (3 to 5 marker numbers) among stereo points by the model's distances.
 
     Parameters
     ----------
-    points_mm : (K, 3)
-        Stereo points, mm.
+    graph : PointGraph
+        The stereo points' distances, mm, and which may be two markers.
     model_d : (5, 5)
         The model's pairwise distances, mm (:func:`model_distances`).
     markers : tuple of int
         The markers to label (all five, or four with one hidden).
     tol_mm : float
         Largest error of any pairwise distance, mm.
-    blobs : (left (K,), right (K,)), optional
-        Each point's blob in each view: two points that share a blob are
-        never two markers.
     max_anchors, per_marker : int
         The anchors (ordered point pairs of the longest edge's length, best
         first) tried, and the points kept per other marker and anchor: the
         bound on the labelings formed (module docstring).
     """
-    P = np.asarray(points_mm, dtype=np.float64)
-    k = len(P)
+    D, apart = graph
+    k = len(D)
     markers = tuple(markers)
     empty = Labelings(markers, np.zeros((0, len(markers)), np.int64), np.zeros(0), np.zeros(0))
     if k < len(markers):
         return empty
-    D = np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)
-    if blobs is None:
-        apart = ~np.eye(k, dtype=bool)
-    else:
-        left, right = (np.asarray(b) for b in blobs)
-        apart = (left[:, None] != left[None, :]) & (right[:, None] != right[None, :])
     # The anchor: the longest model edge among the markers labelled.
     pairs = [(a, b) for i, a in enumerate(markers) for b in markers[i + 1:]]
     a, b = max(pairs, key=lambda ab: model_d[ab])
@@ -183,7 +205,7 @@ def find_labelings(points_mm: np.ndarray, model_d: np.ndarray, markers: tuple, t
         choices.append(best)
         choice_err.append(np.take_along_axis(e, best, axis=1))
     # Every combination of the others' choices per anchor: (A, q^n, n).
-    combos = np.array(list(product(range(choices[0].shape[1]), repeat=len(others))), np.int64)
+    combos = _combinations(choices[0].shape[1], len(others))
     picked = np.stack([choices[j][:, combos[:, j]] for j in range(len(others))], axis=-1)
     total = err[:, None] + sum(choice_err[j][:, combos[:, j]] for j in range(len(others)))
     index = np.concatenate([np.broadcast_to(ia[:, None, None], picked.shape[:2] + (1,)),
