@@ -187,50 +187,65 @@ def find_labelings(graph: PointGraph, model_d: np.ndarray, markers: tuple, tol_m
     empty = Labelings(markers, np.zeros((0, len(markers)), np.int64), np.zeros(0), np.zeros(0))
     if k < len(markers):
         return empty
-    # The anchor: the longest model edge among the markers labelled.
-    pairs = [(a, b) for i, a in enumerate(markers) for b in markers[i + 1:]]
-    a, b = max(pairs, key=lambda ab: model_d[ab])
-    others = [c for c in markers if c not in (a, b)]
-    anchor_err = np.where(apart, np.abs(D - model_d[a, b]), np.inf)
+    plan = _plan(markers, model_d.tobytes())
+    anchor_err = np.where(apart, np.abs(D - plan.anchor_mm), np.inf)
     ia, ib = np.nonzero(anchor_err <= tol_mm)           # both orders: (i, j) and (j, i)
     order = np.argsort(anchor_err[ia, ib], kind="stable")[:max_anchors]
     ia, ib = ia[order], ib[order]
-    err = anchor_err[ia, ib]
-    choices, choice_err = [], []
-    for c in others:
-        e_a, e_b = np.abs(D[ia] - model_d[a, c]), np.abs(D[ib] - model_d[b, c])   # (A, K)
-        e = np.where((e_a <= tol_mm) & (e_b <= tol_mm) & apart[ia] & apart[ib], e_a + e_b, np.inf)
-        q = min(per_marker, k)
-        best = np.argsort(e, axis=1, kind="stable")[:, :q]                         # (A, q)
-        choices.append(best)
-        choice_err.append(np.take_along_axis(e, best, axis=1))
-    # Every combination of the others' choices per anchor: (A, q^n, n).
-    combos = _combinations(choices[0].shape[1], len(others))
-    picked = np.stack([choices[j][:, combos[:, j]] for j in range(len(others))], axis=-1)
-    total = err[:, None] + sum(choice_err[j][:, combos[:, j]] for j in range(len(others)))
+    # Each other marker's points at its two distances from the anchor's ends: (others, A, K).
+    e_a = np.abs(D[ia][None] - plan.to_a_mm[:, None, None])
+    e_b = np.abs(D[ib][None] - plan.to_b_mm[:, None, None])
+    e = np.where((e_a <= tol_mm) & (e_b <= tol_mm) & (apart[ia] & apart[ib])[None], e_a + e_b, np.inf)
+    q = min(per_marker, k)
+    best = np.argsort(e, axis=2, kind="stable")[:, :, :q]                            # (O, A, q)
+    finite = np.isfinite(np.take_along_axis(e, best, axis=2))
+    # Every combination of the others' choices per anchor: (A, C, O).
+    combos = _combinations(q, len(plan.others))
+    o = np.arange(len(plan.others))[None, None, :]
+    anchors = np.arange(len(ia))[:, None, None]
+    picked = best[o, anchors, combos[None]]
+    ok = finite[o, anchors, combos[None]].all(axis=2).reshape(-1)
     index = np.concatenate([np.broadcast_to(ia[:, None, None], picked.shape[:2] + (1,)),
-                            np.broadcast_to(ib[:, None, None], picked.shape[:2] + (1,)), picked], axis=-1)
-    index, total = index.reshape(-1, len(markers)), total.reshape(-1)
-    ok = np.isfinite(total)
-    for j1 in range(len(others)):
-        for j2 in range(j1 + 1, len(others)):
-            e = np.abs(D[index[:, 2 + j1], index[:, 2 + j2]] - model_d[others[j1], others[j2]])
-            ok &= (e <= tol_mm) & apart[index[:, 2 + j1], index[:, 2 + j2]]
-            total = total + e
-    index, total = index[ok], total[ok]
-    # Back to the order of ``markers``.
-    labelled = (a, b, *others)
-    index = index[:, [labelled.index(m) for m in markers]]
-    shape = _shape_error(D, index, model_d, markers)
+                            np.broadcast_to(ib[:, None, None], picked.shape[:2] + (1,)), picked],
+                           axis=-1).reshape(-1, len(markers))[ok][:, plan.to_markers]
+    # Every labelled pair's distance: within the tolerance, and of points that may be two markers.
+    seen = D[index[:, plan.pair_i], index[:, plan.pair_j]]                            # (H, P)
+    errors = np.abs(seen - plan.pair_mm)
+    keep = (errors <= tol_mm).all(axis=1) & apart[index[:, plan.pair_i], index[:, plan.pair_j]].all(axis=1)
+    index, seen, total = index[keep], seen[keep], errors[keep].sum(axis=1)
+    scale = seen @ plan.pair_mm / (plan.pair_mm @ plan.pair_mm)
+    shape = np.abs(seen - scale[:, None] * plan.pair_mm).sum(axis=1)
     order = np.argsort(shape, kind="stable")
     return Labelings(markers, index[order], shape[order], total[order])
 
 
-def _shape_error(D: np.ndarray, index: np.ndarray, model_d: np.ndarray, markers: tuple) -> np.ndarray:
-    """Sum over the labelled pairs of |distance − s · model distance|, s the least-squares scale per
-    labeling: (H,) mm for ``index`` (H, n) into the points' distance matrix ``D`` (K, K)."""
-    pairs = [(i, j) for i in range(len(markers)) for j in range(i + 1, len(markers))]
-    seen = np.stack([D[index[:, i], index[:, j]] for i, j in pairs], axis=1)        # (H, P)
-    model = np.array([model_d[markers[i], markers[j]] for i, j in pairs])
-    scale = seen @ model / (model @ model)
-    return np.abs(seen - scale[:, None] * model).sum(axis=1)
+class _Plan(NamedTuple):
+    """How :func:`find_labelings` labels a set of markers: the anchor's model length, the other markers'
+    distances to its ends (O,), the column order back to ``markers``, and every labelled pair (columns
+    ``pair_i``, ``pair_j`` (P,) of a labeling, model distance ``pair_mm`` (P,) mm)."""
+
+    anchor_mm: float
+    others: tuple
+    to_a_mm: np.ndarray
+    to_b_mm: np.ndarray
+    to_markers: np.ndarray
+    pair_i: np.ndarray
+    pair_j: np.ndarray
+    pair_mm: np.ndarray
+
+
+@lru_cache(maxsize=64)
+def _plan(markers: tuple, model_d_bytes: bytes) -> _Plan:
+    """The :class:`_Plan` of ``markers`` for the model distances (5, 5) given as bytes (a cache key):
+    the anchor is the longest model edge among them."""
+    model_d = np.frombuffer(model_d_bytes, dtype=np.float64).reshape(5, 5)
+    pairs = [(a, b) for i, a in enumerate(markers) for b in markers[i + 1:]]
+    a, b = max(pairs, key=lambda ab: model_d[ab])
+    others = tuple(c for c in markers if c not in (a, b))
+    labelled = (a, b, *others)
+    cols = [(i, j) for i in range(len(markers)) for j in range(i + 1, len(markers))]
+    return _Plan(float(model_d[a, b]), others, model_d[a, list(others)], model_d[b, list(others)],
+                 np.array([labelled.index(m) for m in markers]), np.array([i for i, _ in cols]),
+                 np.array([j for _, j in cols]), np.array([model_d[markers[i], markers[j]] for i, j in cols]))
+
+
