@@ -23,6 +23,10 @@ from .detect import Blobs, centroids_near, detect_blobs, estimate_background
 from .lock import Lock
 
 
+# A hidden marker is back when a blob at its place has this fraction of its view's median marker flux.
+_REAPPEARED_FLUX = 0.25
+
+
 class Remeasured(NamedTuple):
     """The locked markers re-measured in a frame: centres (2, 5, 2) px, flux (2, 5) DN·px, expected
     centroid noise ``sigma`` (2, 5) px, Gaussian σ ``size`` (2, 5) px, shot-noise variance per unit factor
@@ -79,8 +83,16 @@ class Detector:
             if blobs[cam] is not None and len(blobs[cam]):
                 self._threshold[cam] = blobs[cam].threshold_dn
 
-    def remeasure(self, images, lock: Lock) -> Remeasured | None:
-        """Re-measure the locked markers in small windows; None to re-acquire."""
+    def remeasure(self, images, lock: Lock, hidden_px: np.ndarray | None = None) -> Remeasured | None:
+        """Re-measure the locked markers in small windows; None to re-acquire.
+
+        A lock with a marker hidden in one view (``lock.visible``): the other
+        nine are re-measured (NaN for the hidden one), and the hidden one is
+        looked for at ``hidden_px`` (2, 5, 2) px, where the predicted pose
+        puts it: found there, it is back, and the frame re-acquires all five.
+        """
+        if lock.visible is not None:
+            return self._remeasure_partial(images, lock, hidden_px)
         predicted, size = lock.predicted(), lock.size
         # Window: the blob (±3 σ) plus the prediction's error.
         side = 2 * int(np.ceil(3 * size.max() + self.detect_config.track_margin_px / 2)) + 1
@@ -88,24 +100,54 @@ class Detector:
                                                                         self._threshold, size)
         if not found.all():
             return None
+        if not self._fluxes_agree(flux, size, lock.flux):
+            return None
+        return Remeasured(centers, flux, sigma, size, shot_var)
+
+    def _remeasure_partial(self, images, lock: Lock, hidden_px) -> Remeasured | None:
+        """:meth:`remeasure` of a lock with a marker hidden in one view."""
+        hidden = ~lock.visible
+        guesses = np.where(hidden[..., None], np.nan if hidden_px is None else hidden_px, lock.predicted())
+        typical = np.nanmedian(lock.size)
+        size = np.where(hidden, typical, lock.size)
+        side = 2 * int(np.ceil(3 * np.nanmax(size) + self.detect_config.track_margin_px / 2)) + 1
+        centers, found, flux, sigma, size, _, shot_var = centroids_near(images, guesses, side, self._background,
+                                                                        self._threshold, size)
+        # Back: a blob at the hidden marker's place about as bright as the
+        # other markers (a quarter of their median flux), not a noise peak.
+        typical_flux = np.nanmedian(np.where(hidden, np.nan, flux), axis=1, keepdims=True)
+        back = found & hidden & (flux >= _REAPPEARED_FLUX * typical_flux)
+        if not found[lock.visible].all() or back.any():
+            return None                         # a marker lost, or the hidden one back: acquire all five
+        centers, flux, sigma, size = (np.where(hidden[..., None] if a.ndim == 3 else hidden, np.nan, a)
+                                      for a in (centers, flux, sigma, size))
+        if not self._fluxes_agree(flux, size, lock.flux):
+            return None
+        return Remeasured(centers, flux, sigma, size, shot_var)
+
+    def _fluxes_agree(self, flux, size, locked_flux) -> bool:
+        """Whether each view's fluxes (2, 5) (NaN: hidden) changed alike since the lock's."""
         # (Two windows locked onto one blob leave a residual of a marker
         # spacing, tens of pixels: verification rejects that frame.)
         # A glint or a neighbour entering a window adds flux to one marker:
         # re-identify rather than let it pull the centroid. Head motion
         # changes all markers of a view alike, so compare with the median.
-        if lock.flux is not None:
-            # Allowed: the configured change plus 3σ of the relative flux
-            # noise of the dimmest marker (Gaussian-weighted flux: σ_n √π s,
-            # s the blob's σ), around the median change of the five.
-            changes = np.sort(flux / lock.flux, axis=1).tolist()
-            dimmest = (flux.min(axis=1) / size.max(axis=1)).tolist()
-            for cam in (0, 1):
-                low, _, median, _, high = changes[cam]
-                if not dimmest[cam] > 0:
-                    return None                       # a window with no flux: re-detect
-                rel = self._background[cam][1] * 1.7725 / dimmest[cam]
-                # 3√2 σ of a ratio; beyond a factor e⁵ the check says nothing anyway.
-                limit = self.detect_config.track_flux_change * math.exp(min(4.24 * rel, 5.0))
-                if not (median / limit <= low and high <= median * limit):
-                    return None
-        return Remeasured(centers, flux, sigma, size, shot_var)
+        if locked_flux is None:
+            return True
+        # Allowed: the configured change plus 3σ of the relative flux
+        # noise of the dimmest marker (Gaussian-weighted flux: σ_n √π s,
+        # s the blob's σ), around the median change of the view's markers.
+        for cam in (0, 1):
+            changes = flux[cam] / locked_flux[cam]
+            seen = np.isfinite(changes)
+            changes = np.sort(changes[seen])
+            low, median, high = changes[0], changes[len(changes) // 2], changes[-1]
+            dimmest = float(flux[cam][seen].min() / size[cam][seen].max())
+            if not dimmest > 0:
+                return False                      # a window with no flux: re-detect
+            rel = self._background[cam][1] * 1.7725 / dimmest
+            # 3√2 σ of a ratio; beyond a factor e⁵ the check says nothing anyway.
+            limit = self.detect_config.track_flux_change * math.exp(min(4.24 * rel, 5.0))
+            if not (median / limit <= low and high <= median * limit):
+                return False
+        return True

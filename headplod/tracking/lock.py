@@ -65,6 +65,9 @@ class Lock:
     previous: np.ndarray | None         # (2, 5, 2) the ones before, for a constant-velocity prediction
     size: np.ndarray                    # (2, 5) Gaussian σ of each marker's blob, px
     flux: np.ndarray | None             # (2, 5) fluxes, DN·px; None after a full detection (measured otherwise)
+    # (2, 5) which markers were seen; None: all ten. One marker hidden in one view (a hand, a hinge) is
+    # tracked through: the other nine are re-measured, and the hidden one looked for where the pose puts it.
+    visible: np.ndarray | None = None
 
     def predicted(self) -> np.ndarray:
         """Where the markers should be in this frame (2, 5, 2) px: at constant image velocity."""

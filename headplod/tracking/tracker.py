@@ -537,11 +537,17 @@ class Tracker:
     def _remeasure(self, images) -> Match | None:
         """The locked markers re-measured in small windows, labelled as before; None to re-acquire."""
         p = self.parts
-        found = p.detector.remeasure(images, self._markers.lock)
+        lock = self._markers.lock
+        hidden_px = None
+        if lock.visible is not None:
+            # Where the predicted pose puts the hidden marker: if it is seen
+            # there again, the frame re-acquires all five.
+            hidden_px = p.rig.geometry.cameras.project_model(self.model_mm, *p.motion.predicted())
+        found = p.detector.remeasure(images, lock, hidden_px)
         if found is None:
             return None
         centers, flux, sigma, size, shot_var = found
-        visible, index = _ALL_VISIBLE, _NO_BLOB
+        visible, index = (_ALL_VISIBLE if lock.visible is None else lock.visible), _NO_BLOB
         if self.config.estimator == "reproj":
             # The labels are carried over, and the reprojection fit started
             # from the last pose verifies them: no triangulation needed.
@@ -553,24 +559,31 @@ class Tracker:
         return match
 
     def _remember(self, match: Match, frame: _Frame, fit: Fit, blobs, mode: str) -> str | None:
-        """Keep a fitted pose: the lock on its markers (when all were seen), the detection's thresholds,
+        """Keep a fitted pose: the lock on its markers (when all were seen, or all but one in one view),
+        the detection's thresholds,
         and the pose in the head's motion; the motion's note on its time, if any."""
         p = self.parts
         R, p1 = fit.fitted
         p.motion.set_pose(R, p1)
         lock = self._markers.lock
         previous = lock.centers if lock is not None else None
-        if not match.visible.all():
-            lock = None                            # re-identify while a marker is hidden
+        visible = None if match.visible.all() else match.visible.copy()
+        if visible is not None and not (self.config.track_hidden_marker and self.config.estimator == "reproj"
+                                        and (~visible).sum() == 1):
+            lock = None                            # re-identify while markers are hidden
         elif mode == "track":
-            lock = Lock(match.centers, previous, match.size, match.flux)
+            lock = Lock(match.centers, previous, match.size, match.flux, visible)
         else:
             # Fluxes of a full detection are measured differently: the first
             # tracked frame skips the flux comparison.
-            size = np.stack([np.sqrt(np.maximum(blobs[cam].flux_dn[match.blob_index[cam]]
-                                                / np.maximum(blobs[cam].peak_dn[match.blob_index[cam]], tol.floor),
-                                                1.0) / (2 * np.pi)) for cam in range(2)])
-            lock = Lock(match.centers, previous, size, None)
+            size = np.full((2, 5), np.nan)
+            for cam in range(2):
+                seen = match.blob_index[cam] >= 0
+                index = match.blob_index[cam][seen]
+                size[cam, seen] = np.sqrt(np.maximum(blobs[cam].flux_dn[index]
+                                                     / np.maximum(blobs[cam].peak_dn[index], tol.floor),
+                                                     1.0) / (2 * np.pi))
+            lock = Lock(match.centers, previous, size, None, visible)
         self._markers = MarkerState.kept(lock)
         p.detector.keep_thresholds(blobs)
         note = p.motion.remember(frame.t, R, p1, p.rig.version(), fit.JtJ, fit.checked_rates, frame.verdict.time_glitch)

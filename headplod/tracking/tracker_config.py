@@ -54,6 +54,10 @@ class TrackerConfig:
         Margin of the tracking region around the previous markers, px.
     hidden_marker : bool
         Accept a pose with one marker hidden in one view.
+    track_hidden_marker : bool
+        Keep tracking (re-measure the other nine centres, reproj
+        estimator) while one marker is hidden in one view, instead of
+        acquiring every frame until it is back.
     compensate_offset : bool
         When the right image is exposed at another time than the left one
         (times.csv's t_right), move the model by the head's velocity over that
@@ -198,6 +202,7 @@ class TrackerConfig:
     track: bool = True
     track_margin_px: float = 10.0
     hidden_marker: bool = True
+    track_hidden_marker: bool = True
     compensate_offset: bool = True
     uncertainty: str = DEFAULT_COVARIANCE
     min_centroid_sigma_px: float = 0.01
