@@ -113,12 +113,14 @@ class Detector:
         side = 2 * int(np.ceil(3 * np.nanmax(size) + self.detect_config.track_margin_px / 2)) + 1
         centers, found, flux, sigma, size, _, shot_var = centroids_near(images, guesses, side, self._background,
                                                                         self._threshold, size)
+        if not found[lock.visible].all():
+            return None                         # a marker lost: acquire
         # Back: a blob at the hidden marker's place about as bright as the
-        # other markers (a quarter of their median flux), not a noise peak.
+        # other markers of its view (a fraction of their median flux), not a
+        # noise peak. (Each view has four markers or more seen, found.)
         typical_flux = np.nanmedian(np.where(hidden, np.nan, flux), axis=1, keepdims=True)
-        back = found & hidden & (flux >= _REAPPEARED_FLUX * typical_flux)
-        if not found[lock.visible].all() or back.any():
-            return None                         # a marker lost, or the hidden one back: acquire all five
+        if (found & hidden & (flux >= _REAPPEARED_FLUX * typical_flux)).any():
+            return None                         # the hidden marker back: acquire all five
         centers, flux, sigma, size = (np.where(hidden[..., None] if a.ndim == 3 else hidden, np.nan, a)
                                       for a in (centers, flux, sigma, size))
         if not self._fluxes_agree(flux, size, lock.flux):
