@@ -110,6 +110,7 @@ def track_page(data: dict, source: str, stamp: str, quick: bool = False) -> str:
         out += _table(["set", "estimator", "pose", "V median (°)", "V p95 (°)", "P1 median (mm)", "wrong",
                        "mean pose × threshold"], rows)
         out += ["", "Goals:", ""] + _goal_lines(data.get("goals") or []) + [""]
+        out += _slowest_frames(sets, estimator)
     rig = data.get("imperfect_rig") or {}
     if rig.get("sets"):
         settle = rig.get("settle_s", 3.0)
@@ -135,6 +136,22 @@ def track_page(data: dict, source: str, stamp: str, quick: bool = False) -> str:
             out += ["", f"The rig's refinement costs {_f(timing.get('refine_ms_mean'), '.2f')} ms per frame "
                         f"(median over the sets; slowest frame {_f(timing.get('refine_ms_max'), '.1f')} ms)."]
     return "\n".join(out) + "\n"
+
+
+def _slowest_frames(sets: dict, estimator: str) -> list[str]:
+    """The default estimator's whole frames (Tracker.process) per set: median, slowest 1%, slowest, the
+    share of frames tracked and the most labelings one frame fitted."""
+    rows = [[name, _f(by[estimator].get("frame_ms_median"), ".2f"), _f(by[estimator].get("frame_ms_p99"), ".2f"),
+             _f(by[estimator].get("frame_ms_max"), ".2f"), _f(by[estimator].get("tracked_mode_fraction"), ".0%"),
+             str(by[estimator].get("hypotheses_max", "–"))]
+            for name, by in sets.items() if "frame_ms_median" in by.get(estimator, {})]
+    if not rows:
+        return []
+    return (["## Whole frames, default estimator", "",
+             "Every frame's `Tracker.process` (the covariance of V included), ms; the goals above compare each "
+             "set's slowest frames with the clean set's median frame.", ""]
+            + _table(["set", "median", "slowest 1%", "slowest", "frames tracked", "labelings fitted (most)"], rows)
+            + [""])
 
 
 # --- bench clutter -----------------------------------------------------------------------------------------
