@@ -54,6 +54,8 @@ import numpy as np
 
 from . import geometry as geo
 
+# The partners a blob keeps in the other view, best epipolar error first (:func:`stereo_points`).
+MAX_PARTNERS = 4
 # The fit-RMS tolerance times this bounds each pairwise distance's error (module docstring).
 DISTANCE_TOL_PER_FIT_TOL = float(np.sqrt(10.0))
 # P1's largest distance from the image line through P0 and P2: centroid errors, plus lens curvature and
@@ -109,16 +111,24 @@ class Labelings(NamedTuple):
         return len(self.index)
 
 
-def stereo_points(xn_left: np.ndarray, xn_right: np.ndarray, g, depth_range_mm: tuple) -> StereoPoints:
-    """Every epipolar-consistent left-right pair of undistorted centres, triangulated.
+def stereo_points(xn_left: np.ndarray, xn_right: np.ndarray, g, depth_range_mm: tuple,
+                  max_partners: int = MAX_PARTNERS) -> StereoPoints:
+    """The epipolar-consistent left-right pairs of undistorted centres, triangulated.
 
     ``xn_left`` (m, 2), ``xn_right`` (n, 2): normalized coordinates; ``g`` a
     :class:`~.tracker_rig.RigGeometry` (its ``epipolar_tol_px``, essential
     matrix, focal lengths and rig); ``depth_range_mm`` (near, far): the
-    points' depth in both cameras, mm.
+    points' depth in both cameras, mm. A pair is kept when it is within the
+    tolerance and among the ``max_partners`` best of its left or of its right
+    blob: while the rig is uncertain the tolerance is wide, and a cluttered
+    image would otherwise pair nearly every blob with every other.
     """
     epi = geo.epipolar_error_px(xn_left[:, None, :], xn_right[None, :, :], g.E, *g.focal)   # (m, n)
-    left, right = np.nonzero(epi <= g.epipolar_tol_px)
+    near = np.zeros(epi.shape, bool)
+    rows = np.arange(epi.shape[0])[:, None]
+    near[rows, np.argsort(epi, axis=1, kind="stable")[:, :max_partners]] = True
+    near[np.argsort(epi, axis=0, kind="stable")[:max_partners], np.arange(epi.shape[1])[None, :]] = True
+    left, right = np.nonzero(near & (epi <= g.epipolar_tol_px))
     points, _ = geo.triangulate_midpoint(xn_left[left], xn_right[right], g.rig.R, g.rig.T)
     depth_right = points @ np.asarray(g.rig.R)[2] + np.reshape(g.rig.T, 3)[2]
     near, far = depth_range_mm
