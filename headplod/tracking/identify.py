@@ -55,7 +55,7 @@ import numpy as np
 from . import geometry as geo
 
 # The partners a blob keeps in the other view, best epipolar error first (:func:`stereo_points`).
-MAX_PARTNERS = 4
+MAX_PARTNERS = 6
 # The fit-RMS tolerance times this bounds each pairwise distance's error (module docstring).
 DISTANCE_TOL_PER_FIT_TOL = float(np.sqrt(10.0))
 # P1's largest distance from the image line through P0 and P2: centroid errors, plus lens curvature and
