@@ -70,3 +70,30 @@ def test_the_hidden_marker_back_makes_the_frame_acquire(synth):
         else:
             assert again is not None and np.isnan(again.centers[1, 3]).all()
             assert np.nanmax(np.abs(again.centers - truth_px)) < 1.0
+
+
+def _blob_image(centres_px, shape=(120, 200), peak_dn=200.0, sigma_px=1.5, seed=0):
+    """An IR image (uint8) of Gaussian blobs at ``centres_px`` (n, 2) on a 10 DN background with noise."""
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
+    image = 10.0 + np.random.default_rng(seed).normal(0, 1.0, shape)
+    for x, y in centres_px:
+        image += peak_dn * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * sigma_px ** 2))
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
+def test_markers_crowding_each_others_windows_are_re_measured_not_lost():
+    """Two markers 11 px apart (the head turned away): each reaches into the other's usual window, and the
+    re-measure takes them in smaller windows, at their true centres; a marker that is simply gone still
+    makes the frame acquire."""
+    truth = np.array([[30.0, 60.0], [60.0, 60.0], [90.0, 60.0], [101.0, 60.5], [150.0, 80.0]])
+    images = (_blob_image(truth), _blob_image(truth, seed=1))
+    config = TrackerConfig()
+    detector = Detector(config)
+    blobs = detector.detect(images)
+    detector.keep_thresholds(blobs)
+    lock = Lock(np.stack([truth, truth]) + 0.7, None, np.full((2, 5), 1.5), None)
+    found = detector.remeasure(images, lock)
+    assert found is not None
+    assert np.abs(found.centers - truth).max() < 0.2
+    gone = (_blob_image(np.delete(truth, 4, axis=0)), _blob_image(np.delete(truth, 4, axis=0), seed=1))
+    assert detector.remeasure(gone, lock) is None

@@ -23,8 +23,18 @@ from .detect import Blobs, centroids_near, detect_blobs, estimate_background
 from .lock import Lock
 
 
+# The prediction error a re-measure's second, smaller window leaves room for, px (2 px each side).
+_NEIGHBOUR_MARGIN_PX = 4.0
 # A hidden marker is back when a blob at its place has this fraction of its view's median marker flux.
 _REAPPEARED_FLUX = 0.25
+
+
+def _crowded(predicted_px: np.ndarray, which: np.ndarray, side_px: float) -> bool:
+    """Whether each marker ``which`` (2, 5) bool has another marker's predicted place (2, 5, 2) px inside
+    a square of ``side_px`` around its own (its window, widened by a blob's extent)."""
+    gap = np.abs(predicted_px[:, :, None, :] - predicted_px[:, None, :, :]).max(axis=-1)     # (2, 5, 5)
+    gap[:, np.arange(5), np.arange(5)] = np.inf
+    return bool((gap.min(axis=2)[which] <= side_px / 2).all())
 
 
 class Remeasured(NamedTuple):
@@ -96,13 +106,22 @@ class Detector:
         predicted, size = lock.predicted(), lock.size
         # Window: the blob (±3 σ) plus the prediction's error.
         side = 2 * int(np.ceil(3 * size.max() + self.detect_config.track_margin_px / 2)) + 1
-        centers, found, flux, sigma, size, _, shot_var = centroids_near(images, predicted, side, self._background,
-                                                                        self._threshold, size)
+        centers, found, flux, sigma, measured_size, _, shot_var = centroids_near(
+            images, predicted, side, self._background, self._threshold, size)
         if not found.all():
+            if not _crowded(predicted, ~found, side + 6 * size.max()):
+                return None
+            # Each marker not found has another marker's predicted place in
+            # its window (markers crowd together as the head turns away):
+            # once more with windows that leave room for a small error only.
+            side = 2 * int(np.ceil(3 * size.max() + _NEIGHBOUR_MARGIN_PX / 2)) + 1
+            centers, found, flux, sigma, measured_size, _, shot_var = centroids_near(
+                images, predicted, side, self._background, self._threshold, size)
+            if not found.all():
+                return None
+        if not self._fluxes_agree(flux, measured_size, lock.flux):
             return None
-        if not self._fluxes_agree(flux, size, lock.flux):
-            return None
-        return Remeasured(centers, flux, sigma, size, shot_var)
+        return Remeasured(centers, flux, sigma, measured_size, shot_var)
 
     def _remeasure_partial(self, images, lock: Lock, hidden_px) -> Remeasured | None:
         """:meth:`remeasure` of a lock with a marker hidden in one view."""
