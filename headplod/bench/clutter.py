@@ -125,18 +125,23 @@ def run_clutter_bench(json_path=None, chart_path=None, quick: bool = False, blob
 
 
 def _text(report: dict) -> str:
-    lines = [f"threshold pass {report['threshold_pass_ms']:.3f} ms; {report['frames_per_n']} frames per N; "
-             f"load {', '.join(f'{v:.2f}' for v in report['machine']['load_1_5_15'])}",
-             f"{'run':8s} {'blobs':>5s} {'pose':>6s} {'wrong':>5s} {'hyp med':>8s} {'hyp max':>8s} "
-             f"{'identify p50/max ms':>20s} {'total p50/p99/max ms':>24s} {'total max x':>11s}"]
+    """The report as a fixed-width table, a row per run and blob count."""
+    head = ["run", "blobs", "pose", "wrong", "hyp med", "hyp max", "identify p50/max ms", "total p50/p99/max ms",
+            "total max x"]
+    rows = []
     for run, by_n in report["runs"].items():
         for n, s in by_n.items():
             ident, total = s["stages"]["identify"], s["stages"]["total"]
-            lines.append(f"{run:8s} {n:>5s} {s['frames_with_pose']:>3d}/{s['frames']:<2d} {s['wrong_poses'] or 0:5d} "
-                         f"{s['hypotheses_median']:8.0f} {s['hypotheses_max']:8d} "
-                         f"{ident['p50_ms']:9.2f}/{ident['max_ms']:<10.2f} "
-                         f"{total['p50_ms']:7.2f}/{total['p99_ms']:7.2f}/{total['max_ms']:<8.2f} {total['max_x']:11.0f}")
-    return "\n".join(lines)
+            rows.append([run, n, f"{s['frames_with_pose']}/{s['frames']}", str(s["wrong_poses"] or 0),
+                         f"{s['hypotheses_median']:.0f}", str(s["hypotheses_max"]),
+                         f"{ident['p50_ms']:.2f}/{ident['max_ms']:.2f}",
+                         f"{total['p50_ms']:.2f}/{total['p99_ms']:.2f}/{total['max_ms']:.2f}", f"{total['max_x']:.0f}"])
+    widths = [max(len(c) for c in column) for column in zip(head, *rows)]
+    load = ", ".join(f"{v:.2f}" for v in report["machine"]["load_1_5_15"])
+    return "\n".join([f"threshold pass {report['threshold_pass_ms']:.3f} ms; {report['frames_per_n']} frames per N; "
+                      f"load {load}"]
+                     + ["  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths)))
+                        for r in [head] + rows])
 
 
 def chart(report: dict, path) -> None:
