@@ -47,6 +47,8 @@ def _scale_hint(points_mm: np.ndarray, model_mm: np.ndarray) -> str:
             "is markers.yaml in mm (docs/contract.md), and is it these glasses?")
 
 
+# The sizes of the markers seen, relative to the model, that a model in other units gives (cm, inch, m).
+_UNIT_FACTORS = (10.0, 25.4, 1000.0, 0.1, 1 / 25.4, 0.001)
 # Cost of one glint-like blob in a labeling, in units of a full tolerance: a tie-breaker.
 _GLINT_COST = 0.1
 
@@ -201,10 +203,25 @@ class Identifier:
             if alt is not None:
                 return Identification(alt, None, budget.scored)
             reason = reason or alt_reason
+        if match is None and not len(labelings):
+            reason = self._other_units(graph, stereo, g, tol_mm) or reason
         if match is None and budget.cut:
             reason = (f"identification budget: {budget.scored} of {budget.offered} marker labelings fitted, "
                       f"the best first; {reason}")
         return Identification(match, reason, budget.scored)
+
+    def _other_units(self, graph, stereo, g, tol_mm) -> str | None:
+        """When no five points lie as the model's do: the reason, if they lie as the model would in other
+        units (markers.yaml in cm, inches or m: the points 10, 25.4 or 1000 times its size, or a tenth...)."""
+        for factor in _UNIT_FACTORS:
+            found = find_labelings(graph, self.model_d * factor, tuple(range(5)), tol_mm * factor)
+            if len(found):
+                points = stereo.points_mm[found.index[0]]
+                _, _, rms = geo.kabsch(self.ident_model_mm, points)
+                return (f"no consistent stereo identification: the best labeling is {float(rms):.1f} mm (RMS) "
+                        f"from the marker model, tolerance {g.fit_tol_mm:.1f} mm"
+                        + _scale_hint(points, self.ident_model_mm))
+        return None
 
     def _best_labeling(self, labelings, stereo, cand, blobs, g, budget) -> tuple[Match | None, str | None]:
         """The best of the five-marker labelings that fits the model and faces the cameras, or the reason."""
