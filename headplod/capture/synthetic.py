@@ -92,18 +92,17 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
     # processes rendering the same sequence (two benchmarks at once) never
     # write into, or delete, each other's folder.
     staging = folder.with_name(f".{folder.name}.rendering-{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    shutil.rmtree(staging, ignore_errors=True)
     try:
         synth_dataset.write_dataset(staging, scene, seed=seed, progress=progress)
         _write_manifest(staging)
-        if (folder / COMPLETE).exists() and _check_manifest(folder) is None:
+        if _intact(folder):
             return folder                      # another process finished it meanwhile
         if folder.exists():
             shutil.rmtree(folder)              # an interrupted or damaged render
         try:
             os.rename(staging, folder)
         except OSError:
-            if not ((folder / COMPLETE).exists() and _check_manifest(folder) is None):
+            if not _intact(folder):
                 raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -131,6 +130,11 @@ def _write_manifest(folder: Path) -> None:
     tmp = folder / (COMPLETE + ".tmp")
     tmp.write_text(json.dumps({"files": files}))
     os.replace(tmp, folder / COMPLETE)
+
+
+def _intact(folder: Path) -> bool:
+    """A finished render whose files are as its manifest says."""
+    return (folder / COMPLETE).exists() and _check_manifest(folder) is None
 
 
 def _check_manifest(folder: Path) -> str | None:

@@ -120,9 +120,9 @@ class _Fits(NamedTuple):
 class Identification(NamedTuple):
     """An identification's outcome: the labelled markers or the reason for none, and its cost.
 
-    ``hypotheses``: the labelled five-marker hypotheses scored (triangulated
-    and fitted to the model), the identification's cost in units that do
-    not depend on the machine.
+    ``hypotheses``: the labelings (of five markers, or four with one hidden)
+    fitted to the model, the identification's cost in units that do not
+    depend on the machine.
     """
 
     match: Match | None
@@ -182,7 +182,7 @@ class Identifier:
         Stereo points first, then labelings by the model's distances
         (:mod:`.identify`), the best ``max_hypotheses`` of them fitted to the
         model; when no labeling of all five fits, one marker hidden in one
-        view (:meth:`_hidden_marker`) from the same budget.
+        view (:meth:`_hidden_marker`), with a budget of its own.
         """
         cand = [self.candidates(b) for b in blobs]
         counts = [len(c) for c in cand]
@@ -218,10 +218,14 @@ class Identifier:
             if len(found):
                 points = stereo.points_mm[found.index[0]]
                 _, _, rms = geo.kabsch(self.ident_model_mm, points)
-                return (f"no consistent stereo identification: the best labeling is {float(rms):.1f} mm (RMS) "
-                        f"from the marker model, tolerance {g.fit_tol_mm:.1f} mm"
-                        + _scale_hint(points, self.ident_model_mm))
+                return self._misfit_reason(float(rms), points, g)
         return None
+
+    def _misfit_reason(self, rms_mm: float, points_mm: np.ndarray, g) -> str:
+        """The reason for no pose when the best labeling's points (5, 3) mm fit the model at ``rms_mm``,
+        beyond the rig ``g``'s tolerance; with a hint on units when their size says so."""
+        return (f"no consistent stereo identification: the best labeling is {rms_mm:.1f} mm (RMS) "
+                f"from the marker model, tolerance {g.fit_tol_mm:.1f} mm" + _scale_hint(points_mm, self.ident_model_mm))
 
     def _best_labeling(self, labelings, stereo, cand, blobs, g, budget) -> tuple[Match | None, str | None]:
         """The best of the five-marker labelings that fits the model and faces the cameras, or the reason."""
@@ -239,9 +243,7 @@ class Identifier:
         f = _Fits(*(np.concatenate(column) for column in zip(*fits)))
         if not np.isfinite(f.cost).any():
             k = int(np.argmin(np.where(f.distinct, f.rms, np.inf)))
-            return None, (f"no consistent stereo identification: the best labeling is {f.rms[k]:.1f} mm "
-                          f"(RMS) from the marker model, tolerance {g.fit_tol_mm:.1f} mm"
-                          + _scale_hint(f.points[k], self.ident_model_mm))
+            return None, self._misfit_reason(f.rms[k], f.points[k], g)
         best = int(np.argmin(f.cost))
         if self._ambiguous(f.R, f.cost, best):
             return None, "ambiguous identification: two marker assignments fit equally well"
@@ -270,8 +272,13 @@ class Identifier:
         """A labeling's cost: its errors in units of the image-noise tolerances (not of the rig-widened
         ones: widening must not make a clearly worse assignment a rival), plus a little per glint used."""
         glints = blobs[0].glint[cand[0]][left].sum(axis=1) + blobs[1].glint[cand[1]][right].sum(axis=1)
-        return (rms / self.ident_config.fit_tol_mm + np.nanmax(epi, axis=1) / self.ident_config.epipolar_tol_px
-                + _GLINT_COST * glints)
+        return self._error_cost(rms, epi) + _GLINT_COST * glints
+
+    def _error_cost(self, rms_mm, epipolar_px):
+        """A fit's errors in units of the image-noise tolerances: RMS (...) mm, epipolar errors (..., 5) px
+        (NaN: a marker not in both views)."""
+        return (rms_mm / self.ident_config.fit_tol_mm
+                + np.nanmax(epipolar_px, axis=-1) / self.ident_config.epipolar_tol_px)
 
     def _hidden_marker(self, stereo, graph, cand, blobs, g, tol_mm, budget) -> tuple[Match | None, str | None]:
         """One marker hidden in one view: four stereo points labelled by the model's distances (the best
@@ -333,8 +340,7 @@ class Identifier:
             epi[shown[h]] = stereo.epipolar_px[labels[h]]
             pts = points[h].copy()
             pts[hidden[h]] = np.nan
-            cost = rms[h] / self.ident_config.fit_tol_mm + np.nanmax(epi) / self.ident_config.epipolar_tol_px
-            out.append((index, epi, pts, R[h], t[h], rms[h], cost))
+            out.append((index, epi, pts, R[h], t[h], rms[h], self._error_cost(rms[h], epi)))
         return out
 
     def _find_hidden(self, hidden, R, t, cand, blobs, g, used_left, used_right) -> tuple[np.ndarray, np.ndarray]:
@@ -348,11 +354,9 @@ class Identifier:
         if not len(points):
             return best_view, best_blob
         rows = np.arange(len(points))[:, None]
+        projected = g.cameras.project(points)                                                     # (2, V, 2)
         for view, used in ((0, used_left), (1, used_right)):
-            if view == 0:
-                px = geo.project(points, np.eye(3), np.zeros(3), g.rig.K1, g.rig.D1)
-            else:
-                px = geo.project(points, g.rig.R, g.rig.T, g.rig.K2, g.rig.D2)
+            px = projected[view]
             dist = np.linalg.norm(blobs[view].centers_px[cand[view]][None, :, :] - px[:, None, :], axis=2)
             dist[rows, used] = np.inf
             j = np.argmin(dist, axis=1)

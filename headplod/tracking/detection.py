@@ -29,6 +29,12 @@ _NEIGHBOUR_MARGIN_PX = 4.0
 _REAPPEARED_FLUX = 0.25
 
 
+def _window_side(size_px: float, margin_px: float) -> int:
+    """A re-measure window's side, px (odd): a blob of Gaussian σ ``size_px`` (±3 σ) plus ``margin_px`` of
+    prediction error in all (half on each side)."""
+    return 2 * int(np.ceil(3 * size_px + margin_px / 2)) + 1
+
+
 def _crowded(predicted_px: np.ndarray, which: np.ndarray, side_px: float) -> bool:
     """Whether each marker ``which`` (2, 5) bool has another marker's predicted place (2, 5, 2) px inside
     a square of ``side_px`` around its own (its window, widened by a blob's extent)."""
@@ -105,7 +111,7 @@ class Detector:
             return self._remeasure_partial(images, lock, hidden_px)
         predicted, size = lock.predicted(), lock.size
         # Window: the blob (±3 σ) plus the prediction's error.
-        side = 2 * int(np.ceil(3 * size.max() + self.detect_config.track_margin_px / 2)) + 1
+        side = _window_side(size.max(), self.detect_config.track_margin_px)
         centers, found, flux, sigma, measured_size, _, shot_var = centroids_near(
             images, predicted, side, self._background, self._threshold, size)
         if not found.all():
@@ -114,7 +120,7 @@ class Detector:
             # Each marker not found has another marker's predicted place in
             # its window (markers crowd together as the head turns away):
             # once more with windows that leave room for a small error only.
-            side = 2 * int(np.ceil(3 * size.max() + _NEIGHBOUR_MARGIN_PX / 2)) + 1
+            side = _window_side(size.max(), _NEIGHBOUR_MARGIN_PX)
             centers, found, flux, sigma, measured_size, _, shot_var = centroids_near(
                 images, predicted, side, self._background, self._threshold, size)
             if not found.all():
@@ -129,7 +135,7 @@ class Detector:
         guesses = np.where(hidden[..., None], np.nan if hidden_px is None else hidden_px, lock.predicted())
         typical = np.nanmedian(lock.size)
         size = np.where(hidden, typical, lock.size)
-        side = 2 * int(np.ceil(3 * np.nanmax(size) + self.detect_config.track_margin_px / 2)) + 1
+        side = _window_side(np.nanmax(size), self.detect_config.track_margin_px)
         centers, found, flux, sigma, size, _, shot_var = centroids_near(images, guesses, side, self._background,
                                                                         self._threshold, size)
         if not found[lock.visible].all():

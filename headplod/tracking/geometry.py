@@ -262,11 +262,15 @@ class StereoCameras:
         self.R_project = np.stack([np.eye(3), cv2.Rodrigues(self.rvec[1])[0]])
         self.t_project = np.stack([np.zeros(3), self.tvec[1].ravel()])
 
+    def project(self, points_mm: np.ndarray) -> np.ndarray:
+        """World (left camera) points (n, 3) mm in both images, full camera model: (2, n, 2) px."""
+        points = np.asarray(points_mm, np.float64).reshape(-1, 1, 3)
+        return np.stack([cv2.projectPoints(points, self.rvec[i], self.tvec[i], self.K[i], self.D[i])[0].reshape(-1, 2)
+                         for i in range(2)])
+
     def project_model(self, model_mm: np.ndarray, R_world_G: np.ndarray, p1_world_mm: np.ndarray) -> np.ndarray:
         """The model (n, 3) mm at a pose (R_world_G (3, 3), P1 (3,) mm) in both images: (2, n, 2) px."""
-        points = np.asarray(model_mm, np.float64) @ np.asarray(R_world_G).T + np.reshape(p1_world_mm, 3)
-        return np.stack([cv2.projectPoints(points.reshape(-1, 1, 3), self.rvec[i], self.tvec[i], self.K[i],
-                                           self.D[i])[0].reshape(-1, 2) for i in range(2)])
+        return self.project(np.asarray(model_mm, np.float64) @ np.asarray(R_world_G).T + np.reshape(p1_world_mm, 3))
 
     def with_right_motion(self, right_motion):
         """The same rig with the right camera seeing the world moved by (rvec, tvec) first."""

@@ -53,6 +53,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import geometry as geo
+from ..tol import tol
 
 # The partners a blob keeps in the other view, best epipolar error first (:func:`stereo_points`).
 MAX_PARTNERS = 6
@@ -69,8 +70,8 @@ def collinear_in_image(p0_px: np.ndarray, p1_px: np.ndarray, p2_px: np.ndarray) 
     markers (P0, P1, P2 on G's x axis) do in any view: (…) bool. A check no rig error affects."""
     ab, ac = p2_px - p0_px, p1_px - p0_px
     length = np.linalg.norm(ab, axis=-1)
-    off_line = np.abs(ab[..., 0] * ac[..., 1] - ab[..., 1] * ac[..., 0]) / np.maximum(length, 1e-9)
-    along = np.einsum("...i,...i->...", ac, ab) / np.maximum(length, 1e-9) ** 2
+    off_line = np.abs(ab[..., 0] * ac[..., 1] - ab[..., 1] * ac[..., 0]) / np.maximum(length, tol.small)
+    along = np.einsum("...i,...i->...", ac, ab) / np.maximum(length, tol.small) ** 2
     return (off_line <= LINE_TOL_PX + LINE_TOL_PER_LENGTH * length) & (along > 0.05) & (along < 0.95)
 
 
@@ -136,10 +137,15 @@ def stereo_points(xn_left: np.ndarray, xn_right: np.ndarray, g, depth_range_mm: 
     return StereoPoints(left[keep], right[keep], points[keep], epi[left[keep], right[keep]])
 
 
+def _pairwise_mm(points_mm: np.ndarray) -> np.ndarray:
+    """Distances (n, n) mm between points (n, 3) mm."""
+    P = np.asarray(points_mm, dtype=np.float64)
+    return np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)
+
+
 def model_distances(model_mm: np.ndarray) -> np.ndarray:
     """Pairwise distances (5, 5) of the marker model, mm."""
-    P = np.asarray(model_mm, dtype=np.float64)
-    return np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)
+    return _pairwise_mm(model_mm)
 
 
 class PointGraph(NamedTuple):
@@ -156,10 +162,9 @@ class PointGraph(NamedTuple):
 def point_graph(points_mm: np.ndarray, blobs: tuple | None = None) -> PointGraph:
     """The :class:`PointGraph` of stereo points (K, 3) mm; ``blobs`` (left (K,), right (K,)): each
     point's blob in each view (default: every point its own)."""
-    P = np.asarray(points_mm, dtype=np.float64)
-    D = np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)
+    D = _pairwise_mm(points_mm)
     if blobs is None:
-        apart = ~np.eye(len(P), dtype=bool)
+        apart = ~np.eye(len(D), dtype=bool)
     else:
         left, right = (np.asarray(b) for b in blobs)
         apart = (left[:, None] != left[None, :]) & (right[:, None] != right[None, :])

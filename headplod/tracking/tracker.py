@@ -147,8 +147,8 @@ class TrackResult:
         (e.g. a time discontinuity that reset the motion); in the record's
         ``notes``.
     hypotheses : int
-        Labelled five-marker hypotheses the identification scored in this
-        pass (0 when the markers were re-measured): its cost, counted.
+        Marker labelings the identification fitted in this pass (0 when the
+        markers were re-measured): its cost, counted.
     """
 
     ok: bool
@@ -559,9 +559,8 @@ class Tracker:
         return match
 
     def _remember(self, match: Match, frame: _Frame, fit: Fit, blobs, mode: str) -> str | None:
-        """Keep a fitted pose: the lock on its markers (when all were seen, or all but one in one view),
-        the detection's thresholds,
-        and the pose in the head's motion; the motion's note on its time, if any."""
+        """Keep a fitted pose: the lock on its markers (when all were seen, or all but one in one view), the
+        detection's thresholds, and the pose in the head's motion; the motion's note on its time, if any."""
         p = self.parts
         R, p1 = fit.fitted
         p.motion.set_pose(R, p1)
