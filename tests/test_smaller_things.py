@@ -369,3 +369,21 @@ def test_two_renders_of_one_sequence_at_once_neither_breaks_the_other(tmp_path, 
     assert calls[1] == folder and calls[0] != folder and calls[0].parent == folder.parent
     assert cache._check_manifest(folder) is None
     assert sorted(p.name for p in root.iterdir()) == [folder.name]
+
+
+@pytest.mark.slow
+def test_a_render_killed_midway_leaves_nothing_behind_once_the_entry_is_asked_for_again(cached):
+    """kill -9 during a render skips its own clean-up: its staging folder (named after its process) is
+    deleted the next time the entry is asked for; one of a process still running is left alone."""
+    import subprocess
+    import sys
+
+    root, folder, _ = cached
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True, check=True).stdout.strip()
+    abandoned = root / f".{folder.name}.rendering-{dead}-0000abcd"
+    running = root / f".{folder.name}.rendering-{os.getpid()}-0000abcd"
+    for staging in (abandoned, running):
+        (staging / "left").mkdir(parents=True)
+    assert cache.ensure_dataset("yaw_sweep", frames=6, root=root, quiet=True) == folder
+    assert not abandoned.exists() and running.exists()

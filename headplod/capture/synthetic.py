@@ -77,6 +77,7 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
     tag = "".join(f"-{k}{v}" for k, v in sorted(options.items()))
     folder = root / f"{preset}{tag}-{frames or 'default'}-s{seed}-{_renderer_version()}"
     marker = folder / COMPLETE
+    _remove_abandoned(folder)
     if marker.exists():
         problem = _check_manifest(folder)
         if problem is None:
@@ -91,7 +92,7 @@ def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, se
     # Rendered beside the cache entry and renamed into place when complete: two
     # processes rendering the same sequence (two benchmarks at once) never
     # write into, or delete, each other's folder.
-    staging = folder.with_name(f".{folder.name}.rendering-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    staging = folder.with_name(f"{_staging_prefix(folder)}{os.getpid()}-{uuid.uuid4().hex[:8]}")
     try:
         synth_dataset.write_dataset(staging, scene, seed=seed, progress=progress)
         _write_manifest(staging)
@@ -130,6 +131,24 @@ def _write_manifest(folder: Path) -> None:
     tmp = folder / (COMPLETE + ".tmp")
     tmp.write_text(json.dumps({"files": files}))
     os.replace(tmp, folder / COMPLETE)
+
+
+def _staging_prefix(folder: Path) -> str:
+    """The start of the names a cache entry is rendered under, before its renderer's process id."""
+    return f".{folder.name}.rendering-"
+
+
+def _remove_abandoned(folder: Path) -> None:
+    """Delete the folders ``folder`` was being rendered in by processes that no longer run (killed
+    mid-render: their own clean-up never ran)."""
+    prefix = _staging_prefix(folder)
+    for staging in folder.parent.glob(f"{prefix}*"):
+        try:
+            os.kill(int(staging.name[len(prefix):].split("-")[0]), 0)
+        except ProcessLookupError:
+            shutil.rmtree(staging, ignore_errors=True)
+        except (ValueError, PermissionError):
+            pass                                   # not ours to judge: another user's, or not a staging name
 
 
 def _intact(folder: Path) -> bool:
