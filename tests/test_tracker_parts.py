@@ -20,7 +20,7 @@ from headplod.tracking import geometry as geo
 from headplod.tracking.acquire import Identifier
 from headplod.tracking.covariance import Covariance
 from headplod.tracking.detection import Detector
-from headplod.tracking.frame_checks import FrameChecks, RightPairing
+from headplod.tracking.frame_checks import FrameChecks, RightPairing, TimeLimits
 from headplod.tracking.lock import Lock
 from headplod.tracking.motion import HeadMotion
 from headplod.tracking.pose_fit import PoseFitter
@@ -79,7 +79,7 @@ def _identified(scene, frame):
 
 def test_frame_checks_flag_a_repeated_buffer_a_time_jump_and_a_skewed_right_camera(scene):
     dataset, frames, config, _, _ = scene
-    checks = FrameChecks(config)
+    checks = FrameChecks(TimeLimits.of(config))
     f = frames[0]
     assert checks.check_images(f.left, f.right, dataset.rig.image_size) is None
     wrong = checks.check_images(f.left[:-2], f.right, dataset.rig.image_size)

@@ -51,17 +51,31 @@ class TimeVerdict(NamedTuple):
     discontinuity: bool = False
 
 
-class FrameChecks:
-    """The frame checks of :class:`~.tracker.Tracker` (module docstring).
+class TimeLimits(NamedTuple):
+    """The bounds :class:`FrameChecks` holds frame times to (the same-named ``TrackerConfig`` fields).
 
-    Parameters
-    ----------
-    config : TrackerConfig
-        ``max_time_gap_s``, ``max_time_gap_periods``, ``max_right_offset_periods``.
+    ``max_time_gap_s`` (s) and ``max_time_gap_periods`` (frame periods):
+    a step beyond the smaller of the two, once the period is known, is a
+    discontinuity; ``max_right_offset_periods``: a right image further than
+    that many periods (and 0.1 s) from the left one is not its stereo pair.
     """
 
-    def __init__(self, config):
-        self.frames_config = config
+    max_time_gap_s: float
+    max_time_gap_periods: float
+    max_right_offset_periods: float
+
+    @classmethod
+    def of(cls, config) -> "TimeLimits":
+        """The limits a ``TrackerConfig`` sets."""
+        return cls(config.max_time_gap_s, config.max_time_gap_periods, config.max_right_offset_periods)
+
+
+class FrameChecks:
+    """The frame checks of :class:`~.tracker.Tracker` (module docstring), held to ``limits``
+    (:class:`TimeLimits`; the images' own checks need no setting)."""
+
+    def __init__(self, limits: TimeLimits):
+        self.limits = limits
         self.frame_periods = []       # recent frame periods, s, for the right time's plausibility (kept by reset)
         self._last_t = None
         self._previous_images = None  # (left, right) of the last frame, to recognize a repeated buffer
@@ -134,7 +148,7 @@ class FrameChecks:
             return TimeVerdict([])
         step = float(t) - float(last)
         period = self.frame_period()
-        c = self.frames_config
+        c = self.limits
         known = len(self.frame_periods) >= 4        # a period from fewer steps may be a glitch's
         gap = min(c.max_time_gap_s, c.max_time_gap_periods * period) if known else c.max_time_gap_s
         if 0 < step <= c.max_time_gap_s:
@@ -176,7 +190,7 @@ class FrameChecks:
             return None
         offset_s = float(t_right) - float(t)
         period_s = self.frame_period() or 1.0 / 30.0
-        k = self.frames_config.max_right_offset_periods
+        k = self.limits.max_right_offset_periods
         bound_s = max(k * period_s, 0.1)
         if not abs(offset_s) > bound_s:
             return None

@@ -87,7 +87,7 @@ from . import geometry as geo
 from .acquire import Identifier
 from .covariance import Covariance
 from .detection import Detector
-from .frame_checks import FrameChecks, RightPairing, TimeVerdict, describe_offset_s
+from .frame_checks import FrameChecks, RightPairing, TimeLimits, TimeVerdict, describe_offset_s
 from .geometry import ESTIMATORS
 from .lock import _ALL_VISIBLE, _NAN5, _NAN53, _NO_BLOB, MARKER_NAMES, Lock, Match
 from .motion import HeadMotion
@@ -187,7 +187,15 @@ class TrackResult:
 
 
 class MarkerPhase(enum.Enum):
-    """The markers' state (module docstring)."""
+    """The markers' state, and what moves it (module docstring).
+
+    *acquire* (no lock: the whole image is searched and identified) goes to
+    *track* on a reported pose and to *withheld* on a pose kept but not
+    reported; *track* and *withheld* (a lock: only windows at the predicted
+    markers are measured) go between each other the same way, and back to
+    *acquire* when the markers are lost, a pose fails verification or the
+    frame times are discontinuous.
+    """
 
     ACQUIRE = "acquire"
     TRACK = "track"
@@ -238,7 +246,7 @@ def make_parts(rig, model_mm: np.ndarray, axes_G: np.ndarray, config: TrackerCon
     motion = HeadMotion(config)
     shutter = RollingShutter(config, model_mm, rig_in_use, motion)
     fitter = PoseFitter(config, model_mm, axes_G, rig_in_use, motion, shutter, checks)
-    return TrackerParts(FrameChecks(config), RightPairing(), Detector(config), Identifier(config, model_mm, axes_G),
+    return TrackerParts(FrameChecks(TimeLimits.of(config)), RightPairing(), Detector(config), Identifier(config, model_mm, axes_G),
                         motion, rig_in_use, shutter, checks, fitter, covariance)
 
 

@@ -45,7 +45,13 @@ def _raised_in(exc: BaseException, filenames: str | tuple[str, ...]) -> bool:
 
 
 class RigPhase(enum.Enum):
-    """The rig's state: as rig.yaml says (no update yet), refining (updates, not converged), refined."""
+    """The rig's state: as rig.yaml says (no update yet), refining (updates, not converged), refined.
+
+    The first accepted update (or a bootstrap, when rig.yaml fails on
+    consecutive frames) starts *refining*; the estimator's convergence makes
+    it *refined*; a bump (the rig moved: the frames agree only with the
+    unrefined uncertainty) widens the estimate and returns it to *refining*.
+    """
 
     YAML = "rig.yaml"
     REFINING = "refining"
