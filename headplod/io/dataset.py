@@ -8,7 +8,9 @@ of raising.
 
 from __future__ import annotations
 
+import errno
 import operator
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -96,6 +98,20 @@ def _interp_time(known: list[tuple[int, float]], index: int) -> float:
         return float(np.interp(index, frames, ts))
     slope = (ts[j] - ts[i]) / (frames[j] - frames[i])
     return float(ts[i] + slope * (index - frames[i]))
+
+
+def _unreachable(path: Path) -> str | None:
+    """Why a listed frame file cannot be opened (a link that loops or points nowhere, gone since it was
+    listed), or None."""
+    try:
+        os.stat(path)
+        return None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "a symbolic link that loops (it leads back to itself); replace it with the image"
+        if path.is_symlink():
+            return f"a symbolic link to {os.readlink(path)}, which does not exist"
+        return "missing"
 
 
 class Dataset:
@@ -284,8 +300,11 @@ class Dataset:
         name = f"{side}/{index:06d}.png"
         path = self.folder / side / f"{index:06d}.png"
         try:
-            if index not in self._files[side] or not path.exists():
+            if index not in self._files[side]:
                 return None, f"{name}: missing", None
+            unreachable = _unreachable(path)
+            if unreachable is not None:
+                return None, f"{name}: {unreachable}", None
             with open(path, "rb") as fh:
                 head = fh.read(8)
             if not head:

@@ -102,6 +102,10 @@ class OpentrackSender:
         family, type_, proto, _, self.address = infos[0]
         self.host, self.port = host, int(port)
         self._sock = socket.socket(family, type_, proto)
+        if family == socket.AF_INET:
+            # A broadcast address (255.255.255.255, a subnet's .255) reaches opentrack on any machine of
+            # the network; without this option the kernel refuses every datagram to it (EACCES).
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
         self.sent = 0
         self.skipped = 0
         self.failed = 0
