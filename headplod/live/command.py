@@ -74,7 +74,7 @@ TRACK_EPILOG = ("exit status: 0 success (a fault in one frame is that frame's 'o
                 "before its first frame (nothing is written) or ended early (what was made is kept, and one line "
                 "says where); 2 bad usage (nothing is written); 3 no frame was tracked (every frame failed, or "
                 "there was none). Ctrl-C, SIGTERM or SIGHUP stops cleanly between frames: the records and frames "
-                "so far are kept. With --udp, the key c (standard input a terminal) or SIGUSR1 (kill -USR1 PID) "
+                "so far are kept (and, when a replay had not reached its end, the outputs they replaced). With --udp, the key c (standard input a terminal) or SIGUSR1 (kill -USR1 PID) "
                 "recentres what is sent to opentrack, from the next frame: the current pose becomes its zero.")
 
 
