@@ -157,3 +157,36 @@ def test_an_output_in_a_folder_that_cannot_be_written_is_named_before_the_run(sa
     assert "frames tracked" not in captured.err + captured.out      # refused before the run
     assert _digest(sample) == before
     assert not os.path.lexists(target)
+
+
+# ---------------------------------------------------------------------------
+# found by trying more (issue 35's "one more round")
+# ---------------------------------------------------------------------------
+
+
+def test_a_frame_of_the_wrong_size_is_refused_from_its_header_before_decoding(sample, tmp_path):
+    """A PNG claiming 100000 x 100000 px (10 GB decoded) is refused by its header's size: never decoded."""
+    header = bytes.fromhex("89504e470d0a1a0a0000000d49484452") + (100000).to_bytes(4, "big") * 2
+    (sample / "left" / "000002.png").write_bytes(header + bytes(64))
+    out = tmp_path / "poses.jsonl"
+    assert cli_main(["track", "--source", str(sample), "--out", str(out), "-q"]) == 0
+    reason = {r["frame"]: r for r in _records(out)}[2]["reason"]
+    assert reason == "left/000002.png: 100000x100000, rig says 640x480", reason
+
+
+def test_markers_all_at_one_point_are_not_called_metres(sample, tmp_path, capsys):
+    text = (sample / "markers.yaml").read_text() if (sample / "markers.yaml").exists() else None
+    blank = tmp_path / "blank.yaml"
+    model = io.default_marker_model()
+    io.write_markers(blank, model)
+    raw = blank.read_text()
+    blank.write_text(raw.replace(_first_row(raw, "markers"), "data: [" + ", ".join(["0."] * 15) + "]"))
+    assert cli_main(["track", "--source", str(sample), "--markers", str(blank), "-q"]) == 1
+    line = _one_line_error(capsys.readouterr().err)
+    assert "at one point" in line and "metres" not in line, line
+    assert text is None or (sample / "markers.yaml").read_text() == text
+
+
+def test_an_ipv6_udp_address_is_shown_in_brackets():
+    with OpentrackSender("::1", 4242) as sender:
+        assert sender.where == "[::1]:4242"

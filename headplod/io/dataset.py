@@ -306,12 +306,18 @@ class Dataset:
             if unreachable is not None:
                 return None, f"{name}: {unreachable}", None
             with open(path, "rb") as fh:
-                head = fh.read(8)
+                header = fh.read(24)
+            head = header[:8]
             if not head:
                 return None, f"{name}: unreadable (empty file)", None
             if head != _PNG_SIGNATURE:
                 kind = " (it looks like a JPEG)" if head[:3] == b"\xff\xd8\xff" else ""
                 return None, f"{name}: unreadable (not a PNG file{kind}; first bytes {head!r})", None
+            if header[12:16] == b"IHDR":                 # the size, before decoding what may be gigabytes
+                w, h = int.from_bytes(header[16:20], "big"), int.from_bytes(header[20:24], "big")
+                if (w, h) != tuple(self.rig.image_size):
+                    rw, rh = self.rig.image_size
+                    return None, f"{name}: {w}x{h}, rig says {rw}x{rh}", None
             img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
             if img is None:
                 return None, f"{name}: unreadable (corrupt or truncated PNG)", None

@@ -436,7 +436,7 @@ class _TrackRun:
             if udp is not None:
                 pivot_mm, pivot_from = udp_pivot(args, rig=rig, source=source)
                 self.sender = OpentrackSender(*udp, pivot_mm=pivot_mm, frame=args.udp_axes)
-                print(f"udp: to {udp[0]}:{udp[1]}, the pivot ({', '.join(f'{v:.0f}' for v in pivot_mm)}) mm "
+                print(f"udp: to {self.sender.where}, the pivot ({', '.join(f'{v:.0f}' for v in pivot_mm)}) mm "
                       f"({pivot_from}), axes {args.udp_axes}", file=log)
             if args.save_rig:                           # written at the end: found unwritable before the run
                 folder = Path(args.save_rig).expanduser().resolve().parent
