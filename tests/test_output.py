@@ -182,10 +182,21 @@ def test_udp_round_trip_truth_head_up_is_ty_up(receiver):
 
 
 def test_send_failures_are_counted_and_shown():
-    # A broadcast address without SO_BROADCAST: the system refuses every datagram (PermissionError).
+    # A socket the system refuses every datagram on (PermissionError, as a firewall's EPERM or EACCES).
+    class Refusing:
+        def __init__(self, sock):
+            self._sock = sock
+
+        def send(self, packet):
+            raise PermissionError(13, "Permission denied")
+
+        def __getattr__(self, name):
+            return getattr(self._sock, name)
+
     out = StringIO()
     status = StatusLine(stream=out, every_s=0.5)
     with OpentrackSender("255.255.255.255", 4242) as sender:
+        sender._sock = Refusing(sender._sock)
         status.sender = sender
         for i in range(5):
             assert sender.send(record([0.0, 0.0, 600.0], FACING)) is False
@@ -306,13 +317,17 @@ def test_status_line_overwrites_on_a_tty():
     assert "10.0 Hz" in text
 
 
-def test_track_reports_udp_failures_at_the_end(capsys):
+def test_track_reports_udp_failures_at_the_end(capsys, monkeypatch):
     from headplod.cli import main
 
-    code = main(["track", "--source", "synthetic:static", "--frames", "4", "-q", "--udp", "255.255.255.255:4242"])
+    def refused(self, packet):                          # the system refuses every datagram (a firewall)
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(socket.socket, "send", refused)
+    code = main(["track", "--source", "synthetic:static", "--frames", "4", "-q", "--udp", "127.0.0.1:4242"])
     err = capsys.readouterr().err
     assert code == 0
-    assert "udp: 4 of 4 datagrams not sent; first: 255.255.255.255:4242:" in err
+    assert "udp: 4 of 4 datagrams not sent; first: 127.0.0.1:4242:" in err
     assert "axes tracker-pt" in err and "(0, -80, -90) mm" in err
 
 

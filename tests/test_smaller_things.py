@@ -100,12 +100,12 @@ def test_frame_notes_split_and_count():
 
 def _edit_rig(folder: Path, key: str, i: int, j: int, value: float) -> None:
     rig = io.read_rig(folder / "rig.yaml")
-    K = dict(K1=rig.K1.copy(), K2=rig.K2.copy())
+    K = dict(K1=rig.K1.copy(), K2=rig.K2.copy(), D1=rig.D1[None].copy(), D2=rig.D2[None].copy())
     K[key][i, j] = value
     fs = cv2.FileStorage(str(folder / "rig.yaml"), cv2.FILE_STORAGE_WRITE)
     fs.write("image_width", rig.image_size[0])
     fs.write("image_height", rig.image_size[1])
-    for name, m in (("K1", K["K1"]), ("D1", rig.D1[None]), ("K2", K["K2"]), ("D2", rig.D2[None]),
+    for name, m in (("K1", K["K1"]), ("D1", K["D1"]), ("K2", K["K2"]), ("D2", K["D2"]),
                     ("R", rig.R), ("T", rig.T[:, None])):
         fs.write(name, np.asarray(m, np.float64))
     fs.release()
@@ -130,6 +130,8 @@ def test_absurd_intrinsics_are_refused_with_one_line(sample, tmp_path, capsys, k
 
 
 def test_plausible_intrinsics_still_read(sample):
+    for k in range(5):                              # (a normal lens's distortion would fold a wide field)
+        _edit_rig(sample, "D1", 0, k, 0.0)
     _edit_rig(sample, "K1", 0, 0, 0.2 * 640)        # a wide lens: 0.2 x the width
     _edit_rig(sample, "K2", 0, 2, -100.0)           # a principal point a little outside the image
     assert io.read_rig(sample / "rig.yaml").K1[0, 0] == 128.0

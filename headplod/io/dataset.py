@@ -8,7 +8,9 @@ of raising.
 
 from __future__ import annotations
 
+import errno
 import operator
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -96,6 +98,20 @@ def _interp_time(known: list[tuple[int, float]], index: int) -> float:
         return float(np.interp(index, frames, ts))
     slope = (ts[j] - ts[i]) / (frames[j] - frames[i])
     return float(ts[i] + slope * (index - frames[i]))
+
+
+def _unreachable(path: Path) -> str | None:
+    """Why a listed frame file cannot be opened (a link that loops or points nowhere, gone since it was
+    listed), or None."""
+    try:
+        os.stat(path)
+        return None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "a symbolic link that loops (it leads back to itself); replace it with the image"
+        if path.is_symlink():
+            return f"a symbolic link to {os.readlink(path)}, which does not exist"
+        return "missing"
 
 
 class Dataset:
@@ -284,15 +300,24 @@ class Dataset:
         name = f"{side}/{index:06d}.png"
         path = self.folder / side / f"{index:06d}.png"
         try:
-            if index not in self._files[side] or not path.exists():
+            if index not in self._files[side]:
                 return None, f"{name}: missing", None
+            unreachable = _unreachable(path)
+            if unreachable is not None:
+                return None, f"{name}: {unreachable}", None
             with open(path, "rb") as fh:
-                head = fh.read(8)
+                header = fh.read(24)
+            head = header[:8]
             if not head:
                 return None, f"{name}: unreadable (empty file)", None
             if head != _PNG_SIGNATURE:
                 kind = " (it looks like a JPEG)" if head[:3] == b"\xff\xd8\xff" else ""
                 return None, f"{name}: unreadable (not a PNG file{kind}; first bytes {head!r})", None
+            if header[12:16] == b"IHDR":                 # the size, before decoding what may be gigabytes
+                w, h = int.from_bytes(header[16:20], "big"), int.from_bytes(header[20:24], "big")
+                if (w, h) != tuple(self.rig.image_size):
+                    rw, rh = self.rig.image_size
+                    return None, f"{name}: {w}x{h}, rig says {rw}x{rh}", None
             img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
             if img is None:
                 return None, f"{name}: unreadable (corrupt or truncated PNG)", None

@@ -69,12 +69,13 @@ def _validate_markers(ctx: _Ctx, points: Any, diameter: Any) -> tuple[np.ndarray
     _check_finite(ctx, "markers", P)
     span_mm = float(np.ptp(P, axis=0).max())
     if span_mm < MIN_MODEL_SPAN_MM:
-        metres = np.abs(P).max() < 1.0
+        metres = 0 < span_mm and np.abs(P).max() < 1.0        # (all five at one point: a file left blank)
         raise ctx.error(
             f"the markers span {_fmt(span_mm)} mm, expected the glasses' size in mm "
             f"(the default model spans {_fmt(float(np.ptp(_DEFAULT_MARKERS_MM, axis=0).max()))} mm)",
             ("this looks like metres; markers.yaml is in mm: multiply every coordinate by 1000"
-             if metres else "markers.yaml is in mm (docs/contract.md)"),
+             if metres else "the five markers are at one point: fill in the glasses' coordinates"
+             if span_mm == 0 else "markers.yaml is in mm (docs/contract.md)"),
         )
     axis_tol_mm = MARKER_TOL_MM
     if np.abs(P[1]).max() > axis_tol_mm:

@@ -34,6 +34,7 @@ import json
 import os
 import shutil
 import socket
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
@@ -235,6 +236,22 @@ def _stamp_now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S")
 
 
+def folder_unwritable(folder: str | Path) -> str | None:
+    """Why no file can be created in ``folder`` (the OS's words), or None when one can.
+
+    Tried, not asked: ``os.access`` says yes to root everywhere, and to
+    anyone on a read-only mount or in ``/proc``. The probe is a hidden empty
+    file, removed at once.
+    """
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".headplod-probe-", dir=folder)
+    except OSError as exc:
+        return exc.strerror or type(exc).__name__
+    os.close(fd)
+    os.unlink(probe)
+    return None
+
+
 def claim_output(path: str | Path, *, what: str, folder: bool = False, entries: tuple | None = None,
                  holds_output: Callable[[Path], bool] | None = None,
                  describe: Callable[[Path], str] | None = None,
@@ -276,8 +293,9 @@ def claim_output(path: str | Path, *, what: str, folder: bool = False, entries: 
     existing = path.resolve() if folder else path.resolve().parent
     while not existing.exists():                    # a folder output is made with its parents: the first that is
         existing = existing.parent
-    if not os.access(existing, os.W_OK):
-        raise PermissionError(f"{what}: the folder {existing} is not writable")
+    unwritable = folder_unwritable(existing)
+    if unwritable is not None:
+        raise PermissionError(f"{what}: the folder {existing} cannot be written ({unwritable})")
     claim = OutputClaim(path, folder, _entries=entries)
     holds = holds_output or (lambda p: p.exists())
     run = killed_run(path, folder)

@@ -47,6 +47,10 @@ FOCAL_RANGE_WIDTHS = (0.05, 100.0)
 PRINCIPAL_POINT_MARGIN = 0.5
 #: Numbers of distortion coefficients OpenCV understands.
 DIST_COEFF_COUNTS = (4, 5, 8, 12, 14)
+#: How much a lens may stretch or shrink distances from the image centre within the image: the distorted
+#: radius over the undistorted one, anywhere up to the image's corners. Fisheyes modelled with OpenCV's
+#: rational model stay well inside; a value outside is a typo or a failed calibration.
+DISTORTION_SCALE_RANGE = (0.25, 4.0)
 _RIG_KEYS = ("image_width", "image_height", "K1", "D1", "K2", "D2", "R", "T")
 
 
@@ -104,6 +108,35 @@ def _check_K_plausible(ctx: _Ctx, key: str, K: np.ndarray, image_size: tuple[int
                 f"(0 to {size} px); expected {_fmt(-m * size)} to {_fmt((1 + m) * size)} px",
                 hint,
             )
+
+
+def _check_D_plausible(ctx: _Ctx, key: str, D: np.ndarray, K: np.ndarray, image_size: tuple[int, int]) -> None:
+    """Refuse distortion coefficients ``D`` no lens of camera matrix ``K`` and ``image_size`` (width, height)
+    px has: along the rays from the principal point to the image's corners (pinhole radii, normalized), the
+    distorted radius must stay within :data:`DISTORTION_SCALE_RANGE` of the undistorted one and grow with
+    it (a model that folds the image back maps two directions onto one pixel)."""
+    w, h = image_size
+    corners = np.array([[0.0, 0.0], [w, 0.0], [0.0, h], [w, h]]) - K[:2, 2]
+    ends = corners / np.array([K[0, 0], K[1, 1]])                     # normalized, pinhole
+    fractions = np.linspace(0.02, 1.0, 50)
+    rays = ends[:, None, :] * fractions[None, :, None]                  # (4, 50, 2)
+    points = np.concatenate([rays.reshape(-1, 2), np.ones((rays.size // 2, 1))], axis=1)
+    with np.errstate(all="ignore"):
+        distorted, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), np.eye(3), D.astype(np.float64))
+        radius = np.linalg.norm(distorted.reshape(4, -1, 2), axis=2)
+        scale = radius / np.linalg.norm(rays, axis=2)
+    lo, hi = DISTORTION_SCALE_RANGE
+    bad = ~np.isfinite(scale) | (scale < lo) | (scale > hi)
+    folds = np.diff(radius, axis=1) <= 0
+    if bad.any() or folds.any():
+        worst = scale.flat[int(np.nanargmax(np.abs(np.log(np.where(np.isfinite(scale) & (scale > 0), scale,
+                                                                           np.inf)))))]
+        what = ("folds the image back on itself" if folds.any() and not bad.any()
+                else f"scales distances from the image centre by {_fmt(worst)} within the image")
+        raise ctx.error(
+            f"{ctx.name(key)} = {np.array2string(D, precision=4, separator=', ')} {what}; a lens stays within "
+            f"{_fmt(lo)} to {_fmt(hi)}: recalibrate (headplod calibrate), or check the file for a typo",
+            f"{key} holds the distortion coefficients k1 k2 p1 p2 [k3 ...] of the camera of {key.replace('D', 'K')}")
 
 
 def _check_D(ctx: _Ctx, key: str, D: np.ndarray) -> np.ndarray:
@@ -267,9 +300,11 @@ def _validate_rig(ctx: _Ctx, image_size, K1, D1, K2, D2, R, T) -> dict:
     out["K1"] = _check_K(ctx, "K1", arr("K1", K1))
     _check_K_plausible(ctx, "K1", out["K1"], out["image_size"])
     out["D1"] = _check_D(ctx, "D1", arr("D1", D1))
+    _check_D_plausible(ctx, "D1", out["D1"], out["K1"], out["image_size"])
     out["K2"] = _check_K(ctx, "K2", arr("K2", K2))
     _check_K_plausible(ctx, "K2", out["K2"], out["image_size"])
     out["D2"] = _check_D(ctx, "D2", arr("D2", D2))
+    _check_D_plausible(ctx, "D2", out["D2"], out["K2"], out["image_size"])
     out["R"] = _check_R(ctx, "R", arr("R", R))
     out["T"] = _check_T(ctx, "T", arr("T", T))
     return {k: (_frozen(v) if isinstance(v, np.ndarray) else v) for k, v in out.items()}

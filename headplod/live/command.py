@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io
+from ..io.progressive import folder_unwritable
 from ..argtypes import add_quiet_argument, frame_count, note_old_spelling, readout_ms
 from ..capture import DatasetRecorder, open_source, source_kind, synthetic_preset, v4l2_devices
 from ..capture.signals import StopSignals
@@ -73,7 +74,7 @@ TRACK_EPILOG = ("exit status: 0 success (a fault in one frame is that frame's 'o
                 "before its first frame (nothing is written) or ended early (what was made is kept, and one line "
                 "says where); 2 bad usage (nothing is written); 3 no frame was tracked (every frame failed, or "
                 "there was none). Ctrl-C, SIGTERM or SIGHUP stops cleanly between frames: the records and frames "
-                "so far are kept. With --udp, the key c (standard input a terminal) or SIGUSR1 (kill -USR1 PID) "
+                "so far are kept (and, when a replay had not reached its end, the outputs they replaced). With --udp, the key c (standard input a terminal) or SIGUSR1 (kill -USR1 PID) "
                 "recentres what is sent to opentrack, from the next frame: the current pose becomes its zero.")
 
 
@@ -435,8 +436,14 @@ class _TrackRun:
             if udp is not None:
                 pivot_mm, pivot_from = udp_pivot(args, rig=rig, source=source)
                 self.sender = OpentrackSender(*udp, pivot_mm=pivot_mm, frame=args.udp_axes)
-                print(f"udp: to {udp[0]}:{udp[1]}, the pivot ({', '.join(f'{v:.0f}' for v in pivot_mm)}) mm "
+                print(f"udp: to {self.sender.where}, the pivot ({', '.join(f'{v:.0f}' for v in pivot_mm)}) mm "
                       f"({pivot_from}), axes {args.udp_axes}", file=log)
+            if args.save_rig:                           # written at the end: found unwritable before the run
+                folder = Path(args.save_rig).expanduser().resolve().parent
+                unwritable = folder_unwritable(folder)
+                if unwritable is not None:
+                    raise PermissionError(f"--save-rig {args.save_rig}: the folder {folder} cannot be written "
+                                          f"({unwritable})")
             if args.record:
                 self.recorder = DatasetRecorder(args.record, rig, markers=markers or source.markers,
                                                 screen=self.screen or source.screen, overwrite=args.overwrite)
@@ -474,8 +481,11 @@ class _TrackRun:
             failure = exc
         finally:
             stop.finishing()                            # the closes are short: a signal now cannot cut them
+            # A live camera has no end: a signal is how its run ends. A file source stopped by one is cut
+            # short: what its outputs replaced is kept (docs/outputs.md).
+            complete = failure is None and (self.live or not stop())
             kept, close_failure = _close_outputs(args, self.status, recorder, self.sender, self.writer,
-                                                 self.source, complete=failure is None)
+                                                 self.source, complete=complete)
             failure = failure or close_failure
         return failure, kept
 
@@ -483,9 +493,7 @@ class _TrackRun:
         """The run's end: how it stopped, its summary and reports; the exit status."""
         args, records, log = self.args, self.records, self.log
         if stop():
-            how = ", at once on a second signal" if stop.insisted else ""
-            print(f"headplod: stopped ({stop.name}{how}); the {len(records)} frames so far are kept",
-                  file=sys.stderr)
+            print(_stop_line(stop, records, self.live, kept), file=sys.stderr)
         summary = evaluate.summarize(records, self.truth or None)
         name = self.source.name if self.live else Path(str(self.source.name)).name
         print(evaluate.format_summary(name, summary), file=log)
@@ -594,6 +602,20 @@ def _close_outputs(args, status, recorder, sender, writer, source, complete: boo
     return kept, failure
 
 
+def _stop_line(stop, records: list, live: bool, kept: dict) -> str:
+    """The one line of a run stopped by a signal: its frames are kept; what its outputs replaced is deleted
+    (a live camera's run, which ends so) or kept, and where (a replay cut short)."""
+    how = ", at once on a second signal" if stop.insisted else ""
+    line = f"headplod: stopped ({stop.name}{how}); the {len(records)} frames so far are kept"
+    if kept:
+        line += "; the source had not ended, so " + "; ".join(
+            f"the {'recording' if option.startswith('--record') else 'file'} {option} replaced is kept as {path}"
+            for option, path in kept.items())
+    elif live:
+        line += " (a live run ends so: any output it replaced is deleted)"
+    return line
+
+
 def _early_end_line(failure: BaseException, records: list, args, recorder, writer, kept: dict) -> str:
     """The one line of a run that ended early: what failed, and where everything made is."""
     n = len(records)
@@ -688,7 +710,10 @@ def _report_rig(args, tracker, tracked: int, log) -> int:
         # The best estimate, not only what was in use; FILE is whole or untouched.
         io.write_atomically(args.save_rig, lambda name: io.write_rig(name, refiner.estimator.estimate.rig()),
                             suffix=".tmp.yaml")
-    except (OSError, ValueError) as exc:
+    except OSError as exc:                              # the OS's words, not the temporary name it was about
+        print(f"headplod: --save-rig {args.save_rig}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except ValueError as exc:
         print(f"headplod: --save-rig {args.save_rig}: {exc}", file=sys.stderr)
         return 1
     note = "" if refiner.estimator.updates else " (no update from the tracked frames: rig.yaml's values)"

@@ -81,6 +81,10 @@ def check_outputs(args, spec: str | None = None, source=None, rig=None) -> None:
     if args.record:
         target = Path(args.record).expanduser()
         record = target.resolve()
+        for what, folder in folders:                # before the --overwrite advice: that would be refused too
+            if _inside(record, folder) or _inside(folder, record):
+                relation = "is" if record == folder else "lies inside" if _inside(record, folder) else "holds"
+                raise Usage(f"--record {args.record}: {relation} {what} ({folder}); record into another folder")
         if source is None:
             if target.exists() and not target.is_dir():
                 raise Usage(f"--record {args.record}: is a file; give a folder for the recording")
@@ -91,10 +95,6 @@ def check_outputs(args, spec: str | None = None, source=None, rig=None) -> None:
             if args.overwrite and record in (Path.cwd().resolve(), Path.home().resolve(), Path(record.anchor)):
                 raise Usage(f"--record {args.record}: is the current, home or root folder; record into a "
                              "folder of its own")
-        for what, folder in folders:
-            if _inside(record, folder) or _inside(folder, record):
-                raise Usage(f"--record {args.record}: {'lies inside' if _inside(record, folder) else 'holds'} "
-                             f"{what} ({folder}); record into another folder")
         for what, path in files:
             if _inside(path, record):
                 raise Usage(f"--record {args.record}: holds {what} ({path}); record into another folder")

@@ -101,7 +101,13 @@ class OpentrackSender:
             raise ValueError(f"OpentrackSender: cannot resolve host {host!r}: {e}") from None
         family, type_, proto, _, self.address = infos[0]
         self.host, self.port = host, int(port)
+        # As the user writes it: an IPv6 address in brackets ([::1]:4242).
+        self.where = f"[{host}]:{self.port}" if ":" in host else f"{host}:{self.port}"
         self._sock = socket.socket(family, type_, proto)
+        if family == socket.AF_INET:
+            # A broadcast address (255.255.255.255, a subnet's .255) reaches opentrack on any machine of
+            # the network; without this option the kernel refuses every datagram to it (EACCES).
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
         self.sent = 0
         self.skipped = 0
         self.failed = 0
@@ -142,7 +148,7 @@ class OpentrackSender:
         if isinstance(e, ConnectionRefusedError):
             self.refused += 1
             self._last_refused = self._attempts
-        self.last_error = f"{self.host}:{self.port}: {e}"
+        self.last_error = f"{self.where}: {e}"
         if self.first_error is None:
             self.first_error = self.last_error
 
@@ -154,9 +160,9 @@ class OpentrackSender:
     def state(self) -> str | None:
         """What is wrong with sending now, in a few words, or None when the last sends went through."""
         if not self.listening:
-            return f"opentrack not listening on {self.host}:{self.port}"
+            return f"opentrack not listening on {self.where}"
         if self._attempts - self._last_failed <= 3:
-            return f"sending to {self.host}:{self.port} fails: {self.last_error.split(': ', 1)[-1]}"
+            return f"sending to {self.where} fails: {self.last_error.split(': ', 1)[-1]}"
         return None
 
     def request_recentre(self, how: str | None = None) -> None:
@@ -192,7 +198,7 @@ class OpentrackSender:
             if now is not None:
                 lines.append(f"udp: {now}; poses are not received (the run goes on)")
             else:
-                lines.append(f"udp: {self.host}:{self.port} receives the poses again ({self.failed} not sent before)")
+                lines.append(f"udp: {self.where} receives the poses again ({self.failed} not sent before)")
         return "\n".join(lines) or None
 
     def send(self, record: Mapping) -> bool:
@@ -252,7 +258,7 @@ class OpentrackSender:
             return None
         line = f"udp: {self.failed} of {self.failed + self.sent} datagrams not sent; first: {self.first_error}"
         if self.refused:
-            line += f"; {self.refused} refused: opentrack was not listening on {self.host}:{self.port}"
+            line += f"; {self.refused} refused: opentrack was not listening on {self.where}"
         if self.last_error != self.first_error:
             line += f"; last: {self.last_error}"
         return line
