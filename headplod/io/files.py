@@ -35,7 +35,8 @@ from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 __all__ = ["OutputRefused", "OutputKind", "FileId", "Input", "Inputs", "file_id", "special_kind",
-           "special_entry", "standard_stream", "refuse_special", "output_kind", "check_not_input", "check_output"]
+           "special_entry", "standard_stream", "refuse_special", "output_kind", "check_not_input", "check_output",
+           "check_files"]
 
 #: The kinds of file an output may never be, by ``stat`` test.
 _SPECIAL = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
@@ -235,10 +236,8 @@ def refuse_special(path, name: str | None = None, *, option: str = "", stream: b
                             f"{noun} name", option, given)
     kind = special_kind(given)
     if kind is not None:
-        allowed = "folders" if folder else ("regular files or '-'" if stream else "regular files")
-        raise OutputRefused(f"{name}: is {kind}, not a {'folder' if folder else 'regular file'} (outputs are "
-                            f"{allowed}; a special file is never replaced); give another {noun} name",
-                            option, given)
+        raise OutputRefused(f"{name}: is {kind}, not a {'folder' if folder else 'regular file'}, and a special "
+                            f"file is never written over; give another {noun} name", option, given)
     return False
 
 
@@ -362,8 +361,8 @@ def check_not_input(path, inputs: Inputs, *, option: str = "", folder: bool = Fa
     if not folder:
         for item in inputs:
             if not item.folder and item.id.same(out):
-                raise OutputRefused(f"{name}: is {item.what}{spelled(item)}, which is never overwritten; "
-                                    f"{fix or 'give another file name'}", option, given)
+                raise OutputRefused(f"{name}: is {item.what}{spelled(item)}; {fix or 'give another file name'}",
+                                    option, given)
     for item in inputs:
         if item.folder and (_under(out.real, item.id.real) or item.id.dev_ino in chain_ids):
             raise OutputRefused(f"{name}: {'is' if item.id.same(out) else 'lies inside'} {item.what}{spelled(item)}, "
@@ -396,3 +395,20 @@ def check_output(path, inputs: Inputs = Inputs(), *, option: str = "", folder: b
     if kind is not OutputKind.STDOUT:
         check_not_input(path, inputs, option=option, folder=folder, entries=entries, fix=fix)
     return kind
+
+
+def check_files(outputs: Iterable[tuple[str, object]], inputs: Inputs = Inputs(), *,
+                stream: bool = True) -> Inputs:
+    """:func:`check_output` for file outputs given as ``(option, path)`` (a None path is skipped), each against
+    ``inputs`` and the outputs named before it (two options naming one file are refused).
+
+    ``stream``: the outputs may be standard output (their writer is :func:`~headplod.io.write_atomically`,
+    which writes such a path in place). Returns ``inputs`` with the outputs added, for later checks.
+    """
+    held = inputs
+    for option, path in outputs:
+        if path is None:
+            continue
+        if check_output(path, held, option=option, stream=stream) is not OutputKind.STDOUT:
+            held = held.file(f"the file {option} writes", path)
+    return held
