@@ -322,8 +322,8 @@ def claim_output(path: str | Path, *, what: str, folder: bool = False, entries: 
             _move_entries(path, claim.previous, entries)
         else:
             os.replace(path, claim.previous)
-    if folder:
-        path.mkdir(parents=True, exist_ok=True)
+    if folder:                                      # (through a link to nothing yet: where the link points)
+        Path(os.path.realpath(path)).mkdir(parents=True, exist_ok=True)
     marker = {"pid": os.getpid(), "host": socket.gethostname(), "started": _stamp_now(),
               "previous": None if claim.previous is None else str(claim.previous)}
     try:
