@@ -39,7 +39,6 @@ import numpy as np
 from .. import io
 from ..io import write_atomically
 from ..io.files import Inputs, OutputRefused, check_output
-from ..live.track_checks import track_inputs
 from ..argtypes import add_quiet_argument, frame_count
 from ..render.scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_options, mesh_options_problem,
                                     terrain_for_command)
@@ -425,6 +424,8 @@ OUT_ENTRIES = ("frames", "summary.json", "summary.png", "viewpoint_*.png")
 def _out_problem(args) -> str | None:
     """Why the headless ``--out DIR`` may not be written (:mod:`headplod.io.files`: not a folder, a special
     file where it writes, inside a folder being read or holding a file read), or None."""
+    from ..live.track_checks import track_inputs     # on use, as the tracker's other parts
+
     inputs = Inputs() if getattr(args, "mouse", False) else track_inputs(args, args.source)
     if getattr(args, "terrain", None):
         inputs = inputs.file("the terrain being read (--terrain)", args.terrain)

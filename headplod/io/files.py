@@ -230,11 +230,11 @@ def refuse_special(path, name: str | None = None, *, option: str = "", stream: b
     fd = standard_stream(given)
     if fd == 1 and stream and not folder:
         return True
-    if fd is not None:
+    kind = special_kind(given)
+    if fd == 1 or (fd is not None and kind is None):      # (/dev/null as standard input: a device, said so)
         where = "cannot go there" if fd == 1 else "is never written there"
         raise OutputRefused(f"{name}: is this run's {dict(_STREAMS)[fd]}, and this output {where}; give a "
                             f"{noun} name", option, given)
-    kind = special_kind(given)
     if kind is not None:
         raise OutputRefused(f"{name}: is {kind}, not a {'folder' if folder else 'regular file'}, and a special "
                             f"file is never written over; give another {noun} name", option, given)
