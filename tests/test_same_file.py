@@ -80,8 +80,9 @@ def _node(path: Path) -> tuple:
 
 def _headplod(*argv, timeout=120, **kwargs) -> subprocess.CompletedProcess:
     """The real command in its own process (a FIFO or standard output must not be this one's)."""
+    kwargs = {"stdout": subprocess.PIPE, **kwargs}
     return subprocess.run([sys.executable, "-c", "import sys; from headplod.cli import main; sys.exit(main())",
-                           *map(str, argv)], capture_output=True, text=True, timeout=timeout, **kwargs)
+                           *map(str, argv)], stderr=subprocess.PIPE, text=True, timeout=timeout, **kwargs)
 
 
 def _mknull(path: Path) -> Path:
@@ -187,6 +188,18 @@ def test_out_through_a_link_to_standard_output_writes_the_records_there(sample, 
     assert [r["frame"] for r in records] == [0, 1, 2] and all(r["ok"] for r in records)
     assert {p: os.readlink(p) for p in tmp_path.iterdir() if p.is_symlink()} == links
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["ds", *(p.name for p in links)])   # nothing aside
+
+
+def test_out_through_a_link_to_a_closed_standard_output_is_refused(sample, tmp_path):
+    """Found by trying it: with standard output closed, such a link leads nowhere, and the run named a hidden
+    marker under /proc in its error (exit 1)."""
+    link = tmp_path / "stdout.jsonl"
+    link.symlink_to("/proc/self/fd/1")
+    done = _headplod("track", "--source", sample, "--out", link, "--frames", "2", "-q", stdout=None,
+                     preexec_fn=lambda: os.close(1))
+    assert done.returncode == 2
+    _one_line(done.stderr, f"--out {link}", "standard output, which is closed")
+    assert link.is_symlink() and sorted(p.name for p in tmp_path.iterdir()) == ["ds", "stdout.jsonl"]
 
 
 def _special_files(tmp_path: Path) -> list[Path]:

@@ -238,7 +238,20 @@ def refuse_special(path, name: str | None = None, *, option: str = "", stream: b
     if kind is not None:
         raise OutputRefused(f"{name}: is {kind}, not a {'folder' if folder else 'regular file'}, and a special "
                             f"file is never written over; give another {noun} name", option, given)
+    closed = _closed_descriptor(given)
+    if closed is not None:
+        raise OutputRefused(f"{name}: is this run's {dict(_STREAMS).get(closed, f'file descriptor {closed}')}, "
+                            f"which is closed; give a {noun} name", option, given)
     return False
+
+
+def _closed_descriptor(path: str) -> int | None:
+    """The descriptor a path such as ``/dev/stdout`` leads to (``/proc/<this pid>/fd/N``) when N is not open."""
+    parent, fd = os.path.split(os.path.realpath(_given(path)))
+    if fd.isdigit() and parent in (f"/proc/{os.getpid()}/fd", "/proc/self/fd") and not os.path.lexists(
+            os.path.join(parent, fd)):
+        return int(fd)
+    return None
 
 
 def output_kind(path, *, option: str = "", folder: bool = False, stream: bool = False,
