@@ -247,6 +247,7 @@ def _positive_int(ctx: _Ctx, key: str, value: Any, hint: str | None = None) -> i
 
 
 def _open_for_write(path: str | Path) -> cv2.FileStorage:
+    refuse_special(path)                # OpenCV would open a FIFO and wait, or write into a device
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
     except (cv2.error, SystemError) as exc:

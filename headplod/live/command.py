@@ -492,7 +492,8 @@ class _TrackRun:
         self.notes.report()
         _report_run(self.stats, self.sender, log, self.live or args.status)
         if failure is not None:
-            if isinstance(failure, OutputFailed) and isinstance(failure.cause, BrokenPipeError) and _to_stdout(self.writer):
+            if isinstance(failure, OutputFailed) and isinstance(failure.cause, BrokenPipeError) and \
+                    _to_stdout(self.writer):
                 _silence_stdout()                       # else Python's own flush at exit fails again, loudly
             print(_early_end_line(failure, records, args, self.recorder, self.writer, kept), file=sys.stderr)
             _traceback_on_request(failure)
