@@ -146,14 +146,21 @@ class Inputs:
     def files(self, what: str, paths: Iterable) -> "Inputs":
         """With many files (``what`` says what each is, e.g. "a frame being read"); see the class docstring."""
         folders = [i.id.real for i in self.items if i.folder]
+        heads: dict[str, str] = {}                      # each folder resolved once, not once per file in it
         added = []
         for path in paths:
             p = _given(path)
-            real = os.path.realpath(p)
+            head, name = os.path.split(p)
+            if head not in heads:
+                heads[head] = os.path.realpath(head or ".")
             try:
-                st = os.stat(p)
+                st = os.lstat(p)
+                real = os.path.join(heads[head], name)
+                if stat.S_ISLNK(st.st_mode) or name in ("", ".", ".."):
+                    real = os.path.realpath(p)
+                    st = os.stat(p)
             except (OSError, ValueError):
-                added.append(Input(what, str(path), FileId(real, None), False))
+                added.append(Input(what, str(path), FileId(os.path.realpath(p), None), False))
                 continue
             if st.st_nlink == 1 and any(_under(real, f) for f in folders):
                 continue
