@@ -32,6 +32,7 @@ from synthetic.cli import run_render as run_synth
 
 from . import config, io
 from .argtypes import attach_negative_lists
+from .io.files import OutputRefused
 from .bench.command import add_bench_arguments, run_bench
 from .calibration.command import add_calibrate_arguments, run_calibrate
 from .calibration.printouts import add_board_arguments, add_glasses_arguments, run_board, run_glasses
@@ -103,6 +104,9 @@ def main(argv=None) -> int:
     except io.ContractError as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 1
+    except OutputRefused as exc:                        # a writer's own refusal (its command checks first)
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("headplod: interrupted", file=sys.stderr)
         return 130

@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import stat
 import sys
 import tempfile
 from pathlib import Path
@@ -85,7 +86,7 @@ def _refuse_out_dir(out_dir: str, overwrite: bool) -> str | None:
     """Why OUT_DIR may not be written (one line), or None."""
     folder = Path(out_dir).expanduser()
     if folder.exists() and not folder.is_dir():
-        return f"{out_dir}: is a file; give a folder for the dataset"
+        return f"{out_dir}: is {_special(folder, follow=True) or 'a file'}; give a folder for the dataset"
     if not folder.exists():
         return None
     entries = sorted(e.name for e in folder.iterdir())
@@ -104,12 +105,36 @@ def _refuse_out_dir(out_dir: str, overwrite: bool) -> str | None:
     for name, path in special:
         if resolved in path.parents:
             return f"{out_dir}: holds {name}; --overwrite only replaces a dataset folder of its own"
+    special = next((p for name in DATASET_ENTRIES for p in _tree(folder / name) if _special(p)), None)
+    if special is not None:
+        return (f"{out_dir}: its {special.relative_to(folder)} is {_special(special)}, which --overwrite would "
+                "replace (a special file is never written over); move it, or choose another folder")
     foreign = [e for e in entries if e not in DATASET_ENTRIES]
     if foreign:
         return (f"{out_dir}: holds files that are not a dataset's ({', '.join(foreign[:4])}"
                 f"{', ...' if len(foreign) > 4 else ''}); --overwrite deletes only a dataset's own files: "
                 "move them, or choose another folder")
     return None
+
+
+_SPECIAL = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+            (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"))
+
+
+def _special(path: Path, follow: bool = False) -> str | None:
+    """What ``path`` is when it is a device node, FIFO or socket (through a link when ``follow``), else None."""
+    try:
+        mode = (path.stat() if follow else path.lstat()).st_mode
+    except OSError:
+        return None
+    return next((kind for test, kind in _SPECIAL if test(mode)), None)
+
+
+def _tree(path: Path) -> list:
+    """``path`` and, for a folder (not a link), everything in it; [] when there is nothing there."""
+    if not (path.is_symlink() or path.exists()):
+        return []
+    return [path, *(path.rglob("*") if path.is_dir() and not path.is_symlink() else ())]
 
 
 def _move_into(work: Path, folder: Path) -> None:

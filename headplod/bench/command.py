@@ -9,8 +9,9 @@ import argparse
 import sys
 
 from ..argtypes import add_quiet_argument, frame_count, non_negative, note_old_spelling
-from ..capture import source_kind, synthetic_preset
+from ..capture import source_inputs, source_kind, synthetic_preset
 from ..capture.synthetic import ensure_dataset
+from ..io.files import Inputs, OutputRefused, check_files
 from ..render.scene_command import add_terrain_arguments, terrain_for_command
 from ..render.command import add_cost_arguments, add_gaze_prior_argument, selection_options
 
@@ -230,5 +231,17 @@ BENCHMARKS = {"track": _track, "clutter": _clutter, "uncertainty": _uncertainty,
 
 
 def run_bench(args) -> int:
-    """Run ``headplod bench NAME`` from parsed arguments; the exit status."""
+    """Run ``headplod bench NAME`` from parsed arguments; the exit status. ``--json`` and ``--chart`` are checked
+    first (:mod:`headplod.io.files`: no special file, no file the benchmark reads, not both the same file)."""
+    inputs = Inputs()
+    if getattr(args, "terrain", None):
+        inputs = inputs.file("the terrain being read (--terrain)", args.terrain)
+    spec = getattr(args, "source", None) or getattr(args, "dataset", None)
+    if spec:
+        inputs += source_inputs(spec)
+    try:
+        check_files([("--json", getattr(args, "json", None)), ("--chart", getattr(args, "chart", None))], inputs)
+    except OutputRefused as exc:
+        print(f"headplod: bench {args.bench} {exc}", file=sys.stderr)
+        return 2
     return BENCHMARKS[args.bench](args)

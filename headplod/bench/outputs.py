@@ -1,4 +1,5 @@
-"""The benchmarks' result files: JSON, charts and pictures, each written into a folder made if missing."""
+"""The benchmarks' result files: JSON, charts and pictures, each written into a folder made if missing, whole or
+not at all (:func:`~headplod.io.write_atomically`: a special file is never written over)."""
 from __future__ import annotations
 
 import json
@@ -26,7 +27,12 @@ def write_png(path, image_rgb) -> str:
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR))
+    bgr = cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR)
+
+    def write(name: str) -> None:
+        if not cv2.imwrite(name, bgr):
+            raise OSError(f"{path}: OpenCV could not write the image")
+    write_atomically(path, write, suffix=path.suffix)
     return str(path)
 
 
@@ -46,6 +52,9 @@ def save_figure(fig, path, dpi: int = 100, rect=None) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout(**({} if rect is None else {"rect": rect}))
-    fig.savefig(path, dpi=dpi)
-    pyplot().close(fig)
+    try:
+        write_atomically(path, lambda name: fig.savefig(name, dpi=dpi, format=path.suffix.lstrip(".") or "png"),
+                         suffix=path.suffix)
+    finally:
+        pyplot().close(fig)
     return path

@@ -637,6 +637,6 @@ def calibrate_folder(folder: str | Path, spec: BoardSpec, out: str | Path | None
     result = calibrate_stereo(pairs, spec, progress=progress, **options)
     if out is not None:
         Path(out).parent.mkdir(parents=True, exist_ok=True)
-        io.write_rig(out, result.rig)
+        io.write_atomically(out, lambda name: io.write_rig(name, result.rig), suffix=".tmp.yaml")
     return result
 

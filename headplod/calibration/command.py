@@ -29,6 +29,7 @@ import cv2
 from .. import io
 from ..argtypes import add_quiet_argument, floats, note_old_spelling
 from ..capture import V4L2StereoSource, source_kind, v4l2_devices
+from ..io.files import Inputs, OutputRefused, check_not_input, output_kind
 from ..progress import Progress, note
 from .board import BOARD_KINDS
 from .calibrate import (BoardSpec, CalibrationError, calibrate_stereo, coverage_guide, detect_board, find_pairs,
@@ -129,6 +130,13 @@ def run_calibrate(args) -> int:
         print(f"headplod: --out {args.out}: is a folder; give the file to write, e.g. "
               f"{Path(args.out) / 'rig.yaml'}", file=sys.stderr)
         return 2
+    try:                                                # a device node, a FIFO: refused before any work
+        output_kind(args.out, option="--out", stream=True)
+        if args.save:
+            output_kind(args.save, option="--save", folder=True, entries=("left", "right"))
+    except OutputRefused as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
     try:
         folder, devices = calibrate_source(args)
     except _Usage as exc:
@@ -148,6 +156,12 @@ def run_calibrate(args) -> int:
     except CalibrationError as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 1
+    try:                                   # rig.yaml may go beside the pairs, never over one of them
+        check_not_input(args.out, Inputs().files("an image of the pairs being read",
+                                                 [image for _, *sides in pairs for image in sides]), option="--out")
+    except OutputRefused as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
     progress = Progress(len(pairs), "detect board", unit="pair", disable=args.quiet)
     try:
         result = calibrate_stereo(pairs, spec, progress=lambda done, total: progress.step())

@@ -28,6 +28,7 @@ import numpy as np
 
 from .. import io
 from ..argtypes import add_quiet_argument
+from ..io.files import Inputs, OutputRefused, check_files, file_id, output_kind
 from .board import BoardSpec, _charuco
 from .command import add_board_spec_arguments
 from ..tol import tol
@@ -203,6 +204,10 @@ def check_out(out: str, option: str = "--out", suffixes=OUT_SUFFIXES) -> Path:
                             f"{', '.join(suffixes)}")
     if path.is_dir():
         raise PrintoutError(f"{option} {out}: is a folder; give the file to write, e.g. {path / ('x' + suffixes[0])}")
+    try:
+        output_kind(out, option=option, stream=True)            # a device node, a FIFO: refused
+    except OutputRefused as exc:
+        raise PrintoutError(str(exc)) from None
     if not path.resolve().parent.is_dir():
         raise PrintoutError(f"{option} {out}: the folder {path.resolve().parent} does not exist; create it first")
     return path
@@ -372,7 +377,7 @@ def make_glasses(model: io.MarkerModel, marker_mm: Optional[float], paper: str, 
     """
     path = check_out(out)
     ypath = check_out(yaml, "--yaml", (".yaml", ".yml")) if yaml else None
-    if ypath is not None and ypath.resolve() == path.resolve():
+    if ypath is not None and file_id(ypath).same(file_id(path)):
         raise PrintoutError("--yaml and --out name the same file; give two names")
     dpi = check_dpi(dpi)
     marker_mm = check_marker_mm(model, model.diameter_mm if marker_mm is None else marker_mm)
@@ -448,8 +453,11 @@ def run_glasses(args) -> int:
     a bad ``--markers`` file raises :class:`~headplod.io.ContractError`, exit 1)."""
     model = io.read_markers(args.markers) if args.markers else io.default_marker_model()
     try:
+        if args.markers:                        # the sheet's files are never the markers.yaml being read
+            check_files([("--out", args.out), ("--yaml", args.yaml)],
+                        Inputs().file("the markers being read (--markers)", args.markers))
         printed = make_glasses(model, args.marker_mm, args.paper, args.dpi, args.out, args.yaml)
-    except PrintoutError as exc:
+    except (PrintoutError, OutputRefused) as exc:
         print(f"headplod glasses: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:

@@ -47,6 +47,8 @@ import cv2
 import numpy as np
 
 from .. import io
+from ..io.dataset import folder_inputs
+from ..io.files import Inputs
 from .base import CaptureFrame, FrameSource, SourceOpenError, _size_error, _skew_flag, to_gray
 from .synthetic import DEFAULT_SEQUENCE, ensure_dataset
 from .usb import list_cameras, resolve_rig_cameras
@@ -59,6 +61,7 @@ __all__ = [
     "open_source",
     "register_source",
     "source_forms",
+    "source_inputs",
     "source_kind",
     "synthetic_preset",
     "v4l2_devices",
@@ -594,3 +597,43 @@ register_source("dataset", "DATASET_FOLDER (an existing folder with rig.yaml, le
                 lambda text: Path(text).is_dir(), lambda text, **o: DatasetSource(text, **o))
 register_source("video", "LEFT_VIDEO,RIGHT_VIDEO (two video files, e.g. left.avi,right.avi)",
                 _accepts_video, _open_video)
+
+
+# --------------------------------------------------------------------------
+# what a source reads
+# --------------------------------------------------------------------------
+
+
+def source_inputs(spec: str | os.PathLike | None = None, source: FrameSource | None = None) -> Inputs:
+    """Every file and folder a replay reads (:class:`~headplod.io.files.Inputs`), for the outputs' checks.
+
+    With ``source`` (opened): what it reads, resolved through links (a
+    dataset's folders, files and each frame, :meth:`io.Dataset.inputs`; two
+    videos and the files read beside them). With ``spec`` alone (before
+    opening): what the spec names (a dataset folder, its ``left/``,
+    ``right/`` and files; two videos and the files beside them). Live
+    cameras and a synthetic spec not yet opened: nothing a user names.
+    """
+    if source is not None:
+        dataset = getattr(source, "dataset", None)
+        if dataset is not None:
+            return dataset.inputs()
+        paths = getattr(source, "paths", None)
+        return _video_inputs(paths) if paths else Inputs()
+    if spec is None or source_kind(spec) in ("v4l2", "synthetic"):
+        return Inputs()
+    text = os.fspath(spec).strip()
+    if Path(text).expanduser().is_dir():
+        return folder_inputs(Path(text).expanduser())
+    parts = _two_parts(text)
+    return _video_inputs(parts) if parts else Inputs()
+
+
+def _video_inputs(paths) -> Inputs:
+    """Two videos, and what :class:`VideoSource` reads beside the left one."""
+    left, right = (Path(p).expanduser() for p in paths)
+    inputs = Inputs().file("the left video being read", left).file("the right video being read", right)
+    for name in ("rig.yaml", "markers.yaml", "screen.yaml", "times.csv"):
+        if (left.parent / name).is_file():
+            inputs = inputs.file(f"the {name} being read beside the videos", left.parent / name)
+    return inputs

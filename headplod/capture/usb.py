@@ -698,7 +698,7 @@ def store_rig_cameras(rig_path, left_device: str, right_device: str, cameras: Se
         raise LookupError(f"{name} is not a video capture device here. {_present(cameras)}")
 
     rig = rig_with_cameras(io.read_rig(rig_path), find(left_device), find(right_device))
-    io.write_rig(rig_path, rig)
+    io.write_atomically(rig_path, lambda name: io.write_rig(name, rig), suffix=".tmp.yaml")   # whole or untouched
     return rig
 
 

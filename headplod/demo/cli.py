@@ -38,6 +38,7 @@ import numpy as np
 
 from .. import io
 from ..io import write_atomically
+from ..io.files import Inputs, OutputRefused, check_output
 from ..argtypes import add_quiet_argument, frame_count
 from ..render.scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_options, mesh_options_problem,
                                     terrain_for_command)
@@ -416,6 +417,25 @@ def write_chart(runs, viewpoints, path, title="") -> None:
 # --------------------------------------------------------------------------
 
 
+#: What a headless run writes in ``--out DIR`` (the other files there are left alone).
+OUT_ENTRIES = ("frames", "summary.json", "summary.png", "viewpoint_*.png")
+
+
+def _out_problem(args) -> str | None:
+    """Why the headless ``--out DIR`` may not be written (:mod:`headplod.io.files`: not a folder, a special
+    file where it writes, inside a folder being read or holding a file read), or None."""
+    from ..live.track_checks import track_inputs     # on use, as the tracker's other parts
+
+    inputs = Inputs() if getattr(args, "mouse", False) else track_inputs(args, args.source)
+    if getattr(args, "terrain", None):
+        inputs = inputs.file("the terrain being read (--terrain)", args.terrain)
+    try:
+        check_output(args.out, inputs, option="--out", folder=True, entries=OUT_ENTRIES)
+    except OutputRefused as exc:
+        return str(exc)
+    return None
+
+
 def run_demo(args) -> int:
     """Run ``headplod demo`` from parsed arguments; the exit status."""
     if args.frames < 1:
@@ -439,6 +459,10 @@ def run_demo(args) -> int:
     args.terrain_loaded, status = terrain_for_command(args, "headplod demo")
     if status is not None:
         return status
+    problem = _out_problem(args) if args.headless else None
+    if problem:
+        print(f"headplod demo: {problem}", file=sys.stderr)
+        return 2
     try:
         if args.headless:
             run_headless(args)

@@ -5,7 +5,8 @@ Everything the per-file modules of :mod:`headplod.io` have in common: the
 that names the file and key in its message, reading and writing OpenCV
 FileStorage YAML (``rig.yaml``, ``markers.yaml``, ``screen.yaml``), and the
 checks used by more than one kind of file (3-vectors, orthonormal axes and
-their tolerances). It imports no other module of the package.
+their tolerances). Of the package it imports only :mod:`headplod.io.files`
+(what an output may be).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +22,8 @@ from typing import Any, Callable, Mapping
 
 import cv2
 import numpy as np
+
+from .files import refuse_special
 
 # --------------------------------------------------------------------------
 # tolerances
@@ -243,6 +247,7 @@ def _positive_int(ctx: _Ctx, key: str, value: Any, hint: str | None = None) -> i
 
 
 def _open_for_write(path: str | Path) -> cv2.FileStorage:
+    refuse_special(path)                # OpenCV would open a FIFO and wait, or write into a device
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
     except (cv2.error, SystemError) as exc:
@@ -344,21 +349,44 @@ def write_atomically(path, write: Callable[[str], None], suffix: str = "") -> Pa
     ``path`` is whole or untouched: an interrupted or failed write leaves no
     partial file (the temporary one is removed). ``suffix`` ends the
     temporary name (a writer that picks its format from the ending needs
-    it). The file gets the permissions a plain write would give.
+    it). The file gets the permissions a plain write would give. A link is
+    written through: its target is replaced and the link stays.
+
+    A ``path`` that is this process's standard output (``/dev/stdout``,
+    ``/proc/self/fd/1``, or the file fd 1 goes to) is written in place: the
+    temporary file's bytes go to fd 1, and nothing is renamed. A device
+    node, FIFO or socket (or a link to one), standard input or standard
+    error is never replaced: :class:`~headplod.io.files.OutputRefused`,
+    before ``write`` is called.
     """
     target = Path(path).expanduser()
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=suffix, dir=target.resolve().parent)
+    if refuse_special(target, stream=True):
+        _write_to_stdout(write, suffix)
+        return target
+    final = os.path.realpath(target)
+    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(final)}.", suffix=suffix, dir=os.path.dirname(final))
     os.close(fd)
     try:
         write(tmp)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)          # mkstemp's 0600 is for the temporary name only
-        os.replace(tmp, target)
+        os.replace(tmp, final)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
     return target
+
+
+def _write_to_stdout(write: Callable[[str], None], suffix: str) -> None:
+    """``write`` to a temporary file, then its bytes to fd 1 (after what Python has buffered for it)."""
+    with tempfile.TemporaryDirectory(prefix="headplod-") as folder:
+        tmp = os.path.join(folder, f"output{suffix}")
+        write(tmp)
+        data = memoryview(Path(tmp).read_bytes())
+    sys.stdout.flush()
+    while data:
+        data = data[os.write(1, data):]
 
 
 class ProgressiveOutput:

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from ._storage import _Ctx
+from .files import Inputs
 from .markers import MarkerModel, default_marker_model, read_markers
 from .rig import Rig, read_rig
 from .screen import Screen, read_screen
@@ -403,3 +404,28 @@ class Dataset:
 
     def __repr__(self) -> str:
         return f"Dataset({str(self.folder)!r}, {len(self)} frames, {len(self.warnings)} warnings)"
+
+    def inputs(self) -> Inputs:
+        """Every file and folder this dataset reads, resolved through links (:class:`~headplod.io.files.Inputs`):
+        :func:`folder_inputs` and each frame's image."""
+        frames = [self.folder / side / f"{i:06d}.png" for side in ("left", "right") for i in sorted(self._files[side])]
+        return folder_inputs(self.folder).files("a frame being read", frames)
+
+
+#: The files of a dataset folder that its reader reads when present, and how messages name them.
+_READ_FILES = (("rig.yaml", "the rig being read"),
+               *((name, f"the {name} in the dataset folder being read")
+                 for name in ("markers.yaml", "screen.yaml", "times.csv", "truth.csv")))
+
+
+def folder_inputs(folder: str | Path) -> Inputs:
+    """What reading the dataset folder ``folder`` reads, by name, before it is read: the folder, its ``left/``
+    and ``right/`` folders (wherever their links lead) and the contract's files present beside them."""
+    folder = Path(folder)
+    inputs = Inputs().folder("the dataset folder being read", folder)
+    for side in ("left", "right"):
+        inputs = inputs.folder(f"the {side}/ folder in the dataset folder being read", folder / side)
+    for name, what in _READ_FILES:
+        if (folder / name).exists():
+            inputs = inputs.file(what, folder / name)
+    return inputs

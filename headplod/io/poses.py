@@ -17,6 +17,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .files import refuse_special
 from ._storage import AXES_TOL_READ, AXES_TOL_WRITE, ProgressiveOutput, _Ctx, _check_axes
 from ..tol import tol
 
@@ -186,7 +187,9 @@ class PoseWriter(ProgressiveOutput):
     Parameters
     ----------
     path : str or Path
-        Output file, or ``'-'`` for standard output (which is not closed).
+        Output file, or ``'-'`` for standard output (which is not closed);
+        a path that is standard output (``/dev/stdout``) is written in place
+        as ``'-'``, a link to a file is written through (the link stays).
         A file is written under its own name from the first record on, so
         that whatever ends the run (a crash, SIGKILL, a full disk) leaves
         every record written before it in ``path``. An existing ``path`` is
@@ -212,6 +215,9 @@ class PoseWriter(ProgressiveOutput):
     OSError
         When the file cannot be made (the folder is missing or not
         writable), or ``path`` is a folder; nothing is moved then.
+    headplod.io.files.OutputRefused
+        When ``path`` is a device node, FIFO or socket (or a link to one),
+        or standard input or error; nothing is touched.
     headplod.io.progressive.OutputBusy
         When another running headplod process writes ``path``.
 
@@ -237,13 +243,15 @@ class PoseWriter(ProgressiveOutput):
         self._claim = None
         self.count = 0
         self.notes: list[str] = []
-        if self.path == "-":
+        target = Path(self.path).expanduser()
+        if refuse_special(target, self.path, stream=True):      # '-', /dev/stdout, ...: written in place
             self._fh = sys.stdout
             self._owned = False
             return
-        target = Path(self.path).expanduser()
         if target.is_dir():
             raise IsADirectoryError(f"{self.path}: is a folder; give the file to write, e.g. {target / 'poses.jsonl'}")
+        if target.is_symlink():                                  # written through: the link stays a link
+            target = Path(os.path.realpath(target))
         self._claim = claim_output(target, what=self.path, describe=_count_records)
         self.notes = list(self._claim.notes)
         try:
@@ -257,6 +265,11 @@ class PoseWriter(ProgressiveOutput):
     @property
     def previous(self) -> Path | None:
         return None if self._claim is None else self._claim.previous
+
+    @property
+    def to_stdout(self) -> bool:
+        """True when the records go to standard output (``'-'``, or a path that is it), written in place."""
+        return not self._owned
 
     def write(self, record: Mapping[str, Any] | None = None, **fields: Any) -> dict:
         """Validate and write one record.
@@ -347,7 +360,7 @@ class PoseWriter(ProgressiveOutput):
         if fh is not None and self._owned:
             fh.close()
         if self._claim is not None:
-            self._claim.restore(lambda: Path(self.path).expanduser().unlink(missing_ok=True))
+            self._claim.restore(lambda: self._claim.path.unlink(missing_ok=True))
 
     def __repr__(self) -> str:
         return f"PoseWriter({self.path!r}, {self.count} records)"

@@ -39,6 +39,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
 
+from .files import OutputRefused, refuse_special, special_entry
+
 __all__ = ["OutputClaim", "OutputBusy", "claim_output", "killed_run", "previous_name", "unfinished_name",
            "MARKER_SUFFIX"]
 
@@ -282,6 +284,10 @@ def claim_output(path: str | Path, *, what: str, folder: bool = False, entries: 
 
     Raises
     ------
+    OutputRefused
+        When ``path`` is a device node, FIFO or socket (or a link to one), a
+        standard stream, or (``folder``) holds one among ``entries``: a
+        special file is never moved or deleted.
     OutputBusy
         When a live headplod process is writing ``path``.
     PermissionError
@@ -290,6 +296,11 @@ def claim_output(path: str | Path, *, what: str, folder: bool = False, entries: 
         When a move or the marker fails (what was moved is put back).
     """
     path = Path(path).expanduser()
+    refuse_special(path, what, folder=folder)      # never moved aside, never deleted: refused
+    bad = special_entry(path, entries or ("*",)) if folder and path.is_dir() else None
+    if bad is not None:
+        raise OutputRefused(f"{what}: its {bad[0]} is {bad[1]}, which would be moved and deleted; move it, or "
+                            "choose another folder", path=str(path))
     existing = path.resolve() if folder else path.resolve().parent
     while not existing.exists():                    # a folder output is made with its parents: the first that is
         existing = existing.parent
@@ -329,8 +340,8 @@ def claim_output(path: str | Path, *, what: str, folder: bool = False, entries: 
             _move_entries(path, claim.previous, entries)
         else:
             os.replace(path, claim.previous)
-    if folder:
-        path.mkdir(parents=True, exist_ok=True)
+    if folder:                                      # (through a link to nothing yet: where the link points)
+        Path(os.path.realpath(path)).mkdir(parents=True, exist_ok=True)
     marker = {"pid": os.getpid(), "host": socket.gethostname(), "started": _stamp_now(),
               "previous": None if claim.previous is None else str(claim.previous)}
     try:

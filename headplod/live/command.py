@@ -500,7 +500,8 @@ class _TrackRun:
         self.notes.report()
         _report_run(self.stats, self.sender, log, self.live or args.status)
         if failure is not None:
-            if isinstance(failure, OutputFailed) and isinstance(failure.cause, BrokenPipeError) and args.out == "-":
+            if isinstance(failure, OutputFailed) and isinstance(failure.cause, BrokenPipeError) and \
+                    _to_stdout(self.writer):
                 _silence_stdout()                       # else Python's own flush at exit fails again, loudly
             print(_early_end_line(failure, records, args, self.recorder, self.writer, kept), file=sys.stderr)
             _traceback_on_request(failure)
@@ -514,7 +515,7 @@ class _TrackRun:
         code = _report_rig(args, self.tracker, tracked=tracked, log=log)
         if args.record:
             print(f"recording: {args.record} (replay: headplod track --source {args.record})", file=log)
-        if args.out and args.out != "-":
+        if args.out and not _to_stdout(self.writer):
             print(f"pose records: {args.out}", file=log)
         if tracked == 0:
             print(f"headplod: no frame tracked (of {len(records)}); exit status {EXIT_NO_FRAME_TRACKED}",
@@ -627,7 +628,7 @@ def _early_end_line(failure: BaseException, records: list, args, recorder, write
         what = (f"internal error: {type(failure).__name__}: {' '.join(str(failure).split())[:200]} "
                 "(a bug: please report it; HEADPLOD_TRACEBACK=1 shows where)")
     where = []
-    if args.out and args.out != "-":
+    if args.out and not _to_stdout(writer):
         out = Path(args.out).expanduser()
         where.append(f"{writer.count} records in {args.out}" if out.exists() else f"no records ({args.out} is gone)")
     if recorder is not None:
@@ -639,6 +640,11 @@ def _early_end_line(failure: BaseException, records: list, args, recorder, write
                      f"replaced is kept as {path}")
     return (f"headplod: the run ended early after {n} frames: {what}"
             + (f"; kept: {'; '.join(where)}" if where else ""))
+
+
+def _to_stdout(writer) -> bool:
+    """Whether the records go to standard output: ``--out -``, or a path that is it (``/dev/stdout``)."""
+    return writer is not None and writer.to_stdout
 
 
 def _silence_stdout() -> None:

@@ -27,7 +27,9 @@ import numpy as np
 from .. import io
 from ..argtypes import add_quiet_argument
 from ..capture import synthetic_preset
+from ..io.files import Inputs, OutputRefused, check_output, file_id
 from .pivot import PIVOT_FILE, PivotFitConfig, fit_pivot, write_pivot
+from .track_checks import Usage as _Usage, track_inputs
 
 __all__ = ["add_pivot_arguments", "run_pivot"]
 
@@ -74,6 +76,21 @@ def _default_out(args, source, live: bool, spec: str) -> Path | None:
     return Path(dataset.folder) / PIVOT_FILE if dataset is not None else None
 
 
+def _check_out(args, spec=None, source=None, rig=None) -> None:
+    """Refuse an ``--out`` that is a special file or a file the run reads (raises the commands' _Usage). Its
+    default place is in the dataset folder: that folder may hold it, not its ``left/`` and ``right/``."""
+    if not args.out:
+        return
+    dataset = getattr(getattr(source, "dataset", None), "folder", None) or spec
+    home = file_id(dataset) if dataset and Path(dataset).expanduser().is_dir() else None
+    inputs = Inputs(tuple(item for item in track_inputs(args, spec, source, rig)
+                          if not (item.folder and home is not None and item.id.same(home))))
+    try:
+        check_output(args.out, inputs, option="--out", stream=True)
+    except OutputRefused as exc:
+        raise _Usage(str(exc)) from None
+
+
 def run_pivot(args, clock: Callable[[], float] = time.monotonic) -> int:
     """Run ``headplod pivot`` from parsed arguments; the exit status.
 
@@ -92,10 +109,16 @@ def run_pivot(args, clock: Callable[[], float] = time.monotonic) -> int:
         return 2
     spec = args.source
     opener = argparse.Namespace(calib=args.calib, fps=60.0, fourcc=None, exposure=None, gain=None, quiet=args.quiet)
-    opened = open_source_or_report(opener, spec)
+    opened = open_source_or_report(opener, spec, lambda spec: _check_out(args, spec=spec))
     if isinstance(opened, int):
         return opened
     source, rig, live = opened
+    try:
+        _check_out(args, source=source, rig=rig)
+    except _Usage as exc:
+        source.close()
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
     log = sys.stderr
     positions, axes = [], []
     seen = {"start": None, "printed": None}         # the time starts with the first frame, not the camera's start-up

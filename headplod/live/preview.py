@@ -74,11 +74,13 @@ from ..argtypes import add_quiet_argument, frame_count
 from ..capture import open_source, source_kind, synthetic_preset, v4l2_devices
 from ..capture.synthetic import ensure_dataset
 from ..capture.command import DEFAULT_FPS, add_camera_settings
+from ..io.files import OutputRefused, check_output
 from ..progress import Progress
 from ..tracking.detect import DetectionParams, detect_blobs, estimate_background
 from .preview_analysis import (AdviceSettings, FrameAnalysis, ViewAnalysis, advise, box_counts, epipolar_curves,
                                threshold_mask)
 from .preview_picture import NO_RIG_NOTE, composite_size, render
+from .track_checks import track_inputs
 
 __all__ = ["add_preview_arguments", "run_preview", "Previewer", "HEADLESS_FRAMES", "OUT_NAME"]
 
@@ -88,6 +90,8 @@ HEADLESS_FRAMES = 10
 OUT_NAME = "preview_{:04d}.png"
 #: The names OUT_NAME gives, with the frame number as group 1 (pictures past 9999 take more digits).
 _OUT_PATTERN = re.compile(r"preview_(\d{4,})\.png")
+#: The pictures' names as a glob pattern (what --out DIR's check looks at).
+OUT_GLOB = "preview_*.png"
 #: Frame rate requested from live cameras when ``--fps`` is not given, Hz (as ``headplod track``).
 LIVE_FPS = DEFAULT_FPS
 #: Title of the window.
@@ -320,12 +324,9 @@ def _check_usage(args) -> tuple[str, Path | None, int | None]:
     out = None
     if args.out:
         out = Path(args.out).expanduser()
-        if out.exists() and not out.is_dir():
-            raise _Usage(f"--out {args.out}: is a file; give a folder for the pictures")
+        _check_out(args, spec=spec)
         if not out.resolve().parent.is_dir():
             raise _Usage(f"--out {args.out}: the folder {out.parent} does not exist; create it first")
-        if Path(spec).expanduser().is_dir():
-            _check_not_inside(out, Path(spec).expanduser(), args.out)
     else:
         problem = window_problem()
         if problem:
@@ -335,11 +336,15 @@ def _check_usage(args) -> tuple[str, Path | None, int | None]:
     return spec, out, frames
 
 
-def _check_not_inside(out: Path, folder: Path, given: str) -> None:
-    resolved, folder = out.resolve(), folder.resolve()
-    if resolved == folder or folder in resolved.parents:
-        raise _Usage(f"--out {given}: lies inside the dataset folder being read ({folder}), which is never "
-                     "written to; write the pictures elsewhere")
+def _check_out(args, spec: str | None = None, source=None) -> None:
+    """Refuse an ``--out DIR`` that is not a folder (a file, a special file), holds a special file among its
+    pictures, or lies inside a folder being read or holds a file read as a picture's name (raises _Usage;
+    :mod:`headplod.io.files`): by ``spec`` before the source is opened, by ``source`` after."""
+    try:
+        check_output(args.out, track_inputs(args, spec, source), option="--out", folder=True,
+                     entries=(OUT_GLOB,), fix="write the pictures elsewhere")
+    except OutputRefused as exc:
+        raise _Usage(str(exc)) from None
 
 
 def _open(args, spec: str, windowed: bool):
@@ -381,10 +386,9 @@ def run_preview(args) -> int:
 
 def _run(args, source, rig, markers, requested, out: Path | None, frames: int | None) -> int:
     """The frames of an open source to the folder or the window; the exit status."""
-    dataset = getattr(source, "dataset", None)
-    if out is not None and dataset is not None:
+    if out is not None:
         try:
-            _check_not_inside(out, Path(dataset.folder), args.out)
+            _check_out(args, source=source)
         except _Usage as exc:
             print(f"headplod: preview: {exc}", file=sys.stderr)
             return 2

@@ -23,6 +23,7 @@ import numpy as np
 from calib import DEFAULT_SCREEN
 
 from .. import io
+from ..io.files import Inputs, OutputRefused, check_files
 from ..plod.export import check_export_path
 from ..argtypes import add_quiet_argument, floats, gaze_prior, level_bias, triangle_budget
 from ..progress import note
@@ -169,6 +170,21 @@ def _output_problem(path, image: bool = False) -> str | None:
     return None
 
 
+def _outputs_problem(args) -> str | None:
+    """Why ``--out``, ``--stats`` or ``--export`` may not be written (:mod:`headplod.io.files`: a special file,
+    a file the run reads, or one of them twice), or None."""
+    inputs = Inputs()
+    for option, what in (("screen", "the screen being read"), ("terrain", "the terrain being read")):
+        if getattr(args, option, None):
+            inputs = inputs.file(f"{what} (--{option})", getattr(args, option))
+    try:
+        check_files([("--out", args.out), ("--stats", args.stats), ("--export", getattr(args, "export", None))],
+                    inputs)
+    except OutputRefused as exc:
+        return str(exc)
+    return None
+
+
 def run_render(args) -> int:
     """Run ``headplod render`` from parsed arguments; the exit status."""
     screen = io.read_screen(args.screen or DEFAULT_SCREEN)
@@ -183,7 +199,8 @@ def run_render(args) -> int:
     if min(size) < 1 or max(size) > 16384 or any(v != int(v) for v in args.size):
         print(f"headplod: --size must be two whole numbers of pixels in 1..16384, got {args.size}", file=sys.stderr)
         return 2
-    problem = _output_problem(args.out, image=True) or (args.stats and _output_problem(args.stats))
+    problem = _outputs_problem(args) or _output_problem(args.out, image=True) or (args.stats and
+                                                                                 _output_problem(args.stats))
     if problem:
         print(f"headplod: {problem}", file=sys.stderr)
         return 2
