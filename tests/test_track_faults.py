@@ -190,3 +190,12 @@ def test_markers_all_at_one_point_are_not_called_metres(sample, tmp_path, capsys
 def test_an_ipv6_udp_address_is_shown_in_brackets():
     with OpentrackSender("::1", 4242) as sender:
         assert sender.where == "[::1]:4242"
+
+
+def test_an_output_file_spelled_as_a_folder_is_refused(sample, tmp_path, capsys):
+    """``--out poses/`` (a folder that does not exist) wrote a file named ``poses``."""
+    target = tmp_path / "poses"
+    assert cli_main(["track", "--source", str(sample), "--out", f"{target}/", "-q"]) == 2
+    line = _one_line_error(capsys.readouterr().err)
+    assert "ends with '/'" in line and f"{target}/" in line, line
+    assert not os.path.lexists(target)

@@ -296,6 +296,9 @@ def output_kind(path, *, option: str = "", folder: bool = False, stream: bool = 
     except OSError as exc:
         if exc.errno == errno.ELOOP:
             raise OutputRefused(f"{name}: is a loop of symbolic links; give another name", option, given) from None
+        if not folder and given.endswith(("/", os.sep)):       # 'poses/' names a folder, not a file 'poses'
+            raise OutputRefused(f"{name}: ends with '/', which names a folder; give the file to write (a "
+                                "name without the '/')", option, given) from None
         return OutputKind.MISSING
     except ValueError:
         return OutputKind.MISSING
