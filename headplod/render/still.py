@@ -368,7 +368,8 @@ def write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> 
     """Write the image (RGB (H, W, 3) uint8; format from the ending) and the stats (JSON), each whole or not at all.
 
     Raises ValueError when OpenCV cannot encode the image (an ending it does
-    not know) and OSError when a file cannot be written.
+    not know) and OSError when a file cannot be written; the OSError names
+    ``out`` or ``stats_path`` as given, never the temporary name written first.
     """
     if out:
         out = Path(out)
@@ -384,7 +385,18 @@ def write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> 
                               str(out))
             if not written:
                 raise ValueError(f"{out}: OpenCV could not write an image there (use .png or .jpg)")
-        write_atomically(out, write_image, suffix=out.suffix)
+        _write_named(out, write_image, suffix=out.suffix)
     if stats_path:
         Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
-        write_atomically(stats_path, lambda name: Path(name).write_text(json.dumps(stats, indent=2)))
+        _write_named(stats_path, lambda name: Path(name).write_text(json.dumps(stats, indent=2)))
+
+
+def _write_named(path, write, suffix: str = "") -> None:
+    """:func:`headplod.io.write_atomically`, with an OSError of the write itself re-raised naming ``path``: the
+    temporary name it writes first means nothing to the person who named ``path``."""
+    try:
+        write_atomically(path, write, suffix=suffix)
+    except OSError as exc:
+        if exc.filename is None or str(exc.filename) == str(path):
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
