@@ -11,7 +11,13 @@ uncertainty scenario, then ``full`` (every triangle at the finest level), each
 for N frames of the same poses; it writes a few frames per run, a level-colour
 picture per viewpoint with the POI and its 2σ ellipse, ``summary.json`` and
 ``summary.png``, and prints a table with each run's frame rate against
-``full``'s on the same viewpoint. With ``--foveate`` the mode's runs are
+``full``'s on the same viewpoint. A pose source shorter than ``--frames``
+(the built-in sequence has 150 frames, a recording its own) is not replayed:
+the runs end with it, the table and ``summary.json`` say how many frames ran
+(``frames_per_run``, with ``frames_asked``), and each run writes its last
+frame. ``--out`` is checked before anything runs: a place no folder can be
+made or filled is refused (exit 2); the folder is made when its first file is
+written, and the table names only the folders written. With ``--foveate`` the mode's runs are
 repeated with foveated resolution layers (:mod:`headplod.render.foveate`),
 interleaved with the others, and a picture per viewpoint shows the layers.
 
@@ -27,6 +33,7 @@ Also runnable as ``python -m headplod.demo.cli``.
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import resource
 import sys
@@ -47,6 +54,7 @@ from ..plod.select import MODES
 from ..render.command import (add_cost_arguments, add_csf_argument, add_gaze_prior_argument, raymask_config,
                               selection_options)
 from ..render.frame import DEMO_BACKENDS, capability_table, default_mode, options_problem
+from ..render.outputs import OutputNotWritable, check_writable
 from ..render.still import FULL_MAX_LEVEL, mesh_stats
 from . import loop as lp
 from .keys import key_help
@@ -184,17 +192,23 @@ def resolve_mode(args) -> str:
     return backend
 
 
-def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None) -> dict:
+def run_headless(args, out=None, err=None, scene=None, renderer=None) -> dict:
     """The headless benchmark run; returns the summary (also written to ``args.out``).
 
     ``scene`` (a TerrainScene for the poses' screen) and ``renderer`` (at
     ``args.size``) may be passed in to reuse them (tests); they are made here
-    otherwise.
+    otherwise, the renderer's context first (a broken EGL ends the run before
+    the poses are opened or the mesh built, and before anything is written).
+    ``out``, ``err``: the table's and the notes' streams (default: standard output and error as they are now).
     """
+    out, err = out or sys.stdout, err or sys.stderr
     resolve_mode(args)
     start = time.perf_counter()
+    if renderer is None:
+        renderer = TerrainRenderer(create_context(), size=tuple(args.size))
+    elif tuple(renderer.size) != tuple(args.size):
+        raise ValueError(f"run_headless: the renderer is {renderer.size}, --size is {tuple(args.size)}")
     folder = Path(args.out)
-    (folder / "frames").mkdir(parents=True, exist_ok=True)
     first = make_poses(args, frames=1)          # opens (and on first use renders) the source; gives the screen
     screen = first.screen
     source_name = first.name
@@ -203,10 +217,6 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
         note(f"demo: building the terrain mesh; poses from {source_name}", stream=err)
     if scene is None:
         scene = mesh_options(args).build(screen, getattr(args, "terrain_loaded", None))
-    if renderer is None:
-        renderer = TerrainRenderer(create_context(), size=tuple(args.size))
-    elif tuple(renderer.size) != tuple(args.size):
-        raise ValueError(f"run_headless: the renderer is {renderer.size}, --size is {tuple(args.size)}")
     groups = _plan(args)
     # One renderer per run of a group: each keeps its mesh on the GPU between its frames.
     renderers = [renderer] + [TerrainRenderer(renderer.ctx, size=tuple(args.size))
@@ -220,7 +230,8 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
         for extra in renderers[1:]:
             extra.release()
     ratios = _ratios(runs, args)
-    summary = {"size": list(args.size), "frames_per_run": args.frames, "poses": source_name,
+    summary = {"size": list(args.size), "frames_per_run": min(r["frames"] for r in runs),
+               "frames_asked": args.frames, "poses": source_name,
                "mode": args.mode, "cost": selection_options(args),
                "viewpoints": {vp: VIEWPOINTS[vp].description for vp in args.viewpoints},
                "fps_ratio_to_full": ratios, "pictures": pictures, "runs": runs, "mesh": mesh_stats(scene.mesh),
@@ -234,6 +245,7 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
                         "whose cases changed uploads its compact vertex table and indices",
                "wall_s": None}
     chart = folder / "summary.png"
+    folder.mkdir(parents=True, exist_ok=True)
     write_chart(runs, args.viewpoints, chart, title=f"{args.size[0]}x{args.size[1]}, {source_name}")
     summary["chart"] = str(chart)
     summary["wall_s"] = round(time.perf_counter() - start, 1)
@@ -273,14 +285,12 @@ def _run_group(args, plan, scene, screen, renderers, folder, progress, pictures,
                                  # full is the reference: no bias, no budget
                                  selector_options=selection_options(args) if mode == args.mode else None))
         written.append([])
+    stems = ["_".join(p[:3]) + ("_foveate" if p[3] else "") for p in plan]
     try:
         for k, result in _interleaved(demos, args.frames):
-            stem = "_".join(plan[k][:3]) + ("_foveate" if plan[k][3] else "")
             if result.index in keep:
-                path = folder / "frames" / f"{stem}_{result.index:03d}.png"
-                cv2.imwrite(str(path), cv2.cvtColor(result.image, cv2.COLOR_RGB2BGR))
-                written[k].append(str(path))
-            progress.step(f"{stem} {result.frame_ms:.0f} ms")
+                written[k].append(_write_png(folder / "frames" / f"{stems[k]}_{result.index:03d}.png", result.image))
+            progress.step(f"{stems[k]} {result.frame_ms:.0f} ms")
     finally:
         tee.close()
     records = []
@@ -288,6 +298,9 @@ def _run_group(args, plan, scene, screen, renderers, folder, progress, pictures,
         demo = demos[k]
         if demo.last is None:
             raise RuntimeError(f"the pose source gave no frame ({source_name})")
+        if demo.index < args.frames and keep and demo.last.index not in keep:   # the poses ended early
+            written[k].append(_write_png(folder / "frames" / f"{stems[k]}_{demo.last.index:03d}.png",
+                                         demo.last.image))
         _pictures(args, demo, vp, mode, scenario, foveate, folder, pictures)
         s = demo.stats
         mesh = {**mesh_stats(demo.base_scene.mesh), "cache_bytes_max": max(s.cache_bytes, default=None)}
@@ -308,15 +321,22 @@ def _pictures(args, demo, vp, mode, scenario, foveate, folder, pictures) -> None
         path = folder / f"viewpoint_{vp}_layers.png"
         caption = (f"{vp}: {mode} --foveate, {scenario}, level colours; layer borders (scale), "
                    "POI and 2-sigma ellipse")
-        cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
-        pictures[f"{vp} foveate"] = str(path)
+        pictures[f"{vp} foveate"] = _write_png(path, demo.picture("levels", caption))
     if mode == args.mode and not foveate and (scenario == "adaptive" or vp not in pictures):
         pose = demo.last.pose
         sigma = np.sqrt(np.max(np.diag(pose.cov_deg2))) if pose.cov_deg2 is not None else 0
         caption = f"{vp}: {mode}, {scenario}, level colours; POI and 2-sigma ellipse (sigma {sigma:.2f} deg)"
         path = folder / f"viewpoint_{vp}_levels.png"
-        cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
-        pictures[vp] = str(path)
+        pictures[vp] = _write_png(path, demo.picture("levels", caption))
+
+
+def _write_png(path: Path, image: np.ndarray) -> str:
+    """Write ``image`` ((H, W, 3) uint8 RGB) to ``path`` (PNG), its folder made first; the path as a string.
+    OSError naming ``path`` when OpenCV cannot write it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+        raise OSError(errno.EIO, "the image could not be written (is the disk full?)", str(path))
+    return str(path)
 
 
 def _ratios(runs, args) -> dict:
@@ -345,11 +365,14 @@ def _rss_mb() -> float:
         return int(f.read().split()[1]) * resource.getpagesize() / 2 ** 20
 
 
-def print_table(summary: dict, out=sys.stdout) -> None:
-    """The short table of the runs, the csf/full ratio per viewpoint and where the pictures are."""
+def print_table(summary: dict, out=None) -> None:
+    """The short table of the runs, the csf/full ratio per viewpoint and where the pictures are (to ``out``;
+    default: standard output)."""
+    out = out or sys.stdout
     w, h = summary["size"]
-    print(f"\nheadless demo, {w}x{h}, {summary['frames_per_run']} frames per run, poses: {summary['poses']}",
-          file=out)
+    ran, asked = summary["frames_per_run"], summary.get("frames_asked", summary["frames_per_run"])
+    short = f" (asked for {asked}: the poses ended after {ran})" if ran < asked else ""
+    print(f"\nheadless demo, {w}x{h}, {ran} frames per run{short}, poses: {summary['poses']}", file=out)
     print(f"{'viewpoint':<10} {'mode':<8} {'scenario':<9} {'fps':>6} {'frame ms':>9} {'select':>7} {'build':>6} "
           f"{'render':>7} {'triangles':>10} {'x full':>7} {'saccade':>7} {'lost':>5}", file=out)
     for r in summary["runs"]:
@@ -374,8 +397,8 @@ def print_table(summary: dict, out=sys.stdout) -> None:
         print(f"mesh: {m['kind']}, level {m['max_level']} ({m['full_triangles']:,} triangles at full detail)"
               f"{cache}; RSS {summary['rss_mb']:.0f} MB (peak {summary['peak_rss_mb']:.0f} MB)", file=out)
     folder = Path(summary["chart"]).parent
-    print(f"frames: {folder / 'frames'}/   summary: {folder / 'summary.json'}, {summary['chart']}   "
-          f"({summary['wall_s']} s)", file=out)
+    frames = f"frames: {folder / 'frames'}/   " if any(r["frames_png"] for r in summary["runs"]) else ""
+    print(f"{frames}summary: {folder / 'summary.json'}, {summary['chart']}   ({summary['wall_s']} s)", file=out)
 
 
 def write_chart(runs, viewpoints, path, title="") -> None:
@@ -435,6 +458,12 @@ def run_demo(args) -> int:
               f"triangles, which do not fit; the full runs are skipped (as --no-full: no ratio to full)",
               file=sys.stderr)
         args.no_full = True
+    if args.headless:                   # where it writes, before anything runs
+        try:
+            check_writable(args.out, folder=True)
+        except OutputNotWritable as exc:
+            print(f"headplod demo: --out {args.out}: {exc}", file=sys.stderr)
+            return 2
     # The terrain file is read (and any problem reported) before anything is written; None: the built-in one.
     args.terrain_loaded, status = terrain_for_command(args, "headplod demo")
     if status is not None:
