@@ -144,7 +144,9 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     add_mesh_arguments(parser.add_argument_group("mesh"))
     head = parser.add_argument_group("headless run")
     head.add_argument("--headless", action="store_true", help="run offscreen and write frames and a summary")
-    head.add_argument("--frames", type=frame_count, default=30, help="frames per run (default 30)")
+    head.add_argument("--frames", type=frame_count, default=30,
+                      help="frames per run (default 30); a shorter pose source (the built-in sequence has 150) "
+                           "ends the runs with it, and the table says how many frames ran")
     head.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     head.add_argument("--viewpoints", type=_names(tuple(VIEWPOINTS)), default=list(VIEWPOINTS),
                       help="comma-separated viewpoints to run (default all three)")

@@ -8,7 +8,9 @@
                     [--terrain DEM.tif|HEIGHTS.png|HEIGHTS.npy [--spacing-m D|DX,DY] [--height-scale S]]
                     [--max-level 1..8] [--lazy] [--cache-mb MB]
 
-Exit status: 0 on success, 1 on a broken input file, 2 on bad usage.
+Exit status: 0 on success, 1 on a failed run (a broken input file, no OpenGL context, a write that failed), 2 on
+bad usage (options that cannot work together, a view from on or behind the screen plane, an output that cannot be
+written there), each with one line on standard error; bad usage is found before anything is drawn or written.
 """
 from __future__ import annotations
 
@@ -105,7 +107,9 @@ def add_cost_arguments(parser) -> None:
                              "triangles for image error in every mode alike")
     parser.add_argument("--budget", type=triangle_budget, default=None, metavar="TRIANGLES",
                         help="meet this many triangles a frame within 3%%: the level bias is found per frame "
-                             "(bisection), so modes can be compared at equal cost (mesh back end)")
+                             "(bisection), so modes can be compared at equal cost (mesh back end); a budget beyond "
+                             "what the view allows is not met, and render's summary and --stats say so, with the "
+                             "nearest count")
 
 
 def add_csf_argument(parser) -> None:
