@@ -81,6 +81,57 @@ def test_a_head_behind_or_on_the_screen_plane_is_bad_usage_found_before_renderin
     assert _digest(out) == digest and sorted(p.name for p in out.parent.iterdir()) == ["x.png"]
 
 
+def test_an_eye_beyond_the_far_plane_is_bad_usage_found_before_rendering(earlier_output, no_rendering, capsys):
+    """Found by trying it: --head=0,0,1e300 overflowed into a traceback; 6 m away everything is clipped."""
+    out, digest = earlier_output
+    for head in ("0,0,1e300", "0,0,6000"):
+        assert cli_main(["render", *TINY, f"--head={head}", "--out", str(out)]) == 2
+        line = _one_line(capsys.readouterr().err)
+        assert line.startswith("headplod: --head") and "beyond the far clip plane" in line, line
+    assert _digest(out) == digest
+
+
+def test_a_screen_whose_corners_face_the_cameras_is_bad_usage_naming_it(tmp_path, earlier_output, no_rendering,
+                                                                          default_screen, capsys):
+    """Found by trying it: a screen.yaml with top_left and top_right swapped (seen from behind) put the default eye
+    behind it: a traceback. Now one line naming --screen, before rendering."""
+    from headplod import io
+
+    flipped = tmp_path / "flipped.yaml"
+    io.write_screen(flipped, io.Screen(default_screen.size_px, default_screen.top_right, default_screen.top_left,
+                                       default_screen.top_right + default_screen.bottom_left
+                                       - default_screen.top_left))
+    out, digest = earlier_output
+    assert cli_main(["render", *TINY, "--screen", str(flipped), "--out", str(out)]) == 2
+    line = _one_line(capsys.readouterr().err)
+    assert line.startswith(f"headplod: --screen {flipped}: ") and "behind the screen plane" in line, line
+    assert _digest(out) == digest
+
+
+@needs_gl
+@pytest.mark.parametrize("mode", ["hybrid", "change", "csf"])
+def test_a_view_that_sees_no_base_triangle_draws_them_all_at_level_0(tmp_path, mode, capsys):
+    """Found by trying it: an eye far off to a side (in front, nearer than the far plane) whose view of the
+    screen catches no base triangle crashed the hybrid mode's selection (a reshape of nothing)."""
+    out, stats = tmp_path / "x.png", tmp_path / "s.json"
+    assert cli_main(["render", *TINY, "--max-level", "2", "--mode", mode, "--head=3000,3000,3000",
+                     "--out", str(out), "--stats", str(stats)]) == 0
+    s = json.loads(stats.read_text())
+    assert s["triangles"] == 32 * 32 * 2 and s["triangles_per_level"][0] == s["triangles"]
+    assert out.stat().st_size > 0
+
+
+def test_two_outputs_naming_one_file_are_refused(tmp_path, earlier_output, no_rendering, capsys):
+    """Found by trying it: render --out x.png --stats x.png wrote the stats over the image, exit 0."""
+    out, digest = earlier_output
+    (tmp_path / "link.png").symlink_to(out.name)
+    for stats in (out, tmp_path / "link.png", tmp_path / "sub" / ".." / "x.png"):
+        assert cli_main(["render", *TINY, "--out", str(out), "--stats", str(stats)]) == 2
+        line = _one_line(capsys.readouterr().err)
+        assert f"--stats {stats} is the same file as --out {out}" in line, line
+    assert _digest(out) == digest
+
+
 def test_the_view_rule_is_the_screens_and_raises_a_typed_error(default_screen):
     """The rule lives with the screen: the eye's side of its plane; off_axis_projection raises the same error."""
     from headplod.io import ViewError

@@ -119,12 +119,14 @@ class Screen:
         eye = np.asarray(eye_mm, dtype=np.float64).reshape(-1)
         return float(np.dot(self.normal, self.top_left - eye))
 
-    def check_eye(self, eye_mm: Any) -> float:
+    def check_eye(self, eye_mm: Any, far_mm: float | None = None) -> float:
         """The :meth:`eye_distance_mm` of an eye a view can be drawn from; raises :class:`ViewError` otherwise.
 
         The eye ((3,) world frame, mm) must be 3 finite numbers on the side the screen is seen from, farther
         from the plane than ``tol.small`` of the screen's longer side (on the plane, the window has no depth:
-        every point behind it projects to its edge).
+        every point behind it projects to its edge), and with ``far_mm`` (the far clip plane's distance from
+        the eye, parallel to the screen, mm) nearer than that: from farther, everything behind the screen is
+        clipped.
         """
         eye = np.asarray(eye_mm, dtype=np.float64).reshape(-1)
         if eye.shape != (3,) or not np.isfinite(eye).all():
@@ -136,6 +138,10 @@ class Screen:
                      else f"behind the screen plane, {-d:.4g} mm behind it")
             raise ViewError(f"the eye {np.round(eye, 3).tolist()} mm is {where}; it must be in front of the screen, "
                             "on the viewer's side")
+        if far_mm is not None and not d < far_mm:
+            raise ViewError(f"the eye {np.round(eye, 3).tolist()} mm is {d:.4g} mm in front of the screen plane, "
+                            f"beyond the far clip plane ({far_mm:g} mm from the eye): everything behind the screen "
+                            "would be clipped")
         return d
 
     def pixel_to_world(self, xy_px: Any) -> np.ndarray:

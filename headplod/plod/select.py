@@ -434,8 +434,11 @@ class LevelSelector:
         seen = np.flatnonzero(~self._outside_screen(eye))
         ecc = np.full(len(rel), np.nan)
         continuous = np.zeros(len(rel))
-        ecc[seen], continuous[seen] = self._criterion(seen, eye, shifted[seen], distance[seen], directions[seen],
-                                                      speed[seen], gaze)
+        if len(seen):
+            ecc[seen], continuous[seen] = self._criterion(seen, eye, shifted[seen], distance[seen],
+                                                          directions[seen], speed[seen], gaze)
+        else:                                    # nothing in view (an eye far off to a side): all at level 0
+            self._visibility = np.zeros((0, self.max_level + 1))
         budget_bias, budget_reach = 0.0, None
         if cfg.budget_triangles is not None:
             budget_bias, continuous[seen], budget_reach = self._budget_bias(continuous, seen, ecc[seen])

@@ -15,6 +15,7 @@ written there), each with one line on standard error; bad usage is found before 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -35,7 +36,8 @@ from .scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_opti
                             terrain_for_command)
 from ..plod.select import (DEFAULT_CSF_MODEL, GAZE_DISTRIBUTION_MODES, GAZE_PRIOR_DEG, MAX_GAZE_PRIOR_DEG, MODES,
                            UNCERTAINTY_MODES, SelectorConfig)
-from .frame import BACKENDS, CAPABILITIES, VIEW_MODES, FrameSettings, capability_table, default_mode, options_problem
+from .frame import (BACKENDS, CAPABILITIES, FAR_MM, VIEW_MODES, FrameSettings, capability_table, default_mode,
+                    options_problem)
 from .still import CONTRAST_SOURCES, MeshOptions, StillSettings, default_head, render_still, scene_model
 from .context import create_context
 from .gl import TerrainRenderer
@@ -203,14 +205,37 @@ def _usage_problem(args, screen) -> str | None:
         problem = _output_problem("--export", args.export)
         if problem:
             return problem
-    return _view_problem(args.head, screen, args.screen)
+    return _same_outputs_problem(args) or _view_problem(args.head, screen, args.screen)
+
+
+def _same_outputs_problem(args) -> str | None:
+    """Two of ``--out``, ``--stats`` and ``--export`` naming one file (however spelled: symbolic links, ``..``,
+    hard links): the later write would replace the earlier output. One line, or None."""
+    named = [(option, path) for option, path in (("--out", args.out), ("--stats", args.stats),
+                                                 ("--export", args.export)) if path]
+    for k, (option, path) in enumerate(named):
+        for other, other_path in named[:k]:
+            if _same_file(path, other_path):
+                return f"{option} {path} is the same file as {other} {other_path}; name two files"
+    return None
+
+
+def _same_file(a, b) -> bool:
+    """Whether paths ``a`` and ``b`` name one file: the same real path, or (both existing) the same inode."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:                  # one of them does not exist yet: the real paths decided
+        return False
 
 
 def _view_problem(head, screen, screen_path=None) -> str | None:
     """Why no frame can be drawn from ``head`` ((3,) world mm; None: :func:`default_head`) on ``screen`` (read
-    from ``screen_path``; None: the embedded one): :meth:`headplod.io.Screen.check_eye`'s reason; or None."""
+    from ``screen_path``; None: the embedded one): :meth:`headplod.io.Screen.check_eye`'s reason (on or behind the
+    screen plane, or beyond the frame's far clip plane, :data:`~headplod.render.frame.FAR_MM`); or None."""
     try:
-        screen.check_eye(default_head(screen) if head is None else head)
+        screen.check_eye(default_head(screen) if head is None else head, far_mm=FAR_MM)
     except ViewError as exc:
         if head is not None:
             return f"--head {','.join(f'{v:g}' for v in head)}: {exc}"
