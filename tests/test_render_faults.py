@@ -109,6 +109,28 @@ def test_a_screen_whose_corners_face_the_cameras_is_bad_usage_naming_it(tmp_path
 
 
 @needs_gl
+def test_demo_on_a_recording_whose_screen_faces_away_is_one_line_before_any_frame(tmp_path, sweep12_dir,
+                                                                                default_screen, capsys):
+    """Found by trying it: a recording's screen.yaml seen from behind failed the demo at its first frame with a
+    line that named neither the screen nor what to check. Now found once the poses are opened, before the mesh."""
+    import shutil
+
+    from headplod import io
+
+    source = tmp_path / "ds"
+    shutil.copytree(sweep12_dir, source)
+    io.write_screen(source / "screen.yaml", io.Screen(default_screen.size_px, default_screen.top_right,
+                                                      default_screen.top_left, default_screen.top_right
+                                                      + default_screen.bottom_left - default_screen.top_left))
+    folder = tmp_path / "demo"
+    assert cli_main(["demo", "--headless", "-q", "--source", str(source), "--frames", "3", "--viewpoints", "overview",
+                     "--scenarios", "adaptive", "--no-full", "--max-level", "2", *TINY, "--out", str(folder)]) == 1
+    line = _one_line(capsys.readouterr().err)
+    assert "faces away from the cameras" in line and "top_left, top_right and bottom_left" in line, line
+    assert not folder.exists()
+
+
+@needs_gl
 @pytest.mark.parametrize("mode", ["hybrid", "change", "csf"])
 def test_a_view_that_sees_no_base_triangle_draws_them_all_at_level_0(tmp_path, mode, capsys):
     """Found by trying it: an eye far off to a side (in front, nearer than the far plane) whose view of the

@@ -44,7 +44,7 @@ import cv2
 import numpy as np
 
 from .. import io
-from ..io import write_atomically
+from ..io import ViewError, write_atomically
 from ..argtypes import add_quiet_argument, frame_count
 from ..render.scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_options, mesh_options_problem,
                                     terrain_for_command)
@@ -55,7 +55,7 @@ from ..render.command import (add_cost_arguments, add_csf_argument, add_gaze_pri
                               selection_options)
 from ..render.frame import DEMO_BACKENDS, capability_table, default_mode, options_problem
 from ..render.outputs import OutputNotWritable, check_writable
-from ..render.still import FULL_MAX_LEVEL, mesh_stats
+from ..render.still import FULL_MAX_LEVEL, default_head, mesh_stats
 from . import loop as lp
 from .keys import key_help
 from .poses import make_poses
@@ -215,6 +215,7 @@ def run_headless(args, out=None, err=None, scene=None, renderer=None) -> dict:
     screen = first.screen
     source_name = first.name
     first.close()
+    _check_screen_faces_viewer(screen, source_name)
     if scene is None:
         note(f"demo: building the terrain mesh; poses from {source_name}", stream=err)
     if scene is None:
@@ -254,6 +255,18 @@ def run_headless(args, out=None, err=None, scene=None, renderer=None) -> dict:
     write_atomically(folder / "summary.json", lambda name: Path(name).write_text(json.dumps(summary, indent=1)))
     print_table(summary, out)
     return summary
+
+
+def _check_screen_faces_viewer(screen, source_name: str) -> None:
+    """ViewError unless the eye the loop falls back on (:func:`default_head`: 600 mm in front of the screen's
+    centre, on the cameras' side) is in front of ``screen``: else every frame would fail (a screen.yaml whose
+    corners are given as seen from behind)."""
+    try:
+        screen.check_eye(default_head(screen))
+    except ViewError as exc:
+        raise ViewError(f"the screen of {source_name} faces away from the cameras: the default eye, 600 mm in "
+                        f"front of its centre on the cameras' side: {exc}; are its top_left, top_right and "
+                        "bottom_left as the viewer sees them?") from None
 
 
 def _plan(args) -> list:
