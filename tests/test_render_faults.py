@@ -154,6 +154,20 @@ def test_two_outputs_naming_one_file_are_refused(tmp_path, earlier_output, no_re
     assert _digest(out) == digest
 
 
+def test_an_output_naming_an_input_file_is_refused(tmp_path, no_rendering, capsys):
+    """Found by trying it: render --terrain h.npy --stats h.npy replaced the height map with the stats, exit 0."""
+    heights = tmp_path / "h.npy"
+    np.save(heights, np.random.default_rng(0).random((65, 65)) * 100)
+    digest = _digest(heights)
+    (tmp_path / "hard.npy").hardlink_to(heights)
+    for stats in (heights, tmp_path / "hard.npy"):
+        assert cli_main(["render", *TINY, "--terrain", str(heights), "--spacing-m", "30", "--out",
+                         str(tmp_path / "x.png"), "--stats", str(stats)]) == 2
+        line = _one_line(capsys.readouterr().err)
+        assert f"--stats {stats} is the same file as --terrain {heights}" in line, line
+    assert _digest(heights) == digest and not (tmp_path / "x.png").exists()
+
+
 def test_the_view_rule_is_the_screens_and_raises_a_typed_error(default_screen):
     """The rule lives with the screen: the eye's side of its plane; off_axis_projection raises the same error."""
     from headplod.io import ViewError

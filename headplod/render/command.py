@@ -209,12 +209,15 @@ def _usage_problem(args, screen) -> str | None:
 
 
 def _same_outputs_problem(args) -> str | None:
-    """Two of ``--out``, ``--stats`` and ``--export`` naming one file (however spelled: symbolic links, ``..``,
-    hard links): the later write would replace the earlier output. One line, or None."""
+    """An output (``--out``, ``--stats``, ``--export``) naming the same file as another output or as an input
+    (``--terrain``, ``--screen``), however spelled (symbolic links, ``..``, hard links): the write would replace
+    it. One line, or None."""
+    inputs = [(option, path) for option, path in (("--terrain", getattr(args, "terrain", None)),
+                                                  ("--screen", args.screen)) if path]
     named = [(option, path) for option, path in (("--out", args.out), ("--stats", args.stats),
                                                  ("--export", args.export)) if path]
     for k, (option, path) in enumerate(named):
-        for other, other_path in named[:k]:
+        for other, other_path in inputs + named[:k]:
             if _same_file(path, other_path):
                 return f"{option} {path} is the same file as {other} {other_path}; name two files"
     return None
