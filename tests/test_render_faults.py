@@ -363,9 +363,9 @@ def test_demo_to_an_unwritable_folder_is_one_line_naming_it_before_anything_runs
 def test_a_write_that_fails_midway_names_the_users_path_not_a_temporary_one(tmp_path, capsys, monkeypatch):
     """The folder was writable when checked, and the write itself fails (a full disk, a folder made read-only
     meanwhile): exit 1, one line naming --stats' path, no hidden name, nothing left."""
-    import headplod.render.still as still
+    import headplod.render.outputs as outputs
 
-    real = still.write_atomically
+    real = outputs.write_atomically
 
     def full_disk(path, write, suffix=""):
         if str(path).endswith(".json"):
@@ -374,9 +374,31 @@ def test_a_write_that_fails_midway_names_the_users_path_not_a_temporary_one(tmp_
             return real(path, failing, suffix)
         return real(path, write, suffix)
 
-    monkeypatch.setattr(still, "write_atomically", full_disk)
+    monkeypatch.setattr(outputs, "write_atomically", full_disk)
     out, stats = tmp_path / "x.png", tmp_path / "s.json"
     assert cli_main(["render", *TINY, "--max-level", "2", "--out", str(out), "--stats", str(stats)]) == 1
     line = _one_line(capsys.readouterr().err)
     assert str(stats) in line and "No space left" in line and "/." not in line, line
     assert not stats.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+@pytest.mark.parametrize("in_the_way", ["summary.json/", "frames", "viewpoint_overview_levels.png/"])
+def test_demo_entries_in_the_way_are_found_before_anything_runs(tmp_path, in_the_way, no_rendering, monkeypatch,
+                                                               capsys):
+    """Found by trying it: a folder named summary.json in --out failed the demo after the whole run, naming a
+    hidden temporary file; a file named frames failed it at the first frame kept. Now one line before anything."""
+    import headplod.demo.cli as demo_cli
+
+    def no_poses(*args, **kwargs):
+        raise AssertionError("the poses were opened before the fault was found")
+
+    monkeypatch.setattr(demo_cli, "make_poses", no_poses)
+    folder = tmp_path / "demo"
+    folder.mkdir()
+    blocker = folder / in_the_way.rstrip("/")
+    blocker.mkdir() if in_the_way.endswith("/") else blocker.write_text("keep me\n")
+    assert cli_main(["demo", "--headless", "--mouse", "--frames", "2", "--viewpoints", "overview", *TINY,
+                     "--out", str(folder)]) == 2
+    line = _one_line(capsys.readouterr().err)
+    assert line.startswith(f"headplod demo: --out {folder}: ") and str(blocker) in line and "/." not in line, line
+    assert sorted(p.name for p in folder.iterdir()) == [blocker.name]

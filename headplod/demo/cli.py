@@ -44,7 +44,7 @@ import cv2
 import numpy as np
 
 from .. import io
-from ..io import ViewError, write_atomically
+from ..io import ViewError
 from ..argtypes import add_quiet_argument, frame_count
 from ..render.scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_options, mesh_options_problem,
                                     terrain_for_command)
@@ -54,7 +54,7 @@ from ..plod.select import MODES
 from ..render.command import (add_cost_arguments, add_csf_argument, add_gaze_prior_argument, raymask_config,
                               selection_options)
 from ..render.frame import DEMO_BACKENDS, capability_table, default_mode, options_problem
-from ..render.outputs import OutputNotWritable, check_writable
+from ..render.outputs import OutputNotWritable, check_writable, write_named
 from ..render.still import FULL_MAX_LEVEL, default_head, mesh_stats
 from . import loop as lp
 from .keys import key_help
@@ -252,7 +252,7 @@ def run_headless(args, out=None, err=None, scene=None, renderer=None) -> dict:
     write_chart(runs, args.viewpoints, chart, title=f"{args.size[0]}x{args.size[1]}, {source_name}")
     summary["chart"] = str(chart)
     summary["wall_s"] = round(time.perf_counter() - start, 1)
-    write_atomically(folder / "summary.json", lambda name: Path(name).write_text(json.dumps(summary, indent=1)))
+    write_named(folder / "summary.json", lambda name: Path(name).write_text(json.dumps(summary, indent=1)))
     print_table(summary, out)
     return summary
 
@@ -476,6 +476,7 @@ def run_demo(args) -> int:
     if args.headless:                   # where it writes, before anything runs
         try:
             check_writable(args.out, folder=True)
+            _check_out_entries(Path(args.out), args.viewpoints)
         except OutputNotWritable as exc:
             print(f"headplod demo: --out {args.out}: {exc}", file=sys.stderr)
             return 2
@@ -491,6 +492,19 @@ def run_demo(args) -> int:
     except (io.ContractError, OSError, ValueError, RuntimeError) as exc:
         print(f"headplod demo: {exc}", file=sys.stderr)
         return 1
+
+
+def _check_out_entries(folder: Path, viewpoints) -> None:
+    """OutputNotWritable when what the headless run writes in ``folder`` is in the way: a folder where it writes a
+    file (``summary.json``, ``summary.png``, a viewpoint's picture), or a file where it makes ``frames/``."""
+    files = ["summary.json", "summary.png"] + [f"viewpoint_{vp}_{kind}.png" for vp in viewpoints
+                                               for kind in ("levels", "layers")]
+    for name in files:
+        if (folder / name).is_dir():
+            raise OutputNotWritable(f"cannot be written: {folder / name} is a folder, where the demo writes a file")
+    frames = folder / "frames"
+    if (frames.exists() or frames.is_symlink()) and not frames.is_dir():
+        raise OutputNotWritable(f"cannot be written: {frames} is a file, where the demo makes its frames' folder")
 
 
 def main(argv=None) -> int:

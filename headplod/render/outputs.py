@@ -1,4 +1,5 @@
-"""Whether the render and demo commands can write where they are told to, found before any long work.
+"""Whether the render and demo commands can write where they are told to, found before any long work
+(:func:`check_writable`), and a whole-or-nothing write whose errors name the output (:func:`write_named`).
 
 :func:`check_writable` tries what the write will do, in the place it will
 do it: the nearest folder that exists on the way to the output must be a
@@ -14,7 +15,9 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["OutputNotWritable", "check_writable"]
+from ..io import write_atomically
+
+__all__ = ["OutputNotWritable", "check_writable", "write_named"]
 
 
 class OutputNotWritable(OSError):
@@ -62,3 +65,15 @@ def _exists(path: Path) -> bool:
     except OSError:
         return True
     return True
+
+
+def write_named(path, write, suffix: str = "") -> None:
+    """:func:`headplod.io.write_atomically` (``write(name)`` on a temporary name, renamed to ``path``), with an
+    OSError re-raised naming ``path``: the temporary name written first means nothing to the person who named
+    ``path``."""
+    try:
+        write_atomically(path, write, suffix=suffix)
+    except OSError as exc:
+        if exc.filename is None or str(exc.filename) == str(path):
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from ..plod.contrast import project_to_screen_px, readback_contrast
-from ..io import write_atomically
+from .outputs import write_named
 from ..plod.export import export_mesh
 from ..plod.lazy_mesh import DEFAULT_CACHE_BYTES, LazyAdaptiveMesh
 from ..plod.mesh import AdaptiveMesh, BaseMesh
@@ -385,18 +385,8 @@ def write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> 
                               str(out))
             if not written:
                 raise ValueError(f"{out}: OpenCV could not write an image there (use .png or .jpg)")
-        _write_named(out, write_image, suffix=out.suffix)
+        write_named(out, write_image, suffix=out.suffix)
     if stats_path:
         Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
-        _write_named(stats_path, lambda name: Path(name).write_text(json.dumps(stats, indent=2)))
+        write_named(stats_path, lambda name: Path(name).write_text(json.dumps(stats, indent=2)))
 
-
-def _write_named(path, write, suffix: str = "") -> None:
-    """:func:`headplod.io.write_atomically`, with an OSError of the write itself re-raised naming ``path``: the
-    temporary name it writes first means nothing to the person who named ``path``."""
-    try:
-        write_atomically(path, write, suffix=suffix)
-    except OSError as exc:
-        if exc.filename is None or str(exc.filename) == str(path):
-            raise
-        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
