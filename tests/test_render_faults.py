@@ -358,28 +358,30 @@ def test_demo_to_an_unwritable_folder_is_one_line_naming_it_before_anything_runs
     assert blocker.read_text() == "keep me\n" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
 
 
-@pytest.mark.slow
 @needs_gl
-def test_a_write_that_fails_midway_names_the_users_path_not_a_temporary_one(tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("option, name", [("--stats", "s.json"), ("--export", "m.ply")])
+def test_a_write_that_fails_midway_names_the_users_path_not_a_temporary_one(tmp_path, option, name, capsys,
+                                                                             monkeypatch):
     """The folder was writable when checked, and the write itself fails (a full disk, a folder made read-only
-    meanwhile): exit 1, one line naming --stats' path, no hidden name, nothing left."""
+    meanwhile): exit 1, one line naming the option's path, no hidden name, nothing of it left."""
+    import headplod.io
     import headplod.render.outputs as outputs
 
-    real = outputs.write_atomically
-
     def full_disk(path, write, suffix=""):
-        if str(path).endswith(".json"):
-            def failing(name):
-                raise OSError(28, "No space left on device", name)
-            return real(path, failing, suffix)
-        return real(path, write, suffix)
+        def failing(tmp):
+            raise OSError(28, "No space left on device", tmp)
+        return real(path, failing if Path(path) == target else write, suffix)
 
-    monkeypatch.setattr(outputs, "write_atomically", full_disk)
-    out, stats = tmp_path / "x.png", tmp_path / "s.json"
-    assert cli_main(["render", *TINY, "--max-level", "2", "--out", str(out), "--stats", str(stats)]) == 1
+    # the stats go through render.outputs' write_atomically, the mesh export through headplod.io's
+    owner = outputs if option == "--stats" else headplod.io
+    real = owner.write_atomically
+    monkeypatch.setattr(owner, "write_atomically", full_disk)
+    target = tmp_path / name
+    assert cli_main(["render", *TINY, "--max-level", "2", "--out", str(tmp_path / "x.png"), option,
+                     str(target)]) == 1
     line = _one_line(capsys.readouterr().err)
-    assert str(stats) in line and "No space left" in line and "/." not in line, line
-    assert not stats.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    assert str(target) in line and "No space left" in line and "/." not in line, line
+    assert not target.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
 @pytest.mark.parametrize("in_the_way", ["summary.json/", "frames", "viewpoint_overview_levels.png/"])

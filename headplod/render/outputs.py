@@ -13,11 +13,12 @@ from __future__ import annotations
 import errno
 import os
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 from ..io import write_atomically
 
-__all__ = ["OutputNotWritable", "check_writable", "write_named"]
+__all__ = ["OutputNotWritable", "check_writable", "write_named", "naming"]
 
 
 class OutputNotWritable(OSError):
@@ -58,9 +59,7 @@ def _exists(path: Path) -> bool:
     there with the reason."""
     try:
         os.lstat(path)
-    except FileNotFoundError:
-        return False
-    except NotADirectoryError:
+    except (FileNotFoundError, NotADirectoryError):
         return False
     except OSError:
         return True
@@ -68,11 +67,18 @@ def _exists(path: Path) -> bool:
 
 
 def write_named(path, write, suffix: str = "") -> None:
-    """:func:`headplod.io.write_atomically` (``write(name)`` on a temporary name, renamed to ``path``), with an
-    OSError re-raised naming ``path``: the temporary name written first means nothing to the person who named
-    ``path``."""
-    try:
+    """:func:`headplod.io.write_atomically` (``write(name)`` on a temporary name, renamed to ``path``), its errors
+    naming ``path`` (:func:`naming`)."""
+    with naming(path):
         write_atomically(path, write, suffix=suffix)
+
+
+@contextmanager
+def naming(path):
+    """Re-raise an OSError of the block naming ``path``: the temporary name a whole-or-nothing write uses first
+    means nothing to the person who named ``path``."""
+    try:
+        yield
     except OSError as exc:
         if exc.filename is None or str(exc.filename) == str(path):
             raise

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from ..plod.contrast import project_to_screen_px, readback_contrast
-from .outputs import write_named
+from .outputs import naming, write_named
 from ..plod.export import export_mesh
 from ..plod.lazy_mesh import DEFAULT_CACHE_BYTES, LazyAdaptiveMesh
 from ..plod.mesh import AdaptiveMesh, BaseMesh
@@ -299,7 +299,8 @@ def render_still(settings: StillSettings, screen, *, scene=None, renderer=None, 
     stats.update(details or {})
     write_outputs(image, stats, out, stats_path)
     if settings.export is not None:
-        export_mesh(scene.mesh, result.levels, settings.export)
+        with naming(settings.export):
+            export_mesh(scene.mesh, result.levels, settings.export)
     return image, stats
 
 
