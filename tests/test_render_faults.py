@@ -245,7 +245,6 @@ def _render_budget(tmp_path, capsys, *extra) -> tuple[str, dict]:
     return line, json.loads(stats.read_text())
 
 
-@pytest.mark.slow
 @needs_gl
 def test_a_budget_out_of_reach_is_said_not_met_with_the_nearest_count(tmp_path, capsys):
     _, most = _render_budget(tmp_path, capsys, "--level-bias", "8")       # every seen triangle as fine as it gets
@@ -274,7 +273,6 @@ def test_a_budget_out_of_reach_is_said_not_met_with_the_nearest_count(tmp_path, 
 # --------------------------------------------------------------------------
 
 
-@pytest.mark.slow
 @needs_gl
 def test_demo_with_more_frames_than_the_poses_says_the_frames_run_and_writes_what_it_names(
         tmp_path, sweep12_dir, capsys):
@@ -296,7 +294,6 @@ def test_demo_with_more_frames_than_the_poses_says_the_frames_run_and_writes_wha
         assert Path(name).is_dir() and any(Path(name).iterdir()), name
 
 
-@pytest.mark.slow
 @needs_gl
 def test_demo_names_no_frames_folder_it_did_not_write(tmp_path, capsys, monkeypatch):
     """A run whose frames were not kept (none at the frames chosen) names no frames/ folder, and makes none."""
