@@ -268,6 +268,20 @@ def test_a_budget_out_of_reach_is_said_not_met_with_the_nearest_count(tmp_path, 
     assert "budget 20,000 met" in line and "not met" not in line, line
 
 
+@needs_gl
+def test_the_demo_says_how_often_a_budget_was_met(tmp_path, capsys):
+    """Found by trying it: demo --budget 1 said nothing of the budget; the table now says the frames that met it."""
+    folder = tmp_path / "demo"
+    assert cli_main(["demo", "--headless", "-q", "--mouse", "--frames", "3", "--viewpoints", "overview",
+                     "--scenarios", "adaptive", "--no-full", "--max-level", "2", "--budget", "1", *TINY,
+                     "--out", str(folder)]) == 0
+    out = capsys.readouterr().out
+    run = json.loads((folder / "summary.json").read_text())["runs"][0]
+    assert run["budget"] == {"triangles": 1, "met_frames": 0, "missed_range": [2048, 2048],
+                             "missed_limit": "coarsest"}
+    assert "budget 1 met in 0 of 3 frames; missed: 2,048 triangles, the coarsest their views allow" in out, out
+
+
 # --------------------------------------------------------------------------
 # the demo's frames
 # --------------------------------------------------------------------------

@@ -397,6 +397,15 @@ def print_table(summary: dict, out=None) -> None:
         print(f"{r['viewpoint']:<10} {mode:<8} {r['uncertainty']:<9} {r['fps']:6.1f} {r['frame_ms_median']:9.1f} "
               f"{st['select']:7.1f} {st['build']:6.1f} {st['render']:7.1f} {int(r['triangles_median']):>10,} "
               f"{ratio:>7} {r['saccade_skipped']:>7} {r['tracking_failures']:>5}", file=out)
+    for r in (r for r in summary["runs"] if r.get("budget")):
+        b = r["budget"]
+        missed = ""
+        if b["missed_range"] is not None:
+            lo, hi = b["missed_range"]
+            missed = f"; missed: {lo:,}" + ("" if lo == hi else f"..{hi:,}") + " triangles" + (
+                f", the {b['missed_limit']} their views allow" if b["missed_limit"] else "")
+        print(f"{r['viewpoint']} {r['mode']} {r['uncertainty']}: budget {b['triangles']:,} met in {b['met_frames']} of "
+              f"{r['frames']} frames{missed}", file=out)
     for vp, q in summary["fps_ratio_to_full"].items():
         lo, hi = q["ratio_range"]
         print(f"{vp}: {q['mode']} ({q['uncertainty']}) {q['fps']:.1f} fps against full {q['full_fps']:.2f} fps: "
