@@ -222,7 +222,8 @@ def _run(argv, env_extra, cwd) -> subprocess.CompletedProcess:
     ["render", *TINY, "--backend", "tessellation", "--grid-samples", "129", "--out", "x.png"],
     ["demo", "--headless", "-q", "--mouse", "--frames", "2", "--viewpoints", "overview", "--scenarios", "adaptive",
      "--no-full", "--max-level", "2", *TINY, "--out", "demo"],
-], ids=["render", "tessellation", "demo"])
+    pytest.param(["bench", "-q", "plod", "--quick", "--only", "lazy"], marks=pytest.mark.slow),
+], ids=["render", "tessellation", "demo", "bench"])
 def test_a_broken_egl_is_one_line_that_says_what_to_check(tmp_path, command):
     (tmp_path / "x.png").write_bytes(b"earlier")
     r = _run(command, {"__EGL_VENDOR_LIBRARY_FILENAMES": str(tmp_path / "nonexistent.json")}, tmp_path)
