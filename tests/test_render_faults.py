@@ -416,3 +416,15 @@ def test_demo_entries_in_the_way_are_found_before_anything_runs(tmp_path, in_the
     line = _one_line(capsys.readouterr().err)
     assert line.startswith(f"headplod demo: --out {folder}: ") and str(blocker) in line and "/." not in line, line
     assert sorted(p.name for p in folder.iterdir()) == [blocker.name]
+
+
+@needs_gl
+def test_stats_dash_is_standard_output_not_a_file_named_dash(tmp_path, monkeypatch, capsys):
+    """Found by trying it: render --stats - wrote a file named '-' in the current folder; '-' is standard output
+    everywhere else (track --out -)."""
+    monkeypatch.chdir(tmp_path)
+    assert cli_main(["render", *TINY, "--max-level", "2", "--budget", "1", "-q", "--out", "x.png",
+                     "--stats", "-"]) == 0
+    stats = json.loads(capsys.readouterr().out)
+    assert stats["triangles"] == 2048 and stats["budget"]["met"] is False
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.png"]

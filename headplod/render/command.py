@@ -15,6 +15,7 @@ written there), each with one line on standard error; bad usage is found before 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 from dataclasses import replace
@@ -89,7 +90,8 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     render.add_argument("--out", required=True, help="output image (PNG)")
     add_quiet_argument(render, help="no notes on standard error (the triangles and times line); errors, warnings "
                                     "and --compare's line still appear")
-    render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
+    render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON; - : "
+                                         "to standard output)")
     render.add_argument("--compare", choices=("full",),
                         help="also render full from the same view and print the frame's PSNR (whole, and within 5° "
                              "of the POI) and FLIP against it (default: no comparison; mesh and raymask back ends)")
@@ -194,7 +196,8 @@ def _usage_problem(args, screen) -> str | None:
             return f"--cov {args.cov} is not positive definite"
     if min(args.size) < 1 or max(args.size) > 16384 or any(v != int(v) for v in args.size):
         return f"--size must be two whole numbers of pixels in 1..16384, got {args.size}"
-    problem = _output_problem("--out", args.out, image=True) or (args.stats and _output_problem("--stats", args.stats))
+    problem = _output_problem("--out", args.out, image=True) or (args.stats not in (None, "-")
+                                                                 and _output_problem("--stats", args.stats))
     if problem:
         return problem
     if args.export is not None:
@@ -215,7 +218,7 @@ def _same_outputs_problem(args) -> str | None:
     inputs = [(option, path) for option, path in (("--terrain", getattr(args, "terrain", None)),
                                                   ("--screen", args.screen)) if path]
     named = [(option, path) for option, path in (("--out", args.out), ("--stats", args.stats),
-                                                 ("--export", args.export)) if path]
+                                                 ("--export", args.export)) if path and path != "-"]
     for k, (option, path) in enumerate(named):
         for other, other_path in inputs + named[:k]:
             if _same_file(path, other_path):
@@ -246,6 +249,26 @@ def _view_problem(head, screen, screen_path=None) -> str | None:
         return (f"--screen {screen_path}: the default eye, 600 mm in front of the screen's centre on the cameras' "
                 f"side: {exc}; are top_left, top_right and bottom_left as the viewer sees them?")
     return None
+
+
+def _stats_file(args):
+    """``--stats``' file, or None when there is none or it is ``-`` (standard output: :func:`_print_stats`)."""
+    return None if args.stats in (None, "-") else args.stats
+
+
+def _write_failed(exc: Exception, args) -> int:
+    """The one line of an output that could not be written after all (a full disk; OpenCV refusing to encode),
+    naming its path as given; exit status 1."""
+    where = getattr(exc, "filename", None)
+    reason = getattr(exc, "strerror", None) or exc
+    print(f"headplod: could not write the output: {reason}" + (f" ({where})" if where else ""), file=sys.stderr)
+    return 1
+
+
+def _print_stats(args, stats: dict) -> None:
+    """``--stats -``: the stats (JSON) on standard output, as the file would hold them."""
+    if args.stats == "-":
+        print(json.dumps(stats, indent=2), flush=True)
 
 
 def run_render(args) -> int:
@@ -301,16 +324,15 @@ def run_render(args) -> int:
     try:
         settings = still_settings(args, mode, cov, size, raymask)
         image, stats = render_still(settings, screen, scene=scene, renderer=renderer, out=args.out,
-                                    stats_path=args.stats)
+                                    stats_path=_stats_file(args))
         if args.compare == "full":
             full = FrameSettings("mesh", SelectorConfig(mode="full", uncertainty="none"))
             reference, _ = render_still(replace(settings, frame=full, cov_deg2=None, contrast="shading", export=None),
                                         screen, scene=scene, renderer=renderer)
             print(compare_line(image, reference, screen, args.head, args.poi, size), file=sys.stderr)
     except OSError as exc:           # a write that failed all the same (a full disk): nothing half-written is left
-        print(f"headplod: could not write the output: {exc.strerror or exc} ({exc.filename or args.out})",
-              file=sys.stderr)
-        return 1
+        return _write_failed(exc, args)
+    _print_stats(args, stats)
     if "raymask" in stats:
         r = stats["raymask"]
         note(f"{r['rays']} rays ({r['fill_rays']} inset, {r['ring_rays']} rings, {r['silhouette_rays']} in "
@@ -421,11 +443,11 @@ def _run_tessellation(args, mode, screen, cov, size) -> int:
                               selection=settings.frame.selection) as renderer:
         try:                         # each file whole or not at all, as the mesh back end's
             _, stats = render_still(settings, screen, renderer=renderer, model=model, out=args.out,
-                                    stats_path=args.stats,
+                                    stats_path=_stats_file(args),
                                     details={"grid_samples": n, "patch_samples": config.patch_samples})
         except (OSError, ValueError) as exc:
-            print(f"headplod: could not write the output: {getattr(exc, 'strerror', None) or exc}", file=sys.stderr)
-            return 1
+            return _write_failed(exc, args)
+    _print_stats(args, stats)
     note(f"{stats['triangles']} triangles ({grid.full_triangles} at full detail); select {stats['select_ms']:.1f} ms, "
          f"render {stats['render_ms']:.1f} ms; image: {args.out}")
     return 0
