@@ -44,6 +44,7 @@ from .live.pivot_command import add_pivot_arguments, run_pivot
 from .live.preview import add_preview_arguments, run_preview
 from .progress import quiet
 from .render.command import add_render_arguments, run_render
+from .render.context import GLContextError
 
 #: ``headplod NAME``: (help, add NAME's arguments to its subparser, run(args) -> exit status), in --help's order.
 COMMANDS = {
@@ -101,7 +102,7 @@ def main(argv=None) -> int:
     try:
         with quiet(getattr(args, "quiet", False)):      # -q: no progress, no notes, however deep in the command
             return COMMANDS[args.command][2](args)
-    except io.ContractError as exc:
+    except (io.ContractError, GLContextError) as exc:      # a broken file; no OpenGL context (EGL): a failed run
         print(f"headplod: {exc}", file=sys.stderr)
         return 1
     except OutputRefused as exc:                        # a writer's own refusal (its command checks first)

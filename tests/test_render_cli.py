@@ -69,15 +69,14 @@ def test_render_refuses_bad_outputs_before_rendering(tmp_path, capsys, extra, ex
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.slow
-@needs_gl
-def test_render_that_cannot_write_fails_with_one_line(tmp_path, capsys):
-    """The image's folder cannot be made (a file stands in its way): exit 1, one line, nothing left."""
+def test_render_that_cannot_write_is_refused_with_one_line(tmp_path, capsys):
+    """The image's folder cannot be made (a file stands in its way): found before rendering (bad usage, exit 2),
+    one line naming the path, nothing left."""
     blocker = tmp_path / "notes.txt"
     blocker.write_text("keep me\n")
-    assert cli_main(["render", "--size", "64,48", "--out", str(blocker / "x.png")]) == 1
+    assert cli_main(["render", "--size", "64,48", "--out", str(blocker / "x.png")]) == 2
     err = capsys.readouterr().err.strip()
-    assert "could not write" in err and len(err.splitlines()) == 1, err
+    assert f"--out {blocker / 'x.png'}: cannot be written" in err and len(err.splitlines()) == 1, err
     assert blocker.read_text() == "keep me\n" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
 
 

@@ -11,7 +11,13 @@ uncertainty scenario, then ``full`` (every triangle at the finest level), each
 for N frames of the same poses; it writes a few frames per run, a level-colour
 picture per viewpoint with the POI and its 2σ ellipse, ``summary.json`` and
 ``summary.png``, and prints a table with each run's frame rate against
-``full``'s on the same viewpoint. With ``--foveate`` the mode's runs are
+``full``'s on the same viewpoint. A pose source shorter than ``--frames``
+(the built-in sequence has 150 frames, a recording its own) is not replayed:
+the runs end with it, the table and ``summary.json`` say how many frames ran
+(``frames_per_run``, with ``frames_asked``), and each run writes its last
+frame. ``--out`` is checked before anything runs: a place no folder can be
+made or filled is refused (exit 2); the folder is made when its first file is
+written, and the table names only the folders written. With ``--foveate`` the mode's runs are
 repeated with foveated resolution layers (:mod:`headplod.render.foveate`),
 interleaved with the others, and a picture per viewpoint shows the layers.
 
@@ -27,6 +33,7 @@ Also runnable as ``python -m headplod.demo.cli``.
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import resource
 import sys
@@ -37,7 +44,7 @@ import cv2
 import numpy as np
 
 from .. import io
-from ..io import write_atomically
+from ..io import ViewError
 from ..io.files import Inputs, OutputRefused, check_output
 from ..argtypes import add_quiet_argument, frame_count
 from ..render.scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_options, mesh_options_problem,
@@ -48,7 +55,8 @@ from ..plod.select import MODES
 from ..render.command import (add_cost_arguments, add_csf_argument, add_gaze_prior_argument, raymask_config,
                               selection_options)
 from ..render.frame import DEMO_BACKENDS, capability_table, default_mode, options_problem
-from ..render.still import FULL_MAX_LEVEL, mesh_stats
+from ..render.outputs import OutputNotWritable, check_writable, write_named
+from ..render.still import FULL_MAX_LEVEL, default_head, mesh_stats
 from . import loop as lp
 from .keys import key_help
 from .poses import make_poses
@@ -137,7 +145,9 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     add_mesh_arguments(parser.add_argument_group("mesh"))
     head = parser.add_argument_group("headless run")
     head.add_argument("--headless", action="store_true", help="run offscreen and write frames and a summary")
-    head.add_argument("--frames", type=frame_count, default=30, help="frames per run (default 30)")
+    head.add_argument("--frames", type=frame_count, default=30,
+                      help="frames per run (default 30); a shorter pose source (the built-in sequence has 150) "
+                           "ends the runs with it, and the table says how many frames ran")
     head.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     head.add_argument("--viewpoints", type=_names(tuple(VIEWPOINTS)), default=list(VIEWPOINTS),
                       help="comma-separated viewpoints to run (default all three)")
@@ -185,29 +195,32 @@ def resolve_mode(args) -> str:
     return backend
 
 
-def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None) -> dict:
+def run_headless(args, out=None, err=None, scene=None, renderer=None) -> dict:
     """The headless benchmark run; returns the summary (also written to ``args.out``).
 
     ``scene`` (a TerrainScene for the poses' screen) and ``renderer`` (at
     ``args.size``) may be passed in to reuse them (tests); they are made here
-    otherwise.
+    otherwise, the renderer's context first (a broken EGL ends the run before
+    the poses are opened or the mesh built, and before anything is written).
+    ``out``, ``err``: the table's and the notes' streams (default: standard output and error as they are now).
     """
+    out, err = out or sys.stdout, err or sys.stderr
     resolve_mode(args)
     start = time.perf_counter()
-    folder = Path(args.out)
-    (folder / "frames").mkdir(parents=True, exist_ok=True)
-    first = make_poses(args, frames=1)          # opens (and on first use renders) the source; gives the screen
-    screen = first.screen
-    source_name = first.name
-    first.close()
-    if scene is None:
-        note(f"demo: building the terrain mesh; poses from {source_name}", stream=err)
-    if scene is None:
-        scene = mesh_options(args).build(screen, getattr(args, "terrain_loaded", None))
     if renderer is None:
         renderer = TerrainRenderer(create_context(), size=tuple(args.size))
     elif tuple(renderer.size) != tuple(args.size):
         raise ValueError(f"run_headless: the renderer is {renderer.size}, --size is {tuple(args.size)}")
+    folder = Path(args.out)
+    first = make_poses(args, frames=1)          # opens (and on first use renders) the source; gives the screen
+    screen = first.screen
+    source_name = first.name
+    first.close()
+    _check_screen_faces_viewer(screen, source_name)
+    if scene is None:
+        note(f"demo: building the terrain mesh; poses from {source_name}", stream=err)
+    if scene is None:
+        scene = mesh_options(args).build(screen, getattr(args, "terrain_loaded", None))
     groups = _plan(args)
     # One renderer per run of a group: each keeps its mesh on the GPU between its frames.
     renderers = [renderer] + [TerrainRenderer(renderer.ctx, size=tuple(args.size))
@@ -221,7 +234,8 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
         for extra in renderers[1:]:
             extra.release()
     ratios = _ratios(runs, args)
-    summary = {"size": list(args.size), "frames_per_run": args.frames, "poses": source_name,
+    summary = {"size": list(args.size), "frames_per_run": min(r["frames"] for r in runs),
+               "frames_asked": args.frames, "poses": source_name,
                "mode": args.mode, "cost": selection_options(args),
                "viewpoints": {vp: VIEWPOINTS[vp].description for vp in args.viewpoints},
                "fps_ratio_to_full": ratios, "pictures": pictures, "runs": runs, "mesh": mesh_stats(scene.mesh),
@@ -235,12 +249,25 @@ def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None
                         "whose cases changed uploads its compact vertex table and indices",
                "wall_s": None}
     chart = folder / "summary.png"
+    folder.mkdir(parents=True, exist_ok=True)
     write_chart(runs, args.viewpoints, chart, title=f"{args.size[0]}x{args.size[1]}, {source_name}")
     summary["chart"] = str(chart)
     summary["wall_s"] = round(time.perf_counter() - start, 1)
-    write_atomically(folder / "summary.json", lambda name: Path(name).write_text(json.dumps(summary, indent=1)))
+    write_named(folder / "summary.json", lambda name: Path(name).write_text(json.dumps(summary, indent=1)))
     print_table(summary, out)
     return summary
+
+
+def _check_screen_faces_viewer(screen, source_name: str) -> None:
+    """ViewError unless the eye the loop falls back on (:func:`default_head`: 600 mm in front of the screen's
+    centre, on the cameras' side) is in front of ``screen``: else every frame would fail (a screen.yaml whose
+    corners are given as seen from behind)."""
+    try:
+        screen.check_eye(default_head(screen))
+    except ViewError as exc:
+        raise ViewError(f"the screen of {source_name} faces away from the cameras: the default eye, 600 mm in "
+                        f"front of its centre on the cameras' side: {exc}; are its top_left, top_right and "
+                        "bottom_left as the viewer sees them?") from None
 
 
 def _plan(args) -> list:
@@ -274,14 +301,12 @@ def _run_group(args, plan, scene, screen, renderers, folder, progress, pictures,
                                  # full is the reference: no bias, no budget
                                  selector_options=selection_options(args) if mode == args.mode else None))
         written.append([])
+    stems = ["_".join(p[:3]) + ("_foveate" if p[3] else "") for p in plan]
     try:
         for k, result in _interleaved(demos, args.frames):
-            stem = "_".join(plan[k][:3]) + ("_foveate" if plan[k][3] else "")
             if result.index in keep:
-                path = folder / "frames" / f"{stem}_{result.index:03d}.png"
-                cv2.imwrite(str(path), cv2.cvtColor(result.image, cv2.COLOR_RGB2BGR))
-                written[k].append(str(path))
-            progress.step(f"{stem} {result.frame_ms:.0f} ms")
+                written[k].append(_write_png(folder / "frames" / f"{stems[k]}_{result.index:03d}.png", result.image))
+            progress.step(f"{stems[k]} {result.frame_ms:.0f} ms")
     finally:
         tee.close()
     records = []
@@ -289,6 +314,9 @@ def _run_group(args, plan, scene, screen, renderers, folder, progress, pictures,
         demo = demos[k]
         if demo.last is None:
             raise RuntimeError(f"the pose source gave no frame ({source_name})")
+        if demo.index < args.frames and keep and demo.last.index not in keep:   # the poses ended early
+            written[k].append(_write_png(folder / "frames" / f"{stems[k]}_{demo.last.index:03d}.png",
+                                         demo.last.image))
         _pictures(args, demo, vp, mode, scenario, foveate, folder, pictures)
         s = demo.stats
         mesh = {**mesh_stats(demo.base_scene.mesh), "cache_bytes_max": max(s.cache_bytes, default=None)}
@@ -309,15 +337,22 @@ def _pictures(args, demo, vp, mode, scenario, foveate, folder, pictures) -> None
         path = folder / f"viewpoint_{vp}_layers.png"
         caption = (f"{vp}: {mode} --foveate, {scenario}, level colours; layer borders (scale), "
                    "POI and 2-sigma ellipse")
-        cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
-        pictures[f"{vp} foveate"] = str(path)
+        pictures[f"{vp} foveate"] = _write_png(path, demo.picture("levels", caption))
     if mode == args.mode and not foveate and (scenario == "adaptive" or vp not in pictures):
         pose = demo.last.pose
         sigma = np.sqrt(np.max(np.diag(pose.cov_deg2))) if pose.cov_deg2 is not None else 0
         caption = f"{vp}: {mode}, {scenario}, level colours; POI and 2-sigma ellipse (sigma {sigma:.2f} deg)"
         path = folder / f"viewpoint_{vp}_levels.png"
-        cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
-        pictures[vp] = str(path)
+        pictures[vp] = _write_png(path, demo.picture("levels", caption))
+
+
+def _write_png(path: Path, image: np.ndarray) -> str:
+    """Write ``image`` ((H, W, 3) uint8 RGB) to ``path`` (PNG), its folder made first; the path as a string.
+    OSError naming ``path`` when OpenCV cannot write it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+        raise OSError(errno.EIO, "the image could not be written (is the disk full?)", str(path))
+    return str(path)
 
 
 def _ratios(runs, args) -> dict:
@@ -346,11 +381,14 @@ def _rss_mb() -> float:
         return int(f.read().split()[1]) * resource.getpagesize() / 2 ** 20
 
 
-def print_table(summary: dict, out=sys.stdout) -> None:
-    """The short table of the runs, the csf/full ratio per viewpoint and where the pictures are."""
+def print_table(summary: dict, out=None) -> None:
+    """The short table of the runs, the csf/full ratio per viewpoint and where the pictures are (to ``out``;
+    default: standard output)."""
+    out = out or sys.stdout
     w, h = summary["size"]
-    print(f"\nheadless demo, {w}x{h}, {summary['frames_per_run']} frames per run, poses: {summary['poses']}",
-          file=out)
+    ran, asked = summary["frames_per_run"], summary.get("frames_asked", summary["frames_per_run"])
+    short = f" (asked for {asked}: the poses ended after {ran})" if ran < asked else ""
+    print(f"\nheadless demo, {w}x{h}, {ran} frames per run{short}, poses: {summary['poses']}", file=out)
     print(f"{'viewpoint':<10} {'mode':<8} {'scenario':<9} {'fps':>6} {'frame ms':>9} {'select':>7} {'build':>6} "
           f"{'render':>7} {'triangles':>10} {'x full':>7} {'saccade':>7} {'lost':>5}", file=out)
     for r in summary["runs"]:
@@ -360,6 +398,15 @@ def print_table(summary: dict, out=sys.stdout) -> None:
         print(f"{r['viewpoint']:<10} {mode:<8} {r['uncertainty']:<9} {r['fps']:6.1f} {r['frame_ms_median']:9.1f} "
               f"{st['select']:7.1f} {st['build']:6.1f} {st['render']:7.1f} {int(r['triangles_median']):>10,} "
               f"{ratio:>7} {r['saccade_skipped']:>7} {r['tracking_failures']:>5}", file=out)
+    for r in (r for r in summary["runs"] if r.get("budget")):
+        b = r["budget"]
+        missed = ""
+        if b["missed_range"] is not None:
+            lo, hi = b["missed_range"]
+            missed = f"; missed: {lo:,}" + ("" if lo == hi else f"..{hi:,}") + " triangles" + (
+                f", the {b['missed_limit']} their views allow" if b["missed_limit"] else "")
+        print(f"{r['viewpoint']} {r['mode']} {r['uncertainty']}: budget {b['triangles']:,} met in {b['met_frames']} of "
+              f"{r['frames']} frames{missed}", file=out)
     for vp, q in summary["fps_ratio_to_full"].items():
         lo, hi = q["ratio_range"]
         print(f"{vp}: {q['mode']} ({q['uncertainty']}) {q['fps']:.1f} fps against full {q['full_fps']:.2f} fps: "
@@ -375,8 +422,8 @@ def print_table(summary: dict, out=sys.stdout) -> None:
         print(f"mesh: {m['kind']}, level {m['max_level']} ({m['full_triangles']:,} triangles at full detail)"
               f"{cache}; RSS {summary['rss_mb']:.0f} MB (peak {summary['peak_rss_mb']:.0f} MB)", file=out)
     folder = Path(summary["chart"]).parent
-    print(f"frames: {folder / 'frames'}/   summary: {folder / 'summary.json'}, {summary['chart']}   "
-          f"({summary['wall_s']} s)", file=out)
+    frames = f"frames: {folder / 'frames'}/   " if any(r["frames_png"] for r in summary["runs"]) else ""
+    print(f"{frames}summary: {folder / 'summary.json'}, {summary['chart']}   ({summary['wall_s']} s)", file=out)
 
 
 def write_chart(runs, viewpoints, path, title="") -> None:
@@ -455,6 +502,13 @@ def run_demo(args) -> int:
               f"triangles, which do not fit; the full runs are skipped (as --no-full: no ratio to full)",
               file=sys.stderr)
         args.no_full = True
+    if args.headless:                   # where it writes, before anything runs
+        try:
+            check_writable(args.out, folder=True)
+            _check_out_entries(Path(args.out), args.viewpoints)
+        except OutputNotWritable as exc:
+            print(f"headplod demo: --out {args.out}: {exc}", file=sys.stderr)
+            return 2
     # The terrain file is read (and any problem reported) before anything is written; None: the built-in one.
     args.terrain_loaded, status = terrain_for_command(args, "headplod demo")
     if status is not None:
@@ -471,6 +525,19 @@ def run_demo(args) -> int:
     except (io.ContractError, OSError, ValueError, RuntimeError) as exc:
         print(f"headplod demo: {exc}", file=sys.stderr)
         return 1
+
+
+def _check_out_entries(folder: Path, viewpoints) -> None:
+    """OutputNotWritable when what the headless run writes in ``folder`` is in the way: a folder where it writes a
+    file (``summary.json``, ``summary.png``, a viewpoint's picture), or a file where it makes ``frames/``."""
+    files = ["summary.json", "summary.png"] + [f"viewpoint_{vp}_{kind}.png" for vp in viewpoints
+                                               for kind in ("levels", "layers")]
+    for name in files:
+        if (folder / name).is_dir():
+            raise OutputNotWritable(f"cannot be written: {folder / name} is a folder, where the demo writes a file")
+    frames = folder / "frames"
+    if (frames.exists() or frames.is_symlink()) and not frames.is_dir():
+        raise OutputNotWritable(f"cannot be written: {frames} is a file, where the demo makes its frames' folder")
 
 
 def main(argv=None) -> int:

@@ -116,6 +116,9 @@ class FrameResult:
         the whole-table mesh).
     view : headplod.plod.view.ConditionedView
         The conditioned view the frame was made for.
+    budget : dict or None
+        With a triangle budget: whether the frame met it and the nearest count it could reach
+        (:func:`headplod.render.frame.budget_outcome`); None without one.
     """
 
     index: int
@@ -131,6 +134,7 @@ class FrameResult:
     cache_bytes: int | None = None
     lazy_stats: dict | None = None
     view: object = None
+    budget: dict | None = None
 
     @property
     def tracking_lost(self) -> str | None:
@@ -148,6 +152,7 @@ class RunStats:
     tracking_failures: int = 0
     cache_bytes: list = field(default_factory=list)
     lazy: dict = field(default_factory=dict)
+    budget: list = field(default_factory=list)      # each frame's budget outcome, with a budget
 
     def add(self, r: FrameResult) -> None:
         self.frame_ms.append(r.frame_ms)
@@ -160,12 +165,26 @@ class RunStats:
             self.stage_ms[s].append(r.stage_ms.get(s, 0.0))
         self.saccade_skipped += int(r.saccade_skipped)
         self.tracking_failures += int(r.pose.held)
+        if r.budget is not None:
+            self.budget.append(r.budget)
 
     def summary(self, skip_first: int = 1) -> dict:
-        """Medians over the frames after the first ``skip_first`` (the first builds the whole mesh)."""
+        """Medians over the frames after the first ``skip_first`` (the first builds the whole mesh); with a
+        budget, ``budget``: its triangles, the frames that met it, the range of the counts of those that did not
+        (a view beyond reach, or levels the hysteresis or a saccade kept), and ``missed_limit``: ``coarsest``
+        or ``finest`` when every one of them was at that end of what its view allows, else None."""
         k = skip_first if len(self.frame_ms) > skip_first else 0
         frame = float(np.median(self.frame_ms[k:])) if self.frame_ms else float("nan")
-        return {"frames": len(self.frame_ms),
+        budget = {}
+        if self.budget:
+            missed = [b for b in self.budget if not b["met"]]
+            counts = [b["nearest"] for b in missed]
+            limits = {b["limit"] for b in missed}
+            budget = {"budget": {"triangles": self.budget[0]["triangles"],
+                                 "met_frames": len(self.budget) - len(missed),
+                                 "missed_range": [min(counts), max(counts)] if missed else None,
+                                 "missed_limit": limits.pop() if len(limits) == 1 else None}}
+        return {**budget, "frames": len(self.frame_ms),
                 "fps": 1e3 / frame if frame > 0 else float("nan"),
                 "frame_ms_median": frame,
                 "stage_ms_median": {s: float(np.median(v[k:])) if v else float("nan")
@@ -357,7 +376,7 @@ class DemoLoop:
         result = FrameResult(self.index, pose.t, out.image, out.levels, out.triangles,
                              {"pose": (t1 - t0) * 1e3, **out.stage_ms, "hud": 0.0},
                              (time.perf_counter() - t0) * 1e3, pose, out.held, out.view.poi_speed_deg_s,
-                             out.details.get("cache_bytes"), lazy, view=out.view)
+                             out.details.get("cache_bytes"), lazy, view=out.view, budget=out.details.get("budget"))
         return self._finish(result, t0)
 
     def _finish(self, result: FrameResult, t0: float) -> FrameResult:

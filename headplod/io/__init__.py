@@ -62,7 +62,7 @@ from .rig import (
     rig_calibration_std,
     write_rig,
 )
-from .screen import Screen, read_screen, write_screen
+from .screen import Screen, ViewError, read_screen, write_screen
 from .tables import (
     GAZE_TRUTH_COLUMNS,
     TRUTH_COLUMNS,
@@ -89,6 +89,7 @@ __all__ = [
     "read_markers",
     "write_markers",
     "Screen",
+    "ViewError",
     "read_screen",
     "write_screen",
     "Frame",

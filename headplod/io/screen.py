@@ -1,8 +1,9 @@
 """The display: ``screen.yaml``.
 
 :class:`Screen` (pixel size and three corners in the world frame, mm, with
-the pixel/world mapping and the ray intersection), :func:`read_screen` and
-:func:`write_screen`.
+the pixel/world mapping, the ray intersection and the side of its plane a view
+is drawn from), :func:`read_screen` and :func:`write_screen`;
+:class:`ViewError`, an eye no view can be drawn from.
 """
 
 from __future__ import annotations
@@ -68,6 +69,14 @@ def _validate_screen(ctx: _Ctx, size_px, tl, tr, bl) -> dict:
     return {"size_px": (w, h), **{k: _frozen(v) for k, v in corners.items()}}
 
 
+class ViewError(ValueError):
+    """An eye no view of the screen can be drawn from: on or behind its plane, or not 3 finite numbers (mm).
+
+    A head-coupled view looks through the screen as through a window, so the eye must be on the side the
+    screen is seen from (:meth:`Screen.check_eye`); a command reports it as bad usage.
+    """
+
+
 @dataclass(frozen=True, eq=False)
 class Screen:
     """The display: its pixel size and three corners in the world frame.
@@ -100,6 +109,40 @@ class Screen:
         """Unit normal of the screen plane, (top_right − top_left) × (bottom_left − top_left)."""
         n = np.cross(self.top_right - self.top_left, self.bottom_left - self.top_left)
         return n / np.linalg.norm(n)
+
+    def eye_distance_mm(self, eye_mm: Any) -> float:
+        """Signed distance of an eye from the screen plane, mm: positive on the side the screen is seen from
+        (opposite to :attr:`normal`), zero on the plane, negative behind it.
+
+        ``eye_mm``: (3,) world frame, mm.
+        """
+        eye = np.asarray(eye_mm, dtype=np.float64).reshape(-1)
+        return float(np.dot(self.normal, self.top_left - eye))
+
+    def check_eye(self, eye_mm: Any, far_mm: float | None = None) -> float:
+        """The :meth:`eye_distance_mm` of an eye a view can be drawn from; raises :class:`ViewError` otherwise.
+
+        The eye ((3,) world frame, mm) must be 3 finite numbers on the side the screen is seen from, farther
+        from the plane than ``tol.small`` of the screen's longer side (on the plane, the window has no depth:
+        every point behind it projects to its edge), and with ``far_mm`` (the far clip plane's distance from
+        the eye, parallel to the screen, mm) nearer than that: from farther, everything behind the screen is
+        clipped.
+        """
+        eye = np.asarray(eye_mm, dtype=np.float64).reshape(-1)
+        if eye.shape != (3,) or not np.isfinite(eye).all():
+            raise ViewError(f"the eye must be 3 finite numbers (mm), got {np.asarray(eye_mm).tolist()!r}")
+        d = self.eye_distance_mm(eye)
+        size = max(np.linalg.norm(self.top_right - self.top_left), np.linalg.norm(self.bottom_left - self.top_left))
+        if not d > tol.small * size:
+            where = ("on the screen plane" if abs(d) <= tol.small * size
+                     else f"behind the screen plane, {-d:.4g} mm behind it")
+            raise ViewError(f"the eye {np.round(eye, 3).tolist()} mm is {where}; it must be in front of the screen, "
+                            "on the viewer's side")
+        if far_mm is not None and not d < far_mm:
+            raise ViewError(f"the eye {np.round(eye, 3).tolist()} mm is {d:.4g} mm in front of the screen plane, "
+                            f"beyond the far clip plane ({far_mm:g} mm from the eye): everything behind the screen "
+                            "would be clipped")
+        return d
 
     def pixel_to_world(self, xy_px: Any) -> np.ndarray:
         """World position (mm) of screen pixels.

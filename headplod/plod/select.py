@@ -434,22 +434,27 @@ class LevelSelector:
         seen = np.flatnonzero(~self._outside_screen(eye))
         ecc = np.full(len(rel), np.nan)
         continuous = np.zeros(len(rel))
-        ecc[seen], continuous[seen] = self._criterion(seen, eye, shifted[seen], distance[seen], directions[seen],
-                                                      speed[seen], gaze)
-        budget_bias = 0.0
+        if len(seen):
+            ecc[seen], continuous[seen] = self._criterion(seen, eye, shifted[seen], distance[seen],
+                                                          directions[seen], speed[seen], gaze)
+        else:                                    # nothing in view (an eye far off to a side): all at level 0
+            self._visibility = np.zeros((0, self.max_level + 1))
+        budget_bias, budget_reach = 0.0, None
         if cfg.budget_triangles is not None:
-            budget_bias, continuous[seen] = self._budget_bias(continuous, seen, ecc[seen])
+            budget_bias, continuous[seen], budget_reach = self._budget_bias(continuous, seen, ecc[seen])
         if self.hysteresis is not None:
             levels = self.hysteresis.update(continuous, self.max_level, eager=self._eager(view, ecc))
         else:
             levels = pc.round_level(continuous, self.rounding, self.max_level)
         levels = np.clip(levels, 0, self.max_level).astype(np.int64)
         return levels, {"eccentricity_deg": ecc, "speed_deg_s": speed, "distance_mm": distance,
-                        "continuous": continuous, "poi_px": view.poi_px, "cov_deg2": cov, "budget_bias": budget_bias}
+                        "continuous": continuous, "poi_px": view.poi_px, "cov_deg2": cov, "budget_bias": budget_bias,
+                        "budget_reach": budget_reach}
 
     def _budget_bias(self, continuous, seen, ecc_seen):
-        """The bias on the ``seen`` triangles that meets the triangle budget, and their continuous levels
-        (len(seen),) under it.
+        """The bias on the ``seen`` triangles that meets the triangle budget, their continuous levels
+        (len(seen),) under it, and the counts a bias can reach at all: (coarsest, finest) triangles, every
+        seen base triangle at level 0 or at the finest level (the others stay at 0).
 
         The bias is the level bias's own unit: levels, added to the continuous
         levels; for ``change``, doublings of the threshold (:func:`criteria.change_level`). The frame's
@@ -487,8 +492,9 @@ class LevelSelector:
             trial[seen] = pc.round_level(cont, self.rounding, L)
             return self.triangle_count(np.clip(trial, 0, L))
 
+        reach = (int(self.triangle_count(trial)), int(count_levels(np.full(len(seen), float(L)))))
         if len(seen) == 0:
-            return 0.0, levels_at(0.0)
+            return 0.0, levels_at(0.0), reach
         best = (math.inf, 0.0)
         below = above = None                     # the closest biases under and over the budget
         for _ in range(40):                      # loop over bisection steps (each a vectorized count)
@@ -497,13 +503,13 @@ class LevelSelector:
             miss = abs(n - budget) / budget
             best = min(best, (miss, mid))
             if miss <= cfg.budget_tolerance:
-                return mid, levels_at(mid)
+                return mid, levels_at(mid), reach
             if n < budget:
                 lo, below = mid, mid
             else:
                 hi, above = mid, mid
         if below is None or above is None:
-            return best[1], levels_at(best[1])
+            return best[1], levels_at(best[1]), reach
         coarse, fine = levels_at(below), levels_at(above)
         rounded = pc.round_level(coarse, self.rounding, L) != pc.round_level(fine, self.rounding, L)
         ties = np.flatnonzero(rounded)[np.argsort(ecc_seen[rounded], kind="stable")]     # nearest the POI first
@@ -521,7 +527,7 @@ class LevelSelector:
                 k_hi = k
         cont = coarse.copy()
         cont[ties[:chosen[1]]] = fine[ties[:chosen[1]]]
-        return below, cont
+        return below, cont, reach
 
     def _eager(self, view: ConditionedView, ecc):
         """(n,) bool for the hysteresis: triangles within ``hysteresis_eager_deg`` of a moving POI; None if still."""

@@ -11,10 +11,10 @@
   Murphy & Duchowski's ray-mask renderer; :mod:`.foveate`: foveated resolution layers.
 - :mod:`.still`: the terrain scene and ``headplod render``'s one frame; :mod:`.command`: ``headplod render``.
 """
-from .context import EGL_PACKAGES, create_context
+from .context import EGL_PACKAGES, GLContextError, create_context
 from .gl import PALETTE, VIEW_MODES, TerrainRenderer
 from .overlay import overlay_poi
 from .projection import SceneTransform, off_axis_projection, scene_to_world, screen_frame
 
-__all__ = ["create_context", "EGL_PACKAGES", "screen_frame", "off_axis_projection", "SceneTransform",
-           "scene_to_world", "TerrainRenderer", "PALETTE", "VIEW_MODES", "overlay_poi"]
+__all__ = ["create_context", "GLContextError", "EGL_PACKAGES", "screen_frame", "off_axis_projection",
+           "SceneTransform", "scene_to_world", "TerrainRenderer", "PALETTE", "VIEW_MODES", "overlay_poi"]

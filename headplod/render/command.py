@@ -8,11 +8,14 @@
                     [--terrain DEM.tif|HEIGHTS.png|HEIGHTS.npy [--spacing-m D|DX,DY] [--height-scale S]]
                     [--max-level 1..8] [--lazy] [--cache-mb MB]
 
-Exit status: 0 on success, 1 on a broken input file, 2 on bad usage.
+Exit status: 0 on success, 1 on a failed run (a broken input file, no OpenGL context, a write that failed), 2 on
+bad usage (options that cannot work together, a view from on or behind the screen plane, an output that cannot be
+written there), each with one line on standard error; bad usage is found before anything is drawn or written.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -23,6 +26,7 @@ import numpy as np
 from calib import DEFAULT_SCREEN
 
 from .. import io
+from ..io import ViewError
 from ..io.files import Inputs, OutputRefused, check_files
 from ..plod.export import check_export_path
 from ..argtypes import add_quiet_argument, floats, gaze_prior, level_bias, triangle_budget
@@ -33,8 +37,12 @@ from .scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_opti
                             terrain_for_command)
 from ..plod.select import (DEFAULT_CSF_MODEL, GAZE_DISTRIBUTION_MODES, GAZE_PRIOR_DEG, MAX_GAZE_PRIOR_DEG, MODES,
                            UNCERTAINTY_MODES, SelectorConfig)
-from .frame import BACKENDS, CAPABILITIES, VIEW_MODES, FrameSettings, capability_table, default_mode, options_problem
-from .still import CONTRAST_SOURCES, MeshOptions, StillSettings, render_still, scene_model
+from .frame import (BACKENDS, CAPABILITIES, FAR_MM, VIEW_MODES, FrameSettings, capability_table, default_mode,
+                    options_problem)
+from .still import CONTRAST_SOURCES, MeshOptions, StillSettings, default_head, render_still, scene_model
+from .context import create_context
+from .gl import TerrainRenderer
+from .outputs import OutputNotWritable, check_writable
 
 __all__ = ["add_render_arguments", "run_render", "add_cost_arguments", "add_csf_argument", "add_gaze_prior_argument",
            "selection_options", "raymask_config"]
@@ -82,7 +90,8 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
     render.add_argument("--out", required=True, help="output image (PNG)")
     add_quiet_argument(render, help="no notes on standard error (the triangles and times line); errors, warnings "
                                     "and --compare's line still appear")
-    render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON)")
+    render.add_argument("--stats", help="write triangles, select/build/render ms and per-level counts (JSON; - : "
+                                         "to standard output)")
     render.add_argument("--compare", choices=("full",),
                         help="also render full from the same view and print the frame's PSNR (whole, and within 5° "
                              "of the POI) and FLIP against it (default: no comparison; mesh and raymask back ends)")
@@ -102,7 +111,9 @@ def add_cost_arguments(parser) -> None:
                              "triangles for image error in every mode alike")
     parser.add_argument("--budget", type=triangle_budget, default=None, metavar="TRIANGLES",
                         help="meet this many triangles a frame within 3%%: the level bias is found per frame "
-                             "(bisection), so modes can be compared at equal cost (mesh back end)")
+                             "(bisection), so modes can be compared at equal cost (mesh back end); a budget beyond "
+                             "what the view allows is not met, and render's summary and --stats say so, with the "
+                             "nearest count")
 
 
 def add_csf_argument(parser) -> None:
@@ -160,19 +171,49 @@ def still_settings(args, mode: str, cov_deg2=None, size=(1280, 720), raymask: Ra
                          export=None if args.export is None else Path(args.export))
 
 
-def _output_problem(path, image: bool = False) -> str | None:
-    """Why ``path`` cannot be an output file (a folder; an image ending OpenCV cannot write), or None."""
+def _output_problem(option: str, path, image: bool = False) -> str | None:
+    """Why ``path`` cannot be ``option``'s output file (a folder; an image ending OpenCV cannot write; a place no
+    file can be written: :func:`headplod.render.outputs.check_writable`), or None."""
     p = Path(path)
     if p.is_dir():
-        return f"{path} is a folder; name a file"
+        return f"{option} {path} is a folder; name a file"
     if image and not cv2.haveImageWriter(str(p)):
         return f"{path}: OpenCV cannot write images ending {p.suffix or '(no ending)'!r}; use .png or .jpg"
+    try:
+        check_writable(p)
+    except OutputNotWritable as exc:
+        return f"{option} {path}: {exc}"
     return None
 
 
-def _outputs_problem(args) -> str | None:
+def _usage_problem(args, screen) -> str | None:
+    """Why ``headplod render``'s options cannot make a frame (one line, bad usage), found before any work: the
+    covariance, the size, the outputs (``--out``, ``--stats``, ``--export``: ending, folder, a place that can be
+    written) and the view (an eye on or behind the screen plane); or None."""
+    if args.cov is not None:
+        pp, pt, tt = args.cov
+        if np.any(np.linalg.eigvalsh(np.array([[pp, pt], [pt, tt]])) <= 0):
+            return f"--cov {args.cov} is not positive definite"
+    if min(args.size) < 1 or max(args.size) > 16384 or any(v != int(v) for v in args.size):
+        return f"--size must be two whole numbers of pixels in 1..16384, got {args.size}"
+    problem = (_same_outputs_problem(args) or _output_problem("--out", args.out, image=True)
+               or (args.stats not in (None, "-") and _output_problem("--stats", args.stats)))
+    if problem:
+        return problem
+    if args.export is not None:
+        try:
+            check_export_path(args.export)
+        except ValueError as exc:
+            return f"--export {exc}"
+        problem = _output_problem("--export", args.export)
+        if problem:
+            return problem
+    return _view_problem(args.head, screen, args.screen)
+
+
+def _same_outputs_problem(args) -> str | None:
     """Why ``--out``, ``--stats`` or ``--export`` may not be written (:mod:`headplod.io.files`: a special file,
-    a file the run reads, or one of them twice), or None."""
+    an input (``--terrain``, ``--screen``) however spelled, or one of them twice), or None."""
     inputs = Inputs()
     for option, what in (("screen", "the screen being read"), ("terrain", "the terrain being read")):
         if getattr(args, option, None):
@@ -185,31 +226,55 @@ def _outputs_problem(args) -> str | None:
     return None
 
 
+def _view_problem(head, screen, screen_path=None) -> str | None:
+    """Why no frame can be drawn from ``head`` ((3,) world mm; None: :func:`default_head`) on ``screen`` (read
+    from ``screen_path``; None: the embedded one): :meth:`headplod.io.Screen.check_eye`'s reason (on or behind the
+    screen plane, or beyond the frame's far clip plane, :data:`~headplod.render.frame.FAR_MM`); or None."""
+    try:
+        screen.check_eye(default_head(screen) if head is None else head, far_mm=FAR_MM)
+    except ViewError as exc:
+        if head is not None:
+            return f"--head {','.join(f'{v:g}' for v in head)}: {exc}"
+        # The default eye stands on the cameras' side of the screen: the corners are given in the wrong order.
+        return (f"--screen {screen_path}: the default eye, 600 mm in front of the screen's centre on the cameras' "
+                f"side: {exc}; are top_left, top_right and bottom_left as the viewer sees them?")
+    return None
+
+
+def _stats_file(args):
+    """``--stats``' file, or None when there is none or it is ``-`` (standard output: :func:`_print_stats`)."""
+    return None if args.stats in (None, "-") else args.stats
+
+
+def _write_failed(exc: Exception, args) -> int:
+    """The one line of an output that could not be written after all (a full disk; OpenCV refusing to encode),
+    naming its path as given; exit status 1."""
+    where = getattr(exc, "filename", None)
+    reason = getattr(exc, "strerror", None) or exc
+    print(f"headplod: could not write the output: {reason}" + (f" ({where})" if where else ""), file=sys.stderr)
+    return 1
+
+
+def _print_stats(args, stats: dict) -> None:
+    """``--stats -``: the stats (JSON) on standard output, as the file would hold them."""
+    if args.stats == "-":
+        print(json.dumps(stats, indent=2), flush=True)
+
+
 def run_render(args) -> int:
-    """Run ``headplod render`` from parsed arguments; the exit status."""
+    """Run ``headplod render`` from parsed arguments; the exit status.
+
+    Every option, output and the view are checked before any work (one line, exit status 2); the OpenGL
+    context is made next, before the terrain is read or its mesh built (a broken EGL ends the run at once,
+    :class:`~headplod.render.context.GLContextError`, one line from the command line, exit status 1).
+    """
     screen = io.read_screen(args.screen or DEFAULT_SCREEN)
-    cov = None
-    if args.cov is not None:
-        pp, pt, tt = args.cov
-        cov = np.array([[pp, pt], [pt, tt]])
-        if np.any(np.linalg.eigvalsh(cov) <= 0):
-            print(f"headplod: --cov {args.cov} is not positive definite", file=sys.stderr)
-            return 2
-    size = tuple(int(v) for v in args.size)
-    if min(size) < 1 or max(size) > 16384 or any(v != int(v) for v in args.size):
-        print(f"headplod: --size must be two whole numbers of pixels in 1..16384, got {args.size}", file=sys.stderr)
-        return 2
-    problem = _outputs_problem(args) or _output_problem(args.out, image=True) or (args.stats and
-                                                                                 _output_problem(args.stats))
+    problem = _usage_problem(args, screen)
     if problem:
         print(f"headplod: {problem}", file=sys.stderr)
         return 2
-    if args.export is not None:
-        try:
-            check_export_path(args.export)
-        except ValueError as exc:
-            print(f"headplod: --export {exc}", file=sys.stderr)
-            return 2
+    cov = None if args.cov is None else np.array([[args.cov[0], args.cov[1]], [args.cov[1], args.cov[2]]])
+    size = tuple(int(v) for v in args.size)
     mode = args.mode or default_mode(args.backend)
     given = tuple(name for name, on in (("--max-level", args.max_level is not None), ("--lazy", args.lazy),
                                         ("--cache-mb", args.cache_mb is not None)) if on)
@@ -238,6 +303,7 @@ def run_render(args) -> int:
         if not (0 <= x <= w and 0 <= y <= h):
             print(f"headplod: warning: --poi {x:g},{y:g} lies outside the screen (0..{w}, 0..{h} px): the viewer "
                   "looks off the screen and the whole frame is periphery", file=sys.stderr)
+    renderer = TerrainRenderer(create_context(), size=size)     # (the raymask back end's is made on its context)
     terrain, status = terrain_for_command(args, "headplod")     # read before anything is written
     if status is not None:
         return status
@@ -247,16 +313,16 @@ def run_render(args) -> int:
         scene = options.build(screen, terrain)                   # (--compare: one scene for both frames)
     try:
         settings = still_settings(args, mode, cov, size, raymask)
-        image, stats = render_still(settings, screen, scene=scene, out=args.out, stats_path=args.stats)
+        image, stats = render_still(settings, screen, scene=scene, renderer=renderer, out=args.out,
+                                    stats_path=_stats_file(args))
         if args.compare == "full":
             full = FrameSettings("mesh", SelectorConfig(mode="full", uncertainty="none"))
             reference, _ = render_still(replace(settings, frame=full, cov_deg2=None, contrast="shading", export=None),
-                                        screen, scene=scene)
+                                        screen, scene=scene, renderer=renderer)
             print(compare_line(image, reference, screen, args.head, args.poi, size), file=sys.stderr)
-    except OSError as exc:           # a folder that cannot be written: nothing half-written is left
-        print(f"headplod: could not write the output: {exc.strerror or exc} ({exc.filename or args.out})",
-              file=sys.stderr)
-        return 1
+    except OSError as exc:           # a write that failed all the same (a full disk): nothing half-written is left
+        return _write_failed(exc, args)
+    _print_stats(args, stats)
     if "raymask" in stats:
         r = stats["raymask"]
         note(f"{r['rays']} rays ({r['fill_rays']} inset, {r['ring_rays']} rings, {r['silhouette_rays']} in "
@@ -266,13 +332,26 @@ def run_render(args) -> int:
     m = stats["mesh"]
     lazy = (f", lazy mesh: {m['vertices']:,} vertices, cache {m['cache_bytes'] / 2 ** 20:.0f} of "
             f"{m['cache_budget_bytes'] / 2 ** 20:.0f} MB" if m["kind"] == "lazy" else "")
-    budget = (f", budget {args.budget:,} met with a level bias of {stats['budget_bias']:+.2f}"
-              if "budget_bias" in stats else "")
-    note(f"{stats['triangles']} triangles (level {m['max_level']}{lazy}{budget}); select {stats['select_ms']:.1f} ms, "
+    budget = f"; {budget_words(stats['budget'], m['max_level'])}" if "budget" in stats else ""
+    note(f"{stats['triangles']} triangles (level {m['max_level']}{lazy}){budget}; select {stats['select_ms']:.1f} ms, "
          f"build {stats['build_ms']:.1f} ms, "
          f"render {stats['render_ms']:.1f} ms; image: {args.out}"
          + (f"; mesh: {args.export}" if args.export else ""))
     return 0
+
+
+def budget_words(outcome: dict, max_level: int) -> str:
+    """The summary's words on a budget (:func:`headplod.render.frame.budget_outcome`'s dict): met, or not met
+    with the nearest count the view allows."""
+    head = f"budget {outcome['triangles']:,}"
+    if outcome["met"]:
+        return f"{head} met with a level bias of {outcome['bias']:+.2f}"
+    nearest = f"{outcome['nearest']:,} triangles"
+    if outcome["limit"] == "coarsest":
+        return f"{head} not met: {nearest}, the coarsest this view allows (every base triangle at level 0)"
+    if outcome["limit"] == "finest":
+        return f"{head} not met: {nearest}, the finest this view allows at --max-level {max_level}"
+    return f"{head} not met: {nearest}, the nearest the levels allow (a base triangle refines as a whole)"
 
 
 def compare_line(image, reference, screen, head_mm, poi_px, size, judge=None) -> str:
@@ -316,7 +395,6 @@ def compare_line(image, reference, screen, head_mm, poi_px, size, judge=None) ->
 def _run_tessellation(args, mode, screen, cov, size) -> int:
     """``headplod render --backend tessellation``: one frame of :mod:`headplod.render.tessellate`."""
     from ..plod.patches import PatchGrid, height_grid, jacksboro_grid, patch_samples_for
-    from .context import create_context
     from .still import fit_scale
     from .tessellate import TessellationConfig, TessellationRenderer
 
@@ -335,6 +413,7 @@ def _run_tessellation(args, mode, screen, cov, size) -> int:
         print(f"headplod: --selection tree needs a power-of-two number of patches per side: --grid-samples {n} "
               f"gives {patches} (1 + 64 x 2^k: 129, 257, 513, 1025, ...)", file=sys.stderr)
         return 2
+    ctx = create_context(require=430)            # before the terrain and its grid: a broken EGL ends the run at once
     terrain, status = terrain_for_command(args, "headplod")     # --terrain FILE: a person's own terrain
     if status is not None:
         return status
@@ -350,15 +429,15 @@ def _run_tessellation(args, mode, screen, cov, size) -> int:
     else:
         model = scene_model(grid.extent, float(np.median(terrain.dem_z_m)), screen, fit_scale(terrain))
     settings = still_settings(args, mode, cov, size)
-    with TessellationRenderer(create_context(require=430), grid, size=size, config=config,
+    with TessellationRenderer(ctx, grid, size=size, config=config,
                               selection=settings.frame.selection) as renderer:
         try:                         # each file whole or not at all, as the mesh back end's
             _, stats = render_still(settings, screen, renderer=renderer, model=model, out=args.out,
-                                    stats_path=args.stats,
+                                    stats_path=_stats_file(args),
                                     details={"grid_samples": n, "patch_samples": config.patch_samples})
         except (OSError, ValueError) as exc:
-            print(f"headplod: could not write the output: {getattr(exc, 'strerror', None) or exc}", file=sys.stderr)
-            return 1
+            return _write_failed(exc, args)
+    _print_stats(args, stats)
     note(f"{stats['triangles']} triangles ({grid.full_triangles} at full detail); select {stats['select_ms']:.1f} ms, "
          f"render {stats['render_ms']:.1f} ms; image: {args.out}")
     return 0

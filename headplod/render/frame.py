@@ -42,7 +42,7 @@ from .projection import off_axis_projection, screen_to_image_px
 __all__ = ["NEAR_MM", "FAR_MM", "VIEW_MODES", "BACKENDS", "DEMO_BACKENDS", "BackendCapabilities", "CAPABILITIES", "options_problem",
            "capability_table", "FrameOutput", "Backend", "MeshBackend", "TessellationBackend", "RayMaskBackend",
            "FrameStep", "FrameSettings", "SelectionOnlyBackend", "make_backend", "make_frame_step", "one_frame",
-           "px_per_deg_at"]
+           "px_per_deg_at", "budget_outcome"]
 
 #: Near and far planes of every frame's off-axis projection, mm from the eye.
 NEAR_MM, FAR_MM = 50.0, 5000.0
@@ -334,8 +334,12 @@ class MeshBackend(Backend):
                  "readback": renderer.last_readback_ms}
         if self.foveated is not None:            # the layers' face spans and index re-sort
             stage["upload"] += self.foveated.last_sort_ms
-        if self.selector.config.budget_triangles is not None and self.last_info is not None:
+        config = self.selector.config
+        if config.budget_triangles is not None and self.last_info is not None:
             details["budget_bias"] = float(self.last_info["budget_bias"])
+            details["budget"] = budget_outcome(config.budget_triangles, len(tri_levels),
+                                               self.last_info.get("budget_reach"), config.budget_tolerance,
+                                               details["budget_bias"])
         if mesh.kind == "lazy":
             details["cache_bytes"] = int(mesh.cache_bytes)
             details["lazy"] = {k: int(mesh.stats.get(k, 0)) for k in ("rebuilt_faces", "generated_pieces",
@@ -513,6 +517,39 @@ class FrameSettings:
             raise ValueError(f"FrameSettings: draw=False is the mesh back end's (selection only), not {self.backend}'s")
         if not (isinstance(self.supersample, (int, np.integer)) and self.supersample >= 1):
             raise ValueError(f"FrameSettings: supersample must be a whole number >= 1, got {self.supersample!r}")
+
+
+def budget_outcome(budget: int, drawn: int, reach, tolerance: float, bias: float) -> dict:
+    """Whether a frame met its triangle budget, and if not the nearest count it could reach (a frame's stats).
+
+    Parameters
+    ----------
+    budget : int
+        The budget, triangles (:attr:`SelectorConfig.budget_triangles`).
+    drawn : int
+        The frame's triangles.
+    reach : (2,) int or None
+        (coarsest, finest): the triangles of the frame with every seen base triangle at level 0 and at the finest
+        level (the selector's ``budget_reach``); None: not known.
+    tolerance : float
+        The fraction of the budget it is met within (:attr:`SelectorConfig.budget_tolerance`).
+    bias : float
+        The level bias the budget chose, levels.
+
+    Returns
+    -------
+    dict
+        ``triangles`` (the budget), ``met`` (``drawn`` within ``tolerance`` of it), ``nearest`` (``drawn`` when
+        not met, else None), ``limit`` (``coarsest`` or ``finest`` when the budget lies beyond what this view's
+        terrain allows, else None: met, or missed between two counts a whole base triangle apart),
+        ``reachable`` ([coarsest, finest] or None) and ``bias``.
+    """
+    met = abs(drawn - budget) <= tolerance * budget
+    limit = None
+    if not met and reach is not None:
+        limit = "coarsest" if budget < reach[0] else "finest" if budget > reach[1] else None
+    return {"triangles": int(budget), "met": bool(met), "nearest": None if met else int(drawn), "limit": limit,
+            "reachable": None if reach is None else [int(reach[0]), int(reach[1])], "bias": float(bias)}
 
 
 class SelectionOnlyBackend(MeshBackend):

@@ -135,9 +135,11 @@ def off_axis_projection(eye_mm: Any, screen: Screen, near_mm: float,
 
     Raises
     ------
+    headplod.io.ViewError
+        On an eye on or behind the screen plane
+        (:meth:`headplod.io.Screen.check_eye`).
     ValueError
-        On a non-finite or wrongly shaped eye, bad clip distances, or an eye
-        on or behind the screen plane.
+        On a non-finite or wrongly shaped eye, or bad clip distances.
 
     Notes
     -----
@@ -148,6 +150,7 @@ def off_axis_projection(eye_mm: Any, screen: Screen, near_mm: float,
     eye = np.asarray(eye_mm, dtype=np.float64).reshape(-1)
     if eye.shape != (3,) or not np.isfinite(eye).all():
         raise ValueError(f"off_axis_projection: eye_mm must be 3 finite numbers (mm), got {eye_mm!r}")
+    screen.check_eye(eye)                       # the screen's rule: ViewError on or behind its plane
     n, f = float(near_mm), float(far_mm)
     if not (math.isfinite(n) and math.isfinite(f) and 0.0 < n < f):
         raise ValueError(f"off_axis_projection: need 0 < near_mm < far_mm, got near={near_mm}, far={far_mm}")
@@ -157,13 +160,6 @@ def off_axis_projection(eye_mm: Any, screen: Screen, near_mm: float,
     a = R_eye_world @ (screen.top_right - screen.top_left)  # (ax, 0, 0)
     b = R_eye_world @ (screen.bottom_left - screen.top_left)  # (bx, by, 0)
     d = -tl[2]
-    size = max(np.linalg.norm(a), np.linalg.norm(b))
-    if not d > tol.small * size:
-        raise ValueError(
-            f"off_axis_projection: the eye {eye.tolist()} mm is {'on' if abs(d) <= tol.small * size else 'behind'} "
-            f"the screen plane (signed distance {d:.6g} mm toward the viewer); it must be on the "
-            "side the screen is seen from (opposite to screen.normal)"
-        )
     x0, y0 = tl[0], tl[1]
     ax, bx, by = a[0], b[0], b[1]
     # On the screen plane z = -d, a view-space point q projects to p = d q / (-q_z);

@@ -160,7 +160,8 @@ def mesh_options_problem(args, backend: str, mode: str) -> str | None:
     - ``--cache-mb`` without the lazy mesh: it has no cache.
     - a back end that cannot work over the lazy mesh (:attr:`BackendCapabilities.lazy_mesh`; the ``raymask`` one
       casts rays against the height field of the whole ``full`` mesh, which the lazy mesh never holds) with it.
-    - ``full`` above :data:`FULL_MAX_LEVEL`: 134 M triangles at level 8 do not fit (~3 GB a frame).
+    - ``full`` above :data:`FULL_MAX_LEVEL`: 134 M triangles at level 8 do not fit (~3 GB a frame); nor does
+      ``render --compare full``'s reference frame there.
 
     Also the values themselves: ``--max-level`` a whole number in 1..8, ``--cache-mb`` in 1..65536.
     """
@@ -178,4 +179,8 @@ def mesh_options_problem(args, backend: str, mode: str) -> str | None:
         return (f"--mode full at --max-level {level} would draw {2048 * 4 ** level:,} triangles (about "
                 f"{2048 * 4 ** level * 24 / 2 ** 30:.1f} GB a frame); use --max-level {FULL_MAX_LEVEL} or lower, "
                 "or a PLOD mode such as csf")
+    if getattr(args, "compare", None) == "full" and level > FULL_MAX_LEVEL:
+        return (f"--compare full at --max-level {level} would draw full's {2048 * 4 ** level:,} triangles (about "
+                f"{2048 * 4 ** level * 24 / 2 ** 30:.1f} GB a frame), which do not fit; compare at --max-level "
+                f"{FULL_MAX_LEVEL} or lower")
     return None

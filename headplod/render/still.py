@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from ..plod.contrast import project_to_screen_px, readback_contrast
-from ..io import write_atomically
+from .outputs import naming, write_named
 from ..plod.export import export_mesh
 from ..plod.lazy_mesh import DEFAULT_CACHE_BYTES, LazyAdaptiveMesh
 from ..plod.mesh import AdaptiveMesh, BaseMesh
@@ -299,7 +299,8 @@ def render_still(settings: StillSettings, screen, *, scene=None, renderer=None, 
     stats.update(details or {})
     write_outputs(image, stats, out, stats_path)
     if settings.export is not None:
-        export_mesh(scene.mesh, result.levels, settings.export)
+        with naming(settings.export):
+            export_mesh(scene.mesh, result.levels, settings.export)
     return image, stats
 
 
@@ -368,7 +369,8 @@ def write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> 
     """Write the image (RGB (H, W, 3) uint8; format from the ending) and the stats (JSON), each whole or not at all.
 
     Raises ValueError when OpenCV cannot encode the image (an ending it does
-    not know) and OSError when a file cannot be written.
+    not know) and OSError when a file cannot be written; the OSError names
+    ``out`` or ``stats_path`` as given, never the temporary name written first.
     """
     if out:
         out = Path(out)
@@ -384,7 +386,8 @@ def write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> 
                               str(out))
             if not written:
                 raise ValueError(f"{out}: OpenCV could not write an image there (use .png or .jpg)")
-        write_atomically(out, write_image, suffix=out.suffix)
+        write_named(out, write_image, suffix=out.suffix)
     if stats_path:
         Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
-        write_atomically(stats_path, lambda name: Path(name).write_text(json.dumps(stats, indent=2)))
+        write_named(stats_path, lambda name: Path(name).write_text(json.dumps(stats, indent=2)))
+

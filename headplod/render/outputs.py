@@ -1,0 +1,85 @@
+"""Whether the render and demo commands can write where they are told to, found before any long work
+(:func:`check_writable`), and a whole-or-nothing write whose errors name the output (:func:`write_named`).
+
+:func:`check_writable` tries what the write will do, in the place it will
+do it: the nearest folder that exists on the way to the output must be a
+folder that takes a new file (a probe file is made there and removed at
+once). Permission bits alone do not say it: root may write in a read-only
+folder but not in ``/proc``, and a read-only mount refuses everyone. The
+message names the path as the user gave it, never a temporary name.
+"""
+from __future__ import annotations
+
+import errno
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+from ..io import write_atomically
+
+__all__ = ["OutputNotWritable", "check_writable", "write_named", "naming"]
+
+
+class OutputNotWritable(OSError):
+    """An output that cannot be written where it is named (its folder cannot be made or takes no new file).
+
+    The message says why, in words about the user's path; a command reports it as bad usage (exit status 2).
+    """
+
+
+def check_writable(path, *, folder: bool = False) -> None:
+    """Raise :class:`OutputNotWritable` unless ``path`` can be written: as a file (made, with its missing
+    folders, as the write will), or with ``folder`` as a folder (made, or filled when it exists).
+
+    Nothing is left behind: the probe file is removed, no folder is made.
+    """
+    target = Path(path).expanduser()
+    if folder and _exists(target) and not target.is_dir():
+        raise OutputNotWritable("cannot be written: it is a file, not a folder")
+    existing = target if folder else target.parent
+    while not _exists(existing) and existing != existing.parent:     # the folders the write would make
+        existing = existing.parent
+    existing = existing if str(existing) else Path(".")
+    if not existing.is_dir():
+        raise OutputNotWritable(f"cannot be written: {existing} is not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".headplod-probe-", dir=existing)
+    except OSError as exc:
+        # ENOENT in a folder that exists: a file system that makes no files (/proc, /sys).
+        why = "it takes no new files" if exc.errno == errno.ENOENT else exc.strerror or type(exc).__name__
+        raise OutputNotWritable(f"cannot be written: no file can be made in {existing} ({why})") from None
+    os.close(fd)
+    os.unlink(probe)
+
+
+def _exists(path: Path) -> bool:
+    """Whether ``path`` exists (a dangling symbolic link counts: the write would follow or replace it); a path
+    that cannot be looked at (no permission on a folder on the way) counts as existing, so the probe fails
+    there with the reason."""
+    try:
+        os.lstat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        return False
+    except OSError:
+        return True
+    return True
+
+
+def write_named(path, write, suffix: str = "") -> None:
+    """:func:`headplod.io.write_atomically` (``write(name)`` on a temporary name, renamed to ``path``), its errors
+    naming ``path`` (:func:`naming`)."""
+    with naming(path):
+        write_atomically(path, write, suffix=suffix)
+
+
+@contextmanager
+def naming(path):
+    """Re-raise an OSError of the block naming ``path``: the temporary name a whole-or-nothing write uses first
+    means nothing to the person who named ``path``."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None or str(exc.filename) == str(path):
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
