@@ -23,14 +23,17 @@ Exit status: 0 on success, 1 when the run failed (bad files), 2 on bad usage.
 from __future__ import annotations
 
 import argparse
+import atexit
 import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 from synthetic.cli import add_render_arguments as add_synth_arguments
 from synthetic.cli import run_render as run_synth
 
-from . import config, io
+from . import cache, config, io, streams
 from .argtypes import attach_negative_lists
 from .bench.command import add_bench_arguments, run_bench
 from .calibration.command import add_calibrate_arguments, run_calibrate
@@ -90,22 +93,60 @@ def _add_config_arguments_below(sub: argparse._SubParsersAction) -> None:
 
 
 def main(argv=None) -> int:
-    # matplotlib keeps a font cache in ~/.config/matplotlib or ~/.cache/matplotlib; the command keeps it
-    # in its own cache folder instead (HEADPLOD_CACHE, default ~/.cache/headplod), unless MPLCONFIGDIR is set.
-    os.environ.setdefault("MPLCONFIGDIR", str(Path(os.environ.get("HEADPLOD_CACHE", Path.home() / ".cache" / "headplod"))
-                                              / "matplotlib"))
+    # First, before anything opens a file: a closed standard descriptor gets /dev/null, so that no file
+    # takes descriptor 2 (and C libraries' messages); then messages that cannot be written are dropped.
+    streams.reopen_closed()
+    with streams.dropping_stderr():
+        return _main(argv)
+
+
+def _main(argv) -> int:
+    try:
+        os.getcwd()
+    except FileNotFoundError:
+        print("headplod: the current folder no longer exists (it was deleted); cd into a folder that exists "
+              "and run the command again", file=sys.stderr)
+        return 2
+    _keep_matplotlib_in_the_cache()
     # "--head -120,40,650": a list starting with a minus sign is the option's value, not another option.
     # The config file (headplod.toml) fills in what the command line does not give.
     args = config.parse_args(build_parser(), attach_negative_lists(sys.argv[1:] if argv is None else argv))
+    if getattr(args, "out", None) == "-" and streams.stdout_is_closed():
+        print("headplod: --out -: standard output is closed; give --out FILE, or run the command with its "
+              "standard output open (a pipe or a file)", file=sys.stderr)
+        return 2
     try:
         with quiet(getattr(args, "quiet", False)):      # -q: no progress, no notes, however deep in the command
             return COMMANDS[args.command][2](args)
     except io.ContractError as exc:
         print(f"headplod: {exc}", file=sys.stderr)
         return 1
+    except cache.CacheUnusable as exc:
+        print(f"headplod: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("headplod: interrupted", file=sys.stderr)
         return 130
+
+
+def _keep_matplotlib_in_the_cache() -> None:
+    """matplotlib keeps a font cache in ~/.config/matplotlib or ~/.cache/matplotlib; the command keeps it in
+    its own cache folder instead (:mod:`headplod.cache`), unless MPLCONFIGDIR is set. When the cache cannot
+    be used, a temporary folder removed at exit: matplotlib would otherwise advise setting MPLCONFIGDIR, a
+    variable the user never set (a command that needs the cache says what is wrong with it, naming
+    HEADPLOD_CACHE)."""
+    if "MPLCONFIGDIR" in os.environ:
+        return
+    try:
+        folder = cache.usable_cache_root() / "matplotlib"
+        folder.mkdir(exist_ok=True)
+    except (cache.CacheUnusable, OSError):
+        try:
+            folder = Path(tempfile.mkdtemp(prefix="headplod-matplotlib-"))
+        except OSError:
+            return
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    os.environ["MPLCONFIGDIR"] = str(folder)
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import synthetic
 
+from ..cache import usable_cache_root
 from ..progress import Progress, is_quiet
 
 #: The sequence ``headplod track`` runs without a dataset.
@@ -44,7 +45,9 @@ def _renderer_version() -> str:
 
 
 def cache_root() -> Path:
-    return Path(os.environ.get("HEADPLOD_CACHE", Path.home() / ".cache" / "headplod"))
+    """The cache folder (:func:`headplod.cache.cache_root`), made and checked writable; raises
+    :class:`~headplod.cache.CacheUnusable` (one line naming HEADPLOD_CACHE) when it cannot be used."""
+    return usable_cache_root()
 
 
 def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, seed: int = 0,

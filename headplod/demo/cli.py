@@ -184,12 +184,13 @@ def resolve_mode(args) -> str:
     return backend
 
 
-def run_headless(args, out=sys.stdout, err=sys.stderr, scene=None, renderer=None) -> dict:
+def run_headless(args, out=None, err=None, scene=None, renderer=None) -> dict:
     """The headless benchmark run; returns the summary (also written to ``args.out``).
 
     ``scene`` (a TerrainScene for the poses' screen) and ``renderer`` (at
     ``args.size``) may be passed in to reuse them (tests); they are made here
-    otherwise.
+    otherwise. The table goes to ``out``, the progress to ``err`` (default: standard output and error as
+    they are at the call).
     """
     resolve_mode(args)
     start = time.perf_counter()
@@ -345,7 +346,7 @@ def _rss_mb() -> float:
         return int(f.read().split()[1]) * resource.getpagesize() / 2 ** 20
 
 
-def print_table(summary: dict, out=sys.stdout) -> None:
+def print_table(summary: dict, out=None) -> None:
     """The short table of the runs, the csf/full ratio per viewpoint and where the pictures are."""
     w, h = summary["size"]
     print(f"\nheadless demo, {w}x{h}, {summary['frames_per_run']} frames per run, poses: {summary['poses']}",

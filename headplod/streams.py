@@ -1,0 +1,150 @@
+"""The command line's standard streams: a closed one is never a file's descriptor, a broken one costs nothing.
+
+A program started with a standard stream closed (``2>&-``, ``>&-``, ``<&-``) has a free descriptor 0, 1
+or 2: the next file it opens takes it, and then C libraries' messages (written to descriptor 2) land in
+that file, or an output is read as standard input. :func:`reopen_closed` puts ``os.devnull`` on each
+closed one before anything opens a file, and says which were closed, so that a command can refuse to
+write its records to a standard output that nobody opened.
+
+Python itself leaves ``sys.stderr`` None when descriptor 2 was closed at its start, and ``print(...,
+file=None)`` then writes to *standard output*: into the records of ``--out -``. :func:`reopen_closed`
+gives each missing ``sys`` stream a real one on the reopened descriptor.
+
+Messages are not worth a run: :class:`DroppingStream` wraps standard error so that a write that fails
+(EBADF, EPIPE: its reader left, ENOSPC: ``2>/dev/full``, EIO: a closed terminal) drops the message and
+every later one, silently; the run's outputs and exit status are what they would have been.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import sys
+from typing import Iterator, TextIO
+
+__all__ = ["StandardStreams", "reopen_closed", "DroppingStream", "dropping_stderr", "stdout_is_closed"]
+
+#: The descriptors of standard input, output and error, and their names in ``sys``.
+_STANDARD = ((0, "stdin"), (1, "stdout"), (2, "stderr"))
+
+
+class StandardStreams:
+    """Which standard descriptors were closed when the command started (0 stdin, 1 stdout, 2 stderr)."""
+
+    def __init__(self, closed: frozenset[int] = frozenset()):
+        self.closed = frozenset(closed)
+
+    def __repr__(self) -> str:
+        return f"StandardStreams(closed={sorted(self.closed)})"
+
+
+#: What :func:`reopen_closed` found in this process (it runs once; a later call in the same process,
+#: e.g. a test calling ``main`` again, sees the descriptors it reopened as open).
+_FOUND = StandardStreams()
+
+
+def _is_open(fd: int) -> bool:
+    try:
+        os.fstat(fd)
+    except OSError:
+        return False
+    return True
+
+
+def reopen_closed() -> StandardStreams:
+    """Open ``os.devnull`` on every closed standard descriptor, give ``sys`` a stream for each that Python left
+    None, and return which were closed (this call's, or an earlier call's in the same process)."""
+    global _FOUND
+    closed = frozenset(fd for fd, _ in _STANDARD if not _is_open(fd))
+    for fd in sorted(closed):
+        try:
+            null = os.open(os.devnull, os.O_RDONLY if fd == 0 else os.O_WRONLY)
+        except OSError:                                 # no /dev/null (a bare chroot): nothing to put there
+            continue
+        if null != fd:
+            os.dup2(null, fd)
+            os.close(null)
+    for fd, name in _STANDARD:
+        if getattr(sys, name) is None and _is_open(fd):
+            mode = "r" if fd == 0 else "w"
+            setattr(sys, name, open(fd, mode, encoding="utf-8", errors="backslashreplace", closefd=False,
+                                    buffering=1 if fd else -1))
+    if closed:
+        _FOUND = StandardStreams(_FOUND.closed | closed)
+    return _FOUND
+
+
+def stdout_is_closed() -> bool:
+    """Whether standard output was closed when the command started (:func:`reopen_closed`)."""
+    return 1 in _FOUND.closed
+
+
+class DroppingStream(io.TextIOBase):
+    """A text stream over ``stream`` whose writes never raise: the first that fails (an OSError, or a stream
+    closed under it) drops that message and every later one. ``dropped`` tells whether one did."""
+
+    def __init__(self, stream: TextIO):
+        super().__init__()
+        self.stream = stream
+        self.dropped = False
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        if not self.dropped:
+            try:
+                self.stream.write(text)
+                if "\n" in text:
+                    self.stream.flush()          # a message out as it is written, or dropped with it
+            except (OSError, ValueError):
+                self._drop()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.dropped:
+            try:
+                self.stream.flush()
+            except (OSError, ValueError):
+                self._drop()
+
+    def _drop(self) -> None:
+        """Stop writing; discard what the stream still holds, so that its own flush at exit fails no more."""
+        self.dropped = True
+        with contextlib.suppress(Exception):
+            fd = self.stream.buffer.raw.fileno()        # a stream over a descriptor (not a test's capture)
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, fd)
+            os.close(null)
+
+    def isatty(self) -> bool:
+        try:
+            return not self.dropped and self.stream.isatty()
+        except (OSError, ValueError, AttributeError):
+            return False
+
+    def fileno(self) -> int:
+        return self.stream.fileno()
+
+    @property
+    def encoding(self) -> str | None:
+        return getattr(self.stream, "encoding", None)
+
+    @property
+    def errors(self) -> str | None:
+        return getattr(self.stream, "errors", None)
+
+    def close(self) -> None:                     # the wrapped stream is not this one's to close
+        pass
+
+
+@contextlib.contextmanager
+def dropping_stderr() -> Iterator[DroppingStream]:
+    """``sys.stderr`` is a :class:`DroppingStream` over the current one while the block runs."""
+    before = sys.stderr
+    stream = before if isinstance(before, DroppingStream) else DroppingStream(before)
+    sys.stderr = stream
+    try:
+        yield stream
+    finally:
+        sys.stderr = before
