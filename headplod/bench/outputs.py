@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..io import write_atomically
+from ..io import write_atomically, write_image
 
 __all__ = ["write_json", "write_png", "pyplot", "save_figure"]
 
@@ -26,7 +26,7 @@ def write_png(path, image_rgb) -> str:
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR))
+    write_image(path, cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR))
     return str(path)
 
 

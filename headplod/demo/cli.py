@@ -279,7 +279,7 @@ def _run_group(args, plan, scene, screen, renderers, folder, progress, pictures,
             stem = "_".join(plan[k][:3]) + ("_foveate" if plan[k][3] else "")
             if result.index in keep:
                 path = folder / "frames" / f"{stem}_{result.index:03d}.png"
-                cv2.imwrite(str(path), cv2.cvtColor(result.image, cv2.COLOR_RGB2BGR))
+                io.write_image(path, cv2.cvtColor(result.image, cv2.COLOR_RGB2BGR))
                 written[k].append(str(path))
             progress.step(f"{stem} {result.frame_ms:.0f} ms")
     finally:
@@ -309,14 +309,14 @@ def _pictures(args, demo, vp, mode, scenario, foveate, folder, pictures) -> None
         path = folder / f"viewpoint_{vp}_layers.png"
         caption = (f"{vp}: {mode} --foveate, {scenario}, level colours; layer borders (scale), "
                    "POI and 2-sigma ellipse")
-        cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
+        io.write_image(path, cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
         pictures[f"{vp} foveate"] = str(path)
     if mode == args.mode and not foveate and (scenario == "adaptive" or vp not in pictures):
         pose = demo.last.pose
         sigma = np.sqrt(np.max(np.diag(pose.cov_deg2))) if pose.cov_deg2 is not None else 0
         caption = f"{vp}: {mode}, {scenario}, level colours; POI and 2-sigma ellipse (sigma {sigma:.2f} deg)"
         path = folder / f"viewpoint_{vp}_levels.png"
-        cv2.imwrite(str(path), cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
+        io.write_image(path, cv2.cvtColor(demo.picture("levels", caption), cv2.COLOR_RGB2BGR))
         pictures[vp] = str(path)
 
 

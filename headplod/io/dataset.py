@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from ._storage import _Ctx
+from .images import read_image
 from .markers import MarkerModel, default_marker_model, read_markers
 from .rig import Rig, read_rig
 from .screen import Screen, read_screen
@@ -293,7 +294,7 @@ class Dataset:
             if head != _PNG_SIGNATURE:
                 kind = " (it looks like a JPEG)" if head[:3] == b"\xff\xd8\xff" else ""
                 return None, f"{name}: unreadable (not a PNG file{kind}; first bytes {head!r})", None
-            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            img = read_image(path)          # through memory: OpenCV never sees the path (io/images.py)
             if img is None:
                 return None, f"{name}: unreadable (corrupt or truncated PNG)", None
             warning = None

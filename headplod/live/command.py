@@ -249,13 +249,13 @@ def track_source_spec(args) -> str:
 
 def open_source_or_report(args, spec: str, check=None):
     """:func:`_open_track_source` for a command: (source, rig, live), or the exit status with its one-line
-    reason printed (2: usage, 1: a file or device that cannot be used). ``check(spec)``, run before
-    opening, may raise ``_Usage`` too."""
+    reason printed (2: usage, or a name OpenCV cannot open; 1: a file or device that cannot be used).
+    ``check(spec)``, run before opening, may raise ``_Usage`` too."""
     try:
         if check is not None:
             check(spec)
         return _open_track_source(args, spec)
-    except _Usage as exc:
+    except (_Usage, io.UnnamablePath) as exc:          # a path OpenCV cannot take: the name given is the fault
         print(f"headplod: {exc}", file=sys.stderr)
         return 2
     except (ValueError, OSError, LookupError) as exc:

@@ -405,7 +405,7 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def _read_png(path, options, notes):
-    import cv2
+    from ..io.images import read_image             # on use, as OpenCV was: only a PNG height map needs it
 
     with open(path, "rb") as f:
         head = f.read(26)
@@ -413,7 +413,7 @@ def _read_png(path, options, notes):
         raise TerrainFileError(f"{path}: not a PNG file (no PNG signature); save the height map as a 16-bit PNG")
     width, height, bit_depth, colour_type = struct.unpack(">IIBB", head[16:26])
     _check_shape(path, (height, width))            # before decoding a huge image
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    image = read_image(path)                       # through memory: OpenCV never sees the path
     if image is None:
         raise TerrainFileError(f"{path}: OpenCV could not decode this PNG (damaged or truncated?)")
     invalid = None
