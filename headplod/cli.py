@@ -96,6 +96,7 @@ def main(argv=None) -> int:
     # First, before anything opens a file: a closed standard descriptor gets /dev/null, so that no file
     # takes descriptor 2 (and C libraries' messages); then messages that cannot be written are dropped.
     streams.reopen_closed()
+    streams.print_names_as_they_are()
     with streams.dropping_stderr():
         return _main(argv)
 

@@ -10,6 +10,9 @@ Python itself leaves ``sys.stderr`` None when descriptor 2 was closed at its sta
 file=None)`` then writes to *standard output*: into the records of ``--out -``. :func:`reopen_closed`
 gives each missing ``sys`` stream a real one on the reopened descriptor.
 
+A name whose bytes are not UTF-8 prints on standard output as those bytes (:func:`print_names_as_they_are`)
+rather than ending the command with UnicodeEncodeError.
+
 Messages are not worth a run: :class:`DroppingStream` wraps standard error so that a write that fails
 (EBADF, EPIPE: its reader left, ENOSPC: ``2>/dev/full``, EIO: a closed terminal) drops the message and
 every later one, silently; the run's outputs and exit status are what they would have been.
@@ -22,7 +25,8 @@ import os
 import sys
 from typing import Iterator, TextIO
 
-__all__ = ["StandardStreams", "reopen_closed", "DroppingStream", "dropping_stderr", "stdout_is_closed"]
+__all__ = ["StandardStreams", "reopen_closed", "DroppingStream", "dropping_stderr", "stdout_is_closed",
+           "print_names_as_they_are"]
 
 #: The descriptors of standard input, output and error, and their names in ``sys``.
 _STANDARD = ((0, "stdin"), (1, "stdout"), (2, "stderr"))
@@ -72,6 +76,16 @@ def reopen_closed() -> StandardStreams:
     if closed:
         _FOUND = StandardStreams(_FOUND.closed | closed)
     return _FOUND
+
+
+def print_names_as_they_are() -> None:
+    """Standard output writes a name's bytes that are not UTF-8 (``b'caf\\xe9'``, held as ``'caf\\udce9'``) as the
+    bytes they are, as Python does under the C locale, instead of raising UnicodeEncodeError (a locale such
+    as ``en_US.UTF-8`` makes it strict). Standard error already shows them as ``\\xe9`` escapes."""
+    stream = sys.stdout
+    if getattr(stream, "errors", None) == "strict" and hasattr(stream, "reconfigure"):
+        with contextlib.suppress(Exception):
+            stream.reconfigure(errors="surrogateescape")
 
 
 def stdout_is_closed() -> bool:

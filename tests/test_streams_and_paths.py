@@ -82,6 +82,7 @@ def _records(path: Path) -> list[dict]:
 # ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("quiet", [[], ["-q"]], ids=["messages", "quiet"])
 def test_a_closed_standard_error_costs_no_record(tmp_path, long_dataset, quiet):
     out = tmp_path / "f.jsonl"
@@ -100,6 +101,7 @@ def test_a_closed_standard_error_never_mixes_messages_into_records_on_standard_o
     assert [json.loads(line)["frame"] for line in lines] == list(range(12))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("where", ["/dev/full", "a pipe nobody reads"])
 def test_an_unwritable_standard_error_costs_no_record(tmp_path, long_dataset, where):
     out = tmp_path / "f.jsonl"
@@ -120,7 +122,7 @@ def test_an_unwritable_standard_error_costs_no_record(tmp_path, long_dataset, wh
     assert [r["frame"] for r in _records(out)] == list(range(20))
 
 
-@pytest.mark.parametrize("redirect", ["2>&-", "2>/dev/full"])
+@pytest.mark.parametrize("redirect", ["2>&-", pytest.param("2>/dev/full", marks=pytest.mark.slow)])
 def test_synth_with_a_closed_or_full_standard_error_makes_its_folder(tmp_path, redirect):
     if "/dev/full" in redirect and not os.path.exists("/dev/full"):
         pytest.skip("no /dev/full on this machine")
@@ -139,6 +141,7 @@ def test_records_for_a_closed_standard_output_are_refused_in_one_line(tmp_path, 
     assert line.startswith("headplod: --out -: standard output is closed"), line
 
 
+@pytest.mark.slow
 def test_a_reader_that_leaves_ends_the_run_as_a_closed_pipe_does(tmp_path, long_dataset):
     record = tmp_path / "rec"
     read, write = os.pipe()
@@ -162,7 +165,7 @@ def test_a_reader_that_leaves_ends_the_run_as_a_closed_pipe_does(tmp_path, long_
 # ---------------------------------------------------------------------------
 
 FOLDERS = [pytest.param(UNDECODABLE, {}, id="not-utf8"),
-           pytest.param("café".encode(), C_LOCALE, id="LC_ALL=C")]
+           pytest.param("café".encode(), C_LOCALE, id="LC_ALL=C", marks=pytest.mark.slow)]
 
 
 def _folder(tmp_path: Path, name: bytes) -> Path:
@@ -182,6 +185,7 @@ def test_track_reads_a_dataset_in_a_folder_opencv_cannot_name(tmp_path, sweep12_
     assert len(records) == 12 and all(r["ok"] for r in records), records
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, env", FOLDERS)
 def test_track_records_into_a_folder_opencv_cannot_name(tmp_path, sweep12_dir, name, env):
     record = _folder(tmp_path, name) / "rec"
@@ -199,6 +203,7 @@ def test_track_records_into_a_folder_opencv_cannot_name(tmp_path, sweep12_dir, n
     assert len(_records(tmp_path / "replay.jsonl")) == 4
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, env", FOLDERS)
 def test_render_writes_an_image_into_a_folder_opencv_cannot_name(tmp_path, gl_context, name, env):
     out = _folder(tmp_path, name) / "x.png"
@@ -209,11 +214,13 @@ def test_render_writes_an_image_into_a_folder_opencv_cannot_name(tmp_path, gl_co
     assert [p.name for p in out.parent.iterdir()] == ["x.png"]      # no temporary name left
 
 
-@pytest.mark.parametrize("name, env", FOLDERS)
+@pytest.mark.parametrize("name, env", FOLDERS + [
+    pytest.param(UNDECODABLE, {"PYTHONIOENCODING": "utf-8:strict"}, id="strict-stdout", marks=pytest.mark.slow)])
 def test_synth_writes_a_dataset_into_a_folder_opencv_cannot_name(tmp_path, name, env):
     target = _folder(tmp_path, name) / "D"
     done = _run(["synth", "static", "--out", target, "--frames", "2", "-q"], env=_env(**env))
     assert done.returncode == 0, done
+    assert os.fsencode(target) in done.stdout           # its summary names the folder by its own bytes
     assert [f.error for f in io.Dataset(target)] == [None, None]
 
 
@@ -243,9 +250,10 @@ def test_a_video_opencv_could_only_open_by_an_undecodable_name_is_refused_in_one
 # ---------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("args", [["track", "--frames", "1"], ["synth", "static", "--out", "D"],
-                                  ["render", "--size", "64,48", "--out", "x.png"]],
-                         ids=["track", "synth", "render"])
+@pytest.mark.parametrize("args", [pytest.param(["track", "--frames", "1"], id="track"),
+                                  pytest.param(["synth", "static", "--out", "D"], id="synth", marks=pytest.mark.slow),
+                                  pytest.param(["render", "--size", "64,48", "--out", "x.png"], id="render",
+                                               marks=pytest.mark.slow)])
 def test_a_deleted_current_folder_is_one_line(tmp_path, args):
     gone = tmp_path / "gone"
     gone.mkdir()
@@ -275,6 +283,7 @@ def test_the_cache_follows_home_then_the_password_database_and_refuses_without_e
                 cache_root(environ, home_of_user=lambda: home)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("home", ["", None], ids=["HOME=''", "HOME unset"])
 def test_an_empty_or_missing_home_never_puts_the_cache_in_the_root_folder(tmp_path, gl_context, home):
     if Path("/.cache").exists():
@@ -288,7 +297,7 @@ def test_an_empty_or_missing_home_never_puts_the_cache_in_the_root_folder(tmp_pa
     assert not Path("/.cache").exists()                 # matplotlib's cache went to the user's home, or nowhere
 
 
-@pytest.mark.parametrize("kind", ["a file", "under a file"])
+@pytest.mark.parametrize("kind", ["a file", pytest.param("under a file", marks=pytest.mark.slow)])
 def test_an_unusable_cache_is_one_line_naming_headplod_cache(tmp_path, kind):
     blocker = tmp_path / "blocker"
     blocker.write_text("mine\n")
@@ -302,6 +311,7 @@ def test_an_unusable_cache_is_one_line_naming_headplod_cache(tmp_path, kind):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["blocker"]
 
 
+@pytest.mark.slow
 def test_an_unusable_cache_does_not_stop_a_command_that_does_not_need_it(tmp_path, gl_context):
     blocker = tmp_path / "blocker"
     blocker.write_text("mine\n")

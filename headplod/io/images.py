@@ -91,9 +91,10 @@ def write_image(path, image: np.ndarray, params: Sequence[int] = (), ending: str
         f.write(data)
 
 
-def opencv_name(path, what: str = "file") -> str:
-    """``path`` as the text OpenCV opens a file by (``cv2.VideoCapture``): the name's bytes read as UTF-8,
-    which OpenCV turns back into the same bytes (so a UTF-8 name works under ``LC_ALL=C`` too).
+def opencv_name(path, what: str = "file", library: str = "OpenCV") -> str:
+    """``path`` as the text OpenCV (or another C ``library`` that takes UTF-8 names: GDAL) opens a file by
+    (``cv2.VideoCapture``): the name's bytes read as UTF-8, which the library turns back into the same bytes
+    (so a UTF-8 name works under ``LC_ALL=C`` too).
 
     Raises
     ------
@@ -105,6 +106,6 @@ def opencv_name(path, what: str = "file") -> str:
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError:
-        raise UnnamablePath(f"{shown_path(raw)}: this name is not UTF-8 text, and OpenCV opens a {what} by its "
+        raise UnnamablePath(f"{shown_path(raw)}: this name is not UTF-8 text, and {library} opens a {what} by its "
                             "name (it cannot open this one); rename the file or its folder with UTF-8 "
                             "characters") from None

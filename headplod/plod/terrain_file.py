@@ -344,7 +344,7 @@ def _read_geotiff(path, options, notes):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
         try:
-            ds = rasterio.open(path)
+            ds = rasterio.open(_utf8_name(path))
         except RasterioIOError as exc:
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise TerrainFileError(f"{path}: not a readable GeoTIFF ({first})") from None
@@ -402,6 +402,16 @@ def _read_geotiff(path, options, notes):
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _utf8_name(path) -> str:
+    """The GeoTIFF's name as GDAL takes it (UTF-8 text), or a TerrainFileError when its bytes are not UTF-8."""
+    from ..io.images import UnnamablePath, opencv_name      # on use, as rasterio: only a GeoTIFF needs it
+
+    try:
+        return opencv_name(path, "GeoTIFF", library="GDAL")
+    except UnnamablePath as exc:
+        raise TerrainFileError(str(exc)) from None
 
 
 def _read_png(path, options, notes):
