@@ -112,9 +112,9 @@ def _main(argv) -> int:
     # "--head -120,40,650": a list starting with a minus sign is the option's value, not another option.
     # The config file (headplod.toml) fills in what the command line does not give.
     args = config.parse_args(build_parser(), attach_negative_lists(sys.argv[1:] if argv is None else argv))
-    if getattr(args, "out", None) == "-" and streams.stdout_is_closed():
-        print("headplod: --out -: standard output is closed; give --out FILE, or run the command with its "
-              "standard output open (a pipe or a file)", file=sys.stderr)
+    refused = _closed_stream_option(args)
+    if refused:
+        print(f"headplod: {refused}", file=sys.stderr)
         return 2
     try:
         with quiet(getattr(args, "quiet", False)):      # -q: no progress, no notes, however deep in the command
@@ -128,6 +128,20 @@ def _main(argv) -> int:
     except KeyboardInterrupt:
         print("headplod: interrupted", file=sys.stderr)
         return 130
+
+
+def _closed_stream_option(args) -> str | None:
+    """Why an option naming a standard stream that was closed at the start cannot be used (``--out -`` with
+    standard output closed: the records would go to /dev/null), or None."""
+    for dest, value in vars(args).items():
+        if not isinstance(value, str):
+            continue
+        what = streams.closed_stream_named(value, dash=1 if dest == "out" else None)
+        if what:
+            option = f"--{dest.replace('_', '-')}"
+            return (f"{option} {value}: {what} is closed; give {option} FILE, or run the command with its {what} "
+                    "open (a pipe or a file)")
+    return None
 
 
 def _keep_matplotlib_in_the_cache() -> None:

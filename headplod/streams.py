@@ -4,7 +4,8 @@ A program started with a standard stream closed (``2>&-``, ``>&-``, ``<&-``) has
 or 2: the next file it opens takes it, and then C libraries' messages (written to descriptor 2) land in
 that file, or an output is read as standard input. :func:`reopen_closed` puts ``os.devnull`` on each
 closed one before anything opens a file, and says which were closed, so that a command can refuse to
-write its records to a standard output that nobody opened.
+write its records to a standard output that nobody opened (:func:`closed_stream_named`: ``-``,
+``/dev/stdout``, ...).
 
 Python itself leaves ``sys.stderr`` None when descriptor 2 was closed at its start, and ``print(...,
 file=None)`` then writes to *standard output*: into the records of ``--out -``. :func:`reopen_closed`
@@ -25,7 +26,7 @@ import os
 import sys
 from typing import Iterator, TextIO
 
-__all__ = ["StandardStreams", "reopen_closed", "DroppingStream", "dropping_stderr", "stdout_is_closed",
+__all__ = ["StandardStreams", "reopen_closed", "DroppingStream", "dropping_stderr", "closed_stream_named",
            "print_names_as_they_are"]
 
 #: The descriptors of standard input, output and error, and their names in ``sys``.
@@ -88,9 +89,20 @@ def print_names_as_they_are() -> None:
             stream.reconfigure(errors="surrogateescape")
 
 
-def stdout_is_closed() -> bool:
-    """Whether standard output was closed when the command started (:func:`reopen_closed`)."""
-    return 1 in _FOUND.closed
+#: The names of the standard streams as files, and what they are called.
+_STREAM_NAMES = {0: ("standard input", ("/dev/stdin", "/dev/fd/0", "/proc/self/fd/0")),
+                 1: ("standard output", ("/dev/stdout", "/dev/fd/1", "/proc/self/fd/1")),
+                 2: ("standard error", ("/dev/stderr", "/dev/fd/2", "/proc/self/fd/2"))}
+
+
+def closed_stream_named(name: str, dash: int | None = None) -> str | None:
+    """What ``name`` is (``"standard output"``, ...) when it names a standard stream that was closed when the
+    command started (its data would go to, or come from, /dev/null), else None. ``dash``: the descriptor
+    ``-`` stands for in this option (1 for an output, None when ``-`` is not a stream)."""
+    for fd, (what, names) in _STREAM_NAMES.items():
+        if fd in _FOUND.closed and (name in names or (dash == fd and name == "-")):
+            return what
+    return None
 
 
 class DroppingStream(io.TextIOBase):

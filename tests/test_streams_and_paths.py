@@ -134,11 +134,14 @@ def test_synth_with_a_closed_or_full_standard_error_makes_its_folder(tmp_path, r
     assert [p.name for p in tmp_path.iterdir()] == ["D"]          # no hidden .D.synth-* left beside it
 
 
-def test_records_for_a_closed_standard_output_are_refused_in_one_line(tmp_path, sweep12_dir):
-    done = _run(["track", "--source", sweep12_dir, "--out", "-"], ">&-")
+@pytest.mark.parametrize("name", ["-", pytest.param("/dev/stdout", marks=pytest.mark.slow)])
+def test_records_for_a_closed_standard_output_are_refused_in_one_line(tmp_path, sweep12_dir, name):
+    if name != "-" and not os.path.exists("/dev/stdout"):
+        pytest.skip("no /dev/stdout on this machine")
+    done = _run(["track", "--source", sweep12_dir, "--out", name], ">&-")
     assert done.returncode == 2, done
     line = _one_line(done.stderr)
-    assert line.startswith("headplod: --out -: standard output is closed"), line
+    assert line.startswith(f"headplod: --out {name}: standard output is closed"), line
 
 
 @pytest.mark.slow

@@ -151,7 +151,8 @@ def _open_storage(path: str | Path, what: str) -> tuple[cv2.FileStorage, _Ctx]:
     try:
         fs = read_storage(p)
     except OSError as exc:
-        raise ctx.error(f"cannot be opened for reading ({exc.strerror or exc})", "check the file's permissions") from None
+        raise ctx.error(f"cannot be opened for reading ({exc.strerror or exc})",
+                        "check the file's permissions") from None
     except (cv2.error, SystemError) as exc:
         raise ctx.error(
             f"cannot be parsed as OpenCV FileStorage YAML: {_cv_message(exc)}",

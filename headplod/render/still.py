@@ -382,7 +382,8 @@ def write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> 
             try:
                 Path(name).write_bytes(data)
             except OSError as exc:
-                raise OSError(exc.errno or errno.EIO, exc.strerror or "the image could not be written", str(out)) from exc
+                raise OSError(exc.errno or errno.EIO, exc.strerror or "the image could not be written",
+                              str(out)) from exc
         write_atomically(out, write_image, suffix=out.suffix)
     if stats_path:
         Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
