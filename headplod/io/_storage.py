@@ -153,6 +153,9 @@ def _open_storage(path: str | Path, what: str) -> tuple[cv2.FileStorage, _Ctx]:
     except OSError as exc:
         raise ctx.error(f"cannot be opened for reading ({exc.strerror or exc})",
                         "check the file's permissions") from None
+    except ValueError:
+        raise ctx.error(f"is {p.stat().st_size / 2**20:.0f} MB, expected an OpenCV FileStorage YAML file "
+                        f"of a few kB", f"give the path of {what}") from None
     except (cv2.error, SystemError) as exc:
         raise ctx.error(
             f"cannot be parsed as OpenCV FileStorage YAML: {_cv_message(exc)}",
@@ -248,15 +251,24 @@ def _positive_int(ctx: _Ctx, key: str, value: Any, hint: str | None = None) -> i
     return int(f)
 
 
+#: The largest YAML file read, bytes: the contract's are a few kB; a bigger one is another file (a video
+#: given as --calib), not read into memory.
+MAX_YAML_BYTES = 64 * 2**20
+
+
 def read_storage(path: str | Path) -> cv2.FileStorage:
     """An OpenCV FileStorage reading the file ``path``, whose text Python reads: OpenCV's binding never sees
     the path (it crashes on a name that is not UTF-8, :mod:`.images`). Bytes that are not UTF-8 in the text
     read as U+FFFD.
 
-    Raises OSError when the file cannot be read, cv2.error or SystemError when it cannot be parsed.
+    Raises OSError when the file cannot be read, ValueError when it holds more than :data:`MAX_YAML_BYTES`,
+    cv2.error or SystemError when it cannot be parsed.
     """
-    text = Path(path).read_bytes().decode("utf-8", errors="replace")
-    return cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    with open(path, "rb") as f:
+        data = f.read(MAX_YAML_BYTES + 1)
+    if len(data) > MAX_YAML_BYTES:
+        raise ValueError(f"{path}: larger than {MAX_YAML_BYTES // 2**20} MB, not an OpenCV YAML file")
+    return cv2.FileStorage(data.decode("utf-8", errors="replace"), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
 
 
 @contextlib.contextmanager
