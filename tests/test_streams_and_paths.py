@@ -324,3 +324,59 @@ def test_an_unusable_cache_does_not_stop_a_command_that_does_not_need_it(tmp_pat
     assert done.returncode == 0, done
     assert b"MPLCONFIGDIR" not in done.stderr and b"Matplotlib" not in done.stderr, done.stderr
     assert out.stat().st_size > 0 and blocker.read_text() == "mine\n"
+
+
+# ---------------------------------------------------------------------------
+# the parts, alone
+# ---------------------------------------------------------------------------
+
+
+def test_a_dropping_stream_drops_the_failed_message_and_every_later_one():
+    from headplod.streams import DroppingStream
+
+    class Broken:
+        """A stream whose reader left after the first message."""
+        def __init__(self):
+            self.text = ""
+
+        def write(self, text):
+            if self.text.endswith("\n"):
+                raise BrokenPipeError(32, "Broken pipe")
+            self.text += text
+
+        def flush(self):
+            pass
+
+    broken = Broken()
+    stream = DroppingStream(broken)
+    print("first", file=stream)
+    assert broken.text == "first\n" and not stream.dropped
+    print("second", file=stream)                        # raises inside; dropped here
+    stream.flush()
+    print("third", file=stream)
+    assert broken.text == "first\n" and stream.dropped
+
+
+def test_opencv_is_given_a_name_only_when_its_bytes_are_utf8():
+    from headplod.io import UnnamablePath, opencv_name
+
+    held = os.fsdecode(b"/v/caf\xc3\xa9/left.avi")      # 'café' as Python holds it under a UTF-8 locale
+    assert opencv_name(held) == "/v/café/left.avi"
+    assert opencv_name("/v/caf\udcc3\udca9/left.avi") == "/v/café/left.avi"   # held under LC_ALL=C
+    with pytest.raises(UnnamablePath, match=r"^/v/caf\\xe9/left.avi: .*UTF-8"):
+        opencv_name(os.fsdecode(b"/v/caf\xe9/left.avi"), "video file")
+
+
+def test_yaml_through_memory_is_the_file_opencv_writes(tmp_path, sweep12_dir):
+    rig = io.read_rig(sweep12_dir / "rig.yaml")
+    io.write_rig(tmp_path / "ours.yaml", rig)
+    fs = cv2.FileStorage(str(tmp_path / "opencv.yaml"), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
+    for key in ("image_width", "image_height"):
+        fs.write(key, int(rig.image_size[key == "image_height"]))
+    for key, value in (("K1", rig.K1), ("D1", rig.D1.reshape(1, -1)), ("K2", rig.K2), ("D2", rig.D2.reshape(1, -1)),
+                       ("R", rig.R), ("T", rig.T.reshape(3, 1))):
+        fs.write(key, np.ascontiguousarray(value, dtype=np.float64))
+    fs.release()
+    assert (tmp_path / "ours.yaml").read_bytes() == (tmp_path / "opencv.yaml").read_bytes()
+    back = io.read_rig(tmp_path / "ours.yaml")
+    assert np.array_equal(back.K1, rig.K1) and np.array_equal(back.T, rig.T)
