@@ -95,13 +95,13 @@ def _add_config_arguments_below(sub: argparse._SubParsersAction) -> None:
 def main(argv=None) -> int:
     # First, before anything opens a file: a closed standard descriptor gets /dev/null, so that no file
     # takes descriptor 2 (and C libraries' messages); then messages that cannot be written are dropped.
-    streams.reopen_closed()
+    at_start = streams.reopen_closed()
     streams.print_names_as_they_are()
     with streams.dropping_stderr():
-        return _main(argv)
+        return _main(argv, at_start)
 
 
-def _main(argv) -> int:
+def _main(argv, at_start: streams.StandardStreams) -> int:
     try:
         os.getcwd()
     except FileNotFoundError:
@@ -112,7 +112,7 @@ def _main(argv) -> int:
     # "--head -120,40,650": a list starting with a minus sign is the option's value, not another option.
     # The config file (headplod.toml) fills in what the command line does not give.
     args = config.parse_args(build_parser(), attach_negative_lists(sys.argv[1:] if argv is None else argv))
-    refused = _closed_stream_option(args)
+    refused = _closed_stream_option(args, at_start)
     if refused:
         print(f"headplod: {refused}", file=sys.stderr)
         return 2
@@ -130,13 +130,13 @@ def _main(argv) -> int:
         return 130
 
 
-def _closed_stream_option(args) -> str | None:
+def _closed_stream_option(args, at_start: streams.StandardStreams) -> str | None:
     """Why an option naming a standard stream that was closed at the start cannot be used (``--out -`` with
     standard output closed: the records would go to /dev/null), or None."""
     for dest, value in vars(args).items():
         if not isinstance(value, str):
             continue
-        what = streams.closed_stream_named(value, dash=1 if dest == "out" else None)
+        what = at_start.closed_stream_named(value, dash=1 if dest == "out" else None)
         if what:
             option = f"--{dest.replace('_', '-')}"
             return (f"{option} {value}: {what} is closed; give {option} FILE, or run the command with its {what} "

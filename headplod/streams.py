@@ -4,8 +4,8 @@ A program started with a standard stream closed (``2>&-``, ``>&-``, ``<&-``) has
 or 2: the next file it opens takes it, and then C libraries' messages (written to descriptor 2) land in
 that file, or an output is read as standard input. :func:`reopen_closed` puts ``os.devnull`` on each
 closed one before anything opens a file, and says which were closed, so that a command can refuse to
-write its records to a standard output that nobody opened (:func:`closed_stream_named`: ``-``,
-``/dev/stdout``, ...).
+write its records to a standard output that nobody opened
+(:meth:`StandardStreams.closed_stream_named`: ``-``, ``/dev/stdout``, ...).
 
 Python itself leaves ``sys.stderr`` None when descriptor 2 was closed at its start, and ``print(...,
 file=None)`` then writes to *standard output*: into the records of ``--out -``. :func:`reopen_closed`
@@ -24,28 +24,35 @@ import contextlib
 import io
 import os
 import sys
+from dataclasses import dataclass
 from typing import Iterator, TextIO
 
-__all__ = ["StandardStreams", "reopen_closed", "DroppingStream", "dropping_stderr", "closed_stream_named",
-           "print_names_as_they_are"]
+__all__ = ["StandardStreams", "reopen_closed", "DroppingStream", "dropping_stderr", "print_names_as_they_are"]
 
 #: The descriptors of standard input, output and error, and their names in ``sys``.
 _STANDARD = ((0, "stdin"), (1, "stdout"), (2, "stderr"))
 
 
+@dataclass(frozen=True)
 class StandardStreams:
     """Which standard descriptors were closed when the command started (0 stdin, 1 stdout, 2 stderr)."""
 
-    def __init__(self, closed: frozenset[int] = frozenset()):
-        self.closed = frozenset(closed)
+    closed: frozenset = frozenset()
 
-    def __repr__(self) -> str:
-        return f"StandardStreams(closed={sorted(self.closed)})"
+    def closed_stream_named(self, name: str, dash: int | None = None) -> str | None:
+        """What ``name`` is (``"standard output"``, ...) when it names one of the standard streams that were
+        closed (its data would go to, or come from, /dev/null), else None. ``dash``: the descriptor ``-``
+        stands for in the option that gave ``name`` (1 for an output; None when ``-`` is no stream there)."""
+        for fd, (what, names) in _STREAM_NAMES.items():
+            if fd in self.closed and (name in names or (dash == fd and name == "-")):
+                return what
+        return None
 
 
-#: What :func:`reopen_closed` found in this process (it runs once; a later call in the same process,
-#: e.g. a test calling ``main`` again, sees the descriptors it reopened as open).
-_FOUND = StandardStreams()
+#: The names of the standard streams as files, and what they are called.
+_STREAM_NAMES = {0: ("standard input", ("/dev/stdin", "/dev/fd/0", "/proc/self/fd/0")),
+                 1: ("standard output", ("/dev/stdout", "/dev/fd/1", "/proc/self/fd/1")),
+                 2: ("standard error", ("/dev/stderr", "/dev/fd/2", "/proc/self/fd/2"))}
 
 
 def _is_open(fd: int) -> bool:
@@ -58,8 +65,7 @@ def _is_open(fd: int) -> bool:
 
 def reopen_closed() -> StandardStreams:
     """Open ``os.devnull`` on every closed standard descriptor, give ``sys`` a stream for each that Python left
-    None, and return which were closed (this call's, or an earlier call's in the same process)."""
-    global _FOUND
+    None, and return which were closed."""
     closed = frozenset(fd for fd, _ in _STANDARD if not _is_open(fd))
     for fd in sorted(closed):
         try:
@@ -74,9 +80,7 @@ def reopen_closed() -> StandardStreams:
             mode = "r" if fd == 0 else "w"
             setattr(sys, name, open(fd, mode, encoding="utf-8", errors="backslashreplace", closefd=False,
                                     buffering=1 if fd else -1))
-    if closed:
-        _FOUND = StandardStreams(_FOUND.closed | closed)
-    return _FOUND
+    return StandardStreams(closed)
 
 
 def print_names_as_they_are() -> None:
@@ -87,22 +91,6 @@ def print_names_as_they_are() -> None:
     if getattr(stream, "errors", None) == "strict" and hasattr(stream, "reconfigure"):
         with contextlib.suppress(Exception):
             stream.reconfigure(errors="surrogateescape")
-
-
-#: The names of the standard streams as files, and what they are called.
-_STREAM_NAMES = {0: ("standard input", ("/dev/stdin", "/dev/fd/0", "/proc/self/fd/0")),
-                 1: ("standard output", ("/dev/stdout", "/dev/fd/1", "/proc/self/fd/1")),
-                 2: ("standard error", ("/dev/stderr", "/dev/fd/2", "/proc/self/fd/2"))}
-
-
-def closed_stream_named(name: str, dash: int | None = None) -> str | None:
-    """What ``name`` is (``"standard output"``, ...) when it names a standard stream that was closed when the
-    command started (its data would go to, or come from, /dev/null), else None. ``dash``: the descriptor
-    ``-`` stands for in this option (1 for an output, None when ``-`` is not a stream)."""
-    for fd, (what, names) in _STREAM_NAMES.items():
-        if fd in _FOUND.closed and (name in names or (dash == fd and name == "-")):
-            return what
-    return None
 
 
 class DroppingStream(io.TextIOBase):
