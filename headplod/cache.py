@@ -74,13 +74,18 @@ def usable_cache_root(environ: Mapping[str, str] | None = None) -> Path:
     """:func:`cache_root`, made if missing and checked writable (a file is made and removed in it).
 
     Raises :class:`CacheUnusable` (one line naming ``HEADPLOD_CACHE`` and what to do) when it is a file,
-    lies under one, or cannot be made or written.
+    lies under one, or cannot be made or written, or (``HEADPLOD_CACHE`` unset) when the home folder does
+    not exist: a home that is not there (``/nonexistent``, a service's) is not made.
     """
     environ = os.environ if environ is None else environ
     root = cache_root(environ)
     fix = f"point {CACHE_VARIABLE} at a folder you can write (or unset it for ~/.cache/headplod)"
     if root.exists() and not root.is_dir():
         raise CacheUnusable(f"{_named(root, environ)}: is a file, not a folder; {fix}")
+    home = root.parent.parent
+    if not environ.get(CACHE_VARIABLE) and not home.is_dir():     # a service's home (/nonexistent): not made
+        raise CacheUnusable(f"{_named(root, environ)}: the home folder {home} does not exist; set "
+                            f"{CACHE_VARIABLE} to a folder you can write")
     try:
         root.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=root):

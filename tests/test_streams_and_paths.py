@@ -286,6 +286,16 @@ def test_the_cache_follows_home_then_the_password_database_and_refuses_without_e
                 cache_root(environ, home_of_user=lambda: home)
 
 
+def test_a_home_that_does_not_exist_is_not_made_for_the_cache(tmp_path):
+    from headplod.cache import CacheUnusable, usable_cache_root
+
+    with pytest.raises(CacheUnusable, match="home folder .* does not exist; set HEADPLOD_CACHE"):
+        usable_cache_root({"HOME": str(tmp_path / "nonexistent")})
+    assert list(tmp_path.iterdir()) == []
+    assert usable_cache_root({"HOME": str(tmp_path)}) == tmp_path / ".cache" / "headplod"
+    assert (tmp_path / ".cache" / "headplod").is_dir()
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("home", ["", None], ids=["HOME=''", "HOME unset"])
 def test_an_empty_or_missing_home_never_puts_the_cache_in_the_root_folder(tmp_path, gl_context, home):
