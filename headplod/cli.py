@@ -23,14 +23,17 @@ Exit status: 0 on success, 1 when the run failed (bad files), 2 on bad usage.
 from __future__ import annotations
 
 import argparse
+import atexit
 import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 from synthetic.cli import add_render_arguments as add_synth_arguments
 from synthetic.cli import run_render as run_synth
 
-from . import config, io
+from . import cache, config, io, streams
 from .argtypes import attach_negative_lists
 from .io.files import OutputRefused
 from .bench.command import add_bench_arguments, run_bench
@@ -92,25 +95,75 @@ def _add_config_arguments_below(sub: argparse._SubParsersAction) -> None:
 
 
 def main(argv=None) -> int:
-    # matplotlib keeps a font cache in ~/.config/matplotlib or ~/.cache/matplotlib; the command keeps it
-    # in its own cache folder instead (HEADPLOD_CACHE, default ~/.cache/headplod), unless MPLCONFIGDIR is set.
-    os.environ.setdefault("MPLCONFIGDIR", str(Path(os.environ.get("HEADPLOD_CACHE", Path.home() / ".cache" / "headplod"))
-                                              / "matplotlib"))
+    # First, before anything opens a file: a closed standard descriptor gets /dev/null, so that no file
+    # takes descriptor 2 (and C libraries' messages); then messages that cannot be written are dropped.
+    at_start = streams.reopen_closed()
+    streams.print_names_as_they_are()
+    with streams.dropping_stderr():
+        return _main(argv, at_start)
+
+
+def _main(argv, at_start: streams.StandardStreams) -> int:
+    try:
+        os.getcwd()
+    except FileNotFoundError:
+        print("headplod: the current folder no longer exists (it was deleted); cd into a folder that exists "
+              "and run the command again", file=sys.stderr)
+        return 2
+    _keep_matplotlib_in_the_cache()
     # "--head -120,40,650": a list starting with a minus sign is the option's value, not another option.
     # The config file (headplod.toml) fills in what the command line does not give.
     args = config.parse_args(build_parser(), attach_negative_lists(sys.argv[1:] if argv is None else argv))
+    refused = _closed_stream_option(args, at_start)
+    if refused:
+        print(f"headplod: {refused}", file=sys.stderr)
+        return 2
     try:
         with quiet(getattr(args, "quiet", False)):      # -q: no progress, no notes, however deep in the command
             return COMMANDS[args.command][2](args)
     except (io.ContractError, GLContextError) as exc:      # a broken file; no OpenGL context (EGL): a failed run
         print(f"headplod: {exc}", file=sys.stderr)
         return 1
-    except OutputRefused as exc:                        # a writer's own refusal (its command checks first)
+    except (OutputRefused, cache.CacheUnusable) as exc:  # a writer's own refusal (its command checks first)
         print(f"headplod: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("headplod: interrupted", file=sys.stderr)
         return 130
+
+
+def _closed_stream_option(args, at_start: streams.StandardStreams) -> str | None:
+    """Why an option naming a standard stream that was closed at the start cannot be used (``--out -`` with
+    standard output closed: the records would go to /dev/null), or None."""
+    for dest, value in vars(args).items():
+        if not isinstance(value, str):
+            continue
+        what = at_start.closed_stream_named(value, dash=1 if dest == "out" else None)
+        if what:
+            option = f"--{dest.replace('_', '-')}"
+            return (f"{option} {value}: {what} is closed; give {option} FILE, or run the command with its {what} "
+                    "open (a pipe or a file)")
+    return None
+
+
+def _keep_matplotlib_in_the_cache() -> None:
+    """matplotlib keeps a font cache in ~/.config/matplotlib or ~/.cache/matplotlib; the command keeps it in
+    its own cache folder instead (:mod:`headplod.cache`), unless MPLCONFIGDIR is set. When the cache cannot
+    be used, a temporary folder removed at exit: matplotlib would otherwise advise setting MPLCONFIGDIR, a
+    variable the user never set (a command that needs the cache says what is wrong with it, naming
+    HEADPLOD_CACHE)."""
+    if "MPLCONFIGDIR" in os.environ:
+        return
+    try:
+        folder = cache.usable_cache_root() / "matplotlib"
+        folder.mkdir(exist_ok=True)
+    except (cache.CacheUnusable, OSError):
+        try:
+            folder = Path(tempfile.mkdtemp(prefix="headplod-matplotlib-"))
+        except OSError:
+            return
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    os.environ["MPLCONFIGDIR"] = str(folder)
 
 
 if __name__ == "__main__":

@@ -162,7 +162,11 @@ def find_config(explicit: str | None = None, cwd: Path | None = None,
         if not path.is_file():
             raise ConfigError(f"--config {explicit}: {'is a folder' if path.is_dir() else 'no such file'}")
         return path
-    for path in (Path.cwd() if cwd is None else Path(cwd)) / CONFIG_NAME, user_config_path(environ):
+    try:
+        here = [(Path.cwd() if cwd is None else Path(cwd)) / CONFIG_NAME]
+    except FileNotFoundError:                  # the current folder was deleted: there is no ./headplod.toml
+        here = []
+    for path in here + [user_config_path(environ)]:
         if path.is_file():
             return path
     return None

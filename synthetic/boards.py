@@ -46,7 +46,7 @@ from typing import List, Optional, Sequence, Tuple, Union
 import cv2
 import numpy as np
 
-from .conventions import rot_x, rot_y, rot_z, write_rig
+from .conventions import rot_x, rot_y, rot_z, write_image, write_rig
 from .render import CameraModel, project_points, rig_cameras
 
 __all__ = [
@@ -574,9 +574,6 @@ class CalibrationSet:
         return [n for n in self.names if n not in self.bad]
 
 
-def _imwrite(path: Path, img: np.ndarray) -> None:
-    if not cv2.imwrite(str(path), img):
-        raise OSError(f"could not write {path}")
 
 
 def write_calibration_set(folder: Union[str, Path], rig_or_setup, board: Board, n_pairs: int = 12,
@@ -659,6 +656,6 @@ def write_calibration_set(folder: Union[str, Path], rig_or_setup, board: Board, 
                     right = cv2.resize(right, (right.shape[1] // 2, right.shape[0] // 2),
                                        interpolation=cv2.INTER_AREA)
         out_poses[nm] = pose
-        _imwrite(lp[nm], left)
-        _imwrite(rp[nm], right)
+        write_image(lp[nm], left)
+        write_image(rp[nm], right)
     return CalibrationSet(folder, names, bad_map, out_poses, truth, lp, rp)

@@ -175,16 +175,17 @@ def run_render(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"synth: {args.out_dir}: cannot write beside it ({exc.strerror or exc})", file=sys.stderr)
         return 1
-    scene = make_scene(args.preset, n_frames=args.frames, seed=args.seed)
-    print(f"{scene.name}: {scene.description}; {scene.n_frames} frames "
-          f"{scene.setup.image_size[0]}x{scene.setup.image_size[1]} -> {args.out_dir}")
-    bar = tqdm(total=scene.n_frames, desc=f"render {scene.name}", unit="frame", file=sys.stderr,
-               disable=args.quiet, mininterval=0.5)
+    bar = None
+    try:                                                  # whatever happens from here, the hidden folder goes
+        scene = make_scene(args.preset, n_frames=args.frames, seed=args.seed)
+        print(f"{scene.name}: {scene.description}; {scene.n_frames} frames "
+              f"{scene.setup.image_size[0]}x{scene.setup.image_size[1]} -> {args.out_dir}")
+        bar = tqdm(total=scene.n_frames, desc=f"render {scene.name}", unit="frame", file=sys.stderr,
+                   disable=args.quiet, mininterval=0.5)
 
-    def progress(done: int, total: int) -> None:
-        bar.update(done - bar.n)
+        def progress(done: int, total: int) -> None:
+            bar.update(done - bar.n)
 
-    try:
         write_dataset(work, scene, seed=args.seed, progress=progress)
         os.chmod(work, 0o777 & ~_umask())                 # mkdtemp's 0700 is for the hidden name only
         _move_into(work, folder)
@@ -192,7 +193,8 @@ def run_render(args: argparse.Namespace) -> int:
         print(f"synth: {args.out_dir}: {exc}; left as it was", file=sys.stderr)
         return 1
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
         shutil.rmtree(work, ignore_errors=True)
     if not args.quiet:
         print(f"wrote {scene.n_frames} stereo pairs to {args.out_dir}", file=sys.stderr)

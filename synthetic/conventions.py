@@ -41,6 +41,7 @@ __all__ = [
     "write_rig",
     "write_markers",
     "write_screen",
+    "write_image",
     "read_matrix_yaml",
 ]
 
@@ -306,6 +307,29 @@ def head_rotation(
 # contract file writers (OpenCV FileStorage YAML)
 # ----------------------------------------------------------------------------
 
+# OpenCV's Python binding is never handed a path: it turns a str into UTF-8 and crashes the process on a
+# name that is not UTF-8 text (b'caf\xe9'). Python reads and writes the files; OpenCV only encodes bytes.
+
+
+def write_image(path: PathLike, img: np.ndarray) -> None:
+    """Write ``img`` (gray or BGR uint8) as the image file ``path`` (format from its ending), as
+    ``cv2.imwrite`` would; OSError when it cannot be encoded or written."""
+    path = Path(path)
+    ok, data = cv2.imencode(path.suffix, img) if path.suffix.isascii() else (False, None)
+    if not ok:
+        raise OSError(f"could not encode {path}")
+    path.write_bytes(data.tobytes())
+
+
+def _storage() -> cv2.FileStorage:
+    """A FileStorage writing YAML into memory (:func:`_save`)."""
+    return cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
+
+
+def _save(fs: cv2.FileStorage, path: Path) -> None:
+    """Release ``fs`` and write its YAML to ``path`` (the bytes OpenCV would write there)."""
+    path.write_text(fs.releaseAndGetString(), encoding="utf-8")
+
 def _fs_write_value(fs: cv2.FileStorage, key: str, value) -> None:
     if isinstance(value, (bool, np.bool_)):
         fs.write(key, int(value))
@@ -350,20 +374,18 @@ def write_rig(
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    try:
-        fs.write("image_width", int(image_size[0]))
-        fs.write("image_height", int(image_size[1]))
-        fs.write("K1", np.asarray(K1, np.float64).reshape(3, 3))
-        fs.write("D1", np.asarray(D1, np.float64).reshape(1, -1))
-        fs.write("K2", np.asarray(K2, np.float64).reshape(3, 3))
-        fs.write("D2", np.asarray(D2, np.float64).reshape(1, -1))
-        fs.write("R", np.asarray(R, np.float64).reshape(3, 3))
-        fs.write("T", np.asarray(T, np.float64).reshape(3, 1))
-        for k, v in (extra or {}).items():
-            _fs_write_value(fs, k, v)
-    finally:
-        fs.release()
+    fs = _storage()
+    fs.write("image_width", int(image_size[0]))
+    fs.write("image_height", int(image_size[1]))
+    fs.write("K1", np.asarray(K1, np.float64).reshape(3, 3))
+    fs.write("D1", np.asarray(D1, np.float64).reshape(1, -1))
+    fs.write("K2", np.asarray(K2, np.float64).reshape(3, 3))
+    fs.write("D2", np.asarray(D2, np.float64).reshape(1, -1))
+    fs.write("R", np.asarray(R, np.float64).reshape(3, 3))
+    fs.write("T", np.asarray(T, np.float64).reshape(3, 1))
+    for k, v in (extra or {}).items():
+        _fs_write_value(fs, k, v)
+    _save(fs, path)
     return path
 
 
@@ -373,12 +395,10 @@ def write_markers(path: PathLike, points_mm: np.ndarray, diameter_mm: float = DE
     pts = np.asarray(points_mm, np.float64).reshape(5, 3)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    try:
-        fs.write("markers", pts)
-        fs.write("diameter", float(diameter_mm))
-    finally:
-        fs.release()
+    fs = _storage()
+    fs.write("markers", pts)
+    fs.write("diameter", float(diameter_mm))
+    _save(fs, path)
     return path
 
 
@@ -397,14 +417,12 @@ def write_screen(
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    try:
-        fs.write("size_px", np.array([[int(size_px[0]), int(size_px[1])]], dtype=np.int32))
-        fs.write("top_left", np.asarray(top_left, np.float64).reshape(3, 1))
-        fs.write("top_right", np.asarray(top_right, np.float64).reshape(3, 1))
-        fs.write("bottom_left", np.asarray(bottom_left, np.float64).reshape(3, 1))
-    finally:
-        fs.release()
+    fs = _storage()
+    fs.write("size_px", np.array([[int(size_px[0]), int(size_px[1])]], dtype=np.int32))
+    fs.write("top_left", np.asarray(top_left, np.float64).reshape(3, 1))
+    fs.write("top_right", np.asarray(top_right, np.float64).reshape(3, 1))
+    fs.write("bottom_left", np.asarray(bottom_left, np.float64).reshape(3, 1))
+    _save(fs, path)
     return path
 
 
@@ -415,7 +433,8 @@ def read_matrix_yaml(path: PathLike) -> dict:
     float, strings as str.  (Used by tests and by ``render`` when given a
     rig path; it is not the project's reader, see ``headplod.io``.)
     """
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    text = Path(path).read_bytes().decode("utf-8", errors="replace")    # FileNotFoundError when missing
+    fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     if not fs.isOpened():
         raise FileNotFoundError(path)
     out = {}

@@ -35,10 +35,9 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable, Optional, Union
 
-import cv2
 import numpy as np
 
-from .conventions import write_markers, write_rig, write_screen
+from .conventions import write_image, write_markers, write_rig, write_screen
 from .gaze import EyeHeadSettings, flat_screen_half_extent_deg, simulate_viewer
 from .render import render_pair
 from .scenes import Scene
@@ -109,10 +108,6 @@ def write_dataset(
     stamps = getattr(scene, "stamps", None)
     stamps_right = getattr(scene, "stamps_right", None)
 
-    def _write(path: Path, img: np.ndarray) -> None:
-        if not cv2.imwrite(str(path), img):
-            raise OSError(f"could not write {path}")
-
     # PNG encoding (≈ 8 ms per 640x480 image) runs in threads, overlapping the rendering
     pending: deque = deque()
     with ThreadPoolExecutor(max_workers=2) as pool:
@@ -126,8 +121,8 @@ def write_dataset(
                                           options, frame_rng(seed, k))
             if k in sources:
                 kept[k] = (left, right)
-            pending.append(pool.submit(_write, folder / "left" / f"{k:06d}.png", left))
-            pending.append(pool.submit(_write, folder / "right" / f"{k:06d}.png", right))
+            pending.append(pool.submit(write_image, folder / "left" / f"{k:06d}.png", left))
+            pending.append(pool.submit(write_image, folder / "right" / f"{k:06d}.png", right))
             while len(pending) > 8:
                 pending.popleft().result()
             if stamps is not None:

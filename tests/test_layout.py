@@ -49,7 +49,8 @@ ABOVE_PLOD = ("headplod.render", "headplod.tracking", "headplod.demo")
 #: tracker; ``filters``, ``io``) import no stage above them; ``render`` draws PLOD; ``capture``,
 #: ``calibration`` and ``live`` are the cameras' side; ``demo``, ``bench``, ``doctor`` and ``cli`` sit on top.
 #: ``argtypes`` and ``progress`` are the commands' shared argument types and notes; ``tol`` the generic
-#: numerical tolerances and ``angles`` the angle between directions, below everything.
+#: numerical tolerances and ``angles`` the angle between directions, ``cache`` the cache folder and ``streams``
+#: the command line's standard streams, below everything.
 LAYERS = {
     "headplod": (),
     "tol": (),
@@ -58,9 +59,11 @@ LAYERS = {
     "io": ("tol",),
     "argtypes": (),
     "progress": (),
-    "plod": ("angles", "filters", "io", "tol"),
+    "cache": (),
+    "streams": (),
+    "plod": ("angles", "cache", "filters", "io", "tol"),
     "tracking": ("angles", "filters", "io", "tol"),
-    "capture": ("argtypes", "io", "progress", "tol"),
+    "capture": ("argtypes", "cache", "io", "progress", "tol"),
     "calibration": ("angles", "argtypes", "capture", "io", "progress", "tol"),
     "render": ("argtypes", "io", "plod", "progress", "tol"),
     "live": ("argtypes", "capture", "io", "progress", "tol", "tracking"),
@@ -68,8 +71,8 @@ LAYERS = {
     "demo": ("argtypes", "capture", "io", "live", "plod", "progress", "render", "tol", "tracking"),
     "doctor": ("argtypes", "capture", "io", "render"),
     "bench": ("angles", "argtypes", "capture", "demo", "io", "live", "plod", "progress", "render", "tol", "tracking"),
-    "cli": ("argtypes", "bench", "calibration", "capture", "config", "demo", "doctor", "io", "live", "progress",
-            "render"),
+    "cli": ("argtypes", "bench", "cache", "calibration", "capture", "config", "demo", "doctor", "io", "live",
+            "progress", "render", "streams"),
 }
 
 #: Modules that may import argparse besides those named ``cli.py``, ``command.py`` and ``*_command.py``:

@@ -306,10 +306,10 @@ def test_a_frame_that_fails_is_that_frames_picture_not_the_runs(sample, tmp_path
 def test_the_written_pictures_are_whole_or_absent(sweep12_dir, tmp_path, monkeypatch, capsys):
     """A write that fails (a full disk) leaves no partial picture and ends the run in one line, exit 1."""
     out = tmp_path / "out"
-    real = cv2.imwrite
+    real = preview.io.write_image
     count = {"n": 0}
 
-    def imwrite(name, image, *rest):
+    def write_image(name, image, *rest):
         count["n"] += 1
         if count["n"] == 2:
             with open(name, "wb") as f:
@@ -317,7 +317,7 @@ def test_the_written_pictures_are_whole_or_absent(sweep12_dir, tmp_path, monkeyp
             raise OSError(28, "No space left on device", name)
         return real(name, image, *rest)
 
-    monkeypatch.setattr(preview.cv2, "imwrite", imwrite)
+    monkeypatch.setattr(preview.io, "write_image", write_image)
     assert cli_main(["preview", "--source", str(sweep12_dir), "--frames", "3", "--out", str(out), "-q"]) == 1
     line = _one_line_error(capsys.readouterr().err)
     assert "No space left on device" in line and "1 pictures were written" in line

@@ -198,7 +198,7 @@ def test_out_through_a_link_to_a_closed_standard_output_is_refused(sample, tmp_p
     done = _headplod("track", "--source", sample, "--out", link, "--frames", "2", "-q", stdout=None,
                      preexec_fn=lambda: os.close(1))
     assert done.returncode == 2
-    _one_line(done.stderr, f"--out {link}", "standard output, which is closed")
+    _one_line(done.stderr, f"--out {link}", "standard output is closed")
     assert link.is_symlink() and sorted(p.name for p in tmp_path.iterdir()) == ["ds", "stdout.jsonl"]
 
 

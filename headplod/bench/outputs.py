@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..io import write_atomically
+from ..io import write_atomically, write_image
 
 __all__ = ["write_json", "write_png", "pyplot", "save_figure"]
 
@@ -28,11 +28,7 @@ def write_png(path, image_rgb) -> str:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     bgr = cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR)
-
-    def write(name: str) -> None:
-        if not cv2.imwrite(name, bgr):
-            raise OSError(f"{path}: OpenCV could not write the image")
-    write_atomically(path, write, suffix=path.suffix)
+    write_atomically(path, lambda name: write_image(name, bgr, ending=path.suffix), suffix=path.suffix)
     return str(path)
 
 

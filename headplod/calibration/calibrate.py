@@ -180,7 +180,10 @@ def _load(item: Any, what: str) -> tuple[Optional[np.ndarray], Optional[str]]:
     p = Path(item)
     if not p.is_file():
         return None, f"{what} {p} not found"
-    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    try:
+        img = io.read_image(p)                  # through memory: OpenCV never sees the path
+    except OSError as exc:
+        return None, f"{what} {p} cannot be read ({exc.strerror or exc})"
     if img is None:
         return None, f"{what} {p} cannot be read as an image"
     try:

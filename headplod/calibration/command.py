@@ -226,8 +226,8 @@ def _capture_calibration_pairs(args, spec, devices, folder: Path) -> int:
                 if not (det_l and det_r) or (last_kept is not None and frame.t - last_kept < 1.0):
                     continue
                 name = f"{len(kept):02d}.png"
-                cv2.imwrite(str(folder / "left" / name), frame.left)
-                cv2.imwrite(str(folder / "right" / name), frame.right)
+                io.write_image(folder / "left" / name, frame.left)
+                io.write_image(folder / "right" / name, frame.right)
                 kept.append(det_l)
                 last_kept = frame.t
                 missing = coverage_guide(kept, (width, height))

@@ -364,7 +364,7 @@ class VideoSource(FrameSource):
         if not path.is_file():
             raise SourceOpenError(f"{path}: video file not found" if not path.exists()
                                   else f"{path}: is not a file, expected a video file")
-        cap = cv2.VideoCapture(str(path))
+        cap = cv2.VideoCapture(io.opencv_name(path, "video file"))      # UnnamablePath: refused in one line
         if not cap.isOpened():
             cap.release()
             raise SourceOpenError(f"{path}: cannot be opened as a video (unknown container or codec, "

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import synthetic
 
+from ..cache import usable_cache_root
+from ..io.images import read_image
 from ..progress import Progress, is_quiet
 
 #: The sequence ``headplod track`` runs without a dataset.
@@ -44,7 +46,9 @@ def _renderer_version() -> str:
 
 
 def cache_root() -> Path:
-    return Path(os.environ.get("HEADPLOD_CACHE", Path.home() / ".cache" / "headplod"))
+    """The cache folder (:func:`headplod.cache.cache_root`), made and checked writable; raises
+    :class:`~headplod.cache.CacheUnusable` (one line naming HEADPLOD_CACHE) when it cannot be used."""
+    return usable_cache_root()
 
 
 def ensure_dataset(preset: str = DEFAULT_SEQUENCE, frames: int | None = None, seed: int = 0,
@@ -186,14 +190,12 @@ def _check_manifest(folder: Path) -> str | None:
 
 def verify_dataset(folder: Path) -> str | None:
     """Read every image of a rendered sequence: the first one that fails, or None when all read."""
-    import cv2
-
     folder = Path(folder)
     for side in ("left", "right"):
         if not (folder / side).is_dir():
             return f"{side}/ is missing"
     for path in _dataset_files(folder):
-        if path.suffix == ".png" and cv2.imread(str(path), cv2.IMREAD_UNCHANGED) is None:
+        if path.suffix == ".png" and read_image(path) is None:
             return f"{path.relative_to(folder).as_posix()} cannot be read"
     return None
 

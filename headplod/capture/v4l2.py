@@ -82,8 +82,9 @@ FOURCCS = ("GREY", "YUYV", "MJPG")
 
 
 def default_opener(device: int | str) -> Any:
-    """``cv2.VideoCapture(device, cv2.CAP_V4L2)``."""
-    return cv2.VideoCapture(device, cv2.CAP_V4L2)
+    """``cv2.VideoCapture(device, cv2.CAP_V4L2)`` (a device path as :func:`headplod.io.opencv_name` gives it)."""
+    return cv2.VideoCapture(io.opencv_name(device, "camera device") if isinstance(device, str) else device,
+                            cv2.CAP_V4L2)
 
 
 def _device_exists(device: int | str) -> bool:
@@ -487,6 +488,9 @@ class V4L2StereoSource(FrameSource):
                  device_timestamps: bool = True, queue_length: int = QUEUE_LENGTH):
         if isinstance(rig, (str, os.PathLike)):
             rig = io.read_rig(Path(rig))
+        for device in (left, right):            # a name OpenCV cannot take: refused before any camera opens
+            if isinstance(device, str):
+                io.opencv_name(device, "camera device")
         super().__init__(f"v4l2:{left},{right}", rig, markers, screen)
         self._requested = self._requests(width, height, fps, fourcc, manual_exposure, exposure,
                                          gain, buffer_size)

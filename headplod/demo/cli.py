@@ -347,11 +347,10 @@ def _pictures(args, demo, vp, mode, scenario, foveate, folder, pictures) -> None
 
 
 def _write_png(path: Path, image: np.ndarray) -> str:
-    """Write ``image`` ((H, W, 3) uint8 RGB) to ``path`` (PNG), its folder made first; the path as a string.
-    OSError naming ``path`` when OpenCV cannot write it."""
+    """Write ``image`` ((H, W, 3) uint8 RGB) to ``path`` (PNG, through memory: :func:`headplod.io.write_image`),
+    its folder made first; the path as a string. OSError naming ``path`` when it cannot be written."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
-        raise OSError(errno.EIO, "the image could not be written (is the disk full?)", str(path))
+    io.write_image(path, cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
     return str(path)
 
 

@@ -16,6 +16,8 @@ model (``markers.yaml``), the screen (``screen.yaml``), a stereo dataset folder
 ``tables``      ``times.csv``, ``truth.csv`` and ``gaze_truth.csv``
 ``dataset``     the dataset folder: :class:`Dataset`, :class:`Frame`
 ``poses``       pose records (JSON Lines): :func:`pose_record`, ...
+``images``      image files through memory (:func:`read_image`,
+                :func:`write_image`): OpenCV never sees a path
 ==============  ==========================================================
 
 Conventions (from the contract)
@@ -41,8 +43,17 @@ pose, a non-rotation) are programming errors and raise ``ValueError``.
 
 from __future__ import annotations
 
-from ._storage import AXES_TOL_READ, AXES_TOL_WRITE, ContractError, ProgressiveOutput, write_atomically
+from ._storage import (
+    AXES_TOL_READ,
+    AXES_TOL_WRITE,
+    ContractError,
+    ProgressiveOutput,
+    read_storage,
+    write_atomically,
+    writing_storage,
+)
 from .dataset import DEFAULT_FPS, Dataset, Frame
+from .images import UnnamablePath, encode_image, opencv_name, read_image, shown_path, write_image, writes_images
 from .markers import (
     MARKER_TOL_MM,
     VIEW_TRIANGLES,
@@ -79,6 +90,15 @@ __all__ = [
     "ContractError",
     "write_atomically",
     "ProgressiveOutput",
+    "read_storage",
+    "writing_storage",
+    "read_image",
+    "write_image",
+    "encode_image",
+    "writes_images",
+    "opencv_name",
+    "shown_path",
+    "UnnamablePath",
     "Rig",
     "read_rig",
     "write_rig",

@@ -3,7 +3,9 @@
 Everything the per-file modules of :mod:`headplod.io` have in common: the
 :class:`ContractError` that a broken file raises and the context (``_Ctx``)
 that names the file and key in its message, reading and writing OpenCV
-FileStorage YAML (``rig.yaml``, ``markers.yaml``, ``screen.yaml``), and the
+FileStorage YAML (``rig.yaml``, ``markers.yaml``, ``screen.yaml``; through
+memory, so that OpenCV's binding never sees a path: :func:`read_storage`,
+:func:`writing_storage`), and the
 checks used by more than one kind of file (3-vectors, orthonormal axes and
 their tolerances). Of the package it imports only :mod:`headplod.io.files`
 (what an output may be).
@@ -11,6 +13,7 @@ their tolerances). Of the package it imports only :mod:`headplod.io.files`
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import re
@@ -18,7 +21,7 @@ import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Iterator, Mapping
 
 import cv2
 import numpy as np
@@ -150,7 +153,13 @@ def _open_storage(path: str | Path, what: str) -> tuple[cv2.FileStorage, _Ctx]:
             f"write {what} with cv2.FileStorage or headplod.io",
         )
     try:
-        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+        fs = read_storage(p)
+    except OSError as exc:
+        raise ctx.error(f"cannot be opened for reading ({exc.strerror or exc})",
+                        "check the file's permissions") from None
+    except ValueError:
+        raise ctx.error(f"is {p.stat().st_size / 2**20:.0f} MB, expected an OpenCV FileStorage YAML file "
+                        f"of a few kB", f"give the path of {what}") from None
     except (cv2.error, SystemError) as exc:
         raise ctx.error(
             f"cannot be parsed as OpenCV FileStorage YAML: {_cv_message(exc)}",
@@ -246,15 +255,47 @@ def _positive_int(ctx: _Ctx, key: str, value: Any, hint: str | None = None) -> i
     return int(f)
 
 
-def _open_for_write(path: str | Path) -> cv2.FileStorage:
-    refuse_special(path)                # OpenCV would open a FIFO and wait, or write into a device
+#: The largest YAML file read, bytes: the contract's are a few kB; a bigger one is another file (a video
+#: given as --calib), not read into memory.
+MAX_YAML_BYTES = 64 * 2**20
+
+
+def read_storage(path: str | Path) -> cv2.FileStorage:
+    """An OpenCV FileStorage reading the file ``path``, whose text Python reads: OpenCV's binding never sees
+    the path (it crashes on a name that is not UTF-8, :mod:`.images`). Bytes that are not UTF-8 in the text
+    read as U+FFFD.
+
+    Raises OSError when the file cannot be read, ValueError when it holds more than :data:`MAX_YAML_BYTES`,
+    cv2.error or SystemError when it cannot be parsed.
+    """
+    with open(path, "rb") as f:
+        data = f.read(MAX_YAML_BYTES + 1)
+    if len(data) > MAX_YAML_BYTES:
+        raise ValueError(f"{path}: larger than {MAX_YAML_BYTES // 2**20} MB, not an OpenCV YAML file")
+    return cv2.FileStorage(data.decode("utf-8", errors="replace"), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+
+
+@contextlib.contextmanager
+def writing_storage(path: str | Path) -> Iterator[cv2.FileStorage]:
+    """An OpenCV FileStorage writing YAML into memory, whose text is written to ``path`` when the block ends
+    (the bytes OpenCV would write there; OpenCV's binding never sees the path). Nothing is written when the
+    block raises.
+
+    Raises OSError (naming ``path``) when the file cannot be written.
+    """
+    refuse_special(path)                # Python's open would wait on a FIFO, or write into a device
+    fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
     try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
-    except (cv2.error, SystemError) as exc:
-        raise OSError(f"{path}: cannot open for writing: {_cv_message(exc)}") from exc
-    if not fs.isOpened():
-        raise OSError(f"{path}: cannot open for writing (does the folder exist?)")
-    return fs
+        yield fs
+    except BaseException:
+        fs.release()
+        raise
+    text = fs.releaseAndGetString()
+    try:
+        with open(path, "w", encoding="utf-8", newline="") as f:
+            f.write(text)
+    except OSError as exc:
+        raise OSError(f"{path}: cannot open for writing ({exc.strerror or exc})") from exc
 
 
 def _fs_write(fs: cv2.FileStorage, name: str, value: Any) -> None:

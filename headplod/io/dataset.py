@@ -21,6 +21,7 @@ import numpy as np
 
 from ._storage import _Ctx
 from .files import Inputs
+from .images import read_image
 from .markers import MarkerModel, default_marker_model, read_markers
 from .rig import Rig, read_rig
 from .screen import Screen, read_screen
@@ -319,7 +320,7 @@ class Dataset:
                 if (w, h) != tuple(self.rig.image_size):
                     rw, rh = self.rig.image_size
                     return None, f"{name}: {w}x{h}, rig says {rw}x{rh}", None
-            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            img = read_image(path)          # through memory: OpenCV never sees the path (io/images.py)
             if img is None:
                 return None, f"{name}: unreadable (corrupt or truncated PNG)", None
             warning = None

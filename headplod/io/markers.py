@@ -19,10 +19,10 @@ from ._storage import (
     _check_finite,
     _fmt,
     _frozen,
-    _open_for_write,
     _open_storage,
     _read_numeric,
     _shape_str,
+    writing_storage,
 )
 from ..tol import tol
 
@@ -244,9 +244,6 @@ def write_markers(path: str | Path, model: MarkerModel) -> None:
     """Write a marker model as ``markers.yaml`` (5x3 float64 ``markers``, ``diameter`` mm)."""
     if not isinstance(model, MarkerModel):
         raise TypeError(f"write_markers needs a MarkerModel, got {type(model).__name__}")
-    fs = _open_for_write(path)
-    try:
+    with writing_storage(path) as fs:
         fs.write("markers", np.ascontiguousarray(model.points_mm, dtype=np.float64))
         fs.write("diameter", float(model.diameter_mm))
-    finally:
-        fs.release()

@@ -22,13 +22,13 @@ from ._storage import (
     _frozen,
     _fs_write,
     _node_to_python,
-    _open_for_write,
     _open_storage,
     _positive_int,
     _read_numeric,
     _read_positive_int,
     _shape_str,
     _values_equal,
+    writing_storage,
 )
 from ..tol import tol
 
@@ -380,22 +380,20 @@ def write_rig(path: str | Path, rig: Rig) -> None:
     clash = [k for k in rig.extra if k in _RIG_KEYS]
     if clash:
         raise ValueError(f"Rig.extra reuses standard rig.yaml keys {clash}")
-    fs = _open_for_write(path)
-    try:
-        fs.write("image_width", int(rig.image_size[0]))
-        fs.write("image_height", int(rig.image_size[1]))
-        fs.write("K1", np.ascontiguousarray(rig.K1, dtype=np.float64))
-        fs.write("D1", np.ascontiguousarray(rig.D1, dtype=np.float64).reshape(1, -1))
-        fs.write("K2", np.ascontiguousarray(rig.K2, dtype=np.float64))
-        fs.write("D2", np.ascontiguousarray(rig.D2, dtype=np.float64).reshape(1, -1))
-        fs.write("R", np.ascontiguousarray(rig.R, dtype=np.float64))
-        fs.write("T", np.ascontiguousarray(rig.T, dtype=np.float64).reshape(3, 1))
-        for k, v in rig.extra.items():
-            _fs_write(fs, k, v)
-    except (cv2.error, SystemError) as exc:
-        raise ValueError(f"{path}: cannot write rig: {_cv_message(exc)}") from exc
-    finally:
-        fs.release()
+    with writing_storage(path) as fs:            # nothing is written when a value cannot be stored
+        try:
+            fs.write("image_width", int(rig.image_size[0]))
+            fs.write("image_height", int(rig.image_size[1]))
+            fs.write("K1", np.ascontiguousarray(rig.K1, dtype=np.float64))
+            fs.write("D1", np.ascontiguousarray(rig.D1, dtype=np.float64).reshape(1, -1))
+            fs.write("K2", np.ascontiguousarray(rig.K2, dtype=np.float64))
+            fs.write("D2", np.ascontiguousarray(rig.D2, dtype=np.float64).reshape(1, -1))
+            fs.write("R", np.ascontiguousarray(rig.R, dtype=np.float64))
+            fs.write("T", np.ascontiguousarray(rig.T, dtype=np.float64).reshape(3, 1))
+            for k, v in rig.extra.items():
+                _fs_write(fs, k, v)
+        except (cv2.error, SystemError) as exc:
+            raise ValueError(f"{path}: cannot write rig: {_cv_message(exc)}") from exc
 
 
 #: Keys of ``rig.yaml`` that ``headplod calibrate`` writes with the

@@ -19,10 +19,10 @@ from ._storage import (
     _check_vec3,
     _frozen,
     _fs_write,
-    _open_for_write,
     _open_storage,
     _positive_int,
     _read_numeric,
+    writing_storage,
 )
 from ..tol import tol
 
@@ -252,10 +252,7 @@ def write_screen(path: str | Path, screen: Screen) -> None:
     """Write ``screen.yaml``: ``size_px`` as ``[w, h]``, corners as 3x1 float64 (mm)."""
     if not isinstance(screen, Screen):
         raise TypeError(f"write_screen needs a Screen, got {type(screen).__name__}")
-    fs = _open_for_write(path)
-    try:
+    with writing_storage(path) as fs:
         _fs_write(fs, "size_px", [int(screen.size_px[0]), int(screen.size_px[1])])
         for k in ("top_left", "top_right", "bottom_left"):
             fs.write(k, np.ascontiguousarray(getattr(screen, k), dtype=np.float64).reshape(3, 1))
-    finally:
-        fs.release()

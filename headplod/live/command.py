@@ -69,12 +69,18 @@ __all__ = ["add_track_arguments", "run_track", "track_source_spec", "note_old_sp
 
 #: Exit status of a run that tracked no frame at all.
 EXIT_NO_FRAME_TRACKED = 3
+#: Exit status of a run whose records went to standard output when the program reading them left (``track
+#: --out - | head -1``): 128 + SIGPIPE, what a shell reports for a writer killed by SIGPIPE (``seq`` or ``yes``
+#: into ``head``), so that a pipeline treats it as such a writer; the records it read are whole.
+EXIT_READER_LEFT = 128 + signal.SIGPIPE
 
 TRACK_EPILOG = ("exit status: 0 success (a fault in one frame is that frame's 'ok: false'); 1 the run failed "
                 "before its first frame (nothing is written) or ended early (what was made is kept, and one line "
                 "says where); 2 bad usage (nothing is written); 3 no frame was tracked (every frame failed, or "
-                "there was none). Ctrl-C, SIGTERM or SIGHUP stops cleanly between frames: the records and frames "
-                "so far are kept (and, when a replay had not reached its end, the outputs they replaced). With --udp, the key c (standard input a terminal) or SIGUSR1 (kill -USR1 PID) "
+                "there was none); 141 the program reading --out - left (a closed pipe, as a writer killed by "
+                "SIGPIPE). Ctrl-C, SIGTERM or SIGHUP stops cleanly between frames: the records and frames "
+                "so far are kept (and, when a replay had not reached its end, the outputs they replaced). With "
+                "--udp, the key c (standard input a terminal) or SIGUSR1 (kill -USR1 PID) "
                 "recentres what is sent to opentrack, from the next frame: the current pose becomes its zero.")
 
 
@@ -245,13 +251,13 @@ def track_source_spec(args) -> str:
 
 def open_source_or_report(args, spec: str, check=None):
     """:func:`_open_track_source` for a command: (source, rig, live), or the exit status with its one-line
-    reason printed (2: usage, 1: a file or device that cannot be used). ``check(spec)``, run before
-    opening, may raise ``_Usage`` too."""
+    reason printed (2: usage, or a name OpenCV cannot open; 1: a file or device that cannot be used).
+    ``check(spec)``, run before opening, may raise ``_Usage`` too."""
     try:
         if check is not None:
             check(spec)
         return _open_track_source(args, spec)
-    except _Usage as exc:
+    except (_Usage, io.UnnamablePath) as exc:          # a path OpenCV cannot take: the name given is the fault
         print(f"headplod: {exc}", file=sys.stderr)
         return 2
     except (ValueError, OSError, LookupError) as exc:
@@ -500,12 +506,13 @@ class _TrackRun:
         self.notes.report()
         _report_run(self.stats, self.sender, log, self.live or args.status)
         if failure is not None:
-            if isinstance(failure, OutputFailed) and isinstance(failure.cause, BrokenPipeError) and \
-                    _to_stdout(self.writer):
+            reader_left = (isinstance(failure, OutputFailed) and isinstance(failure.cause, BrokenPipeError)
+                           and _to_stdout(self.writer))
+            if reader_left:
                 _silence_stdout()                       # else Python's own flush at exit fails again, loudly
             print(_early_end_line(failure, records, args, self.recorder, self.writer, kept), file=sys.stderr)
             _traceback_on_request(failure)
-            return 1
+            return EXIT_READER_LEFT if reader_left else 1
         if synthetic_preset(spec) is not None:         # a cached frame that cannot be read: render it all again
             unreadable = next((r["reason"] for r in records if not r["ok"] and r["reason"]
                                and (".png: missing" in r["reason"] or ".png: unreadable (" in r["reason"])), None)

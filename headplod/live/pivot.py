@@ -239,10 +239,7 @@ def write_pivot(path, fit: PivotFit) -> Path:
         raise ValueError(f"no pivot to write: {fit.reason}")
 
     def write(name: str) -> None:
-        fs = cv2.FileStorage(name, cv2.FILE_STORAGE_WRITE)
-        if not fs.isOpened():
-            raise OSError(f"cannot write {path}")
-        try:
+        with io.writing_storage(name) as fs:            # through memory: OpenCV never sees the path
             fs.writeComment("head pivot from the bridge of the glasses (P1), head frame: x along Xi "
                             "(wearer's left), y along Psi (up), z along V (forward), mm; headplod pivot")
             fs.write("pivot_mm", np.asarray(fit.pivot_mm, dtype=np.float64).reshape(1, 3))
@@ -250,8 +247,6 @@ def write_pivot(path, fit: PivotFit) -> Path:
             fs.write("rms_mm", float(fit.rms_mm))
             fs.write("spread_deg", np.asarray(fit.spread_deg, dtype=np.float64).reshape(1, 3))
             fs.write("frames", int(fit.frames))
-        finally:
-            fs.release()
 
     return io.write_atomically(path, write, suffix=".yaml")
 
@@ -269,8 +264,10 @@ def read_pivot(path) -> np.ndarray:
     if not path.is_file():
         raise io.ContractError(f"{path}: no such file (the head pivot; 'headplod pivot' writes it)")
     try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
+        fs = io.read_storage(path)                      # through memory: OpenCV never sees the path
+    except OSError as exc:
+        raise io.ContractError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    except (cv2.error, SystemError) as exc:
         raise io.ContractError(f"{path}: not an OpenCV YAML file ({str(exc).strip().splitlines()[-1]})") from None
     try:
         node = fs.getNode("pivot_mm")

@@ -223,8 +223,12 @@ class _Folder:
         path = self.folder / OUT_NAME.format(k)
 
         def write(name: str) -> None:
-            if not cv2.imwrite(name, picture):
-                raise OSError(f"{path}: OpenCV could not write the PNG")
+            try:                                # through memory: OpenCV never sees the path
+                io.write_image(name, picture)
+            except ValueError:
+                raise OSError(f"{path}: OpenCV could not write the PNG") from None
+            except OSError as exc:              # the user's name, not the temporary one
+                raise OSError(exc.errno, exc.strerror, str(path)) from exc
         io.write_atomically(path, write, suffix=".png")
         self.written.append(path)
         return True

@@ -31,13 +31,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage as ndi
 
+from ..cache import usable_cache_root
 from . import criteria
 from . import perception as pc
 from .shading import contrast_of_range, shade
@@ -119,7 +119,8 @@ def height_grid(terrain: Terrain, n_samples: int) -> tuple[np.ndarray, float, fl
 def jacksboro_grid(n_samples: int, cache_dir=None):
     """The built-in terrain (DEM + detail down to 2.5 spacings) on an ``n x n`` grid, cached as .npy.
 
-    Cached under ``cache_dir`` (default ``$HEADPLOD_CACHE/scale``, ``~/.cache/headplod/scale``).
+    Cached under ``cache_dir`` (default ``$HEADPLOD_CACHE/scale``, ``~/.cache/headplod/scale``); a cache
+    that cannot be used raises :class:`~headplod.cache.CacheUnusable` before the grid is computed.
 
     Returns
     -------
@@ -130,8 +131,7 @@ def jacksboro_grid(n_samples: int, cache_dir=None):
     origin_m : (2,) tuple
         Scene (x, y) of sample [0, 0].
     """
-    root = Path(os.environ.get("HEADPLOD_CACHE", Path.home() / ".cache" / "headplod")) / "scale"
-    cache = Path(cache_dir) if cache_dir is not None else root
+    cache = Path(cache_dir) if cache_dir is not None else usable_cache_root() / "scale"   # checked before the work
     path, meta_path = cache / f"jacksboro_{n_samples}.npy", cache / f"jacksboro_{n_samples}.json"
     if path.exists() and meta_path.exists():
         meta = json.loads(meta_path.read_text())

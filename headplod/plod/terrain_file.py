@@ -344,7 +344,7 @@ def _read_geotiff(path, options, notes):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
         try:
-            ds = rasterio.open(path)
+            ds = rasterio.open(_utf8_name(path))
         except RasterioIOError as exc:
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise TerrainFileError(f"{path}: not a readable GeoTIFF ({first})") from None
@@ -404,8 +404,18 @@ def _read_geotiff(path, options, notes):
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
+def _utf8_name(path) -> str:
+    """The GeoTIFF's name as GDAL takes it (UTF-8 text), or a TerrainFileError when its bytes are not UTF-8."""
+    from ..io.images import UnnamablePath, opencv_name      # on use, as rasterio: only a GeoTIFF needs it
+
+    try:
+        return opencv_name(path, "GeoTIFF", library="GDAL")
+    except UnnamablePath as exc:
+        raise TerrainFileError(str(exc)) from None
+
+
 def _read_png(path, options, notes):
-    import cv2
+    from ..io.images import read_image             # on use, as OpenCV was: only a PNG height map needs it
 
     with open(path, "rb") as f:
         head = f.read(26)
@@ -413,7 +423,7 @@ def _read_png(path, options, notes):
         raise TerrainFileError(f"{path}: not a PNG file (no PNG signature); save the height map as a 16-bit PNG")
     width, height, bit_depth, colour_type = struct.unpack(">IIBB", head[16:26])
     _check_shape(path, (height, width))            # before decoding a huge image
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    image = read_image(path)                       # through memory: OpenCV never sees the path
     if image is None:
         raise TerrainFileError(f"{path}: OpenCV could not decode this PNG (damaged or truncated?)")
     invalid = None

@@ -20,7 +20,6 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from calib import DEFAULT_SCREEN
@@ -177,7 +176,7 @@ def _output_problem(option: str, path, image: bool = False) -> str | None:
     p = Path(path)
     if p.is_dir():
         return f"{option} {path} is a folder; name a file"
-    if image and not cv2.haveImageWriter(str(p)):
+    if image and not io.writes_images(p.suffix):      # the ending alone: OpenCV never sees the path
         return f"{path}: OpenCV cannot write images ending {p.suffix or '(no ending)'!r}; use .png or .jpg"
     try:
         check_writable(p)

@@ -78,8 +78,9 @@ def terrain_options(args) -> tuple[str | None, TerrainFileOptions]:
     return path, TerrainFileOptions(spacing_m=spacing, height_scale=1.0 if scale is None else scale)
 
 
-def terrain_from_args(args, err=sys.stderr):
-    """The Terrain of ``args.terrain`` (None without it: the built-in scene), notes printed to ``err``.
+def terrain_from_args(args, err=None):
+    """The Terrain of ``args.terrain`` (None without it: the built-in scene), notes printed to ``err``
+    (default: standard error as it is at the call).
 
     Raises
     ------
@@ -92,6 +93,7 @@ def terrain_from_args(args, err=sys.stderr):
     path, options = terrain_options(args)
     if path is None:
         return None
+    err = err or sys.stderr
     check_terrain_path(path, options)
     print(f"terrain: reading {path}", file=err)
     terrain, grid = terrain_from_file(path, options)

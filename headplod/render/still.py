@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from ..plod.contrast import project_to_screen_px, readback_contrast
+from ..io import encode_image
 from .outputs import naming, write_named
 from ..plod.export import export_mesh
 from ..plod.lazy_mesh import DEFAULT_CACHE_BYTES, LazyAdaptiveMesh
@@ -377,15 +378,15 @@ def write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> 
         out.parent.mkdir(parents=True, exist_ok=True)
 
         def write_image(name: str) -> None:
+            try:                                # encoded in memory: OpenCV never sees the path (io/images.py)
+                data = encode_image(cv2.cvtColor(image, cv2.COLOR_RGB2BGR), out.suffix)
+            except ValueError:
+                raise ValueError(f"{out}: OpenCV could not write an image there (use .png or .jpg)") from None
             try:
-                written = cv2.imwrite(name, cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
-            except cv2.error:
-                written = False
-            if not written and cv2.haveImageWriter(name):      # it knows the ending: the write itself failed
-                raise OSError(errno.EIO, "the image could not be written (is the disk full or the folder read-only?)",
-                              str(out))
-            if not written:
-                raise ValueError(f"{out}: OpenCV could not write an image there (use .png or .jpg)")
+                Path(name).write_bytes(data)
+            except OSError as exc:
+                raise OSError(exc.errno or errno.EIO, exc.strerror or "the image could not be written",
+                              str(out)) from exc
         write_named(out, write_image, suffix=out.suffix)
     if stats_path:
         Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
