@@ -66,7 +66,7 @@ LAYERS = {
     "capture": ("argtypes", "cache", "io", "progress", "tol"),
     "calibration": ("angles", "argtypes", "capture", "io", "progress", "tol"),
     "render": ("argtypes", "io", "plod", "progress", "tol"),
-    "live": ("argtypes", "capture", "io", "progress", "tol", "tracking"),
+    "live": ("argtypes", "capture", "io", "progress", "streams", "tol", "tracking"),
     "config": ("argtypes", "capture", "live"),
     "demo": ("argtypes", "capture", "io", "live", "plod", "progress", "render", "tol", "tracking"),
     "doctor": ("argtypes", "capture", "io", "render"),

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 import pytest
 
+from one_line import one_line_error as _one_line_error
 from headplod import io
 from headplod.capture import DatasetRecorder, open_source
 from headplod.capture.signals import StopSignals, deferred_signals
@@ -38,11 +39,6 @@ ROOT = Path(__file__).resolve().parent.parent
 STOP = (signal.SIGINT, signal.SIGTERM)
 
 
-def _one_line_error(err: str) -> str:
-    lines = [l for l in err.strip().splitlines() if l.startswith("headplod:")]
-    assert len(lines) == 1, err
-    assert "Traceback" not in err, err
-    return lines[0]
 
 
 def _leftovers(folder: Path) -> list[str]:

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 import pytest
 
+from one_line import one_line_error as _one_line_error
 from headplod import io
 from headplod.capture import DatasetRecorder, open_source
 from headplod.cli import main as cli_main
@@ -39,11 +40,6 @@ ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTH
 COMMAND = [sys.executable, "-m", "headplod.cli", "track"]
 
 
-def _one_line_error(err: str) -> str:
-    lines = [line for line in err.strip().splitlines() if line.startswith("headplod:")]
-    assert len(lines) == 1, err
-    assert "Traceback" not in err, err
-    return lines[0]
 
 
 def _consistent_frames(rec: Path) -> int:

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from one_line import one_line_error as _one_line_error
 from headplod import io
 from headplod.cli import main as cli_main
 from headplod.live.udp import OpentrackSender
@@ -23,11 +24,6 @@ from headplod.live.udp import OpentrackSender
 UNWRITABLE = Path("/proc")
 
 
-def _one_line_error(err: str) -> str:
-    lines = [line for line in err.strip().splitlines() if line.startswith("headplod:")]
-    assert len(lines) == 1, err
-    assert "Traceback" not in err, err
-    return lines[0]
 
 
 def _digest(folder: Path) -> dict:

@@ -36,7 +36,6 @@ SIGUSR1 recentre what is sent (:mod:`headplod.live.recentre`; the math in
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import signal
 import sys
@@ -61,7 +60,8 @@ from ..tracking.uncertainty import COVARIANCE_ESTIMATORS, DEFAULT_COVARIANCE
 from .frame_notes import FrameNotes, warning_kind
 from .opentrack import DEFAULT_PIVOT_MM, OPENTRACK_FRAMES, check_pivot_mm, parse_host_port
 from .recentre import RecentreControls
-from .status import ForgivingStream, StatusLine
+from ..streams import dropping_stderr
+from .status import StatusLine
 from .track_checks import Usage as _Usage, check_outputs as _check_outputs, check_save_rig as _check_save_rig
 from .udp import OpentrackSender
 
@@ -296,9 +296,11 @@ def run_track(args) -> int:
     """Run ``headplod track`` from parsed arguments; the exit status.
 
     Standard error is wrapped so that a closed terminal (SIGHUP, then EIO
-    on every write) silences the messages without ending the run.
+    on every write) silences the messages without ending the run (the
+    command line's :func:`headplod.streams.dropping_stderr`, here too for a
+    caller that is not the command line).
     """
-    with contextlib.redirect_stderr(ForgivingStream(sys.stderr)):
+    with dropping_stderr():
         return _run_track(args)
 
 

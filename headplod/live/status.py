@@ -1,8 +1,7 @@
 """The live status line of ``headplod track``: :class:`StatusLine` (frame rate in Hz over a
 sliding window, capture-to-pose latency and left/right skew in ms, counts over the run (dropped
 pairs: the source's losses and those dropped while the tracker was busy), the
-opentrack sender's failures, the rig refinement's message shortened by :func:`short_rig_message`),
-and :class:`ForgivingStream`, a text stream whose writes never raise.
+opentrack sender's failures, the rig refinement's message shortened by :func:`short_rig_message`).
 """
 from __future__ import annotations
 
@@ -301,36 +300,3 @@ class StatusLine:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-class ForgivingStream:
-    """A text stream whose writes never raise: a terminal that closed (EIO) or a pipe whose reader left
-    (EPIPE) ends the messages, not the run. Wraps ``stream``; ``broken`` tells whether a write failed."""
-
-    def __init__(self, stream: TextIO):
-        self.stream = stream
-        self.broken = False
-
-    def write(self, text: str) -> int:
-        if not self.broken:
-            try:
-                return self.stream.write(text)
-            except (OSError, ValueError):          # ValueError: the stream was closed
-                self.broken = True
-        return len(text)
-
-    def flush(self) -> None:
-        if not self.broken:
-            try:
-                self.stream.flush()
-            except (OSError, ValueError):
-                self.broken = True
-
-    def isatty(self) -> bool:
-        try:
-            return not self.broken and self.stream.isatty()
-        except (OSError, ValueError, AttributeError):
-            return False
-
-    def __getattr__(self, name):
-        return getattr(self.stream, name)
