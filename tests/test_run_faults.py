@@ -30,6 +30,7 @@ import pytest
 
 from one_line import one_line_error as _one_line_error
 from headplod import io
+from headplod.io import progressive
 from headplod.capture import DatasetRecorder, open_source
 from headplod.cli import main as cli_main
 from headplod.tracking.tracker import Tracker
@@ -240,13 +241,18 @@ def test_a_folder_that_cannot_be_written_is_refused_before_the_first_frame(long_
                                                                            monkeypatch, capsys):
     out, rec = old_outputs
     before = sorted(p.name for p in rec.rglob("*"))
-    real = os.access
-    monkeypatch.setattr(os, "access", lambda path, mode, **kw: False if Path(path) == out.parent.resolve()
-                        and mode == os.W_OK else real(path, mode, **kw))
+    real = progressive.tempfile.mkstemp
+
+    def refused(*args, dir=None, **kw):                 # the probe of the folder, as a read-only mount answers
+        if dir is not None and Path(dir) == out.parent.resolve():
+            raise PermissionError(13, "Permission denied")
+        return real(*args, dir=dir, **kw)
+
+    monkeypatch.setattr(progressive.tempfile, "mkstemp", refused)
     code = cli_main(["track", "--source", str(long_dataset), "--out", str(out), "--record", str(rec),
                      "--overwrite", "-q"])
     line = _one_line_error(capsys.readouterr().err)
-    assert code == 1 and "is not writable" in line and "nothing was written" in line
+    assert code == 1 and "cannot be written (Permission denied)" in line and "nothing was written" in line
     assert out.read_text() == "precious\n" and sorted(p.name for p in rec.rglob("*")) == before
     assert not (rec.parent / "rec.previous").exists()
 
@@ -258,7 +264,7 @@ def test_a_read_only_folder_is_refused_before_the_first_frame(long_dataset, tmp_
     folder.chmod(0o555)
     try:
         assert cli_main(["track", "--source", str(long_dataset), "--out", str(folder / "p.jsonl"), "-q"]) == 1
-        assert "not writable" in _one_line_error(capsys.readouterr().err)
+        assert "cannot be written" in _one_line_error(capsys.readouterr().err)
     finally:
         folder.chmod(0o755)
 
@@ -315,8 +321,12 @@ def test_a_closed_terminal_or_two_quick_sigterms_keep_everything_whole(signals, 
     records = _whole_records(out)
     assert len(records) >= 10 and _consistent_frames(rec) == len(records)
     assert "stopped (" + ("SIGHUP, the terminal closed" if signals[0] == signal.SIGHUP else "SIGTERM") in err
-    # A stop is a run that ended as the user wanted: what it replaced is gone, no marker is left.
-    assert not (out.parent / "poses.previous.jsonl").exists() and not (rec.parent / "rec.previous").exists()
+    # A replay stopped before its end: what it replaced is kept beside it and named in the stop line (issue 35;
+    # a live camera's run, which ends so, deletes it), and no marker is left.
+    previous_out, previous_rec = out.parent / "poses.previous.jsonl", rec.parent / "rec.previous"
+    assert previous_out.read_text() == "precious\n" and _consistent_frames(previous_rec) == 4
+    stop = [line for line in err.splitlines() if "stopped (" in line]
+    assert len(stop) == 1 and f"kept as {previous_out}" in stop[0] and f"kept as {previous_rec}" in stop[0], err
     assert not list(out.parent.glob(".*headplod-run")) and not (rec / ".headplod-run").exists()
 
 

@@ -243,8 +243,9 @@ def refuse_special(path, name: str | None = None, *, option: str = "", stream: b
         raise OutputRefused(f"{name}: is this run's {dict(_STREAMS)[fd]}, and this output {where}; give a "
                             f"{noun} name", option, given)
     if kind is not None:
+        discard = " (to keep nothing, leave the option out)" if os.path.realpath(given) == os.devnull else ""
         raise OutputRefused(f"{name}: is {kind}, not a {'folder' if folder else 'regular file'}, and a special "
-                            f"file is never written over; give another {noun} name", option, given)
+                            f"file is never written over; give another {noun} name{discard}", option, given)
     closed = _closed_descriptor(given)
     if closed is not None:
         raise OutputRefused(f"{name}: is this run's {dict(_STREAMS).get(closed, f'file descriptor {closed}')}, "
