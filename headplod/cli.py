@@ -34,7 +34,7 @@ from synthetic.cli import add_render_arguments as add_synth_arguments
 from synthetic.cli import run_render as run_synth
 
 from . import cache, config, io, streams
-from .argtypes import attach_negative_lists
+from .argtypes import CommandParser, attach_negative_lists
 from .io.files import OutputRefused
 from .bench.command import add_bench_arguments, run_bench
 from .calibration.command import add_calibrate_arguments, run_calibrate
@@ -74,7 +74,7 @@ COMMANDS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="headplod", description=__doc__.split("\n")[0] + " Stereo IR head tracking.")
+    parser = CommandParser(prog="headplod", description=__doc__.split("\n")[0] + " Stereo IR head tracking.")
     config.add_config_arguments(parser)
     sub = parser.add_subparsers(dest="command", required=True)
     for name, (help_text, add_arguments, _) in COMMANDS.items():
