@@ -124,7 +124,7 @@ KEYS: Mapping[str, Key] = MappingProxyType({
                    "path", when=_live_cameras),
     "screen": Key("screen.yaml of the screen, for the POI (with live cameras)", ("track", "render"), "path",
                   when=_live_cameras),
-    "udp": Key("HOST[:PORT] of opentrack's 'UDP over network' input", ("track",), "text", check=_udp_address),
+    "udp": Key("HOST[:PORT] or PORT of opentrack's 'UDP over network' input", ("track",), "text", check=_udp_address),
     "pivot": Key("the head's pivot X,Y,Z mm (head frame) sent with udp", ("track",), "numbers", when=_with_udp),
     "udp-axes": Key("the axes of the position sent with udp", ("track",), when=_with_udp),
     "filter": Key("One Euro filter MIN_CUTOFF,BETA on the poses (true: the default 1.0,0.02)", ("track",),

@@ -3,14 +3,18 @@
 - a usage error is one line, ``PROG: error: WHAT[, did you mean X?] see PROG --help``, exit status 2, for
   every subcommand (no usage block before it); unknown options are refused by the subcommand they were
   given to, with the closest option; invalid choices and commands with the closest choice;
+- ``--udp 4242`` (a port alone) sends to 127.0.0.1:4242; a bad host is refused naming the forms taken;
 """
 from __future__ import annotations
 
 import argparse
+import socket
 
+import numpy as np
 import pytest
 
 from headplod import cli
+from headplod.live.opentrack import decode_opentrack, parse_host_port
 
 
 def _usage_error(argv, capsys) -> str:
@@ -89,3 +93,45 @@ def test_every_subcommand_parser_is_the_one_line_parser():
     assert len(parsers) > len(cli.COMMANDS)
     for parser in parsers:
         assert type(parser).error is type(cli.build_parser()).error is not argparse.ArgumentParser.error
+
+
+# ---------------------------------------------------------------------------
+# --udp PORT
+# ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("text, address", [
+    ("4242", ("127.0.0.1", 4242)),
+    (" 5555 ", ("127.0.0.1", 5555)),
+    ("gamepc.local:4243", ("gamepc.local", 4243)),
+    ("192.168.1.20", ("192.168.1.20", 4242)),
+    ("[fe80::1%eth0]:4242", ("fe80::1%eth0", 4242)),
+])
+def test_a_port_alone_is_this_machine(text, address):
+    assert parse_host_port(text) == address
+
+
+@pytest.mark.parametrize("text", ["4242:4242", "1.2.3.4.5:4242", "a b:4242", "http://gamepc:4242", "[zz]:4242",
+                                  "-gamepc", "gamepc_:4242"])
+def test_a_bad_host_is_refused_with_the_expected_forms(text):
+    with pytest.raises(ValueError, match=r"expected HOST:PORT, \[IPv6\]:PORT or PORT"):
+        parse_host_port(text)
+
+
+def test_track_refuses_a_bad_udp_host_in_one_line_before_any_work(capsys):
+    assert cli.main(["track", "--source", "synthetic:static", "--udp", "4242:4242"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'4242' is not a host name" in err[0] and "or PORT" in err[0], err
+
+
+def test_track_udp_port_alone_sends_to_this_machine(capsys):
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.bind(("127.0.0.1", 0))
+    port = receiver.getsockname()[1]
+    try:
+        assert cli.main(["track", "--source", "synthetic:static", "--frames", "2", "--udp", str(port)]) == 0
+        receiver.setblocking(False)                     # loopback: sent datagrams are queued before main returns
+        got = [receiver.recv(64), receiver.recv(64)]
+    finally:
+        receiver.close()
+    assert all(np.isfinite(decode_opentrack(data)).all() for data in got)
+    assert f"udp: to 127.0.0.1:{port}," in capsys.readouterr().err

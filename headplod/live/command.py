@@ -176,9 +176,10 @@ def pivot_arg(text: str) -> np.ndarray:
 
 def add_udp_arguments(group) -> None:
     """``--udp``, ``--pivot`` and ``--udp-axes`` (for ``track`` and any command that sends to opentrack)."""
-    group.add_argument("--udp", metavar="HOST[:PORT]",
+    group.add_argument("--udp", metavar="HOST[:PORT]|PORT",
                        help="send each pose to opentrack's 'UDP over network' input (six float64: x, y, z cm, "
-                            "yaw, pitch, roll deg; default port 4242), with the axes and signs of opentrack's "
+                            "yaw, pitch, roll deg; default port 4242; a port alone is on this machine, 4242 "
+                            "meaning 127.0.0.1:4242; IPv6 as [::1]:4242), with the axes and signs of opentrack's "
                             "point tracker: nothing to invert in opentrack. A frame without a pose sends nothing "
                             "(opentrack holds the last pose it got); press c or send SIGUSR1 to recentre")
     group.add_argument("--pivot", type=pivot_arg, metavar="X,Y,Z",
