@@ -4,16 +4,23 @@
   every subcommand (no usage block before it); unknown options are refused by the subcommand they were
   given to, with the closest option; invalid choices and commands with the closest choice;
 - ``--udp 4242`` (a port alone) sends to 127.0.0.1:4242; a bad host is refused naming the forms taken;
+- ``--realtime --loop`` replays back and forth without end, times increasing; Ctrl-C ends it as a live run
+  ends; ``--loop`` alone is refused in one line;
 """
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import socket
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from headplod import cli
+from headplod import cli, io
+from headplod.capture.sources import DatasetSource
 from headplod.live.opentrack import decode_opentrack, parse_host_port
 
 
@@ -135,3 +142,55 @@ def test_track_udp_port_alone_sends_to_this_machine(capsys):
         receiver.close()
     assert all(np.isfinite(decode_opentrack(data)).all() for data in got)
     assert f"udp: to 127.0.0.1:{port}," in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------
+# --realtime --loop
+# ---------------------------------------------------------------------------
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_loop_without_realtime_is_refused_in_one_line(sweep12_dir, capsys):
+    assert cli.main(["track", "--source", str(sweep12_dir), "--loop"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--loop goes with --realtime" in err[0], err
+
+
+def test_a_looped_replay_goes_back_and_forth_with_times_increasing(sweep12_dir):
+    dataset = io.Dataset(sweep12_dir)
+    n = len(dataset.indices)
+    recorded = {i: dataset.frame(i).t for i in dataset.indices}
+    source = DatasetSource(sweep12_dir, loop=True)          # not realtime: no pacing, no clock involved
+    frames = [source.read() for _ in range(3 * n)]
+    source.close()
+    assert [f.index for f in frames] == list(range(3 * n))  # numbered on: records in increasing frame order
+    cycle = list(range(n)) + list(range(n - 2, 0, -1))
+    played = [source.order[f.index] for f in frames]
+    assert played == (cycle * 3)[:3 * n]
+    for f, k in zip(frames, played):                      # each frame is the recording's frame it says
+        assert np.array_equal(f.left, dataset.frame(k).left)
+        np.testing.assert_array_equal(source.truth[f.index][0], dataset.truth[k][0])
+    t = np.array([f.t for f in frames])
+    steps = [abs(recorded[b] - recorded[a]) for a, b in zip(played, played[1:])]
+    np.testing.assert_allclose(np.diff(t), steps, rtol=0, atol=1e-9)
+    assert (np.diff(t) > 0).all() and t[0] == recorded[0]
+    assert all(f.dropped == 0 for f in frames)
+
+
+def test_ctrl_c_ends_a_looped_realtime_replay_as_a_live_run_ends(sweep12_dir, tmp_path):
+    from paused_track import start_paused
+    out, rec = tmp_path / "poses.jsonl", tmp_path / "rec"
+    out.write_text("old\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    n = len(io.Dataset(sweep12_dir).indices)
+    proc = start_paused(["--source", str(sweep12_dir), "--realtime", "--loop", "--out", str(out),
+                         "--record", str(rec), "-q"], n + 4, env)      # waits past the recording's end
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(input="go\n", timeout=60)
+    assert proc.returncode == 0, err
+    assert "stopped (Ctrl-C)" in err and "a live or looped run ends so" in err, err
+    records = io.read_poses(out)
+    assert len(records) > n                                # it went on past the end of the recording
+    assert (np.diff([r["frame"] for r in records]) > 0).all() and (np.diff([r["t"] for r in records]) > 0).all()
+    assert not (tmp_path / "poses.previous.jsonl").exists()  # what --out replaced goes, as a live run's
