@@ -1,4 +1,4 @@
-"""The cache folder: rendered synthetic sequences, terrain grids and matplotlib's font cache.
+"""The cache folder: rendered synthetic sequences, terrain grids, matplotlib's font cache and Mesa's shader cache.
 
 ``$HEADPLOD_CACHE`` when set (and not empty), else ``~/.cache/headplod``, where ``~`` is ``$HOME`` when it
 is an absolute folder other than ``/``, else the user's home in the password database. An empty

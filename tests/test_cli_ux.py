@@ -6,13 +6,19 @@
 - ``--udp 4242`` (a port alone) sends to 127.0.0.1:4242; a bad host is refused naming the forms taken;
 - ``--realtime --loop`` replays back and forth without end, times increasing; Ctrl-C ends it as a live run
   ends; ``--loop`` alone is refused in one line;
+- smaller things: ``v4l2:auto``'s advice is today's spelling; ``pivot`` on a short recording says what it
+  needs (no nan); docs/plod.md's xvfb-run names its package; Mesa's shader cache goes into headplod's cache;
+  ``pytest -q`` shows the "N passed" line.
 """
 from __future__ import annotations
 
 import argparse
 import os
+import re
+import shlex
 import signal
 import socket
+import subprocess
 import sys
 from pathlib import Path
 
@@ -194,3 +200,79 @@ def test_ctrl_c_ends_a_looped_realtime_replay_as_a_live_run_ends(sweep12_dir, tm
     assert len(records) > n                                # it went on past the end of the recording
     assert (np.diff([r["frame"] for r in records]) > 0).all() and (np.diff([r["t"] for r in records]) > 0).all()
     assert not (tmp_path / "poses.previous.jsonl").exists()  # what --out replaced goes, as a live run's
+
+
+# ---------------------------------------------------------------------------
+# smaller things
+# ---------------------------------------------------------------------------
+
+def test_v4l2_auto_without_identities_advises_a_command_that_parses_as_it_is_now(tmp_path, sweep12_dir):
+    from headplod.capture.usb import resolve_rig_cameras
+    path = tmp_path / "my rig.yaml"
+    path.write_bytes((sweep12_dir / "rig.yaml").read_bytes())
+    with pytest.raises(LookupError) as refused:
+        resolve_rig_cameras(io.read_rig(path), [])
+    advice = str(refused.value).split("store their identities with: ", 1)[1]
+    argv = shlex.split(advice)
+    assert argv[0] == "headplod"
+    args = cli.build_parser().parse_args(argv[1:])
+    # today's spelling: --store with no devices (the old --store LEFT RIGHT prints a note and goes)
+    assert args.command == "cameras" and args.store == [] and args.source == "v4l2:LEFT,RIGHT"
+    assert Path(args.rig) == path
+
+
+def test_pivot_on_a_short_recording_says_what_it_needs_not_nan(sweep12_dir, capsys):
+    from headplod.live.pivot import PivotFitConfig
+    config = PivotFitConfig()
+    assert cli.main(["pivot", "--source", str(sweep12_dir), "-q"]) == 1
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "nan" not in line, line
+    n = len(io.Dataset(sweep12_dir).indices)
+    assert f"{n} tracked poses, {config.min_frames} needed" in line, line
+    assert f"at least {config.min_spread_deg:g}° rms about each axis" in line, line
+
+
+def test_the_docs_xvfb_run_names_its_package_or_setup_installs_it():
+    setup = (ROOT / "setup.sh").read_text()
+    apt = re.search(r'APT_PACKAGES="([^"]*)"', setup).group(1).split()
+    for doc in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        for paragraph in doc.read_text().split("\n\n"):
+            if "xvfb-run" in paragraph:
+                assert "xvfb" in apt or "package xvfb" in " ".join(paragraph.split()), (doc, paragraph)
+
+
+def test_mesa_and_matplotlib_caches_go_into_headplods_cache(tmp_path):
+    """A render with an OpenGL context, its home and XDG cache in tmp_path: Mesa's shader cache is made in
+    HEADPLOD_CACHE, nothing in the home folder or XDG_CACHE_HOME (where Mesa puts it by default)."""
+    home, cache, xdg = tmp_path / "home", tmp_path / "cache", tmp_path / "xdg"
+    home.mkdir()
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("MESA_", "MPLCONFIGDIR", "XDG_CACHE"))}
+    env.update(HOME=str(home), HEADPLOD_CACHE=str(cache), XDG_CACHE_HOME=str(xdg),
+               PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    done = subprocess.run([sys.executable, "-m", "headplod.cli", "render", "--size", "32,18", "--out",
+                           str(tmp_path / "x.png"), "-q"], env=env, cwd=tmp_path, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert any(p.is_file() for p in (cache / "mesa").rglob("*")), sorted(cache.rglob("*"))
+    assert not xdg.exists() and not list(home.iterdir())
+
+
+def test_a_library_cache_variable_the_user_set_is_kept(tmp_path, monkeypatch):
+    monkeypatch.setenv("HEADPLOD_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("MESA_SHADER_CACHE_DIR", str(tmp_path / "mine"))
+    monkeypatch.delenv("MESA_GLSL_CACHE_DIR", raising=False)
+    monkeypatch.delenv("MPLCONFIGDIR", raising=False)
+    cli._keep_libraries_caches_in_ours()
+    assert os.environ["MESA_SHADER_CACHE_DIR"] == str(tmp_path / "mine")
+    assert "MESA_GLSL_CACHE_DIR" not in os.environ      # the user chose Mesa's place: not half overridden
+    assert os.environ["MPLCONFIGDIR"] == str(tmp_path / "cache" / "matplotlib")
+
+
+def test_pytest_q_shows_how_many_passed(tmp_path):
+    """pyproject's addopts had -q: ``pytest -q`` became -qq, which hides the "N passed" line."""
+    (tmp_path / "test_one.py").write_text("def test_one():\n    assert True\n")
+    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-c", str(ROOT / "pyproject.toml"),
+                           "-p", "no:cacheprovider", str(tmp_path / "test_one.py")],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert re.search(r"^1 passed", done.stdout, re.MULTILINE), done.stdout
