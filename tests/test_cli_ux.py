@@ -184,6 +184,7 @@ def test_a_looped_replay_goes_back_and_forth_with_times_increasing(sweep12_dir):
     assert all(f.dropped == 0 for f in frames)
 
 
+@pytest.mark.slow
 def test_ctrl_c_ends_a_looped_realtime_replay_as_a_live_run_ends(sweep12_dir, tmp_path):
     from paused_track import start_paused
     out, rec = tmp_path / "poses.jsonl", tmp_path / "rec"
@@ -241,6 +242,7 @@ def test_the_docs_xvfb_run_names_its_package_or_setup_installs_it():
                 assert "xvfb" in apt or "package xvfb" in " ".join(paragraph.split()), (doc, paragraph)
 
 
+@pytest.mark.slow
 def test_mesa_and_matplotlib_caches_go_into_headplods_cache(tmp_path):
     """A render with an OpenGL context, its home and XDG cache in tmp_path: Mesa's shader cache is made in
     HEADPLOD_CACHE, nothing in the home folder or XDG_CACHE_HOME (where Mesa puts it by default)."""
@@ -268,6 +270,7 @@ def test_a_library_cache_variable_the_user_set_is_kept(tmp_path, monkeypatch):
     assert os.environ["MPLCONFIGDIR"] == str(tmp_path / "cache" / "matplotlib")
 
 
+@pytest.mark.slow
 def test_pytest_q_shows_how_many_passed(tmp_path):
     """pyproject's addopts had -q: ``pytest -q`` became -qq, which hides the "N passed" line."""
     (tmp_path / "test_one.py").write_text("def test_one():\n    assert True\n")
