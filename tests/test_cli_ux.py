@@ -136,6 +136,15 @@ def test_track_refuses_a_bad_udp_host_in_one_line_before_any_work(capsys):
     assert len(err) == 1 and "'4242' is not a host name" in err[0] and "or PORT" in err[0], err
 
 
+@pytest.mark.parametrize("value", ["4242", '"4242"'])
+def test_the_config_files_udp_takes_a_port_alone(value, tmp_path, monkeypatch):
+    from headplod import config
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "headplod.toml").write_text(f"[track]\nudp = {value}\n")
+    args = config.parse_args(cli.build_parser(), ["track", "-q"])
+    assert parse_host_port(args.udp) == ("127.0.0.1", 4242)
+
+
 def test_track_udp_port_alone_sends_to_this_machine(capsys):
     receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     receiver.bind(("127.0.0.1", 0))
