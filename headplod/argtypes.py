@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
 import re
 import sys
 
 __all__ = ["cache_mb", "floats", "frame_count", "max_level", "non_negative", "level_bias", "triangle_budget",
-           "gaze_prior", "attach_negative_lists", "note_old_spelling", "add_quiet_argument"]
+           "gaze_prior", "attach_negative_lists", "note_old_spelling", "add_quiet_argument", "CommandParser"]
 
 #: What ``-q`` means, for every command.
 QUIET_HELP = "no progress and no notes on standard error (errors and the requested output still appear)"
@@ -166,3 +167,68 @@ def attach_negative_lists(argv):
         out.append(token)
         i += 1
     return out
+
+
+# ---------------------------------------------------------------------------
+# usage errors: one line, a "did you mean", and where the help is
+# ---------------------------------------------------------------------------
+
+def _did_you_mean(word: str, candidates) -> str:
+    """``, did you mean X?`` for the candidate closest to ``word`` (difflib's ratio), or ``""``."""
+    close = difflib.get_close_matches(word, [str(c) for c in candidates], n=1)
+    return f", did you mean {close[0]}?" if close else ""
+
+
+class _Subcommands(argparse._SubParsersAction):
+    """The subparsers' action: what the chosen subcommand did not recognise is refused by that subcommand's
+    parser (``headplod track: error: unknown option --sorce``), not by the top level's."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        super().__call__(parser, namespace, values, option_string)
+        extras = getattr(namespace, argparse._UNRECOGNIZED_ARGS_ATTR, None)
+        if extras:
+            self.choices[values[0]].error(self.choices[values[0]].unrecognized(extras))
+
+
+class CommandParser(argparse.ArgumentParser):
+    """The command line's parser (every subcommand's too, by inheritance): a usage error is one line on
+    standard error, ``PROG: error: WHAT[, did you mean X?] see PROG --help``, exit status 2, instead of
+    argparse's usage block before it. An unknown option is refused by the subcommand it was given to, with
+    the closest option; an invalid choice (of an option or of a subcommand) with the closest choice.
+    ``--help`` is argparse's own."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.register("action", "parsers", _Subcommands)
+
+    def error(self, message: str):
+        for action in self._actions:        # no command: name them (argparse's usage, which did, is not shown)
+            if (isinstance(action, argparse._SubParsersAction)
+                    and message == f"the following arguments are required: {action.dest}"):
+                message = f"give a command: {', '.join(action.choices)}"
+        self.exit(2, f"{self.prog}: error: {message}{' ' if message.endswith('?') else '; '}see {self.prog} --help\n")
+
+    def _check_value(self, action, value):
+        if action.choices is None or value in action.choices:
+            return
+        if isinstance(action, argparse._SubParsersAction):
+            raise argparse.ArgumentError(None, f"unknown command {value!r} (one of {', '.join(action.choices)})"
+                                               f"{_did_you_mean(value, action.choices)}")
+        choices = ", ".join(map(repr, action.choices))
+        raise argparse.ArgumentError(action, f"invalid choice: {value!r} (choose from {choices})"
+                                             f"{_did_you_mean(value, action.choices)}")
+
+    def unrecognized(self, extras) -> str:
+        """The message for arguments this parser does not take: the first unknown option, with the closest
+        of this parser's options; else the unexpected values."""
+        for token in extras:
+            if token.startswith("-") and not self._negative_number_matcher.match(token):
+                option = token.split("=", 1)[0]
+                return f"unknown option {option}{_did_you_mean(option, self._option_string_actions)}"
+        return f"unexpected argument{'s' if len(extras) > 1 else ''}: {' '.join(extras)}"
+
+    def parse_args(self, args=None, namespace=None):
+        namespace, extras = self.parse_known_args(args, namespace)
+        if extras:
+            self.error(self.unrecognized(extras))
+        return namespace

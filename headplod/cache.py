@@ -7,6 +7,7 @@ is an absolute folder other than ``/``, else the user's home in the password dat
 
 :func:`usable_cache_root` also makes the folder and checks that files can be written in it, before any
 long work that would fill it; what is wrong is one line naming ``HEADPLOD_CACHE`` and what to do.
+The command line also keeps Mesa's shader cache here (``headplod.cli.LIBRARY_CACHES``).
 """
 from __future__ import annotations
 

@@ -34,7 +34,7 @@ from synthetic.cli import add_render_arguments as add_synth_arguments
 from synthetic.cli import run_render as run_synth
 
 from . import cache, config, io, streams
-from .argtypes import attach_negative_lists
+from .argtypes import CommandParser, attach_negative_lists
 from .io.files import OutputRefused
 from .bench.command import add_bench_arguments, run_bench
 from .calibration.command import add_calibrate_arguments, run_calibrate
@@ -74,7 +74,7 @@ COMMANDS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="headplod", description=__doc__.split("\n")[0] + " Stereo IR head tracking.")
+    parser = CommandParser(prog="headplod", description=__doc__.split("\n")[0] + " Stereo IR head tracking.")
     config.add_config_arguments(parser)
     sub = parser.add_subparsers(dest="command", required=True)
     for name, (help_text, add_arguments, _) in COMMANDS.items():
@@ -110,7 +110,7 @@ def _main(argv, at_start: streams.StandardStreams) -> int:
         print("headplod: the current folder no longer exists (it was deleted); cd into a folder that exists "
               "and run the command again", file=sys.stderr)
         return 2
-    _keep_matplotlib_in_the_cache()
+    _keep_libraries_caches_in_ours()
     # "--head -120,40,650": a list starting with a minus sign is the option's value, not another option.
     # The config file (headplod.toml) fills in what the command line does not give.
     args = config.parse_args(build_parser(), attach_negative_lists(sys.argv[1:] if argv is None else argv))
@@ -146,24 +146,35 @@ def _closed_stream_option(args, at_start: streams.StandardStreams) -> str | None
     return None
 
 
-def _keep_matplotlib_in_the_cache() -> None:
-    """matplotlib keeps a font cache in ~/.config/matplotlib or ~/.cache/matplotlib; the command keeps it in
-    its own cache folder instead (:mod:`headplod.cache`), unless MPLCONFIGDIR is set. When the cache cannot
-    be used, a temporary folder removed at exit: matplotlib would otherwise advise setting MPLCONFIGDIR, a
-    variable the user never set (a command that needs the cache says what is wrong with it, naming
-    HEADPLOD_CACHE)."""
-    if "MPLCONFIGDIR" in os.environ:
-        return
-    try:
-        folder = cache.usable_cache_root() / "matplotlib"
-        folder.mkdir(exist_ok=True)
-    except (cache.CacheUnusable, OSError):
+#: The libraries that keep a cache of their own in the home folder, and the environment variables that move
+#: it: {folder in headplod's cache: variables}. matplotlib's font cache (~/.config/matplotlib or
+#: ~/.cache/matplotlib); Mesa's shader cache (~/.cache/mesa_shader_cache, made by the first OpenGL context:
+#: MESA_SHADER_CACHE_DIR since Mesa 20.3, MESA_GLSL_CACHE_DIR before; Mesa makes mesa_shader_cache inside).
+LIBRARY_CACHES = {"matplotlib": ("MPLCONFIGDIR",),
+                  "mesa": ("MESA_SHADER_CACHE_DIR", "MESA_GLSL_CACHE_DIR")}
+
+
+def _keep_libraries_caches_in_ours() -> None:
+    """Point each library's cache (:data:`LIBRARY_CACHES`) into the command's own cache folder
+    (:mod:`headplod.cache`), before anything imports matplotlib or makes an OpenGL context: the home folder
+    gets nothing but ~/.cache/headplod. A library whose variables the user set any of is left as set. When
+    the cache cannot be used, a temporary folder removed at exit: matplotlib would otherwise advise setting
+    MPLCONFIGDIR, a variable the user never set (a command that needs the cache says what is wrong with it,
+    naming HEADPLOD_CACHE)."""
+    for name, variables in LIBRARY_CACHES.items():
+        if any(variable in os.environ for variable in variables):
+            continue
         try:
-            folder = Path(tempfile.mkdtemp(prefix="headplod-matplotlib-"))
-        except OSError:
-            return
-        atexit.register(shutil.rmtree, folder, ignore_errors=True)
-    os.environ["MPLCONFIGDIR"] = str(folder)
+            folder = cache.usable_cache_root() / name
+            folder.mkdir(exist_ok=True)
+        except (cache.CacheUnusable, OSError):
+            try:
+                folder = Path(tempfile.mkdtemp(prefix=f"headplod-{name}-"))
+            except OSError:
+                continue
+            atexit.register(shutil.rmtree, folder, ignore_errors=True)
+        for variable in variables:
+            os.environ[variable] = str(folder)
 
 
 if __name__ == "__main__":

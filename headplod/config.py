@@ -76,7 +76,7 @@ class Key:
     """One key of the config file: the option ``--NAME`` of ``commands``.
 
     ``kind`` is what TOML value it takes (besides the command line's text, always accepted): ``"text"``
-    (a string only), ``"path"`` (a file: ``~`` expanded, relative to the config file's folder), ``"source"``
+    (a string only), ``"address"`` (a string, or a whole number: a port), ``"path"`` (a file: ``~`` expanded, relative to the config file's folder), ``"source"``
     (a source SPEC: its folder or files as for ``"path"``), ``"number"``, ``"numbers"`` (an array of
     numbers, joined with commas as on the command line), ``"numbers-or-flag"`` (also true: the option
     without a value; false: off). ``check`` validates the text when the option itself does not
@@ -124,7 +124,8 @@ KEYS: Mapping[str, Key] = MappingProxyType({
                    "path", when=_live_cameras),
     "screen": Key("screen.yaml of the screen, for the POI (with live cameras)", ("track", "render"), "path",
                   when=_live_cameras),
-    "udp": Key("HOST[:PORT] of opentrack's 'UDP over network' input", ("track",), "text", check=_udp_address),
+    "udp": Key("HOST[:PORT] or PORT of opentrack's 'UDP over network' input", ("track",), "address",
+               check=_udp_address),
     "pivot": Key("the head's pivot X,Y,Z mm (head frame) sent with udp", ("track",), "numbers", when=_with_udp),
     "udp-axes": Key("the axes of the position sent with udp", ("track",), when=_with_udp),
     "filter": Key("One Euro filter MIN_CUTOFF,BETA on the poses (true: the default 1.0,0.02)", ("track",),
@@ -213,6 +214,8 @@ def _as_text(key: Key, value, where: str, action, folder: Path) -> str | None:
         if kind == "numbers-or-flag":
             return action.const if value else None
         raise ConfigError(f"{where}: expected {_expected(kind)}, got {_type_name(value)}")
+    if isinstance(value, int) and kind == "address":   # udp = 4242: a port on this machine, as --udp 4242
+        return str(value)
     if isinstance(value, (int, float)) and kind in ("number", "numbers", "numbers-or-flag"):
         return repr(value) if isinstance(value, float) else str(value)
     if isinstance(value, list) and kind in ("numbers", "numbers-or-flag"):
@@ -230,6 +233,7 @@ def _as_text(key: Key, value, where: str, action, folder: Path) -> str | None:
 
 def _expected(kind: str) -> str:
     return {"text": "a string", "path": "a string (a file)", "source": "a string (a SPEC)",
+            "address": "a string (HOST:PORT) or a port number",
             "number": "a number", "numbers": "an array of numbers (or a string as on the command line)",
             "numbers-or-flag": "true, false, an array of numbers or a string"}[kind]
 

@@ -3,6 +3,7 @@
 Nothing here tracks more than a couple of frames: the commands' own tests
 (test_live, test_tracker, test_cli_rig, ...) run them in full.
 """
+import argparse
 import json
 import shutil
 import subprocess
@@ -37,7 +38,7 @@ def _choices(argv_prefix, option):
     """The choices argparse holds for ``option`` of the subcommand ``argv_prefix``."""
     parser = cli.build_parser()
     for name in argv_prefix:
-        sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         parser = sub.choices[name]
     action = next(a for a in parser._actions if option in a.option_strings)
     return tuple(action.choices)
@@ -49,7 +50,7 @@ def _choices(argv_prefix, option):
 
 def test_every_command_has_a_run_and_the_parser_knows_each():
     parser = cli.build_parser()
-    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     assert list(sub.choices) == list(cli.COMMANDS)
     for name, (help_text, add_arguments, run) in cli.COMMANDS.items():
         assert help_text and callable(add_arguments) and callable(run), name
@@ -119,7 +120,7 @@ def test_the_demo_keys_help_is_made_from_the_keymap(monkeypatch):
             assert value in UNCERTAINTY_MODES
         if setting == "view_mode":
             assert value in VIEW_MODES
-    demo = next(a for a in cli.build_parser()._actions if a.__class__.__name__ == "_SubParsersAction").choices["demo"]
+    demo = next(a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices["demo"]
     assert keys.key_help(values=("mode", "uncertainty", "view_mode"), sep="; ") in demo.description
 
 
@@ -214,7 +215,7 @@ def test_synth_and_python_m_synthetic_refuse_the_same_arguments(argv, capsys):
             parse()
         assert stop.value.code == 2
         errors.append(capsys.readouterr().err.strip().splitlines()[-1].split("error: ", 1)[1])
-    assert errors[0] == errors[1]
+    assert errors[0] == f"{errors[1]}; see headplod synth --help"     # headplod's one line says where the help is
 
 
 def test_synth_and_python_m_synthetic_write_the_same_dataset(tmp_path, capsys):

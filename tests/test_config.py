@@ -205,7 +205,8 @@ def test_every_key_is_an_option_of_a_command_it_names_and_checks_like_it():
     for name, key in config.KEYS.items():
         takers = [c for c in key.commands if c in commands and config._action(commands[c], name) is not None]
         assert takers, f"config key {name}: no command has --{name}"
-        assert key.meaning and key.kind in ("text", "path", "source", "number", "numbers", "numbers-or-flag")
+        assert key.meaning and key.kind in ("text", "address", "path", "source", "number", "numbers",
+                                            "numbers-or-flag")
         dests = {config._action(commands[c], name).dest for c in takers}
         assert dests == {name.replace("-", "_")}, name
 

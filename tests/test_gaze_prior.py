@@ -245,7 +245,7 @@ def test_a_bad_prior_is_refused_naming_the_option(tmp_path, capsys, value):
         cli.main(["render", "--gaze-prior", value, "--out", str(tmp_path / "x.png")])
     assert stop.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    # argparse's usage block, then the one line of the error
+    # one line: the error (no usage block before it)
     errors = [line for line in err if ": error:" in line]
     assert errors == [err[-1]] and "--gaze-prior" in err[-1] and f"0..{MAX_GAZE_PRIOR_DEG:g}" in err[-1], err
     assert not (tmp_path / "x.png").exists()

@@ -36,11 +36,13 @@ Conventions
 """
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Any, Callable
 
 import cv2
@@ -137,6 +139,67 @@ class _Pacer:
         self.restarts += 1
 
 
+class BackAndForth(Mapping):
+    """The order of a looped replay, without end: frame ``n`` of the replay (0, 1, 2, ...) is the recording's
+    frame ``self[n]``, forward, then backward, then forward, ... (recorded ``0 1 2 1 0 1 2 ...``; the turning
+    frames are not repeated). Played back and forth, the motion never jumps, as a wrap from the last frame to
+    the first would (the head thrown back to its first pose). A mapping of the replay's frames to the
+    recording's (``len``: one cycle)."""
+
+    def __init__(self, indices):
+        indices = list(indices)
+        self.cycle = tuple(indices + indices[-2:0:-1])
+
+    def __getitem__(self, n: int) -> int:
+        if not (isinstance(n, int) and n >= 0 and self.cycle):
+            raise KeyError(n)
+        return self.cycle[n % len(self.cycle)]
+
+    def __iter__(self):
+        return iter(range(len(self.cycle)))
+
+    def __len__(self) -> int:
+        return len(self.cycle)
+
+
+class _LoopedTruth(Mapping):
+    """The truth of a looped replay's frames, by the replay's frame numbers: {n: the recording's truth of
+    frame ``order[n]``} (:class:`BackAndForth`); iterates over one cycle."""
+
+    def __init__(self, truth: Mapping, order: BackAndForth):
+        self._truth, self._order = truth, order
+
+    def __getitem__(self, n: int):
+        return self._truth[self._order[n]]
+
+    def __iter__(self):
+        return (n for n in self._order if self._order[n] in self._truth)
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
+class _ContinuingTimes:
+    """The frame times of a looped replay: each frame is the recording's own spacing after the one before
+    (the absolute step between their recorded times), so times keep increasing through every turn, as a
+    live camera's do. A step that is not finite or is 0 (a frame repeated: a one-frame recording) is
+    ``period_s``. Times in s."""
+
+    def __init__(self, period_s: float):
+        self.period_s = float(period_s)
+        self._recorded: float | None = None           # the previous frame's recorded time
+        self._now: float | None = None                # the previous frame's time as given
+
+    def __call__(self, t: float) -> float:
+        if self._now is None:
+            self._now = t if math.isfinite(t) else 0.0
+        else:
+            step = abs(t - self._recorded) if math.isfinite(t) and math.isfinite(self._recorded) else 0.0
+            self._now += step if step > 0 else self.period_s
+        self._recorded = t
+        return self._now
+
+
 def _median_period_s(times: list[float]) -> float | None:
     if len(times) < 2:
         return None
@@ -166,11 +229,21 @@ class DatasetSource(FrameSource):
     skew_bound_ms : float, optional
         Flag frames whose ``|t_right - t|`` exceeds this, ms. Default half the
         median frame period of the recording.
+    loop : bool
+        Play the recording back and forth without end (:class:`BackAndForth`; ``headplod track
+        --realtime --loop``): the frames are numbered on (0, 1, 2, ...: pose records must be in increasing
+        frame order) and get times that keep increasing (:class:`_ContinuingTimes`, ``t_right`` as far from
+        ``t`` as recorded). Default once.
 
     Attributes
     ----------
     dataset : io.Dataset
         The dataset read (``truth``, ``times``, ``indices``, ``warnings``).
+    truth : Mapping or None
+        The truth by the frame numbers this source gives ({index: (position_mm (3,), axes (3, 3))}): the
+        dataset's, or a looped replay's (its frames numbered on); None without ``truth.csv``.
+    order : BackAndForth or None
+        With ``loop``: the recording's frame of each frame given.
 
     Raises
     ------
@@ -188,18 +261,22 @@ class DatasetSource(FrameSource):
     kind = "dataset"
 
     def __init__(self, folder: str | Path | io.Dataset, realtime: bool = False,
-                 skew_bound_ms: float | None = None):
+                 skew_bound_ms: float | None = None, loop: bool = False):
         dataset = folder if isinstance(folder, io.Dataset) else io.Dataset(folder)
         super().__init__(str(dataset.folder), dataset.rig, dataset.markers, dataset.screen)
         self.dataset = dataset
         self.warnings.extend(dataset.warnings)
-        self._iter = iter(dataset.indices)
+        self.order = BackAndForth(dataset.indices) if loop else None
+        self._iter = (self.order[n] for n in itertools.count()) if loop else iter(dataset.indices)
+        self._count = 0                                 # frames given
+        self.truth = dataset.truth if not (loop and dataset.truth) else _LoopedTruth(dataset.truth, self.order)
         self._previous: int | None = None
         self._pacer = _Pacer(realtime)
-        self.realtime = bool(realtime)
+        self.realtime, self.loop = bool(realtime), bool(loop)
+        times = [tt[0] for tt in (dataset.times or {}).values()]
+        period = _median_period_s(times) or 1.0 / io.DEFAULT_FPS
+        self._times = _ContinuingTimes(period) if loop else None
         if skew_bound_ms is None:
-            times = [tt[0] for tt in (dataset.times or {}).values()]
-            period = _median_period_s(times) or 1.0 / io.DEFAULT_FPS
             skew_bound_ms = 500.0 * period
         self.skew_bound_ms = float(skew_bound_ms)
 
@@ -211,7 +288,12 @@ class DatasetSource(FrameSource):
             self._closed = True
             return None
         frame = self.dataset.frame(index)
-        dropped = 0 if self._previous is None else max(0, index - self._previous - 1)
+        if self._times is not None:                     # looped: numbered on, times go on through the turns
+            t = self._times(frame.t)
+            t_right = None if frame.t_right is None else t + (frame.t_right - frame.t)
+            frame = replace(frame, index=self._count, t=t, t_right=t_right)
+        self._count += 1
+        dropped = 0 if self._previous is None else max(0, abs(index - self._previous) - 1)
         self._previous = index
         skew = None
         if frame.ok:

@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import re
+import shlex
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -574,9 +575,9 @@ def _rig_identity(rig: io.Rig, key: str) -> Mapping:
     where = f"{rig.path}: " if rig.path else ""
     if key not in rig.extra:
         raise LookupError(
-            f"{where}rig.yaml has no {key}, so the cameras cannot be told apart after a "
-            "reboot; store the identities with 'headplod cameras --store LEFT RIGHT --rig rig.yaml' "
-            f"(keys present: {', '.join(rig.extra) or 'none'})"
+            f"{where}rig.yaml has no {key} (keys present: {', '.join(rig.extra) or 'none'}), so the cameras "
+            "cannot be told apart after a reboot; store their identities with: headplod cameras --store --source "
+            f"v4l2:LEFT,RIGHT --rig {shlex.quote(str(rig.path)) if rig.path else 'rig.yaml'}"
         )
     value = rig.extra[key]
     if not isinstance(value, Mapping):

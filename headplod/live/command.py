@@ -29,7 +29,9 @@ run cleanly between frames: the records and frames so far are kept, whole.
 ``--realtime`` paces a replay at its frame times (:class:`~headplod.capture.sources._Pacer`: no burst after
 a late one) and reads it as live cameras are read, by a capture thread into a drop-oldest mailbox
 (:mod:`headplod.capture.mailbox`: the tracker takes the newest frame, those it had no time for are dropped
-and counted); it is refused with live cameras. Without it, a replay tracks every frame, in order. With ``--udp``, the key ``c`` and
+and counted); it is refused with live cameras. Without it, a replay tracks every frame, in order.
+``--realtime --loop`` replays a folder back and forth without end (:class:`~headplod.capture.sources.BackAndForth`:
+no jump back to the first pose; times keep increasing, frames numbered on); Ctrl-C ends it as a live run ends. With ``--udp``, the key ``c`` and
 SIGUSR1 recentre what is sent (:mod:`headplod.live.recentre`; the math in
 :func:`~headplod.live.opentrack.opentrack_values`), from the next frame; the records are not recentred.
 """
@@ -161,6 +163,11 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
                            "cameras, the tracker takes the newest frame and those it had no time for are dropped "
                            "and counted. Default off: every frame, in order, as fast as tracked. Not with live "
                            "cameras (they are real time already)")
+    live.add_argument("--loop", action="store_true",
+                      help="with --realtime: replay the recording (a dataset folder or synthetic) without end, "
+                           "forward then backward then forward, so that opentrack sees continuous motion (no "
+                           "jump back to the first pose) and frame times keep increasing; the records keep the "
+                           "recording's frame numbers. Ctrl-C (or --frames N) ends it, as a live run ends")
     track.epilog = TRACK_EPILOG
     return track
 
@@ -176,9 +183,10 @@ def pivot_arg(text: str) -> np.ndarray:
 
 def add_udp_arguments(group) -> None:
     """``--udp``, ``--pivot`` and ``--udp-axes`` (for ``track`` and any command that sends to opentrack)."""
-    group.add_argument("--udp", metavar="HOST[:PORT]",
+    group.add_argument("--udp", metavar="HOST[:PORT]|PORT",
                        help="send each pose to opentrack's 'UDP over network' input (six float64: x, y, z cm, "
-                            "yaw, pitch, roll deg; default port 4242), with the axes and signs of opentrack's "
+                            "yaw, pitch, roll deg; default port 4242; a port alone is on this machine, 4242 "
+                            "meaning 127.0.0.1:4242; IPv6 as [::1]:4242), with the axes and signs of opentrack's "
                             "point tracker: nothing to invert in opentrack. A frame without a pose sends nothing "
                             "(opentrack holds the last pose it got); press c or send SIGUSR1 to recentre")
     group.add_argument("--pivot", type=pivot_arg, metavar="X,Y,Z",
@@ -271,6 +279,14 @@ def _open_track_source(args, spec: str):
     if realtime and source_kind(spec) == "v4l2":
         raise _Usage(f"--realtime paces a replay; --source {spec} is live cameras, real time already "
                      "(drop --realtime)")
+    loop = bool(getattr(args, "loop", False))
+    if loop and not realtime:
+        raise _Usage("--loop goes with --realtime (a replay without end, at the pace of its frame times); "
+                     "give both, or neither")
+    if loop and source_kind(spec) == "video":
+        raise _Usage(f"--loop plays a dataset folder or synthetic back and forth; --source {spec} is a video pair, "
+                     "read forward only (make it a folder once: headplod track --source "
+                     f"{spec} --record DIR; then --source DIR --realtime --loop)")
     rig = io.read_rig(args.calib) if args.calib else None
     if source_kind(spec) == "v4l2":
         if rig is None:
@@ -288,7 +304,9 @@ def _open_track_source(args, spec: str):
     if preset is not None:
         spec = str(ensure_dataset(preset, quiet=args.quiet))
         print(f"tracking the built-in synthetic sequence: {spec}", file=sys.stderr)
-    source = open_source(spec, realtime=True) if realtime else open_source(spec)
+    source = open_source(spec, realtime=True, **({"loop": True} if loop else {})) if realtime else open_source(spec)
+    if loop:
+        print("replaying back and forth without end (--loop); Ctrl-C ends the run", file=sys.stderr)
     return source, rig or source.rig, False
 
 
@@ -406,7 +424,8 @@ class _TrackRun:
         from .loop import LiveStats
 
         self.args, self.source, self.live = args, source, live
-        self.truth = getattr(getattr(source, "dataset", None), "truth", None) or {}
+        self.endless = live or bool(getattr(source, "loop", False))     # a signal is how its run ends
+        self.truth = getattr(source, "truth", None) or {}       # by the source's frame numbers (a loop's too)
         self.log = sys.stderr
         self.writer = self.sender = self.recorder = self.status = self.tracker = self.screen = None
         self.records = []
@@ -491,7 +510,7 @@ class _TrackRun:
             stop.finishing()                            # the closes are short: a signal now cannot cut them
             # A live camera has no end: a signal is how its run ends. A file source stopped by one is cut
             # short: what its outputs replaced is kept (docs/outputs.md).
-            complete = failure is None and (self.live or not stop())
+            complete = failure is None and (self.endless or not stop())
             kept, close_failure = _close_outputs(args, self.status, recorder, self.sender, self.writer,
                                                  self.source, complete=complete)
             failure = failure or close_failure
@@ -501,7 +520,7 @@ class _TrackRun:
         """The run's end: how it stopped, its summary and reports; the exit status."""
         args, records, log = self.args, self.records, self.log
         if stop():
-            print(_stop_line(stop, records, self.live, kept), file=sys.stderr)
+            print(_stop_line(stop, records, self.endless, kept), file=sys.stderr)
         summary = evaluate.summarize(records, self.truth or None)
         name = self.source.name if self.live else Path(str(self.source.name)).name
         print(evaluate.format_summary(name, summary), file=log)
@@ -614,7 +633,8 @@ def _close_outputs(args, status, recorder, sender, writer, source, complete: boo
 
 def _stop_line(stop, records: list, live: bool, kept: dict) -> str:
     """The one line of a run stopped by a signal: its frames are kept; what its outputs replaced is deleted
-    (a live camera's run, which ends so) or kept, and where (a replay cut short)."""
+    (``live``: a live camera's or a looped replay's run, which ends so) or kept, and where (a replay cut
+    short)."""
     how = ", at once on a second signal" if stop.insisted else ""
     line = f"headplod: stopped ({stop.name}{how}); the {len(records)} frames so far are kept"
     if kept:
@@ -622,7 +642,7 @@ def _stop_line(stop, records: list, live: bool, kept: dict) -> str:
             f"the {'recording' if option.startswith('--record') else 'file'} {option} replaced is kept as {path}"
             for option, path in kept.items())
     elif live:
-        line += " (a live run ends so: any output it replaced is deleted)"
+        line += " (a live or looped run ends so: any output it replaced is deleted)"
     return line
 
 

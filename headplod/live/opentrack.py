@@ -109,7 +109,9 @@ The JSON pose records are not recentred: they keep the contract's frames.
 """
 from __future__ import annotations
 
+import ipaddress
 import math
+import re
 import struct
 from typing import Sequence
 
@@ -342,11 +344,23 @@ def decode_opentrack(data: bytes) -> tuple[float, float, float, float, float, fl
     return _PACKET.unpack(data)
 
 
-def parse_host_port(text: str, default_port: int = OPENTRACK_PORT) -> tuple[str, int]:
-    """Split ``"HOST:PORT"`` or ``"HOST"`` into ``(host, port)``.
+#: Where ``--udp PORT`` sends: this machine (opentrack running beside the tracker).
+LOCAL_HOST = "127.0.0.1"
 
-    IPv6 addresses are written ``[::1]:4242``; a bare address with several
-    colons (``::1``) is taken as a host without a port.
+#: The forms ``--udp`` takes, for the message that refuses another.
+ADDRESS_FORMS = "HOST:PORT, [IPv6]:PORT or PORT (e.g. 127.0.0.1:4242, gamepc:4242, [::1]:4242, 4242)"
+
+#: A host name: dot-separated labels of letters, digits and inner hyphens (RFC 1123), at most 253 characters.
+_HOST_NAME = re.compile(r"^(?=.{1,253}\.?$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
+                        r"(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*\.?$")
+
+
+def parse_host_port(text: str, default_port: int = OPENTRACK_PORT) -> tuple[str, int]:
+    """Split ``"HOST:PORT"``, ``"HOST"`` or ``"PORT"`` into ``(host, port)``.
+
+    A number alone is a port on this machine (``"4242"`` -> ``("127.0.0.1", 4242)``). IPv6 addresses are
+    written ``[::1]:4242``; a bare address with several colons (``::1``) is taken as a host without a port.
+    The host must be a host name (letters, digits, hyphens and dots), an IPv4 address or an IPv6 address.
 
     Parameters
     ----------
@@ -364,27 +378,35 @@ def parse_host_port(text: str, default_port: int = OPENTRACK_PORT) -> tuple[str,
     Raises
     ------
     ValueError
-        On an empty host, a port that is not an integer or is out of range,
-        or an unclosed ``[``.
+        On an empty or malformed host (naming :data:`ADDRESS_FORMS`), a port that is not an integer or is out
+        of range, or an unclosed ``[``.
     """
     s = str(text).strip()
     port_text = None
-    if s.startswith("["):
+    if s.isdigit():                                     # "4242": a port, on this machine
+        host, port_text = LOCAL_HOST, s
+    elif s.startswith("["):
         end = s.find("]")
         if end < 0:
-            raise ValueError(f"bad address {text!r}: '[' without ']' (write IPv6 as [::1]:4242)")
+            raise ValueError(f"bad address {text!r}: '[' without ']'; expected {ADDRESS_FORMS}")
         host, rest = s[1:end], s[end + 1:]
         if rest:
             if not rest.startswith(":"):
                 raise ValueError(f"bad address {text!r}: expected ':PORT' after ']', got {rest!r}")
             port_text = rest[1:]
+        _check_ipv6(host, text, "an IPv6 address")
     elif s.count(":") == 1:
         host, port_text = s.split(":")
     else:
         host = s
     host = host.strip()
     if not host:
-        raise ValueError(f"bad address {text!r}: empty host (expected HOST or HOST:PORT, e.g. 127.0.0.1:4242)")
+        raise ValueError(f"bad address {text!r}: empty host; expected {ADDRESS_FORMS}")
+    if ":" in host:                                     # several colons, no brackets: an IPv6 address or nothing
+        _check_ipv6(host, text, "a host name or an IP address")
+    elif not _HOST_NAME.match(host) or (host.replace(".", "").isdigit() and not _is_ipv4(host)):
+        raise ValueError(f"bad address {text!r}: {host!r} is not a host name or an IP address; "
+                         f"expected {ADDRESS_FORMS}")
     if port_text is None:
         return host, int(default_port)
     try:
@@ -394,3 +416,18 @@ def parse_host_port(text: str, default_port: int = OPENTRACK_PORT) -> tuple[str,
     if not 1 <= port <= 65535:
         raise ValueError(f"bad port in {text!r}: expected 1..65535, got {port}")
     return host, port
+
+
+def _is_ipv4(host: str) -> bool:
+    try:
+        ipaddress.IPv4Address(host)
+    except ValueError:
+        return False
+    return True
+
+
+def _check_ipv6(host: str, text: str, expected: str) -> None:
+    try:
+        ipaddress.IPv6Address(host)
+    except ValueError:
+        raise ValueError(f"bad address {text!r}: {host!r} is not {expected}; expected {ADDRESS_FORMS}") from None

@@ -130,6 +130,8 @@ class PivotFit:
     def describe(self) -> str:
         """One line for people."""
         spread = "/".join(f"{s:.1f}" for s in self.spread_deg)
+        if not self.ok and not np.all(np.isfinite(self.spread_deg)):
+            return f"no pivot: {self.reason}"          # refused before any spread was measured (too few poses)
         if not self.ok:
             return f"no pivot: {self.reason} (rotation spread {spread}°, {self.frames} poses)"
         c, s = self.pivot_mm, self.std_mm
@@ -188,7 +190,9 @@ def fit_pivot(positions_mm, axes, config: PivotFitConfig = PivotFitConfig()) -> 
         return PivotFit(False, None, None, None, rms, spread, condition, frames, dropped, reason)
 
     if len(p) < config.min_frames:
-        return refuse(f"{len(p)} tracked poses, {config.min_frames} needed; turn the head for longer")
+        return refuse(f"{len(p)} tracked poses, {config.min_frames} needed, over which the head turns at least "
+                      f"{config.min_spread_deg:g}° rms about each axis (left-right about ±30°, up-down about ±15°); "
+                      "turn the head for longer")
     At = np.transpose(A, (0, 2, 1))                        # head -> world per frame
     keep = np.ones(len(p), bool)
     c, q, r, w, U, M = _solve(p, At)
