@@ -451,7 +451,7 @@ def _run(args, source, rig, markers, requested, out: Path | None, frames: int | 
         removed = output.remove_stale()
         if removed and not args.quiet:
             print(f"note: removed {removed} pictures of an earlier, longer preview from {out}", file=sys.stderr)
-    _summary(count, failed, first_failure, advice, out, previewer)
+    _summary(count, failed, first_failure, advice, out, previewer, analysis.index)
     if isinstance(output, PreviewWindow) and output.closed_by:
         print(f"closed with {output.closed_by}")
     return 0
@@ -477,14 +477,14 @@ def _key_messages(output) -> None:
         output.messages.clear()
 
 
-def _summary(count, failed, first_failure, advice, out, previewer) -> None:
+def _summary(count, failed, first_failure, advice, out, previewer, last_index=None) -> None:
     """The run's lines on standard output: what was written, the frames that failed, the advice by kind."""
     if out is not None:
         w, h = composite_size(*previewer.size) if previewer.size else (0, 0)
         names = OUT_NAME.format(0) + ("" if count == 1 else f" .. {OUT_NAME.format(count - 1)}")
         print(f"wrote {count} annotated frames to {out}: {names} ({w}x{h} px)")
     else:
-        print(f"showed {count} frames")
+        print(f"showed {count} frames (the last: frame {last_index})")
     if failed:
         print(f"{failed} of {count} frames failed (first: {first_failure}); each picture says why")
     for times, text in advice.values():

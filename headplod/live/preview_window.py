@@ -92,7 +92,7 @@ class PreviewWindow:
     def __init__(self, size: tuple[int, int], controls: Controls, snapshot=None, backend: str = "pyglet"):
         try:
             import moderngl_window as mglw   # optional: only a window needs it
-            self.wnd = mglw.get_local_window_cls(backend)(title=controls.title(), size=tuple(size), resizable=True,
+            self.wnd = mglw.get_local_window_cls(backend)(title="headplod preview", size=tuple(size), resizable=True,
                                                           vsync=False, gl_version=(3, 3), aspect_ratio=None)
         except Exception as exc:   # no display, no GL driver: pyglet raises its own types
             raise WindowUnavailable(f"cannot open a window ({type(exc).__name__}: {' '.join(str(exc).split())})") \
@@ -118,7 +118,6 @@ class PreviewWindow:
         result = self.controls.press(name)
         if result.message:
             self.messages.append(result.message)
-            self.wnd.title = self.controls.title()
         if result.close:
             self.closed_by = name
             self.wnd.close()
@@ -145,6 +144,10 @@ class PreviewWindow:
             rgb = np.frombuffer(self.wnd.fbo.read(viewport=(0, 0, w, h), components=3, alignment=1), np.uint8)
             self.framebuffer = np.ascontiguousarray(rgb.reshape(h, w, 3)[::-1, :, ::-1])   # rows top down, BGR
         self.wnd.swap_buffers()              # the pyglet backend handles the events here
+        if not self.wnd.is_closing and self.wnd.title != self.controls.title():
+            # The values and keys in the title once a picture is up: a person (and a test's xdotool) then
+            # knows that the keys are heard.
+            self.wnd.title = self.controls.title()
 
     def hold(self, sleep=time.sleep) -> None:
         """Keep the last picture up until the window is closed (a key, or its close button)."""
