@@ -257,3 +257,27 @@ def test_a_config_that_is_not_toml_is_left_as_it_is(tmp_path):
     result = Controls(None, measured_threshold=lambda: 30.0, config_path=lambda: config).press("w")
     assert result.message.startswith("config not written: ") and "not valid TOML" in result.message
     assert config.read_text() == "gain = 1\ngain = 2\n"
+
+
+# ---------------------------------------------------------------------------
+# no window
+# ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("display_value, status, says", [
+    (None, 2, "no window can be shown: there is no display (DISPLAY is not set); write the pictures with --out DIR"),
+    (":999", 1, "the window: cannot open a window on DISPLAY :999 ("),
+])
+def test_without_a_display_the_preview_says_to_use_out(sweep12_dir, tmp_path, display_value, status, says):
+    """No DISPLAY: a usage refusal (2) before the source is opened; a DISPLAY with no X server there: one line
+    naming it (1). Both say to write the pictures with --out DIR."""
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    if display_value:
+        env["DISPLAY"] = display_value
+    env["PYTHONPATH"] = str(ROOT)
+    done = subprocess.run([sys.executable, "-c", "import sys; from headplod.cli import main; sys.exit(main())",
+                           "preview", "--source", str(sweep12_dir), "--no-config", "-q"], env=env, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=HANG_S)
+    lines = done.stderr.splitlines()
+    assert done.returncode == status and len(lines) == 1, done.stderr
+    assert lines[0].startswith("headplod: preview: " + says) and "--out DIR" in lines[0], lines[0]
+    assert list(tmp_path.iterdir()) == []

@@ -406,7 +406,8 @@ def _run(args, source, rig, markers, requested, out: Path | None, frames: int | 
             output = _window(args, source, previewer)
     except (OSError, WindowUnavailable) as exc:
         where = f"--out {args.out}" if out is not None else "the window"
-        print(f"headplod: preview: {where}: {_one_line(exc)}", file=sys.stderr)
+        hint = "; write the pictures with --out DIR instead" if isinstance(exc, WindowUnavailable) else ""
+        print(f"headplod: preview: {where}: {_one_line(exc)}{hint}", file=sys.stderr)
         return 1
     if rig is None and not args.quiet:
         print(f"note: {NO_RIG_NOTE}", file=sys.stderr)

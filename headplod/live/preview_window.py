@@ -95,8 +95,9 @@ class PreviewWindow:
             self.wnd = mglw.get_local_window_cls(backend)(title="headplod preview", size=tuple(size), resizable=True,
                                                           vsync=False, gl_version=(3, 3), aspect_ratio=None)
         except Exception as exc:   # no display, no GL driver: pyglet raises its own types
-            raise WindowUnavailable(f"cannot open a window ({type(exc).__name__}: {' '.join(str(exc).split())})") \
-                from None
+            where = f" on DISPLAY {os.environ['DISPLAY']}" if os.environ.get("DISPLAY") else ""
+            raise WindowUnavailable(f"cannot open a window{where} ({type(exc).__name__}: "
+                                    f"{' '.join(str(exc).split())})") from None
         mglw.activate_context(window=self.wnd)
         self.ctx, self.controls, self.snapshot_path = self.wnd.ctx, controls, snapshot
         self.size = tuple(size)
