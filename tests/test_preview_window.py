@@ -281,3 +281,23 @@ def test_without_a_display_the_preview_says_to_use_out(sweep12_dir, tmp_path, di
     assert done.returncode == status and len(lines) == 1, done.stderr
     assert lines[0].startswith("headplod: preview: " + says) and "--out DIR" in lines[0], lines[0]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_what_w_writes_is_what_the_next_run_reads(tmp_path):
+    """The keys w writes go through the config file's own checks: preview and track on live cameras take the
+    threshold (a number, or 'adaptive'), exposure and gain; a recording keeps its own."""
+    from headplod import cli, config
+
+    path = tmp_path / "headplod.toml"
+    path.write_text('source = "v4l2:0,2"\n')
+    Controls(None, threshold_dn=45.0, config_path=lambda: path).press("w")
+    io.set_toml_keys(path, {"exposure": 120, "gain": 3})
+    for command in ("preview", "track"):
+        args = config.parse_args(cli.build_parser(), [command, "--config", str(path), "-q"])
+        assert (args.threshold, args.exposure, args.gain) == (45.0, 120.0, 3.0)
+        replay = config.parse_args(cli.build_parser(), [command, "--config", str(path), "--source", "synthetic",
+                                                        "-q"])
+        assert (replay.threshold, replay.exposure) == (None, None)
+    Controls(None, config_path=lambda: path).press("w")
+    assert config.parse_args(cli.build_parser(), ["preview", "--config", str(path), "-q"]).threshold is None
+    assert tomllib.loads(path.read_text())["threshold"] == "adaptive"

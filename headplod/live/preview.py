@@ -440,11 +440,11 @@ def _run(args, source, rig, markers, requested, out: Path | None, frames: int | 
             _key_messages(output)
     finally:
         progress.close()
-        try:
-            output.close()
-        except OSError as exc:              # the snapshot (a test's option)
-            print(f"headplod: preview: --snapshot {args.snapshot}: {exc.strerror or _one_line(exc)}", file=sys.stderr)
-            return 1
+        closing = _close(output)
+    if closing is not None:                 # the snapshot (a test's option) could not be written
+        print(f"headplod: preview: --snapshot {args.snapshot}: {closing.strerror or _one_line(closing)}",
+              file=sys.stderr)
+        return 1
     if count == 0:
         print(f"headplod: preview: the source gave no frame ({source.name})", file=sys.stderr)
         return 1
@@ -468,6 +468,15 @@ def _window(args, source, previewer: Previewer) -> PreviewWindow:
                         measured_threshold=lambda: previewer.last_threshold_dn, config_path=lambda: config)
     size = composite_size(*(previewer.size or (640, 480)))
     return PreviewWindow(size, controls, snapshot=args.snapshot)
+
+
+def _close(output) -> OSError | None:
+    """Close the folder or the window; the error writing the window's snapshot, or None."""
+    try:
+        output.close()
+    except OSError as exc:
+        return exc
+    return None
 
 
 def _key_messages(output) -> None:

@@ -128,9 +128,11 @@ class PreviewWindow:
         if self.wnd.is_closing:
             return False
         h, w = picture.shape[:2]
-        if (w, h) != self.texture.size:
+        if (w, h) != self.texture.size:       # the first picture of cameras of a size no rig said
             self.texture.release()
             self.texture = self.ctx.texture((w, h), 3, alignment=1)
+            if k == 0:
+                self.wnd.size = (w, h)
         self.texture.write(np.ascontiguousarray(picture).tobytes())
         self._draw()
         return not self.wnd.is_closing
