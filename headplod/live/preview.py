@@ -462,10 +462,13 @@ def _window(args, source, previewer: Previewer) -> PreviewWindow:
     """The window, its keys wired to the cameras (live ones only), the previewer's threshold and the config
     file (the one read, else ./headplod.toml)."""
     camera = source if hasattr(source, "set_controls") else None
-    config = getattr(args, "config_file", None) or Path.cwd() / "headplod.toml"
+    config = getattr(args, "config_file", None)
+
+    def config_path() -> Path:              # on w only: a deleted current folder is w's one line then
+        return Path(config) if config else Path.cwd() / "headplod.toml"
     controls = Controls(camera, exposure=args.exposure if camera else None, gain=args.gain if camera else None,
                         threshold_dn=args.threshold, set_threshold=previewer.set_threshold,
-                        measured_threshold=lambda: previewer.last_threshold_dn, config_path=lambda: config)
+                        measured_threshold=lambda: previewer.last_threshold_dn, config_path=config_path)
     size = composite_size(*(previewer.size or (640, 480)))
     return PreviewWindow(size, controls, snapshot=args.snapshot)
 
