@@ -21,6 +21,8 @@ import pytest
 
 from headplod import io
 from headplod.capture.v4l2 import V4L2StereoSource
+from headplod.tracking.detect import DetectionParams
+from headplod.live.preview import Previewer
 from headplod.live.preview_controls import Controls
 from headplod.live.preview_picture import _BLOB, _MARKER_NO_POSE, _MARKER_OK, _font_scale, _text, composite_size
 
@@ -133,21 +135,30 @@ def test_the_window_draws_the_labelled_markers_where_the_truth_is(display, sweep
 
 def test_the_window_closes_on_its_key_and_its_keys_write_the_config(display, sweep12_dir, tmp_path):
     """Real X key events (xdotool): T raises the threshold, w writes it into ./headplod.toml, q closes the window
-    (without --frames, a replay's last picture stays up until then)."""
+    (without --frames, a replay's last picture stays up until then, drawn again at the new threshold: the
+    window's last picture is the preview's own of the last frame at 45 DN, not at 40)."""
     xdotool = shutil.which("xdotool")
     if xdotool is None:
         pytest.skip("no xdotool binary (setup.sh installs Debian's xdotool package)")
-    proc = _headplod(["preview", "--source", str(sweep12_dir), "--no-config", "-q", "--threshold", "40"],
-                     display, tmp_path)
+    snapshot = tmp_path / "window.png"
+    proc = _headplod(["preview", "--source", str(sweep12_dir), "--no-config", "-q", "--threshold", "40",
+                      "--snapshot", str(snapshot)], display, tmp_path)
     try:
         env = dict(os.environ, DISPLAY=display)
         found = subprocess.run([xdotool, "search", "--sync", "--name", "^headplod preview: "], env=env,
                                capture_output=True, text=True, timeout=HANG_S)
         window = found.stdout.split()[0]      # the title has the values once a picture is up: keys are heard
+        subprocess.run([xdotool, "search", "--sync", "--name", "the recording ended"], env=env, check=True,
+                       capture_output=True, timeout=HANG_S)
         assert proc.poll() is None            # without --frames only a key ends it
-        for key in ("shift+t", "w", "q"):
-            subprocess.run([xdotool, "key", "--window", window, key], env=env, check=True, timeout=HANG_S)
+        subprocess.run([xdotool, "key", "--window", window, "shift+t"], env=env, check=True, timeout=HANG_S)
+        # The title says 45 DN once the key was handled: a picture at it is drawn before the next keys are.
+        subprocess.run([xdotool, "search", "--sync", "--name", "threshold 45 DN"], env=env, check=True,
+                       capture_output=True, timeout=HANG_S)
+        sent = [subprocess.run([xdotool, "key", "--window", window, key], env=env, capture_output=True, text=True,
+                               timeout=HANG_S) for key in ("w", "q")]
         out, err = proc.communicate(timeout=HANG_S)
+        assert all(k.returncode == 0 for k in sent), ([k.stderr for k in sent], out, err)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -155,6 +166,14 @@ def test_the_window_closes_on_its_key_and_its_keys_write_the_config(display, swe
     assert "closed with q" in out
     assert "preview: threshold 45 DN" in err
     assert tomllib.loads((tmp_path / "headplod.toml").read_text()) == {"threshold": 45}
+    last = int(re.search(r"\(the last: frame (\d+)\)", out).group(1))
+    dataset = io.Dataset(sweep12_dir)
+    frame = next(f for f in dataset if f.index == last)
+    w, h = dataset.rig.image_size
+    shown = io.read_image(snapshot, cv2.IMREAD_COLOR)[:h]          # the images; the panel has the rate
+    for threshold, same in ((45.0, True), (40.0, False)):
+        own = Previewer(dataset.rig, dataset.markers, DetectionParams(threshold_dn=threshold)).picture(frame)[0]
+        assert np.array_equal(shown, own[:h]) == same, threshold
 
 
 # ---------------------------------------------------------------------------

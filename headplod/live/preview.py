@@ -146,8 +146,12 @@ class Previewer:
 
     # -- analysis ------------------------------------------------------------
 
-    def analyse(self, frame: io.Frame) -> FrameAnalysis:
-        """What ``frame`` shows (raises on a fault; :meth:`picture` turns one into the frame's failure)."""
+    def analyse(self, frame: io.Frame, again: bool = False) -> FrameAnalysis:
+        """What ``frame`` shows (raises on a fault; :meth:`picture` turns one into the frame's failure);
+        ``again``: the frame was analysed before (a new threshold on a held picture): its time is not counted
+        in the rate twice, and a new tracker sees it."""
+        if again:                           # the tracker would take the frame for a repeated camera buffer
+            self.tracker = self._tracker()
         base = dict(index=int(frame.index), t=frame.t, rig=self.rig is not None, warning=frame.warning)
         if frame.error is not None or frame.left is None or frame.right is None:
             return FrameAnalysis(views=None, size=self.size or (640, 480), error=frame.error or "no images", **base)
@@ -156,7 +160,7 @@ class Previewer:
         skew = getattr(frame, "skew_ms", None)
         if skew is None:
             skew = 0.0 if frame.t_right is None else abs(frame.t_right - frame.t) * 1000.0
-        if frame.t is not None and math.isfinite(frame.t):
+        if frame.t is not None and math.isfinite(frame.t) and not again:
             self._times.append(float(frame.t))
         rate = self._rate()
 
@@ -195,11 +199,11 @@ class Previewer:
         span = self._times[-1] - self._times[0]
         return (len(self._times) - 1) / span if span > 0 else None
 
-    def picture(self, frame: io.Frame) -> tuple[np.ndarray, FrameAnalysis]:
+    def picture(self, frame: io.Frame, again: bool = False) -> tuple[np.ndarray, FrameAnalysis]:
         """The frame's annotated picture (:func:`render`) and its analysis; never raises for the frame's
         own fault: an exception while analysing or drawing it gives a picture saying so (``error`` set)."""
         try:
-            analysis = self.analyse(frame)
+            analysis = self.analyse(frame, again)
             return render(analysis), analysis
         except Exception as exc:            # noqa: BLE001 -- one frame's fault is that frame's failure
             from ..tracking.tracker import internal_error_reason
@@ -419,6 +423,7 @@ def _run(args, source, rig, markers, requested, out: Path | None, frames: int | 
             if frame is None:
                 break
             picture, analysis = previewer.picture(frame)
+            frame_shown = frame
             if analysis.error is not None:
                 failed += 1
                 first_failure = first_failure or f"frame {analysis.index}: {analysis.error}"
@@ -435,8 +440,11 @@ def _run(args, source, rig, markers, requested, out: Path | None, frames: int | 
             _key_messages(output)
             if not going:
                 break
-        if isinstance(output, PreviewWindow) and frames is None:
-            output.hold()                   # the replay ended: its last picture stays up until q
+        if isinstance(output, PreviewWindow) and frames is None and count:
+            def repaint():                  # after a key: say what it did, draw the frame at the new threshold
+                _key_messages(output)
+                return previewer.picture(frame_shown, again=True)[0]
+            output.hold(repaint)            # the replay ended: its last picture stays up until q
             _key_messages(output)
     finally:
         progress.close()

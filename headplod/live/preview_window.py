@@ -105,6 +105,8 @@ class PreviewWindow:
         self.quad = self.ctx.vertex_array(self.ctx.program(vertex_shader=_VERTEX, fragment_shader=_FRAGMENT), [])
         self.names = _key_names(self.wnd.keys)
         self.messages: list[str] = []        # what the keys did, for the command to print
+        self.heard = 0                       # keys that did something
+        self.held = False                    # the last picture is held (:meth:`hold`)
         self.closed_by: str | None = None    # the key that closed the window
         self.framebuffer: np.ndarray | None = None
         self.wnd.key_event_func = self.on_key
@@ -119,6 +121,7 @@ class PreviewWindow:
         result = self.controls.press(name)
         if result.message:
             self.messages.append(result.message)
+            self.heard += 1
         if result.close:
             self.closed_by = name
             self.wnd.close()
@@ -147,14 +150,20 @@ class PreviewWindow:
             rgb = np.frombuffer(self.wnd.fbo.read(viewport=(0, 0, w, h), components=3, alignment=1), np.uint8)
             self.framebuffer = np.ascontiguousarray(rgb.reshape(h, w, 3)[::-1, :, ::-1])   # rows top down, BGR
         self.wnd.swap_buffers()              # the pyglet backend handles the events here
-        if not self.wnd.is_closing and self.wnd.title != self.controls.title():
+        title = self.controls.title() + (" [the recording ended]" if self.held else "")
+        if not self.wnd.is_closing and self.wnd.title != title:
             # The values and keys in the title once a picture is up: a person (and a test's xdotool) then
             # knows that the keys are heard.
-            self.wnd.title = self.controls.title()
+            self.wnd.title = title
 
-    def hold(self, sleep=time.sleep) -> None:
-        """Keep the last picture up until the window is closed (a key, or its close button)."""
+    def hold(self, repaint=None, sleep=time.sleep) -> None:
+        """Keep the last picture up until the window is closed (a key, or its close button); ``repaint()``, when
+        given, draws it again after a key that did something (a new threshold), (H, W, 3) uint8 BGR."""
+        heard, self.held = self.heard, True
         while not self.wnd.is_closing:
+            if repaint is not None and self.heard != heard:
+                heard = self.heard
+                self.texture.write(np.ascontiguousarray(repaint()).tobytes())
             self._draw()
             sleep(HOLD_PERIOD_S)
 
