@@ -6,11 +6,17 @@ set -euo pipefail
 cd "$(dirname "$0")"
 
 APT_PACKAGES="libusb-1.0-0 libegl1 libgl1-mesa-dri"   # camera identity; offscreen OpenGL (EGL, Mesa llvmpipe)
+# The preview window (pyglet through moderngl-window: GLX and X11 libraries), and its test under a virtual X
+# server (Xvfb) that sends it real key events (xdotool); docs/plod.md's xvfb-run comes with xvfb.
+APT_PACKAGES="$APT_PACKAGES libgl1 libglx-mesa0 libx11-6 libxext6 xvfb xdotool"
 missing=""
 for pkg in $APT_PACKAGES; do
     dpkg -s "$pkg" >/dev/null 2>&1 || missing="$missing $pkg"
 done
-if [ -n "$missing" ]; then
+if [ -n "$missing" ] && ! command -v apt-get >/dev/null 2>&1; then
+    echo "setup: no apt-get here; install$missing with the system's package manager (camera identity, the" \
+         "preview window and its test need them)" >&2
+elif [ -n "$missing" ]; then
     echo "setup: installing system packages:$missing" >&2
     SUDO=""
     [ "$(id -u)" -ne 0 ] && SUDO="sudo"
@@ -18,7 +24,8 @@ if [ -n "$missing" ]; then
         || { $SUDO apt-get update -qq && $SUDO apt-get install -y --no-install-recommends $missing; }; then
         :
     else
-        echo "setup: could not install$missing with apt-get; camera identity (headplod cameras) needs libusb-1.0" >&2
+        echo "setup: could not install$missing with apt-get; camera identity (headplod cameras) needs libusb-1.0," \
+             "the preview window libGL and X11, its test xvfb and xdotool" >&2
     fi
 fi
 

@@ -134,6 +134,8 @@ KEYS: Mapping[str, Key] = MappingProxyType({
     "fourcc": Key("camera pixel format to request", ("track", "preview"), when=_live_cameras),
     "exposure": Key("manual exposure (V4L2 units)", ("track", "preview"), "number", when=_live_cameras),
     "gain": Key("camera gain (V4L2 units)", ("track", "preview"), "number", when=_live_cameras),
+    "threshold": Key("blob threshold, DN, or 'adaptive' (with live cameras)", ("track", "preview"), "number",
+                     when=_live_cameras),
 })
 
 
@@ -424,3 +426,4 @@ def parse_args(parser: argparse.ArgumentParser, argv, cwd: Path | None = None,
         order = list(KEYS)
         print(f"config: {path} ({', '.join(sorted(used, key=order.index))})", file=stream)
     return args
+

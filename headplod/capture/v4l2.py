@@ -265,6 +265,8 @@ class _Camera:
         self.thread: threading.Thread | None = None
         self._prev_t: float | None = None
         self._failures = 0
+        #: Held around the device's grab/retrieve and a control's change: a VideoCapture is not thread-safe.
+        self.device_lock = threading.Lock()
 
     # -- open / close (camera thread, or the constructor before threads start) --
 
@@ -350,8 +352,12 @@ class _Camera:
         round_ = src._sync.wait(self.side, src._sync_timeout_s)
         if src._stop.is_set():
             return
-        ok = bool(self.cap.grab())
-        t_grab = time.monotonic()
+        with self.device_lock:
+            ok = bool(self.cap.grab())
+            t_grab = time.monotonic()
+            if ok:
+                t_mono, clock = self._capture_time(t_grab)
+                ok_image, image = self.cap.retrieve()
         if not ok:
             self._failures += 1
             still_open = bool(self.cap.isOpened())
@@ -363,8 +369,7 @@ class _Camera:
                 self.failed_grabs += 1
             return
         self._failures = 0
-        t_mono, clock = self._capture_time(t_grab)
-        ok, image = self.cap.retrieve()
+        ok = ok_image
         try:
             gray = to_gray(image) if ok and image is not None else None
         except ValueError as exc:
@@ -612,6 +617,48 @@ class V4L2StereoSource(FrameSource):
                 lines.append(f"{cam.label}: {s.name:<13} requested {s.requested!s:<8} "
                              f"actual {s.actual!s:<8} {verdict}")
         return "\n".join(lines)
+
+    def control(self, name: str) -> float | None:
+        """The left camera's current value of a control (``exposure``, ``gain``, ... as :class:`CameraSetting`
+        names them), in the camera's units; None when the camera is not open or reports none (V4L2 gives -1 for
+        an unsupported control)."""
+        cam = self._cameras[0]
+        with cam.device_lock:
+            if cam.cap is None:
+                return None
+            try:
+                value = float(cam.cap.get(_PROPS[name]))
+            except Exception:           # a driver error is no value
+                return None
+        return value if math.isfinite(value) and value >= 0 else None
+
+    def set_controls(self, exposure: float | None = None, gain: float | None = None) -> dict[str, list[CameraSetting]]:
+        """Change the exposure and gain of both cameras while they run (what ``headplod preview``'s keys do).
+
+        Parameters
+        ----------
+        exposure : float, optional
+            In the camera's units (UVC: 100 µs); turns auto exposure off.
+        gain : float, optional
+            In the camera's units.
+
+        Returns
+        -------
+        dict
+            ``{'left': [CameraSetting, ...], 'right': [...]}``, what each camera reported back (a camera that is
+            lost reports nothing; it gets the values when it is reopened, as they are kept with the others).
+        """
+        req = self._requests(None, None, None, None, None, exposure, gain, None)
+        with self._lock:
+            self._requested = {**self._requested, **req}
+        report = {}
+        for cam in self._cameras:
+            with cam.device_lock:
+                report[cam.side] = _apply_settings(cam.cap, req) if cam.cap is not None else []
+            for s in report[cam.side]:
+                if not s.accepted:
+                    self._warn(s.describe(cam.label))
+        return report
 
     def read(self, timeout_s: float = 1.0) -> CaptureFrame | None:
         """The next stereo pair, or an error frame after ``timeout_s`` s without one.

@@ -74,6 +74,7 @@ from .rig import (
     write_rig,
 )
 from .screen import Screen, ViewError, read_screen, write_screen
+from .toml_keys import TomlKeysError, set_toml_keys
 from .tables import (
     GAZE_TRUTH_COLUMNS,
     TRUTH_COLUMNS,
@@ -87,6 +88,7 @@ from .tables import (
 )
 
 __all__ = [
+    "set_toml_keys", "TomlKeysError",
     "ContractError",
     "write_atomically",
     "ProgressiveOutput",

@@ -1,6 +1,6 @@
 """``headplod preview``: both cameras side by side, annotated, to set up the cameras and the light (issue 25).
 
-    headplod preview [--source SPEC] [--calib rig.yaml] [--out DIR [--frames N]] [-q]
+    headplod preview [--source SPEC] [--calib rig.yaml] [--out DIR] [--frames N] [-q] [--threshold DN]
                      [--fps F] [--fourcc GREY|YUYV|MJPG] [--exposure E] [--gain G] [--markers FILE]
 
 Each frame of the source (any ``--source SPEC``, as ``headplod track`` takes it)
@@ -38,10 +38,12 @@ rig, :func:`~headplod.tracking.detect.detect_blobs` with the same parameters.
 Where the pictures go: with ``--out DIR``, one PNG per frame,
 ``DIR/preview_0000.png``, ``preview_0001.png``, ... (each written under a
 temporary name, then renamed), ``--frames N`` of them (default
-:data:`HEADLESS_FRAMES`); without it an OpenCV window (q or Esc closes it).
-The installed OpenCV may have no GUI (``opencv-contrib-python-headless``), or
-there may be no display: then the command refuses in one line and says to
-use ``--out DIR``.
+:data:`HEADLESS_FRAMES`); without it a window (:mod:`.preview_window`, the
+window library of the demo) showing the same pictures, until q or Esc, or
+after ``--frames N`` frames; a replay's last picture stays up until then. Its
+keys (:mod:`.preview_controls`) change the threshold, and on live cameras the
+exposure and gain, while it runs; w writes them into the config file. Where
+no window can be opened (no display), the command says to use ``--out DIR``.
 
 Coordinates: image pixels (u, v), u right, v down, (0, 0) the *centre* of the
 top-left pixel (docs/contract.md), which is also the convention of OpenCV's
@@ -59,14 +61,13 @@ read.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
-import os
 import re
 import sys
 from collections import deque
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from .. import io
@@ -79,7 +80,10 @@ from ..progress import Progress
 from ..tracking.detect import DetectionParams, detect_blobs, estimate_background
 from .preview_analysis import (AdviceSettings, FrameAnalysis, ViewAnalysis, advise, box_counts, epipolar_curves,
                                threshold_mask)
+from .preview_controls import Controls
 from .preview_picture import NO_RIG_NOTE, composite_size, render
+from .preview_window import PreviewWindow, WindowUnavailable, window_problem
+from .command import _threshold_arg
 from .track_checks import track_inputs
 
 __all__ = ["add_preview_arguments", "run_preview", "Previewer", "HEADLESS_FRAMES", "OUT_NAME"]
@@ -94,8 +98,6 @@ _OUT_PATTERN = re.compile(r"preview_(\d{4,})\.png")
 OUT_GLOB = "preview_*.png"
 #: Frame rate requested from live cameras when ``--fps`` is not given, Hz (as ``headplod track``).
 LIVE_FPS = DEFAULT_FPS
-#: Title of the window.
-WINDOW_NAME = "headplod preview"
 #: Most epipolar lines drawn in an image (the other image's blobs beyond these, brightest first, are left out).
 MAX_EPILINES = 16
 
@@ -121,21 +123,35 @@ class Previewer:
                  requested_fps: float | None = None):
         self.rig, self.detection, self.settings, self.requested_fps = rig, detection, settings, requested_fps
         self.size = tuple(rig.image_size) if rig is not None else None
-        self.tracker = None
-        if rig is not None:
-            # Imported on use: the tracker pulls in scipy (`headplod --help` imports this module).
-            from ..tracking.rig_refine_config import RigRefineConfig
-            from ..tracking.tracker import Tracker, TrackerConfig
-
-            config = TrackerConfig(detection=detection, track=False, rig_refine=RigRefineConfig(enabled=False))
-            self.tracker = Tracker(rig, markers or io.default_marker_model(), config,
-                                   calibration_std=io.rig_calibration_std(rig))
+        self.markers = markers or io.default_marker_model()
+        self.tracker = self._tracker()
         self._times = deque(maxlen=settings.rate_window_frames)
+        #: The threshold the last frame's left image was detected at, DN (None before a frame).
+        self.last_threshold_dn: float | None = None
+
+    def _tracker(self):
+        if self.rig is None:
+            return None
+        # Imported on use: the tracker pulls in scipy (`headplod --help` imports this module).
+        from ..tracking.rig_refine_config import RigRefineConfig
+        from ..tracking.tracker import Tracker, TrackerConfig
+
+        config = TrackerConfig(detection=self.detection, track=False, rig_refine=RigRefineConfig(enabled=False))
+        return Tracker(self.rig, self.markers, config, calibration_std=io.rig_calibration_std(self.rig))
+
+    def set_threshold(self, threshold_dn: float | None) -> None:
+        """Detect at ``threshold_dn`` DN (None: the adaptive threshold) from the next frame on."""
+        self.detection = dataclasses.replace(self.detection, threshold_dn=threshold_dn)
+        self.tracker = self._tracker()      # it re-detects every frame: nothing of the old one is lost
 
     # -- analysis ------------------------------------------------------------
 
-    def analyse(self, frame: io.Frame) -> FrameAnalysis:
-        """What ``frame`` shows (raises on a fault; :meth:`picture` turns one into the frame's failure)."""
+    def analyse(self, frame: io.Frame, again: bool = False) -> FrameAnalysis:
+        """What ``frame`` shows (raises on a fault; :meth:`picture` turns one into the frame's failure);
+        ``again``: the frame was analysed before (a new threshold on a held picture): its time is not counted
+        in the rate twice, and a new tracker sees it."""
+        if again:                           # the tracker would take the frame for a repeated camera buffer
+            self.tracker = self._tracker()
         base = dict(index=int(frame.index), t=frame.t, rig=self.rig is not None, warning=frame.warning)
         if frame.error is not None or frame.left is None or frame.right is None:
             return FrameAnalysis(views=None, size=self.size or (640, 480), error=frame.error or "no images", **base)
@@ -144,7 +160,7 @@ class Previewer:
         skew = getattr(frame, "skew_ms", None)
         if skew is None:
             skew = 0.0 if frame.t_right is None else abs(frame.t_right - frame.t) * 1000.0
-        if frame.t is not None and math.isfinite(frame.t):
+        if frame.t is not None and math.isfinite(frame.t) and not again:
             self._times.append(float(frame.t))
         rate = self._rate()
 
@@ -154,6 +170,7 @@ class Previewer:
         blobs = tuple(b if b is not None else detect_blobs(img, self.detection, background=estimate_background(img))
                       for b, img in zip(result.blobs if result is not None else (None, None), images))
         views = []
+        self.last_threshold_dn = float(blobs[0].threshold_dn)
         for img, b in zip(images, blobs):
             clipped = box_counts(img >= self.settings.saturated_dn, b.bbox_px)
             views.append(ViewAnalysis(img, b, threshold_mask(img, b, self.detection), clipped,
@@ -182,11 +199,11 @@ class Previewer:
         span = self._times[-1] - self._times[0]
         return (len(self._times) - 1) / span if span > 0 else None
 
-    def picture(self, frame: io.Frame) -> tuple[np.ndarray, FrameAnalysis]:
+    def picture(self, frame: io.Frame, again: bool = False) -> tuple[np.ndarray, FrameAnalysis]:
         """The frame's annotated picture (:func:`render`) and its analysis; never raises for the frame's
         own fault: an exception while analysing or drawing it gives a picture saying so (``error`` set)."""
         try:
-            analysis = self.analyse(frame)
+            analysis = self.analyse(frame, again)
             return render(analysis), analysis
         except Exception as exc:            # noqa: BLE001 -- one frame's fault is that frame's failure
             from ..tracking.tracker import internal_error_reason
@@ -201,16 +218,6 @@ class Previewer:
 # ---------------------------------------------------------------------------
 # where the pictures go
 # ---------------------------------------------------------------------------
-
-def window_problem() -> str | None:
-    """Why no OpenCV window can be opened here (no GUI in the OpenCV build, no display), or None."""
-    gui = re.search(r"^\s*GUI:\s*(\S+)", cv2.getBuildInformation(), re.MULTILINE)
-    if gui is not None and gui.group(1).upper() == "NONE":
-        return "the installed OpenCV has no GUI (opencv-python-headless)"
-    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        return "there is no display (DISPLAY is not set)"
-    return None
-
 
 class _Folder:
     """``--out DIR``: frame k's picture as ``DIR/preview_kkkk.png``, whole or not at all."""
@@ -247,28 +254,16 @@ class _Folder:
         pass
 
 
-class _Window:
-    """An OpenCV window; q or Esc, or closing it, ends the preview."""
-
-    def __init__(self):
-        cv2.namedWindow(WINDOW_NAME, cv2.WINDOW_AUTOSIZE)
-
-    def show(self, k: int, picture: np.ndarray) -> bool:
-        cv2.imshow(WINDOW_NAME, picture)
-        key = cv2.waitKey(1) & 0xFF
-        return key not in (ord("q"), 27) and cv2.getWindowProperty(WINDOW_NAME, cv2.WND_PROP_VISIBLE) >= 1
-
-    def close(self) -> None:
-        cv2.destroyWindow(WINDOW_NAME)
-
-
 # ---------------------------------------------------------------------------
 # the command
 # ---------------------------------------------------------------------------
 
 PREVIEW_EPILOG = (f"Headless (--out DIR): one PNG per frame, DIR/{OUT_NAME.format(0)}, ..., written under a "
-                  f"temporary name and renamed; {HEADLESS_FRAMES} frames unless --frames N. Without --out: an "
-                  "OpenCV window (q or Esc closes it); where OpenCV has no GUI or there is no display, use --out. "
+                  f"temporary name and renamed; {HEADLESS_FRAMES} frames unless --frames N. Without --out: a "
+                  "window with the same pictures, until q or Esc (a replay's last picture stays up), or --frames N; "
+                  "its keys: e/E exposure and g/G gain down/up (live cameras), t/T threshold down/up, a the "
+                  "adaptive threshold, w writes them into the config file (the one read, else ./headplod.toml). "
+                  "Without a display, use --out. "
                   "Exit status: 0 success (a fault in one frame is that frame's picture, saying so); 1 unreadable "
                   "input or an output that cannot be written; 2 bad usage (nothing is written).")
 
@@ -295,7 +290,10 @@ def add_preview_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentP
                              "run's last removed)")
     parser.add_argument("--frames", type=frame_count, metavar="N",
                         help=f"stop after N frames (default with --out: {HEADLESS_FRAMES}; in a window: until "
-                             "the source ends or q)")
+                             "q or Esc, the last picture of a replay staying up)")
+    parser.add_argument("--threshold", type=_threshold_arg, default=None, metavar="DN|adaptive",
+                        help="blob threshold in DN or 'adaptive' (default); the window's t/T keys change it")
+    parser.add_argument("--snapshot", metavar="PNG", help=argparse.SUPPRESS)   # the window's framebuffer, for tests
     add_quiet_argument(parser, help="no progress on standard error")
     live = parser.add_argument_group("live cameras (--source v4l2:...)")
     add_camera_settings(live, fps_default=None)
@@ -399,7 +397,8 @@ def _run(args, source, rig, markers, requested, out: Path | None, frames: int | 
     for warning in source.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     try:
-        previewer = Previewer(rig, markers or source.markers, requested_fps=requested)
+        previewer = Previewer(rig, markers or source.markers, DetectionParams(threshold_dn=args.threshold),
+                              requested_fps=requested)
     except ValueError as exc:                                 # a marker model the rule cannot use
         print(f"headplod: preview: {_one_line(exc)}", file=sys.stderr)
         return 1
@@ -408,10 +407,11 @@ def _run(args, source, rig, markers, requested, out: Path | None, frames: int | 
             out.mkdir(exist_ok=True)
             output = _Folder(out)
         else:
-            output = _Window()
-    except (OSError, cv2.error) as exc:
+            output = _window(args, source, previewer)
+    except (OSError, WindowUnavailable) as exc:
         where = f"--out {args.out}" if out is not None else "the window"
-        print(f"headplod: preview: {where}: {_one_line(exc)}", file=sys.stderr)
+        hint = "; write the pictures with --out DIR instead" if isinstance(exc, WindowUnavailable) else ""
+        print(f"headplod: preview: {where}: {_one_line(exc)}{hint}", file=sys.stderr)
         return 1
     if rig is None and not args.quiet:
         print(f"note: {NO_RIG_NOTE}", file=sys.stderr)
@@ -423,6 +423,7 @@ def _run(args, source, rig, markers, requested, out: Path | None, frames: int | 
             if frame is None:
                 break
             picture, analysis = previewer.picture(frame)
+            frame_shown = frame
             if analysis.error is not None:
                 failed += 1
                 first_failure = first_failure or f"frame {analysis.index}: {analysis.error}"
@@ -436,11 +437,22 @@ def _run(args, source, rig, markers, requested, out: Path | None, frames: int | 
                 return 1
             count += 1
             progress.step(f"frame {analysis.index}" + (": failed" if analysis.error else ""))
+            _key_messages(output)
             if not going:
                 break
+        if isinstance(output, PreviewWindow) and frames is None and count:
+            def repaint():                  # after a key: say what it did, draw the frame at the new threshold
+                _key_messages(output)
+                return previewer.picture(frame_shown, again=True)[0]
+            output.hold(repaint)            # the replay ended: its last picture stays up until q
+            _key_messages(output)
     finally:
         progress.close()
-        output.close()
+        closing = _close(output)
+    if closing is not None:                 # the snapshot (a test's option) could not be written
+        print(f"headplod: preview: --snapshot {args.snapshot}: {closing.strerror or _one_line(closing)}",
+              file=sys.stderr)
+        return 1
     if count == 0:
         print(f"headplod: preview: the source gave no frame ({source.name})", file=sys.stderr)
         return 1
@@ -448,18 +460,52 @@ def _run(args, source, rig, markers, requested, out: Path | None, frames: int | 
         removed = output.remove_stale()
         if removed and not args.quiet:
             print(f"note: removed {removed} pictures of an earlier, longer preview from {out}", file=sys.stderr)
-    _summary(count, failed, first_failure, advice, out, previewer)
+    _summary(count, failed, first_failure, advice, out, previewer, analysis.index)
+    if isinstance(output, PreviewWindow) and output.closed_by:
+        print(f"closed with {output.closed_by}")
     return 0
 
 
-def _summary(count, failed, first_failure, advice, out, previewer) -> None:
+def _window(args, source, previewer: Previewer) -> PreviewWindow:
+    """The window, its keys wired to the cameras (live ones only), the previewer's threshold and the config
+    file (the one read, else ./headplod.toml)."""
+    camera = source if hasattr(source, "set_controls") else None
+    config = getattr(args, "config_file", None)
+
+    def config_path() -> Path:              # on w only: a deleted current folder is w's one line then
+        return Path(config) if config else Path.cwd() / "headplod.toml"
+    controls = Controls(camera, exposure=args.exposure if camera else None, gain=args.gain if camera else None,
+                        threshold_dn=args.threshold, set_threshold=previewer.set_threshold,
+                        measured_threshold=lambda: previewer.last_threshold_dn, config_path=config_path)
+    size = composite_size(*(previewer.size or (640, 480)))
+    return PreviewWindow(size, controls, snapshot=args.snapshot)
+
+
+def _close(output) -> OSError | None:
+    """Close the folder or the window; the error writing the window's snapshot, or None."""
+    try:
+        output.close()
+    except OSError as exc:
+        return exc
+    return None
+
+
+def _key_messages(output) -> None:
+    """What the window's keys did, one line each on standard error."""
+    for message in getattr(output, "messages", ()):
+        print(f"preview: {message}", file=sys.stderr)
+    if hasattr(output, "messages"):
+        output.messages.clear()
+
+
+def _summary(count, failed, first_failure, advice, out, previewer, last_index=None) -> None:
     """The run's lines on standard output: what was written, the frames that failed, the advice by kind."""
     if out is not None:
         w, h = composite_size(*previewer.size) if previewer.size else (0, 0)
         names = OUT_NAME.format(0) + ("" if count == 1 else f" .. {OUT_NAME.format(count - 1)}")
         print(f"wrote {count} annotated frames to {out}: {names} ({w}x{h} px)")
     else:
-        print(f"showed {count} frames")
+        print(f"showed {count} frames (the last: frame {last_index})")
     if failed:
         print(f"{failed} of {count} frames failed (first: {first_failure}); each picture says why")
     for times, text in advice.values():
