@@ -232,3 +232,16 @@ class CommandParser(argparse.ArgumentParser):
         if extras:
             self.error(self.unrecognized(extras))
         return namespace
+
+
+def threshold_dn(text: str) -> float | None:
+    """A detection threshold: ``adaptive`` (None: from each image's background) or DN in (0, 255)."""
+    if text == "adaptive":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"threshold must be 'adaptive' or a number of DN, got {text!r}")
+    if not 0 < value < 255:
+        raise argparse.ArgumentTypeError(f"threshold must lie between 0 and 255 DN, got {value}")
+    return value

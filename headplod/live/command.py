@@ -48,7 +48,7 @@ import numpy as np
 
 from .. import io
 from ..io.progressive import folder_unwritable
-from ..argtypes import add_quiet_argument, frame_count, note_old_spelling, readout_ms
+from ..argtypes import add_quiet_argument, frame_count, note_old_spelling, readout_ms, threshold_dn
 from ..capture import DatasetRecorder, open_source, source_kind, synthetic_preset, v4l2_devices
 from ..capture.signals import StopSignals
 from ..capture.synthetic import ensure_dataset, rerender
@@ -86,18 +86,6 @@ TRACK_EPILOG = ("exit status: 0 success (a fault in one frame is that frame's 'o
                 "recentres what is sent to opentrack, from the next frame: the current pose becomes its zero.")
 
 
-def _threshold_arg(text: str):
-    if text == "adaptive":
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"threshold must be 'adaptive' or a number of DN, got {text!r}")
-    if not 0 < value < 255:
-        raise argparse.ArgumentTypeError(f"threshold must lie between 0 and 255 DN, got {value}")
-    return value
-
-
 def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add ``track``'s options to a (sub)parser; returns it."""
     track.add_argument("--source", metavar="SPEC",
@@ -113,7 +101,7 @@ def add_track_arguments(track: argparse.ArgumentParser) -> argparse.ArgumentPars
                                      "and kept when it ends early; not inside the dataset folder being read")
     track.add_argument("--estimator", choices=ESTIMATORS, default="reproj",
                        help="pose estimator (default reproj, the most accurate in 'headplod bench track')")
-    track.add_argument("--threshold", type=_threshold_arg, default=None, metavar="DN|adaptive",
+    track.add_argument("--threshold", type=threshold_dn, default=None, metavar="DN|adaptive",
                        help="blob threshold in DN (the paper: 100) or 'adaptive' (default)")
     track.add_argument("--paper-detection", action="store_true",
                        help="the paper's detection: threshold 100, 9x9 smoothing, raw intensity weights")

@@ -71,7 +71,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io
-from ..argtypes import add_quiet_argument, frame_count
+from ..argtypes import add_quiet_argument, frame_count, threshold_dn
 from ..capture import open_source, source_kind, synthetic_preset, v4l2_devices
 from ..capture.synthetic import ensure_dataset
 from ..capture.command import DEFAULT_FPS, add_camera_settings
@@ -83,7 +83,6 @@ from .preview_analysis import (AdviceSettings, FrameAnalysis, ViewAnalysis, advi
 from .preview_controls import Controls
 from .preview_picture import NO_RIG_NOTE, composite_size, render
 from .preview_window import PreviewWindow, WindowUnavailable, window_problem
-from .command import _threshold_arg
 from .track_checks import track_inputs
 
 __all__ = ["add_preview_arguments", "run_preview", "Previewer", "HEADLESS_FRAMES", "OUT_NAME"]
@@ -291,7 +290,7 @@ def add_preview_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentP
     parser.add_argument("--frames", type=frame_count, metavar="N",
                         help=f"stop after N frames (default with --out: {HEADLESS_FRAMES}; in a window: until "
                              "q or Esc, the last picture of a replay staying up)")
-    parser.add_argument("--threshold", type=_threshold_arg, default=None, metavar="DN|adaptive",
+    parser.add_argument("--threshold", type=threshold_dn, default=None, metavar="DN|adaptive",
                         help="blob threshold in DN or 'adaptive' (default); the window's t/T keys change it")
     parser.add_argument("--snapshot", metavar="PNG", help=argparse.SUPPRESS)   # the window's framebuffer, for tests
     add_quiet_argument(parser, help="no progress on standard error")
