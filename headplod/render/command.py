@@ -95,7 +95,9 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
                                          "to standard output)")
     render.add_argument("--compare", choices=("full",),
                         help="also render full from the same view and print the frame's PSNR (whole, and within 5° "
-                             "of the POI) and FLIP against it (default: no comparison; mesh and raymask back ends)")
+                             "of the POI) and FLIP against it, both drawn shaded without the POI marker (a levels "
+                             "or wire view is judged by its shaded frame); also in --stats (default: no "
+                             "comparison; mesh and raymask back ends)")
     render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
                                                          "scene metres, faces coloured by level)")
     add_terrain_arguments(render)
