@@ -82,6 +82,9 @@ def test_headless_run_writes_frames_and_summary(tmp_path, terrain_scene, rendere
         image = cv2.imread(str(path))
         assert image.shape == (180, 320, 3) and image.std() > 10
     assert "overview" in text and "x full" in text and "picture overview" in text
+    # One index picture labelling them all (issue 36): the picture and the chart, each under its name.
+    index = cv2.imread(str(folder / "index.png"))
+    assert summary["index"] == str(folder / "index.png") and index.shape[1] > 2 * 320 and "index.png" in text
 
 
 @pytest.mark.slow

@@ -60,7 +60,9 @@ def _home(text) -> str:
     return str(text).replace(str(Path.home()), "~")
 
 
-def _mark(met) -> str:
+def _mark(met, judged=True) -> str:
+    if judged is False:
+        return "not judged in a quick run"
     return "met" if met else "**not met**"
 
 
@@ -72,7 +74,9 @@ def _goal_lines(goals: list, figure_key: str = "worst") -> list[str]:
         worst = " .. ".join(_f(w, ".3g") for w in worst) if isinstance(worst, list) else _f(worst, ".3g")
         missed = g.get("missed") or []
         tail = f" (missed on: {', '.join(missed)})" if missed else ""
-        lines.append(f"- {_mark(g.get('met'))}: {g['goal']}: {worst}{tail}")
+        if g.get("judged") is False:
+            tail = f" ({g.get('why')})"
+        lines.append(f"- {_mark(g.get('met'), g.get('judged'))}: {g['goal']}: {worst}{tail}")
     return lines
 
 

@@ -28,6 +28,7 @@ from ..live.loop import result_record, track_frames
 from ..progress import Progress, note
 from ..tracking.tracker import ESTIMATORS, Tracker, TrackerConfig
 from .baseline import threshold_baseline_s
+from .goals import frames_for_quantile, not_judged, short_sets, verdict
 from .outputs import pyplot, save_figure, write_json
 
 # (set name, synthetic preset, frames in full / quick runs, what the goals say about it)
@@ -52,17 +53,20 @@ TRACK_SETS = [
 NEAR_SETS = ["looking around (default)", "static 55 cm", "static 80 cm", "yaw sweep", "pitch sweep", "roll sweep"]
 
 # Goals of the tracker issue, checked on the sets named.
+# The last figure: the frames per set the goal's statistic needs (a quick run with shorter sets does not judge it).
 GOALS = [
-    ("median V error ≤ 0.1° at 50-80 cm", NEAR_SETS, "v_err_deg_median", 0.1),
-    ("95th percentile V error ≤ 0.4° at 50-80 cm", NEAR_SETS, "v_err_deg_p95", 0.4),
-    ("median position error ≤ 0.2 mm at 50-80 cm", NEAR_SETS, "pos_err_mm_median", 0.2),
-    ("median V error ≤ 0.3° at 120 cm", ["far 120 cm"], "v_err_deg_median", 0.3),
-    ("zero wrong identifications (V off by > 5°)", [s[0] for s in TRACK_SETS], "wrong_identifications", 0),
+    ("median V error ≤ 0.1° at 50-80 cm", NEAR_SETS, "v_err_deg_median", 0.1, frames_for_quantile(0.5)),
+    ("95th percentile V error ≤ 0.4° at 50-80 cm", NEAR_SETS, "v_err_deg_p95", 0.4, frames_for_quantile(0.95)),
+    ("median position error ≤ 0.2 mm at 50-80 cm", NEAR_SETS, "pos_err_mm_median", 0.2, frames_for_quantile(0.5)),
+    ("median V error ≤ 0.3° at 120 cm", ["far 120 cm"], "v_err_deg_median", 0.3, frames_for_quantile(0.5)),
+    ("zero wrong identifications (V off by > 5°)", [s[0] for s in TRACK_SETS], "wrong_identifications", 0, 1),
 ]
 RATIO_GOAL = 25.0
 # The slowest frames of every set against the clean set's median frame (Tracker.process, whole): issue 34.
+# The slowest frame is held to the same length as the 99th percentile: a stall shows in a run of 100 frames.
 CLEAN_SET = "looking around (default)"
-TAIL_GOALS = (("slowest 1% of frames", "frame_ms_p99", 3.0), ("slowest frame", "frame_ms_max", 6.0))
+TAIL_GOALS = (("slowest 1% of frames", "frame_ms_p99", 3.0, frames_for_quantile(0.99)),
+              ("slowest frame", "frame_ms_max", 6.0, frames_for_quantile(0.99)))
 
 
 def run_estimator(frames, dataset: io.Dataset, estimator: str) -> dict:
@@ -150,7 +154,7 @@ def run_track_bench(json_path=None, chart_path=None, quick: bool = False, sets=N
         rig_results = bench_rig.run_rig_sets(chosen_rig, quick, progress=bar.step)
     out_json = {}
     if results:
-        report = _report(results)
+        report = _report(results, quick=quick)
         print(report["text"])
         out_json = report["json"]
     if rig_results:
@@ -176,60 +180,76 @@ def run_track_bench(json_path=None, chart_path=None, quick: bool = False, sets=N
     return 0
 
 
-def _report(results: dict) -> dict:
-    lines = [f"{'set':26s} {'estimator':9s} {'tracked':>8s} {'V med°':>7s} {'V p95°':>7s} {'P1 med mm':>9s} "
+def _report(results: dict, quick: bool = False) -> dict:
+    """Table and goals of the tracking sets: {'text', 'json'}; ``quick``: goals whose sets are too short for
+    their statistic are not judged (:mod:`headplod.bench.goals`)."""
+    width = max([26] + [len(name) for name in results])          # the longest set name sets the first column
+    lines = [f"{'set':{width}s} {'estimator':9s} {'tracked':>8s} {'V med°':>7s} {'V p95°':>7s} {'P1 med mm':>9s} "
              f"{'wrong':>5s} {'ms/pair':>8s} {'x thresh':>8s}"]
     for name, by_est in results.items():
         for est, s in by_est.items():
-            lines.append(f"{name:26s} {est:9s} {s['tracked_fraction']:8.1%} {s.get('v_err_deg_median', np.nan):7.3f} "
+            lines.append(f"{name:{width}s} {est:9s} {s['tracked_fraction']:8.1%} "
+                         f"{s.get('v_err_deg_median', np.nan):7.3f} "
                          f"{s.get('v_err_deg_p95', np.nan):7.3f} {s.get('pos_err_mm_median', np.nan):9.3f} "
                          f"{s.get('wrong_identifications', 0):5d} {s['mean_pose_ms']:8.3f} "
                          f"{s['mean_pose_ratio_to_threshold']:8.1f}")
     default = TrackerConfig().estimator
+    frames = {name: by[default].get("frames", 0) for name, by in results.items()}
     goals = []
-    for label, sets, key, limit in GOALS:
+    for label, sets, key, limit, needs in GOALS:
         values = [results[n][default].get(key) for n in sets if n in results]
         values = [v for v in values if v is not None]
         if not values:
             continue
         worst = max(values)
-        goals.append({"goal": label, "worst": worst, "limit": limit, "met": bool(worst <= limit)})
+        goals.append(_judged({"goal": label, "worst": worst, "limit": limit, "met": bool(worst <= limit)},
+                             needs, {n: frames[n] for n in sets if n in results}, quick))
     ratios = [by[default]["mean_pose_ratio_to_threshold"] for n, by in results.items()
               if n in NEAR_SETS]
     if ratios:
         r = float(np.median(ratios))
         goals.append({"goal": f"mean-pose time ≤ {RATIO_GOAL:.0f}x one threshold pass (640x480)",
                       "worst": r, "limit": RATIO_GOAL, "met": bool(r <= RATIO_GOAL)})
-    goals += _tail_goals(results, default)
+    goals += [_judged(g, needs, frames, quick) for g, needs in _tail_goals(results, default)]
     lines.append("")
     lines.append(f"goals (default estimator '{default}'):")
     for g in goals:
         missed = f"; missed on: {', '.join(g['missed'])}" if g.get("missed") else ""
-        lines.append(f"  [{'met' if g['met'] else 'NOT MET'}] {g['goal']}: {g['worst']:.3f} (limit {g['limit']}){missed}")
+        if g.get("judged") is False:
+            lines.append(f"  [{verdict(g)}] {g['goal']}: {g['why']} (measured {g['worst']:.3f}, limit {g['limit']})")
+        else:
+            lines.append(f"  [{verdict(g)}] {g['goal']}: {g['worst']:.3f} (limit {g['limit']}){missed}")
     out = {"default_estimator": default, "sets": results, "goals": goals,
            "mean_pose_ratio_to_threshold": r if ratios else None}
     return {"text": "\n".join(lines), "json": out}
 
 
-def _tail_goals(results: dict, estimator: str) -> list[dict]:
-    """Every set's slowest frames as multiples of the clean set's median frame (when the clean set ran)."""
+def _judged(goal: dict, needs: int, frames: dict, quick: bool) -> dict:
+    """``goal``, or in a quick run whose sets (``frames``: {name: frames}) are too short for it, not judged."""
+    short = short_sets(frames, needs)
+    return not_judged(goal, needs, short) if quick and short else goal
+
+
+def _tail_goals(results: dict, estimator: str) -> list[tuple[dict, int]]:
+    """Every set's slowest frames as multiples of the clean set's median frame (when the clean set ran), each
+    with the frames per set it needs."""
     if CLEAN_SET not in results:
         return []
     median = results[CLEAN_SET][estimator]["frame_ms_median"]
     goals = []
-    for label, key, limit in TAIL_GOALS:
+    for label, key, limit, needs in TAIL_GOALS:
         ratios = {name: by[estimator][key] / median for name, by in results.items()}
         worst = max(ratios, key=ratios.get)
-        goals.append({"goal": f"{label} ≤ {limit:g}x the clean set's median frame, on every set",
-                      "worst": ratios[worst], "limit": limit, "met": bool(ratios[worst] <= limit),
-                      "missed": sorted(n for n, v in ratios.items() if v > limit)})
+        goals.append(({"goal": f"{label} ≤ {limit:g}x the clean set's median frame, on every set",
+                       "worst": ratios[worst], "limit": limit, "met": bool(ratios[worst] <= limit),
+                       "missed": sorted(n for n, v in ratios.items() if v > limit)}, needs))
     return goals
 
 
 def _chart(results: dict, path: str) -> None:
     plt = pyplot()
 
-    fig, ax = plt.subplots(figsize=(9, 6))
+    fig, ax = plt.subplots(figsize=(13, 6))
     markers = {"paper": "s", "rigid": "^", "reproj": "o"}
     colors = plt.cm.tab20(np.linspace(0, 1, max(len(results), 2)))
     for color, (name, by_est) in zip(colors, results.items()):
@@ -247,5 +267,6 @@ def _chart(results: dict, path: str) -> None:
     ax.axvline(RATIO_GOAL, color="k", ls=":", lw=1)
     ax.set_title("headplod tracker: accuracy against time, per estimator and set")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    # Beside the axes, never over the points.
+    ax.legend(fontsize=7, ncol=1, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
     save_figure(fig, path, dpi=120)

@@ -21,7 +21,7 @@ import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import cv2
 import numpy as np
@@ -367,11 +367,37 @@ def draw_glasses(page, model: io.MarkerModel, marker_mm: float, paper_mm, origin
     scale_bar(page, sw / 2 - SCALE_BAR_MM / 2 - 15.0, ay + 12)
 
 
-def make_glasses(model: io.MarkerModel, marker_mm: Optional[float], paper: str, dpi: float, out: str,
-                 yaml: Optional[str] = None) -> io.MarkerModel:
-    """Write the template of ``model`` with discs of ``marker_mm`` (default the model's diameter) to ``out``
-    (.pdf, .png or .svg) and, with ``yaml``, the ``markers.yaml`` of that model and diameter; the model written.
+class GlassesWritten(NamedTuple):
+    """What :func:`make_glasses` wrote: the model drawn, and its markers.yaml (None: none asked for) with what
+    became of it: ``written`` (new), ``kept`` (it already held this layout), ``replaced`` (it held another)."""
 
+    model: io.MarkerModel
+    yaml: Optional[Path]
+    yaml_state: str
+
+
+def yaml_beside(out: str) -> Path:
+    """The markers.yaml that goes with a template ``out`` by default: ``markers.yaml`` in its folder."""
+    return Path(out).expanduser().parent / "markers.yaml"
+
+
+def _held_layout(path: Path, model: io.MarkerModel) -> str:
+    """``missing``, ``same`` (``path`` reads as ``model``) or ``different`` (another layout, or not one at all)."""
+    if not path.exists():
+        return "missing"
+    try:
+        return "same" if io.read_markers(path) == model else "different"
+    except io.ContractError:            # not a markers.yaml at all: not this layout either
+        return "different"
+
+
+def make_glasses(model: io.MarkerModel, marker_mm: Optional[float], paper: str, dpi: float, out: str,
+                 yaml: Optional[str] = None, *, replace_different: bool = True) -> GlassesWritten:
+    """Write the template of ``model`` with discs of ``marker_mm`` (default the model's diameter) to ``out``
+    (.pdf, .png or .svg) and, with ``yaml``, the ``markers.yaml`` of that model and diameter.
+
+    A ``yaml`` that already holds this layout is left as it is; one that holds another is replaced, or with
+    ``replace_different`` False (the file was not named, :func:`yaml_beside`) refused (:class:`PrintoutError`).
     Everything is checked first (:class:`PrintoutError`); each file is written under a temporary name and
     renamed.
     """
@@ -383,12 +409,17 @@ def make_glasses(model: io.MarkerModel, marker_mm: Optional[float], paper: str, 
     marker_mm = check_marker_mm(model, model.diameter_mm if marker_mm is None else marker_mm)
     paper_mm, origin = glasses_layout(model, marker_mm, paper)
     printed = io.MarkerModel(model.points_mm.copy(), marker_mm)
+    held = "missing" if ypath is None else _held_layout(ypath, printed)
+    if held == "different" and not replace_different:
+        raise PrintoutError(f"{ypath} already holds a different marker layout and is not replaced; name the "
+                            "sheet's markers.yaml with --yaml FILE (an existing one is then replaced), or --no-yaml")
     page = new_page(out, paper_mm, dpi)
     draw_glasses(page, printed, marker_mm, paper_mm, origin)
     io.write_atomically(path, page.save, suffix=path.suffix.lower())
-    if ypath is not None:
+    if ypath is not None and held != "same":
         io.write_atomically(ypath, lambda name: io.write_markers(name, printed), suffix=ypath.suffix.lower())
-    return printed
+    state = {"missing": "written", "same": "kept", "different": "replaced"}[held]
+    return GlassesWritten(printed, ypath, state if ypath is not None else "none")
 
 
 # ---------------------------------------------------------------------------
@@ -443,7 +474,11 @@ def add_glasses_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentP
                         "P0 (65, 0, 0) .. P4 (-40, -30, 0) mm)")
     parser.add_argument("--marker-mm", type=float,
                         help="marker disc diameter, mm (default the model's, 6 mm for the default model)")
-    parser.add_argument("--yaml", help="also write the markers.yaml that goes with the sheet (.yaml)")
+    files = parser.add_mutually_exclusive_group()
+    files.add_argument("--yaml", help="the markers.yaml that goes with the sheet (.yaml; default: markers.yaml "
+                       "beside --out, never replacing one that holds a different layout; a file named here is "
+                       "replaced, and the line says so)")
+    files.add_argument("--no-yaml", action="store_true", help="write the sheet alone, no markers.yaml")
     _common_arguments(parser)
     return parser
 
@@ -452,18 +487,23 @@ def run_glasses(args) -> int:
     """Run ``headplod glasses``; the exit status (2 with one line on stderr for anything that cannot be made;
     a bad ``--markers`` file raises :class:`~headplod.io.ContractError`, exit 1)."""
     model = io.read_markers(args.markers) if args.markers else io.default_marker_model()
+    yaml = None if args.no_yaml else (args.yaml or str(yaml_beside(args.out)))
     try:
         if args.markers:                        # the sheet's files are never the markers.yaml being read
-            check_files([("--out", args.out), ("--yaml", args.yaml)],
-                        Inputs().file("the markers being read (--markers)", args.markers))
-        printed = make_glasses(model, args.marker_mm, args.paper, args.dpi, args.out, args.yaml)
+            named = [("--out", args.out)] + ([("--yaml", args.yaml)] if args.yaml else [])
+            # (the markers.yaml beside may be the one read: then it holds the layout drawn and is left as it is,
+            # or a --marker-mm changes it and it is refused as a different layout)
+            check_files(named, Inputs().file("the markers being read (--markers)", args.markers))
+        done = make_glasses(model, args.marker_mm, args.paper, args.dpi, args.out, yaml,
+                            replace_different=args.yaml is not None)
     except (PrintoutError, OutputRefused) as exc:
         print(f"headplod glasses: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
         return _write_failed("glasses", exc, args.out)
-    also = f" and {args.yaml}" if args.yaml else ""
+    also = {"written": f" and {yaml}", "replaced": f" and {yaml} (replacing the different layout it held)",
+            "kept": f" ({yaml} already holds this layout, left as it is)", "none": ""}[done.yaml_state]
     if not args.quiet:
-        print(f"wrote {args.out}{also}: five {printed.diameter_mm:g} mm markers on {args.paper}; "
+        print(f"wrote {args.out}{also}: five {done.model.diameter_mm:g} mm markers on {args.paper}; "
               "print at 100 % and check the scale bar")
     return 0

@@ -50,6 +50,8 @@ from ..argtypes import add_quiet_argument, frame_count
 from ..render.scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_options, mesh_options_problem,
                                     terrain_for_command)
 from ..progress import Progress, note
+from .hud import ellipse_words
+from .sheet import SheetEntry, contact_sheet
 from ..render import TerrainRenderer, create_context
 from ..plod.select import MODES
 from ..render.command import (add_cost_arguments, add_csf_argument, add_gaze_prior_argument, raymask_config,
@@ -252,6 +254,7 @@ def run_headless(args, out=None, err=None, scene=None, renderer=None) -> dict:
     folder.mkdir(parents=True, exist_ok=True)
     write_chart(runs, args.viewpoints, chart, title=f"{args.size[0]}x{args.size[1]}, {source_name}")
     summary["chart"] = str(chart)
+    summary["index"] = _write_png(folder / "index.png", index_sheet(pictures, chart, args, source_name))
     summary["wall_s"] = round(time.perf_counter() - start, 1)
     write_named(folder / "summary.json", lambda name: Path(name).write_text(json.dumps(summary, indent=1)))
     print_table(summary, out)
@@ -339,9 +342,9 @@ def _pictures(args, demo, vp, mode, scenario, foveate, folder, pictures) -> None
                    "POI and 2-sigma ellipse")
         pictures[f"{vp} foveate"] = _write_png(path, demo.picture("levels", caption))
     if mode == args.mode and not foveate and (scenario == "adaptive" or vp not in pictures):
-        pose = demo.last.pose
-        sigma = np.sqrt(np.max(np.diag(pose.cov_deg2))) if pose.cov_deg2 is not None else 0
-        caption = f"{vp}: {mode}, {scenario}, level colours; POI and 2-sigma ellipse (sigma {sigma:.2f} deg)"
+        info = demo.hud_info(demo.last)
+        caption = (f"{vp}: {mode}, {scenario}, level colours; "
+                   f"{ellipse_words(info.cov_deg2, info.px_per_deg, args.size[1])}")
         path = folder / f"viewpoint_{vp}_levels.png"
         pictures[vp] = _write_png(path, demo.picture("levels", caption))
 
@@ -423,6 +426,28 @@ def print_table(summary: dict, out=None) -> None:
     folder = Path(summary["chart"]).parent
     frames = f"frames: {folder / 'frames'}/   " if any(r["frames_png"] for r in summary["runs"]) else ""
     print(f"{frames}summary: {folder / 'summary.json'}, {summary['chart']}   ({summary['wall_s']} s)", file=out)
+    if summary.get("index"):
+        print(f"index of the pictures, each labelled: {summary['index']}", file=out)
+
+
+def index_sheet(pictures: dict, chart: Path, args, source_name: str) -> np.ndarray:
+    """The contact sheet of a headless run's pictures (``pictures``: {viewpoint or 'VP foveate': path}) and its
+    chart, each labelled with what it shows; (H, W, 3) uint8 RGB."""
+    legend = ("Each triangle is coloured by its level of detail (legend bottom left: L0 coarsest .. "
+              f"L{mesh_options(args).max_level} finest). Red cross: the "
+              "tracked point of interest; red ellipse: its 2-sigma uncertainty (drawn at least a visible size).")
+    entries = []
+    for key, path in pictures.items():
+        vp, _, foveate = key.partition(" ")
+        what = VIEWPOINTS[vp].description
+        extra = " Circles: the foveation layers' borders." if foveate else ""
+        entries.append(SheetEntry(Path(path).name, f"The {vp} view: {what}. {legend}{extra}",
+                                  cv2.cvtColor(io.read_image(path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)))
+    entries.append(SheetEntry(chart.name, "Frame time and triangles per frame of every run, per viewpoint: the "
+                              "criterion under each uncertainty scenario, against full detail.",
+                              cv2.cvtColor(io.read_image(chart, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)))
+    return contact_sheet(entries, heading=f"headplod demo --headless: {args.size[0]}x{args.size[1]}, "
+                                          f"poses from {source_name.split(' (')[0]}")
 
 
 def write_chart(runs, viewpoints, path, title="") -> None:
@@ -464,7 +489,7 @@ def write_chart(runs, viewpoints, path, title="") -> None:
 
 
 #: What a headless run writes in ``--out DIR`` (the other files there are left alone).
-OUT_ENTRIES = ("frames", "summary.json", "summary.png", "viewpoint_*.png")
+OUT_ENTRIES = ("frames", "summary.json", "summary.png", "index.png", "viewpoint_*.png")
 
 
 def _out_problem(args) -> str | None:
@@ -529,7 +554,7 @@ def run_demo(args) -> int:
 def _check_out_entries(folder: Path, viewpoints) -> None:
     """OutputNotWritable when what the headless run writes in ``folder`` is in the way: a folder where it writes a
     file (``summary.json``, ``summary.png``, a viewpoint's picture), or a file where it makes ``frames/``."""
-    files = ["summary.json", "summary.png"] + [f"viewpoint_{vp}_{kind}.png" for vp in viewpoints
+    files = ["summary.json", "summary.png", "index.png"] + [f"viewpoint_{vp}_{kind}.png" for vp in viewpoints
                                                for kind in ("levels", "layers")]
     for name in files:
         if (folder / name).is_dir():

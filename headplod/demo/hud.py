@@ -23,6 +23,7 @@ from ..tol import tol
 KEY_HELP = "keys: " + key_help()
 
 _WHITE = (255, 255, 255)
+_GREY = (150, 150, 150)
 _GREEN = (110, 235, 110)
 _RED = (255, 80, 70)
 _YELLOW = (255, 220, 60)
@@ -96,13 +97,39 @@ def _status_line(info: HudInfo):
     return f"tracking ok   POI speed {info.poi_speed_deg_s:.0f} deg/s", _GREEN
 
 
+def _cross_arm_px(height: int) -> int:
+    """Half-length of the POI crosshair's arms for an image ``height`` px high, px."""
+    return max(6, int(height) // 60)
+
+
+def min_ellipse_px(height: int) -> int:
+    """The least half-axis the 2σ ellipse is drawn with in an image ``height`` px high, px: half again beyond
+    the crosshair's arms, so that a small one is still seen around the cross."""
+    return int(round(1.5 * _cross_arm_px(height)))
+
+
+def ellipse_words(cov_deg2, px_per_deg: float, height: int) -> str:
+    """The picture label's words on the 2σ ellipse of ``cov_deg2`` ((2, 2) deg², or None) at ``px_per_deg``:
+    its true size (the larger σ in degrees, the 2σ half-axis in px) and, when that is smaller than
+    :func:`min_ellipse_px`, that it is drawn enlarged."""
+    if cov_deg2 is None:
+        return "POI (no covariance)"
+    sigma = float(np.sqrt(max(float(np.max(np.linalg.eigvalsh(np.asarray(cov_deg2, float)))), 0.0)))
+    half = 2.0 * sigma * px_per_deg
+    least = min_ellipse_px(height)
+    size = f"sigma {sigma:.2f} deg, 2-sigma {half:.1f} px"
+    if half < least:
+        return f"POI and 2-sigma ellipse ({size}; drawn enlarged to {least} px to be seen)"
+    return f"POI and 2-sigma ellipse ({size})"
+
+
 def draw_poi(image, info: HudInfo) -> np.ndarray:
-    """The POI crosshair and the covariance's 2σ ellipse (in place)."""
+    """The POI crosshair and the covariance's 2σ ellipse, drawn at least :func:`min_ellipse_px` (in place)."""
     if info.poi_image_px is None:
         return image
-    arm = max(6, image.shape[0] // 60)
     return overlay_poi(image, info.poi_image_px, info.cov_deg2, max(info.px_per_deg, tol.floor), color=_POI,
-                       cross_px=arm, thickness=1 if image.shape[0] < 400 else 2, inplace=True)
+                       cross_px=_cross_arm_px(image.shape[0]), thickness=1 if image.shape[0] < 400 else 2,
+                       inplace=True, min_half_px=min_ellipse_px(image.shape[0]))
 
 
 def draw_cameras(image, info: HudInfo) -> np.ndarray:
@@ -143,19 +170,39 @@ def draw_cameras(image, info: HudInfo) -> np.ndarray:
     return image
 
 
-def draw_legend(image, max_level: int, origin=None) -> np.ndarray:
-    """Level colour swatches L0..L{max_level} (the "levels" view's palette), bottom left (in place)."""
+def draw_legend(image, max_level: int, origin=None, present=None) -> np.ndarray:
+    """Level colour swatches L0..L{max_level} (the "levels" view's palette), bottom left (in place): each
+    swatch with its label beside it, white on a darkened box, never over a colour. ``present``: the levels
+    the frame uses (None: all); the others are drawn hollow with a grey label, and the box says so."""
     scale = _scale(image)
-    box = max(8, int(22 * scale))
-    H = image.shape[0]
-    x, y = origin if origin is not None else (max(2, box // 2), H - 2 * box - max(14, int(40 * scale)))
+    font, text_scale = cv2.FONT_HERSHEY_SIMPLEX, 1.0 * scale
+    box = max(10, int(24 * scale))
+    gap = max(3, box // 4)
+    (tw, th), _ = cv2.getTextSize(f"L{max_level}", font, text_scale, 1)
+    step = box + gap + tw + 2 * gap
+    pad = gap
+    absent = [] if present is None else [lv for lv in range(max_level + 1) if lv not in set(present)]
+    note = "grey: not in this frame" if absent else ""
+    note_w = cv2.getTextSize(note, font, text_scale, 1)[0][0] + gap if note else 0
+    width, height = (max_level + 1) * step + pad + note_w, box + 2 * pad
+    H, W = image.shape[:2]
+    x0, y0 = origin if origin is not None else (max(2, box // 2), H - height - max(14, int(40 * scale)))
+    x1, y1 = min(W, x0 + width), min(H, y0 + height)
+    if x1 > x0 and y1 > y0:
+        region = image[y0:y1, x0:x1]
+        region >>= 2                     # a quarter as bright: the labels' white stands out on any terrain
+    x, y = x0 + pad, y0 + pad
     for level in range(max_level + 1):
         colour = tuple(int(c) for c in PALETTE[level % len(PALETTE)])
-        cv2.rectangle(image, (x, y), (x + box, y + box), colour, -1)
-        cv2.rectangle(image, (x, y), (x + box, y + box), (0, 0, 0), 1)
-        cv2.putText(image, f"L{level}", (x + 2, y + box + int(box * 0.7)), cv2.FONT_HERSHEY_SIMPLEX,
-                    0.8 * scale, _WHITE, 1, cv2.LINE_AA)
-        x += int(box * 1.6)
+        label = _GREY if level in absent else _WHITE
+        if level not in absent:
+            cv2.rectangle(image, (x, y), (x + box, y + box), colour, -1)
+        cv2.rectangle(image, (x, y), (x + box, y + box), colour if level in absent else _WHITE, 1)
+        cv2.putText(image, f"L{level}", (x + box + gap, y + (box + th) // 2), font, text_scale, label, 1,
+                    cv2.LINE_AA)
+        x += step
+    if note:
+        cv2.putText(image, note, (x, y + (box + th) // 2), font, text_scale, _GREY, 1, cv2.LINE_AA)
     return image
 
 
@@ -206,11 +253,12 @@ def draw_hud(image: np.ndarray, info: HudInfo, inplace: bool = False, max_level:
 
 
 def draw_picture_overlay(image: np.ndarray, info: HudInfo, caption: str | None = None, legend: bool = True,
-                         max_level: int = 5) -> np.ndarray:
-    """A still for the README: the POI with its 2σ ellipse, a caption and the level legend (in place)."""
+                         max_level: int = 5, present=None) -> np.ndarray:
+    """A still for the README: the POI with its 2σ ellipse, a caption and the level legend (in place);
+    ``present``: the levels the frame uses (:func:`draw_legend`)."""
     draw_poi(image, info)
     if caption:
         _text_block(image, [(caption, _WHITE)], (4, 4), _scale(image))
     if legend:
-        draw_legend(image, max_level)
+        draw_legend(image, max_level, present=present)
     return image

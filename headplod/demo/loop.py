@@ -429,8 +429,10 @@ class DemoLoop:
             from ..render.overlay import overlay_layers
             ppd = px_per_deg_at(self.screen, pose.eye_mm, self.renderer.size)
             image = overlay_layers(image, self.anchor.poi_px, self.anchor.layers, ppd)
+        levels = self.last.levels
         return draw_picture_overlay(image, info, caption=caption, legend=view_mode == "levels",
-                                    max_level=self.base_scene.mesh.max_level)
+                                    max_level=self.base_scene.mesh.max_level,
+                                    present=None if levels is None else {int(v) for v in np.unique(levels)})
 
 
 def _same_screen(a, b) -> bool:

@@ -80,12 +80,14 @@ class Viewpoint:
 
 #: The three views, in the paper's order.
 VIEWPOINTS: dict[str, Viewpoint] = {v.name: v for v in (
-    Viewpoint("overview", "far overview of the whole terrain, seen from above",
-              centre_frac=(0.5, 0.5), scale_mm_per_m=0.016, depth_mm=320.0, pitch_deg=60.0),
+    # Large enough that the terrain fills the screen's middle, where the POI goes: a POI off the terrain has
+    # nothing to refine, and its picture shows no fine level at all.
+    Viewpoint("overview", "far overview of the terrain's middle, seen from above, filling the screen",
+              centre_frac=(0.5, 0.5), scale_mm_per_m=0.03, depth_mm=320.0, pitch_deg=60.0),
     Viewpoint("mountains", "close view of the western ridges from the left (looking east)",
               centre_frac=(0.30, 0.30), scale_mm_per_m=0.055, depth_mm=350.0, pitch_deg=30.0, yaw_deg=90.0),
     Viewpoint("plains", "the eastern plains in front, the ridges behind (looking west)",
-              centre_frac=(0.70, 0.40), scale_mm_per_m=0.04, depth_mm=450.0, pitch_deg=22.0, yaw_deg=-90.0),
+              centre_frac=(0.70, 0.40), scale_mm_per_m=0.05, depth_mm=450.0, pitch_deg=22.0, yaw_deg=-90.0),
 )}
 
 
@@ -105,3 +107,24 @@ def place(scene, viewpoint: Viewpoint | str):
     """The TerrainScene with its model matrix set for ``viewpoint`` (the terrain and mesh are shared)."""
     vp = get_viewpoint(viewpoint) if isinstance(viewpoint, str) else viewpoint
     return dataclasses.replace(scene, model=vp.model(scene.terrain, scene.screen, getattr(scene, "fit", 1.0)))
+
+
+def terrain_under(model: np.ndarray, terrain, screen, eye_mm, xy_px) -> np.ndarray | None:
+    """Where the line of sight from ``eye_mm`` ((3,) world mm) through screen pixel ``xy_px`` ((2,) screen px)
+    meets the terrain placed by ``model`` ((4, 4) scene m → world mm): (2,) scene metres (east, north) on the
+    plane of the terrain's median height, or None when it misses the terrain's extent (sky, or off its edge).
+    The relief is left out: a picture's POI is judged on the terrain's plane."""
+    eye = np.asarray(eye_mm, dtype=np.float64)
+    to_scene = np.linalg.inv(np.asarray(model, dtype=np.float64))
+    a = to_scene @ np.append(eye, 1.0)
+    b = to_scene @ np.append(screen.pixel_to_world(np.asarray(xy_px, dtype=np.float64)), 1.0)
+    a, b = a[:3] / a[3], b[:3] / b[3]
+    z = float(np.median(terrain.dem_z_m))
+    if abs(b[2] - a[2]) < 1e-12:
+        return None
+    t = (z - a[2]) / (b[2] - a[2])
+    if t <= 0:                                  # the plane lies behind the eye: sky
+        return None
+    hit = a + t * (b - a)
+    x0, x1, y0, y1 = terrain.extent
+    return hit[:2] if x0 <= hit[0] <= x1 and y0 <= hit[1] <= y1 else None

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -38,7 +39,8 @@ from ..plod.select import (DEFAULT_CSF_MODEL, GAZE_DISTRIBUTION_MODES, GAZE_PRIO
                            UNCERTAINTY_MODES, SelectorConfig)
 from .frame import (BACKENDS, CAPABILITIES, FAR_MM, VIEW_MODES, FrameSettings, capability_table, default_mode,
                     options_problem)
-from .still import CONTRAST_SOURCES, MeshOptions, StillSettings, default_head, render_still, scene_model
+from .still import (CONTRAST_SOURCES, MeshOptions, StillSettings, default_head, render_still, scene_model,
+                    write_outputs)
 from .context import create_context
 from .gl import TerrainRenderer
 from .outputs import OutputNotWritable, check_writable
@@ -93,7 +95,9 @@ def add_render_arguments(render: argparse.ArgumentParser) -> argparse.ArgumentPa
                                          "to standard output)")
     render.add_argument("--compare", choices=("full",),
                         help="also render full from the same view and print the frame's PSNR (whole, and within 5° "
-                             "of the POI) and FLIP against it (default: no comparison; mesh and raymask back ends)")
+                             "of the POI) and FLIP against it, both drawn shaded without the POI marker (a levels "
+                             "or wire view is judged by its shaded frame); also in --stats (default: no "
+                             "comparison; mesh and raymask back ends)")
     render.add_argument("--export", metavar="MESH", help="also write the frame's PLOD mesh (.glb, .ply, .obj or .stl; "
                                                          "scene metres, faces coloured by level)")
     add_terrain_arguments(render)
@@ -312,13 +316,14 @@ def run_render(args) -> int:
         scene = options.build(screen, terrain)                   # (--compare: one scene for both frames)
     try:
         settings = still_settings(args, mode, cov, size, raymask)
-        image, stats = render_still(settings, screen, scene=scene, renderer=renderer, out=args.out,
-                                    stats_path=_stats_file(args))
-        if args.compare == "full":
-            full = FrameSettings("mesh", SelectorConfig(mode="full", uncertainty="none"))
-            reference, _ = render_still(replace(settings, frame=full, cov_deg2=None, contrast="shading", export=None),
-                                        screen, scene=scene, renderer=renderer)
-            print(compare_line(image, reference, screen, args.head, args.poi, size), file=sys.stderr)
+        if args.compare != "full":
+            image, stats = render_still(settings, screen, scene=scene, renderer=renderer, out=args.out,
+                                        stats_path=_stats_file(args))
+        else:                        # the figures go into the stats: both files written once they are known
+            image, stats = render_still(settings, screen, scene=scene, renderer=renderer)
+            stats["compare"], line = compare_with_full(settings, image, screen, scene, renderer)
+            write_outputs(image, stats, args.out, _stats_file(args))
+            print(line, file=sys.stderr)
     except OSError as exc:           # a write that failed all the same (a full disk): nothing half-written is left
         return _write_failed(exc, args)
     _print_stats(args, stats)
@@ -353,17 +358,45 @@ def budget_words(outcome: dict, max_level: int) -> str:
     return f"{head} not met: {nearest}, the nearest the levels allow (a base triangle refines as a whole)"
 
 
-def compare_line(image, reference, screen, head_mm, poi_px, size, judge=None) -> str:
-    """``render --compare full``'s line: PSNR of ``image`` against ``reference`` (both (H, W, 3) uint8 of ``size``
-    (w, h) px) over the image and within 5° of the POI (screen px; None: the centre), FLIP at the screen's
-    pixels per degree seen from ``head_mm`` (world mm; None: the default head), and FovVideoVDP's JOD fixated at
-    the POI where the vdp extra is installed.
+def compare_with_full(settings, image, screen, scene, renderer, judge=None) -> tuple[dict, str]:
+    """``render --compare full``: the frame of ``settings`` (drawn as ``image``, (H, W, 3) uint8) judged against
+    ``full`` from the same view, like with like; (the stats' ``compare`` entry, the line for stderr).
+
+    Both are judged shaded and without the POI marker: a levels or wire picture colours levels or edges, which
+    ``full`` (every triangle at the finest level) cannot share, and the marker is no part of the terrain. When
+    ``image`` is not such a frame, the same selection is drawn again shaded for the comparison."""
+    plain = settings.view_mode == "shaded" and settings.cov_deg2 is None     # no marker drawn (render_still)
+    tested = image
+    if not plain:
+        tested, _ = render_still(replace(settings, view_mode="shaded", overlay=False, export=None), screen,
+                                 scene=scene, renderer=renderer)
+    full = FrameSettings("mesh", SelectorConfig(mode="full", uncertainty="none"))
+    reference, _ = render_still(replace(settings, frame=full, cov_deg2=None, view_mode="shaded", contrast="shading",
+                                        export=None, overlay=False), screen, scene=scene, renderer=renderer)
+    figures = compare_figures(tested, reference, screen, settings.head_mm, settings.poi_px, settings.size, judge)
+    if plain:
+        compared, head = "the shaded frames", "against full"
+    else:
+        why = {"levels": "a --view levels picture colours levels", "wire": "a --view wire picture draws edges"}
+        reason = why.get(settings.view_mode)
+        compared = "the same selection and full, both drawn shaded without the POI marker"
+        head = ("against full, both drawn shaded without the POI marker"
+                + (f" ({reason}, not the detail full is judged on)" if reason else ""))
+    entry = {"against": "full", "compared": compared, "view": settings.view_mode,
+             **{k: (v if v is None or math.isfinite(v) else None) for k, v in figures.items()
+                if k != "jod_note"}}
+    entry["identical"] = figures["psnr_db"] == math.inf       # JSON has no infinity: PSNR null, said here
+    return entry, format_compare(figures, head)
+
+
+def compare_figures(image, reference, screen, head_mm, poi_px, size, judge=None) -> dict:
+    """PSNR of ``image`` against ``reference`` (both (H, W, 3) uint8 of ``size`` (w, h) px) over the image
+    (``psnr_db``) and within 5° of the POI (``psnr_disc_5deg_db``; screen px, None: the centre), FLIP (``flip``)
+    at the screen's pixels per degree seen from ``head_mm`` (world mm; None: the default head), and FovVideoVDP's
+    JOD (``jod``) fixated at the POI where the vdp extra is installed, else None and ``jod_note`` says why.
 
     ``judge``: a callable ``(display, reference, image, fixation) -> JOD`` standing in for FovVideoVDP (tests);
-    None: :class:`headplod.render.vdp.Judge` when :func:`~headplod.render.vdp.vdp_available`, else the line says
-    how to install it."""
-    import numpy as np
-
+    None: :class:`headplod.render.vdp.Judge` when :func:`~headplod.render.vdp.vdp_available`."""
     from ..plod.view import default_head
     from .frame import px_per_deg_at
     from .image_metrics import poi_disc, quality
@@ -375,20 +408,31 @@ def compare_line(image, reference, screen, head_mm, poi_px, size, judge=None) ->
     ppd = px_per_deg_at(screen, head, size)
     centre = screen_to_image_px(poi, screen.size_px, size)
     q = quality(image, reference, poi_disc(image.shape[:2], centre, 5.0 * ppd), ppd)     # the benches' measures
-    line = (f"against full: PSNR {q['psnr_db']:.2f} dB, within 5° of the POI {q['psnr_disc_5deg_db']:.2f} dB, "
-            f"FLIP {q['flip']:.4f}")
+    figures = {**q, "jod": None, "jod_note": None}
     if judge is None and not vdp_available("fvvdp"):
-        return line + "; JOD needs the vdp extra (.venv/bin/pip install -e '.[vdp]')"
+        return {**figures, "jod_note": "JOD needs the vdp extra (.venv/bin/pip install -e '.[vdp]')"}
     try:
         display = display_geometry(screen, head, size)
     except ValueError as exc:           # the metric's display model has the eye on the screen centre's normal
-        return line + f"; no JOD: {exc}"
+        return {**figures, "jod_note": f"no JOD: {exc}"}
     fixation = fixation_px(screen, poi, size)
-    if judge is None:
-        jod = Judge(display).jod(reference, image, fixation)
-    else:
-        jod = judge(display, reference, image, fixation)
-    return line + f", JOD {jod:.2f} (FovVideoVDP, fixated at the POI; 10 = no visible difference)"
+    jod = Judge(display).jod(reference, image, fixation) if judge is None else judge(display, reference, image,
+                                                                                      fixation)
+    return {**figures, "jod": float(jod)}
+
+
+def format_compare(figures: dict, head: str = "against full") -> str:
+    """The one line of :func:`compare_figures`' figures, after ``head``."""
+    line = (f"{head}: PSNR {figures['psnr_db']:.2f} dB, within 5° of the POI {figures['psnr_disc_5deg_db']:.2f} dB, "
+            f"FLIP {figures['flip']:.4f}")
+    if figures["jod"] is None:
+        return line + f"; {figures['jod_note']}"
+    return line + f", JOD {figures['jod']:.2f} (FovVideoVDP, fixated at the POI; 10 = no visible difference)"
+
+
+def compare_line(image, reference, screen, head_mm, poi_px, size, judge=None) -> str:
+    """``render --compare full``'s line for two frames already drawn alike: :func:`compare_figures`, formatted."""
+    return format_compare(compare_figures(image, reference, screen, head_mm, poi_px, size, judge))
 
 
 def _run_tessellation(args, mode, screen, cov, size) -> int:

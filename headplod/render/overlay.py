@@ -16,7 +16,8 @@ _SHIFT = 4  # cv2 sub-pixel bits: coordinates in 1/16 px
 
 def overlay_poi(image: np.ndarray, poi_px: Any, cov_deg2: Any, px_per_deg: float,
                 color: tuple[int, int, int] = (255, 40, 40), *, n_sigma: float = 2.0,
-                cross_px: int = 12, thickness: int = 1, inplace: bool = False) -> np.ndarray:
+                cross_px: int = 12, thickness: int = 1, inplace: bool = False,
+                min_half_px: float = 0.0) -> np.ndarray:
     """Draw the point of interest and its uncertainty ellipse.
 
     Parameters
@@ -45,6 +46,9 @@ def overlay_poi(image: np.ndarray, poi_px: Any, cov_deg2: Any, px_per_deg: float
         Line thickness, px.
     inplace : bool
         Draw into ``image`` itself instead of a copy.
+    min_half_px : float
+        The ellipse's longer half-axis is drawn at least this long, px (its shape kept): a tracked head's
+        ellipse can be smaller than the crosshair. 0: always its true size.
 
     Returns
     -------
@@ -83,7 +87,10 @@ def overlay_poi(image: np.ndarray, poi_px: Any, cov_deg2: Any, px_per_deg: float
             c_img = 0.5 * (c_img + c_img.T)
             evals, evecs = np.linalg.eigh(c_img)
             if evals[0] >= 0 and evals[1] > 0:
-                half = np.minimum(n_sigma * np.sqrt(evals), limit)
+                half = n_sigma * np.sqrt(evals)
+                if 0 < half.max() < min_half_px:
+                    half = half * (min_half_px / half.max())
+                half = np.minimum(half, limit)
                 angle = math.degrees(math.atan2(evecs[1, 0], evecs[0, 0]))  # of the evals[0] axis
                 axes = (int(round(half[0] * scale)), int(round(half[1] * scale)))
                 cv2.ellipse(out, (cx, cy), axes, angle, 0.0, 360.0, col, thickness, cv2.LINE_AA, _SHIFT)

@@ -228,6 +228,9 @@ class StillSettings:
         contrast read from a 10x10 window of a first frame's luminance).
     export : Path or None
         Also write the frame's mesh here (:mod:`headplod.plod.export`; the command checks its ending and folder).
+    overlay : bool
+        Draw the POI cross and the covariance's ellipse (with ``cov_deg2`` or the levels view); False for a frame
+        judged against a reference, which has no marker.
 
     The combination is checked against the back end's capabilities when made (ValueError, one line).
     """
@@ -240,6 +243,7 @@ class StillSettings:
     view_mode: str = "shaded"
     contrast: str = "shading"
     export: Path | None = None
+    overlay: bool = True
 
     def __post_init__(self):
         object.__setattr__(self, "size", tuple(int(v) for v in self.size))
@@ -290,7 +294,7 @@ def render_still(settings: StillSettings, screen, *, scene=None, renderer=None, 
         if fs.foveate:
             step.backend.foveated.release()
     image = result.image
-    if settings.cov_deg2 is not None or settings.view_mode == "levels":
+    if settings.overlay and (settings.cov_deg2 is not None or settings.view_mode == "levels"):
         image = overlay_poi(image, screen_to_image_px(view.poi_px, screen.size_px, settings.size),
                             settings.cov_deg2, px_per_deg_at(screen, view.eye_mm, settings.size))
     stats = _frame_stats(result, settings, view.eye_mm, view.poi_px, scene)
