@@ -377,15 +377,15 @@ def test_a_write_that_fails_midway_names_the_users_path_not_a_temporary_one(tmp_
     """The folder was writable when checked, and the write itself fails (a full disk, a folder made read-only
     meanwhile): exit 1, one line naming the option's path, no hidden name, nothing of it left."""
     import headplod.io
-    import headplod.render.outputs as outputs
+    import headplod.render.still as still
 
     def full_disk(path, write, suffix=""):
         def failing(tmp):
             raise OSError(28, "No space left on device", tmp)
         return real(path, failing if Path(path) == target else write, suffix)
 
-    # the stats go through render.outputs' write_atomically, the mesh export through headplod.io's
-    owner = outputs if option == "--stats" else headplod.io
+    # the stats go through render.still's write_atomically, the mesh export through headplod.io's
+    owner = still if option == "--stats" else headplod.io
     real = owner.write_atomically
     monkeypatch.setattr(owner, "write_atomically", full_disk)
     target = tmp_path / name

@@ -44,7 +44,7 @@ import cv2
 import numpy as np
 
 from .. import io
-from ..io import ViewError
+from ..io import ViewError, write_atomically
 from ..io.files import Inputs, OutputRefused, check_output
 from ..argtypes import add_quiet_argument, frame_count
 from ..render.scene_command import (add_mesh_arguments, add_terrain_arguments, mesh_options, mesh_options_problem,
@@ -57,7 +57,7 @@ from ..plod.select import MODES
 from ..render.command import (add_cost_arguments, add_csf_argument, add_gaze_prior_argument, raymask_config,
                               selection_options)
 from ..render.frame import DEMO_BACKENDS, capability_table, default_mode, options_problem
-from ..render.outputs import OutputNotWritable, check_writable, write_named
+from ..render.outputs import OutputNotWritable, check_writable
 from ..render.still import FULL_MAX_LEVEL, default_head, mesh_stats
 from . import loop as lp
 from .keys import key_help
@@ -256,7 +256,7 @@ def run_headless(args, out=None, err=None, scene=None, renderer=None) -> dict:
     summary["chart"] = str(chart)
     summary["index"] = _write_png(folder / "index.png", index_sheet(pictures, chart, args, source_name))
     summary["wall_s"] = round(time.perf_counter() - start, 1)
-    write_named(folder / "summary.json", lambda name: Path(name).write_text(json.dumps(summary, indent=1)))
+    write_atomically(folder / "summary.json", lambda name: Path(name).write_text(json.dumps(summary, indent=1)))
     print_table(summary, out)
     return summary
 

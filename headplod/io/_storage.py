@@ -391,7 +391,8 @@ def write_atomically(path, write: Callable[[str], None], suffix: str = "") -> Pa
     partial file (the temporary one is removed). ``suffix`` ends the
     temporary name (a writer that picks its format from the ending needs
     it). The file gets the permissions a plain write would give. A link is
-    written through: its target is replaced and the link stays.
+    written through: its target is replaced and the link stays. An OSError
+    names ``path`` as given, never the temporary name.
 
     A ``path`` that is this process's standard output (``/dev/stdout``,
     ``/proc/self/fd/1``, or the file fd 1 goes to) is written in place: the
@@ -405,18 +406,32 @@ def write_atomically(path, write: Callable[[str], None], suffix: str = "") -> Pa
         _write_to_stdout(write, suffix)
         return target
     final = os.path.realpath(target)
-    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(final)}.", suffix=suffix, dir=os.path.dirname(final))
-    os.close(fd)
-    try:
-        write(tmp)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)          # mkstemp's 0600 is for the temporary name only
-        os.replace(tmp, final)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with _naming(path):
+        fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(final)}.", suffix=suffix,
+                                   dir=os.path.dirname(final))
+        os.close(fd)
+        try:
+            write(tmp)
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)          # mkstemp's 0600 is for the temporary name only
+            os.replace(tmp, final)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
     return target
+
+
+@contextlib.contextmanager
+def _naming(path) -> Iterator[None]:
+    """Re-raise an OSError of the block naming ``path`` as given: the temporary name a whole-or-nothing write
+    uses first means nothing to the person who named ``path``."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None or str(exc.filename) == str(path):
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
 
 
 def _write_to_stdout(write: Callable[[str], None], suffix: str) -> None:

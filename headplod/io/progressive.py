@@ -30,6 +30,7 @@ every name that holds data is visible.
 from __future__ import annotations
 
 import datetime as _dt
+import errno
 import json
 import os
 import shutil
@@ -248,6 +249,8 @@ def folder_unwritable(folder: str | Path) -> str | None:
     try:
         fd, probe = tempfile.mkstemp(prefix=".headplod-probe-", dir=folder)
     except OSError as exc:
+        if exc.errno == errno.ENOENT and os.path.isdir(folder):   # a file system that makes no files (/proc, /sys)
+            return "it takes no new files"
         return exc.strerror or type(exc).__name__
     os.close(fd)
     os.unlink(probe)

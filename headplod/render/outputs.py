@@ -1,24 +1,21 @@
 """Whether the render and demo commands can write where they are told to, found before any long work
-(:func:`check_writable`), and a whole-or-nothing write whose errors name the output (:func:`write_named`).
+(:func:`check_writable`).
 
 :func:`check_writable` tries what the write will do, in the place it will
 do it: the nearest folder that exists on the way to the output must be a
-folder that takes a new file (a probe file is made there and removed at
-once). Permission bits alone do not say it: root may write in a read-only
+folder that takes a new file (:func:`headplod.io.progressive.folder_unwritable`
+makes a probe file there and removes it at once). Permission bits alone do not say it: root may write in a read-only
 folder but not in ``/proc``, and a read-only mount refuses everyone. The
 message names the path as the user gave it, never a temporary name.
 """
 from __future__ import annotations
 
-import errno
 import os
-import tempfile
-from contextlib import contextmanager
 from pathlib import Path
 
-from ..io import write_atomically
+from ..io.progressive import folder_unwritable
 
-__all__ = ["OutputNotWritable", "check_writable", "write_named", "naming"]
+__all__ = ["OutputNotWritable", "check_writable"]
 
 
 class OutputNotWritable(OSError):
@@ -43,14 +40,9 @@ def check_writable(path, *, folder: bool = False) -> None:
     existing = existing if str(existing) else Path(".")
     if not existing.is_dir():
         raise OutputNotWritable(f"cannot be written: {existing} is not a folder")
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".headplod-probe-", dir=existing)
-    except OSError as exc:
-        # ENOENT in a folder that exists: a file system that makes no files (/proc, /sys).
-        why = "it takes no new files" if exc.errno == errno.ENOENT else exc.strerror or type(exc).__name__
-        raise OutputNotWritable(f"cannot be written: no file can be made in {existing} ({why})") from None
-    os.close(fd)
-    os.unlink(probe)
+    why = folder_unwritable(existing)
+    if why is not None:
+        raise OutputNotWritable(f"cannot be written: no file can be made in {existing} ({why})")
 
 
 def _exists(path: Path) -> bool:
@@ -64,22 +56,3 @@ def _exists(path: Path) -> bool:
     except OSError:
         return True
     return True
-
-
-def write_named(path, write, suffix: str = "") -> None:
-    """:func:`headplod.io.write_atomically` (``write(name)`` on a temporary name, renamed to ``path``), its errors
-    naming ``path`` (:func:`naming`)."""
-    with naming(path):
-        write_atomically(path, write, suffix=suffix)
-
-
-@contextmanager
-def naming(path):
-    """Re-raise an OSError of the block naming ``path``: the temporary name a whole-or-nothing write uses first
-    means nothing to the person who named ``path``."""
-    try:
-        yield
-    except OSError as exc:
-        if exc.filename is None or str(exc.filename) == str(path):
-            raise
-        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc

@@ -19,8 +19,7 @@ import cv2
 import numpy as np
 
 from ..plod.contrast import project_to_screen_px, readback_contrast
-from ..io import encode_image
-from .outputs import naming, write_named
+from ..io import encode_image, write_atomically
 from ..plod.export import export_mesh
 from ..plod.lazy_mesh import DEFAULT_CACHE_BYTES, LazyAdaptiveMesh
 from ..plod.mesh import AdaptiveMesh, BaseMesh
@@ -304,8 +303,7 @@ def render_still(settings: StillSettings, screen, *, scene=None, renderer=None, 
     stats.update(details or {})
     write_outputs(image, stats, out, stats_path)
     if settings.export is not None:
-        with naming(settings.export):
-            export_mesh(scene.mesh, result.levels, settings.export)
+        export_mesh(scene.mesh, result.levels, settings.export)
     return image, stats
 
 
@@ -391,8 +389,8 @@ def write_outputs(image: np.ndarray, stats: dict, out=None, stats_path=None) -> 
             except OSError as exc:
                 raise OSError(exc.errno or errno.EIO, exc.strerror or "the image could not be written",
                               str(out)) from exc
-        write_named(out, write_image, suffix=out.suffix)
+        write_atomically(out, write_image, suffix=out.suffix)
     if stats_path:
         Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
-        write_named(stats_path, lambda name: Path(name).write_text(json.dumps(stats, indent=2)))
+        write_atomically(stats_path, lambda name: Path(name).write_text(json.dumps(stats, indent=2)))
 
