@@ -161,21 +161,37 @@ def _keep_libraries_caches_in_ours() -> None:
     the cache cannot be used, a temporary folder removed at exit: matplotlib would otherwise advise setting
     MPLCONFIGDIR, a variable the user never set (a command that needs the cache says what is wrong with it,
     naming HEADPLOD_CACHE)."""
-    for name, variables in LIBRARY_CACHES.items():
-        if any(variable in os.environ for variable in variables):
-            continue
-        try:
-            folder = cache.usable_cache_root() / name
-            folder.mkdir(exist_ok=True)
-        except (cache.CacheUnusable, OSError):
-            try:
-                folder = Path(tempfile.mkdtemp(prefix=f"headplod-{name}-"))
-            except OSError:
-                continue
-            atexit.register(shutil.rmtree, folder, ignore_errors=True)
-        for variable in variables:
-            os.environ[variable] = str(folder)
+    wanted = {name: variables for name, variables in LIBRARY_CACHES.items()
+              if not any(variable in os.environ for variable in variables)}
+    if not wanted:
+        return
+    try:                                    # once: it makes the folder and tries a file in it
+        root = cache.usable_cache_root()
+    except cache.CacheUnusable:
+        root = None
+    for name, variables in wanted.items():
+        folder = _library_cache_folder(root, name)
+        if folder is not None:
+            for variable in variables:
+                os.environ[variable] = str(folder)
 
+
+def _library_cache_folder(root: Path | None, name: str) -> Path | None:
+    """``root / name``, made; or, with no usable cache (``root`` None) or when that fails, a temporary folder
+    removed at exit; None when neither can be made."""
+    if root is not None:
+        try:
+            folder = root / name
+            folder.mkdir(exist_ok=True)
+            return folder
+        except OSError:
+            pass
+    try:
+        folder = Path(tempfile.mkdtemp(prefix=f"headplod-{name}-"))
+    except OSError:
+        return None
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return folder
 
 if __name__ == "__main__":
     sys.exit(main())
