@@ -53,7 +53,7 @@ from ._storage import (
     writing_storage,
 )
 from .dataset import DEFAULT_FPS, Dataset, Frame
-from .images import UnnamablePath, encode_image, opencv_name, read_image, shown_path, write_image, writes_images
+from .images import UnnamablePath, decode_image, encode_image, opencv_name, read_image, shown_path, write_image, writes_images
 from .markers import (
     MARKER_TOL_MM,
     VIEW_TRIANGLES,
@@ -95,6 +95,7 @@ __all__ = [
     "read_storage",
     "writing_storage",
     "read_image",
+    "decode_image",
     "write_image",
     "encode_image",
     "writes_images",

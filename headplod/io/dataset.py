@@ -21,7 +21,7 @@ import numpy as np
 
 from ._storage import _Ctx
 from .files import Inputs
-from .images import read_image
+from .images import decode_image
 from .markers import MarkerModel, default_marker_model, read_markers
 from .rig import Rig, read_rig
 from .screen import Screen, read_screen
@@ -102,18 +102,16 @@ def _interp_time(known: list[tuple[int, float]], index: int) -> float:
     return float(ts[i] + slope * (index - frames[i]))
 
 
-def _unreachable(path: Path) -> str | None:
-    """Why a listed frame file cannot be opened (a link that loops or points nowhere, gone since it was
-    listed), or None."""
-    try:
-        os.stat(path)
+def _unreachable(path: Path, exc: OSError) -> str | None:
+    """Why a listed frame file could not be opened (``exc``), when it is the file's absence: a link that
+    loops or points nowhere, or gone since it was listed; None for another reason (no permission, ...)."""
+    if exc.errno == errno.ELOOP:
+        return "a symbolic link that loops (it leads back to itself); replace it with the image"
+    if exc.errno != errno.ENOENT:
         return None
-    except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            return "a symbolic link that loops (it leads back to itself); replace it with the image"
-        if path.is_symlink():
-            return f"a symbolic link to {os.readlink(path)}, which does not exist"
-        return "missing"
+    if path.is_symlink():
+        return f"a symbolic link to {os.readlink(path)}, which does not exist"
+    return "missing"
 
 
 class Dataset:
@@ -304,12 +302,14 @@ class Dataset:
         try:
             if index not in self._files[side]:
                 return None, f"{name}: missing", None
-            unreachable = _unreachable(path)
-            if unreachable is not None:
+            try:
+                data = path.read_bytes()         # once: the header's checks, then the decoding, from memory
+            except OSError as exc:
+                unreachable = _unreachable(path, exc)
+                if unreachable is None:
+                    raise
                 return None, f"{name}: {unreachable}", None
-            with open(path, "rb") as fh:
-                header = fh.read(24)
-            head = header[:8]
+            header, head = data[:24], data[:8]
             if not head:
                 return None, f"{name}: unreadable (empty file)", None
             if head != _PNG_SIGNATURE:
@@ -320,7 +320,7 @@ class Dataset:
                 if (w, h) != tuple(self.rig.image_size):
                     rw, rh = self.rig.image_size
                     return None, f"{name}: {w}x{h}, rig says {rw}x{rh}", None
-            img = read_image(path)          # through memory: OpenCV never sees the path (io/images.py)
+            img = decode_image(data)        # OpenCV never sees the path (io/images.py)
             if img is None:
                 return None, f"{name}: unreadable (corrupt or truncated PNG)", None
             warning = None

@@ -19,7 +19,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-__all__ = ["UnnamablePath", "read_image", "encode_image", "write_image", "writes_images", "opencv_name",
+__all__ = ["UnnamablePath", "read_image", "decode_image", "encode_image", "write_image", "writes_images", "opencv_name",
            "shown_path"]
 
 
@@ -41,7 +41,12 @@ def read_image(path, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray | None:
     OSError
         When the file cannot be read.
     """
-    data = Path(path).read_bytes()
+    return decode_image(Path(path).read_bytes(), flags)
+
+
+def decode_image(data: bytes, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray | None:
+    """The image OpenCV decodes from a file's bytes ``data`` with ``flags``, or None when they are not an image
+    it decodes (no bytes too)."""
     if not data:
         return None
     return cv2.imdecode(np.frombuffer(data, np.uint8), flags)
